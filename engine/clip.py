@@ -1,0 +1,630 @@
+"""Loading a clip: an image-sequence folder or a movie file, plus per-layer mask folders.
+
+Everything the user points us at is validated here, up front, so a fit never dies an hour in on a
+missing frame: ``open_clip`` lists the sequence, checks numbering, sizes and that the first frame
+decodes, and every bad input raises an ``InputError`` whose one-line message names the file and the fix.
+
+Pixel values are returned in the file's own encoding (integers scaled to [0, 1], floats untouched):
+colour management and sanitising are the caller's decision, not the loader's.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import av
+import cv2
+import numpy as np
+import OpenImageIO as oiio
+
+from engine.errors import InputError
+
+IMAGE_EXTENSIONS: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".exr", ".dpx", ".tif", ".tiff")
+MOVIE_EXTENSIONS: tuple[str, ...] = (".mp4", ".mov", ".mkv", ".avi", ".webm", ".m4v")
+
+#: Masks whose aspect ratio differs from the clip's by more than this (relative) are rejected.
+MASK_ASPECT_TOLERANCE = 0.01
+
+_SEQUENCE = "sequence"
+_MOVIE = "movie"
+_FLOAT_TYPES = (oiio.FLOAT, oiio.HALF, oiio.DOUBLE)
+_NUMBER = re.compile(r"\d+")
+_MAX_LISTED = 3  # files named in a message before "and N more"
+
+
+@dataclass(frozen=True)
+class ClipInfo:
+    """What was opened: enough to read the frames later and to describe the clip in a run folder."""
+
+    source: str
+    """Absolute path of the folder or movie file."""
+    kind: str
+    """``"sequence"`` or ``"movie"``."""
+    frame_files: tuple[str, ...]
+    """Absolute paths of the selected frames (sequence); ``()`` for a movie."""
+    frame_numbers: tuple[int, ...]
+    """Number in each selected frame's file name (sequence) or its 0-based index (movie)."""
+    width: int
+    height: int
+    fps: float | None
+    """Stream rate of a movie; ``None`` for a sequence (image files carry no reliable rate)."""
+    colorspace: str
+    """``"sRGB"`` for integer encodings, ``"linear"`` for float ones (EXR, float TIFF)."""
+    channels: int
+    """Channels in the file (1 grey, 3 RGB, 4 RGBA, ...)."""
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.frame_numbers)
+
+
+# --- public API ---------------------------------------------------------------------------------------
+
+
+def open_clip(path: str | Path, frame_range: tuple[int, int] | None = None) -> ClipInfo:
+    """Open and validate a clip without decoding it all.
+
+    ``frame_range = (first, last)`` is INCLUSIVE, as positions 0..N-1 in the sorted sequence (not file
+    numbers). ``None`` selects every frame.
+    """
+    source = os.path.abspath(os.path.expanduser(os.fspath(path)))
+    if not os.path.exists(source):
+        raise InputError(source, "does not exist", "check the path: pass a folder of image frames or a movie file")
+    if os.path.isdir(source):
+        return _open_sequence(source, frame_range)
+    ext = os.path.splitext(source)[1].lower()
+    if ext in MOVIE_EXTENSIONS:
+        return _open_movie(source, frame_range)
+    if ext in IMAGE_EXTENSIONS:
+        raise InputError(
+            source,
+            "is a single image, not a clip",
+            f"pass the folder that holds the image sequence ({os.path.dirname(source)})",
+        )
+    raise InputError(
+        source,
+        f"unknown file type '{ext or os.path.basename(source)}'",
+        f"pass a folder of {_ext_list(IMAGE_EXTENSIONS)} frames or a movie ({_ext_list(MOVIE_EXTENSIONS)})",
+    )
+
+
+def read_frames(info: ClipInfo, size: tuple[int, int] | None = None) -> np.ndarray:
+    """All selected frames as float32 ``[T, H, W, 3]`` RGB.
+
+    Grey is replicated to 3 channels and alpha dropped. Integer formats are scaled to [0, 1]; float
+    formats keep their raw values (EXR may hold >1, negatives, NaN — not sanitised here). ``size=(W, H)``
+    resizes each frame as it is read (INTER_AREA when shrinking, INTER_LINEAR when enlarging), so the
+    full-resolution clip never has to fit in memory at once.
+    """
+    out_w, out_h = (info.width, info.height) if size is None else _check_size(size)
+    frames = np.empty((info.num_frames, out_h, out_w, 3), dtype=np.float32)
+    if info.kind == _MOVIE:
+        for i, rgb in enumerate(_decode_movie(info)):
+            frames[i] = _resize(rgb, (out_w, out_h))
+        return frames
+    for i, path in enumerate(info.frame_files):
+        image = _read_image(path, _FRAME)
+        if (image.width, image.height) != (info.width, info.height):
+            raise InputError(
+                path,
+                f"frame is {image.width}x{image.height} but the clip is {info.width}x{info.height}",
+                _FRAME.size_fix,
+            )
+        frames[i] = _resize(image.rgb(), (out_w, out_h))
+    return frames
+
+
+def working_size(width: int, height: int, long_edge: int = 768) -> tuple[int, int]:
+    """Working ``(W, H)``: the long edge scaled to ``long_edge``, aspect kept, never enlarged.
+
+    Fitting cost grows with pixel count, so big plates are shrunk; small ones are kept native because
+    upsampling adds no information. 854x480 -> (768, 432); 480x854 -> (432, 768).
+    """
+    if width < 1 or height < 1 or long_edge < 1:
+        raise ValueError(f"working_size needs positive sizes, got {width}x{height}, long_edge={long_edge}")
+    scale = long_edge / max(width, height)
+    if scale >= 1.0:
+        return width, height
+    return max(1, math.floor(width * scale + 0.5)), max(1, math.floor(height * scale + 0.5))
+
+
+def read_masks(folder: str | Path, info: ClipInfo, size: tuple[int, int]) -> np.ndarray:
+    """One foreground layer's masks as bool ``[T, H, W]`` at ``size=(W, H)``.
+
+    The folder holds one image per frame of the FULL clip or exactly one per selected frame. Masks are
+    matched by file number when the clip is a sequence whose frame numbers all exist among the masks
+    (frames/00012.jpg <-> masks/00012.png); otherwise by position when the mask count equals the selected
+    (or full) frame count.
+
+    Channels: a single channel is used as is; an image with an alpha channel whose alpha is NOT constant
+    uses the alpha (a cut-out matte: colour may be the plate itself); otherwise the max over the colour
+    channels (so a white-on-black matte in any channel counts). Values are taken as a fraction of full
+    scale (8/16-bit normalised, floats raw, NaN as background); the mask is resized with INTER_AREA on
+    these float values and THEN thresholded at > 0.5, so a coarse mask stays coarse instead of being
+    sharpened.
+    """
+    out_w, out_h = _check_size(size)
+    mask_dir = os.path.abspath(os.path.expanduser(os.fspath(folder)))
+    if not os.path.isdir(mask_dir):
+        what = "is not a folder" if os.path.exists(mask_dir) else "mask folder does not exist"
+        raise InputError(mask_dir, what, "pass the folder that holds this layer's mask images")
+    masks = _list_images(mask_dir, _MASK)
+    if not masks:
+        raise InputError(
+            mask_dir,
+            f"no mask images in the folder (accepted: {_ext_list(IMAGE_EXTENSIONS)})",
+            "export one mask image per frame into this folder",
+        )
+    files = _match_masks(mask_dir, masks, info)
+    clip_aspect = info.width / info.height
+    out = np.empty((len(files), out_h, out_w), dtype=bool)
+    for i, path in enumerate(files):
+        image = _read_image(path, _MASK)
+        aspect = image.width / image.height
+        if abs(aspect - clip_aspect) > MASK_ASPECT_TOLERANCE * clip_aspect:
+            raise InputError(
+                path,
+                f"mask is {image.width}x{image.height} (aspect {aspect:.3f}) but the clip is "
+                f"{info.width}x{info.height} (aspect {clip_aspect:.3f})",
+                "export the masks at the clip's resolution, or at least with the same aspect ratio",
+            )
+        out[i] = _resize(image.matte(), (out_w, out_h), grow=cv2.INTER_AREA) > 0.5
+    return out
+
+
+# --- what is being read: frames or masks (decides the wording of errors) ------------------------------
+
+
+@dataclass(frozen=True)
+class _Role:
+    """Frames and masks go through the same readers; only the advice to the user differs."""
+
+    noun: str
+    corrupt_fix: str
+    size_fix: str
+
+
+_FRAME = _Role(
+    noun="frame",
+    corrupt_fix="re-export this frame (it is truncated or corrupt)",
+    size_fix="export every frame of the clip at the same resolution",
+)
+_MASK = _Role(
+    noun="mask",
+    corrupt_fix="re-export this mask (it is truncated or corrupt)",
+    size_fix="export the masks at the clip's resolution",
+)
+
+
+# --- listing a folder of numbered images --------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _NumberedFile:
+    """One image in a folder and the frame number in its name (the LAST integer of the stem)."""
+
+    path: str
+    number: int | None
+    digits: str  # the number as written, to echo its zero padding in messages
+
+    @property
+    def name(self) -> str:
+        return os.path.basename(self.path)
+
+
+def _natural_key(name: str) -> tuple[tuple[int, int, str], ...]:
+    """Sort key that orders 'shot9' before 'shot10' (for names whose numbers tie or are absent)."""
+    return tuple((1, int(t), "") if t.isdigit() else (0, 0, t.lower()) for t in re.split(r"(\d+)", name) if t)
+
+
+def _list_images(folder: str, role: _Role) -> list[_NumberedFile]:
+    """Image files of one type in ``folder``, sorted by frame number; [] if there are none.
+
+    Hidden files and non-image files are ignored (thumbnails, .DS_Store, notes). Mixed file types,
+    numbered files mixed with unnumbered ones and duplicate numbers are errors: guessing which files
+    the user meant would silently fit the wrong frames.
+    """
+    by_ext: dict[str, list[str]] = {}
+    with os.scandir(folder) as entries:
+        for entry in entries:
+            if entry.name.startswith(".") or not entry.is_file():
+                continue
+            ext = os.path.splitext(entry.name)[1].lower()
+            if ext in IMAGE_EXTENSIONS:
+                by_ext.setdefault(ext, []).append(entry.name)
+    if not by_ext:
+        return []
+    if len(by_ext) > 1:
+        ranked = sorted(by_ext.items(), key=lambda kv: (-len(kv[1]), kv[0]))
+        counts = " and ".join(f"{len(names)} {ext}" for ext, names in ranked)
+        others = sorted((n for _, names in ranked[1:] for n in names), key=_natural_key)
+        raise InputError(
+            folder,
+            f"mixed image types ({counts} files): {_name_list(others)}",
+            f"keep one file type per {role.noun} folder: move or delete the other files",
+        )
+    (names,) = by_ext.values()
+    files = []
+    for name in names:
+        numbers = _NUMBER.findall(os.path.splitext(name)[0])
+        digits = numbers[-1] if numbers else ""
+        files.append(_NumberedFile(os.path.join(folder, name), int(digits) if digits else None, digits))
+    unnumbered = sorted((f.name for f in files if f.number is None), key=_natural_key)
+    if unnumbered and len(unnumbered) < len(files):
+        raise InputError(
+            folder,
+            f"{role.noun} files without a frame number mixed with numbered ones: {_name_list(unnumbered)}",
+            "rename or remove the files without a number",
+        )
+    files.sort(key=lambda f: (f.number or 0, _natural_key(f.name)))
+    for prev, cur in itertools.pairwise(files):
+        if cur.number is not None and cur.number == prev.number:
+            raise InputError(
+                cur.path,
+                f"{prev.name} and {cur.name} both have frame number {cur.number}",
+                f"keep one {role.noun} file per frame number",
+            )
+    return files
+
+
+def _name_list(names: list[str]) -> str:
+    shown = ", ".join(names[:_MAX_LISTED])
+    return shown if len(names) <= _MAX_LISTED else f"{shown} and {len(names) - _MAX_LISTED} more"
+
+
+def _ext_list(exts: tuple[str, ...]) -> str:
+    return "/".join(exts)
+
+
+# --- opening ------------------------------------------------------------------------------------------
+
+
+def _check_range(source: str, frame_range: tuple[int, int] | None, count: int) -> tuple[int, int]:
+    """Validate an inclusive (first, last) position range against a clip of ``count`` frames."""
+    if frame_range is None:
+        return 0, count - 1
+    first, last = (int(v) for v in frame_range)
+    if not (0 <= first <= last <= count - 1):
+        raise InputError(
+            source,
+            f"frame range {first}..{last} is outside the clip or reversed",
+            f"choose first <= last within the valid range 0..{count - 1} ({count} frames)",
+        )
+    return first, last
+
+
+def _open_sequence(folder: str, frame_range: tuple[int, int] | None) -> ClipInfo:
+    files = _list_images(folder, _FRAME)
+    if not files:
+        movies = sorted(n for n in os.listdir(folder) if os.path.splitext(n)[1].lower() in MOVIE_EXTENSIONS)
+        hint = f" (or pass the movie {movies[0]} itself)" if movies else ""
+        raise InputError(
+            folder,
+            f"no image files in the folder (accepted: {_ext_list(IMAGE_EXTENSIONS)})",
+            f"pass a folder that holds the frames as images{hint}",
+        )
+    first, last = _check_range(folder, frame_range, len(files))
+    selected = files[first : last + 1]
+    _check_gaps(folder, files, first, last)
+    # Decode the first frame fully (a truncated export is caught now, not hours into a fit); for the
+    # rest, headers are enough to check sizes cheaply.
+    head = _read_image(selected[0].path, _FRAME)
+    for f in selected[1:]:
+        width, height = _read_header(f.path, _FRAME)
+        if (width, height) != (head.width, head.height):
+            raise InputError(
+                f.path,
+                f"{f.name} is {width}x{height} but {selected[0].name} is {head.width}x{head.height}",
+                _FRAME.size_fix,
+            )
+    # Unnumbered files (all or none, see _list_images) are numbered by their position.
+    numbers = [f.number for f in selected]
+    frame_numbers = tuple(n if n is not None else first + i for i, n in enumerate(numbers))
+    return ClipInfo(
+        source=folder,
+        kind=_SEQUENCE,
+        frame_files=tuple(f.path for f in selected),
+        frame_numbers=frame_numbers,
+        width=head.width,
+        height=head.height,
+        fps=None,
+        colorspace="linear" if head.is_float else "sRGB",
+        channels=head.channels,
+    )
+
+
+def _check_gaps(folder: str, files: list[_NumberedFile], first: int, last: int) -> None:
+    """A hole in the numbering inside the selected range means a frame failed to render or copy."""
+    for pos in range(first, last):
+        prev, cur = files[pos], files[pos + 1]
+        if prev.number is None or cur.number is None or cur.number == prev.number + 1:
+            continue
+        width = len(prev.digits)
+        missing = f"{prev.number + 1:0{width}d}"
+        what = (
+            f"frame {missing} is missing"
+            if cur.number == prev.number + 2
+            else f"frames {missing}..{cur.number - 1:0{width}d} are missing"
+        )
+        raise InputError(
+            folder,
+            f"{what} between {prev.name} and {cur.name}",
+            f"render or copy the missing frame, or choose a frame range that avoids it "
+            f"(positions {first}..{pos} or {pos + 1}..{last})",
+        )
+
+
+def _open_movie(path: str, frame_range: tuple[int, int] | None) -> ClipInfo:
+    with _open_container(path) as container:
+        stream = _video_stream(container, path)
+        rate = stream.average_rate or stream.guessed_rate
+        count = stream.frames
+        try:
+            frame = next(container.decode(stream), None)
+        except av.FFmpegError as exc:
+            raise InputError(path, f"cannot decode the first frame ({_one_line(exc)})", _MOVIE_FIX) from exc
+    if frame is None:
+        raise InputError(path, "the video stream has no frames", _MOVIE_FIX)
+    if count <= 0:  # the container has no frame count (mkv, webm, some avi): count the packets instead
+        count = _count_packets(path)
+    first, last = _check_range(path, frame_range, count)
+    return ClipInfo(
+        source=path,
+        kind=_MOVIE,
+        frame_files=(),
+        frame_numbers=tuple(range(first, last + 1)),
+        width=frame.width,
+        height=frame.height,
+        fps=float(rate) if rate else None,
+        colorspace="sRGB",
+        channels=len(frame.format.components),
+    )
+
+
+_MOVIE_FIX = "re-encode the movie (e.g. with ffmpeg) or export it as an image sequence"
+
+
+def _open_container(path: str) -> av.container.InputContainer:
+    try:
+        return av.open(path)
+    except (av.FFmpegError, OSError, ValueError) as exc:
+        raise InputError(path, f"cannot open the movie ({_one_line(exc)})", _MOVIE_FIX) from exc
+
+
+def _video_stream(container: av.container.InputContainer, path: str) -> av.VideoStream:
+    if not container.streams.video:
+        raise InputError(
+            path,
+            "has no video stream",
+            "pass a movie file with a video stream, or a folder holding an image sequence",
+        )
+    return container.streams.video[0]
+
+
+def _count_packets(path: str) -> int:
+    """Frame count by demuxing (cheap: no decoding) for containers whose header does not store it."""
+    with _open_container(path) as container:
+        stream = _video_stream(container, path)
+        try:
+            return sum(1 for packet in container.demux(stream) if packet.size)
+        except av.FFmpegError as exc:
+            raise InputError(path, f"cannot read the movie ({_one_line(exc)})", _MOVIE_FIX) from exc
+
+
+def _decode_movie(info: ClipInfo) -> Iterator[np.ndarray]:
+    """Yield the selected frames as float32 RGB in [0, 1], decoding from the start (exact, no seeking)."""
+    first, last = info.frame_numbers[0], info.frame_numbers[-1]
+    produced = 0
+    with _open_container(info.source) as container:
+        stream = _video_stream(container, info.source)
+        stream.thread_type = "AUTO"
+        try:
+            for index, frame in enumerate(container.decode(stream)):
+                if index < first:
+                    continue
+                if (frame.width, frame.height) != (info.width, info.height):
+                    raise InputError(
+                        info.source,
+                        f"frame {index} is {frame.width}x{frame.height} but the movie is {info.width}x{info.height}",
+                        _MOVIE_FIX,
+                    )
+                deep = max(c.bits for c in frame.format.components) > 8
+                if deep:
+                    rgb = frame.to_ndarray(format="rgb48le").astype(np.float32) / 65535.0
+                else:
+                    rgb = frame.to_ndarray(format="rgb24").astype(np.float32) / 255.0
+                yield rgb
+                produced += 1
+                if index >= last:
+                    break
+        except av.FFmpegError as exc:
+            raise InputError(
+                info.source, f"cannot decode frame {first + produced} ({_one_line(exc)})", _MOVIE_FIX
+            ) from exc
+    if produced < info.num_frames:
+        raise InputError(
+            info.source,
+            f"the movie ended after frame {first + produced - 1} but frames {first}..{last} were selected",
+            f"{_MOVIE_FIX}, or choose a frame range that ends earlier",
+        )
+
+
+# --- reading one image through OpenImageIO ------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Image:
+    """One decoded image, pixels in its display window, as float32 [H, W, C] in the file's encoding."""
+
+    path: str
+    pixels: np.ndarray
+    channel_names: tuple[str, ...]
+    alpha_channel: int
+    is_float: bool
+
+    @property
+    def width(self) -> int:
+        return self.pixels.shape[1]
+
+    @property
+    def height(self) -> int:
+        return self.pixels.shape[0]
+
+    @property
+    def channels(self) -> int:
+        return self.pixels.shape[2]
+
+    def _colour_channels(self) -> list[int]:
+        return [i for i in range(self.channels) if i != self.alpha_channel]
+
+    def rgb(self) -> np.ndarray:
+        """[H, W, 3]: R,G,B by name when present (EXR can hold extra channels), grey replicated."""
+        upper = [n.upper() for n in self.channel_names]
+        if all(c in upper for c in "RGB"):
+            index = [upper.index(c) for c in "RGB"]
+        else:
+            colour = self._colour_channels()
+            if len(colour) == 1:
+                index = colour * 3
+            elif len(colour) >= 3:
+                index = colour[:3]
+            else:
+                raise InputError(
+                    self.path,
+                    f"has channels {', '.join(self.channel_names)}, which are neither grey nor RGB",
+                    "export the frames as RGB, RGBA or greyscale images",
+                )
+        return np.ascontiguousarray(self.pixels[:, :, index])
+
+    def matte(self) -> np.ndarray:
+        """[H, W] coverage: a varying alpha if there is one, else the max over colour channels."""
+        pixels = np.nan_to_num(self.pixels, nan=0.0, posinf=1.0, neginf=0.0)
+        colour = self._colour_channels()
+        if self.alpha_channel >= 0:
+            alpha = pixels[:, :, self.alpha_channel]
+            if not colour or alpha.min() != alpha.max():
+                return np.ascontiguousarray(alpha)
+        return pixels[:, :, colour].max(axis=2)
+
+
+def _read_config() -> oiio.ImageSpec:
+    # Keep colour as written: by default OIIO premultiplies PNG/TIFF colour by alpha on read, which
+    # would darken the plate wherever an exporter left a partial alpha we are about to drop anyway.
+    config = oiio.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)
+    return config
+
+
+def _open_image(path: str, role: _Role) -> oiio.ImageInput:
+    inp = oiio.ImageInput.open(path, _read_config())
+    if inp is None:
+        raise InputError(path, f"cannot open this {role.noun} image ({_one_line(oiio.geterror())})", role.corrupt_fix)
+    return inp
+
+
+def _read_header(path: str, role: _Role) -> tuple[int, int]:
+    """(width, height) of the display window, from the header only."""
+    inp = _open_image(path, role)
+    try:
+        spec = inp.spec()
+        return spec.full_width or spec.width, spec.full_height or spec.height
+    finally:
+        inp.close()
+
+
+def _read_image(path: str, role: _Role) -> _Image:
+    """Decode subimage 0; any decoder complaint (even with partial pixels) counts as corrupt."""
+    inp = _open_image(path, role)
+    try:
+        spec = inp.spec()
+        pixels = inp.read_image(0, 0, 0, spec.nchannels, "float")  # integers come back normalised
+        error = inp.geterror()
+        if pixels is None or error:
+            raise InputError(path, f"cannot read this {role.noun} ({_one_line(error)})", role.corrupt_fix)
+        return _Image(
+            path=path,
+            pixels=_display_window(pixels.reshape(spec.height, spec.width, -1), spec),
+            channel_names=tuple(spec.channelnames),
+            alpha_channel=spec.alpha_channel,
+            is_float=spec.format.basetype in _FLOAT_TYPES,
+        )
+    finally:
+        inp.close()
+
+
+def _display_window(pixels: np.ndarray, spec: oiio.ImageSpec) -> np.ndarray:
+    """Place an EXR's data window (bounding box) into its display window, zeros outside."""
+    fx, fy = spec.full_x, spec.full_y
+    fw, fh = spec.full_width or spec.width, spec.full_height or spec.height
+    if (spec.x, spec.y, spec.width, spec.height) == (fx, fy, fw, fh):
+        return pixels
+    out = np.zeros((fh, fw, pixels.shape[2]), dtype=np.float32)
+    x0, x1 = max(spec.x, fx), min(spec.x + spec.width, fx + fw)
+    y0, y1 = max(spec.y, fy), min(spec.y + spec.height, fy + fh)
+    if x0 < x1 and y0 < y1:
+        out[y0 - fy : y1 - fy, x0 - fx : x1 - fx] = pixels[y0 - spec.y : y1 - spec.y, x0 - spec.x : x1 - spec.x]
+    return out
+
+
+def _one_line(message: object) -> str:
+    text = " ".join(str(message).split())
+    return text or "unknown error"
+
+
+# --- masks ---------------------------------------------------------------------------------------------
+
+
+def _match_masks(mask_dir: str, masks: list[_NumberedFile], info: ClipInfo) -> list[str]:
+    """The mask file for each selected frame: by number if possible, else by position."""
+    if info.kind == _SEQUENCE and masks[0].number is not None:
+        by_number = {m.number: m.path for m in masks}
+        if all(n in by_number for n in info.frame_numbers):
+            return [by_number[n] for n in info.frame_numbers]
+    if len(masks) == info.num_frames:
+        return [m.path for m in masks]
+    offset, total = _position_in_full_clip(info)
+    if len(masks) == total:
+        return [m.path for m in masks[offset : offset + info.num_frames]]
+    full = f" ({total} in the full clip)" if total != info.num_frames else ""
+    raise InputError(
+        mask_dir,
+        f"{len(masks)} mask files for a clip of {info.num_frames} selected frames{full}",
+        "provide one mask per frame, named with the frame numbers (e.g. 00012.png for frame 00012) "
+        "or exactly one per frame in the same order",
+    )
+
+
+def _position_in_full_clip(info: ClipInfo) -> tuple[int, int]:
+    """(position of the first selected frame, frame count) of the whole clip the selection came from."""
+    if info.kind == _MOVIE:
+        with _open_container(info.source) as container:
+            count = _video_stream(container, info.source).frames
+        return info.frame_numbers[0], count if count > 0 else _count_packets(info.source)
+    paths = [f.path for f in _list_images(info.source, _FRAME)]
+    offset = paths.index(info.frame_files[0]) if info.frame_files[0] in paths else 0
+    return offset, len(paths)
+
+
+# --- resizing -------------------------------------------------------------------------------------------
+
+
+def _check_size(size: tuple[int, int]) -> tuple[int, int]:
+    width, height = (int(v) for v in size)
+    if width < 1 or height < 1:
+        raise ValueError(f"size must be a positive (W, H), got {size}")
+    return width, height
+
+
+def _resize(image: np.ndarray, size: tuple[int, int], grow: int = cv2.INTER_LINEAR) -> np.ndarray:
+    """Resize to (W, H): INTER_AREA when no side grows (averages, no aliasing), ``grow`` otherwise."""
+    width, height = size
+    if (image.shape[1], image.shape[0]) == (width, height):
+        return image
+    grows = width > image.shape[1] or height > image.shape[0]
+    return cv2.resize(image, (width, height), interpolation=grow if grows else cv2.INTER_AREA)

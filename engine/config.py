@@ -1,0 +1,250 @@
+"""Fit configuration: one dataclass, named presets, CLI overrides, versioned JSON.
+
+Presets are plain instances of ``FitConfig`` (nerfstudio's method_configs idea): a preset is a point in
+the accuracy-vs-time trade-off, not a different code path. Every field can be overridden with
+``--set key=value``; the resolved config is saved as JSON in the run folder so a run can be resumed and
+reproduced exactly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import itertools
+import json
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+from engine.contract import SCHEMA_VERSION
+from engine.errors import InputError
+
+
+@dataclass
+class FitConfig:
+    """Everything that decides what a fit computes. Field docstrings are the ``--set`` help."""
+
+    preset: str = "balanced"
+    """Name of the preset this config started from (informational)."""
+    model: str = "fast"
+    """Architecture: ``fast`` (multi-resolution grids + small MLPs, the default) or ``paper`` (the paper's MLPs)."""
+    steps: int = 6000
+    """Optimisation steps."""
+    batch: int = 10000
+    """Random pixels per step, spread over all frames (the paper uses 10k)."""
+    seed: int = 0
+    """Random seed (sampling and initialisation); the same seed gives the same result on CPU."""
+    long_edge: int = 768
+    """Working resolution: the clip is resized so its long edge has this many pixels (never enlarged)."""
+
+    # --- preprocessing
+    flow_preset: str = "medium"
+    """OpenCV DIS preset for optical flow: ultrafast | fast | medium."""
+    flow_threshold_px: float = 1.0
+    """Forward-backward consistency threshold: flow with a larger round-trip error is not used."""
+
+    # --- optimisation
+    lr: float = 1e-3
+    """Adam learning rate of the MLPs (paper model: all parameters, 1e-4)."""
+    lr_grid: float = 1e-2
+    """Adam learning rate of the grid features and per-frame motion (fast model)."""
+    lr_final_ratio: float = 0.1
+    """The learning rates decay exponentially to this fraction of their start by the last step."""
+
+    # --- loss weights (the paper's, App. A and the reference config)
+    w_rgb: float = 5000.0
+    """Reconstruction: squared RGB error."""
+    w_gradient: float = 1000.0
+    """Reconstruction of image gradients (finite differences)."""
+    w_sparsity: float = 1000.0
+    """Sparsity ||(1-alpha) c_f||^2: the foreground atlas holds nothing where the foreground is absent."""
+    w_flow: float = 5.0
+    """Flow consistency of the mappings (alpha-weighted per layer), in pixels."""
+    w_alpha_flow: float = 49.0
+    """Flow consistency of alpha."""
+    w_rigidity: float = 1.0
+    """Local rigidity: symmetric Dirichlet energy of the mapping Jacobian (delta = rigidity_delta)."""
+    rigidity_delta: float = 1.0
+    """Finite-difference step of the local rigidity term, in working pixels."""
+    w_global_rigidity_fg: float = 5.0
+    """Global rigidity of the foreground mapping (bootstrap only)."""
+    w_global_rigidity_bg: float = 50.0
+    """Global rigidity of the background mapping (bootstrap only)."""
+    global_rigidity_delta: float = 100.0
+    """Finite-difference step of the global rigidity term, in working pixels."""
+    global_rigidity_steps: int = 5000
+    """Global rigidity is active for steps < this."""
+    w_mask: float = 2000.0
+    """Mask bootstrap: BCE between alpha and the masks, for steps < bootstrap_steps."""
+    bootstrap_steps: int = 10000
+    """Length of the mask bootstrap (paper: 10k of 400k steps)."""
+    w_mask_prior: float = 0.0
+    """After the bootstrap, a weak BCE far from the mask boundary keeps alpha from drifting (0 = paper)."""
+    mask_prior_margin_px: float = 12.0
+    """The mask prior ignores pixels closer than this to a mask boundary (masks are coarse hints)."""
+
+    # --- paper model
+    uv_mapping_scale: float = 0.8
+    """Paper model: atlas scale relative to the frame (the mappings are calibrated to scale*identity)."""
+    pretrain_iters: int = 100
+    """Paper model: calibration steps of the mappings to (scaled) identity before training."""
+
+    # --- fast model
+    mapping_hidden: int = 64
+    """Fast model: width of the residual mapping MLP (no positional encoding: mappings stay smooth)."""
+    mapping_layers: int = 3
+    """Fast model: hidden layers of the residual mapping MLP."""
+    atlas_levels: int = 6
+    """Fast model: resolution levels of each layer's atlas grid (finest has ~1 texel per working pixel)."""
+    atlas_features: int = 4
+    """Fast model: features per atlas grid level."""
+    atlas_density: float = 1.0
+    """Fast model: finest atlas texels per working pixel."""
+    alpha_levels: int = 5
+    """Fast model: resolution levels of the alpha grid over (x, y, t)."""
+    alpha_features: int = 2
+    """Fast model: features per alpha grid level."""
+    alpha_density: float = 0.5
+    """Fast model: finest alpha grid cells per working pixel."""
+    decoder_hidden: int = 64
+    """Fast model: width of the colour and alpha decoder MLPs."""
+    init_motion: bool = True
+    """Fast model: initialise each layer's per-frame motion from the optical flow (robust similarity fit)."""
+
+    # --- bookkeeping
+    eval_every: int = 100
+    """Steps between progress lines with PSNR on a fixed pixel sample."""
+    eval_pixels: int = 20000
+    """Size of the fixed pixel sample for the live PSNR."""
+    checkpoint_seconds: float = 120.0
+    """Wall-clock seconds between checkpoints (and one at the end and on SIGINT/SIGTERM)."""
+
+    def to_json(self) -> str:
+        return json.dumps({"schema": SCHEMA_VERSION, "config": dataclasses.asdict(self)}, indent=2)
+
+    @classmethod
+    def from_json(cls, text: str, path: str | Path | None = None) -> FitConfig:
+        data = json.loads(text)
+        if data.get("schema") != SCHEMA_VERSION:
+            raise InputError(
+                path,
+                f"config schema {data.get('schema')!r} is not supported (this engine writes {SCHEMA_VERSION})",
+                "fit into a new run folder or use the engine version that made this run",
+            )
+        cfg = cls()
+        return apply_overrides(cfg, data["config"], source=path)
+
+
+def _field_doc_names() -> list[str]:
+    return [f.name for f in fields(FitConfig)]
+
+
+def _parse_value(kind: Any, raw: Any, key: str) -> Any:
+    if not isinstance(raw, str):
+        return raw
+    kind = kind if isinstance(kind, str) else getattr(kind, "__name__", str(kind))
+    try:
+        if kind == "bool":
+            low = raw.lower()
+            if low in ("1", "true", "yes", "on"):
+                return True
+            if low in ("0", "false", "no", "off"):
+                return False
+            raise ValueError(raw)
+        if kind == "int":
+            value = float(raw)
+            if not value.is_integer():
+                raise ValueError(raw)
+            return int(value)
+        if kind == "float":
+            return float(raw)
+    except ValueError:
+        raise InputError(None, f"--set {key}={raw}: not a valid {kind}", f"give {key} a {kind} value") from None
+    return raw
+
+
+def apply_overrides(cfg: FitConfig, overrides: dict[str, Any], source: str | Path | None = None) -> FitConfig:
+    """Return a copy of ``cfg`` with ``overrides`` applied; unknown keys suggest the nearest field."""
+    names = _field_doc_names()
+    kinds = {f.name: f.type for f in fields(FitConfig)}
+    values: dict[str, Any] = {}
+    for key, raw in overrides.items():
+        if key not in kinds:
+            near = difflib.get_close_matches(key, names, n=1)
+            hint = f"did you mean {near[0]!r}?" if near else "see `python -m engine fit --help-config`"
+            raise InputError(source, f"unknown config key {key!r}", hint)
+        values[key] = _parse_value(kinds[key], raw, key)
+    return dataclasses.replace(cfg, **values)
+
+
+def parse_set_args(items: list[str]) -> dict[str, str]:
+    """``["steps=100", "w_rgb=1e3"]`` -> dict; a malformed item is a one-line error."""
+    out: dict[str, str] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise InputError(None, f"--set {item!r} is not key=value", "write e.g. --set steps=2000")
+        out[key.strip()] = value.strip()
+    return out
+
+
+def _fast(**kw: Any) -> FitConfig:
+    base = dict(model="fast", w_mask_prior=20.0)
+    base.update(kw)
+    return FitConfig(**base)
+
+
+#: Named presets. Budgets (steps) are calibrated on a 2-core CPU at 768x432; see docs/accuracy-vs-time.md.
+PRESETS: dict[str, FitConfig] = {
+    "draft": _fast(
+        preset="draft",
+        steps=1500,
+        batch=8000,
+        bootstrap_steps=600,
+        global_rigidity_steps=300,
+    ),
+    "balanced": _fast(preset="balanced", steps=6000, bootstrap_steps=2000, global_rigidity_steps=1000),
+    "final": _fast(preset="final", steps=18000, bootstrap_steps=5000, global_rigidity_steps=2500),
+    "paper": FitConfig(
+        preset="paper",
+        model="paper",
+        steps=400000,
+        lr=1e-4,
+        lr_final_ratio=1.0,
+        bootstrap_steps=10000,
+        global_rigidity_steps=5000,
+        w_mask_prior=0.0,
+        init_motion=False,
+    ),
+}
+
+
+def preset_config(name: str) -> FitConfig:
+    """The preset called ``name``; an unknown name suggests the nearest one."""
+    if name not in PRESETS:
+        near = difflib.get_close_matches(name, list(PRESETS), n=1)
+        hint = f"did you mean {near[0]!r}?" if near else f"choose one of {', '.join(PRESETS)}"
+        raise InputError(None, f"unknown preset {name!r}", hint)
+    return dataclasses.replace(PRESETS[name])
+
+
+def config_help() -> str:
+    """Every field with its type, default and docstring, for ``--help-config``."""
+    import ast
+    import inspect
+
+    src = inspect.getsource(FitConfig)
+    tree = ast.parse(src)
+    docs: dict[str, str] = {}
+    body = tree.body[0].body  # type: ignore[attr-defined]
+    for node, nxt in itertools.pairwise(body):
+        if isinstance(node, ast.AnnAssign) and isinstance(nxt, ast.Expr) and isinstance(nxt.value, ast.Constant):
+            docs[node.target.id] = str(nxt.value.value)  # type: ignore[union-attr]
+    default = FitConfig()
+    lines = []
+    for f in fields(FitConfig):
+        lines.append(f"  {f.name} ({f.type}, default {getattr(default, f.name)!r}): {docs.get(f.name, '')}")
+    return "\n".join(lines)
+
+
+__all__ = ["PRESETS", "FitConfig", "apply_overrides", "config_help", "parse_set_args", "preset_config"]

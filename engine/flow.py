@@ -1,0 +1,314 @@
+"""Optical flow preprocessing: forward/backward flow of every adjacent frame pair and where to trust it.
+
+The flow losses (Eq. 11, 12) only use flow that survives a forward-backward round trip, so occluded and
+out-of-frame pixels never pull the mappings. Computing flow is the slowest preprocessing step, so results
+are cached on disk under a key of the exact frames, backend and threshold: a re-fit or a resumed run of the
+same clip reuses them.
+
+Conventions: pixel centres are at integer coordinates (pixel ``[y, x]`` is the point ``(x, y)``, as in
+``cv2.remap``); a flow vector ``(dx, dy)`` at ``(x, y)`` of frame ``a`` points to ``(x + dx, y + dy)``
+in ``b``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol, runtime_checkable
+
+import cv2
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+#: Bump when the flow computation or the cache layout changes: old cache files then miss instead of lying.
+FLOW_CACHE_VERSION = 1
+
+_DIS_PRESETS = {
+    "ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
+    "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
+    "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM,
+}
+DIS_PRESETS: tuple[str, ...] = tuple(_DIS_PRESETS)
+
+
+@runtime_checkable
+class FlowBackend(Protocol):
+    """Anything that estimates dense flow between two RGB frames (DIS now, RAFT later).
+
+    ``name`` is a stable id that goes into the cache key, so two backends (or settings) that can give
+    different flow must have different names.
+    """
+
+    @property
+    def name(self) -> str: ...
+
+    def __call__(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """``a``, ``b``: float32 [H, W, 3] RGB in [0, 1] -> float32 [H, W, 2] flow (dx, dy) from a to b."""
+        ...
+
+
+def _to_grey_u8(img: np.ndarray) -> np.ndarray:
+    """DIS works on 8-bit grey; NaN/Inf become 0 so they cannot poison the flow."""
+    rgb = np.nan_to_num(np.asarray(img, dtype=np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+    u8 = np.clip(rgb * 255.0 + 0.5, 0.0, 255.0).astype(np.uint8)
+    return cv2.cvtColor(np.ascontiguousarray(u8), cv2.COLOR_RGB2GRAY)
+
+
+#: DIS rejects images under 12 px and segfaults (OpenCV 4.11) on thin ones such as 20x300: pad to this.
+_DIS_MIN_SIDE = 32
+
+
+def _pad_min(grey: np.ndarray) -> np.ndarray:
+    h, w = grey.shape
+    if h >= _DIS_MIN_SIDE and w >= _DIS_MIN_SIDE:
+        return grey
+    return cv2.copyMakeBorder(grey, 0, max(0, _DIS_MIN_SIDE - h), 0, max(0, _DIS_MIN_SIDE - w), cv2.BORDER_REPLICATE)
+
+
+@dataclass(frozen=True)
+class DISFlow:
+    """OpenCV's Dense Inverse Search flow: CPU-only, no weights to download, good enough for the losses.
+
+    The preset's own settings are used (``fast`` and ``medium`` include variational refinement).
+    """
+
+    preset: str = "medium"
+
+    def __post_init__(self) -> None:
+        if self.preset not in _DIS_PRESETS:
+            raise ValueError(f"unknown DIS preset {self.preset!r}; expected one of {DIS_PRESETS}")
+
+    @property
+    def name(self) -> str:
+        return f"dis-{self.preset}"
+
+    def __call__(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        if a.shape != b.shape or a.ndim != 3 or a.shape[2] != 3:
+            raise ValueError(f"DISFlow needs two [H, W, 3] frames of equal size, got {a.shape} and {b.shape}")
+        # A fresh instance per call: DIS objects are stateful and not thread-safe; creation is cheap.
+        dis = cv2.DISOpticalFlow_create(_DIS_PRESETS[self.preset])
+        h, w = a.shape[:2]
+        ga, gb = _pad_min(_to_grey_u8(a)), _pad_min(_to_grey_u8(b))
+        flow = dis.calc(ga, gb, None)[:h, :w]
+        return np.nan_to_num(np.asarray(flow, dtype=np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+
+
+@dataclass
+class FlowField:
+    """Flow of a clip. ``backward[t]`` is the flow of frame t+1 back to frame t (same index as forward)."""
+
+    forward: np.ndarray  # float32 [T-1, H, W, 2]: frame t -> t+1
+    backward: np.ndarray  # float32 [T-1, H, W, 2]: frame t+1 -> t
+    forward_ok: np.ndarray  # bool [T-1, H, W]: consistent round trip and target inside the frame
+    backward_ok: np.ndarray  # bool [T-1, H, W]
+    backend: str
+    threshold_px: float
+
+    @property
+    def pairs(self) -> int:
+        return int(self.forward.shape[0])
+
+
+def consistency_mask(fwd: np.ndarray, bwd: np.ndarray, threshold_px: float = 1.0) -> np.ndarray:
+    """Where ``fwd`` (a -> b) is trustworthy: the round trip through ``bwd`` (b -> a) returns within
+    ``threshold_px`` and the target lies inside ``b`` (within the pixel centres, so sampling ``b`` there
+    needs no extrapolation). Occluded pixels fail the round trip because ``bwd`` there follows the occluder.
+
+    ``fwd``, ``bwd``: [H, W, 2] or [N, H, W, 2]. Returns bool [H, W] or [N, H, W]. Non-finite flow is not ok.
+    """
+    fwd = np.asarray(fwd, dtype=np.float32)
+    bwd = np.asarray(bwd, dtype=np.float32)
+    if fwd.shape != bwd.shape or fwd.ndim not in (3, 4) or fwd.shape[-1] != 2:
+        raise ValueError(f"flows must both be [(N,) H, W, 2], got {fwd.shape} and {bwd.shape}")
+    if fwd.ndim == 4:
+        out = np.empty(fwd.shape[:3], dtype=bool)
+        for i in range(fwd.shape[0]):
+            out[i] = consistency_mask(fwd[i], bwd[i], threshold_px)
+        return out
+    h, w = fwd.shape[:2]
+    finite = np.isfinite(fwd[..., 0]) & np.isfinite(fwd[..., 1])
+    all_finite = bool(finite.all())
+    if not all_finite:
+        fwd = np.where(finite[..., None], fwd, 0.0).astype(np.float32)
+    if not np.isfinite(bwd).all():
+        bwd = np.nan_to_num(bwd, nan=np.inf, posinf=np.inf, neginf=np.inf)  # non-finite target -> error inf
+    xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    qx = xs + fwd[..., 0]
+    qy = ys + fwd[..., 1]
+    back = cv2.remap(np.ascontiguousarray(bwd), qx, qy, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    ex = fwd[..., 0] + back[..., 0]
+    ey = fwd[..., 1] + back[..., 1]
+    ok = ex * ex + ey * ey < np.float32(threshold_px) ** 2  # NaN (inf * 0 in the interpolation) -> False
+    ok &= (qx >= 0.0) & (qx <= w - 1) & (qy >= 0.0) & (qy <= h - 1)
+    if not all_finite:
+        ok &= finite
+    return ok
+
+
+def resize_flow(flow: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Resample a flow field ([H, W, 2] or [N, H, W, 2]) to ``size = (W, H)``, rescaling the vectors.
+
+    dx scales with the width ratio and dy with the height ratio (the paper's reference code swaps them,
+    which only goes unnoticed for uniform scaling). With cv2's pixel-centre-aligned resize a displacement
+    ``d`` maps to exactly ``d * ratio``.
+    """
+    flow = np.asarray(flow, dtype=np.float32)
+    if flow.ndim == 4:
+        return np.stack([resize_flow(f, size) for f in flow]) if len(flow) else flow.reshape(0, size[1], size[0], 2)
+    if flow.ndim != 3 or flow.shape[2] != 2:
+        raise ValueError(f"flow must be [(N,) H, W, 2], got {flow.shape}")
+    new_w, new_h = int(size[0]), int(size[1])
+    if new_w < 1 or new_h < 1:
+        raise ValueError(f"target size must be positive, got {size}")
+    old_h, old_w = flow.shape[:2]
+    shrink = new_w <= old_w and new_h <= old_h
+    interp = cv2.INTER_AREA if shrink else cv2.INTER_LINEAR  # area averaging avoids aliasing when shrinking
+    out = cv2.resize(np.ascontiguousarray(flow), (new_w, new_h), interpolation=interp).astype(np.float32)
+    out[..., 0] *= new_w / old_w
+    out[..., 1] *= new_h / old_h
+    return out
+
+
+def _sanitize(frames: np.ndarray) -> np.ndarray:
+    frames = np.asarray(frames)
+    if frames.ndim != 4 or frames.shape[-1] != 3:
+        raise ValueError(f"frames must be [T, H, W, 3], got {frames.shape}")
+    if frames.shape[0] < 1:
+        raise ValueError("frames must hold at least one frame")
+    out = np.nan_to_num(frames.astype(np.float32, copy=False), nan=0.0, posinf=0.0, neginf=0.0)
+    return np.ascontiguousarray(out)
+
+
+def content_key(frames: np.ndarray, backend: FlowBackend, threshold_px: float) -> str:
+    """Cache key: whatever changes the flow (pixels, size, backend, threshold, code version) changes it."""
+    arr = np.ascontiguousarray(frames)
+    h = hashlib.sha256()
+    h.update(f"neural-atlas-flow:v{FLOW_CACHE_VERSION}\n".encode())
+    h.update(f"shape={tuple(arr.shape)};dtype={arr.dtype.str}\n".encode())
+    h.update(f"backend={backend.name};threshold={float(threshold_px)!r}\n".encode())
+    h.update(memoryview(arr).cast("B"))
+    return h.hexdigest()
+
+
+def _load_cache(path: Path, t: int, h: int, w: int, backend: str, threshold_px: float) -> FlowField | None:
+    """A cache file that is missing, truncated or from something else is a miss, never an error."""
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            field = FlowField(
+                forward=np.asarray(z["forward"]),
+                backward=np.asarray(z["backward"]),
+                forward_ok=np.asarray(z["forward_ok"]),
+                backward_ok=np.asarray(z["backward_ok"]),
+                backend=str(z["backend"]),
+                threshold_px=float(z["threshold_px"]),
+            )
+            version = int(z["version"])
+    except Exception as exc:  # zipfile.BadZipFile, EOFError, KeyError, ValueError, OSError, ...
+        log.warning("ignoring unreadable flow cache %s (%s); recomputing", path, exc)
+        return None
+    n = t - 1
+    good = (
+        version == FLOW_CACHE_VERSION
+        and field.backend == backend
+        and field.threshold_px == float(threshold_px)
+        and field.forward.shape == field.backward.shape == (n, h, w, 2)
+        and field.forward_ok.shape == field.backward_ok.shape == (n, h, w)
+        and field.forward.dtype == field.backward.dtype == np.float32
+        and field.forward_ok.dtype == field.backward_ok.dtype == np.bool_
+        and bool(np.isfinite(field.forward).all() and np.isfinite(field.backward).all())
+    )
+    if not good:
+        log.warning("ignoring flow cache %s: it does not match this clip; recomputing", path)
+        return None
+    return field
+
+
+def _save_cache(path: Path, field: FlowField) -> None:
+    """Atomic write (temp file in the same folder + os.replace): a crash never leaves a half file behind.
+    The cache is only an optimisation, so a failed write is logged, not raised."""
+    tmp: str | None = None
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem[:16]}-", suffix=".npz.tmp", dir=path.parent)
+        with os.fdopen(fd, "wb") as f:
+            np.savez(
+                f,
+                forward=field.forward,
+                backward=field.backward,
+                forward_ok=field.forward_ok,
+                backward_ok=field.backward_ok,
+                backend=np.array(field.backend),
+                threshold_px=np.array(field.threshold_px, dtype=np.float64),
+                version=np.array(FLOW_CACHE_VERSION),
+            )
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+        tmp = None
+    except OSError as exc:
+        log.warning("could not write flow cache %s (%s); continuing without it", path, exc)
+    finally:
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
+
+
+def _checked_flow(flow: np.ndarray, h: int, w: int, backend: FlowBackend) -> np.ndarray:
+    flow = np.asarray(flow)
+    if flow.shape != (h, w, 2):
+        raise ValueError(f"flow backend {backend.name} returned shape {flow.shape}, expected {(h, w, 2)}")
+    return flow.astype(np.float32, copy=False)
+
+
+def compute_flow(
+    frames: np.ndarray,
+    backend: FlowBackend | None = None,
+    cache_dir: Path | None = None,
+    threshold_px: float = 1.0,
+    progress: Callable[[int, int], None] | None = None,
+) -> FlowField:
+    """Forward and backward flow of every adjacent pair of ``frames`` (float32 [T, H, W, 3] in [0, 1], at
+    working resolution) with their consistency masks, cached in ``cache_dir`` when given.
+
+    ``progress(done_pairs, total_pairs)`` is called after each pair (once with ``(total, total)`` on a cache
+    hit, so a progress bar still completes). A single frame gives arrays with a leading dimension of 0.
+    """
+    backend = DISFlow() if backend is None else backend
+    frames = _sanitize(frames)
+    t, h, w = frames.shape[:3]
+    n = t - 1
+    cache_path = None
+    if cache_dir is not None:
+        cache_path = Path(cache_dir) / f"{content_key(frames, backend, threshold_px)}.npz"
+        cached = _load_cache(cache_path, t, h, w, backend.name, threshold_px)
+        if cached is not None:
+            if progress is not None and n > 0:
+                progress(n, n)
+            return cached
+
+    forward = np.zeros((n, h, w, 2), dtype=np.float32)
+    backward = np.zeros((n, h, w, 2), dtype=np.float32)
+    forward_ok = np.zeros((n, h, w), dtype=bool)
+    backward_ok = np.zeros((n, h, w), dtype=bool)
+    for i in range(n):
+        fwd = _checked_flow(backend(frames[i], frames[i + 1]), h, w, backend)
+        bwd = _checked_flow(backend(frames[i + 1], frames[i]), h, w, backend)
+        # Masks first (they reject non-finite vectors), then zero those vectors: stored flow is never NaN.
+        forward_ok[i] = consistency_mask(fwd, bwd, threshold_px)
+        backward_ok[i] = consistency_mask(bwd, fwd, threshold_px)
+        forward[i] = np.nan_to_num(fwd, nan=0.0, posinf=0.0, neginf=0.0)
+        backward[i] = np.nan_to_num(bwd, nan=0.0, posinf=0.0, neginf=0.0)
+        if progress is not None:
+            progress(i + 1, n)
+
+    field = FlowField(forward, backward, forward_ok, backward_ok, backend.name, float(threshold_px))
+    if cache_path is not None:
+        _save_cache(cache_path, field)
+    return field

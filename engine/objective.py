@@ -1,0 +1,135 @@
+"""One training step's losses: the paper's terms evaluated on a random pixel batch.
+
+Model-agnostic: it only calls ``AtlasModel.uv/color/alpha``. Points are stacked so each field runs once
+per step on [pixel, pixel+dx, pixel+dy] (reconstruction, gradient loss and local rigidity share them).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from engine import losses as L
+from engine.config import FitConfig
+from engine.model import AtlasModel
+from engine.video import PRIOR_IGNORE, VideoTensors
+
+
+def weights_at(cfg: FitConfig, step: int) -> dict[str, float]:
+    """The loss weights in force at ``step`` (bootstrap terms switch off, the mask prior takes over)."""
+    boot = step < cfg.bootstrap_steps
+    glob = step < cfg.global_rigidity_steps
+    return {
+        "rgb": cfg.w_rgb,
+        "gradient": cfg.w_gradient,
+        "sparsity": cfg.w_sparsity,
+        "flow": cfg.w_flow,
+        "alpha_flow": cfg.w_alpha_flow,
+        "rigidity": cfg.w_rigidity,
+        "global_rigidity_fg": cfg.w_global_rigidity_fg if glob else 0.0,
+        "global_rigidity_bg": cfg.w_global_rigidity_bg if glob else 0.0,
+        "mask": cfg.w_mask if boot else 0.0,
+        "mask_prior": 0.0 if boot else cfg.w_mask_prior,
+    }
+
+
+def compute_losses(
+    model: AtlasModel,
+    video: VideoTensors,
+    cfg: FitConfig,
+    step: int,
+    ix: torch.Tensor,
+    iy: torch.Tensor,
+    t: torch.Tensor,
+) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """Total weighted loss and each unweighted term (for logging)."""
+    wts = weights_at(cfg, step)
+    t_count, h, w = video.shape
+    n = ix.shape[0]
+    nl = model.num_layers
+    xy = torch.stack((ix, iy), -1).float() + 0.5
+    one_x = torch.tensor([1.0, 0.0], device=xy.device)
+    one_y = torch.tensor([0.0, 1.0], device=xy.device)
+    xy3 = torch.cat((xy, xy + one_x, xy + one_y))
+    t3 = t.repeat(3)
+
+    weights3 = model.alpha(xy3, t3)  # [3N, L]
+    uvs = [model.uv(i, xy3, t3) for i in range(nl)]
+    cols = [model.color(i, uv) for i, uv in enumerate(uvs)]
+    rec3 = sum(weights3[:, i : i + 1] * cols[i] for i in range(nl))
+    rec, rec_dx, rec_dy = rec3[:n], rec3[n : 2 * n], rec3[2 * n :]
+    wts0 = weights3[:n]
+
+    target = video.frames[t, iy, ix]
+    nx = (ix + 1).clamp(max=w - 1)
+    ny = (iy + 1).clamp(max=h - 1)
+    gt_dx = video.frames[t, iy, nx] - target
+    gt_dy = video.frames[t, ny, ix] - target
+
+    terms: dict[str, torch.Tensor] = {}
+    terms["rgb"] = L.rgb_loss(rec, target)
+    terms["gradient"] = L.gradient_loss(rec_dx - rec, rec_dy - rec, gt_dx, gt_dy, ix < w - 1, iy < h - 1)
+
+    rig = []
+    for i in range(nl):
+        u = uvs[i]
+        if cfg.rigidity_delta == 1.0:
+            u_dx, u_dy = u[n : 2 * n], u[2 * n :]
+        else:
+            d = cfg.rigidity_delta
+            u_dx = model.uv(i, xy + d * one_x, t)
+            u_dy = model.uv(i, xy + d * one_y, t)
+        rig.append(L.rigidity_loss(u[:n], u_dx, u_dy, cfg.rigidity_delta, model.uv_per_px(i)))
+    terms["rigidity"] = sum(rig)
+
+    if wts["global_rigidity_fg"] > 0 or wts["global_rigidity_bg"] > 0:
+        d = cfg.global_rigidity_delta
+        g = []
+        for i in range(nl):
+            u_dx = model.uv(i, xy + d * one_x, t)
+            u_dy = model.uv(i, xy + d * one_y, t)
+            g.append(L.rigidity_loss(uvs[i][:n], u_dx, u_dy, d, model.uv_per_px(i)))
+        terms["global_rigidity_bg"] = g[0]
+        terms["global_rigidity_fg"] = sum(g[1:]) if nl > 1 else torch.zeros((), device=xy.device)
+
+    # flow consistency, forward (t -> t+1) and backward (t -> t-1), only where the flow is reliable
+    flow_terms, alpha_terms = [], []
+    for direction in (1, -1):
+        if t_count < 2:
+            break
+        if direction == 1:
+            has = t < t_count - 1
+            tt = t.clamp(max=t_count - 2)
+            vec, ok = video.fwd[tt, iy, ix], video.fwd_ok[tt, iy, ix]
+        else:
+            has = t > 0
+            tt = (t - 1).clamp(min=0)
+            vec, ok = video.bwd[tt, iy, ix], video.bwd_ok[tt, iy, ix]
+        valid = has & ok
+        sel = valid.nonzero().squeeze(1)
+        if sel.numel() == 0:
+            continue
+        q = xy[sel] + vec[sel]
+        tq = t[sel] + direction
+        wq = model.alpha(q, tq)
+        per_layer = []
+        for i in range(nl):
+            uq = model.uv(i, q, tq)
+            per_layer.append(L.flow_loss(uvs[i][:n][sel], uq, wts0[sel, i], None, model.uv_per_px(i)))
+        flow_terms.append(sum(per_layer))
+        alpha_terms.append(L.alpha_flow_loss(wts0[sel, 1:], wq[:, 1:], None))
+    zero = torch.zeros((), device=xy.device)
+    terms["flow"] = 0.5 * sum(flow_terms) if flow_terms else zero
+    terms["alpha_flow"] = 0.5 * sum(alpha_terms) if alpha_terms else zero
+
+    terms["sparsity"] = sum(L.sparsity_loss(wts0[:, i : i + 1], cols[i][:n]) for i in range(1, nl)) if nl > 1 else zero
+
+    if nl > 1 and (wts["mask"] > 0 or wts["mask_prior"] > 0):
+        fg_alpha = wts0[:, 1:]
+        m = video.masks[:, t, iy, ix].t()  # [N, F]
+        valid = video.mask_valid[:, t].t()
+        terms["mask"] = L.mask_bce(fg_alpha, m, valid)
+        prior = video.prior[:, t, iy, ix].t()
+        terms["mask_prior"] = L.mask_bce(fg_alpha, prior.clamp(min=0), prior != PRIOR_IGNORE)
+
+    total = sum(wts[k] * v for k, v in terms.items() if wts.get(k, 0.0) != 0.0)
+    return total, terms

@@ -1,0 +1,437 @@
+"""The fit: prepare the clip (frames, masks, flow), build a model, optimise, checkpoint, evaluate.
+
+Owns the loop, the optimiser, the schedule, checkpoints, signals and progress (nerfstudio's trainer role).
+Progress goes to stdout as JSON lines (``contract.progress_line``) and to stderr as a tqdm bar.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import signal
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from engine import contract as C
+from engine.checkpoint import atomic_write_text, load_checkpoint, save_checkpoint
+from engine.clip import ClipInfo, open_clip, read_frames, read_masks, working_size
+from engine.config import FitConfig
+from engine.errors import InputError
+from engine.flow import DISFlow, FlowField, compute_flow
+from engine.losses import psnr_from_mse
+from engine.model import AtlasModel, FastModel, motion_regions
+from engine.motion_init import estimate_layer_motion
+from engine.objective import compute_losses
+from engine.paper_model import PaperModel
+from engine.video import VideoTensors, build_video_tensors, sample_pixels
+
+#: Pixels per forward chunk when evaluating whole frames (bounds memory of the evaluation).
+EVAL_CHUNK = 65536
+
+
+def select_device(name: str = "auto") -> torch.device:
+    """CUDA, then MPS, then CPU for ``auto``; an explicit device that is absent is a one-line error."""
+    if name == "auto":
+        if torch.cuda.is_available():
+            return torch.device("cuda")
+        if getattr(torch.backends, "mps", None) and torch.backends.mps.is_available():
+            return torch.device("mps")
+        return torch.device("cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise InputError(None, "--device cuda: no CUDA device is available", "use --device auto or cpu")
+    if name == "mps" and not (getattr(torch.backends, "mps", None) and torch.backends.mps.is_available()):
+        raise InputError(None, "--device mps: MPS is not available", "use --device auto or cpu")
+    if name not in ("cpu", "cuda", "mps"):
+        raise InputError(None, f"unknown device {name!r}", "use auto, cpu, cuda or mps")
+    return torch.device(name)
+
+
+class Reporter:
+    """JSON progress lines on stdout (for the add-on) and a human log file."""
+
+    def __init__(self, log_path: Path | None, stream: Any = None) -> None:
+        self.stream = stream or sys.stdout
+        self.log_path = log_path
+
+    def emit(self, event: str, **fields: Any) -> None:
+        line = C.progress_line(event, **fields)
+        print(line, file=self.stream, flush=True)
+        if self.log_path is not None:
+            with open(self.log_path, "a", encoding="utf-8") as f:
+                f.write(line + "\n")
+
+
+@dataclass
+class PreparedClip:
+    info: ClipInfo
+    size: tuple[int, int]
+    frames: np.ndarray  # float32 [T, H, W, 3], working resolution, fitting values in [0, 1]-ish
+    masks: np.ndarray  # bool [F, T, H, W]
+    mask_dirs: list[str]
+    flow: FlowField
+    fingerprint: str
+
+
+def to_fitting_values(frames: np.ndarray, colorspace: str) -> tuple[np.ndarray, list[int]]:
+    """Frames as the values the model fits: display-encoded, finite. Returns the frames with NaN/Inf."""
+    bad = [int(i) for i in np.nonzero(~np.isfinite(frames).reshape(len(frames), -1).all(1))[0]]
+    out = np.nan_to_num(frames, nan=0.0, posinf=1.0, neginf=0.0)
+    if colorspace == "linear":
+        x = np.clip(out, 0.0, None)
+        out = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055).astype(np.float32)
+    return out.astype(np.float32), bad
+
+
+def prepare_clip(
+    clip: str | Path,
+    mask_dirs: list[str | Path],
+    cfg: FitConfig,
+    run_dir: Path,
+    frame_range: tuple[int, int] | None,
+    reporter: Reporter,
+) -> PreparedClip:
+    info = open_clip(clip, frame_range)
+    size = working_size(info.width, info.height, cfg.long_edge)
+    reporter.emit(C.EVENT_STAGE, stage="read", message=f"reading {info.num_frames} frames at {size[0]}x{size[1]}")
+    frames, bad = to_fitting_values(read_frames(info, size), info.colorspace)
+    if bad:
+        print(f"warning: NaN/Inf pixels replaced in frames {bad} of {info.source}", file=sys.stderr)
+    masks = (
+        np.stack([read_masks(m, info, size) for m in mask_dirs])
+        if mask_dirs
+        else np.zeros((0, len(frames), size[1], size[0]), dtype=bool)
+    )
+    fingerprint = hashlib.sha256(frames.tobytes()).hexdigest()[:32]
+    reporter.emit(C.EVENT_STAGE, stage="flow", message="optical flow (cached per clip content)")
+    flow = compute_flow(
+        frames.clip(0.0, 1.0),
+        DISFlow(cfg.flow_preset),
+        cache_dir=run_dir / C.FLOW_CACHE_DIR,
+        threshold_px=cfg.flow_threshold_px,
+    )
+    return PreparedClip(info, size, frames, masks, [str(Path(m).resolve()) for m in mask_dirs], flow, fingerprint)
+
+
+def build_model(cfg: FitConfig, clip: PreparedClip) -> AtlasModel:
+    t = clip.frames.shape[0]
+    if cfg.model == "paper":
+        return PaperModel(cfg, clip.size, t, num_layers=1 + clip.masks.shape[0])
+    if cfg.model != "fast":
+        raise InputError(None, f"unknown model {cfg.model!r}", "use --set model=fast or model=paper")
+    flow = clip.flow if t > 1 else None
+    motions = []
+    if clip.masks.shape[0]:
+        bg_region, fg_regions = motion_regions(clip.masks)
+    else:
+        bg_region, fg_regions = None, []
+    motions.append(estimate_layer_motion(flow, bg_region, clip.size, cfg.init_motion))
+    for region in fg_regions:
+        motions.append(estimate_layer_motion(flow, region, clip.size, cfg.init_motion))
+    return FastModel(cfg, clip.size, t, motions)
+
+
+@torch.no_grad()
+def evaluate_pixels(
+    model: AtlasModel, video: VideoTensors, ix: torch.Tensor, iy: torch.Tensor, t: torch.Tensor
+) -> float:
+    """Mean squared error of the reconstruction at the given pixels."""
+    total, count = 0.0, 0
+    for s in range(0, ix.shape[0], EVAL_CHUNK):
+        sl = slice(s, s + EVAL_CHUNK)
+        xy = torch.stack((ix[sl], iy[sl]), -1).float() + 0.5
+        rec, _ = model.reconstruct(xy, t[sl])
+        total += float(((rec - video.frames[t[sl], iy[sl], ix[sl]]) ** 2).sum())
+        count += rec.shape[0] * 3
+    return total / max(count, 1)
+
+
+@torch.no_grad()
+def render_frame(
+    model: AtlasModel, t: int, size: tuple[int, int], device: torch.device
+) -> tuple[np.ndarray, np.ndarray]:
+    """Reconstruction [H, W, 3] and layer weights [H, W, L] of one frame at working resolution."""
+    w, h = size
+    ys, xs = torch.meshgrid(torch.arange(h, device=device), torch.arange(w, device=device), indexing="ij")
+    xy = torch.stack((xs.reshape(-1), ys.reshape(-1)), -1).float() + 0.5
+    tt = torch.full((xy.shape[0],), t, dtype=torch.long, device=device)
+    recs, ws = [], []
+    for s in range(0, xy.shape[0], EVAL_CHUNK):
+        r, wgt = model.reconstruct(xy[s : s + EVAL_CHUNK], tt[s : s + EVAL_CHUNK])
+        recs.append(r)
+        ws.append(wgt)
+    return torch.cat(recs).reshape(h, w, 3).cpu().numpy(), torch.cat(ws).reshape(h, w, -1).cpu().numpy()
+
+
+@torch.no_grad()
+def evaluate_full(model: AtlasModel, video: VideoTensors, size: tuple[int, int], device: torch.device) -> dict:
+    """Full-frame PSNR over every pixel of every frame, and per-layer alpha IoU against the masks."""
+    t_count = video.shape[0]
+    sq, n = 0.0, 0
+    inter = np.zeros(video.masks.shape[0])
+    union = np.zeros(video.masks.shape[0])
+    frames_np = video.frames.cpu().numpy()
+    masks_np = video.masks.cpu().numpy()
+    for t in range(t_count):
+        rec, wts = render_frame(model, t, size, device)
+        sq += float(((rec - frames_np[t]) ** 2).sum())
+        n += rec.size
+        for f in range(masks_np.shape[0]):
+            a = wts[..., f + 1] > 0.5
+            m = masks_np[f, t]
+            inter[f] += float((a & m).sum())
+            union[f] += float((a | m).sum())
+    mse = sq / max(n, 1)
+    iou = [float(i / u) if u > 0 else 1.0 for i, u in zip(inter, union, strict=True)]
+    return {"psnr": psnr_from_mse(mse), "mse": mse, "alpha_iou": iou}
+
+
+class _Stop:
+    """Signal flag: SIGINT/SIGTERM ask the loop to checkpoint and exit at the next step."""
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+        self._old: dict[int, Any] = {}
+
+    def __enter__(self) -> _Stop:
+        for s in (signal.SIGINT, signal.SIGTERM):
+            with contextlib.suppress(ValueError):  # not the main thread (tests calling fit in a thread)
+                self._old[s] = signal.signal(s, self._handle)
+        return self
+
+    def _handle(self, signum: int, _frame: Any) -> None:
+        self.signum = signum
+
+    def __exit__(self, *exc: Any) -> None:
+        for s, h in self._old.items():
+            signal.signal(s, h)
+
+
+class FitCancelled(Exception):
+    """The fit was interrupted by a signal after writing a checkpoint."""
+
+
+def make_optimizer(model: AtlasModel, cfg: FitConfig, device: torch.device) -> torch.optim.Optimizer:
+    """Adam; the fused kernel where the device has one (on CPU it halves the cost of updating dense grids)."""
+    groups = model.param_groups(cfg)
+    try:
+        return torch.optim.Adam(groups, fused=device.type in ("cpu", "cuda"))
+    except (RuntimeError, TypeError):
+        return torch.optim.Adam(groups)
+
+
+def _lr_lambda(cfg: FitConfig) -> Callable[[int], float]:
+    ratio = max(cfg.lr_final_ratio, 1e-6)
+    steps = max(cfg.steps, 1)
+    return lambda s: ratio ** (min(s, steps) / steps)
+
+
+def fit(
+    clip: str | Path | None,
+    mask_dirs: list[str | Path],
+    run_dir: str | Path,
+    cfg: FitConfig,
+    device_name: str = "auto",
+    resume: bool = False,
+    frame_range: tuple[int, int] | None = None,
+    progress_bar: bool = True,
+    stream: Any = None,
+) -> dict[str, Any]:
+    """Fit a layered atlas to ``clip``; writes config, clip record, checkpoint and metrics into ``run_dir``."""
+    run_dir = Path(run_dir)
+    ckpt_path = run_dir / C.RUN_CHECKPOINT
+    if resume:
+        clip_rec = _read_json(run_dir / C.RUN_CLIP)
+        clip = clip or clip_rec["source"]
+        mask_dirs = mask_dirs or clip_rec["masks"]
+        frame_range = frame_range or tuple(clip_rec["frame_range"])  # type: ignore[assignment]
+    else:
+        if ckpt_path.exists():
+            raise InputError(
+                run_dir,
+                "this folder already holds a fit",
+                "pass --resume to continue it, or choose a new --out",
+            )
+        if clip is None:
+            raise InputError(None, "no clip given", "pass a frame folder or movie file")
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        probe = run_dir / ".write_test"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError:
+        raise InputError(
+            run_dir, "output folder is not writable", "choose a folder you can write to with --out"
+        ) from None
+
+    device = select_device(device_name)
+    torch.manual_seed(cfg.seed)
+    reporter = Reporter(run_dir / C.RUN_LOG, stream)
+    prepared = prepare_clip(clip, mask_dirs, cfg, run_dir, frame_range, reporter)  # type: ignore[arg-type]
+    info = prepared.info
+    first = frame_range[0] if frame_range else 0
+    clip_record = {
+        "schema": C.SCHEMA_VERSION,
+        "source": info.source,
+        "kind": info.kind,
+        "frame_range": [first, first + info.num_frames - 1],
+        "frame_numbers": list(info.frame_numbers),
+        "native_size": [info.width, info.height],
+        "working_size": list(prepared.size),
+        "fps": info.fps,
+        "colorspace": info.colorspace,
+        "masks": prepared.mask_dirs,
+        "fingerprint": prepared.fingerprint,
+    }
+    state = None
+    if resume:
+        if clip_rec.get("fingerprint") != prepared.fingerprint:
+            raise InputError(
+                info.source,
+                "the clip changed since this run started",
+                "fit it into a new --out instead of --resume",
+            )
+        state = load_checkpoint(ckpt_path, device)
+    else:
+        atomic_write_text(run_dir / C.RUN_CONFIG, cfg.to_json())
+        atomic_write_text(run_dir / C.RUN_CLIP, json.dumps(clip_record, indent=2))
+
+    reporter.emit(C.EVENT_STAGE, stage="init", message=f"building the {cfg.model} model on {device.type}")
+    model = build_model(cfg, prepared).to(device)
+    video = build_video_tensors(prepared.frames, prepared.masks, prepared.flow, cfg.mask_prior_margin_px, device)
+    optim = make_optimizer(model, cfg, device)
+    sched = torch.optim.lr_scheduler.LambdaLR(optim, _lr_lambda(cfg))
+    gen = torch.Generator().manual_seed(cfg.seed)
+    step, train_seconds = 0, 0.0
+    if state is not None:
+        model.load_state_dict(state["model"])
+        optim.load_state_dict(state["optim"])
+        sched.load_state_dict(state["sched"])
+        gen.set_state(state["gen"].cpu())
+        step, train_seconds = int(state["step"]), float(state["train_seconds"])
+    else:
+        t0 = time.perf_counter()
+        model.prepare(cfg, device)
+        train_seconds += time.perf_counter() - t0
+
+    eval_gen = torch.Generator().manual_seed(cfg.seed + 7919)
+    ex, ey, et = sample_pixels(video.shape, cfg.eval_pixels, eval_gen, device)
+
+    def checkpoint() -> None:
+        save_checkpoint(
+            ckpt_path,
+            {
+                "schema": C.SCHEMA_VERSION,
+                "model": model.state_dict(),
+                "optim": optim.state_dict(),
+                "sched": sched.state_dict(),
+                "gen": gen.get_state(),
+                "step": step,
+                "train_seconds": train_seconds,
+                "fingerprint": prepared.fingerprint,
+            },
+        )
+        reporter.emit(C.EVENT_CHECKPOINT, step=step, path=str(ckpt_path))
+
+    reporter.emit(C.EVENT_STAGE, stage="train", message=f"{cfg.steps} steps, preset {cfg.preset}")
+    bar = tqdm(
+        total=cfg.steps,
+        initial=step,
+        disable=not progress_bar,
+        file=sys.stderr,
+        unit="step",
+        dynamic_ncols=True,
+    )
+    last_ckpt = time.monotonic()
+    terms: dict[str, torch.Tensor] = {}
+    with _Stop() as stop:
+        while step < cfg.steps:
+            t0 = time.perf_counter()
+            ix, iy, tt = sample_pixels(video.shape, cfg.batch, gen, device)
+            loss, terms = compute_losses(model, video, cfg, step, ix, iy, tt)
+            optim.zero_grad(set_to_none=True)
+            loss.backward()
+            optim.step()
+            sched.step()
+            step += 1
+            train_seconds += time.perf_counter() - t0
+            bar.update(1)
+            if step % cfg.eval_every == 0 or step == cfg.steps or step == 1:
+                psnr = psnr_from_mse(evaluate_pixels(model, video, ex, ey, et))
+                eta = train_seconds / step * (cfg.steps - step) if step else None
+                reporter.emit(
+                    C.EVENT_PROGRESS,
+                    step=step,
+                    total=cfg.steps,
+                    psnr=round(psnr, 3),
+                    elapsed=round(train_seconds, 2),
+                    eta=None if eta is None else round(eta, 1),
+                    losses={k: round(float(v.detach()), 6) for k, v in terms.items()},
+                )
+                bar.set_postfix(psnr=f"{psnr:.2f}")
+                if not np.isfinite(float(loss.detach())):
+                    raise RuntimeError(f"loss became non-finite at step {step}: {terms}")
+            if stop.signum is not None:
+                checkpoint()
+                bar.close()
+                reporter.emit(C.EVENT_CANCELLED, step=step, checkpoint=str(ckpt_path))
+                raise FitCancelled(f"interrupted by signal {stop.signum} at step {step}")
+            if time.monotonic() - last_ckpt > cfg.checkpoint_seconds:
+                checkpoint()
+                last_ckpt = time.monotonic()
+    bar.close()
+    checkpoint()
+    reporter.emit(C.EVENT_STAGE, stage="evaluate", message="full-frame PSNR over every pixel")
+    ev = evaluate_full(model, video, prepared.size, device)
+    metrics = {
+        "schema": C.SCHEMA_VERSION,
+        "psnr": ev["psnr"],
+        "mse": ev["mse"],
+        "alpha_iou": ev["alpha_iou"],
+        "steps": step,
+        "train_seconds": train_seconds,
+        "seconds_per_step": train_seconds / max(step, 1),
+        "preset": cfg.preset,
+        "model": cfg.model,
+        "device": device.type,
+        "working_size": list(prepared.size),
+        "frames": int(video.shape[0]),
+        "engine_version": C.ENGINE_VERSION,
+        "torch_version": torch.__version__,
+    }
+    atomic_write_text(run_dir / C.RUN_METRICS, json.dumps(metrics, indent=2))
+    reporter.emit(C.EVENT_DONE, metrics=metrics)
+    return metrics
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(
+            path, "this run folder has no record of its clip", "resume a folder written by `fit`"
+        ) from None
+    except json.JSONDecodeError:
+        raise InputError(path, "not valid JSON", "restore it or fit into a new --out") from None
+    if data.get("schema") != C.SCHEMA_VERSION:
+        raise InputError(path, f"run schema {data.get('schema')!r} is incompatible", "fit into a new --out")
+    return data
+
+
+__all__ = [
+    "FitCancelled",
+    "PreparedClip",
+    "build_model",
+    "fit",
+    "prepare_clip",
+    "render_frame",
+    "select_device",
+]

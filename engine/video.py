@@ -1,0 +1,82 @@
+"""The clip as training tensors: frames, masks, mask prior, flow; and the per-step pixel sampler."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import torch
+
+from engine.flow import FlowField
+
+#: Prior label meaning "no opinion" (near a mask boundary, or a frame without a mask).
+PRIOR_IGNORE = -1
+
+
+@dataclass
+class VideoTensors:
+    frames: torch.Tensor  # float32 [T, H, W, 3]
+    masks: torch.Tensor  # bool [F, T, H, W] (F foreground layers)
+    mask_valid: torch.Tensor  # bool [F, T]: the frame has a (non-empty) mask for that layer
+    prior: torch.Tensor  # int8 [F, T, H, W]: 1 / 0 far inside / outside the mask, PRIOR_IGNORE elsewhere
+    fwd: torch.Tensor  # float32 [T-1, H, W, 2]
+    bwd: torch.Tensor  # float32 [T-1, H, W, 2]
+    fwd_ok: torch.Tensor  # bool [T-1, H, W]
+    bwd_ok: torch.Tensor  # bool [T-1, H, W]
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        t, h, w, _ = self.frames.shape
+        return t, h, w
+
+
+def mask_prior(masks: np.ndarray, margin_px: float) -> np.ndarray:
+    """Trimap from coarse masks: trust only pixels farther than ``margin_px`` from the mask boundary
+    (inside: at most 40% of the object's thickness, so small objects keep a core)."""
+    out = np.full(masks.shape, PRIOR_IGNORE, dtype=np.int8)
+    for f in range(masks.shape[0]):
+        for t in range(masks.shape[1]):
+            m = masks[f, t].astype(np.uint8)
+            if not m.any():
+                continue
+            inside = cv2.distanceTransform(m, cv2.DIST_L2, 5)
+            outside = cv2.distanceTransform(1 - m, cv2.DIST_L2, 5)
+            out[f, t][inside > min(margin_px, 0.4 * float(inside.max()))] = 1
+            out[f, t][outside > margin_px] = 0
+    return out
+
+
+def build_video_tensors(
+    frames: np.ndarray, masks: np.ndarray, flow: FlowField, margin_px: float, device: torch.device
+) -> VideoTensors:
+    t = frames.shape[0]
+    fl = masks.shape[0]
+    valid = masks.reshape(fl, t, -1).any(-1) if fl else np.zeros((0, t), dtype=bool)
+
+    def dev(a: np.ndarray) -> torch.Tensor:
+        return torch.from_numpy(np.ascontiguousarray(a)).to(device)
+
+    return VideoTensors(
+        frames=dev(frames.astype(np.float32)),
+        masks=dev(masks),
+        mask_valid=dev(valid),
+        prior=dev(mask_prior(masks, margin_px)),
+        fwd=dev(flow.forward.astype(np.float32)),
+        bwd=dev(flow.backward.astype(np.float32)),
+        fwd_ok=dev(flow.forward_ok),
+        bwd_ok=dev(flow.backward_ok),
+    )
+
+
+def sample_pixels(
+    shape: tuple[int, int, int], n: int, gen: torch.Generator, device: torch.device
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``n`` random pixels; frames are drawn from a shuffled cycle so every frame gets its share each step."""
+    t_count, h, w = shape
+    reps = -(-n // t_count)
+    t = torch.randperm(t_count, generator=gen).repeat(reps)[:n]
+    t = t[torch.randperm(n, generator=gen)]
+    x = torch.randint(0, w, (n,), generator=gen)
+    y = torch.randint(0, h, (n,), generator=gen)
+    return x.to(device), y.to(device), t.to(device)

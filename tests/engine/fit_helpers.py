@@ -1,0 +1,52 @@
+"""Shared helpers for end-to-end fit tests on synthetic scenes with known motion."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from engine.config import FitConfig, apply_overrides, preset_config
+from engine.synthetic import SceneSpec, SyntheticScene, make_scene, write_scene
+from engine.trainer import Reporter, build_model, fit, prepare_clip
+
+TINY_OVERRIDES = {
+    "steps": "400",
+    "batch": "2000",
+    "eval_every": "100",
+    "bootstrap_steps": "150",
+    "global_rigidity_steps": "100",
+}
+
+
+def fit_scene(tmp: Path, spec: SceneSpec | None = None, **overrides: str) -> tuple[SyntheticScene, Path, dict]:
+    scene = make_scene(spec)
+    frames_dir, masks_dir = write_scene(scene, tmp / "clip")
+    cfg = apply_overrides(preset_config("draft"), {**TINY_OVERRIDES, **overrides})
+    run = tmp / "run"
+    metrics = fit(frames_dir, [masks_dir], run, cfg, device_name="cpu", progress_bar=False, stream=io.StringIO())
+    return scene, run, metrics
+
+
+def load_model(run: Path):
+    import json
+
+    cfg = FitConfig.from_json((run / "config.json").read_text())
+    clip = json.loads((run / "clip.json").read_text())
+    prepared = prepare_clip(clip["source"], clip["masks"], cfg, run, None, Reporter(None, io.StringIO()))
+    model = build_model(cfg, prepared)
+    model.load_state_dict(torch.load(run / "checkpoint.pt", weights_only=True)["model"])
+    return model.eval(), prepared
+
+
+def atlas_consistency_px(model, layer: int, pts_frames: list[np.ndarray], ts: list[int]) -> np.ndarray:
+    """Atlas distance (pixels) between the UVs one texture point gets in different frames, vs. frame ts[0]."""
+    with torch.no_grad():
+        uvs = []
+        for p, t in zip(pts_frames, ts, strict=True):
+            xy = torch.tensor(p, dtype=torch.float32) + 0.5  # scene pixel centres are integers
+            uvs.append(model.uv(layer, xy, torch.full((len(p),), t, dtype=torch.long)).numpy())
+    ref = uvs[0]
+    return np.concatenate([np.linalg.norm(u - ref, axis=-1) for u in uvs[1:]]) / model.uv_per_px(layer)
