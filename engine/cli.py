@@ -81,7 +81,46 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--resume", action="store_true", help="continue the fit in RUN_DIR from its checkpoint")
     f.add_argument("--no-bar", action="store_true", help="no progress bar on stderr (JSON lines only)")
     f.add_argument("--help-config", action="store_true", help="list every config field and exit")
+    d = sub.add_parser(
+        C.VERB_DEMO,
+        help="fit the embedded demo clip (README command 1)",
+        description="Generate the demo plate, fit it, and write a contact sheet. Idempotent.",
+    )
+    d.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
+    d.add_argument("--preset", default="draft", help="preset (default: draft)")
+    d.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config field")
+    sp = sub.add_parser(
+        C.VERB_SPEED,
+        help="seconds per step of presets, side by side on one clip",
+        description="Interleaves short blocks of training steps of each preset in one process.",
+    )
+    sp.add_argument("clip")
+    sp.add_argument("--mask", action="append", default=[], metavar="FOLDER")
+    sp.add_argument("--presets", default="draft,balanced,paper", help="comma-separated (default: draft,balanced,paper)")
+    sp.add_argument("--steps", type=int, default=10, help="steps per block (default: 10)")
+    sp.add_argument("--rounds", type=int, default=3, help="interleaved rounds (default: 3)")
+    sp.add_argument("--device", default="auto")
+    sp.add_argument("--work", default=None, help="folder for the flow cache (default: a temp folder)")
     return p
+
+
+def _cmd_speed(args: argparse.Namespace) -> int:
+    import tempfile
+
+    from engine.speed import format_table, measure_step_times
+
+    with tempfile.TemporaryDirectory() as tmp:
+        rows = measure_step_times(
+            args.clip,
+            args.mask,
+            args.presets.split(","),
+            Path(args.work or tmp),
+            steps=args.steps,
+            rounds=args.rounds,
+            device_name=args.device,
+        )
+    print(format_table(rows))
+    return C.EXIT_OK
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
@@ -133,6 +172,18 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.verb == C.VERB_FIT:
             return _cmd_fit(args)
+        if args.verb == C.VERB_SPEED:
+            return _cmd_speed(args)
+        if args.verb == C.VERB_DEMO:
+            from engine.config import parse_set_args
+            from engine.demo import run_demo
+            from engine.trainer import FitCancelled
+
+            try:
+                run_demo(Path(args.out), args.preset, parse_set_args(args.set))
+            except FitCancelled:
+                return C.EXIT_CANCELLED
+            return C.EXIT_OK
     except InputError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return C.EXIT_BAD_INPUT

@@ -30,8 +30,9 @@ class FitConfig:
     """Architecture: ``fast`` (multi-resolution grids + small MLPs, the default) or ``paper`` (the paper's MLPs)."""
     steps: int = 6000
     """Optimisation steps."""
-    batch: int = 10000
-    """Random pixels per step, spread over all frames (the paper uses 10k)."""
+    batch: int = 4000
+    """Random pixels per step, spread over all frames (the paper uses 10k; the fast model gains more from
+    more steps than from bigger batches)."""
     seed: int = 0
     """Random seed (sampling and initialisation); the same seed gives the same result on CPU."""
     long_edge: int = 768
@@ -104,10 +105,16 @@ class FitConfig:
     """Fast model: resolution levels of the alpha grid over (x, y, t)."""
     alpha_features: int = 2
     """Fast model: features per alpha grid level."""
-    alpha_density: float = 0.5
+    alpha_density: float = 0.25
     """Fast model: finest alpha grid cells per working pixel."""
     decoder_hidden: int = 64
     """Fast model: width of the colour and alpha decoder MLPs."""
+    warp_levels: int = 2
+    """Fast model: levels of the smooth per-frame warp grid added to each mapping (0 = similarity + MLP only)."""
+    warp_cell_px: float = 8.0
+    """Fast model: cell size, in working pixels, of the finest warp level (coarser levels double it)."""
+    lr_warp: float = 0.05
+    """Adam learning rate of the warp grid, in pixels per step."""
     init_motion: bool = True
     """Fast model: initialise each layer's per-frame motion from the optical flow (robust similarity fit)."""
 
@@ -194,21 +201,17 @@ def _fast(**kw: Any) -> FitConfig:
     return FitConfig(**base)
 
 
-#: Named presets. Budgets (steps) are calibrated on a 2-core CPU at 768x432; see docs/accuracy-vs-time.md.
+#: Named presets. Budgets (steps) are set from measured blackswan runs on a 2-core CPU at 768x432
+#: (docs/engine.md): draft ~3 minutes, balanced ~20, final ~60; paper is the reference's 400k steps.
 PRESETS: dict[str, FitConfig] = {
-    "draft": _fast(
-        preset="draft",
-        steps=1500,
-        batch=8000,
-        bootstrap_steps=600,
-        global_rigidity_steps=300,
-    ),
+    "draft": _fast(preset="draft", steps=800, bootstrap_steps=300, global_rigidity_steps=150),
     "balanced": _fast(preset="balanced", steps=6000, bootstrap_steps=2000, global_rigidity_steps=1000),
     "final": _fast(preset="final", steps=18000, bootstrap_steps=5000, global_rigidity_steps=2500),
     "paper": FitConfig(
         preset="paper",
         model="paper",
         steps=400000,
+        batch=10000,
         lr=1e-4,
         lr_final_ratio=1.0,
         bootstrap_steps=10000,

@@ -40,6 +40,8 @@ DEV_REQUIREMENTS: tuple[str, ...] = (
 # --- CLI -----------------------------------------------------------------------------------------------
 CLI_MODULE = "engine"  # run as: python -m engine <verb> ...
 VERB_FIT = "fit"
+VERB_DEMO = "demo"
+VERB_SPEED = "speed"
 
 EXIT_OK = 0
 EXIT_FAILED = 1  # an engine bug or an unexpected error: the log has the traceback

@@ -67,6 +67,11 @@ class AtlasModel(nn.Module):
         return torch.cat((xy / half - 1.0, tn[:, None]), dim=-1)
 
 
+def _sum_levels(px: torch.Tensor) -> torch.Tensor:
+    """Grid3D concatenates levels ([N, 2 * L]); the warp is the sum of their (dx, dy)."""
+    return px.view(px.shape[0], -1, 2).sum(1)
+
+
 def _alpha_from_logit(logit: torch.Tensor) -> torch.Tensor:
     return ALPHA_FLOOR + ALPHA_SPAN * torch.sigmoid(logit)
 
@@ -77,16 +82,27 @@ class FastLayerMapping(nn.Module):
     No positional encoding of (x, y, t): the mapping must stay smooth so the atlas stays coherent.
     """
 
-    def __init__(self, motion: LayerMotion, size: tuple[int, int], frames: int, hidden: int, layers: int) -> None:
+    def __init__(self, motion: LayerMotion, size: tuple[int, int], frames: int, cfg: FitConfig) -> None:
         super().__init__()
         w, h = size
+        hidden, layers = cfg.mapping_hidden, cfg.mapping_layers
         self.register_buffer("to_ref", torch.tensor(motion.to_ref, dtype=torch.float32))
         self.register_buffer("center", torch.tensor(motion.center, dtype=torch.float32))
         self.half_extent = float(motion.half_extent)
         self.delta = nn.Parameter(torch.zeros(frames, 2, 3))
         self.residual = MLP(3, 2, hidden, layers + 1, zero_last=True)
         self.half = max(w, h) / 2.0
+        self.size = (w, h)
         self.frames = frames
+        # a coarse per-frame displacement field (pixels) for non-rigid motion the MLP is too smooth for;
+        # cells of several pixels keep it low-frequency, and the rigidity terms keep it regular
+        self.warp: Grid3D | None = None
+        if cfg.warp_levels > 0:
+            res = []
+            for i in range(cfg.warp_levels):
+                cell = cfg.warp_cell_px * 2.0 ** (cfg.warp_levels - 1 - i)
+                res.append((max(2, math.ceil(w / cell) + 1), max(2, math.ceil(h / cell) + 1), max(1, frames)))
+            self.warp = Grid3D(res, 2, init_std=0.0)
 
     def forward(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         a = self.to_ref[t]  # [N, 2, 3] frame px -> reference px
@@ -97,7 +113,20 @@ class FastLayerMapping(nn.Module):
         tn = t.to(xy.dtype) / max(self.frames / 2.0, 0.5) - 1.0
         d = self.delta[t]
         uv = uv + torch.einsum("nij,nj->ni", d[:, :, :2], xn) + d[:, :, 2]
-        return uv + self.residual(torch.cat((xn, tn[:, None]), -1))
+        uv = uv + self.residual(torch.cat((xn, tn[:, None]), -1))
+        if self.warp is not None:
+            w, h = self.size
+            g = torch.stack(
+                (
+                    xy[:, 0] / (w / 2.0) - 1.0,
+                    xy[:, 1] / (h / 2.0) - 1.0,
+                    t.to(xy.dtype) / max(self.frames - 1, 1) * 2.0 - 1.0,
+                ),
+                -1,
+            )
+            px = self.warp(g).float()
+            uv = uv + _sum_levels(px) / self.half_extent
+        return uv
 
 
 class FastAtlas(nn.Module):
@@ -132,9 +161,7 @@ class FastModel(AtlasModel):
         self.width, self.height = size
         self.frames = frames
         self.num_layers = len(motions)
-        self.mappings = nn.ModuleList(
-            FastLayerMapping(m, size, frames, cfg.mapping_hidden, cfg.mapping_layers) for m in motions
-        )
+        self.mappings = nn.ModuleList(FastLayerMapping(m, size, frames, cfg) for m in motions)
         self.atlases = nn.ModuleList(FastAtlas(m, cfg) for m in motions)
         fw = max(2, round(self.width * cfg.alpha_density))
         fh = max(2, round(self.height * cfg.alpha_density))
@@ -169,12 +196,17 @@ class FastModel(AtlasModel):
     def param_groups(self, cfg: FitConfig) -> list[dict]:
         grids = list(self.alpha_grid.parameters()) + [p for a in self.atlases for p in a.grid.parameters()]
         mlps = list(self.alpha_decoder.parameters()) + [p for a in self.atlases for p in a.decoder.parameters()]
-        mapping = [p for m in self.mappings for p in m.parameters()]
-        return [
+        warps = [p for m in self.mappings if m.warp is not None for p in m.warp.parameters()]
+        ids = {id(p) for p in warps}
+        mapping = [p for m in self.mappings for p in m.parameters() if id(p) not in ids]
+        groups = [
             {"params": grids, "lr": cfg.lr_grid, "name": "grids"},
             {"params": mlps, "lr": cfg.lr, "name": "decoders"},
             {"params": mapping, "lr": cfg.lr, "name": "mappings"},
         ]
+        if warps:
+            groups.append({"params": warps, "lr": cfg.lr_warp, "name": "warps"})
+        return groups
 
 
 def motion_regions(masks: np.ndarray, margin_px: float = 6.0) -> tuple[np.ndarray, list[np.ndarray]]:

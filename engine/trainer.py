@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import os
 import signal
 import sys
 import time
@@ -262,20 +263,14 @@ def fit(
             )
         if clip is None:
             raise InputError(None, "no clip given", "pass a frame folder or movie file")
-    try:
-        run_dir.mkdir(parents=True, exist_ok=True)
-        probe = run_dir / ".write_test"
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError:
-        raise InputError(
-            run_dir, "output folder is not writable", "choose a folder you can write to with --out"
-        ) from None
-
+    _check_writable(run_dir)
     device = select_device(device_name)
     torch.manual_seed(cfg.seed)
-    reporter = Reporter(run_dir / C.RUN_LOG, stream)
+    # the input is read and validated before anything is written: bad input leaves no run folder behind
+    reporter = Reporter(None, stream)
     prepared = prepare_clip(clip, mask_dirs, cfg, run_dir, frame_range, reporter)  # type: ignore[arg-type]
+    run_dir.mkdir(parents=True, exist_ok=True)
+    reporter.log_path = run_dir / C.RUN_LOG
     info = prepared.info
     first = frame_range[0] if frame_range else 0
     clip_record = {
@@ -410,6 +405,15 @@ def fit(
     atomic_write_text(run_dir / C.RUN_METRICS, json.dumps(metrics, indent=2))
     reporter.emit(C.EVENT_DONE, metrics=metrics)
     return metrics
+
+
+def _check_writable(run_dir: Path) -> None:
+    """One-line error if ``run_dir`` (or the nearest folder that exists above it) cannot be written."""
+    probe = run_dir
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not (probe.is_dir() and os.access(probe, os.W_OK | os.X_OK)):
+        raise InputError(run_dir, "output folder is not writable", "choose a folder you can write to with --out")
 
 
 def _read_json(path: Path) -> dict[str, Any]:
