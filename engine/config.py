@@ -111,9 +111,12 @@ class FitConfig:
     """Fast model: width of the colour and alpha decoder MLPs."""
     warp_levels: int = 2
     """Fast model: levels of the smooth per-frame warp grid added to each mapping (0 = similarity + MLP only)."""
+    warp_foreground: bool = False
+    """Fast model: give foreground mappings a warp grid too (off: it lets an object's mapping slide and
+    paint would swim; the background's non-rigid water and foliage are where the warp pays)."""
     warp_cell_px: float = 8.0
     """Fast model: cell size, in working pixels, of the finest warp level (coarser levels double it)."""
-    lr_warp: float = 0.05
+    lr_warp: float = 0.01
     """Adam learning rate of the warp grid, in pixels per step."""
     init_motion: bool = True
     """Fast model: initialise each layer's per-frame motion from the optical flow (robust similarity fit)."""

@@ -6,7 +6,6 @@ and is idempotent: a second run reuses the clip and a finished fit, and resumes 
 
 from __future__ import annotations
 
-import io
 import json
 import sys
 from pathlib import Path
@@ -14,10 +13,10 @@ from pathlib import Path
 import torch
 
 from engine import contract as C
-from engine.config import FitConfig, apply_overrides, preset_config
+from engine.config import apply_overrides, preset_config
 from engine.fit_preview import write_contact_sheet
 from engine.synthetic import demo_spec, make_scene, write_scene
-from engine.trainer import FitCancelled, Reporter, build_model, fit, prepare_clip
+from engine.trainer import FitCancelled, fit, load_run
 
 
 def run_demo(out: Path, preset: str = "draft", overrides: dict[str, str] | None = None) -> dict:
@@ -37,13 +36,8 @@ def run_demo(out: Path, preset: str = "draft", overrides: dict[str, str] | None 
             print(f"== cancelled; run the same command again to resume {run}", file=sys.stderr)
             raise
     metrics = json.loads((run / C.RUN_METRICS).read_text())
-    cfg_run = FitConfig.from_json((run / C.RUN_CONFIG).read_text(), run / C.RUN_CONFIG)
-    prepared = prepare_clip(frames_dir, [masks_dir], cfg_run, run, None, Reporter(None, io.StringIO()))
-    model = build_model(cfg_run, prepared)
-    model.load_state_dict(torch.load(run / C.RUN_CHECKPOINT, map_location="cpu", weights_only=True)["model"])
-    sheet = write_contact_sheet(
-        model.eval(), prepared.frames, prepared.size, torch.device("cpu"), out / "contact_sheet.png"
-    )
+    model, prepared, _ = load_run(run)
+    sheet = write_contact_sheet(model, prepared.frames, prepared.size, torch.device("cpu"), out / "contact_sheet.png")
     print(
         f"== done: PSNR {metrics['psnr']:.2f} dB, foreground alpha IoU {metrics['alpha_iou'][0]:.3f}, "
         f"{metrics['steps']} steps in {metrics['train_seconds']:.0f} s\n"

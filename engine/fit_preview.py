@@ -15,6 +15,7 @@ import torch
 
 from engine.checkpoint import atomic_write_bytes
 from engine.model import AtlasModel
+from engine.video import frame_pixels
 
 #: Atlas images in the sheet are rendered at this many pixels per side.
 ATLAS_PX = 384
@@ -28,9 +29,7 @@ def _to_u8(img: np.ndarray) -> np.ndarray:
 def layer_images(model: AtlasModel, t: int, size: tuple[int, int], device: torch.device) -> list[np.ndarray]:
     """[reconstruction, alpha of layer 1.. as grey, each layer's colour] for frame ``t``."""
     w, h = size
-    ys, xs = torch.meshgrid(torch.arange(h, device=device), torch.arange(w, device=device), indexing="ij")
-    xy = torch.stack((xs.reshape(-1), ys.reshape(-1)), -1).float() + 0.5
-    tt = torch.full((xy.shape[0],), t, dtype=torch.long, device=device)
+    xy, tt = frame_pixels(size, t, device)
     wts = model.alpha(xy, tt)
     cols = [model.color(i, model.uv(i, xy, tt)) for i in range(model.num_layers)]
     rec = sum(wts[:, i : i + 1] * cols[i] for i in range(model.num_layers))

@@ -21,6 +21,8 @@ from engine.motion_init import LayerMotion
 #: so log(alpha) and log(1 - alpha) stay finite without relying on clamps.
 ALPHA_FLOOR = 0.001
 ALPHA_SPAN = 0.99
+#: The finest alpha grid has at least this many cells along the long edge (all pixels if the clip is smaller).
+ALPHA_MIN_CELLS = 128
 
 
 class AtlasModel(nn.Module):
@@ -82,7 +84,9 @@ class FastLayerMapping(nn.Module):
     No positional encoding of (x, y, t): the mapping must stay smooth so the atlas stays coherent.
     """
 
-    def __init__(self, motion: LayerMotion, size: tuple[int, int], frames: int, cfg: FitConfig) -> None:
+    def __init__(
+        self, motion: LayerMotion, size: tuple[int, int], frames: int, cfg: FitConfig, warp: bool = True
+    ) -> None:
         super().__init__()
         w, h = size
         hidden, layers = cfg.mapping_hidden, cfg.mapping_layers
@@ -97,7 +101,7 @@ class FastLayerMapping(nn.Module):
         # a coarse per-frame displacement field (pixels) for non-rigid motion the MLP is too smooth for;
         # cells of several pixels keep it low-frequency, and the rigidity terms keep it regular
         self.warp: Grid3D | None = None
-        if cfg.warp_levels > 0:
+        if warp and cfg.warp_levels > 0:
             res = []
             for i in range(cfg.warp_levels):
                 cell = cfg.warp_cell_px * 2.0 ** (cfg.warp_levels - 1 - i)
@@ -161,10 +165,15 @@ class FastModel(AtlasModel):
         self.width, self.height = size
         self.frames = frames
         self.num_layers = len(motions)
-        self.mappings = nn.ModuleList(FastLayerMapping(m, size, frames, cfg) for m in motions)
+        self.mappings = nn.ModuleList(
+            FastLayerMapping(m, size, frames, cfg, warp=(i == 0 or cfg.warp_foreground)) for i, m in enumerate(motions)
+        )
         self.atlases = nn.ModuleList(FastAtlas(m, cfg) for m in motions)
-        fw = max(2, round(self.width * cfg.alpha_density))
-        fh = max(2, round(self.height * cfg.alpha_density))
+        # small clips keep a usable alpha resolution: at least ALPHA_MIN_CELLS on the long edge (or every pixel)
+        long_edge = max(self.width, self.height)
+        density = max(cfg.alpha_density, min(1.0, ALPHA_MIN_CELLS / long_edge))
+        fw = max(2, round(self.width * density))
+        fh = max(2, round(self.height * density))
         levels = max(1, cfg.alpha_levels)
         res3 = []
         for i in range(levels):

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import io
 import json
 import os
 import signal
@@ -33,7 +34,7 @@ from engine.model import AtlasModel, FastModel, motion_regions
 from engine.motion_init import estimate_layer_motion
 from engine.objective import compute_losses
 from engine.paper_model import PaperModel
-from engine.video import VideoTensors, build_video_tensors, sample_pixels
+from engine.video import VideoTensors, build_video_tensors, frame_pixels, sample_pixels
 
 #: Pixels per forward chunk when evaluating whole frames (bounds memory of the evaluation).
 EVAL_CHUNK = 65536
@@ -161,9 +162,7 @@ def render_frame(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Reconstruction [H, W, 3] and layer weights [H, W, L] of one frame at working resolution."""
     w, h = size
-    ys, xs = torch.meshgrid(torch.arange(h, device=device), torch.arange(w, device=device), indexing="ij")
-    xy = torch.stack((xs.reshape(-1), ys.reshape(-1)), -1).float() + 0.5
-    tt = torch.full((xy.shape[0],), t, dtype=torch.long, device=device)
+    xy, tt = frame_pixels(size, t, device)
     recs, ws = [], []
     for s in range(0, xy.shape[0], EVAL_CHUNK):
         r, wgt = model.reconstruct(xy[s : s + EVAL_CHUNK], tt[s : s + EVAL_CHUNK])
@@ -405,6 +404,19 @@ def fit(
     atomic_write_text(run_dir / C.RUN_METRICS, json.dumps(metrics, indent=2))
     reporter.emit(C.EVENT_DONE, metrics=metrics)
     return metrics
+
+
+def load_run(run_dir: str | Path, device_name: str = "cpu") -> tuple[AtlasModel, PreparedClip, FitConfig]:
+    """A finished (or checkpointed) fit: its model with the checkpoint's weights, its clip, its config."""
+    run_dir = Path(run_dir)
+    cfg = FitConfig.from_json((run_dir / C.RUN_CONFIG).read_text(encoding="utf-8"), run_dir / C.RUN_CONFIG)
+    rec = _read_json(run_dir / C.RUN_CLIP)
+    frame_range = (int(rec["frame_range"][0]), int(rec["frame_range"][1]))
+    prepared = prepare_clip(rec["source"], rec["masks"], cfg, run_dir, frame_range, Reporter(None, io.StringIO()))
+    device = select_device(device_name)
+    model = build_model(cfg, prepared).to(device)
+    model.load_state_dict(load_checkpoint(run_dir / C.RUN_CHECKPOINT, device)["model"])
+    return model.eval(), prepared, cfg
 
 
 def _check_writable(run_dir: Path) -> None:

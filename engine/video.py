@@ -69,6 +69,14 @@ def build_video_tensors(
     )
 
 
+def frame_pixels(size: tuple[int, int], t: int, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+    """Every pixel centre of frame ``t`` (row-major) as continuous coordinates, and the frame index."""
+    w, h = size
+    ys, xs = torch.meshgrid(torch.arange(h, device=device), torch.arange(w, device=device), indexing="ij")
+    xy = torch.stack((xs.reshape(-1), ys.reshape(-1)), -1).float() + 0.5
+    return xy, torch.full((xy.shape[0],), t, dtype=torch.long, device=device)
+
+
 def sample_pixels(
     shape: tuple[int, int, int], n: int, gen: torch.Generator, device: torch.device
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from engine.config import FitConfig, apply_overrides, preset_config
+from engine.config import apply_overrides, preset_config
 from engine.synthetic import SceneSpec, SyntheticScene, make_scene, write_scene
-from engine.trainer import Reporter, build_model, fit, prepare_clip
+from engine.trainer import fit, load_run
 
 TINY_OVERRIDES = {
     "steps": "400",
@@ -31,14 +31,8 @@ def fit_scene(tmp: Path, spec: SceneSpec | None = None, **overrides: str) -> tup
 
 
 def load_model(run: Path):
-    import json
-
-    cfg = FitConfig.from_json((run / "config.json").read_text())
-    clip = json.loads((run / "clip.json").read_text())
-    prepared = prepare_clip(clip["source"], clip["masks"], cfg, run, None, Reporter(None, io.StringIO()))
-    model = build_model(cfg, prepared)
-    model.load_state_dict(torch.load(run / "checkpoint.pt", weights_only=True)["model"])
-    return model.eval(), prepared
+    model, prepared, _ = load_run(run)
+    return model, prepared
 
 
 def atlas_consistency_px(model, layer: int, pts_frames: list[np.ndarray], ts: list[int]) -> np.ndarray:

@@ -1,7 +1,8 @@
 """End-to-end: a tiny fit on a synthetic scene with known motion reaches stated numbers.
 
-Measured when written (2-core CPU, ~30 s): PSNR 31.5 dB, alpha IoU 0.86, background atlas consistency
-0.12 px median, foreground 0.45 px median. The bounds below leave room for CPU/BLAS differences.
+Measured when written (2-core CPU, ~35 s, default fast config): PSNR 32.8 dB, alpha IoU 0.91, atlas
+consistency of background points 0.10 px median / 1.5 px p95, of foreground points 0.25 / 0.89 px.
+The bounds below leave room for CPU/BLAS differences.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ def fitted(tmp_path_factory):
 
 def test_reconstruction_psnr(fitted):
     _, run, metrics, _ = fitted
-    assert metrics["psnr"] >= 29.0
+    assert metrics["psnr"] >= 30.0
     on_disk = json.loads((run / "metrics.json").read_text())
     for key in ("psnr", "steps", "train_seconds", "preset", "device"):
         assert key in on_disk
@@ -34,7 +35,7 @@ def test_reconstruction_psnr(fitted):
 
 
 def test_foreground_alpha_follows_the_masks(fitted):
-    assert fitted[2]["alpha_iou"][0] >= 0.75
+    assert fitted[2]["alpha_iou"][0] >= 0.8
 
 
 def _bg_points(scene, rng, n=300):
@@ -61,7 +62,7 @@ def test_background_point_keeps_its_atlas_position(fitted):
         ok = _visible(scene, pts0, 0) & _visible(scene, p, t)
         errs.append(atlas_consistency_px(model, 0, [pts0[ok], p[ok]], [0, t]))
     e = np.concatenate(errs)
-    assert np.median(e) < 0.5 and np.percentile(e, 95) < 2.0
+    assert np.median(e) < 0.4 and np.percentile(e, 95) < 2.5
 
 
 def test_foreground_point_keeps_its_atlas_position(fitted):
@@ -76,4 +77,4 @@ def test_foreground_point_keeps_its_atlas_position(fitted):
         for t in range(1, scene.frames.shape[0])
     ]
     e = np.concatenate(errs)
-    assert np.median(e) < 1.0 and np.percentile(e, 95) < 2.5
+    assert np.median(e) < 0.6 and np.percentile(e, 95) < 2.0
