@@ -6,6 +6,7 @@ and is idempotent: a second run reuses the clip and a finished fit, and resumes 
 
 from __future__ import annotations
 
+import io
 import json
 import sys
 from pathlib import Path
@@ -31,7 +32,8 @@ def run_demo(out: Path, preset: str = "draft", overrides: dict[str, str] | None 
         resume = (run / C.RUN_CHECKPOINT).exists()
         print(f"== {'resuming' if resume else 'fitting'} ({preset}) -> {run}", file=sys.stderr)
         try:
-            fit(frames_dir, [masks_dir], run, cfg, resume=resume)
+            # the bar on stderr is for people; the JSON progress lines go to the run's fit.log only
+            fit(frames_dir, [masks_dir], run, cfg, resume=resume, stream=io.StringIO())
         except FitCancelled:
             print(f"== cancelled; run the same command again to resume {run}", file=sys.stderr)
             raise
