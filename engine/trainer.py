@@ -345,6 +345,8 @@ def fit(
         dynamic_ncols=True,
     )
     last_ckpt = time.monotonic()
+    # the ETA extrapolates this session's steps only (not calibration, not time before a resume)
+    loop_start_step, loop_start_seconds = step, train_seconds
     terms: dict[str, torch.Tensor] = {}
     with _Stop() as stop:
         while step < cfg.steps:
@@ -360,7 +362,8 @@ def fit(
             bar.update(1)
             if step % cfg.eval_every == 0 or step == cfg.steps or step == 1:
                 psnr = psnr_from_mse(evaluate_pixels(model, video, ex, ey, et))
-                eta = train_seconds / step * (cfg.steps - step) if step else None
+                done = step - loop_start_step
+                eta = (train_seconds - loop_start_seconds) / done * (cfg.steps - step) if done else None
                 reporter.emit(
                     C.EVENT_PROGRESS,
                     step=step,
