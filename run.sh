@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Set-up and entry point. Usage:
 #   bash run.sh demo   # set up .venv, then fit the embedded demo clip and write its outputs to demo_out/
-#   bash run.sh test   # set up .venv, then lint and run the whole test suite
+#   bash run.sh test   # set up .venv (+ .venv-bpy5), lint, run the whole suite; add-on tests on bpy 4.5 and 5.0
 # Set-up is idempotent: the venv is (re)built only when the pinned requirements change.
 set -euo pipefail
 cd "$(dirname "$0")"
@@ -38,6 +38,24 @@ if [ ! -x .venv/bin/python ] || [ "$(cat "$STAMP" 2>/dev/null)" != "$WANT" ]; th
   echo "$WANT" > "$STAMP"
 fi
 
+# Blender 5.0 for the add-on tests: a second venv (bpy 4.5 lives in .venv; one bpy per interpreter).
+BPY5_REQS='bpy==5.0.1
+numpy<2
+OpenEXR==3.5.*
+pytest>=8'
+setup_bpy5() {
+  local want
+  want="$(printf '%s\n' "$BPY5_REQS" | sha256sum | cut -d' ' -f1)"
+  if [ ! -x .venv-bpy5/bin/python ] || [ "$(cat .venv-bpy5/.requirements.sha256 2>/dev/null)" != "$want" ]; then
+    echo "== setting up .venv-bpy5 (bpy 5.0.1 for the add-on tests)" >&2
+    [ -x .venv-bpy5/bin/python ] || "$PY" -m venv .venv-bpy5
+    printf '%s\n' "$BPY5_REQS" > .venv-bpy5/requirements.txt
+    .venv-bpy5/bin/python -m pip install --quiet --upgrade pip >/dev/null 2>&1 || true
+    .venv-bpy5/bin/python -m pip install --quiet -r .venv-bpy5/requirements.txt
+    echo "$want" > .venv-bpy5/.requirements.sha256
+  fi
+}
+
 case "${1:-}" in
   demo)
     shift
@@ -46,7 +64,20 @@ case "${1:-}" in
   test)
     shift
     .venv/bin/ruff check .
-    exec .venv/bin/python -m pytest -q "$@"
+    setup_bpy5
+    rc=0
+    .venv/bin/python -m pytest -q "$@" || rc=$?
+    # the add-on tests again on Blender 5.0 (all of them, or the add-on paths among the arguments);
+    # engine processes they start use .venv's Python
+    bpy5_args=()
+    if [ $# -eq 0 ]; then bpy5_args=(tests/addon); else
+      for a in "$@"; do case "$a" in tests/addon*) bpy5_args+=("$a") ;; esac; done
+    fi
+    if [ ${#bpy5_args[@]} -gt 0 ]; then
+      echo "== add-on tests on bpy 5.0.1 (.venv-bpy5)" >&2
+      NEURAL_ATLAS_TEST_ENGINE_PYTHON="$PWD/.venv/bin/python" .venv-bpy5/bin/python -m pytest -q "${bpy5_args[@]}" || rc=$?
+    fi
+    exit $rc
     ;;
   *)
     echo "usage: bash run.sh demo | test" >&2

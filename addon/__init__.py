@@ -1,22 +1,18 @@
 """Neural Atlas Blender add-on (bpy side).
 
-This package imports bpy and, of the engine, only ``engine.contract``. The Fit Atlas panel, the engine
-process runner and the compositor builder land with the add-on issue; until then registration is empty
-so the extension installs and enables cleanly.
+Imports bpy and, of the engine, only ``engine.contract``. The modules without bpy (``engine_process``,
+``engine_setup``, ``tree_plan``, ``mask_math``, ``estimate``) are importable and tested outside Blender,
+so this file imports the bpy side only when Blender registers the add-on.
 """
-
-classes: tuple = ()
 
 
 def register() -> None:
-    import bpy
+    from . import registration
 
-    for cls in classes:
-        bpy.utils.register_class(cls)
+    registration.register()
 
 
 def unregister() -> None:
-    import bpy
+    from . import registration
 
-    for cls in reversed(classes):
-        bpy.utils.unregister_class(cls)
+    registration.unregister()

@@ -1,5 +1,5 @@
 """Neural Atlas engine: fits layered neural atlases to a clip (no bpy here, ever)."""
 
-from engine.contract import ENGINE_VERSION as __version__
+from .contract import ENGINE_VERSION as __version__  # relative: the Blender extension imports engine as a subpackage
 
 __all__ = ["__version__"]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import sys
 import traceback
 from pathlib import Path
@@ -28,6 +29,10 @@ progress: one JSON object per stdout line ({"neural_atlas": 1, "event": ...}); a
 exit codes: 0 done, 1 engine error, 2 bad input (one line names the file and the fix),
             3 cancelled by SIGINT/SIGTERM (a checkpoint was written: --resume continues).
 """
+
+
+#: OS errors that mean "the disk is full" (no space, quota, file too large): reported in one line.
+DISK_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
 
 
 def _frame_range(text: str) -> tuple[int, int]:
@@ -101,6 +106,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--rounds", type=int, default=3, help="interleaved rounds (default: 3)")
     sp.add_argument("--device", default="auto")
     sp.add_argument("--work", default=None, help="folder for the flow cache (default: a temp folder)")
+    _add_bench_parsers(sub)
+    _add_export_parsers(sub)
+    _add_masks_parser(sub)
     return p
 
 
@@ -120,6 +128,226 @@ def _cmd_speed(args: argparse.Namespace) -> int:
             device_name=args.device,
         )
     print(format_table(rows))
+    return C.EXIT_OK
+
+
+BENCH_EPILOG = """\
+clips: a folder holding frames/ and masks/ (and tracks_tapvid.npz: then atlas tracking is scored), e.g.
+  ../shared/data/blackswan, or a frame folder with --mask (one clip only).
+--set KEY=VALUE applies to every preset, --set PRESET.KEY=VALUE to one (e.g. paper.batch=2000).
+writes OUT/bench.json (curves, machine, versions, command) and OUT/bench.png; see docs/accuracy-vs-time.md.
+"""
+
+
+def _add_bench_parsers(sub: argparse._SubParsersAction) -> None:
+    b = sub.add_parser(
+        C.VERB_BENCH,
+        help="accuracy against training time of several presets, in one process",
+        epilog=BENCH_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Fit presets side by side for a training-time budget each; record PSNR, mapping "
+        "consistency and point-tracking accuracy against training seconds (evaluation excluded).",
+    )
+    b.add_argument("clips", nargs="+", metavar="CLIP", help="clip folder (frames/, masks/) or a frame folder")
+    b.add_argument("--mask", action="append", default=[], metavar="FOLDER", help="mask folder (single clip only)")
+    b.add_argument("--tracks", default=None, metavar="NPZ", help="tracks_tapvid.npz (single clip only)")
+    b.add_argument("--presets", default="draft,balanced,paper", help="comma-separated (default: draft,balanced,paper)")
+    b.add_argument("--budget-seconds", type=float, required=True, help="training seconds per run")
+    b.add_argument("--out", default="bench_out", help="output folder (default: bench_out)")
+    b.add_argument("--evals", type=int, default=6, help="evaluations per run, geometric in time (default: 6)")
+    b.add_argument("--eval-frames", type=int, default=5, help="frames evaluated (default: 5; 0 = all)")
+    b.add_argument("--slice-seconds", type=float, default=5.0, help="interleaving slice (default: 5)")
+    b.add_argument("--sequential", action="store_true", help="run presets one after another, not interleaved")
+    b.add_argument("--eval-at-start", action="store_true", help="also evaluate each model before its first step")
+    b.add_argument("--stride", type=int, default=4, help="pixel grid of the consistency and tracking search")
+    b.add_argument("--set", action="append", default=[], metavar="[PRESET.]KEY=VALUE", help="config override")
+    b.add_argument("--device", default="auto")
+    b.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+    e = sub.add_parser(
+        C.VERB_ESTIMATE,
+        help="estimated fit time of each preset on this machine and clip",
+        description="Time a few training steps of each preset on the clip and multiply by its step budget.",
+    )
+    e.add_argument("clip", help="image-sequence folder or movie file")
+    e.add_argument("--mask", action="append", default=[], metavar="FOLDER", help="mask folder per foreground layer")
+    e.add_argument("--presets", default=None, help="comma-separated (default: every preset)")
+    e.add_argument("--frames", type=_frame_range, default=None, metavar="FIRST:LAST")
+    e.add_argument("--calib-seconds", type=float, default=2.0, help="timed seconds per preset and regime")
+    e.add_argument("--work", default=None, metavar="RUN_DIR", help="keep the flow cache here (a fit reuses it)")
+    e.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
+    e.add_argument("--device", default="auto")
+    e.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+    e.add_argument("--json", action="store_true", help="print one JSON object (contract.ESTIMATE_TAG) instead")
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from engine.bench import resolve_clip, run_bench, summary_table
+    from engine.config import parse_set_args
+
+    if (args.mask or args.tracks) and len(args.clips) != 1:
+        raise InputError(None, "--mask and --tracks need exactly one clip", "bench one clip, or use clip folders")
+    clips = [resolve_clip(c, args.mask or None, args.tracks) for c in args.clips]
+    record = run_bench(
+        clips,
+        [p.strip() for p in args.presets.split(",") if p.strip()],
+        args.budget_seconds,
+        args.out,
+        overrides=parse_set_args(args.set),
+        evals=args.evals,
+        eval_frames=args.eval_frames,
+        slice_seconds=args.slice_seconds,
+        sequential=args.sequential,
+        device_name=args.device,
+        stride=args.stride,
+        command=["python", "-m", "engine", *getattr(args, "argv", sys.argv[1:])],
+        threads=args.threads,
+        eval_at_start=args.eval_at_start,
+    )
+    print(summary_table(record))
+    print(str((Path(args.out) / "bench.json").resolve()))
+    return C.EXIT_OK
+
+
+def _cmd_estimate(args: argparse.Namespace) -> int:
+    import json
+
+    from engine.calibration import estimate, format_estimate
+    from engine.config import parse_set_args
+
+    result = estimate(
+        args.clip,
+        args.mask,
+        presets=[p.strip() for p in args.presets.split(",")] if args.presets else None,
+        work_dir=args.work,
+        calib_seconds=args.calib_seconds,
+        device_name=args.device,
+        frame_range=args.frames,
+        overrides=parse_set_args(args.set),
+        threads=args.threads,
+    )
+    print(json.dumps(result) if args.json else format_estimate(result))
+    return C.EXIT_OK
+
+
+def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
+    x = sub.add_parser(
+        C.VERB_EXPORT,
+        help="write UV + alpha EXR passes, atlas textures, edit layers and a manifest",
+        description="Export a fitted run for compositing into RUN_DIR/exports/vNNN (never overwritten). "
+        "Passes are float32 EXR at the plate's native resolution; edit layers (RUN_DIR/edits) are created "
+        "once and never overwritten. The last line printed is the manifest's path.",
+    )
+    x.add_argument("run", metavar="RUN_DIR", help="the --out folder of a fit")
+    x.add_argument("--atlas-size", type=int, default=1000, help="atlas texture long side in texels (default: 1000)")
+    x.add_argument(
+        "--frames",
+        type=_frame_range,
+        default=None,
+        metavar="FIRST:LAST",
+        help="inclusive positions in the source sequence, as for fit (default: every fitted frame)",
+    )
+    x.add_argument("--device", default="cpu", help="auto | cpu | cuda | mps (default: cpu)")
+    x.add_argument("--no-bar", action="store_true", help="no progress bar on stderr")
+    r = sub.add_parser(
+        C.VERB_RENDER,
+        help="render the edited clip from an export (the paper's edit equations)",
+        description="Blend each layer's edit layer (sampled at its UV) over the ORIGINAL plate, layers weighted "
+        "by the learned alpha. With every edit layer empty the output is the plate.",
+    )
+    r.add_argument("manifest", metavar="MANIFEST", help="manifest.json of an export (or its folder)")
+    r.add_argument("--edit", action="append", default=[], metavar="LAYER=IMAGE", help="use IMAGE as LAYER's edit")
+    r.add_argument("--out", required=True, metavar="DIR", help="folder for the frames (edit.00012.exr ...)")
+    r.add_argument("--format", default="exr", choices=["exr", "png"], help="exr (linear float, default) or png")
+    r.add_argument("--filter", default="bilinear", choices=["bilinear", "nearest"], help="texture filter")
+    r.add_argument("--movie", default=None, metavar="FILE.mp4", help="also write an H.264 movie")
+    r.add_argument("--no-bar", action="store_true", help="no progress bar on stderr")
+    pf = sub.add_parser(
+        C.VERB_PROJECT_FRAME,
+        help="land paint made on one frame on the atlases' edit layers",
+        description="IMAGE is RGBA paint over plate frame N (transparent where unpainted). The paint goes to the "
+        "layers that own each pixel and is composited over their edit layers (the old ones are kept in "
+        "edits/history).",
+    )
+    pf.add_argument("manifest", metavar="MANIFEST")
+    pf.add_argument("--frame", type=int, required=True, metavar="N", help="plate frame number the paint was made on")
+    pf.add_argument("--edit", required=True, metavar="IMAGE", help="RGBA paint, the plate's size")
+    pf.add_argument("--layer", action="append", default=None, metavar="NAME", help="only these layers")
+    pv = sub.add_parser(
+        C.VERB_PREVIEW,
+        help="contact sheets and movies to judge an export: atlases, checkerboard, label propagation",
+        description="Writes into MANIFEST's folder/preview (or --out): atlases with coverage, a checkerboard "
+        "mapped through each foreground atlas, and stripes painted on the first frame propagated.",
+    )
+    pv.add_argument("manifest", metavar="MANIFEST")
+    pv.add_argument("--out", default=None, metavar="DIR")
+    pv.add_argument("--no-movies", action="store_true", help="contact sheets only")
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from engine.export import export_run
+
+    path = export_run(
+        args.run, atlas_size=args.atlas_size, frames=args.frames, device_name=args.device, progress_bar=not args.no_bar
+    )
+    print(str(path))
+    return C.EXIT_OK
+
+
+def _cmd_render(args: argparse.Namespace) -> int:
+    from engine.render import parse_edit_args, render_manifest
+
+    out = render_manifest(
+        args.manifest,
+        args.out,
+        parse_edit_args(args.edit),
+        fmt=args.format,
+        filter=args.filter,
+        movie=args.movie,
+        progress_bar=not args.no_bar,
+    )
+    print(str(Path(out).resolve()))
+    return C.EXIT_OK
+
+
+def _cmd_project_frame(args: argparse.Namespace) -> int:
+    from engine.project import project_frame
+
+    written = project_frame(args.manifest, args.frame, args.edit, args.layer)
+    for path in written.values():
+        print(str(path))
+    return C.EXIT_OK
+
+
+def _cmd_preview(args: argparse.Namespace) -> int:
+    from engine.preview import write_previews
+
+    for path in write_previews(args.manifest, args.out, movies=not args.no_movies):
+        print(str(path))
+    return C.EXIT_OK
+
+
+def _add_masks_parser(sub: argparse._SubParsersAction) -> None:
+    m = sub.add_parser(
+        C.VERB_MASKS,
+        help="coarse foreground masks from motion, for a clip that has none",
+        description="Find what moves against the background (a homography per frame pair fitted to the optical "
+        "flow) and write one 8-bit PNG per frame (0 = background, 255 = foreground), named like the frames, to "
+        "check and fix before fitting. Existing files are never overwritten. The last line printed is the folder. "
+        "See docs/auto-masks.md.",
+    )
+    m.add_argument("clip", help="image-sequence folder or movie file")
+    m.add_argument("--out", required=True, metavar="FOLDER", help="folder for the mask PNGs (created)")
+    m.add_argument("--frames", type=_frame_range, default=None, metavar="FIRST:LAST", help="inclusive positions")
+    m.add_argument("--truth", default=None, metavar="FOLDER", help="also print the IoU against these masks")
+
+
+def _cmd_masks(args: argparse.Namespace) -> int:
+    from engine.auto_masks import write_auto_masks
+
+    report = write_auto_masks(args.clip, args.out, frame_range=args.frames, truth=args.truth)
+    for line in report.summary():
+        print(line)
+    print(report.folder)
     return C.EXIT_OK
 
 
@@ -166,14 +394,24 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # recorded by bench
     if args.verb is None:
         parser.print_help()
         return C.EXIT_OK
     try:
-        if args.verb == C.VERB_FIT:
-            return _cmd_fit(args)
-        if args.verb == C.VERB_SPEED:
-            return _cmd_speed(args)
+        handlers = {
+            C.VERB_FIT: _cmd_fit,
+            C.VERB_SPEED: _cmd_speed,
+            C.VERB_EXPORT: _cmd_export,
+            C.VERB_RENDER: _cmd_render,
+            C.VERB_PROJECT_FRAME: _cmd_project_frame,
+            C.VERB_PREVIEW: _cmd_preview,
+            C.VERB_BENCH: _cmd_bench,
+            C.VERB_ESTIMATE: _cmd_estimate,
+            C.VERB_MASKS: _cmd_masks,
+        }
+        if args.verb in handlers:
+            return handlers[args.verb](args)
         if args.verb == C.VERB_DEMO:
             from engine.config import parse_set_args
             from engine.demo import run_demo
@@ -189,6 +427,18 @@ def main(argv: list[str] | None = None) -> int:
         return C.EXIT_BAD_INPUT
     except KeyboardInterrupt:
         return C.EXIT_CANCELLED
+    except OSError as exc:
+        if exc.errno not in DISK_ERRNOS:
+            traceback.print_exc()
+            return C.EXIT_FAILED
+        # a full disk or a quota is the machine's state, not an engine bug: one line, and what survives
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(
+            f"error: {where}{exc.strerror or exc} — free space (or choose another output folder) and run the "
+            "command again; earlier results, checkpoints and edit layers are intact",
+            file=sys.stderr,
+        )
+        return C.EXIT_FAILED
     except Exception:
         traceback.print_exc()
         return C.EXIT_FAILED

@@ -10,10 +10,12 @@ colour management and sanitising are the caller's decision, not the loader's.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import math
 import os
 import re
+import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -104,19 +106,8 @@ def read_frames(info: ClipInfo, size: tuple[int, int] | None = None) -> np.ndarr
     """
     out_w, out_h = (info.width, info.height) if size is None else _check_size(size)
     frames = np.empty((info.num_frames, out_h, out_w, 3), dtype=np.float32)
-    if info.kind == _MOVIE:
-        for i, rgb in enumerate(_decode_movie(info)):
-            frames[i] = _resize(rgb, (out_w, out_h))
-        return frames
-    for i, path in enumerate(info.frame_files):
-        image = _read_image(path, _FRAME)
-        if (image.width, image.height) != (info.width, info.height):
-            raise InputError(
-                path,
-                f"frame is {image.width}x{image.height} but the clip is {info.width}x{info.height}",
-                _FRAME.size_fix,
-            )
-        frames[i] = _resize(image.rgb(), (out_w, out_h))
+    for i, rgb in enumerate(iter_frames(info, (out_w, out_h))):
+        frames[i] = rgb
     return frames
 
 
@@ -521,6 +512,29 @@ def _read_config() -> oiio.ImageSpec:
     return config
 
 
+@contextlib.contextmanager
+def _quiet_codec_stderr() -> Iterator[None]:
+    """Silence file descriptor 2 while a codec library decodes.
+
+    libpng, libjpeg and OpenEXR print their complaints about a corrupt file straight to fd 2, which would
+    put extra lines around our one-line error; OIIO's ``geterror()`` already carries the same text into it.
+    """
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):  # no usable fd 2 (embedded interpreter): nothing to silence
+        yield
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
+
+
 def _open_image(path: str, role: _Role) -> oiio.ImageInput:
     inp = oiio.ImageInput.open(path, _read_config())
     if inp is None:
@@ -530,7 +544,8 @@ def _open_image(path: str, role: _Role) -> oiio.ImageInput:
 
 def _read_header(path: str, role: _Role) -> tuple[int, int]:
     """(width, height) of the display window, from the header only."""
-    inp = _open_image(path, role)
+    with _quiet_codec_stderr():
+        inp = _open_image(path, role)
     try:
         spec = inp.spec()
         return spec.full_width or spec.width, spec.full_height or spec.height
@@ -540,10 +555,12 @@ def _read_header(path: str, role: _Role) -> tuple[int, int]:
 
 def _read_image(path: str, role: _Role) -> _Image:
     """Decode subimage 0; any decoder complaint (even with partial pixels) counts as corrupt."""
-    inp = _open_image(path, role)
+    with _quiet_codec_stderr():
+        inp = _open_image(path, role)
     try:
         spec = inp.spec()
-        pixels = inp.read_image(0, 0, 0, spec.nchannels, "float")  # integers come back normalised
+        with _quiet_codec_stderr():
+            pixels = inp.read_image(0, 0, 0, spec.nchannels, "float")  # integers come back normalised
         error = inp.geterror()
         if pixels is None or error:
             raise InputError(path, f"cannot read this {role.noun} ({_one_line(error)})", role.corrupt_fix)
@@ -628,3 +645,22 @@ def _resize(image: np.ndarray, size: tuple[int, int], grow: int = cv2.INTER_LINE
         return image
     grows = width > image.shape[1] or height > image.shape[0]
     return cv2.resize(image, (width, height), interpolation=grow if grows else cv2.INTER_AREA)
+
+
+def iter_frames(info: ClipInfo, size: tuple[int, int] | None = None) -> Iterator[np.ndarray]:
+    """The selected frames one at a time, float32 [H, W, 3], as ``read_frames`` returns them but without
+    holding the whole clip (render and export read native-resolution plates this way)."""
+    out_w, out_h = (info.width, info.height) if size is None else _check_size(size)
+    if info.kind == _MOVIE:
+        for rgb in _decode_movie(info):
+            yield _resize(rgb, (out_w, out_h))
+        return
+    for path in info.frame_files:
+        image = _read_image(path, _FRAME)
+        if (image.width, image.height) != (info.width, info.height):
+            raise InputError(
+                path,
+                f"frame is {image.width}x{image.height} but the clip is {info.width}x{info.height}",
+                _FRAME.size_fix,
+            )
+        yield _resize(image.rgb(), (out_w, out_h))

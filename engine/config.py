@@ -169,7 +169,8 @@ def _parse_value(kind: Any, raw: Any, key: str) -> Any:
         if kind == "float":
             return float(raw)
     except ValueError:
-        raise InputError(None, f"--set {key}={raw}: not a valid {kind}", f"give {key} a {kind} value") from None
+        article = "an" if kind[:1] in "aeiou" else "a"
+        raise InputError(None, f"--set {key}={raw}: not a valid {kind}", f"give {key} {article} {kind} value") from None
     return raw
 
 

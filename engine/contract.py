@@ -26,6 +26,7 @@ ENGINE_REQUIREMENTS: tuple[str, ...] = (
     "opencv-python-headless>=4.9,<4.12",
     "av>=12",
     "tqdm>=4.66",
+    "scipy>=1.11,<1.16",  # linear scattered interpolation (Delaunay) when projecting a frame edit onto atlases
 )
 
 #: Extra requirements for development and the test suite (same venv).
@@ -42,6 +43,17 @@ CLI_MODULE = "engine"  # run as: python -m engine <verb> ...
 VERB_FIT = "fit"
 VERB_DEMO = "demo"
 VERB_SPEED = "speed"
+VERB_BENCH = "bench"  # bench CLIP... --presets P,Q --budget-seconds S [--out DIR]: accuracy-vs-time curves
+VERB_ESTIMATE = "estimate"  # estimate CLIP [--mask M ...] [--work RUN_DIR] --json: one JSON object on stdout
+#: ``estimate --json`` prints {"neural_atlas_estimate": SCHEMA_VERSION, "clip", "frames", "working_size",
+#: "device", "prepare_seconds", "presets": [{"preset", "model", "steps", "minutes", "total_seconds",
+#: "train_seconds", "expected_psnr" (dB or null), "expected_psnr_note", ...}]}
+ESTIMATE_TAG = "neural_atlas_estimate"
+VERB_EXPORT = "export"  # export RUN_DIR [--atlas-size N] [--frames FIRST:LAST]; last stdout line = manifest path
+VERB_RENDER = "render"  # render MANIFEST [--edit LAYER=IMAGE ...] --out DIR [--format exr|png] [--filter ...]
+VERB_PROJECT_FRAME = "project-frame"  # project-frame MANIFEST --frame N --edit IMAGE
+VERB_PREVIEW = "preview"  # preview MANIFEST [--out DIR]
+VERB_MASKS = "masks"  # masks CLIP --out FOLDER [--frames FIRST:LAST]; last stdout line = the masks folder
 
 EXIT_OK = 0
 EXIT_FAILED = 1  # an engine bug or an unexpected error: the log has the traceback
@@ -64,7 +76,8 @@ EVENT_CHECKPOINT = "checkpoint"  # step, path
 EVENT_DONE = "done"  # metrics{}
 EVENT_CANCELLED = "cancelled"  # step, checkpoint
 EVENT_ERROR = "error"  # message, log
-EVENTS = (EVENT_STAGE, EVENT_PROGRESS, EVENT_CHECKPOINT, EVENT_DONE, EVENT_CANCELLED, EVENT_ERROR)
+EVENT_EXPORTED = "exported"  # manifest (absolute path of the manifest.json an export wrote)
+EVENTS = (EVENT_STAGE, EVENT_PROGRESS, EVENT_CHECKPOINT, EVENT_DONE, EVENT_CANCELLED, EVENT_ERROR, EVENT_EXPORTED)
 
 
 def progress_line(event: str, **fields: Any) -> str:
@@ -86,3 +99,166 @@ def parse_progress_line(line: str) -> dict[str, Any] | None:
     if not isinstance(msg, dict) or msg.get(PROGRESS_TAG) != SCHEMA_VERSION or msg.get("event") not in EVENTS:
         return None
     return msg
+
+
+# --- export: EXR passes, atlas textures, edit layers, manifest ----------------------------------------------
+# A run folder holds any number of exports, each in its own versioned folder that is never rewritten:
+#   RUN_DIR/exports/v001/manifest.json, passes/atlas.00000.exr ..., atlases/<Layer>.exr|.png
+# and ONE set of edit layers shared by every export of the run (the artist's paint, never overwritten):
+#   RUN_DIR/edits/<Layer>.png (+ RUN_DIR/edits/layout.json, the atlas frame each edit layer was painted in)
+EXPORTS_DIR = "exports"
+EXPORT_VERSION_FORMAT = "v{:03d}"
+EDITS_DIR = "edits"
+EDITS_LAYOUT = "layout.json"
+MANIFEST_NAME = "manifest.json"
+#: Version of manifest.json; the add-on refuses a manifest whose version it does not know.
+MANIFEST_VERSION = 1
+MANIFEST_TAG = "neural_atlas_manifest"  # {"neural_atlas_manifest": MANIFEST_VERSION, ...}
+
+PASSES_DIR = "passes"
+ATLASES_DIR = "atlases"
+#: Pass files are named by the plate's frame number: passes/atlas.00012.exr (Blender reads the last digits).
+PASS_FILE_PREFIX = "atlas."
+PASS_FILE_DIGITS = 5
+PASS_FILE_EXT = ".exr"
+
+#: The single EXR layer of every pass file; Blender's multilayer convention is <layer>.<pass>.<channel>,
+#: so one Image node exposes one socket per pass.
+EXR_LAYER = "Atlas"
+UV_PASS_PREFIX = "UV"  # UV<Layer>: channels X, Y, Z = u, v (0..1, origin bottom-left), the layer's alpha
+ALPHA_PASS_PREFIX = "Alpha"  # Alpha<Layer>: one channel V, the layer's alpha (opacity weight; sums to 1)
+UV_CHANNELS: tuple[str, ...] = ("X", "Y", "Z")
+ALPHA_CHANNELS: tuple[str, ...] = ("V",)
+
+ROLE_BACKGROUND = "background"
+ROLE_FOREGROUND = "foreground"
+
+#: Edit layers are RGBA, sRGB-encoded, straight alpha (8-bit PNG: Blender loads it exactly as sRGB).
+EDIT_LAYER_EXT = ".png"
+#: Atlas textures: a float EXR (linear, premultiplied RGBA) and a 16-bit PNG (sRGB, straight alpha).
+ATLAS_EXR_EXT = ".exr"
+ATLAS_PNG_EXT = ".png"
+
+
+def layer_name(index: int, num_layers: int) -> str:
+    """Layer names used in channel names and file names: Background, Foreground (or Foreground1, 2, ...)."""
+    if index == 0:
+        return "Background"
+    return "Foreground" if num_layers == 2 else f"Foreground{index}"
+
+
+def uv_pass(layer: str) -> str:
+    return f"{UV_PASS_PREFIX}{layer}"
+
+
+def alpha_pass(layer: str) -> str:
+    return f"{ALPHA_PASS_PREFIX}{layer}"
+
+
+def channel_name(pass_name: str, channel: str) -> str:
+    """Full EXR channel name, e.g. ``Atlas.UVForeground.X``."""
+    return f"{EXR_LAYER}.{pass_name}.{channel}"
+
+
+def pass_file_name(frame_number: int) -> str:
+    """``atlas.00012.exr`` for plate frame 12."""
+    return f"{PASS_FILE_PREFIX}{frame_number:0{PASS_FILE_DIGITS}d}{PASS_FILE_EXT}"
+
+
+#: Keys every manifest has (validated by ``validate_manifest``); paths inside are relative to the manifest's
+#: folder unless absolute. Shape:
+#: {"neural_atlas_manifest": 1, "engine_version": str, "run_dir": str, "created": ISO-8601 str,
+#:  "clip": {"source": str, "kind": "sequence"|"movie", "frame_files": [str], "frame_numbers": [int],
+#:           "first_frame": int, "last_frame": int, "fps": float|None, "resolution": [W, H],
+#:           "working_resolution": [W, H], "colorspace": "sRGB"|"linear"},
+#:  "passes": {"dir": str, "pattern": "atlas.{frame:05d}.exr", "blender_pattern": "atlas.#####.exr",
+#:             "frames": [int] (plate frame numbers exported), "exr_layer": "Atlas", "resolution": [W, H]},
+#:  "layers": [{"name": str, "index": int, "role": "background"|"foreground",
+#:              "uv_pass": str, "alpha_pass": str, "uv_channels": [str], "alpha_channels": [str],
+#:              "atlas_exr": str, "atlas_png": str, "atlas_size": [W, H], "edit_layer": str,
+#:              "atlas_box": [u0, v0, u1, v1],
+#:              "channels": [full EXR channel names, e.g. "Atlas.UVForeground.X"] (optional: derivable)}],
+#:  "fit": {"preset": str, "model": str, "steps": int, "train_seconds": float, "psnr": float|None,
+#:          "alpha_iou": [float]|None}}
+MANIFEST_KEYS: tuple[str, ...] = ("engine_version", "run_dir", "created", "clip", "passes", "layers", "fit")
+MANIFEST_CLIP_KEYS: tuple[str, ...] = (
+    "source",
+    "kind",
+    "frame_files",
+    "frame_numbers",
+    "first_frame",
+    "last_frame",
+    "fps",
+    "resolution",
+    "colorspace",
+)
+MANIFEST_PASSES_KEYS: tuple[str, ...] = ("dir", "pattern", "blender_pattern", "frames", "exr_layer", "resolution")
+MANIFEST_LAYER_KEYS: tuple[str, ...] = (
+    "name",
+    "index",
+    "role",
+    "uv_pass",
+    "alpha_pass",
+    "uv_channels",
+    "alpha_channels",
+    "atlas_exr",
+    "atlas_png",
+    "atlas_size",
+    "edit_layer",
+    "atlas_box",
+)
+MANIFEST_FIT_KEYS: tuple[str, ...] = ("preset", "model", "steps", "train_seconds", "psnr")
+
+
+class ManifestError(ValueError):
+    """A manifest that does not follow this contract (message names what is wrong)."""
+
+
+def validate_manifest(data: Any) -> dict[str, Any]:
+    """Check a decoded manifest against the schema above; returns it, or raises ManifestError (one line)."""
+    if not isinstance(data, dict):
+        raise ManifestError("manifest is not a JSON object")
+    version = data.get(MANIFEST_TAG)
+    if version != MANIFEST_VERSION:
+        raise ManifestError(f"manifest version {version!r} is not supported (this engine reads {MANIFEST_VERSION})")
+    for key in MANIFEST_KEYS:
+        if key not in data:
+            raise ManifestError(f"manifest has no {key!r}")
+    for section, keys in (("clip", MANIFEST_CLIP_KEYS), ("passes", MANIFEST_PASSES_KEYS), ("fit", MANIFEST_FIT_KEYS)):
+        if not isinstance(data[section], dict):
+            raise ManifestError(f"manifest {section!r} is not an object")
+        for key in keys:
+            if key not in data[section]:
+                raise ManifestError(f"manifest {section!r} has no {key!r}")
+    layers = data["layers"]
+    if not isinstance(layers, list) or not layers:
+        raise ManifestError("manifest has no layers")
+    for i, layer in enumerate(layers):
+        if not isinstance(layer, dict):
+            raise ManifestError(f"manifest layer {i} is not an object")
+        for key in MANIFEST_LAYER_KEYS:
+            if key not in layer:
+                raise ManifestError(f"manifest layer {i} has no {key!r}")
+        if layer["role"] not in (ROLE_BACKGROUND, ROLE_FOREGROUND):
+            raise ManifestError(f"manifest layer {i} has unknown role {layer['role']!r}")
+        if layer["index"] != i:
+            raise ManifestError(f"manifest layer {i} has index {layer['index']!r}")
+    frames = data["passes"]["frames"]
+    if not isinstance(frames, list) or not frames or not all(isinstance(f, int) for f in frames):
+        raise ManifestError("manifest 'passes' lists no frames")
+    return data
+
+
+def load_manifest(path: str) -> dict[str, Any]:
+    """Read and validate ``manifest.json``; errors are one line naming the file and the fix."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            data = json.load(f)
+    except FileNotFoundError:
+        raise ManifestError(f"{path}: no manifest here — run `python -m engine export RUN_DIR` first") from None
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ManifestError(f"{path}: cannot be read ({type(exc).__name__}) — export the run again") from None
+    try:
+        return validate_manifest(data)
+    except ManifestError as exc:
+        raise ManifestError(f"{path}: {exc} — export the run again with this engine") from None

@@ -181,8 +181,10 @@ def _sanitize(frames: np.ndarray) -> np.ndarray:
         raise ValueError(f"frames must be [T, H, W, 3], got {frames.shape}")
     if frames.shape[0] < 1:
         raise ValueError("frames must hold at least one frame")
-    out = np.nan_to_num(frames.astype(np.float32, copy=False), nan=0.0, posinf=0.0, neginf=0.0)
-    return np.ascontiguousarray(out)
+    out = np.ascontiguousarray(frames, dtype=np.float32)
+    if np.isfinite(out).all():
+        return out  # the usual case: no copy of the whole clip
+    return np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
 
 
 def content_key(frames: np.ndarray, backend: FlowBackend, threshold_px: float) -> str:

@@ -13,6 +13,12 @@ from engine.config import FitConfig
 from engine.model import AtlasModel
 from engine.video import PRIOR_IGNORE, VideoTensors
 
+#: What a reconstruction can reach: a convex combination of atlas colours in [0, 1]. Plate values outside
+#: it (a linear EXR's highlights, display-encoded: 50 becomes 5.3) cannot be fitted, so the colour and
+#: gradient terms compare against the plate clamped to this range; otherwise those pixels dominate the
+#: gradient of the shared decoders (measured on an HDR plate, 150 steps: -1.9 dB everywhere else).
+TARGET_RANGE = (0.0, 1.0)
+
 
 def weights_at(cfg: FitConfig, step: int) -> dict[str, float]:
     """The loss weights in force at ``step`` (bootstrap terms switch off, the mask prior takes over)."""
@@ -59,11 +65,12 @@ def compute_losses(
     rec, rec_dx, rec_dy = rec3[:n], rec3[n : 2 * n], rec3[2 * n :]
     wts0 = weights3[:n]
 
-    target = video.frames[t, iy, ix]
+    lo, hi = TARGET_RANGE
+    target = video.frames[t, iy, ix].clamp(lo, hi)
     nx = (ix + 1).clamp(max=w - 1)
     ny = (iy + 1).clamp(max=h - 1)
-    gt_dx = video.frames[t, iy, nx] - target
-    gt_dy = video.frames[t, ny, ix] - target
+    gt_dx = video.frames[t, iy, nx].clamp(lo, hi) - target
+    gt_dy = video.frames[t, ny, ix].clamp(lo, hi) - target
 
     terms: dict[str, torch.Tensor] = {}
     terms["rgb"] = L.rgb_loss(rec, target)

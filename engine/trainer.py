@@ -28,6 +28,7 @@ from engine.checkpoint import atomic_write_text, load_checkpoint, save_checkpoin
 from engine.clip import ClipInfo, open_clip, read_frames, read_masks, working_size
 from engine.config import FitConfig
 from engine.errors import InputError
+from engine.eta import StepClock
 from engine.flow import DISFlow, FlowField, compute_flow
 from engine.losses import psnr_from_mse
 from engine.model import AtlasModel, FastModel, motion_regions
@@ -100,7 +101,13 @@ def prepare_clip(
     run_dir: Path,
     frame_range: tuple[int, int] | None,
     reporter: Reporter,
+    expect_fingerprint: str | None = None,
 ) -> PreparedClip:
+    """Read, validate and sanitise the clip and masks, and compute (or load) its flow.
+
+    ``expect_fingerprint`` (a resume): a clip whose frames changed is refused before its flow is computed,
+    so the refusal is quick and writes nothing into the run folder.
+    """
     info = open_clip(clip, frame_range)
     size = working_size(info.width, info.height, cfg.long_edge)
     reporter.emit(C.EVENT_STAGE, stage="read", message=f"reading {info.num_frames} frames at {size[0]}x{size[1]}")
@@ -112,7 +119,11 @@ def prepare_clip(
         if mask_dirs
         else np.zeros((0, len(frames), size[1], size[0]), dtype=bool)
     )
-    fingerprint = hashlib.sha256(frames.tobytes()).hexdigest()[:32]
+    fingerprint = hashlib.sha256(memoryview(np.ascontiguousarray(frames)).cast("B")).hexdigest()[:32]
+    if expect_fingerprint is not None and fingerprint != expect_fingerprint:
+        raise InputError(
+            info.source, "the clip changed since this run started", "fit it into a new --out instead of --resume"
+        )
     reporter.emit(C.EVENT_STAGE, stage="flow", message="optical flow (cached per clip content)")
     flow = compute_flow(
         frames.clip(0.0, 1.0),
@@ -228,10 +239,35 @@ def make_optimizer(model: AtlasModel, cfg: FitConfig, device: torch.device) -> t
         return torch.optim.Adam(groups)
 
 
+def train_step(
+    model: AtlasModel,
+    video: VideoTensors,
+    cfg: FitConfig,
+    optim: torch.optim.Optimizer,
+    sched: torch.optim.lr_scheduler.LRScheduler,
+    gen: torch.Generator,
+    step: int,
+    device: torch.device,
+) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """One optimisation step at ``step`` (the loss weights in force there); ``fit`` and ``bench`` share it."""
+    ix, iy, tt = sample_pixels(video.shape, cfg.batch, gen, device)
+    loss, terms = compute_losses(model, video, cfg, step, ix, iy, tt)
+    optim.zero_grad(set_to_none=True)
+    loss.backward()
+    optim.step()
+    sched.step()
+    return loss, terms
+
+
 def _lr_lambda(cfg: FitConfig) -> Callable[[int], float]:
     ratio = max(cfg.lr_final_ratio, 1e-6)
     steps = max(cfg.steps, 1)
     return lambda s: ratio ** (min(s, steps) / steps)
+
+
+def make_scheduler(optim: torch.optim.Optimizer, cfg: FitConfig) -> torch.optim.lr_scheduler.LambdaLR:
+    """The fit's learning-rate schedule: exponential decay to ``lr_final_ratio`` at ``cfg.steps``."""
+    return torch.optim.lr_scheduler.LambdaLR(optim, _lr_lambda(cfg))
 
 
 def fit(
@@ -267,7 +303,8 @@ def fit(
     torch.manual_seed(cfg.seed)
     # the input is read and validated before anything is written: bad input leaves no run folder behind
     reporter = Reporter(None, stream)
-    prepared = prepare_clip(clip, mask_dirs, cfg, run_dir, frame_range, reporter)  # type: ignore[arg-type]
+    expect = clip_rec.get("fingerprint") if resume else None
+    prepared = prepare_clip(clip, mask_dirs, cfg, run_dir, frame_range, reporter, expect)  # type: ignore[arg-type]
     run_dir.mkdir(parents=True, exist_ok=True)
     reporter.log_path = run_dir / C.RUN_LOG
     info = prepared.info
@@ -345,25 +382,22 @@ def fit(
         dynamic_ncols=True,
     )
     last_ckpt = time.monotonic()
-    # the ETA extrapolates this session's steps only (not calibration, not time before a resume)
-    loop_start_step, loop_start_seconds = step, train_seconds
+    # the ETA extrapolates this session's steps only (not calibration, not time before a resume), each cost
+    # regime at its own rate (engine.eta)
+    clock = StepClock(cfg.global_rigidity_steps)
     terms: dict[str, torch.Tensor] = {}
     with _Stop() as stop:
         while step < cfg.steps:
             t0 = time.perf_counter()
-            ix, iy, tt = sample_pixels(video.shape, cfg.batch, gen, device)
-            loss, terms = compute_losses(model, video, cfg, step, ix, iy, tt)
-            optim.zero_grad(set_to_none=True)
-            loss.backward()
-            optim.step()
-            sched.step()
+            loss, terms = train_step(model, video, cfg, optim, sched, gen, step, device)
+            dt = time.perf_counter() - t0
+            clock.add(step, dt)
             step += 1
-            train_seconds += time.perf_counter() - t0
+            train_seconds += dt
             bar.update(1)
             if step % cfg.eval_every == 0 or step == cfg.steps or step == 1:
                 psnr = psnr_from_mse(evaluate_pixels(model, video, ex, ey, et))
-                done = step - loop_start_step
-                eta = (train_seconds - loop_start_seconds) / done * (cfg.steps - step) if done else None
+                eta = clock.eta(step, cfg.steps)
                 reporter.emit(
                     C.EVENT_PROGRESS,
                     step=step,
@@ -453,4 +487,5 @@ __all__ = [
     "prepare_clip",
     "render_frame",
     "select_device",
+    "train_step",
 ]

@@ -55,15 +55,16 @@ def build_video_tensors(
     valid = masks.reshape(fl, t, -1).any(-1) if fl else np.zeros((0, t), dtype=bool)
 
     def dev(a: np.ndarray) -> torch.Tensor:
+        # on the CPU the tensor shares the prepared array's memory: no second copy of a long clip
         return torch.from_numpy(np.ascontiguousarray(a)).to(device)
 
     return VideoTensors(
-        frames=dev(frames.astype(np.float32)),
+        frames=dev(np.asarray(frames, dtype=np.float32)),
         masks=dev(masks),
         mask_valid=dev(valid),
         prior=dev(mask_prior(masks, margin_px)),
-        fwd=dev(flow.forward.astype(np.float32)),
-        bwd=dev(flow.backward.astype(np.float32)),
+        fwd=dev(np.asarray(flow.forward, dtype=np.float32)),
+        bwd=dev(np.asarray(flow.backward, dtype=np.float32)),
         fwd_ok=dev(flow.forward_ok),
         bwd_ok=dev(flow.backward_ok),
     )

@@ -1,0 +1,225 @@
+"""Every difference between Blender 4.2-4.5 and 5.0 the add-on meets. The only module that reads
+``bpy.app.version`` (BLENDER_NOTES section (c)): the compositor tree and its output, Map UV filtering,
+Alpha Over, Set Alpha and Math sockets, and the render's file/video settings.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import bpy
+
+from . import tree_plan as P
+
+V5 = bpy.app.version >= (5, 0, 0)
+
+_NODE_TYPES = {
+    P.PLATE: "CompositorNodeMovieClip",
+    P.IMAGE: "CompositorNodeImage",
+    P.MAP_UV: "CompositorNodeMapUV",
+    P.SEPARATE: "CompositorNodeSeparateColor",
+    # 5.0 removed the compositor's MixRGB/Math for the shared nodes, which 4.2 does not allow in a compositor
+    P.ADD_COLOR: "ShaderNodeMix" if V5 else "CompositorNodeMixRGB",
+    P.ADD_VALUE: "ShaderNodeMath" if V5 else "CompositorNodeMath",
+    P.SET_ALPHA: "CompositorNodeSetAlpha",
+    P.ALPHA_OVER: "CompositorNodeAlphaOver",
+    P.OUTPUT: "NodeGroupOutput" if V5 else "CompositorNodeComposite",
+}
+
+#: the name of the 5.0 compositing node group the add-on creates when the scene has none
+TREE_NAME = f"{P.PREFIX}Compositing"
+
+
+def node_type(kind: str) -> str:
+    return _NODE_TYPES[kind]
+
+
+def scene_tree(scene: Any, create: bool = True) -> Any:
+    """The scene's compositor tree (created empty when missing); None if missing and not ``create``."""
+    if V5:
+        tree = scene.compositing_node_group
+        if tree is None and create:
+            tree = bpy.data.node_groups.new(TREE_NAME, "CompositorNodeTree")
+            scene.compositing_node_group = tree
+        if tree is not None and create:
+            _ensure_output_interface(tree)
+        return tree
+    if scene.node_tree is None or not scene.use_nodes:
+        if not create:
+            return scene.node_tree
+        fresh = scene.node_tree is None
+        scene.use_nodes = True
+        if fresh:
+            # Blender's default tree: its Render Layers node would make every render an EEVEE render of the
+            # (empty) scene, 30 s per frame on a CPU; nothing in it is the artist's yet
+            scene.node_tree.nodes.clear()
+    return scene.node_tree
+
+
+def _ensure_output_interface(tree: Any) -> None:
+    # without this socket, links to the Group Output silently connect nothing: the render is black
+    for item in tree.interface.items_tree:
+        if getattr(item, "in_out", None) == "OUTPUT" and item.socket_type == "NodeSocketColor":
+            return
+    tree.interface.new_socket(name="Image", in_out="OUTPUT", socket_type="NodeSocketColor")
+
+
+def setup_node(node: Any, kind: str, params: dict[str, Any]) -> None:
+    """Per-kind settings that differ between versions."""
+    if kind == P.MAP_UV:
+        set_map_uv_filter(node, params.get("filter", P.FILTER_SMOOTH))
+    elif kind == P.ADD_COLOR:
+        node.blend_type = "ADD"
+        if V5:
+            node.data_type = "RGBA"
+            node.clamp_result = False
+            node.clamp_factor = True
+            _enabled(node.inputs, "Factor").default_value = 1.0
+        else:
+            node.use_alpha = False  # the colours add; the alpha is the first input's (replaced later)
+            node.use_clamp = False
+            node.inputs[0].default_value = 1.0
+    elif kind == P.ADD_VALUE:
+        node.operation = "ADD"
+        node.use_clamp = False
+    elif kind == P.SET_ALPHA:
+        if V5:
+            node.inputs["Type"].default_value = "Replace Alpha"
+        else:
+            node.mode = "REPLACE_ALPHA"
+    elif kind == P.ALPHA_OVER:
+        # premultiplied foreground: out = bg * (1 - fg.a) + fg
+        straight = node.inputs.get("Straight Alpha")
+        if straight is not None:
+            straight.default_value = False
+        if V5:
+            node.inputs["Factor"].default_value = 1.0
+            node.inputs["Type"].default_value = "Over"
+        else:
+            node.use_premultiply = False
+            node.premul = 0.0
+            node.inputs[0].default_value = 1.0
+    elif kind == P.OUTPUT and hasattr(node, "use_alpha"):  # 4.3-4.5; 4.2 has an Alpha input instead
+        node.use_alpha = True
+
+
+def set_map_uv_filter(node: Any, filter_type: str) -> None:
+    if V5:
+        node.inputs["Interpolation"].default_value = "Nearest" if filter_type == P.FILTER_NEAREST else "Bilinear"
+        node.inputs["Extension X"].default_value = "Clip"
+        node.inputs["Extension Y"].default_value = "Clip"
+    else:
+        node.filter_type = "NEAREST" if filter_type == P.FILTER_NEAREST else "ANISOTROPIC"
+
+
+def map_uv_filter(node: Any) -> str:
+    value = node.inputs["Interpolation"].default_value if V5 else node.filter_type
+    return P.FILTER_NEAREST if value.upper() == "NEAREST" else P.FILTER_SMOOTH
+
+
+def _enabled(sockets: Any, name: str) -> Any:
+    return next(s for s in sockets if s.name == name and s.enabled)
+
+
+def input_socket(node: Any, kind: str, key: str) -> Any:
+    if kind == P.MAP_UV:
+        return node.inputs["Image" if key == "image" else "UV"]
+    if kind == P.SEPARATE:
+        return node.inputs[0]
+    if kind == P.ADD_COLOR:
+        if V5:
+            return _enabled(node.inputs, key.upper())
+        return node.inputs[1 if key == "a" else 2]  # Fac, Image, Image
+    if kind == P.ADD_VALUE:
+        return node.inputs[0 if key == "a" else 1]
+    if kind == P.SET_ALPHA:
+        return node.inputs["Image" if key == "image" else "Alpha"]
+    if kind == P.ALPHA_OVER:
+        if V5:
+            return node.inputs["Background" if key == "bg" else "Foreground"]
+        return node.inputs[1 if key == "bg" else 2]  # both are called "Image" on 4.x
+    if kind == P.OUTPUT:
+        return node.inputs[0]
+    raise KeyError(f"{kind} has no input {key!r}")
+
+
+def output_socket(node: Any, kind: str, key: str) -> Any:
+    if kind == P.IMAGE and key != "image":
+        return node.outputs[key]  # a pass of a multilayer EXR
+    if kind in (P.PLATE, P.IMAGE, P.MAP_UV, P.SET_ALPHA, P.ALPHA_OVER):
+        return node.outputs["Image"]
+    if kind == P.SEPARATE:
+        return node.outputs["Alpha"]
+    if kind == P.ADD_COLOR:
+        return _enabled(node.outputs, "Result") if V5 else node.outputs[0]
+    if kind == P.ADD_VALUE:
+        return node.outputs[0]
+    raise KeyError(f"{kind} has no output {key!r}")
+
+
+def make_output_active(tree: Any, node: Any) -> None:
+    """Several outputs may exist (the artist's and ours); the render uses the active one."""
+    if not hasattr(node, "is_active_output"):
+        tree.nodes.active = node  # 4.x: the active Composite node is the one that renders
+        return
+    for other in tree.nodes:
+        if other.bl_idname == node.bl_idname and other != node:
+            other.is_active_output = False
+    node.is_active_output = True
+
+
+def set_render_format(scene: Any, file_format: str) -> None:
+    """'exr' (float32 RGBA, linear), 'png' (8-bit RGBA) or 'movie' (H.264 MP4)."""
+    s = scene.render.image_settings
+    if file_format == "movie":
+        if V5:
+            s.media_type = "VIDEO"
+        s.file_format = "FFMPEG"
+        scene.render.ffmpeg.format = "MPEG4"
+        scene.render.ffmpeg.codec = "H264"
+        s.color_mode = "RGB"
+        return
+    if V5:
+        s.media_type = "IMAGE"
+    if file_format == "exr":
+        s.file_format = "OPEN_EXR"
+        s.color_depth = "32"
+        s.exr_codec = "ZIP"
+    else:
+        s.file_format = "PNG"
+        s.color_depth = "8"
+    s.color_mode = "RGBA"
+
+
+def new_node(tree: Any, kind: str) -> Any:
+    return tree.nodes.new(node_type(kind))
+
+
+def mask_node_setup(node: Any) -> None:
+    """Mask node for exact rasterization: no feather, the scene's size."""
+    if V5:
+        node.inputs["Feather"].default_value = False
+    else:
+        node.use_feather = False
+        node.size_source = "SCENE"
+
+
+def action_fcurves(id_data: Any) -> list[Any]:
+    """The F-curves animating ``id_data`` (5.0 removed ``Action.fcurves`` in favour of slots/channelbags)."""
+    ad = id_data.animation_data
+    if ad is None or ad.action is None:
+        return []
+    action = ad.action
+    slot = getattr(ad, "action_slot", None)
+    if slot is not None:
+        from bpy_extras import anim_utils
+
+        bag = anim_utils.action_get_channelbag_for_slot(action, slot)
+        return list(bag.fcurves) if bag is not None else []
+    return list(action.fcurves)
+
+
+def ensure_material_nodes(mat: Any) -> None:
+    """5.0 materials always use nodes (``use_nodes`` is deprecated there)."""
+    if not V5:
+        mat.use_nodes = True

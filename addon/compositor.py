@@ -1,0 +1,163 @@
+"""Turn a ``TreePlan`` into images, a movie clip and compositor nodes; render the result.
+
+Only datablocks and nodes whose names start with ``tree_plan.PREFIX`` are created, reused or removed,
+so rebuilding is idempotent and the artist's own nodes and images are never touched.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import bpy
+
+from . import compat
+from . import tree_plan as P
+
+
+def _load_image(spec: P.ImageSpec) -> Any:
+    img = bpy.data.images.get(spec.name)
+    path = os.path.abspath(spec.filepath)
+    if img is not None and os.path.abspath(bpy.path.abspath(img.filepath)) != path:
+        bpy.data.images.remove(img)
+        img = None
+    if img is None:
+        img = bpy.data.images.load(path, check_existing=False)
+        img.name = spec.name
+    else:
+        img.reload()
+    img.source = "SEQUENCE" if spec.sequence else "FILE"
+    img.colorspace_settings.name = spec.colorspace
+    if not spec.sequence:
+        # a PNG edit layer is straight alpha (Blender premultiplies it on load); a float EXR is premultiplied
+        img.alpha_mode = "PREMUL" if img.is_float else "STRAIGHT"
+    return img
+
+
+def _load_plate(spec: P.ImageSpec) -> Any:
+    path = os.path.abspath(spec.filepath)
+    clip = bpy.data.movieclips.get(spec.name)
+    if clip is not None and os.path.abspath(bpy.path.abspath(clip.filepath)) != path:
+        bpy.data.movieclips.remove(clip)
+        clip = None
+    if clip is None:
+        clip = bpy.data.movieclips.load(path, check_existing=False)
+        clip.name = spec.name
+    clip.colorspace_settings.name = spec.colorspace
+    # scene frame F shows plate frame F: a sequence starts at its first file's number, a movie at frame 0
+    clip.frame_start = spec.frame_start
+    clip.frame_offset = 0
+    return clip
+
+
+def remove_ours(tree: Any) -> int:
+    ours = [n for n in tree.nodes if n.name.startswith(P.PREFIX)]
+    for node in ours:
+        tree.nodes.remove(node)
+    return len(ours)
+
+
+def build(scene: Any, plan: P.TreePlan) -> dict[str, Any]:
+    """Create (or recreate) the plan's nodes in the scene's compositor; returns them by name."""
+    images = {spec.name: _load_image(spec) for spec in plan.images}
+    clip = _load_plate(plan.plate)
+    tree = compat.scene_tree(scene)
+    remove_ours(tree)
+    nodes: dict[str, Any] = {}
+    kinds: dict[str, str] = {}
+    for spec in plan.nodes:
+        node = compat.new_node(tree, spec.kind)
+        node.name = spec.name
+        node.label = spec.name.removeprefix(P.PREFIX).replace("_", " ")
+        node.location = spec.location
+        if spec.kind == P.PLATE:
+            node.clip = clip
+        elif spec.kind == P.IMAGE:
+            node.image = images[spec.params["image"]]
+            if spec.params.get("sequence"):
+                node.frame_duration = plan.frame_end - plan.frame_start + 1
+                node.frame_start = plan.frame_start
+                node.frame_offset = plan.frame_start - 1  # file number = scene frame
+                node.use_auto_refresh = True
+                node.layer = spec.params["layer"]
+        compat.setup_node(node, spec.kind, spec.params)
+        nodes[spec.name] = node
+        kinds[spec.name] = spec.kind
+    for link in plan.links:
+        src = compat.output_socket(nodes[link.from_node], kinds[link.from_node], link.from_socket)
+        dst = compat.input_socket(nodes[link.to_node], kinds[link.to_node], link.to_socket)
+        tree.links.new(src, dst)
+    out = next(n for name, n in nodes.items() if kinds[name] == P.OUTPUT)
+    compat.make_output_active(tree, out)
+    configure_scene(scene, plan)
+    return nodes
+
+
+def configure_scene(scene: Any, plan: P.TreePlan) -> None:
+    scene.frame_start = plan.frame_start
+    scene.frame_end = plan.frame_end
+    r = scene.render
+    r.resolution_x, r.resolution_y = plan.resolution
+    r.resolution_percentage = 100
+    r.pixel_aspect_x = r.pixel_aspect_y = 1.0
+
+
+def set_filter(scene: Any, filter_type: str) -> int:
+    tree = compat.scene_tree(scene, create=False)
+    count = 0
+    for node in tree.nodes if tree is not None else ():
+        if node.name.startswith(P.PREFIX + "MapUV_"):
+            compat.set_map_uv_filter(node, filter_type)
+            count += 1
+    return count
+
+
+def render(scene: Any, out_dir: str, file_format: str = "exr") -> list[str]:
+    """Render the compositor for the scene's frame range into ``out_dir/edit.#####.<ext>`` (or a movie).
+
+    The view transform is Standard and dithering off for the render, so a PNG is the plain sRGB encoding
+    of the linear result (the artist's settings are restored afterwards).
+    """
+    os.makedirs(out_dir, exist_ok=True)
+    r = scene.render
+    s = r.image_settings
+    saved = {
+        "filepath": r.filepath,
+        "dither": r.dither_intensity,
+        "view": scene.view_settings.view_transform,
+        "look": scene.view_settings.look,
+        "media": getattr(s, "media_type", None),
+        "format": s.file_format,
+        "depth": s.color_depth,
+        "mode": s.color_mode,
+        "extension": r.use_file_extension,
+    }
+    try:
+        scene.view_settings.view_transform = "Standard"
+        scene.view_settings.look = "None"
+        r.dither_intensity = 0.0
+        r.compositor_device = "CPU"
+        r.compositor_precision = "FULL"
+        compat.set_render_format(scene, file_format)
+        r.use_file_extension = True
+        r.filepath = os.path.join(os.path.abspath(out_dir), "edit." if file_format != "movie" else "edit_")
+        if file_format != "movie":
+            r.filepath += "#####"
+        result = bpy.ops.render.render(animation=True, scene=scene.name)
+        if "FINISHED" not in result:
+            raise RuntimeError(f"render returned {result}")
+    finally:
+        if saved["media"] is not None and saved["media"] != s.media_type:
+            s.media_type = saved["media"]
+        s.file_format = saved["format"]
+        try:
+            s.color_depth = saved["depth"]
+            s.color_mode = saved["mode"]
+        except TypeError:
+            pass
+        r.filepath = saved["filepath"]
+        r.use_file_extension = saved["extension"]
+        r.dither_intensity = saved["dither"]
+        scene.view_settings.view_transform = saved["view"]
+        scene.view_settings.look = saved["look"]
+    return sorted(os.path.join(out_dir, f) for f in os.listdir(out_dir) if f.startswith("edit"))

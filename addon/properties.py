@@ -1,0 +1,109 @@
+"""The add-on's scene settings: one root PropertyGroup, ``Scene.neural_atlas``."""
+
+from __future__ import annotations
+
+import bpy
+from bpy.props import (
+    BoolProperty,
+    CollectionProperty,
+    EnumProperty,
+    FloatProperty,
+    IntProperty,
+    PointerProperty,
+    StringProperty,
+)
+
+from . import estimate
+from . import tree_plan as P
+
+PRESET_ITEMS = [
+    (name, name.title(), f"{steps} steps, about {per_step:.2f} s per step on a 2-core CPU")
+    for name, (steps, per_step) in estimate.PRESET_STEPS.items()
+]
+
+
+def _forget_estimate(self, context):
+    self.estimate_json = ""  # measured for another clip or size
+
+
+def _on_filter(self, context):
+    from . import compositor
+
+    compositor.set_filter(context.scene, self.filter_type)
+
+
+class NEURALATLAS_PG_layer(bpy.types.PropertyGroup):
+    source: EnumProperty(
+        name="Source",
+        items=[
+            ("MASK", "Mask", "A Blender Mask datablock, rasterized per frame"),
+            ("FOLDER", "Images", "A folder with one mask image per frame"),
+        ],
+        default="MASK",
+    )
+    mask: PointerProperty(name="Mask", type=bpy.types.Mask, description="Roto of this foreground object")
+    folder: StringProperty(name="Folder", subtype="DIR_PATH", description="Mask images (>50% = foreground)")
+
+
+class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
+    clip: PointerProperty(
+        name="Clip", type=bpy.types.MovieClip, description="The plate to fit", update=_forget_estimate
+    )
+    use_clip_range: BoolProperty(name="Whole Clip", default=True, description="Fit every frame of the clip")
+    frame_start: IntProperty(name="Start", default=1, description="First scene frame to fit")
+    frame_end: IntProperty(name="End", default=50, description="Last scene frame to fit")
+    long_edge: IntProperty(
+        name="Working Size",
+        default=768,
+        min=64,
+        max=4096,
+        description="Long edge of the resolution the fit runs at",
+        update=_forget_estimate,
+    )
+    preset: EnumProperty(name="Preset", items=PRESET_ITEMS, default="draft")
+    overrides: StringProperty(
+        name="Overrides", default="", description="Engine config overrides, space separated KEY=VALUE (advanced)"
+    )
+    layers: CollectionProperty(type=NEURALATLAS_PG_layer)
+    layer_index: IntProperty()
+    run_dir: StringProperty(
+        name="Run Folder", subtype="DIR_PATH", default="//neural_atlas/", description="Where the fit is written"
+    )
+    manifest: StringProperty(name="Manifest", subtype="FILE_PATH", description="The imported export")
+    filter_type: EnumProperty(
+        name="Filter",
+        items=[
+            (P.FILTER_SMOOTH, "Smooth", "Bilinear (Blender 5) / EWA (Blender 4.x) sampling of the edit layers"),
+            (P.FILTER_NEAREST, "Nearest", "Nearest texel: exact, blocky"),
+        ],
+        default=P.FILTER_SMOOTH,
+        update=_on_filter,
+    )
+    render_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//neural_atlas_render/")
+    render_format: EnumProperty(
+        name="Format",
+        items=[
+            ("exr", "OpenEXR", "Float, linear"),
+            ("png", "PNG", "8-bit sRGB"),
+            ("movie", "Movie", "H.264 MP4"),
+        ],
+        default="exr",
+    )
+    estimate_json: StringProperty(default="", description="The engine's time estimate per preset (JSON)")
+    # live state of a fit (written by the operator, shown by the panel)
+    running: BoolProperty(default=False)
+    progress: FloatProperty(default=0.0, min=0.0, max=1.0, subtype="FACTOR")
+    status: StringProperty(default="")
+    log_path: StringProperty(default="")
+    can_resume: BoolProperty(default=False)
+
+
+classes = (NEURALATLAS_PG_layer, NEURALATLAS_PG_scene)
+
+
+def register_props() -> None:
+    bpy.types.Scene.neural_atlas = PointerProperty(type=NEURALATLAS_PG_scene)
+
+
+def unregister_props() -> None:
+    del bpy.types.Scene.neural_atlas

@@ -1,0 +1,220 @@
+"""The compositor tree as plain data, planned from a manifest. No bpy here.
+
+For layers i with Map UV outputs P_i (premultiplied: rgb_i = edit_i(uv_i).rgb * a_i * Z_i, alpha
+A_i = edit_i(uv_i).a * Z_i) the tree computes the engine's render equation
+
+    out = plate * (1 - sum_i A_i) + sum_i rgb_i
+
+not a chain of Alpha Overs (which would give plate(1-A0)(1-A1) + P0(1-A1) + P1 where layers overlap).
+The colour sum uses Mix/Add, whose alpha is its first input's, so the alphas are summed separately
+(Separate Color -> Math/Add) and put back with Set Alpha; one premultiplied Alpha Over puts the sum over
+the plate. ``compositor.py`` turns a plan into nodes; ``compat.py`` maps the abstract socket keys used
+here to each Blender version's sockets.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from typing import Any
+
+#: Every node and image the add-on creates starts with this; rebuilding removes only these.
+PREFIX = "NA_"
+
+# node kinds (compat.py knows each version's node type and sockets)
+PLATE = "plate"  # MovieClip node; output "image"
+IMAGE = "image"  # Image node; outputs "image" or one per pass of a multilayer EXR
+MAP_UV = "map_uv"  # inputs "image", "uv"; output "image"
+SEPARATE = "separate"  # input "image"; output "alpha"
+ADD_COLOR = "add_color"  # inputs "a", "b"; output "result" (rgb sum, alpha of "a")
+ADD_VALUE = "add_value"  # inputs "a", "b"; output "value"
+SET_ALPHA = "set_alpha"  # inputs "image", "alpha"; output "image" (alpha replaced)
+ALPHA_OVER = "alpha_over"  # inputs "bg", "fg" (premultiplied); output "image"
+OUTPUT = "output"  # input "image"
+
+FILTER_NEAREST = "nearest"
+FILTER_SMOOTH = "smooth"  # 5.0: Bilinear; 4.x: its only other filter, EWA ("ANISOTROPIC")
+
+PLATE_CLIP = f"{PREFIX}Plate"
+PASSES_IMAGE = f"{PREFIX}Passes"
+
+
+class PlanError(ValueError):
+    """The manifest cannot be turned into a tree (message says why and what to do)."""
+
+
+@dataclass(frozen=True)
+class NodeSpec:
+    name: str
+    kind: str
+    location: tuple[float, float]
+    params: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class LinkSpec:
+    from_node: str
+    from_socket: str
+    to_node: str
+    to_socket: str
+
+
+@dataclass(frozen=True)
+class ImageSpec:
+    """An image datablock: a file, or a sequence whose scene frame F shows file number F."""
+
+    name: str
+    filepath: str
+    colorspace: str  # "sRGB" | "Non-Color"
+    sequence: bool = False
+    frame_start: int = 1  # scene frame of the first file
+    frame_duration: int = 1
+
+
+@dataclass
+class TreePlan:
+    nodes: list[NodeSpec]
+    links: list[LinkSpec]
+    images: list[ImageSpec]
+    plate: ImageSpec
+    frame_start: int
+    frame_end: int
+    resolution: tuple[int, int]
+    layers: list[str]
+
+    def node(self, name: str) -> NodeSpec:
+        return next(n for n in self.nodes if n.name == name)
+
+    def kinds(self) -> dict[str, int]:
+        out: dict[str, int] = {}
+        for n in self.nodes:
+            out[n.kind] = out.get(n.kind, 0) + 1
+        return out
+
+
+def edit_image_name(layer: str) -> str:
+    return f"{PREFIX}Edit_{layer}"
+
+
+def atlas_image_name(layer: str) -> str:
+    return f"{PREFIX}Atlas_{layer}"
+
+
+def resolve(manifest_path: str, path: str) -> str:
+    """Manifest paths are relative to the manifest's folder unless absolute."""
+    return path if os.path.isabs(path) else os.path.normpath(os.path.join(os.path.dirname(manifest_path), path))
+
+
+def contiguous_frames(frames: list[int]) -> tuple[int, int]:
+    first, last = min(frames), max(frames)
+    if sorted(frames) != list(range(first, last + 1)):
+        raise PlanError(f"exported frames {first}..{last} have gaps; export a contiguous range (--frames A:B)")
+    return first, last
+
+
+def plan_tree(
+    manifest: dict[str, Any],
+    manifest_path: str,
+    filter_type: str = FILTER_SMOOTH,
+    edits: dict[str, str] | None = None,
+) -> TreePlan:
+    """The tree for a validated manifest; ``edits`` maps a layer name to another edit image file."""
+    if filter_type not in (FILTER_NEAREST, FILTER_SMOOTH):
+        raise PlanError(f"unknown filter {filter_type!r}")
+    edits = edits or {}
+    passes = manifest["passes"]
+    clip = manifest["clip"]
+    first, last = contiguous_frames(passes["frames"])
+    count = last - first + 1
+    pass_dir = resolve(manifest_path, passes["dir"])
+    pass_first = os.path.join(pass_dir, passes["pattern"].format(frame=first))
+
+    if clip["kind"] == "sequence":
+        numbers = list(clip["frame_numbers"])
+        files = list(clip["frame_files"])
+        if first not in numbers:
+            raise PlanError(f"plate has no frame {first}; export frames that exist in the clip")
+        plate_file = resolve(manifest_path, files[numbers.index(first)])
+        plate = ImageSpec(PLATE_CLIP, plate_file, _plate_colorspace(clip), True, first, count)
+    else:
+        plate = ImageSpec(PLATE_CLIP, resolve(manifest_path, clip["source"]), _plate_colorspace(clip), False, 0, count)
+
+    images = [ImageSpec(PASSES_IMAGE, pass_first, "Non-Color", True, first, count)]
+    layers = [layer["name"] for layer in manifest["layers"]]
+    unknown = set(edits) - set(layers)
+    if unknown:
+        raise PlanError(f"edit for unknown layer(s) {sorted(unknown)}; layers are {layers}")
+    for layer in manifest["layers"]:
+        name = layer["name"]
+        edit = edits.get(name) or resolve(manifest_path, layer["edit_layer"])
+        images.append(ImageSpec(edit_image_name(name), edit, edit_colorspace(edit)))
+        images.append(ImageSpec(atlas_image_name(name), resolve(manifest_path, layer["atlas_png"]), "sRGB"))
+
+    nodes: list[NodeSpec] = []
+    links: list[LinkSpec] = []
+    n_plate, n_passes = f"{PREFIX}Plate", f"{PREFIX}Passes"
+    nodes.append(NodeSpec(n_plate, PLATE, (-900.0, 300.0), {"clip": PLATE_CLIP}))
+    passes_params = {"image": PASSES_IMAGE, "layer": passes["exr_layer"], "sequence": True}
+    nodes.append(NodeSpec(n_passes, IMAGE, (-900.0, 0.0), passes_params))
+    map_outputs: list[str] = []
+    for i, layer in enumerate(manifest["layers"]):
+        name = layer["name"]
+        y = -300.0 - 250.0 * i
+        n_edit, n_map = f"{PREFIX}Edit_{name}", f"{PREFIX}MapUV_{name}"
+        nodes.append(NodeSpec(n_edit, IMAGE, (-900.0, y), {"image": edit_image_name(name)}))
+        nodes.append(NodeSpec(n_map, MAP_UV, (-600.0, y), {"filter": filter_type}))
+        links.append(LinkSpec(n_edit, "image", n_map, "image"))
+        links.append(LinkSpec(n_passes, layer["uv_pass"], n_map, "uv"))
+        map_outputs.append(n_map)
+
+    if len(map_outputs) == 1:
+        fg_node, fg_socket = map_outputs[0], "image"
+    else:
+        color_node, color_socket = map_outputs[0], "image"
+        alpha_node, alpha_socket = _separate(nodes, links, map_outputs[0])
+        for i, n_map in enumerate(map_outputs[1:], start=1):
+            y = -250.0 * i
+            n_add = f"{PREFIX}AddColor_{i}"
+            nodes.append(NodeSpec(n_add, ADD_COLOR, (-300.0, y)))
+            links.append(LinkSpec(color_node, color_socket, n_add, "a"))
+            links.append(LinkSpec(n_map, "image", n_add, "b"))
+            color_node, color_socket = n_add, "result"
+            sep_node, sep_socket = _separate(nodes, links, n_map)
+            n_addv = f"{PREFIX}AddAlpha_{i}"
+            nodes.append(NodeSpec(n_addv, ADD_VALUE, (-300.0, y - 120.0)))
+            links.append(LinkSpec(alpha_node, alpha_socket, n_addv, "a"))
+            links.append(LinkSpec(sep_node, sep_socket, n_addv, "b"))
+            alpha_node, alpha_socket = n_addv, "value"
+        n_set = f"{PREFIX}SetAlpha"
+        nodes.append(NodeSpec(n_set, SET_ALPHA, (0.0, 0.0)))
+        links.append(LinkSpec(color_node, color_socket, n_set, "image"))
+        links.append(LinkSpec(alpha_node, alpha_socket, n_set, "alpha"))
+        fg_node, fg_socket = n_set, "image"
+
+    n_over, n_out = f"{PREFIX}Over", f"{PREFIX}Output"
+    nodes.append(NodeSpec(n_over, ALPHA_OVER, (200.0, 200.0)))
+    nodes.append(NodeSpec(n_out, OUTPUT, (400.0, 200.0)))
+    links.append(LinkSpec(n_plate, "image", n_over, "bg"))
+    links.append(LinkSpec(fg_node, fg_socket, n_over, "fg"))
+    links.append(LinkSpec(n_over, "image", n_out, "image"))
+    res = passes["resolution"]
+    return TreePlan(nodes, links, images, plate, first, last, (int(res[0]), int(res[1])), layers)
+
+
+def _separate(nodes: list[NodeSpec], links: list[LinkSpec], n_map: str) -> tuple[str, str]:
+    src = nodes[[n.name for n in nodes].index(n_map)]
+    n_sep = f"{PREFIX}Alpha_{n_map.removeprefix(PREFIX + 'MapUV_')}"
+    nodes.append(NodeSpec(n_sep, SEPARATE, (src.location[0] + 150.0, src.location[1] - 120.0)))
+    links.append(LinkSpec(n_map, "image", n_sep, "image"))
+    return n_sep, "alpha"
+
+
+def edit_colorspace(path: str) -> str:
+    """An edit layer is an sRGB PNG with straight alpha, or a linear float EXR with premultiplied alpha."""
+    return "Non-Color" if path.lower().endswith(".exr") else "sRGB"
+
+
+def _plate_colorspace(clip: dict[str, Any]) -> str:
+    # an sRGB-encoded plate (PNG/JPG/8-16 bit) is decoded by Blender exactly as the engine's render does;
+    # a linear (EXR) plate is read raw
+    return "sRGB" if clip.get("colorspace", "sRGB") == "sRGB" else "Non-Color"

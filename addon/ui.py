@@ -1,0 +1,103 @@
+"""The "Fit Atlas" N-panel in the Movie Clip Editor sidebar."""
+
+from __future__ import annotations
+
+import json
+
+import bpy
+
+from . import estimate, operators, preferences
+
+
+class NEURALATLAS_UL_layers(bpy.types.UIList):
+    def draw_item(self, context, layout, data, item, icon, active_data, active_propname, index=0):
+        row = layout.row(align=True)
+        row.label(text=f"Foreground {index + 1}")
+        row.prop(item, "source", text="")
+        row.prop(item, "mask" if item.source == "MASK" else "folder", text="")
+
+
+def _estimate_text(props) -> str:
+    clip = props.clip
+    if clip is None:
+        return ""
+    frames = clip.frame_duration if props.use_clip_range else max(1, props.frame_end - props.frame_start + 1)
+    seconds = estimate.estimate_seconds(props.preset, frames, clip.size[0], clip.size[1], props.long_edge)
+    try:
+        engine_rows = json.loads(props.estimate_json) if props.estimate_json else {}
+    except ValueError:
+        engine_rows = {}
+    return estimate.estimate_text(props.preset, engine_rows, seconds)
+
+
+class NEURALATLAS_PT_fit(bpy.types.Panel):
+    bl_idname = "NEURALATLAS_PT_fit"
+    bl_label = "Fit Atlas"
+    bl_space_type = "CLIP_EDITOR"
+    bl_region_type = "UI"
+    bl_category = "Fit Atlas"
+
+    def draw(self, context):
+        layout = self.layout
+        props = context.scene.neural_atlas
+        if not preferences.engine_python(context):
+            layout.label(text="Set up the engine in the preferences", icon="ERROR")
+        col = layout.column()
+        col.prop(props, "clip")
+        col.prop(props, "use_clip_range")
+        if not props.use_clip_range:
+            row = col.row(align=True)
+            row.prop(props, "frame_start")
+            row.prop(props, "frame_end")
+        col.prop(props, "long_edge")
+        col.prop(props, "preset")
+        text = _estimate_text(props)
+        if text:
+            row = col.row()
+            row.label(text=text, icon="TIME")
+            row.operator("neural_atlas.estimate", text="", icon="FILE_REFRESH")
+        col.label(text="Foreground layers")
+        row = col.row()
+        row.template_list("NEURALATLAS_UL_layers", "", props, "layers", props, "layer_index", rows=2)
+        sub = row.column(align=True)
+        sub.operator("neural_atlas.layer_add", icon="ADD", text="")
+        sub.operator("neural_atlas.layer_remove", icon="REMOVE", text="")
+        col.prop(props, "run_dir")
+        if operators.is_running(context.scene):
+            col.progress(factor=props.progress, type="BAR", text=props.status or "running…")
+            col.operator("neural_atlas.cancel", icon="CANCEL")
+        else:
+            row = col.row(align=True)
+            row.operator("neural_atlas.fit", icon="PLAY")
+            if props.can_resume:
+                row.operator("neural_atlas.fit", text="Resume", icon="RECOVER_LAST").resume = True
+            if props.status:
+                col.label(text=props.status)
+            if props.log_path:
+                col.label(text=f"log: {props.log_path}")
+
+
+class NEURALATLAS_PT_edit(bpy.types.Panel):
+    bl_idname = "NEURALATLAS_PT_edit"
+    bl_label = "Paint & Render"
+    bl_space_type = "CLIP_EDITOR"
+    bl_region_type = "UI"
+    bl_category = "Fit Atlas"
+
+    def draw(self, context):
+        layout = self.layout
+        props = context.scene.neural_atlas
+        col = layout.column()
+        col.operator("neural_atlas.import_run", icon="IMPORT")
+        if props.manifest:
+            col.label(text=props.manifest)
+        col.prop(props, "filter_type")
+        row = col.row(align=True)
+        row.operator("neural_atlas.paint_setup", icon="BRUSH_DATA")
+        row.operator("neural_atlas.save_edits", icon="FILE_TICK")
+        col.prop(props, "render_dir")
+        col.prop(props, "render_format")
+        col.operator("neural_atlas.render", icon="RENDER_ANIMATION")
+
+
+classes = (NEURALATLAS_UL_layers, NEURALATLAS_PT_fit, NEURALATLAS_PT_edit)

@@ -1,0 +1,74 @@
+"""A stand-in for ``python -m engine`` in the add-on tests: speaks the progress protocol and misbehaves on
+request (FAKE_ENGINE_MODE = ok | crash | traceback | hang | bad_input). Run as a script: argv[1:] are
+what the engine would get after ``-m engine`` (the wrapper drops those two)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from engine import contract as C
+
+
+def say(event: str, **fields) -> None:
+    print(C.progress_line(event, **fields), flush=True)
+
+
+def main(argv: list[str]) -> int:
+    mode = os.environ.get("FAKE_ENGINE_MODE", "ok")
+    if argv and argv[0] == "--version":
+        print(f"neural-atlas engine {C.ENGINE_VERSION} (fake)")
+        return 0
+    verb = argv[0]
+    out = argv[argv.index("--out") + 1] if "--out" in argv else (argv[1] if len(argv) > 1 else "")
+    if verb == C.VERB_EXPORT:
+        from fake_export import make_export
+
+        manifest = make_export(Path(out).parent / (Path(out).name + ".fake_export"))
+        say(C.EVENT_EXPORTED, manifest=str(manifest))
+        print(manifest)
+        return 0
+    if verb == C.VERB_ESTIMATE:
+        import json
+
+        rows = [{"preset": "draft", "total_seconds": 61.0, "expected_psnr": 25.7, "minutes": 1.0}]
+        print("timing presets…", flush=True)
+        print(json.dumps({C.ESTIMATE_TAG: 1, "presets": rows, "argv": argv}), flush=True)
+        return 0
+    print("tqdm-like noise 10%|#", flush=True)
+    say(C.EVENT_STAGE, stage="train", message="training")
+    if mode == "bad_input":
+        print(f"error: {out}/masks: mask folder does not exist — pass the folder that holds the masks", file=sys.stderr)
+        return C.EXIT_BAD_INPUT
+    total = 1000 if mode == "hang" else 10
+    cancelled = []
+    signal.signal(signal.SIGTERM, lambda *_: cancelled.append(True))
+    step = 0
+    while True:
+        step += 1
+        say(C.EVENT_PROGRESS, step=step, total=total, psnr=20.0 + step, elapsed=0.1 * step, eta=0.1 * (total - step))
+        if mode == "crash" and step == 2:
+            os.kill(os.getpid(), signal.SIGKILL)
+        if mode == "traceback" and step == 2:
+            raise RuntimeError("simulated engine bug")
+        if cancelled:
+            Path(out).mkdir(parents=True, exist_ok=True)
+            (Path(out) / C.RUN_CHECKPOINT).write_text("fake")
+            say(C.EVENT_CANCELLED, step=step, checkpoint=str(Path(out) / C.RUN_CHECKPOINT))
+            return C.EXIT_CANCELLED
+        if mode != "hang" and step >= total:
+            break
+        time.sleep(0.05)
+    Path(out).mkdir(parents=True, exist_ok=True)
+    say(C.EVENT_DONE, metrics={"psnr": 30.0, "steps": total})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,302 @@
+"""A tiny export written by the tests themselves (manifest + EXR passes + PNGs), and the render equation
+in numpy, so compositor tests need no fit. Files follow ``engine/contract.py`` exactly."""
+
+from __future__ import annotations
+
+import json
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+import OpenEXR
+
+from engine import contract as C
+
+W, H = 40, 24
+FRAMES = (3, 4, 5)  # plate frame numbers: not starting at 0 or 1, so frame mapping is tested
+ATLAS_SIZES = {"Background": (32, 32), "Foreground": (16, 16)}
+
+
+def write_png(path: Path, rgba8: np.ndarray) -> None:
+    """8-bit RGBA PNG, rows top-first (stdlib only: both test venvs can write it)."""
+    h, w, _ = rgba8.shape
+    raw = b"".join(b"\x00" + rgba8[r].astype(np.uint8).tobytes() for r in range(h))
+
+    def chunk(tag: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
+
+    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 6, 0, 0, 0))
+    png += chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b"")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(png)
+
+
+def write_exr(path: Path, channels: dict[str, np.ndarray]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    OpenEXR.File(header, {k: np.ascontiguousarray(v, np.float32) for k, v in channels.items()}).write(str(path))
+
+
+def read_exr_rgba(path: Path) -> np.ndarray:
+    """(H, W, 4) float32, rows top-first."""
+    with OpenEXR.File(str(path)) as f:
+        ch = f.channels()
+        if "RGBA" in ch:
+            return np.asarray(ch["RGBA"].pixels, np.float32)
+        return np.stack([np.asarray(ch[c].pixels, np.float32) for c in "RGBA"], axis=-1)
+
+
+def _uv_grid(t: int, layer: int, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """UVs on texel centres plus an offset below 0.3 texel: nearest sampling has no ties."""
+    aw, ah = size
+    y, x = np.mgrid[0:H, 0:W]  # y counted from the top row
+    y_up = H - 1 - y
+    rng = np.random.default_rng(100 * t + layer)
+    i = np.clip(((x + 0.5) / W * 0.7 + 0.15 + 0.03 * t) * aw, 0, aw - 1).astype(int)
+    j = np.clip(((y_up + 0.5) / H * 0.7 + 0.1 + 0.02 * t * layer) * ah, 0, ah - 1).astype(int)
+    u = (i + 0.5 + rng.uniform(-0.3, 0.3, (H, W))) / aw
+    v = (j + 0.5 + rng.uniform(-0.3, 0.3, (H, W))) / ah
+    return u.astype(np.float32), v.astype(np.float32)
+
+
+def _alphas(t: int) -> tuple[np.ndarray, np.ndarray]:
+    y, x = np.mgrid[0:H, 0:W]
+    d = np.hypot(x + 0.5 - (14 + 4 * t), y + 0.5 - 12)
+    fg = np.clip((9.0 - d) / 3.0, 0, 1).astype(np.float32)
+    bg = (0.85 * (1 - fg)).astype(np.float32)  # below 1 - fg: the plate shows through, as the equation allows
+    return bg, fg
+
+
+def make_export(root: Path, seed: int = 0) -> Path:
+    """Write plate, passes, atlases and edit layers; returns the manifest path."""
+    rng = np.random.default_rng(seed)
+    run = root / "run"
+    exp = run / C.EXPORTS_DIR / C.EXPORT_VERSION_FORMAT.format(1)
+    plate_dir = root / "plate"
+    frame_files = []
+    for t in FRAMES:
+        path = plate_dir / f"{t:05d}.png"
+        img = rng.integers(0, 256, (H, W, 4), dtype=np.uint8)
+        img[..., 3] = 255
+        write_png(path, img)
+        frame_files.append(str(path))
+    layers = []
+    for idx, name in enumerate(("Background", "Foreground")):
+        aw, ah = ATLAS_SIZES[name]
+        edit = rng.integers(0, 256, (ah, aw, 4), dtype=np.uint8)
+        edit[..., 3][rng.random((ah, aw)) < 0.2] = 0
+        edit[..., 3][rng.random((ah, aw)) < 0.2] = 255
+        write_png(run / C.EDITS_DIR / f"{name}{C.EDIT_LAYER_EXT}", edit)
+        write_png(exp / C.ATLASES_DIR / f"{name}.png", rng.integers(0, 256, (ah, aw, 4), dtype=np.uint8))
+        layers.append(
+            {
+                "name": name,
+                "index": idx,
+                "role": C.ROLE_BACKGROUND if idx == 0 else C.ROLE_FOREGROUND,
+                "uv_pass": C.uv_pass(name),
+                "alpha_pass": C.alpha_pass(name),
+                "uv_channels": list(C.UV_CHANNELS),
+                "alpha_channels": list(C.ALPHA_CHANNELS),
+                "atlas_exr": f"{C.ATLASES_DIR}/{name}.exr",
+                "atlas_png": f"{C.ATLASES_DIR}/{name}.png",
+                "atlas_size": [aw, ah],
+                "edit_layer": str(run / C.EDITS_DIR / f"{name}{C.EDIT_LAYER_EXT}"),
+                "atlas_box": [0.0, 0.0, 1.0, 1.0],
+            }
+        )
+    for t in FRAMES:
+        bg, fg = _alphas(t)
+        ch = {}
+        for idx, (name, z) in enumerate((("Background", bg), ("Foreground", fg))):
+            u, v = _uv_grid(t, idx, ATLAS_SIZES[name])
+            ch[C.channel_name(C.uv_pass(name), "X")] = u
+            ch[C.channel_name(C.uv_pass(name), "Y")] = v
+            ch[C.channel_name(C.uv_pass(name), "Z")] = z
+            ch[C.channel_name(C.alpha_pass(name), "V")] = z
+        write_exr(exp / C.PASSES_DIR / C.pass_file_name(t), ch)
+    manifest = {
+        C.MANIFEST_TAG: C.MANIFEST_VERSION,
+        "engine_version": C.ENGINE_VERSION,
+        "run_dir": str(run),
+        "created": "2026-01-01T00:00:00Z",
+        "clip": {
+            "source": str(plate_dir),
+            "kind": "sequence",
+            "frame_files": frame_files,
+            "frame_numbers": list(FRAMES),
+            "first_frame": FRAMES[0],
+            "last_frame": FRAMES[-1],
+            "fps": 25.0,
+            "resolution": [W, H],
+            "working_resolution": [W, H],
+            "colorspace": "sRGB",
+        },
+        "passes": {
+            "dir": C.PASSES_DIR,
+            "pattern": C.PASS_FILE_PREFIX + "{frame:05d}" + C.PASS_FILE_EXT,
+            "blender_pattern": C.PASS_FILE_PREFIX + "#####" + C.PASS_FILE_EXT,
+            "frames": list(FRAMES),
+            "exr_layer": C.EXR_LAYER,
+            "resolution": [W, H],
+        },
+        "layers": layers,
+        "fit": {"preset": "draft", "model": "fast", "steps": 0, "train_seconds": 0.0, "psnr": None},
+    }
+    path = exp / C.MANIFEST_NAME
+    path.write_text(json.dumps(manifest, indent=2))
+    return path
+
+
+# --- the render equation in numpy ------------------------------------------------------------------------
+def srgb_to_linear(c: np.ndarray) -> np.ndarray:
+    c = np.asarray(c, np.float64)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def read_png_rgba8(path: Path) -> np.ndarray:
+    """Decoder for the PNGs ``write_png`` writes (filter 0, 8-bit RGBA)."""
+    data = Path(path).read_bytes()
+    pos, idat, w, h = 8, b"", 0, 0
+    while pos < len(data):
+        (n,) = struct.unpack(">I", data[pos : pos + 4])
+        tag, body = data[pos + 4 : pos + 8], data[pos + 8 : pos + 8 + n]
+        if tag == b"IHDR":
+            w, h = struct.unpack(">II", body[:8])
+        elif tag == b"IDAT":
+            idat += body
+        pos += 12 + n
+    raw = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(h, 1 + 4 * w)
+    out = np.zeros((h, 4 * w), np.int32)
+    for r in range(h):  # undo the PNG row filters (Blender's own writer uses them)
+        kind, line = raw[r, 0], raw[r, 1:].astype(np.int32)
+        prev = out[r - 1] if r else np.zeros(4 * w, np.int32)
+        if kind == 0:
+            out[r] = line
+        elif kind == 2:
+            out[r] = (line + prev) % 256
+        else:
+            cur = np.zeros(4 * w, np.int32)
+            for i in range(4 * w):
+                a = cur[i - 4] if i >= 4 else 0
+                c = prev[i - 4] if i >= 4 else 0
+                b = prev[i]
+                if kind == 1:
+                    pred = a
+                elif kind == 3:
+                    pred = (a + b) // 2
+                else:
+                    p = a + b - c
+                    pa, pb, pc = abs(p - a), abs(p - b), abs(p - c)
+                    pred = a if pa <= pb and pa <= pc else (b if pb <= pc else c)
+                cur[i] = (line[i] + pred) % 256
+            out[r] = cur
+    return out.reshape(h, w, 4).astype(np.uint8)
+
+
+def sample(tex: np.ndarray, u: np.ndarray, v: np.ndarray, filt: str) -> np.ndarray:
+    """Sample a (h, w, 4) texture (rows top-first) at UVs (origin bottom-left); outside -> 0 (Clip)."""
+    h, w, _ = tex.shape
+    up = tex[::-1]  # rows bottom-first, like UV space
+    if filt == "nearest":
+        i, j = np.floor(u * w).astype(int), np.floor(v * h).astype(int)
+        ok = (i >= 0) & (i < w) & (j >= 0) & (j < h)
+        out = up[np.clip(j, 0, h - 1), np.clip(i, 0, w - 1)]
+        return np.where(ok[..., None], out, 0.0)
+    x, y = u * w - 0.5, v * h - 0.5
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    fx, fy = (x - x0)[..., None], (y - y0)[..., None]
+
+    def tap(ii: np.ndarray, jj: np.ndarray) -> np.ndarray:
+        ok = (ii >= 0) & (ii < w) & (jj >= 0) & (jj < h)
+        return np.where(ok[..., None], up[np.clip(jj, 0, h - 1), np.clip(ii, 0, w - 1)], 0.0)
+
+    return (
+        tap(x0, y0) * (1 - fx) * (1 - fy)
+        + tap(x0 + 1, y0) * fx * (1 - fy)
+        + tap(x0, y0 + 1) * (1 - fx) * fy
+        + tap(x0 + 1, y0 + 1) * fx * fy
+    )
+
+
+def _resolve(manifest_path: Path, path: str) -> Path:
+    return Path(path) if Path(path).is_absolute() else (Path(manifest_path).parent / path).resolve()
+
+
+def reference_frame(
+    manifest_path: Path, frame: int, filt: str, decode=srgb_to_linear, read_rgba8=read_png_rgba8
+) -> np.ndarray:
+    """out = plate * (1 - sum A_i) + sum rgb_i, (H, W, 3) float64, rows top-first."""
+    m = json.loads(Path(manifest_path).read_text())
+    plate8 = read_rgba8(_resolve(manifest_path, m["clip"]["frame_files"][m["clip"]["frame_numbers"].index(frame)]))
+    plate = decode(plate8[..., :3] / 255.0)
+    with OpenEXR.File(str(Path(manifest_path).parent / m["passes"]["dir"] / C.pass_file_name(frame))) as f:
+        ch = {k: np.asarray(v.pixels, np.float64) for k, v in f.channels().items()}
+    alpha_sum = np.zeros(plate.shape[:2])
+    rgb_sum = np.zeros(plate.shape)
+    for layer in m["layers"]:
+        edit_path = _resolve(manifest_path, layer["edit_layer"])
+        if edit_path.suffix == ".exr":  # linear float, premultiplied: used as is
+            premult = read_exr_rgba(edit_path).astype(np.float64)
+        else:
+            edit8 = read_rgba8(edit_path)
+            a = edit8[..., 3:4] / 255.0
+            premult = np.concatenate([decode(edit8[..., :3] / 255.0) * a, a], axis=-1)
+        uvp = layer["uv_pass"]
+        u = ch[C.channel_name(uvp, "X")]
+        v = ch[C.channel_name(uvp, "Y")]
+        z = ch[C.channel_name(uvp, "Z")]
+        s = sample(premult, u, v, filt) * z[..., None]
+        rgb_sum += s[..., :3]
+        alpha_sum += s[..., 3]
+    return plate * (1 - alpha_sum[..., None]) + rgb_sum
+
+
+def blender_srgb_lut(bpy, folder: Path) -> np.ndarray:
+    """Blender's own decode of the 256 sRGB byte values to linear, measured through a compositor render."""
+    from neural_atlas.addon import compat
+    from neural_atlas.addon import tree_plan as P
+
+    ramp = np.zeros((4, 256, 4), np.uint8)  # 4 rows: Blender's smallest render height
+    ramp[..., :3] = np.arange(256, dtype=np.uint8)[None, :, None]
+    ramp[..., 3] = 255
+    write_png(folder / "ramp.png", ramp)
+    scene = bpy.data.scenes.new("NA_test_lut")  # its own scene: any scene's compositor stays as it is
+    tree = compat.scene_tree(scene)
+    img = bpy.data.images.load(str(folder / "ramp.png"))
+    img.colorspace_settings.name = "sRGB"
+    n_img = tree.nodes.new("CompositorNodeImage")
+    n_img.image = img
+    n_out = compat.new_node(tree, P.OUTPUT)
+    compat.setup_node(n_out, P.OUTPUT, {})
+    tree.links.new(n_img.outputs["Image"], compat.input_socket(n_out, P.OUTPUT, "image"))
+    r = scene.render
+    r.resolution_x, r.resolution_y, r.resolution_percentage = 256, 4, 100
+    scene.frame_start = scene.frame_end = 1
+    from neural_atlas.addon import compositor
+
+    out = compositor.render(scene, str(folder / "lut"), "exr")
+    lut = read_exr_rgba(Path(out[0]))[0, :, 0].astype(np.float64)
+    assert (np.diff(lut) > 0).all(), "the ramp did not render"
+    bpy.data.scenes.remove(scene)
+    bpy.data.images.remove(img)
+    return lut
+
+
+def lut_decoder(lut: np.ndarray):
+    return lambda c: lut[np.round(np.asarray(c) * 255).astype(int)]
+
+
+def blender_read_rgba8(bpy):
+    """A file reader through Blender: a byte image's ``pixels`` are its stored 8-bit values (no colour
+    management), rows bottom-up; returned as (h, w, 4) uint8 rows top-first."""
+
+    def read(path: Path) -> np.ndarray:
+        img = bpy.data.images.load(str(path), check_existing=False)
+        w, h = img.size
+        px = np.zeros(w * h * 4, np.float32)
+        img.pixels.foreach_get(px)
+        bpy.data.images.remove(img)
+        return np.round(px.reshape(h, w, 4)[::-1] * 255).astype(np.uint8)
+
+    return read

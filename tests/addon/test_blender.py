@@ -1,0 +1,555 @@
+"""The add-on inside Blender (bpy 4.5 and 5.0): registration, compositor tree against the render equation,
+masks, the Fit Atlas operator with a fake engine (ok, crash, cancel, bad input), paint and render."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+from fake_export import (  # noqa: E402
+    FRAMES,
+    H,
+    W,
+    blender_srgb_lut,
+    lut_decoder,
+    make_export,
+    read_exr_rgba,
+    read_png_rgba8,
+    reference_frame,
+)
+from helpers import fake_python  # noqa: E402
+from neural_atlas.addon import compat, mask_math, operators  # noqa: E402
+from neural_atlas.addon import tree_plan as P  # noqa: E402
+
+from engine import contract as C  # noqa: E402
+
+V5 = bpy.app.version >= (5, 0, 0)
+#: measured numbers are printed with this tag (pytest -s, or the runner's log) for docs/addon.md
+TAG = f"[bpy {bpy.app.version_string}]"
+
+
+def _tree(scene):
+    return compat.scene_tree(scene, create=False)
+
+
+def _import(blender, manifest, filt=P.FILTER_NEAREST):
+    scene = blender.context.scene
+    scene.neural_atlas.filter_type = filt
+    assert blender.ops.neural_atlas.import_run("EXEC_DEFAULT", filepath=str(manifest)) == {"FINISHED"}
+    return scene
+
+
+# --- registration -------------------------------------------------------------------------------------------
+def test_register_unregister_repeatable(registered):
+    from neural_atlas.addon import registration
+
+    for _ in range(3):
+        registered.unregister()
+        assert not hasattr(bpy.types.Scene, "neural_atlas")
+        assert not hasattr(bpy.types, "NEURALATLAS_PT_fit")
+        registered.register()
+        assert hasattr(bpy.types, "NEURALATLAS_PT_fit")
+        assert bpy.ops.neural_atlas.fit.poll()
+    assert len(registration.classes) == len(set(registration.classes)) >= 13
+    assert [h.__name__ for h in bpy.app.handlers.load_pre].count("_cancel_fits") == 1
+    assert bpy.context.scene.neural_atlas.preset == "draft"
+
+
+def test_panel_draws_with_a_fake_layout(blender):
+    """draw() never runs headless (no region): call it with a recording layout."""
+
+    class Layout:
+        calls: ClassVar[list] = []
+
+        def __getattr__(self, name):
+            def record(*args, **kwargs):
+                Layout.calls.append((name, args, kwargs))
+                return self
+
+            return record
+
+    from neural_atlas.addon import ui
+
+    scene = blender.context.scene
+    scene.neural_atlas.layers.add()
+    for panel in (ui.NEURALATLAS_PT_fit, ui.NEURALATLAS_PT_edit):
+        fake = type("P", (), {"layout": Layout()})()
+        panel.draw(fake, blender.context)
+    ops = [a[0] for name, a, _ in Layout.calls if name == "operator"]
+    assert {"neural_atlas.fit", "neural_atlas.import_run", "neural_atlas.render", "neural_atlas.save_edits"} <= set(ops)
+
+
+# --- compositor ---------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def lut(tmp_path_factory, registered):
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    return blender_srgb_lut(bpy, tmp_path_factory.mktemp("lut"))
+
+
+def test_blender_srgb_decode_is_close_to_the_formula(lut):
+    from fake_export import srgb_to_linear
+
+    err = np.abs(lut - srgb_to_linear(np.arange(256) / 255)).max()
+    print(f"{TAG} Blender 8-bit sRGB decode vs exact formula: max abs err {err:.2e}")
+    assert err < 5e-5
+
+
+@pytest.mark.parametrize("filt", [P.FILTER_NEAREST, P.FILTER_SMOOTH])
+def test_compositor_matches_render_equation(blender, tmp_path, lut, filt):
+    manifest = make_export(tmp_path)
+    scene = _import(blender, manifest, filt)
+    tree = _tree(scene)
+    ours = [n for n in tree.nodes if n.name.startswith(P.PREFIX)]
+    assert len(ours) == 13
+    assert compat.map_uv_filter(tree.nodes["NA_MapUV_Foreground"]) == filt
+    assert (scene.frame_start, scene.frame_end) == (FRAMES[0], FRAMES[-1])
+    assert (scene.render.resolution_x, scene.render.resolution_y) == (W, H)
+    assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(tmp_path / "out"), file_format="exr") == {
+        "FINISHED"
+    }
+    ref_filter = "nearest" if filt == P.FILTER_NEAREST else "bilinear"
+    errs, errs_exact = [], []
+    for f in FRAMES:
+        out = read_exr_rgba(tmp_path / "out" / f"edit.{f:05d}.exr")
+        assert out.shape == (H, W, 4)
+        np.testing.assert_allclose(out[..., 3], 1.0, atol=1e-6)
+        errs.append(np.abs(out[..., :3] - reference_frame(manifest, f, ref_filter, lut_decoder(lut))).max())
+        errs_exact.append(np.abs(out[..., :3] - reference_frame(manifest, f, ref_filter)).max())
+    err, err_exact = max(errs), max(errs_exact)
+    print(f"{TAG} filter {filt}: max abs err {err:.2e} (Blender's sRGB decode), {err_exact:.2e} (exact sRGB)")
+    if filt == P.FILTER_NEAREST or V5:
+        assert err <= 1e-5
+        assert err_exact <= 5e-5
+    else:
+        assert 0.01 < err < 0.5  # 4.x has no bilinear: EWA differs at hard texel edges (documented)
+
+
+def test_float_exr_edit_layer_is_used_premultiplied(blender, tmp_path):
+    """An edit layer may be a linear float EXR with premultiplied alpha (no decode, no premultiply)."""
+    from fake_export import write_exr
+
+    manifest = make_export(tmp_path)
+    data = json.loads(manifest.read_text())
+    layer = data["layers"][1]
+    edit8 = read_png_rgba8(Path(layer["edit_layer"]))
+    a = edit8[..., 3] / 255.0
+    rgb = (edit8[..., :3] / 255.0) ** 2.2 * a[..., None]  # any linear premultiplied values
+    exr = tmp_path / "run" / "edits" / "Foreground.exr"
+    write_exr(exr, {"R": rgb[..., 0], "G": rgb[..., 1], "B": rgb[..., 2], "A": a})
+    layer["edit_layer"] = str(exr)
+    manifest.write_text(json.dumps(data))
+    _import(blender, manifest)
+    img = bpy.data.images["NA_Edit_Foreground"]
+    assert img.colorspace_settings.name == "Non-Color" and img.alpha_mode == "PREMUL"
+    out = tmp_path / "out"
+    assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out), file_format="exr") == {"FINISHED"}
+    lut = blender_srgb_lut(bpy, tmp_path / "lut")
+    decode = lut_decoder(lut)
+    errs = []
+    for f in FRAMES:
+        ref = reference_frame(manifest, f, "nearest", decode)
+        errs.append(np.abs(read_exr_rgba(out / f"edit.{f:05d}.exr")[..., :3] - ref).max())
+    err = max(errs)
+    print(f"{TAG} float EXR edit layer, nearest: max abs err {err:.2e}")
+    assert err <= 1e-5
+
+
+def test_rebuild_is_idempotent_and_keeps_the_artists_nodes(blender, tmp_path):
+    manifest = make_export(tmp_path)
+    scene = blender.context.scene
+    tree = compat.scene_tree(scene)
+    artist = tree.nodes.new("CompositorNodeBlur")
+    artist.name = "Artist Blur"
+    artist_img = bpy.data.images.new("artist_plate", 4, 4)
+    for _ in range(3):
+        _import(blender, manifest)
+    names = sorted(n.name for n in tree.nodes)
+    assert names.count("Artist Blur") == 1
+    assert len([n for n in names if n.startswith(P.PREFIX)]) == 13
+    assert len(names) == 14
+    assert bpy.data.images.get("artist_plate") == artist_img
+    assert len([i for i in bpy.data.images if i.name.startswith("NA_Edit_")]) == 2
+    assert len([c for c in bpy.data.movieclips if c.name.startswith(P.PREFIX)]) == 1
+    over = tree.nodes["NA_Over"]
+    fg = compat.input_socket(over, P.ALPHA_OVER, "fg")
+    assert fg.is_linked and fg.links[0].from_node.name == "NA_SetAlpha"
+
+
+def test_paint_then_save_and_render_png(blender, tmp_path):
+    manifest = make_export(tmp_path)
+    scene = _import(blender, manifest)
+    canvas = bpy.data.objects["NA_Canvas_Foreground"]
+    assert tuple(canvas.scale)[:2] == (1.0, 1.0)  # the test atlas is square (16x16)
+    assert bpy.data.objects["NA_Canvas_Background"].location.x == 0.0 and canvas.location.x == pytest.approx(1.2)
+    mat = canvas.data.materials[0]
+    assert mat.node_tree.nodes.active.image.name == "NA_Edit_Foreground"
+    # headless painting is impossible (BLENDER_NOTES (f)): write pixels as a brush would
+    img = bpy.data.images["NA_Edit_Foreground"]
+    w, h = img.size
+    px = np.zeros(w * h * 4, np.float32)
+    img.pixels.foreach_get(px)
+    px = px.reshape(h, w, 4)
+    px[: h // 2, : w // 2] = (1.0, 0.0, 0.0, 1.0)  # bottom-left quarter painted opaque red
+    img.pixels.foreach_set(px.ravel())
+    img.update()
+    assert blender.ops.neural_atlas.save_edits("EXEC_DEFAULT") == {"FINISHED"}
+    on_disk = read_png_rgba8(Path(bpy.path.abspath(img.filepath)))[::-1]  # rows bottom-up like pixels
+    assert (on_disk[: h // 2, : w // 2] == [255, 0, 0, 255]).all()
+    np.testing.assert_allclose(on_disk / 255.0, px, atol=0.5 / 255)
+    assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(tmp_path / "png"), file_format="png") == {
+        "FINISHED"
+    }
+    assert sorted(os.listdir(tmp_path / "png")) == [f"edit.{f:05d}.png" for f in FRAMES]
+    assert scene.render.image_settings.file_format == "PNG" or scene.render.filepath != ""
+
+
+# --- masks --------------------------------------------------------------------------------------------------
+def _polygon_mask(corners_by_frame, width, height):
+    mask = bpy.data.masks.new("Roto")
+    layer = mask.layers.new(name="L")
+    spline = layer.splines.new()
+    spline.points.add(len(corners_by_frame[0][1]) - 1)
+    spline.use_cyclic = True
+    for frame, corners in corners_by_frame:
+        for i, (p, (x, y)) in enumerate(zip(spline.points, corners, strict=True)):
+            p.handle_left_type = p.handle_right_type = "VECTOR"
+            p.co = p.handle_left = p.handle_right = mask_math.px_to_mask(x, y, width, height)
+            for prop in ("co", "handle_left", "handle_right"):
+                mask.keyframe_insert(f'layers["L"].splines[0].points[{i}].{prop}', frame=frame)
+    return mask
+
+
+def test_mask_datablock_rasterizes_exactly(blender, tmp_path):
+    from neural_atlas.addon import masks
+
+    w, h = 64, 48
+    frames = [
+        (1, [(10, 8), (30, 8), (30, 20), (10, 20)]),
+        (2, [(22, 8), (42, 10), (42, 30), (20, 30)]),  # moved and skewed: an animated roto
+    ]
+    mask = _polygon_mask(frames, w, h)
+    paths = masks.rasterize(mask, w, h, [1, 2], str(tmp_path / "m"), ["00001.png", "00002.png"])
+    assert [os.path.basename(p) for p in paths] == ["00001.png", "00002.png"]
+    for (_frame, corners), path in zip(frames, paths, strict=True):
+        img = bpy.data.images.load(path)
+        px = np.zeros(w * h * img.channels, np.float32)
+        img.pixels.foreach_get(px)
+        got = px.reshape(h, w, img.channels)[..., 0] > 0.5  # rows bottom-up
+        ref = np.array(mask_math.rasterize_polygon(corners, w, h))
+        iou = (got & ref).sum() / (got | ref).sum()
+        assert iou == 1.0, f"IoU {iou}"
+        bpy.data.images.remove(img)
+    assert "NA_MaskRaster" not in bpy.data.scenes  # the temporary scene is gone
+
+
+def test_mask_shape_keys_rasterize_exactly(blender, tmp_path):
+    """Layer shape keys, keyed as the clip editor's mask tools do (BLENDER_NOTES (g))."""
+    from fake_export import write_png
+    from neural_atlas.addon import masks
+
+    w, h = 64, 48
+    frames = [
+        (1, [(10, 8), (30, 8), (30, 20), (10, 20)]),
+        (2, [(22, 8), (42, 10), (42, 30), (20, 30)]),
+        (3, [(5, 5), (20, 5), (20, 40), (5, 40)]),
+    ]
+    black = np.zeros((h, w, 4), np.uint8)
+    black[..., 3] = 255
+    write_png(tmp_path / "clip" / "0001.png", black)
+    clip = bpy.data.movieclips.load(str(tmp_path / "clip" / "0001.png"))
+    mask = bpy.data.masks.new("RotoKeys")
+    spline = mask.layers.new(name="L").splines.new()
+    spline.points.add(3)
+    spline.use_cyclic = True
+    window = bpy.context.window
+    area = window.screen.areas[0]
+    area.type = "CLIP_EDITOR"
+    space = area.spaces.active
+    space.mode, space.clip, space.mask = "MASK", clip, mask
+    scene = bpy.context.scene
+    for frame, corners in frames:
+        scene.frame_set(frame)  # before editing: a frame change re-applies existing keys
+        for p, (x, y) in zip(spline.points, corners, strict=True):
+            p.handle_left_type = p.handle_right_type = "VECTOR"
+            p.co = p.handle_left = p.handle_right = mask_math.px_to_mask(x, y, w, h)
+            p.select = True
+        with bpy.context.temp_override(window=window, area=area, region=area.regions[-1], space_data=space):
+            assert bpy.ops.mask.shape_key_insert() == {"FINISHED"}
+    names = [f"{f:05d}.png" for f, _ in frames]
+    paths = masks.rasterize(mask, w, h, [f for f, _ in frames], str(tmp_path / "m"), names)
+    for (_frame, corners), path in zip(frames, paths, strict=True):
+        img = bpy.data.images.load(path)
+        px = np.zeros(w * h * img.channels, np.float32)
+        img.pixels.foreach_get(px)
+        got = px.reshape(h, w, img.channels)[..., 0] > 0.5
+        ref = np.array(mask_math.rasterize_polygon(corners, w, h))
+        assert (got & ref).sum() / (got | ref).sum() == 1.0
+    assert sorted(os.listdir(tmp_path / "m")) == names
+
+
+def test_render_movie(blender, tmp_path):
+    manifest = make_export(tmp_path)
+    _import(blender, manifest)
+    out = tmp_path / "movie"
+    assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out), file_format="movie") == {"FINISHED"}
+    movies = list(out.glob("*.mp4"))
+    assert len(movies) == 1 and movies[0].stat().st_size > 1000
+    clip = bpy.data.movieclips.load(str(movies[0]))
+    assert clip.source == "MOVIE" and clip.frame_duration == len(FRAMES) and tuple(clip.size) == (W, H)
+    assert blender.context.scene.render.image_settings.file_format != "FFMPEG"  # the artist's setting is back
+
+
+# --- Fit Atlas operator with a fake engine ------------------------------------------------------------------
+@pytest.fixture
+def fit_scene(blender, tmp_path, monkeypatch):
+    """A scene with a clip (the fake export's plate), one Mask layer, and the fake engine as interpreter."""
+    src = make_export(tmp_path / "src")
+    plate = tmp_path / "src" / "plate" / f"{FRAMES[0]:05d}.png"
+    clip = bpy.data.movieclips.load(str(plate))
+    monkeypatch.setenv("NEURAL_ATLAS_ENGINE_PYTHON", fake_python(tmp_path))
+    props = blender.context.scene.neural_atlas
+    props.clip = clip
+    layer = props.layers.add()
+    layer.mask = _polygon_mask([(clip.frame_start, [(5, 5), (20, 5), (20, 15), (5, 15)])], W, H)
+    props.run_dir = str(tmp_path / "run")
+    return props, src
+
+
+def _fit(**kwargs):
+    return bpy.ops.neural_atlas.fit("EXEC_DEFAULT", **kwargs)
+
+
+def _fit_error(match, **kwargs):
+    """An ERROR report: called from Python, Blender raises it as RuntimeError (the UI shows it)."""
+    with pytest.raises(RuntimeError, match=match):
+        _fit(**kwargs)
+
+
+def test_fit_operator_runs_engine_exports_and_imports(fit_scene, tmp_path):
+    props, _ = fit_scene
+    assert props.clip.frame_duration == len(FRAMES)
+    assert _fit() == {"FINISHED"}
+    assert not props.running and props.progress == 1.0
+    assert props.manifest.endswith(C.MANIFEST_NAME)
+    assert "NA_Over" in _tree(bpy.context.scene).nodes
+    log = Path(props.log_path).read_text()
+    # argv: plate folder, rasterized masks named like the plate's files, positions, preset, --no-bar
+    first = log.splitlines()[0]
+    assert f" fit {tmp_path / 'src' / 'plate'} --mask {tmp_path / 'run.masks' / 'layer1'} " in first
+    assert "--frames 0:2" in first and "--preset draft" in first and first.endswith("--no-bar")
+    assert sorted(os.listdir(tmp_path / "run.masks" / "layer1")) == [f"{f:05d}.png" for f in FRAMES]
+    assert " export " in log
+
+
+def test_fit_operator_on_a_movie_clip(fit_scene, tmp_path):
+    """A movie plate: the engine gets the file; masks are named by position (the engine matches by count)."""
+    props, src = fit_scene
+    _import(bpy, src)
+    assert bpy.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(tmp_path / "mov"), file_format="movie") == {
+        "FINISHED"
+    }
+    movie = next((tmp_path / "mov").glob("*.mp4"))
+    props.clip = bpy.data.movieclips.load(str(movie))
+    assert props.clip.source == "MOVIE"
+    props.run_dir = str(tmp_path / "run_movie")
+    assert _fit() == {"FINISHED"}
+    first = Path(props.log_path).read_text().splitlines()[0]
+    assert f" fit {movie} --mask " in first and "--frames 0:2" in first
+    assert sorted(os.listdir(tmp_path / "run_movie.masks" / "layer1")) == ["00000.png", "00001.png", "00002.png"]
+
+
+def test_fit_operator_engine_crash_reports_and_blender_stays_usable(fit_scene, monkeypatch, tmp_path):
+    props, src = fit_scene
+    monkeypatch.setenv("FAKE_ENGINE_MODE", "crash")
+    _fit_error(r"Fit Atlas failed: the engine was killed by signal 9 \(log: .*run\.blender\.log\)")
+    assert not props.running
+    assert "killed by signal 9" in props.status
+    assert props.log_path == str(tmp_path / "run") + ".blender.log" and os.path.exists(props.log_path)
+    # Blender is fine: the same scene imports and renders
+    assert bpy.ops.neural_atlas.import_run("EXEC_DEFAULT", filepath=str(src)) == {"FINISHED"}
+    assert bpy.ops.neural_atlas.fit.poll()
+
+
+def test_fit_operator_traceback_and_bad_input(fit_scene, monkeypatch):
+    props, _ = fit_scene
+    monkeypatch.setenv("FAKE_ENGINE_MODE", "traceback")
+    _fit_error("simulated engine bug")
+    assert "simulated engine bug" in props.status
+    monkeypatch.setenv("FAKE_ENGINE_MODE", "bad_input")
+    _fit_error("Fit Atlas bad_input: .*mask folder does not exist")
+    assert props.status.startswith(props.run_dir.rstrip("/")) and "mask folder does not exist" in props.status
+
+
+def test_fit_operator_cancel_then_resume(fit_scene, monkeypatch):
+    props, _ = fit_scene
+    monkeypatch.setenv("FAKE_ENGINE_MODE", "hang")
+    assert _fit(timeout=0.5) == {"CANCELLED"}
+    assert props.status.startswith("cancelled at step") and props.can_resume
+    assert 0.0 < props.progress < 1.0  # the bar moved with the engine's progress lines (hang mode: total 1000)
+    _fit_error("already holds a fit")  # a second plain fit refuses to overwrite the run
+    assert "already holds a fit" in props.status
+    monkeypatch.setenv("FAKE_ENGINE_MODE", "ok")
+    assert _fit(resume=True) == {"FINISHED"}
+    assert "--resume" in Path(props.log_path).read_text()
+    assert not props.can_resume
+
+
+def test_fit_operator_without_engine_python_says_how_to_fix(fit_scene, monkeypatch):
+    props, _ = fit_scene
+    monkeypatch.delenv("NEURAL_ATLAS_ENGINE_PYTHON")
+    _fit_error("Set up engine")
+    assert "Set up engine" in props.status
+
+
+def test_estimate_operator_asks_the_engine(fit_scene):
+    props, _ = fit_scene
+    assert bpy.ops.neural_atlas.estimate("EXEC_DEFAULT") == {"FINISHED"}
+    assert json.loads(props.estimate_json) == {"draft": {"seconds": 61.0, "psnr": 25.7}}
+    from neural_atlas.addon import ui
+
+    assert ui._estimate_text(props) == "about 1m01s here (engine estimate), ~25.7 dB"
+    argv = Path(props.run_dir + ".estimate.log").read_text().splitlines()[0]
+    assert " estimate " in argv and "--frames 0:2" in argv and argv.endswith("--json")
+    props.long_edge = 512
+    assert props.estimate_json == ""  # another size: back to the documented estimate
+
+
+def test_check_engine_operator(blender, tmp_path, monkeypatch):
+    monkeypatch.setenv("NEURAL_ATLAS_ENGINE_PYTHON", fake_python(tmp_path))
+    assert bpy.ops.neural_atlas.check_engine("EXEC_DEFAULT") == {"FINISHED"}
+    monkeypatch.setenv("NEURAL_ATLAS_ENGINE_PYTHON", str(tmp_path / "missing_python"))
+    with pytest.raises(RuntimeError, match=r"the engine does not run with .*missing_python: cannot start"):
+        bpy.ops.neural_atlas.check_engine("EXEC_DEFAULT")
+
+
+def test_setup_engine_offline_error_is_clear(blender, tmp_path, monkeypatch):
+    """Creates a real venv, then pip cannot reach an index: the report says offline, nothing hangs."""
+    from neural_atlas.addon import preferences
+
+    for var in ("PIP_FIND_LINKS", "PIP_EXTRA_INDEX_URL"):
+        monkeypatch.delenv(var, raising=False)
+    monkeypatch.setenv("PIP_CONFIG_FILE", os.devnull)
+    monkeypatch.setenv("PIP_INDEX_URL", "http://127.0.0.1:9/simple")
+    monkeypatch.setenv("PIP_RETRIES", "0")
+    monkeypatch.setenv("PIP_DEFAULT_TIMEOUT", "2")
+    lines = []
+    ok, message, python = preferences.run_setup(str(tmp_path / "venv"), lines.append, timeout=120)
+    assert not ok and "offline" in message and str(tmp_path / "venv" / "setup.log") in message
+    assert os.path.exists(python)  # the environment itself was created
+    assert lines[0] == "creating the environment" and lines[1].startswith("installing torch")
+    assert operators._SESSIONS == {}
+
+
+def test_operators_refuse_without_inputs(blender, monkeypatch):
+    props = blender.context.scene.neural_atlas
+    monkeypatch.setenv("NEURAL_ATLAS_ENGINE_PYTHON", sys.executable)
+    _fit_error("save the .blend file first")  # the default Run Folder is relative to the .blend
+    props.run_dir = "/tmp/na_unused_run"
+    _fit_error("choose the clip to fit")
+    props.run_dir = ""
+    _fit_error("choose a Run Folder")
+    with pytest.raises(RuntimeError, match="import an atlas first"):
+        bpy.ops.neural_atlas.render("EXEC_DEFAULT")
+
+
+class _Event:
+    def __init__(self, type_):
+        self.type = type_
+
+
+def _drive_modal(context, session, events):
+    """Run the modal operator's TIMER/ESC handling without an event loop (none exists headless)."""
+    from types import SimpleNamespace
+
+    reports = []
+    op = SimpleNamespace(_session=session, report=lambda level, msg: reports.append((level, msg)))
+    op._timer = context.window_manager.event_timer_add(0.1, window=context.window)
+    op._finish = lambda ctx, s: operators.NEURALATLAS_OT_fit._finish(op, ctx, s)
+    operators._SESSIONS[session.scene_name] = session
+    session.start()
+    ticks = 0
+    while True:
+        event = events(ticks, session)
+        ret = operators.NEURALATLAS_OT_fit.modal(op, context, _Event(event))
+        ticks += 1
+        if ret != {"PASS_THROUGH"}:
+            return ret, reports, ticks
+        assert ticks < 600, "the modal operator never finished"
+        import time
+
+        time.sleep(0.02)
+
+
+def test_modal_path_progress_then_import(fit_scene):
+    props, _ = fit_scene
+    session = operators.FitSession(bpy.context)
+    seen = []
+
+    def events(_tick, s):
+        seen.append((props.progress, props.status))
+        return "TIMER"
+
+    ret, reports, _ = _drive_modal(bpy.context, session, events)
+    assert ret == {"FINISHED"} and reports[-1][0] == {"INFO"}
+    assert any(status.startswith("step ") and " dB · ETA " in status for _, status in seen)
+    assert any(0.0 < p < 1.0 for p, _ in seen)
+    assert props.manifest and not operators.is_running(bpy.context.scene)
+
+
+@pytest.mark.parametrize("how", ["escape", "cancel_button"])
+def test_modal_path_cancel(fit_scene, monkeypatch, how):
+    props, _ = fit_scene
+    monkeypatch.setenv("FAKE_ENGINE_MODE", "hang")
+    session = operators.FitSession(bpy.context)
+
+    def events(tick, s):
+        if s.job.state.step >= 3 and tick % 2 == 0:
+            if how == "escape":
+                return "ESC"
+            assert bpy.ops.neural_atlas.cancel() == {"FINISHED"}
+        return "TIMER"
+
+    ret, reports, _ = _drive_modal(bpy.context, session, events)
+    assert ret == {"CANCELLED"} and reports[-1][0] == {"WARNING"}
+    assert "cancelled at step" in reports[-1][1] and props.can_resume
+    assert bpy.ops.neural_atlas.fit.poll()
+
+
+def test_setup_engine_modal_path_reports_progress_and_offline(blender, tmp_path):
+    """The GUI path of Set up engine, driven by hand-made TIMER events; pip is a stand-in that fails offline."""
+    from types import SimpleNamespace
+
+    from neural_atlas.addon import preferences
+
+    venv = tmp_path / "venv"
+    (venv / "bin").mkdir(parents=True)
+    pip = venv / "bin" / "python"
+    pip.write_text(
+        f"#!{sys.executable}\nimport sys, time\nprint('Collecting torch==2.13.0', flush=True)\ntime.sleep(0.3)\n"
+        "print('ERROR: Could not find a version that satisfies the requirement torch==2.13.0', flush=True)\n"
+        "sys.exit(1)\n"
+    )
+    pip.chmod(0o755)
+    session = preferences.SetupSession(str(venv))
+    assert len(session.steps) == 1  # the environment exists: only the install runs
+    reports, statuses = [], []
+    op = SimpleNamespace(_session=session, report=lambda level, msg: reports.append((level, msg)))
+    op._timer = blender.context.window_manager.event_timer_add(0.1, window=blender.context.window)
+    for _ in range(200):
+        ret = preferences.NEURALATLAS_OT_setup_engine.modal(op, blender.context, _Event("TIMER"))
+        statuses.append(session.status())
+        if ret != {"PASS_THROUGH"}:
+            break
+        time.sleep(0.02)
+    assert ret == {"CANCELLED"}
+    assert any("Collecting torch" in s for s in statuses)  # pip's latest line is what the preferences show
+    assert reports[-1][0] == {"ERROR"} and "offline" in reports[-1][1] and "setup.log" in reports[-1][1]

@@ -1,0 +1,123 @@
+"""The extension as an artist gets it: built and validated with Blender's extension CLI, installed with
+``package_install_files`` into throw-away user folders (a child process: they must be set before bpy loads)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+import zipfile
+from pathlib import Path
+
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+ROOT = Path(__file__).resolve().parents[2]
+EXT_ID = "neural_atlas"
+
+
+def blender_ext_cli() -> str:
+    return os.path.join(bpy.utils.resource_path("LOCAL"), "scripts", "addons_core", "bl_pkg", "cli", "blender_ext.py")
+
+
+@pytest.fixture(scope="module")
+def built_zip(tmp_path_factory):
+    out = tmp_path_factory.mktemp("dist")
+    cli = blender_ext_cli()
+    v = subprocess.run([sys.executable, cli, "validate", str(ROOT)], capture_output=True, text=True, timeout=120)
+    assert v.returncode == 0, v.stdout + v.stderr
+    b = subprocess.run(
+        [sys.executable, cli, "build", "--source-dir", str(ROOT), "--output-dir", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert b.returncode == 0, b.stdout + b.stderr
+    zips = list(out.glob("*.zip"))
+    assert len(zips) == 1
+    return zips[0]
+
+
+def test_zip_holds_the_extension_and_only_the_built_paths(built_zip):
+    names = zipfile.ZipFile(built_zip).namelist()
+    assert {"__init__.py", "blender_manifest.toml", "addon/__init__.py", "engine/contract.py"} <= set(names)
+    assert {n.split("/")[0] for n in names} <= {"__init__.py", "blender_manifest.toml", "addon", "engine", "README.md"}
+    assert not any("__pycache__" in n or n.endswith(".pyc") for n in names)
+    assert built_zip.name == f"{EXT_ID}-0.1.0.zip"
+
+
+INSTALL_SCRIPT = textwrap.dedent(
+    """
+    import json, os, sys
+    import bpy, addon_utils
+    zip_path, engine_python = sys.argv[1], sys.argv[2]
+    res = bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default", enable_on_install=True)
+    mod = "bl_ext.user_default.neural_atlas"
+    out = {"install": sorted(res), "enabled": mod in bpy.context.preferences.addons}
+    prefs = bpy.context.preferences.addons[mod].preferences
+    out["prefs_engine_python"] = hasattr(prefs, "engine_python")
+    out["panel"] = hasattr(bpy.types, "NEURALATLAS_PT_fit")
+    out["fit_poll"] = bpy.ops.neural_atlas.fit.poll()
+    out["scene_props"] = bpy.context.scene.neural_atlas.preset
+    out["installed_dir"] = os.path.dirname(sys.modules[mod].__file__)
+    prefs.engine_python = engine_python
+    from bl_ext.user_default.neural_atlas.addon import preferences as p
+    out["check"] = p.check_engine(p.engine_python())
+    addon_utils.disable(mod, default_set=True)
+    out["panel_after_disable"] = hasattr(bpy.types, "NEURALATLAS_PT_fit")
+    print("RESULT " + json.dumps(out))
+    sys.stdout.flush()
+    os._exit(0)
+    """
+)
+
+
+def test_install_enable_check_engine_disable(built_zip, tmp_path):
+    env = dict(os.environ)
+    for key in ("RESOURCES", "EXTENSIONS", "SCRIPTS", "CONFIG"):
+        env[f"BLENDER_USER_{key}"] = str(tmp_path / key.lower())
+    env.pop("NEURAL_ATLAS_ENGINE_PYTHON", None)
+    script = tmp_path / "install.py"
+    script.write_text(INSTALL_SCRIPT)
+    proc = subprocess.run(
+        [sys.executable, str(script), str(built_zip), sys.executable],
+        capture_output=True,
+        text=True,
+        timeout=180,
+        env=env,
+        cwd=tmp_path,
+    )
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
+    assert lines, proc.stdout[-3000:] + proc.stderr[-3000:]
+    out = json.loads(lines[-1][len("RESULT ") :])
+    assert out["install"] == ["FINISHED"] and out["enabled"] and out["prefs_engine_python"]
+    assert out["panel"] and out["fit_poll"] and out["scene_props"] == "draft"
+    assert out["installed_dir"].startswith(str(tmp_path / "extensions"))
+    ok, message = out["check"]
+    # the engine shipped inside the installed extension answers `python -m engine --version`
+    assert ok and message.startswith("neural-atlas engine"), message
+    assert not out["panel_after_disable"]
+
+
+def test_readme_build_command_runs_verbatim():
+    """The README's build block, run as written (from the checkout; dist/ is git-ignored and excluded)."""
+    import re
+
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    section = readme[readme.index("## Blender extension") :]
+    block = re.search(r"```bash\n(.*?)```", section, re.S).group(1)
+    assert "blender_ext.py" in block and "build" in block
+    if not (ROOT / ".venv" / "bin" / "python").exists():
+        pytest.skip("the README's command uses .venv")
+    zip_path = ROOT / "dist" / f"{EXT_ID}-0.1.0.zip"
+    zip_path.unlink(missing_ok=True)
+    argv = ["bash", "-euo", "pipefail", "-c", block]
+    proc = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    try:
+        assert "addon/operators.py" in zipfile.ZipFile(zip_path).namelist()
+    finally:
+        zip_path.unlink(missing_ok=True)
