@@ -455,9 +455,11 @@ def write_auto_masks(
     frame_range: tuple[int, int] | None = None,
     cfg: AutoMaskConfig | None = None,
     truth: str | Path | None = None,
+    say: Callable[[str], None] | None = None,
 ) -> MasksReport:
     """Find masks for ``clip`` and write them to ``out`` as 8-bit 0/255 PNGs at the clip's resolution,
-    named like the frames. Never overwrites: a folder already holding one of those names is refused."""
+    named like the frames. Never overwrites: a folder already holding one of those names is refused.
+    ``say`` receives a progress line before the slow part."""
     cfg = AutoMaskConfig() if cfg is None else cfg
     info = open_clip(clip, frame_range)
     if info.num_frames < 2:
@@ -482,6 +484,8 @@ def write_auto_masks(
             "masks are never overwritten (an artist may have fixed them): choose a new --out or delete them",
         )
     size = working_size(info.width, info.height, cfg.long_edge)
+    if say is not None:
+        say(f"finding what moves in {info.num_frames} frames at {size[0]}x{size[1]}")
     frames = read_frames(info, size)
     if info.colorspace == "linear":
         frames = linear_to_srgb(np.nan_to_num(frames, nan=0.0, posinf=1.0, neginf=0.0))

@@ -344,7 +344,9 @@ def _add_masks_parser(sub: argparse._SubParsersAction) -> None:
 def _cmd_masks(args: argparse.Namespace) -> int:
     from engine.auto_masks import write_auto_masks
 
-    report = write_auto_masks(args.clip, args.out, frame_range=args.frames, truth=args.truth)
+    report = write_auto_masks(
+        args.clip, args.out, frame_range=args.frames, truth=args.truth, say=lambda m: print(m, file=sys.stderr)
+    )
     for line in report.summary():
         print(line)
     print(report.folder)

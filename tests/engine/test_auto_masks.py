@@ -26,6 +26,7 @@ from engine.auto_masks import (
     mask_iou,
 )
 from engine.cli import main
+from engine.clip import open_clip, read_masks
 from engine.flow import compute_flow
 from engine.synthetic import SceneSpec, make_scene, write_scene
 
@@ -108,7 +109,7 @@ def test_nan_and_inf_pixels_are_sanitised():
     assert result.found and mask_iou(result.masks, scene.masks).mean() > 0.85
 
 
-def test_textureless_clip_has_no_reliable_flow():
+def test_textureless_clip_finds_nothing():
     frames = np.full((3, 40, 60, 3), 0.5, dtype=np.float32)
     result = auto_masks(frames)
     assert not result.found and not result.masks.any()
@@ -172,6 +173,9 @@ def test_cli_writes_one_png_per_frame(small_clip, tmp_path, capsys):
     png = cv2.imread(str(out / names[0]), cv2.IMREAD_UNCHANGED)
     assert png.dtype == np.uint8 and png.shape == (SMALL.height, SMALL.width)
     assert set(np.unique(png)) == {0, 255}
+    # What fit --mask will read back: the same masks, frame for frame.
+    back = read_masks(out, open_clip(frames_dir), (SMALL.width, SMALL.height))
+    assert mask_iou(back, make_scene(SMALL).masks).mean() > 0.85
 
 
 def test_cli_frame_range_and_no_overwrite(small_clip, tmp_path, capsys):

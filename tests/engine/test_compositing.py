@@ -166,3 +166,29 @@ def test_render_writes_png_frames_and_a_movie(tmp_path):
     got = read_exr(exr_out / "edit.00001.exr")
     rgb = np.stack([got[c] for c in "RGB"], -1)
     assert np.abs(rgb - srgb_to_linear(np.rint(plate[1] * 255) / 255)).max() < 1e-6  # the plate, as decoded
+
+
+@pytest.mark.parametrize(
+    ("mutate", "needle"),
+    [
+        (lambda d: d.update({"neural_atlas_manifest": 99}), "manifest version 99 is not supported"),
+        (lambda d: d.pop("passes"), "manifest has no 'passes'"),
+        (lambda d: d["layers"][0].pop("uv_pass"), "manifest layer 0 has no 'uv_pass'"),
+        (lambda d: d["layers"][0].update({"role": "sky"}), "unknown role 'sky'"),
+        (lambda d: d["passes"].update({"frames": []}), "lists no frames"),
+    ],
+)
+def test_a_manifest_off_the_contract_is_a_one_line_error(tmp_path, capsys, mutate, needle):
+    import json
+
+    from engine import cli
+    from engine import contract as C
+
+    manifest = make_fake_export(tmp_path, _plate(t=1), [_identity_layer(32, 24)])
+    data = json.loads(manifest.read_text())
+    mutate(data)
+    manifest.write_text(json.dumps(data))
+    assert cli.main(["render", str(manifest), "--out", str(tmp_path / "out")]) == C.EXIT_BAD_INPUT
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and needle in err[0] and str(manifest) in err[0], err
+    assert not (tmp_path / "out").exists()
