@@ -148,7 +148,7 @@ def build_model(cfg: FitConfig, clip: PreparedClip) -> AtlasModel:
         bg_region, fg_regions = None, []
     motions.append(estimate_layer_motion(flow, bg_region, clip.size, cfg.init_motion))
     for region in fg_regions:
-        motions.append(estimate_layer_motion(flow, region, clip.size, cfg.init_motion))
+        motions.append(estimate_layer_motion(flow, region, clip.size, cfg.init_motion, margin=cfg.atlas_margin_fg))
     return FastModel(cfg, clip.size, t, motions)
 
 
