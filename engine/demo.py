@@ -27,7 +27,7 @@ from engine.export import export_run
 from engine.fit_preview import write_contact_sheet
 from engine.image_io import read_image, write_png
 from engine.manifest import Manifest
-from engine.preview import checker_edit, grid, label, tile, write_png_u8, write_previews
+from engine.preview import checker_edits, grid, label, tile, write_png_u8, write_previews
 from engine.render import plate_frames, render_frames, render_manifest, to_display_u8
 from engine.synthetic import demo_spec, make_scene, write_scene
 from engine.trainer import FitCancelled, fit, load_run
@@ -85,7 +85,7 @@ def demo_contact_sheet(manifest: Manifest, edits: list[np.ndarray | None], path:
     """Rows: original | checkerboard on the foreground | edited, for a few frames; then atlases and edits."""
     frames = manifest.frames
     picks = sorted({frames[round(i * (len(frames) - 1) / 3)] for i in range(4)})
-    checker = [None] + [checker_edit(tuple(layer["atlas_size"])) for layer in manifest.layers[1:]]
+    checker = checker_edits(manifest)
     rows = [
         [label(tile(to_display_u8(p)), f"original {n}") for n, p in plate_frames(manifest, picks)],
         [label(tile(to_display_u8(f)), f"checkerboard {n}") for n, f in render_frames(manifest, checker, picks)],

@@ -18,6 +18,7 @@ import datetime
 import json
 import math
 import os
+import shutil
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -251,7 +252,7 @@ def _next_version(exports: Path) -> tuple[Path, Path]:
                 if (staging / ".pid").exists() and _pid_alive((staging / ".pid").read_text().strip()):
                     n += 1
                     continue
-                _remove_tree(staging)
+                shutil.rmtree(staging)
                 staging.mkdir()
             (staging / ".pid").write_text(str(os.getpid()))
             return final, staging
@@ -269,12 +270,6 @@ def _pid_alive(text: str) -> bool:
     except PermissionError:
         return True
     return True
-
-
-def _remove_tree(path: Path) -> None:
-    for p in sorted(path.rglob("*"), key=lambda q: len(q.parts), reverse=True):
-        p.rmdir() if p.is_dir() else p.unlink()
-    path.rmdir()
 
 
 def _selected(prepared: PreparedClip, clip_rec: dict[str, Any], frames: tuple[int, int] | None) -> list[int]:
@@ -397,7 +392,7 @@ def export_run(
         os.replace(staging, final)
     except BaseException:
         if staging.exists():
-            _remove_tree(staging)
+            shutil.rmtree(staging)
         raise
     manifest_path = final / C.MANIFEST_NAME
     reporter.emit(C.EVENT_EXPORTED, manifest=str(manifest_path))

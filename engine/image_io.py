@@ -7,32 +7,14 @@ float32, row 0 at the top (the file convention; Blender flips to bottom-up on lo
 
 from __future__ import annotations
 
-import os
-import tempfile
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import OpenEXR
 import OpenImageIO as oiio
 
+from engine.atomic import atomic_write
 from engine.errors import InputError
-
-
-def _atomic(path: Path, write: Callable[[str], None]) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        with open(tmp, "rb+") as f:
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
 
 
 def write_exr(path: Path, channels: dict[str, np.ndarray], compression: str = "zip") -> Path:
@@ -50,7 +32,7 @@ def write_exr(path: Path, channels: dict[str, np.ndarray], compression: str = "z
         with OpenEXR.File(header, data) as f:
             f.write(tmp)
 
-    return _atomic(path, write)
+    return atomic_write(path, write)
 
 
 def write_rgba_exr(path: Path, rgba: np.ndarray) -> Path:
@@ -92,7 +74,19 @@ def write_png(path: Path, pixels: np.ndarray, bits: int = 8) -> Path:
         if not ok:
             raise OSError(f"cannot write {path}: {out.geterror()}")
 
-    return _atomic(path, write)
+    return atomic_write(path, write)
+
+
+def image_header(path: str | Path) -> tuple[int, int, int]:
+    """(width, height, bits per channel) from the file's header, without decoding pixels."""
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise InputError(path, f"cannot open this image ({' '.join(oiio.geterror().split())})", "check the file")
+    try:
+        spec = inp.spec()
+        return spec.width, spec.height, spec.format.size() * 8
+    finally:
+        inp.close()
 
 
 def read_image(path: str | Path) -> tuple[np.ndarray, bool]:
@@ -114,4 +108,4 @@ def read_image(path: str | Path) -> tuple[np.ndarray, bool]:
         inp.close()
 
 
-__all__ = ["read_exr", "read_image", "write_exr", "write_png", "write_rgba_exr"]
+__all__ = ["image_header", "read_exr", "read_image", "write_exr", "write_png", "write_rgba_exr"]

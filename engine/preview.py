@@ -96,6 +96,13 @@ def checker_edit(size: tuple[int, int], squares: int = CHECKER_SQUARES) -> np.nd
     return edit_to_premultiplied(rgba, is_float=False)
 
 
+def checker_edits(manifest: Manifest) -> list[np.ndarray | None]:
+    """A checkerboard on every foreground atlas (on the background when it is the only layer)."""
+    if len(manifest.layers) == 1:
+        return [checker_edit(tuple(manifest.layers[0]["atlas_size"]))]
+    return [None] + [checker_edit(tuple(layer["atlas_size"])) for layer in manifest.layers[1:]]
+
+
 def stripes_frame_edit(size: tuple[int, int]) -> np.ndarray:
     """Horizontal stripes over a whole frame (premultiplied linear RGBA), every other band painted."""
     w, h = size
@@ -120,13 +127,7 @@ def write_previews(manifest_path: str | Path, out_dir: str | Path | None = None,
     out = Path(out_dir) if out_dir else manifest.folder / "preview"
     written = [write_png_u8(out / "atlases.png", atlas_sheet(manifest))]
 
-    checker: list[np.ndarray | None] = [None]
-    for layer in manifest.layers[1:]:
-        w, h = layer["atlas_size"]
-        checker.append(checker_edit((w, h)))
-    if len(manifest.layers) == 1:  # background-only: the checkerboard goes on the background
-        w, h = manifest.layers[0]["atlas_size"]
-        checker = [checker_edit((w, h))]
+    checker = checker_edits(manifest)
     first = manifest.frames[0]
     stripes = project_to_textures(manifest, manifest.read_passes(first), stripes_frame_edit(manifest.resolution))
 
@@ -155,6 +156,7 @@ def write_previews(manifest_path: str | Path, out_dir: str | Path | None = None,
 __all__ = [
     "atlas_sheet",
     "checker_edit",
+    "checker_edits",
     "grid",
     "label",
     "stripes_frame_edit",

@@ -23,7 +23,7 @@ import numpy as np
 from engine.colour import linear_to_srgb
 from engine.compositing import edit_to_premultiplied, load_edit
 from engine.errors import InputError
-from engine.image_io import read_image, write_png, write_rgba_exr
+from engine.image_io import image_header, read_image, write_png, write_rgba_exr
 from engine.manifest import LayerPasses, Manifest
 
 #: A layer owns a pixel when its alpha is at least this (or it is the largest of the pixel's alphas).
@@ -133,14 +133,7 @@ def save_edit_like(path: Path, edit: np.ndarray) -> None:
     if path.suffix.lower() == ".exr":
         write_rgba_exr(path, edit)
         return
-    bits = 8
-    if path.exists():
-        import OpenImageIO as oiio
-
-        inp = oiio.ImageInput.open(str(path))
-        if inp is not None:
-            bits = 16 if inp.spec().format.basetype == oiio.UINT16 else 8
-            inp.close()
+    bits = 16 if path.exists() and image_header(path)[2] == 16 else 8
     a = edit[..., 3:4]
     with np.errstate(invalid="ignore", divide="ignore"):
         straight = np.where(a > 0.0, edit[..., :3] / np.maximum(a, 1e-12), 0.0)
@@ -196,10 +189,7 @@ def project_to_textures(
             out.append(None)
             continue
         path = manifest.edit_path(layer)
-        size = tuple(layer["atlas_size"])
-        if path.exists():
-            pixels, _ = read_image(path)
-            size = (pixels.shape[1], pixels.shape[0])
+        size = image_header(path)[:2] if path.exists() else tuple(layer["atlas_size"])
         out.append(splat_layer(frame_edit, passes[i], own[i], size))  # type: ignore[arg-type]
     return out
 

@@ -26,6 +26,7 @@ from tqdm import tqdm
 from engine import contract as C
 from engine.checkpoint import atomic_write_text, load_checkpoint, save_checkpoint
 from engine.clip import ClipInfo, open_clip, read_frames, read_masks, working_size
+from engine.colour import linear_to_srgb
 from engine.config import FitConfig
 from engine.errors import InputError
 from engine.eta import StepClock
@@ -89,8 +90,7 @@ def to_fitting_values(frames: np.ndarray, colorspace: str) -> tuple[np.ndarray, 
     bad = [int(i) for i in np.nonzero(~np.isfinite(frames).reshape(len(frames), -1).all(1))[0]]
     out = np.nan_to_num(frames, nan=0.0, posinf=1.0, neginf=0.0)
     if colorspace == "linear":
-        x = np.clip(out, 0.0, None)
-        out = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055).astype(np.float32)
+        out = linear_to_srgb(np.clip(out, 0.0, None))
     return out.astype(np.float32), bad
 
 

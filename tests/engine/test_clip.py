@@ -7,7 +7,6 @@ from pathlib import Path
 
 import av
 import numpy as np
-import OpenImageIO as oiio
 import pytest
 
 from engine.clip import (
@@ -20,28 +19,12 @@ from engine.clip import (
     working_size,
 )
 from engine.errors import InputError
+from tests.media_files import write_audio_only_movie, write_image
 
 SHARED = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "blackswan"
 
 
 # --- helpers ---------------------------------------------------------------------------------------------
-
-
-def write_image(path: Path, pixels: np.ndarray, fmt: str | None = None) -> Path:
-    """Write pixels as-is (``fmt`` defaults to the array's dtype); alpha is stored unassociated."""
-    pixels = np.asarray(pixels)
-    if pixels.ndim == 2:
-        pixels = pixels[:, :, None]
-    height, width, channels = pixels.shape
-    fmt = fmt or {np.uint8: "uint8", np.uint16: "uint16", np.float32: "float"}[pixels.dtype.type]
-    spec = oiio.ImageSpec(width, height, channels, fmt)
-    spec.attribute("oiio:UnassociatedAlpha", 1)
-    out = oiio.ImageOutput.create(str(path))
-    assert out is not None, oiio.geterror()
-    assert out.open(str(path), spec), out.geterror()
-    assert out.write_image(np.ascontiguousarray(pixels)), out.geterror()
-    out.close()
-    return path
 
 
 def const(height: int, width: int, value, dtype=np.uint8) -> np.ndarray:
@@ -516,13 +499,7 @@ def test_movie_frame_range_out_of_bounds(tmp_path: Path) -> None:
 
 
 def test_movie_without_video_stream(tmp_path: Path) -> None:
-    path = tmp_path / "sound.mp4"
-    with av.open(str(path), "w") as container:
-        stream = container.add_stream("aac", rate=44100)
-        frame = av.AudioFrame.from_ndarray(np.zeros((1, 1024), np.float32), format="fltp", layout="mono")
-        frame.sample_rate = 44100
-        container.mux(stream.encode(frame))
-        container.mux(stream.encode())
+    path = write_audio_only_movie(tmp_path / "sound.mp4")
     with pytest.raises(InputError) as exc:
         open_clip(path)
     assert_one_line(exc, "sound.mp4", "video stream")

@@ -330,22 +330,29 @@ def test_reexport_never_touches_paint_or_earlier_exports(exported, tmp_path):
         m.edit_path(fg).write_bytes(original)
 
 
-def test_killed_export_leaves_nothing_behind(exported, monkeypatch):
-    _, run, _ = exported
-    before = sorted(p.name for p in (run / "exports").iterdir())
-    edits = _hash_tree(run / "edits")
+def _fill_disk_after(monkeypatch, files: int) -> None:
+    """The export's EXR writer fails with ENOSPC (naming the file) once ``files`` files were written."""
+    import errno
+
     import engine.export as ex
 
     calls = {"n": 0}
     real = ex.write_exr
 
-    def failing(path, channels, **kw):
+    def full(path, channels, **kw):
         calls["n"] += 1
-        if calls["n"] > 3:
-            raise OSError(28, "No space left on device")
+        if calls["n"] > files:
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
         return real(path, channels, **kw)
 
-    monkeypatch.setattr(ex, "write_exr", failing)
+    monkeypatch.setattr(ex, "write_exr", full)
+
+
+def test_killed_export_leaves_nothing_behind(exported, monkeypatch):
+    _, run, _ = exported
+    before = sorted(p.name for p in (run / "exports").iterdir())
+    edits = _hash_tree(run / "edits")
+    _fill_disk_after(monkeypatch, 3)
     with pytest.raises(OSError):
         export_run(run, atlas_size=64, progress_bar=False)
     assert sorted(p.name for p in (run / "exports").iterdir()) == before
@@ -381,23 +388,10 @@ def test_bad_input_is_one_line(exported, tmp_path, capsys, argv, needle):
 
 
 def test_disk_full_during_export_is_one_line_and_loses_nothing(exported, monkeypatch, capsys):
-    import errno
-
-    import engine.export as ex
-
     _, run, _ = exported
     before = _hash_tree(run / "exports")
     edits = _hash_tree(run / "edits")
-    calls = {"n": 0}
-    real = ex.write_exr
-
-    def full(path, channels, **kw):
-        calls["n"] += 1
-        if calls["n"] > 2:
-            raise OSError(errno.ENOSPC, "No space left on device", str(path))
-        return real(path, channels, **kw)
-
-    monkeypatch.setattr(ex, "write_exr", full)
+    _fill_disk_after(monkeypatch, 2)
     assert cli.main(["export", str(run), "--atlas-size", "64", "--no-bar"]) == C.EXIT_FAILED
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
     assert len(err) == 1 and "No space left on device" in err[0] and "intact" in err[0], err

@@ -20,13 +20,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-import av
 import numpy as np
 
 from engine import cli
 from engine import contract as C
 from engine.synthetic import SceneSpec, make_scene, write_scene
-from tests.stability.fitcheck import write_image, write_masks, write_sequence
+from tests.media_files import write_audio_only_movie, write_image
+from tests.stability.fitcheck import write_masks, write_sequence
 
 #: Where the folders of a case live in the messages of the docs table.
 PLACEHOLDER = "<dir>"
@@ -116,14 +116,7 @@ def _missing_masks(d: Path) -> list[str]:
 
 
 def _no_video_stream(d: Path) -> list[str]:
-    path = d / "sound.mp4"
-    with av.open(str(path), "w") as container:
-        stream = container.add_stream("aac", rate=44100)
-        frame = av.AudioFrame.from_ndarray(np.zeros((1, 1024), np.float32), format="fltp", layout="mono")
-        frame.sample_rate = 44100
-        container.mux(stream.encode(frame))
-        container.mux(stream.encode())
-    return _fit_args(path, None, d)
+    return _fit_args(write_audio_only_movie(d / "sound.mp4"), None, d)
 
 
 def _unknown_preset(d: Path) -> list[str]:

@@ -14,12 +14,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import OpenImageIO as oiio
 import torch
 
 from engine import contract as C
 from engine import trainer
 from engine.config import apply_overrides, preset_config
+from tests.media_files import write_image
 
 #: A short schedule that still crosses every phase: global rigidity, mask bootstrap, then the mask prior.
 QUICK = {
@@ -30,23 +30,6 @@ QUICK = {
     "bootstrap_steps": "12",
     "global_rigidity_steps": "6",
 }
-
-
-def write_image(path: Path, pixels: np.ndarray, fmt: str | None = None) -> Path:
-    """Write ``pixels`` [H, W] or [H, W, C] as-is through OpenImageIO (format from the dtype unless given)."""
-    pixels = np.asarray(pixels)
-    if pixels.ndim == 2:
-        pixels = pixels[:, :, None]
-    height, width, channels = pixels.shape
-    fmt = fmt or {np.uint8: "uint8", np.uint16: "uint16", np.float32: "float"}[pixels.dtype.type]
-    spec = oiio.ImageSpec(width, height, channels, fmt)
-    spec.attribute("oiio:UnassociatedAlpha", 1)
-    out = oiio.ImageOutput.create(str(path))
-    assert out is not None, oiio.geterror()
-    assert out.open(str(path), spec), out.geterror()
-    assert out.write_image(np.ascontiguousarray(pixels)), out.geterror()
-    out.close()
-    return path
 
 
 def write_sequence(folder: Path, frames: np.ndarray, ext: str = "png", dtype: Any = np.uint8) -> Path:
