@@ -103,6 +103,19 @@ def sparsity_loss(alpha_fg: torch.Tensor, rgb_fg: torch.Tensor) -> torch.Tensor:
     return (((1.0 - _f32(alpha_fg)) * _f32(rgb_fg)) ** 2).sum(-1).mean()
 
 
+def anchor_loss(
+    uv: torch.Tensor, uv_anchor: torch.Tensor, weight: torch.Tensor, uv_per_px: float
+) -> torch.Tensor:
+    """Squared length, in pixels, of the weighted MEAN displacement of a mapping from its anchor.
+
+    A layer's atlas is defined only up to a translation of the whole mapping; only the mean is penalised,
+    so this fixes that gauge without resisting any deformation. Zero weight (no mask in the batch) gives 0.
+    """
+    w = _f32(weight)[:, None]
+    mean = ((_f32(uv) - _f32(uv_anchor)) * w).sum(0) / w.sum().clamp_min(MIN_COUNT)
+    return (mean**2).sum() / float(uv_per_px) ** 2
+
+
 def mask_bce(alpha: torch.Tensor, target: torch.Tensor, valid: torch.Tensor | None = None) -> torch.Tensor:
     """Binary cross-entropy of alpha against a (coarse) mask, alpha clamped away from 0 and 1 by LOG_EPS."""
     a = _f32(alpha).clamp(LOG_EPS, 1.0 - LOG_EPS)

@@ -45,6 +45,10 @@ class AtlasModel(nn.Module):
         """Atlas colour [N, 3] in [0, 1] at atlas coordinates ``uv``."""
         raise NotImplementedError
 
+    def uv_anchor(self, layer: int, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor | None:
+        """The layer's initial (flow-fitted) mapping, if the model has one: the gauge the atlas is drawn in."""
+        return None
+
     def alpha(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         """Per-layer opacity weights [N, L], summing to one."""
         raise NotImplementedError
@@ -108,11 +112,15 @@ class FastLayerMapping(nn.Module):
                 res.append((max(2, math.ceil(w / cell) + 1), max(2, math.ceil(h / cell) + 1), max(1, frames)))
             self.warp = Grid3D(res, 2, init_std=0.0)
 
-    def forward(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    def initial(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        """The flow-fitted similarity alone: where the mapping starts, and the frame its atlas box is drawn in."""
         a = self.to_ref[t]  # [N, 2, 3] frame px -> reference px
-        # delta is in atlas units per normalised pixel, so Adam's step size means the same at any resolution
         ref = torch.einsum("nij,nj->ni", a[:, :, :2], xy) + a[:, :, 2]
-        uv = (ref - self.center) / self.half_extent
+        return (ref - self.center) / self.half_extent
+
+    def forward(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        # delta is in atlas units per normalised pixel, so Adam's step size means the same at any resolution
+        uv = self.initial(xy, t)
         xn = xy / self.half - 1.0
         tn = t.to(xy.dtype) / max(self.frames / 2.0, 0.5) - 1.0
         d = self.delta[t]
@@ -191,6 +199,9 @@ class FastModel(AtlasModel):
 
     def color(self, layer: int, uv: torch.Tensor) -> torch.Tensor:
         return self.atlases[layer](uv)
+
+    def uv_anchor(self, layer: int, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        return self.mappings[layer].initial(xy, t)
 
     def alpha(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         xn = xy[:, 0:1] / (self.width / 2.0) - 1.0

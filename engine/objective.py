@@ -35,6 +35,7 @@ def weights_at(cfg: FitConfig, step: int) -> dict[str, float]:
         "global_rigidity_bg": cfg.w_global_rigidity_bg if glob else 0.0,
         "mask": cfg.w_mask if boot else 0.0,
         "mask_prior": 0.0 if boot else cfg.w_mask_prior,
+        "anchor": cfg.w_anchor,
     }
 
 
@@ -129,6 +130,17 @@ def compute_losses(
     terms["alpha_flow"] = 0.5 * sum(alpha_terms) if alpha_terms else zero
 
     terms["sparsity"] = sum(L.sparsity_loss(wts0[:, i : i + 1], cols[i][:n]) for i in range(1, nl)) if nl > 1 else zero
+
+    # a bounded atlas (the fast model): keep each foreground where its atlas box was drawn (gauge fixing)
+    if nl > 1 and wts["anchor"] > 0:
+        m_all = video.masks[:, t, iy, ix]  # [F, N]
+        anchor = []
+        for i in range(1, nl):
+            u0 = model.uv_anchor(i, xy, t)
+            if u0 is not None:
+                anchor.append(L.anchor_loss(uvs[i][:n], u0, m_all[i - 1], model.uv_per_px(i)))
+        if anchor:
+            terms["anchor"] = sum(anchor)
 
     if nl > 1 and (wts["mask"] > 0 or wts["mask_prior"] > 0):
         fg_alpha = wts0[:, 1:]

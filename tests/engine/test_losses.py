@@ -176,3 +176,27 @@ def test_bce_and_sparsity_finite_on_closed_unit_interval(alphas, labels):
     assert torch.isfinite(out)
     out.backward()
     assert torch.isfinite(a.grad).all()
+
+
+def test_anchor_loss_penalises_only_the_mean_drift():
+    g = torch.Generator().manual_seed(0)
+    uv0 = torch.rand(200, 2, generator=g) * 2 - 1
+    wiggle = torch.randn(200, 2, generator=g) * 0.05
+    wiggle = wiggle - wiggle.mean(0)  # a deformation with zero mean displacement
+    w = torch.ones(200)
+    assert float(L.anchor_loss(uv0 + wiggle, uv0, w, 0.01)) < 1e-8
+    # a uniform slide of 0.03 atlas units at 100 px per unit is 3 px: 9 px^2
+    shifted = uv0 + torch.tensor([0.03, 0.0])
+    assert math.isclose(float(L.anchor_loss(shifted, uv0, w, 0.01)), 9.0, rel_tol=1e-4)
+    # only weighted (mask) pixels count: unweighted ones may move freely
+    half = torch.cat((torch.ones(100), torch.zeros(100)))
+    moved = torch.cat((uv0[:100], uv0[100:] + 5.0))
+    assert float(L.anchor_loss(moved, uv0, half, 0.01)) < 1e-8
+
+
+def test_anchor_loss_without_weighted_pixels_is_zero_with_finite_gradient():
+    uv = torch.rand(10, 2, requires_grad=True)
+    loss = L.anchor_loss(uv, torch.zeros(10, 2), torch.zeros(10), 0.01)
+    loss.backward()
+    assert float(loss) == 0.0 and torch.isfinite(uv.grad).all()
+

@@ -36,6 +36,31 @@ def test_fast_mapping_starts_at_the_initial_motion():
     assert model.uv_per_px(1) == pytest.approx(1 / 20.0)
 
 
+def test_anchor_term_sees_a_whole_mapping_slide_and_only_that():
+    """The gauge term of the objective: a uniform slide of a foreground mapping costs its squared length in
+    pixels; the starting mapping costs nothing. (Blackswan's mapping slid 147 px without it.)"""
+    from engine.flow import FlowField
+    from engine.objective import compute_losses
+    from engine.video import build_video_tensors
+
+    model = FastModel(preset_config("draft"), SIZE, T, [_motion(), _motion(-1.0, 20.0)])
+    w, h = SIZE
+    frames = np.random.default_rng(0).random((T, h, w, 3), dtype=np.float32)
+    masks = np.zeros((1, T, h, w), bool)
+    masks[0, :, 10:30, 20:40] = True
+    zeros = np.zeros((T - 1, h, w, 2), np.float32)
+    ok = np.ones((T - 1, h, w), bool)
+    video = build_video_tensors(frames, masks, FlowField(zeros, zeros, ok, ok, "none", 1.0), 2.0, torch.device("cpu"))
+    ix, iy, t = torch.randint(0, w, (500,)), torch.randint(0, h, (500,)), torch.randint(0, T, (500,))
+    cfg = preset_config("draft")
+    _, terms = compute_losses(model, video, cfg, 0, ix, iy, t)
+    assert float(terms["anchor"]) < 1e-10
+    with torch.no_grad():
+        model.mappings[1].delta[:, 0, 2] += 3.0 / 20.0  # 3 px at 20 px per atlas unit
+    _, terms = compute_losses(model, video, cfg, 0, ix, iy, t)
+    assert float(terms["anchor"]) == pytest.approx(9.0, rel=1e-4)
+
+
 def test_fast_alpha_weights_sum_to_one_and_stay_in_open_interval():
     model = FastModel(preset_config("draft"), SIZE, T, [_motion(), _motion()])
     w = model.alpha(*_xyt())
