@@ -371,8 +371,30 @@ class NEURALATLAS_OT_import(bpy.types.Operator):
         return {"RUNNING_MODAL"}
 
 
+class NEURALATLAS_OT_float_edits(bpy.types.Operator):
+    """Paint in float: each layer's edit becomes a linear, premultiplied EXR beside its PNG (the engine uses it too)"""
+
+    bl_idname = "neural_atlas.float_edits"
+    bl_label = "Float Edit Layers"
+
+    def execute(self, context):
+        props = context.scene.neural_atlas
+        if not props.manifest:
+            self.report({"ERROR"}, "import an atlas first")
+            return {"CANCELLED"}
+        made = []
+        for layer in P.plan_tree(C.load_manifest(props.manifest), props.manifest, props.filter_type).layers:
+            img = bpy.data.images.get(P.edit_image_name(layer))
+            if img is None or bpy.path.abspath(img.filepath).lower().endswith(C.EDIT_LAYER_FLOAT_EXT):
+                continue
+            made.append(paint.make_float_edit(layer))
+        import_manifest(context, props.manifest, setup_paint=True)  # the tree and canvases now use the EXRs
+        self.report({"INFO"}, f"{len(made)} float edit layer(s): " + ", ".join(os.path.basename(p) for p in made))
+        return {"FINISHED"}
+
+
 class NEURALATLAS_OT_save_edits(bpy.types.Operator):
-    """Save the painted edit layers to their PNG files in the run folder"""
+    """Save the painted edit layers to their files in the run folder (PNG or float EXR, as each layer is)"""
 
     bl_idname = "neural_atlas.save_edits"
     bl_label = "Save Edits"
@@ -459,6 +481,7 @@ classes = (
     NEURALATLAS_OT_estimate,
     NEURALATLAS_OT_cancel,
     NEURALATLAS_OT_import,
+    NEURALATLAS_OT_float_edits,
     NEURALATLAS_OT_save_edits,
     NEURALATLAS_OT_paint_setup,
     NEURALATLAS_OT_render,
