@@ -190,11 +190,13 @@ def _redraw(context: Any) -> None:
                 area.tag_redraw()
 
 
-def import_manifest(context: Any, manifest_path: str, setup_paint: bool = True) -> P.TreePlan:
-    """Read the manifest, build the compositor tree and the paint canvases."""
+def import_manifest(
+    context: Any, manifest_path: str, setup_paint: bool = True, edits: dict[str, str] | None = None
+) -> P.TreePlan:
+    """Read the manifest, build the compositor tree and the paint canvases (``edits``: layer -> other image)."""
     props = context.scene.neural_atlas
     manifest = C.load_manifest(manifest_path)
-    plan = P.plan_tree(manifest, manifest_path, props.filter_type)
+    plan = P.plan_tree(manifest, manifest_path, props.filter_type, edits)
     compositor.build(context.scene, plan)
     if setup_paint:
         paint.setup_canvases(context, plan.layers)
