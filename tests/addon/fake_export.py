@@ -241,7 +241,7 @@ def reference_frame(
     alpha_sum = np.zeros(plate.shape[:2])
     rgb_sum = np.zeros(plate.shape)
     for layer in m["layers"]:
-        edit_path = _resolve(manifest_path, layer["edit_layer"])
+        edit_path = Path(C.edit_layer_file(str(_resolve(manifest_path, layer["edit_layer"]))))  # .exr wins
         if edit_path.suffix == ".exr":  # linear float, premultiplied: used as is
             premult = read_exr_rgba(edit_path).astype(np.float64)
         else:
