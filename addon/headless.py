@@ -66,7 +66,8 @@ def run(ns: argparse.Namespace) -> dict:
     addon = load_addon()
     from neural_atlas.addon import compositor, operators
     from neural_atlas.addon import tree_plan as P
-    from neural_atlas.engine import contract as C
+
+    C = operators.C  # the engine's contract, as the add-on imports it (the add-on's only engine import)
 
     edits: dict[str, str] = {}
     for item in ns.edit:
