@@ -89,6 +89,33 @@ def test_every_user_facing_command_is_accounted_for():
     assert sum(b.kind == "test" for b in ALL) >= 8  # the examples really run
 
 
+def _engine_commands() -> list[tuple[str, str, list[str]]]:
+    """(block id, verb, --options) of every `python -m engine VERB ...` line in every bash block."""
+    out = []
+    for b in ALL:
+        for line in b.code.replace("\\\n", " ").splitlines():
+            line = line.split("#")[0]
+            for m in re.finditer(r"-m engine ([a-z][a-z-]*)(.*?)(?:$|&&|;|\|)", line):
+                out.append((b.id, m.group(1), re.findall(r"(?<![\w-])(--[a-z][a-z-]*)", m.group(2))))
+    return out
+
+
+def test_documented_engine_options_exist():
+    """Synopsis blocks with placeholders cannot run; their verbs and options are checked against the CLI."""
+    import argparse
+
+    from engine.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    commands = _engine_commands()
+    assert len(commands) >= 15
+    for where, verb, options in commands:
+        assert verb in sub.choices, f"{where}: `python -m engine {verb}` is not a verb ({sorted(sub.choices)})"
+        known = {o for a in sub.choices[verb]._actions for o in a.option_strings}
+        missing = [o for o in options if o not in known]
+        assert not missing, f"{where}: `engine {verb}` has no option {missing}"
+
+
 @pytest.fixture(scope="session")
 def scratch(tmp_path_factory) -> Path:
     """A folder that looks like the checkout (symlinks) plus a tiny synthetic clip."""
