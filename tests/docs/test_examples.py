@@ -95,7 +95,7 @@ def _engine_commands() -> list[tuple[str, str, list[str]]]:
     for b in ALL:
         for line in b.code.replace("\\\n", " ").splitlines():
             line = line.split("#")[0]
-            for m in re.finditer(r"-m engine ([a-z][a-z-]*)(.*?)(?:$|&&|;|\|)", line):
+            for m in re.finditer(r"-m engine ([a-z][a-z-]*)(.*?)(?:$|&&|;|\s\|\s)", line):
                 out.append((b.id, m.group(1), re.findall(r"(?<![\w-])(--[a-z][a-z-]*)", m.group(2))))
     return out
 
