@@ -384,14 +384,26 @@ class NEURALATLAS_OT_float_edits(bpy.types.Operator):
         if not props.manifest:
             self.report({"ERROR"}, "import an atlas first")
             return {"CANCELLED"}
-        made = []
-        for layer in P.plan_tree(C.load_manifest(props.manifest), props.manifest, props.filter_type).layers:
-            img = bpy.data.images.get(P.edit_image_name(layer))
-            if img is None or bpy.path.abspath(img.filepath).lower().endswith(C.EDIT_LAYER_FLOAT_EXT):
-                continue
-            made.append(paint.make_float_edit(layer))
-        import_manifest(context, props.manifest, setup_paint=True)  # the tree and canvases now use the EXRs
-        self.report({"INFO"}, f"{len(made)} float edit layer(s): " + ", ".join(os.path.basename(p) for p in made))
+        made, skipped = [], []
+        try:
+            manifest = C.load_manifest(props.manifest)
+            for layer in manifest["layers"]:
+                img = bpy.data.images.get(P.edit_image_name(layer["name"]))
+                if img is None or _abs(img.filepath).lower().endswith(C.EDIT_LAYER_FLOAT_EXT):
+                    continue  # not imported, or already float
+                if _abs(img.filepath) != os.path.normpath(P.resolve(props.manifest, layer["edit_layer"])):
+                    skipped.append(layer["name"])  # another image was given for this layer: not the run's edit
+                    continue
+                made.append(paint.make_float_edit(layer["name"]))
+            keep = {name: _abs(bpy.data.images[P.edit_image_name(name)].filepath) for name in skipped}
+            import_manifest(context, props.manifest, True, keep)  # the tree and canvases now use the EXRs
+        except (ValueError, OSError) as exc:  # ManifestError, PlanError, an existing EXR, a full disk
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        msg = f"{len(made)} float edit layer(s): " + (", ".join(os.path.basename(p) for p in made) or "none")
+        if skipped:
+            msg += f"; not converted (they use another image than the run's edit layer): {', '.join(skipped)}"
+        self.report({"INFO"}, msg)
         return {"FINISHED"}
 
 

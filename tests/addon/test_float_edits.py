@@ -73,3 +73,23 @@ def test_float_edit_layers_convert_switch_and_never_overwrite(blender, tmp_path)
     ]
     print(f"{TAG} render with float edit layers vs the equation (nearest): {max(errs):.2e}")
     assert max(errs) <= 1e-5
+
+
+def test_float_edit_layers_leave_an_edit_override_alone(blender, tmp_path):
+    """A layer showing another image than the run's edit layer (headless --edit) is not converted, and stays."""
+    import shutil
+
+    from neural_atlas.addon import operators
+
+    manifest = make_export(tmp_path)
+    edits = tmp_path / "run" / "edits"
+    other = tmp_path / "elsewhere" / "paint.png"
+    other.parent.mkdir()
+    shutil.copy(edits / "Foreground.png", other)
+    operators.import_manifest(blender.context, str(manifest), True, {"Foreground": str(other)})
+    assert blender.ops.neural_atlas.float_edits("EXEC_DEFAULT") == {"FINISHED"}
+    assert (edits / "Background.exr").exists()
+    assert not (edits / "Foreground.exr").exists() and not (other.parent / "paint.exr").exists()
+    fg = bpy.data.images[P.edit_image_name("Foreground")]
+    assert os.path.samefile(bpy.path.abspath(fg.filepath), other)
+    assert bpy.data.images[P.edit_image_name("Background")].filepath.endswith("Background.exr")
