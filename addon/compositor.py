@@ -30,7 +30,8 @@ def _load_image(spec: P.ImageSpec) -> Any:
     img.colorspace_settings.name = spec.colorspace
     if not spec.sequence:
         # a PNG edit layer is straight alpha (Blender premultiplies it on load); a float EXR is premultiplied
-        img.alpha_mode = "PREMUL" if img.is_float else "STRAIGHT"
+        # (by the file's kind: ``is_float`` is False until the pixels are first loaded)
+        img.alpha_mode = "PREMUL" if spec.colorspace == "Non-Color" else "STRAIGHT"
     return img
 
 

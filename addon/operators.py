@@ -190,11 +190,13 @@ def _redraw(context: Any) -> None:
                 area.tag_redraw()
 
 
-def import_manifest(context: Any, manifest_path: str, setup_paint: bool = True) -> P.TreePlan:
-    """Read the manifest, build the compositor tree and the paint canvases."""
+def import_manifest(
+    context: Any, manifest_path: str, setup_paint: bool = True, edits: dict[str, str] | None = None
+) -> P.TreePlan:
+    """Read the manifest, build the compositor tree and the paint canvases (``edits``: layer -> other image)."""
     props = context.scene.neural_atlas
     manifest = C.load_manifest(manifest_path)
-    plan = P.plan_tree(manifest, manifest_path, props.filter_type)
+    plan = P.plan_tree(manifest, manifest_path, props.filter_type, edits)
     compositor.build(context.scene, plan)
     if setup_paint:
         paint.setup_canvases(context, plan.layers)
@@ -371,8 +373,42 @@ class NEURALATLAS_OT_import(bpy.types.Operator):
         return {"RUNNING_MODAL"}
 
 
+class NEURALATLAS_OT_float_edits(bpy.types.Operator):
+    """Paint in float: each layer's edit becomes a linear, premultiplied EXR beside its PNG (the engine uses it too)"""
+
+    bl_idname = "neural_atlas.float_edits"
+    bl_label = "Float Edit Layers"
+
+    def execute(self, context):
+        props = context.scene.neural_atlas
+        if not props.manifest:
+            self.report({"ERROR"}, "import an atlas first")
+            return {"CANCELLED"}
+        made, skipped = [], []
+        try:
+            manifest = C.load_manifest(props.manifest)
+            for layer in manifest["layers"]:
+                img = bpy.data.images.get(P.edit_image_name(layer["name"]))
+                if img is None or _abs(img.filepath).lower().endswith(C.EDIT_LAYER_FLOAT_EXT):
+                    continue  # not imported, or already float
+                if _abs(img.filepath) != os.path.normpath(P.resolve(props.manifest, layer["edit_layer"])):
+                    skipped.append(layer["name"])  # another image was given for this layer: not the run's edit
+                    continue
+                made.append(paint.make_float_edit(layer["name"]))
+            keep = {name: _abs(bpy.data.images[P.edit_image_name(name)].filepath) for name in skipped}
+            import_manifest(context, props.manifest, True, keep)  # the tree and canvases now use the EXRs
+        except (ValueError, OSError) as exc:  # ManifestError, PlanError, an existing EXR, a full disk
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        msg = f"{len(made)} float edit layer(s): " + (", ".join(os.path.basename(p) for p in made) or "none")
+        if skipped:
+            msg += f"; not converted (they use another image than the run's edit layer): {', '.join(skipped)}"
+        self.report({"INFO"}, msg)
+        return {"FINISHED"}
+
+
 class NEURALATLAS_OT_save_edits(bpy.types.Operator):
-    """Save the painted edit layers to their PNG files in the run folder"""
+    """Save the painted edit layers to their files in the run folder (PNG or float EXR, as each layer is)"""
 
     bl_idname = "neural_atlas.save_edits"
     bl_label = "Save Edits"
@@ -459,6 +495,7 @@ classes = (
     NEURALATLAS_OT_estimate,
     NEURALATLAS_OT_cancel,
     NEURALATLAS_OT_import,
+    NEURALATLAS_OT_float_edits,
     NEURALATLAS_OT_save_edits,
     NEURALATLAS_OT_paint_setup,
     NEURALATLAS_OT_render,

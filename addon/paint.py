@@ -1,13 +1,20 @@
 """Paint set-up: per layer a plane whose material shows the edit layer over the atlas, with the edit layer
-as the active paint slot, and saving the edit layers back to their PNG files."""
+as the active paint slot; saving the edit layers back to their files in the format each has (8-bit sRGB PNG,
+straight alpha, or float EXR, scene-linear and premultiplied); and turning a PNG edit layer into a float one.
+
+Float edit layers exist because Blender decodes 8-bit sRGB through OCIO, which differs from the exact IEC
+61966-2-1 formula the engine uses by up to 2.4e-5: a float layer is read raw by both, so the compositor and
+``engine render`` agree to float precision, and paint keeps values above 1 and below 1/255."""
 
 from __future__ import annotations
 
+import array
 import os
 from typing import Any
 
 import bpy
 
+from ..engine import contract as C
 from . import compat
 from . import tree_plan as P
 
@@ -82,8 +89,15 @@ def setup_canvases(context: Any, layers: list[str]) -> list[Any]:
     return objects
 
 
+def _is_exr(path: str) -> bool:
+    return path.lower().endswith(C.EDIT_LAYER_FLOAT_EXT)
+
+
 def save_edits() -> list[str]:
-    """Write every painted edit layer back to its PNG (8-bit sRGB, straight alpha); returns the paths."""
+    """Write every painted edit layer back to its file, keeping the format it has; returns the paths.
+
+    A PNG stays 8-bit sRGB with straight alpha; an EXR stays a full-float, scene-linear, premultiplied EXR
+    (Non-Color since the import, so Blender writes the raw values; BLENDER_NOTES: a Linear one is saved encoded)."""
     saved = []
     for img in bpy.data.images:
         if not img.name.startswith(P.PREFIX + "Edit_") or not img.is_dirty:
@@ -91,7 +105,73 @@ def save_edits() -> list[str]:
         path = bpy.path.abspath(img.filepath)
         os.makedirs(os.path.dirname(path), exist_ok=True)
         img.filepath_raw = path
-        img.file_format = "PNG"
+        if _is_exr(path):
+            # the import made it Non-Color (raw values on save); setting the colourspace here, even to the same
+            # name, would reload the image from disk and silently drop the unsaved paint (measured, bpy 4.5)
+            img.file_format = "OPEN_EXR"
+            if hasattr(img, "use_half_precision"):
+                img.use_half_precision = False
+        else:
+            img.file_format = "PNG"
         img.save()
         saved.append(path)
     return saved
+
+
+def srgb_to_linear(c: float) -> float:
+    """The exact IEC 61966-2-1 decode, the engine's (``engine/colour.py``), for converting paint once."""
+    return c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4
+
+
+def straight_srgb_to_premultiplied_linear(px: array.array) -> array.array:
+    """RGBA floats (sRGB-encoded, straight alpha) -> linear, premultiplied. Pure Python (the add-on ships no
+    numpy); the decoded values are cached because an 8-bit image has at most 256 of them."""
+    out = array.array("f", bytes(len(px) * 4))
+    cache: dict[float, float] = {}
+    for i in range(0, len(px), 4):
+        a = min(max(px[i + 3], 0.0), 1.0)
+        for k in range(3):
+            c = px[i + k]
+            lin = cache.get(c)
+            if lin is None:
+                lin = cache[c] = srgb_to_linear(c)
+            out[i + k] = lin * a
+        out[i + 3] = a
+    return out
+
+
+def float_edit_path(png_path: str) -> str:
+    return os.path.splitext(png_path)[0] + C.EDIT_LAYER_FLOAT_EXT
+
+
+def make_float_edit(layer: str) -> str:
+    """Write ``<Layer>.exr`` (linear, premultiplied) next to the layer's PNG edit, from its current pixels
+    (unsaved paint included); returns the path. Refuses to replace an existing EXR: that is the artist's paint.
+    The PNG is left as it was; from now on the EXR is the layer's edit (``contract.edit_layer_file``)."""
+    img = bpy.data.images.get(P.edit_image_name(layer))
+    if img is None:
+        raise ValueError(f"no edit layer {layer!r}: import the atlas first")
+    src = bpy.path.abspath(img.filepath)
+    if _is_exr(src):
+        raise ValueError(f"{src} is already a float edit layer")
+    dst = float_edit_path(src)
+    if os.path.exists(dst):
+        raise ValueError(f"{dst} exists (it is used instead of the PNG): import the atlas again to paint in it")
+    w, h = img.size
+    px = array.array("f", bytes(w * h * 4 * 4))
+    img.pixels.foreach_get(px)  # a byte image gives its stored sRGB values, straight alpha, rows bottom-up
+    out = straight_srgb_to_premultiplied_linear(px)
+    tmp = bpy.data.images.new(f"{P.PREFIX}tmp_float_edit", w, h, alpha=True, float_buffer=True)
+    try:
+        tmp.colorspace_settings.name = "Non-Color"  # raw values on save (a Linear image would be sRGB-encoded)
+        tmp.alpha_mode = "PREMUL"
+        tmp.pixels.foreach_set(out)
+        tmp.filepath_raw = dst
+        tmp.file_format = "OPEN_EXR"
+        if hasattr(tmp, "use_half_precision"):
+            tmp.use_half_precision = False
+        os.makedirs(os.path.dirname(dst), exist_ok=True)
+        tmp.save()
+    finally:
+        bpy.data.images.remove(tmp)
+    return dst

@@ -18,6 +18,8 @@ import os
 from dataclasses import dataclass, field
 from typing import Any
 
+from ..engine import contract as C
+
 #: Every node and image the add-on creates starts with this; rebuilding removes only these.
 PREFIX = "NA_"
 
@@ -146,7 +148,8 @@ def plan_tree(
         raise PlanError(f"edit for unknown layer(s) {sorted(unknown)}; layers are {layers}")
     for layer in manifest["layers"]:
         name = layer["name"]
-        edit = edits.get(name) or resolve(manifest_path, layer["edit_layer"])
+        # the float edit layer <Layer>.exr wins over the export's PNG when both exist (the same rule as the engine)
+        edit = edits.get(name) or C.edit_layer_file(resolve(manifest_path, layer["edit_layer"]))
         images.append(ImageSpec(edit_image_name(name), edit, edit_colorspace(edit)))
         images.append(ImageSpec(atlas_image_name(name), resolve(manifest_path, layer["atlas_png"]), "sRGB"))
 

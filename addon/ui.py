@@ -95,6 +95,7 @@ class NEURALATLAS_PT_edit(bpy.types.Panel):
         row = col.row(align=True)
         row.operator("neural_atlas.paint_setup", icon="BRUSH_DATA")
         row.operator("neural_atlas.save_edits", icon="FILE_TICK")
+        col.operator("neural_atlas.float_edits", icon="IMAGE_DATA")
         col.prop(props, "render_dir")
         col.prop(props, "render_format")
         col.operator("neural_atlas.render", icon="RENDER_ANIMATION")

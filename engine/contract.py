@@ -8,6 +8,7 @@ folder's file names, the JSON progress lines the engine prints, and the pinned r
 from __future__ import annotations
 
 import json
+import os
 from typing import Any
 
 ENGINE_VERSION = "0.1.0"
@@ -135,6 +136,24 @@ ROLE_FOREGROUND = "foreground"
 
 #: Edit layers are RGBA, sRGB-encoded, straight alpha (8-bit PNG: Blender loads it exactly as sRGB).
 EDIT_LAYER_EXT = ".png"
+#: ...or a float edit layer next to it, RUN_DIR/edits/<Layer>.exr: scene-linear, premultiplied RGBA (what a
+#: compositor paints in; no 8-bit quantisation, no sRGB decode). The export only ever creates the PNG, so an
+#: EXR beside it is the artist's deliberate choice: when both exist the EXR is used (``edit_layer_file``).
+EDIT_LAYER_FLOAT_EXT = ".exr"
+
+
+def edit_layer_file(edit_layer: str) -> str:
+    """The edit layer file in use for a manifest's ``edit_layer`` path (the PNG the export made): its float
+    twin ``<same name>.exr`` when that exists, else the path itself. The engine and the add-on both call this,
+    so they always read the same paint."""
+    root, ext = os.path.splitext(edit_layer)
+    if ext.lower() == EDIT_LAYER_EXT:
+        exr = root + EDIT_LAYER_FLOAT_EXT
+        if os.path.exists(exr):
+            return exr
+    return edit_layer
+
+
 #: Atlas textures: a float EXR (linear, premultiplied RGBA) and a 16-bit PNG (sRGB, straight alpha).
 ATLAS_EXR_EXT = ".exr"
 ATLAS_PNG_EXT = ".png"

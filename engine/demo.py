@@ -7,12 +7,22 @@ complete export, and a render that is newer than its inputs.
 The example edit stands in for an artist's paint: a logo on the foreground atlas and a stylised
 background atlas. It is written to ``example_edits/`` and passed to ``render`` as an override, so the
 run's own edit layers (the artist's) stay untouched.
+
+Step 6 does what an artist would do in Blender, headless: ``addon/headless.py`` (run by a Python that has
+``bpy``, or a ``blender`` binary; the engine itself never imports bpy) builds ``demo.blend`` with the add-on's
+compositor tree and the same example edits as edit layers, and renders the edited clip through the
+compositor. The demo compares that render with the engine's and prints the max abs error. Without Blender
+the step is skipped with a message saying how to enable it.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import io
 import json
+import os
+import shutil
+import subprocess
 import sys
 from pathlib import Path
 
@@ -21,6 +31,7 @@ import numpy as np
 import torch
 
 from engine import contract as C
+from engine.atomic import atomic_write_text
 from engine.compositing import load_edit
 from engine.config import apply_overrides, preset_config
 from engine.export import export_run
@@ -33,6 +44,12 @@ from engine.synthetic import demo_spec, make_scene, write_scene
 from engine.trainer import FitCancelled, fit, load_run
 
 DEMO_ATLAS_SIZE = 512
+ROOT = Path(__file__).resolve().parents[1]
+HEADLESS_SCRIPT = ROOT / "addon" / "headless.py"
+#: Blender's own render step for 24 small frames takes seconds; this only stops a hung Blender.
+BLENDER_TIMEOUT_S = 600
+#: Where `NEURAL_ATLAS_BLENDER` can point: a `blender` binary, or a Python 3.11 with the `bpy` module.
+BLENDER_ENV = "NEURAL_ATLAS_BLENDER"
 
 
 def _say(text: str) -> None:
@@ -81,8 +98,73 @@ def _up_to_date(outputs: list[Path], inputs: list[Path]) -> bool:
     return min(p.stat().st_mtime for p in outputs) >= max(p.stat().st_mtime for p in inputs)
 
 
-def demo_contact_sheet(manifest: Manifest, edits: list[np.ndarray | None], path: Path) -> Path:
-    """Rows: original | checkerboard on the foreground | edited, for a few frames; then atlases and edits."""
+def blender_command() -> tuple[list[str], str] | None:
+    """(argv prefix that runs ``addon/headless.py`` with Blender, description), or None when there is none.
+
+    In order: ``NEURAL_ATLAS_BLENDER`` (a ``blender`` binary or a Python with bpy), this Python if it has the
+    ``bpy`` module (the checkout's .venv does: bpy 4.5), ``blender`` on PATH. ``find_spec`` only looks:
+    the engine process never imports bpy."""
+    script = str(HEADLESS_SCRIPT)
+    blender_args = ["-b", "--factory-startup", "--python-exit-code", "1", "-P", script, "--"]
+    env = os.environ.get(BLENDER_ENV)
+    if env:
+        exe = shutil.which(env) or env
+        if "blender" in Path(exe).name.lower():
+            return [exe, *blender_args], f"{exe} (${BLENDER_ENV})"
+        return [exe, script, "--"], f"{exe} (${BLENDER_ENV})"
+    if importlib.util.find_spec("bpy") is not None:
+        return [sys.executable, script, "--"], f"{sys.executable} (bpy module)"
+    exe = shutil.which("blender")
+    if exe:
+        return [exe, *blender_args], exe
+    return None
+
+
+def blender_render(
+    manifest_path: Path, edits: dict[str, str], blend: Path, render_dir: Path, report: Path
+) -> dict | None:
+    """Run ``addon/headless.py``: the .blend and the compositor's render (exact filter); its JSON report."""
+    found = blender_command()
+    if found is None:
+        _say(
+            "6/6 Blender render skipped: no Python with the bpy module and no `blender` on PATH "
+            f"(set {BLENDER_ENV}=/path/to/blender to enable it)"
+        )
+        return None
+    argv, what = found
+    argv = [*argv, str(manifest_path), "--blend", str(blend), "--render", str(render_dir), "--filter", "exact"]
+    for name, path in edits.items():
+        argv += ["--edit", f"{name}={path}"]
+    argv += ["--report", str(report)]
+    _say(f"6/6 Blender: {blend.name} with the add-on's tree and the example edits, render -> {render_dir} ({what})")
+    if render_dir.exists():
+        shutil.rmtree(render_dir)  # a fresh render: no stale frame from an earlier run is compared
+    try:
+        proc = subprocess.run(argv, capture_output=True, text=True, timeout=BLENDER_TIMEOUT_S, cwd=ROOT)
+    except subprocess.TimeoutExpired:
+        _say(f"6/6 Blender render did not finish in {BLENDER_TIMEOUT_S} s: skipped (the engine render is complete)")
+        return None
+    if proc.returncode != 0 or not report.exists():
+        tail = (proc.stderr.strip().splitlines() or ["(no output)"])[-1]
+        _say(f"6/6 Blender render failed (exit {proc.returncode}): {tail}")
+        return None
+    return json.loads(report.read_text())
+
+
+def compare_with_engine(manifest: Manifest, edits: list[np.ndarray | None], info: dict) -> dict:
+    """Max abs error (linear) between Blender's EXR frames and the engine's render with the matching filter."""
+    errors = []
+    for number, frame in render_frames(manifest, edits, filter=info["engine_filter"]):
+        pixels, _ = read_image(Path(info["render_dir"]) / f"edit.{number:05d}.exr")
+        errors.append(float(np.abs(pixels[..., :3] - frame).max()))
+    return {"max_abs_error": max(errors), "frames": len(errors), "engine_filter": info["engine_filter"]}
+
+
+def demo_contact_sheet(
+    manifest: Manifest, edits: list[np.ndarray | None], path: Path, blender_dir: Path | None = None
+) -> Path:
+    """Rows: original | checkerboard on the foreground | edited (engine) | edited (Blender's compositor, when
+    it ran), for a few frames; then atlases and edits."""
     frames = manifest.frames
     picks = sorted({frames[round(i * (len(frames) - 1) / 3)] for i in range(4)})
     checker = checker_edits(manifest)
@@ -91,6 +173,9 @@ def demo_contact_sheet(manifest: Manifest, edits: list[np.ndarray | None], path:
         [label(tile(to_display_u8(f)), f"checkerboard {n}") for n, f in render_frames(manifest, checker, picks)],
         [label(tile(to_display_u8(f)), f"edited {n}") for n, f in render_frames(manifest, edits, picks)],
     ]
+    if blender_dir is not None:
+        shots = [(n, read_image(blender_dir / f"edit.{n:05d}.exr")[0][..., :3]) for n in picks]
+        rows.append([label(tile(to_display_u8(f)), f"Blender {n}") for n, f in shots])
     atlas_row = []
     for layer, edit in zip(manifest.layers, edits, strict=True):
         pixels, _ = read_image(manifest.resolve(layer["atlas_png"]))
@@ -105,15 +190,15 @@ def demo_contact_sheet(manifest: Manifest, edits: list[np.ndarray | None], path:
 
 def run_demo(out: Path, preset: str = "draft", overrides: dict[str, str] | None = None) -> dict:
     out = Path(out)
-    _say(f"demo clip -> {out / 'clip'}")
+    _say(f"demo clip -> {out / 'clip'}")  # steps 1-5: the engine; 6: Blender
     frames_dir, masks_dir = write_scene(make_scene(demo_spec()), out / "clip")
     run = out / "run"
     cfg = apply_overrides(preset_config(preset), overrides or {})
     if (run / C.RUN_METRICS).exists():
-        _say(f"1/5 fit already done in {run} (delete it to refit)")
+        _say(f"1/6 fit already done in {run} (delete it to refit)")
     else:
         resume = (run / C.RUN_CHECKPOINT).exists()
-        _say(f"1/5 {'resuming' if resume else 'fitting'} ({preset}) -> {run}")
+        _say(f"1/6 {'resuming' if resume else 'fitting'} ({preset}) -> {run}")
         try:
             # the bar on stderr is for people; the JSON progress lines go to the run's fit.log only
             fit(frames_dir, [masks_dir], run, cfg, resume=resume, stream=io.StringIO())
@@ -126,36 +211,65 @@ def run_demo(out: Path, preset: str = "draft", overrides: dict[str, str] | None 
 
     manifest_path = _newest_export(run)
     if manifest_path is None:
-        _say(f"2/5 export (UV + alpha EXR passes, atlases) -> {run / C.EXPORTS_DIR}")
+        _say(f"2/6 export (UV + alpha EXR passes, atlases) -> {run / C.EXPORTS_DIR}")
         manifest_path = export_run(run, atlas_size=DEMO_ATLAS_SIZE, stream=io.StringIO())
     else:
-        _say(f"2/5 export already done: {manifest_path.parent}")
+        _say(f"2/6 export already done: {manifest_path.parent}")
     manifest = Manifest(manifest_path)
     preview_dir = manifest.folder / "preview"
     if not (preview_dir / "frames.png").exists():
-        _say(f"3/5 preview (atlases, checkerboard, label propagation) -> {preview_dir}")
+        _say(f"3/6 preview (atlases, checkerboard, label propagation) -> {preview_dir}")
         write_previews(manifest_path, preview_dir)
     else:
-        _say(f"3/5 preview already done: {preview_dir}")
+        _say(f"3/6 preview already done: {preview_dir}")
 
     edits_dir = out / "example_edits"
     fg_edit, bg_edit = edits_dir / "Foreground.png", edits_dir / "Background.png"
     if not _up_to_date([fg_edit, bg_edit], [manifest_path]):
-        _say(f"4/5 example edit: a logo on the foreground atlas, a stylised background -> {edits_dir}")
+        _say(f"4/6 example edit: a logo on the foreground atlas, a stylised background -> {edits_dir}")
         fg = manifest.layer("Foreground")
         write_png(fg_edit, logo_edit(tuple(fg["atlas_size"])), 8)
         write_png(bg_edit, stylised_background(manifest.resolve(manifest.layer("Background")["atlas_png"])), 8)
     else:
-        _say(f"4/5 example edit already made: {edits_dir}")
+        _say(f"4/6 example edit already made: {edits_dir}")
     edited, movie = out / "edited", out / "edited.mp4"
     overrides_edit = {"Foreground": str(fg_edit), "Background": str(bg_edit)}
     last_frame = edited / f"edit.{manifest.frames[-1]:05d}.png"
     if not _up_to_date([last_frame, movie], [fg_edit, bg_edit, manifest_path]):
-        _say(f"5/5 render the edited clip -> {edited}, {movie}")
+        _say(f"5/6 render the edited clip -> {edited}, {movie}")
         render_manifest(manifest_path, edited, overrides_edit, fmt="png", movie=movie)
     else:
-        _say(f"5/5 edited clip already rendered: {edited}")
-    sheet = demo_contact_sheet(manifest, [load_edit(bg_edit), load_edit(fg_edit)], out / "contact_sheet.png")
+        _say(f"5/6 edited clip already rendered: {edited}")
+    edit_arrays = [load_edit(bg_edit), load_edit(fg_edit)]
+
+    blend, blender_dir = out / "demo.blend", out / "blender"
+    report, compare_path = out / "blender_render.json", out / "blender_compare.json"
+    blender_outputs = [blend, report, compare_path] + [blender_dir / f"edit.{n:05d}.exr" for n in manifest.frames]
+    compare = None
+    if _up_to_date(blender_outputs, [fg_edit, bg_edit, manifest_path]):
+        compare = json.loads(compare_path.read_text())
+        _say(f"6/6 Blender render already done: {blender_dir}")
+    else:
+        info = blender_render(manifest_path, overrides_edit, blend, blender_dir, report)
+        if info is not None:
+            info["render_dir"] = str(blender_dir)
+            compare = {**compare_with_engine(manifest, edit_arrays, info), "blender": info["blender"]}
+            compare["filter"], compare["exact"] = info["filter"], info["exact"]
+            atomic_write_text(compare_path, json.dumps(compare, indent=2))
+    if compare is not None:
+        why = "8-bit sRGB plate and edits: Blender decodes them with OCIO, the engine with the exact formula"
+        _say(
+            f"   Blender {compare['blender']} ({compare['filter']}) vs engine render ({compare['engine_filter']}): "
+            f"max abs error {compare['max_abs_error']:.1e} over {compare['frames']} frames ({why})"
+        )
+    sheet = demo_contact_sheet(
+        manifest, edit_arrays, out / "contact_sheet.png", blender_dir if compare is not None else None
+    )
+    blender_line = (
+        f"   blender: {blend} (open it in Blender 4.2+), its render {blender_dir}\n"
+        if compare is not None
+        else "   blender: skipped (no bpy / blender found)\n"
+    )
     print(
         f"== done: PSNR {metrics['psnr']:.2f} dB, foreground alpha IoU {metrics['alpha_iou'][0]:.3f}, "
         f"{metrics['steps']} steps in {metrics['train_seconds']:.0f} s\n"
@@ -164,6 +278,7 @@ def run_demo(out: Path, preset: str = "draft", overrides: dict[str, str] | None 
         f"   export:  {manifest_path}\n"
         f"   preview: {preview_dir}\n"
         f"   edited:  {edited} and {movie} (example edits in {edits_dir})\n"
+        f"{blender_line}"
         f"   look: {sheet}",
         file=sys.stderr,
     )

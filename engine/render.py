@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from engine import contract as C
 from engine.clip import iter_frames, open_clip
 from engine.colour import linear_to_srgb, to_linear
 from engine.compositing import composite_edits, edit_is_empty, load_edit
@@ -45,7 +46,10 @@ def load_edits(manifest: Manifest, overrides: dict[str, str] | None = None) -> l
         manifest.layer(name)  # unknown names are a one-line error listing the layers
     edits: list[np.ndarray | None] = []
     for layer in manifest.layers:
-        path = Path(overrides[layer["name"]]) if layer["name"] in overrides else manifest.edit_path(layer)
+        if layer["name"] in overrides:
+            path = Path(overrides[layer["name"]])
+        else:  # the float edit layer <Layer>.exr wins over the export's PNG when both exist (contract)
+            path = Path(C.edit_layer_file(str(manifest.edit_path(layer))))
         if not path.exists():
             if layer["name"] in overrides:
                 raise InputError(path, "edit image does not exist", "check the path given to --edit")

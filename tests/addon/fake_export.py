@@ -44,6 +44,9 @@ def read_exr_rgba(path: Path) -> np.ndarray:
         ch = f.channels()
         if "RGBA" in ch:
             return np.asarray(ch["RGBA"].pixels, np.float32)
+        if "RGB" in ch:  # no alpha: opaque
+            rgb = np.asarray(ch["RGB"].pixels, np.float32)
+            return np.concatenate((rgb, np.ones((*rgb.shape[:2], 1), np.float32)), -1)
         return np.stack([np.asarray(ch[c].pixels, np.float32) for c in "RGBA"], axis=-1)
 
 
@@ -228,14 +231,17 @@ def reference_frame(
 ) -> np.ndarray:
     """out = plate * (1 - sum A_i) + sum rgb_i, (H, W, 3) float64, rows top-first."""
     m = json.loads(Path(manifest_path).read_text())
-    plate8 = read_rgba8(_resolve(manifest_path, m["clip"]["frame_files"][m["clip"]["frame_numbers"].index(frame)]))
-    plate = decode(plate8[..., :3] / 255.0)
+    plate_path = _resolve(manifest_path, m["clip"]["frame_files"][m["clip"]["frame_numbers"].index(frame)])
+    if plate_path.suffix == ".exr":  # a linear float plate: read raw
+        plate = read_exr_rgba(plate_path)[..., :3].astype(np.float64)
+    else:
+        plate = decode(read_rgba8(plate_path)[..., :3] / 255.0)
     with OpenEXR.File(str(Path(manifest_path).parent / m["passes"]["dir"] / C.pass_file_name(frame))) as f:
         ch = {k: np.asarray(v.pixels, np.float64) for k, v in f.channels().items()}
     alpha_sum = np.zeros(plate.shape[:2])
     rgb_sum = np.zeros(plate.shape)
     for layer in m["layers"]:
-        edit_path = _resolve(manifest_path, layer["edit_layer"])
+        edit_path = Path(C.edit_layer_file(str(_resolve(manifest_path, layer["edit_layer"]))))  # .exr wins
         if edit_path.suffix == ".exr":  # linear float, premultiplied: used as is
             premult = read_exr_rgba(edit_path).astype(np.float64)
         else:

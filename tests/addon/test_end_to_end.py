@@ -76,7 +76,10 @@ def test_fit_paint_render_matches_engine_render(blender, tmp_path, monkeypatch):
             py,
             "-c",
             "import sys; from pathlib import Path; from engine.synthetic import SceneSpec, make_scene, write_scene; "
-            "write_scene(make_scene(SceneSpec(width=64, height=48, frames=4)), Path(sys.argv[1]))",
+            "from engine.image_io import read_image, write_rgba_exr; from engine.colour import srgb_to_linear; "
+            "d = Path(sys.argv[1]); write_scene(make_scene(SceneSpec(width=64, height=48, frames=4)), d)\n"
+            "for f in sorted((d / 'frames').glob('*.png')):\n"
+            "    write_rgba_exr(d / 'frames_exr' / (f.stem + '.exr'), srgb_to_linear(read_image(f)[0][..., :3]))",
             str(clip_dir),
         ],
         cwd=ROOT,
@@ -85,7 +88,9 @@ def test_fit_paint_render_matches_engine_render(blender, tmp_path, monkeypatch):
     )
     monkeypatch.setenv("NEURAL_ATLAS_ENGINE_PYTHON", py)
     props = blender.context.scene.neural_atlas
-    props.clip = bpy.data.movieclips.load(str(clip_dir / "frames" / "00000.png"))
+    # a float (scene-linear EXR) plate, as in a VFX pipeline: Blender and the engine both read it raw, so the only
+    # decode that differs is the one of 8-bit sRGB edit layers (OCIO vs the exact formula), measured below
+    props.clip = bpy.data.movieclips.load(str(clip_dir / "frames_exr" / "00000.exr"))
     layer = props.layers.add()
     layer.source = "FOLDER"
     layer.folder = str(clip_dir / "masks")
@@ -163,9 +168,44 @@ def test_fit_paint_render_matches_engine_render(blender, tmp_path, monkeypatch):
         # the paint is really there: the blue band over the background
         img = read_exr_rgba(out_b / f"edit.{frames[0]:05d}.exr")
         assert ((img[..., 2] > 0.4) & (img[..., 0] < 0.3)).sum() > 100
+
+    # float edit layers: the PNG paint becomes RUN/edits/<Layer>.exr (linear, premultiplied), the tree and the
+    # engine both switch to it, paint is written in float and saved as float; nothing but float is decoded
+    props.filter_type = exact
+    pngs = {
+        name: (Path(props.run_dir) / C.EDITS_DIR / f"{name}.png").read_bytes() for name in ("Foreground", "Background")
+    }
+    assert bpy.ops.neural_atlas.float_edits("EXEC_DEFAULT") == {"FINISHED"}
+    for name in ("Foreground", "Background"):
+        img = bpy.data.images[P.edit_image_name(name)]
+        assert img.filepath.endswith(f"{name}.exr") and img.is_float and img.colorspace_settings.name == "Non-Color"
+        assert (Path(props.run_dir) / C.EDITS_DIR / f"{name}.png").read_bytes() == pngs[name]  # PNG untouched
+    exr_fg = read_exr_rgba(Path(props.run_dir) / C.EDITS_DIR / "Foreground.exr")
+    assert np.abs(exr_fg - np.float32([1.0, 0.1**0 * 0.01002, 0.0, 1.0])).max() < 1e-3  # sRGB 0.1 -> 0.0100
+    _paint("NA_Edit_Foreground", (2.0, 0.5, 0.001, 1.0), (0.0, 0.0, 1.0, 1.0))  # > 1 and < 1/255: float only
+    _paint("NA_Edit_Background", (0.0, 0.1, 0.5, 0.5), (0.0, 0.3, 1.0, 0.6))  # premultiplied: 0.2, 1.0 at a=0.5
+    assert bpy.ops.neural_atlas.save_edits("EXEC_DEFAULT") == {"FINISHED"}
+    saved = read_exr_rgba(Path(props.run_dir) / C.EDITS_DIR / "Foreground.exr")
+    assert np.abs(saved[0, 0] - np.float32([2.0, 0.5, 0.001, 1.0])).max() == 0.0  # top row: exact float paint
+    out_b, out_e = tmp_path / "blender_float", tmp_path / "engine_float"
+    assert bpy.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out_b), file_format="exr") == {"FINISHED"}
+    engine_filter = "nearest" if exact == P.FILTER_NEAREST else "bilinear"
+    render_argv = [py, "-m", "engine", "render", props.manifest, "--out", str(out_e), "--format", "exr"]
+    subprocess.run(
+        [*render_argv, "--filter", engine_filter], cwd=ROOT, check=True, timeout=300, stdout=subprocess.DEVNULL
+    )
+    errs = []
+    for f in frames:
+        a = read_exr_rgba(out_b / f"edit.{f:05d}.exr")[..., :3]
+        b = read_exr_rgba(out_e / f"edit.{f:05d}.exr")[..., :3]
+        errs.append(float(np.abs(a - b).max()))
+        assert a.max() > 1.0  # the float paint above 1 (no plate value is) went through both
+    errors["float_" + exact] = max(errs)
     print(f"{TAG} end to end: fit+export+import {t_fit:.1f} s, total {time.monotonic() - t0:.1f} s, errors {errors}")
-    # the tree is exact; Blender vs the engine's render differs by how 8-bit sRGB is decoded (Blender/OCIO
-    # vs the exact formula: up to 2.4e-5, test_blender.py), nothing else
+    # float edit layers on a float plate: nothing is decoded, Blender and the engine agree to float precision
+    assert errors["float_" + exact] <= 1e-5, errors
+    # the tree is exact; with 8-bit sRGB PNG edit layers Blender and the engine differ by how 8-bit sRGB is
+    # decoded (Blender/OCIO vs the exact IEC formula: up to 2.4e-5, test_blender.py), nothing else
     assert errors["tree_vs_equation"] <= 1e-5, errors
     assert errors[exact] <= 3e-5, errors
     if not V5:

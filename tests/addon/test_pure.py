@@ -30,8 +30,10 @@ def test_pure_modules_do_not_import_bpy():
 # --- engine process -----------------------------------------------------------------------------------------
 def test_job_reads_progress_and_ignores_noise(tmp_path):
     seen = []
-    result = EP.EngineJob([*FAKE, "fit", "clip", "--out", str(tmp_path / "run")], str(tmp_path / "log")).start().wait(
-        on_message=seen.append
+    result = (
+        EP.EngineJob([*FAKE, "fit", "clip", "--out", str(tmp_path / "run")], str(tmp_path / "log"))
+        .start()
+        .wait(on_message=seen.append)
     )
     assert result.status == EP.STATUS_OK and result.returncode == 0
     steps = [m["step"] for m in seen if m["event"] == C.EVENT_PROGRESS]
@@ -177,6 +179,25 @@ def test_plan_three_layers_sums_every_layer(tmp_path):
     plan = P.plan_tree(m, str(mp))
     k = plan.kinds()
     assert (k[P.MAP_UV], k[P.ADD_COLOR], k[P.ADD_VALUE], k[P.SEPARATE]) == (3, 2, 2, 3)
+
+
+def test_float_edit_layer_wins_over_the_png_when_both_exist(tmp_path):
+    """contract.edit_layer_file: the export makes <Layer>.png; an <Layer>.exr beside it is used instead."""
+    mp = make_export(tmp_path)
+    m = C.load_manifest(str(mp))
+    png = P.resolve(str(mp), m["layers"][1]["edit_layer"])
+    assert png.endswith(".png") and C.edit_layer_file(png) == png
+    spec = next(i for i in P.plan_tree(m, str(mp)).images if i.name == P.edit_image_name("Foreground"))
+    assert (spec.filepath, spec.colorspace) == (png, "sRGB")
+    exr = png[: -len(".png")] + C.EDIT_LAYER_FLOAT_EXT
+    Path(exr).write_bytes(b"")  # existence is the rule; the content is read by Blender / the engine
+    assert C.edit_layer_file(png) == exr
+    assert C.edit_layer_file(exr) == exr and C.edit_layer_file("elsewhere/paint.png") == "elsewhere/paint.png"
+    spec = next(i for i in P.plan_tree(m, str(mp)).images if i.name == P.edit_image_name("Foreground"))
+    assert (spec.filepath, spec.colorspace) == (exr, "Non-Color")
+    # an explicit edit override is used as given
+    spec = next(i for i in P.plan_tree(m, str(mp), edits={"Foreground": png}).images if i.name.endswith("Foreground"))
+    assert spec.filepath == png
 
 
 def test_plan_rejects_gaps_and_unknown_edits(tmp_path):

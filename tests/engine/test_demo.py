@@ -45,12 +45,56 @@ def test_demo_fits_exports_edits_renders_then_reuses(tmp_path):
     for layer in ("Background", "Foreground"):
         own = cv2.imread(str(tmp_path / "run" / "edits" / f"{layer}.png"), cv2.IMREAD_UNCHANGED)
         assert own.shape[2] == 4 and own.max() == 0
-    stamps = {p: p.stat().st_mtime_ns for p in (tmp_path / "run" / "checkpoint.pt", manifest, edited[-1])}
+    # step 6: the .blend built by the add-on, rendered by Blender's compositor, equals the engine's render
+    blend, blender_dir = tmp_path / "demo.blend", tmp_path / "blender"
+    compare = json.loads((tmp_path / "blender_compare.json").read_text())
+    assert blend.stat().st_size > 50_000 and compare["frames"] == 24
+    assert "Blender" in first.stderr and "max abs error" in first.stderr
+    from engine.compositing import load_edit
+    from engine.image_io import read_image
+    from engine.manifest import Manifest
+    from engine.render import render_frames
+
+    m = Manifest(manifest)
+    edits = [load_edit(tmp_path / "example_edits" / f"{layer['name']}.png") for layer in m.layers]
+    errors = []
+    for number, frame in render_frames(m, edits, [0, 11, 23], filter=compare["engine_filter"]):
+        pixels, _ = read_image(blender_dir / f"edit.{number:05d}.exr")
+        errors.append(float(np.abs(pixels[..., :3] - frame).max()))
+        assert np.abs(pixels[..., :3] - frame).mean() < 1e-5  # every pixel: the decode differs everywhere
+    print(f"demo: Blender {compare['blender']} vs engine render, {compare['engine_filter']}: {max(errors):.2e}")
+    # 8-bit sRGB plate and edits: Blender's OCIO decode differs from the exact formula by <= 2.4e-5
+    assert max(errors) <= 3e-5 and abs(max(errors) - compare["max_abs_error"]) <= max(errors)
+    stamps = {
+        p: p.stat().st_mtime_ns
+        for p in (tmp_path / "run" / "checkpoint.pt", manifest, edited[-1], blend, blender_dir / "edit.00023.exr")
+    }
     frame0 = (tmp_path / "clip" / "frames" / "00000.png").stat().st_mtime_ns
 
     second = _demo(tmp_path)
     assert second.returncode == 0, second.stderr
     assert "already done" in second.stderr and "already rendered" in second.stderr
+    assert "Blender render already done" in second.stderr
     assert {p: p.stat().st_mtime_ns for p in stamps} == stamps
     assert not (tmp_path / "run" / "exports" / "v002").exists()
     assert (tmp_path / "clip" / "frames" / "00000.png").stat().st_mtime_ns == frame0
+
+
+def test_demo_without_blender_says_so(monkeypatch):
+    """No bpy module and no `blender` binary: step 6 is skipped with a message, not a failure."""
+    import importlib.util
+    import shutil
+
+    from engine import demo
+
+    monkeypatch.delenv(demo.BLENDER_ENV, raising=False)
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name: None)
+    monkeypatch.setattr(shutil, "which", lambda name: None)
+    assert demo.blender_command() is None
+    assert demo.blender_render(Path("m.json"), {}, Path("x.blend"), Path("r"), Path("r.json")) is None
+    monkeypatch.setenv(demo.BLENDER_ENV, "/opt/blender-4.5/blender")
+    argv, _ = demo.blender_command()
+    assert argv[:3] == ["/opt/blender-4.5/blender", "-b", "--factory-startup"] and argv[-1] == "--"
+    monkeypatch.setenv(demo.BLENDER_ENV, "/venvs/bpy5/bin/python")
+    argv, _ = demo.blender_command()
+    assert argv == ["/venvs/bpy5/bin/python", str(demo.HEADLESS_SCRIPT), "--"]

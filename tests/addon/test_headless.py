@@ -1,0 +1,87 @@
+"""``addon/headless.py`` (what the demo's Blender step and pipelines run): an export -> a .blend with the
+add-on's tree -> the compositor's render, in a fresh process of this test's Blender (bpy 4.5 or 5.0)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+from fake_export import (  # noqa: E402
+    FRAMES,
+    blender_srgb_lut,
+    lut_decoder,
+    make_export,
+    read_exr_rgba,
+    reference_frame,
+)
+from neural_atlas.addon import compat  # noqa: E402
+from neural_atlas.addon import tree_plan as P  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[2]
+SCRIPT = ROOT / "addon" / "headless.py"
+TAG = f"[bpy {bpy.app.version_string}]"
+
+
+def _run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, str(SCRIPT), "--", *args], capture_output=True, text=True, timeout=300, cwd=ROOT
+    )
+
+
+def test_headless_builds_the_blend_and_renders_the_equation(blender, tmp_path):
+    manifest = make_export(tmp_path)
+    m = json.loads(manifest.read_text())
+    fg_edit = Path(P.resolve(str(manifest), m["layers"][1]["edit_layer"]))
+    other = tmp_path / "elsewhere" / "paint.png"
+    other.parent.mkdir()
+    shutil.copy(fg_edit, other)  # same pixels, another file: the override must be what the .blend uses
+    out = tmp_path / "out"
+    proc = _run(
+        str(manifest),
+        *("--blend", str(out / "shot.blend"), "--render", str(out / "render"), "--filter", "exact"),
+        *("--edit", f"Foreground={other}", "--report", str(out / "report.json")),
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    report = json.loads((out / "report.json").read_text())
+    assert report["exact"] and report["frames"] == list(FRAMES) and len(report["files"]) == len(FRAMES)
+    assert report["engine_filter"] == ("bilinear" if bpy.app.version >= (5, 0, 0) else "nearest")
+    assert "shot.blend" in proc.stdout.splitlines()[-1]
+
+    lut = blender_srgb_lut(bpy, tmp_path / "lut")
+    errs = []
+    for f in FRAMES:
+        img = read_exr_rgba(out / "render" / f"edit.{f:05d}.exr")[..., :3]
+        errs.append(np.abs(img - reference_frame(manifest, f, report["engine_filter"], lut_decoder(lut))).max())
+    print(f"{TAG} headless.py render vs the render equation ({report['engine_filter']}): {max(errs):.2e}")
+    assert max(errs) <= 1e-5
+
+    # the saved .blend is what an artist opens: the add-on's tree, the override as the Foreground edit layer
+    bpy.ops.wm.open_mainfile(filepath=str(out / "shot.blend"))
+    tree = compat.scene_tree(bpy.context.scene, create=False)
+    assert len([n for n in tree.nodes if n.name.startswith(P.PREFIX)]) == 13
+    edit = bpy.data.images[P.edit_image_name("Foreground")]
+    assert Path(bpy.path.abspath(edit.filepath)).resolve() == other.resolve()
+    assert bpy.data.objects.get("NA_Canvas_Foreground") is not None
+    assert bpy.context.scene.frame_start == FRAMES[0] and bpy.context.scene.frame_end == FRAMES[-1]
+
+
+def test_headless_bad_input_is_one_line_exit_2(tmp_path):
+    proc = _run(str(tmp_path / "nowhere" / "manifest.json"), "--blend", str(tmp_path / "x.blend"))
+    assert proc.returncode == 2
+    assert (
+        proc.stderr.strip().splitlines()[-1].startswith(f"error: {tmp_path / 'nowhere' / 'manifest.json'}: no manifest")
+    )
+    manifest = make_export(tmp_path)
+    proc = _run(str(manifest), "--blend", str(tmp_path / "x.blend"), "--edit", "Foreground")
+    assert proc.returncode == 2 and "is not LAYER=IMAGE" in proc.stderr
+    proc = _run(str(manifest), "--blend", str(tmp_path / "x.blend"), "--edit", "Nope=" + str(manifest))
+    assert proc.returncode == 2 and "unknown layer" in proc.stderr
+    assert not (tmp_path / "x.blend").exists()
