@@ -332,7 +332,8 @@ def export_run(
     frames_by_layer: list[LayerFrame] = []
     for i, name in enumerate(names):
         rec = layout["layers"].get(name)
-        if rec is not None and (edits_dir / f"{name}{C.EDIT_LAYER_EXT}").exists():
+        painted = any((edits_dir / f"{name}{ext}").exists() for ext in (C.EDIT_LAYER_EXT, C.EDIT_LAYER_FLOAT_EXT))
+        if rec is not None and painted:
             frames_by_layer.append(layer_frame_for(tuple(rec["atlas_box"]), atlas_size))  # type: ignore[arg-type]
         else:
             frames_by_layer.append(layer_frame_for(cov[i].box(), atlas_size))

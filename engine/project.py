@@ -20,6 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from engine import contract as C
 from engine.colour import linear_to_srgb
 from engine.compositing import edit_to_premultiplied, load_edit
 from engine.errors import InputError
@@ -140,6 +141,11 @@ def save_edit_like(path: Path, edit: np.ndarray) -> None:
     write_png(path, np.concatenate((np.clip(linear_to_srgb(straight), 0.0, 1.0), a), -1), bits)
 
 
+def _edit_file(manifest: Manifest, layer: dict) -> Path:
+    """The edit layer file in use (a float EXR twin wins over the PNG), so projected paint lands where it shows."""
+    return Path(C.edit_layer_file(str(manifest.edit_path(layer))))
+
+
 def backup(path: Path) -> Path | None:
     """Copy an edit layer into ``history/`` beside it, with a timestamp, before it is changed."""
     if not path.exists():
@@ -165,7 +171,7 @@ def project_frame(
     for layer, splat in zip(manifest.layers, splats, strict=True):
         if splat is None:
             continue
-        path = manifest.edit_path(layer)
+        path = _edit_file(manifest, layer)
         old = load_edit(path) if path.exists() else np.zeros_like(splat)
         if old.shape != splat.shape:
             splat = cv2.resize(splat, (old.shape[1], old.shape[0]), interpolation=cv2.INTER_LINEAR)
@@ -188,7 +194,7 @@ def project_to_textures(
         if layers is not None and layer["name"] not in layers:
             out.append(None)
             continue
-        path = manifest.edit_path(layer)
+        path = _edit_file(manifest, layer)
         size = image_header(path)[:2] if path.exists() else tuple(layer["atlas_size"])
         out.append(splat_layer(frame_edit, passes[i], own[i], size))  # type: ignore[arg-type]
     return out

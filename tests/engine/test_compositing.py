@@ -8,7 +8,7 @@ import pytest
 
 from engine.colour import linear_to_srgb, srgb_to_linear
 from engine.compositing import composite_edits, edit_to_premultiplied, load_edit, sample_texture
-from engine.image_io import read_exr, write_png
+from engine.image_io import read_exr, write_png, write_rgba_exr
 from engine.manifest import LayerPasses, Manifest
 from engine.project import over, project_frame
 from engine.render import render_frames, render_manifest
@@ -105,6 +105,27 @@ def test_project_frame_with_an_opaque_layer_is_exact(tmp_path):
     a = expected[..., 3:4]
     for t in range(3):  # nothing moves, so every frame gets the same paint
         np.testing.assert_allclose(frames[t], lin[t] * (1 - a) + expected[..., :3], atol=3.0 / 255)
+
+
+def test_project_frame_lands_in_the_float_edit_layer_when_there_is_one(tmp_path):
+    """An artist who switched a layer to a float EXR edit layer: projected paint goes there (where the renders
+    read it), in linear premultiplied float, and the PNG beside it is left as it was."""
+    plate = _plate()
+    manifest = make_fake_export(tmp_path, plate, [_identity_layer(32, 24)])
+    m = Manifest(manifest)
+    png = m.edit_path(m.layers[0])
+    png_bytes = png.read_bytes()
+    exr = png.with_suffix(".exr")
+    write_rgba_exr(exr, np.zeros((24, 32, 4), np.float32))
+    paint = np.zeros((24, 32, 4), np.float32)
+    paint[5:12, 8:20] = (0.9, 0.2, 0.1, 1.0)
+    write_png(tmp_path / "paint.png", paint, 8)
+    written = project_frame(manifest, 1, tmp_path / "paint.png")
+    assert written == {"Background": exr}
+    assert png.read_bytes() == png_bytes
+    edit = load_edit(exr)
+    expected = edit_to_premultiplied(np.rint(paint * 255) / 255, is_float=False)
+    assert np.abs(edit[6:11, 9:19] - expected[6:11, 9:19]).max() < 1e-6  # stroke core: exact, no 8-bit step
 
 
 def test_projection_fills_gaps_when_the_atlas_is_finer_than_the_frame(tmp_path):
