@@ -35,7 +35,21 @@ def weights_at(cfg: FitConfig, step: int) -> dict[str, float]:
         "global_rigidity_bg": cfg.w_global_rigidity_bg if glob else 0.0,
         "mask": cfg.w_mask if boot else 0.0,
         "mask_prior": 0.0 if boot else cfg.w_mask_prior,
+        "atlas_sparsity": cfg.w_atlas_sparsity,
+        "scribble": cfg.w_scribble if boot else 0.0,
     }
+
+
+def _step_generator(cfg: FitConfig, step: int, device: torch.device) -> torch.Generator:
+    """Random atlas points and scribble samples depend on (seed, step) only, so a resumed fit draws the same."""
+    return torch.Generator(device=device).manual_seed(cfg.seed * 1_000_003 + step)
+
+
+def mask_alphas(weights: torch.Tensor, mask_layers: tuple[tuple[int, ...], ...] | None) -> torch.Tensor:
+    """[N, F] alpha each mask is compared with: its layer's weight, or the sum over the layers it covers."""
+    if mask_layers is None:
+        return weights[:, 1:]
+    return torch.stack([weights[:, list(group)].sum(-1) for group in mask_layers], -1)
 
 
 def compute_losses(
@@ -128,10 +142,32 @@ def compute_losses(
     terms["flow"] = 0.5 * sum(flow_terms) if flow_terms else zero
     terms["alpha_flow"] = 0.5 * sum(alpha_terms) if alpha_terms else zero
 
-    terms["sparsity"] = sum(L.sparsity_loss(wts0[:, i : i + 1], cols[i][:n]) for i in range(1, nl)) if nl > 1 else zero
+    gen = None
+    if nl > 2:
+        # several foreground layers (Sec. 4.3): an object hidden behind another keeps its atlas colours, so
+        # the alpha-weighted term would be wrong; an l1 on random atlas points replaces it
+        terms["sparsity"] = zero
+        gen = _step_generator(cfg, step, xy.device)
+        cols_s = []
+        for i in range(1, nl):
+            ax, ay = model.atlas_extent(i)
+            r = torch.rand((cfg.atlas_sparsity_samples, 2), generator=gen, device=xy.device) * 2.0 - 1.0
+            cols_s.append(model.color(i, r * torch.tensor([ax, ay], device=xy.device)))
+        terms["atlas_sparsity"] = L.atlas_sparsity_loss(torch.cat(cols_s))
+    elif nl > 1:
+        terms["sparsity"] = sum(L.sparsity_loss(wts0[:, i : i + 1], cols[i][:n]) for i in range(1, nl))
+    else:
+        terms["sparsity"] = zero
+
+    if video.scribble_xyt is not None and wts["scribble"] > 0 and video.scribble_xyt.shape[0]:
+        gen = gen or _step_generator(cfg, step, xy.device)
+        pick = torch.randint(0, video.scribble_xyt.shape[0], (cfg.scribble_samples,), generator=gen, device=xy.device)
+        sxyt = video.scribble_xyt[pick]
+        a = model.alpha(sxyt[:, :2].float() + 0.5, sxyt[:, 2])
+        terms["scribble"] = L.scribble_loss(a[:, 1:], video.scribble_label[pick])
 
     if nl > 1 and (wts["mask"] > 0 or wts["mask_prior"] > 0):
-        fg_alpha = wts0[:, 1:]
+        fg_alpha = mask_alphas(wts0, video.mask_layers)
         m = video.masks[:, t, iy, ix].t()  # [N, F]
         valid = video.mask_valid[:, t].t()
         terms["mask"] = L.mask_bce(fg_alpha, m, valid)
