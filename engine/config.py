@@ -59,7 +59,7 @@ class FitConfig:
     """Reconstruction of image gradients (finite differences)."""
     w_sparsity: float = 1000.0
     """Sparsity ||(1-alpha) c_f||^2: the foreground atlas holds nothing where the foreground is absent."""
-    w_atlas_sparsity: float = 100.0
+    w_atlas_sparsity: float = 10.0
     """Two or more foreground layers (paper Sec. 4.3): l1 on atlas colours at random atlas points replaces
     the sparsity term above (which would blacken what one object hides of another)."""
     atlas_sparsity_samples: int = 1024
