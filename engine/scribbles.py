@@ -16,6 +16,7 @@ import numpy as np
 from engine import contract as C
 from engine.clip import ClipInfo
 from engine.errors import InputError
+from engine.flow import FlowField
 
 #: No scribble at this pixel.
 NO_LABEL = -1
@@ -98,9 +99,45 @@ def read_scribbles(folder: str | Path, info: ClipInfo, size: tuple[int, int]) ->
     return out
 
 
+def propagate_labels(labels: np.ndarray, flow: FlowField | None, inside: np.ndarray) -> np.ndarray:
+    """Carry the scribbles of the scribbled frames to every frame along the (consistent) optical flow.
+
+    Each labelled pixel moves with the flow, frame to frame, forwards and backwards, and is dropped where
+    the flow is unreliable or it leaves the object (``inside``, bool [T, H, W]). Scribbles drawn on a frame
+    replace what arrives there. The result seeds each part's initial motion: one or two scribbled frames
+    are enough for the fast model's per-frame similarity fit, which needs points in every frame.
+    """
+    t_count, h, w = labels.shape
+    out = labels.copy()
+    if flow is None or t_count < 2:
+        return out
+    for step in (1, -1):
+        frames = range(t_count - 1) if step == 1 else range(t_count - 1, 0, -1)
+        carried = np.full((h, w), NO_LABEL, dtype=np.int8)
+        for t in frames:
+            cur = np.where(labels[t] != NO_LABEL, labels[t], carried)
+            out[t] = np.where(out[t] != NO_LABEL, out[t], cur)
+            vec, ok = (
+                (flow.forward[t], flow.forward_ok[t]) if step == 1 else (flow.backward[t - 1], flow.backward_ok[t - 1])
+            )
+            ys, xs = np.nonzero((cur != NO_LABEL) & ok)
+            tx = np.rint(xs + vec[ys, xs, 0]).astype(int)
+            ty = np.rint(ys + vec[ys, xs, 1]).astype(int)
+            keep = (tx >= 0) & (tx < w) & (ty >= 0) & (ty < h)
+            carried = np.full((h, w), NO_LABEL, dtype=np.int8)
+            tx, ty, lab = tx[keep], ty[keep], cur[ys[keep], xs[keep]]
+            nxt = t + step
+            on_object = inside[nxt, ty, tx]
+            carried[ty[on_object], tx[on_object]] = lab[on_object]
+        last = t_count - 1 if step == 1 else 0
+        cur = np.where(labels[last] != NO_LABEL, labels[last], carried)
+        out[last] = np.where(out[last] != NO_LABEL, out[last], cur)
+    return out
+
+
 def scribble_layers(labels: np.ndarray) -> int:
     """Foreground layers the scribbles ask for: the highest colour index used, plus one."""
     return int(labels.max()) + 1
 
 
-__all__ = ["NO_LABEL", "labels_from_rgba", "read_scribbles", "resize_labels", "scribble_layers"]
+__all__ = ["NO_LABEL", "labels_from_rgba", "propagate_labels", "read_scribbles", "resize_labels", "scribble_layers"]

@@ -36,7 +36,7 @@ from engine.model import AtlasModel, FastModel, motion_regions
 from engine.motion_init import estimate_layer_motion
 from engine.objective import compute_losses
 from engine.paper_model import PaperModel
-from engine.scribbles import read_scribbles, scribble_layers
+from engine.scribbles import propagate_labels, read_scribbles, scribble_layers
 from engine.video import VideoTensors, build_video_tensors, frame_pixels, sample_pixels
 
 #: Pixels per forward chunk when evaluating whole frames (bounds memory of the evaluation).
@@ -184,12 +184,20 @@ def build_model(cfg: FitConfig, clip: PreparedClip) -> AtlasModel:
     motions = []
     if clip.masks.shape[0]:
         bg_region, fg_regions = motion_regions(clip.masks)
-        if clip.scribbles is not None:
-            # every part starts with the whole object's motion; the scribbles break the tie during the bootstrap
-            fg_regions = fg_regions * clip.num_foreground
     else:
         bg_region, fg_regions = None, []
     motions.append(estimate_layer_motion(flow, bg_region, clip.size, cfg.init_motion))
+    if clip.scribbles is not None:
+        # each part moves like its scribbles (carried to every frame by the flow); its atlas spans the object
+        carried = propagate_labels(clip.scribbles, flow, clip.masks[0])
+        for k in range(clip.num_foreground):
+            region = carried == k
+            motions.append(
+                estimate_layer_motion(
+                    flow, region, clip.size, cfg.init_motion, margin=cfg.atlas_margin_fg, extent_masks=fg_regions[0]
+                )
+            )
+        return FastModel(cfg, clip.size, t, motions)
     for region in fg_regions:
         motions.append(estimate_layer_motion(flow, region, clip.size, cfg.init_motion, margin=cfg.atlas_margin_fg))
     return FastModel(cfg, clip.size, t, motions)

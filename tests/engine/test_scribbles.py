@@ -11,7 +11,14 @@ from engine import contract as C
 from engine.clip import open_clip
 from engine.errors import InputError
 from engine.objective import mask_alphas
-from engine.scribbles import NO_LABEL, labels_from_rgba, read_scribbles, resize_labels, scribble_layers
+from engine.scribbles import (
+    NO_LABEL,
+    labels_from_rgba,
+    propagate_labels,
+    read_scribbles,
+    resize_labels,
+    scribble_layers,
+)
 from engine.synthetic import TwoObjectSpec, make_two_object_scene, write_two_object_scene
 
 SMALL = TwoObjectSpec(
@@ -98,3 +105,38 @@ def test_two_object_scene_ground_truth():
         x, y = (tex + scene.offsets[0, t])[0]
         if float(x).is_integer() and float(y).is_integer():
             np.testing.assert_allclose(scene.frames[t, int(y), int(x)], scene.object_color(0, tex)[0], atol=1e-5)
+
+
+def _shift_flow(t: int, h: int, w: int, dx: float):
+    from engine.flow import FlowField
+
+    fwd = np.zeros((t - 1, h, w, 2), np.float32)
+    fwd[..., 0] = dx
+    ok = np.ones((t - 1, h, w), bool)
+    return FlowField(fwd, -fwd, ok, ok.copy(), "test", 1.0)
+
+
+def test_scribbles_are_carried_along_the_flow_both_ways():
+    t, h, w = 4, 6, 12
+    labels = np.full((t, h, w), NO_LABEL, np.int8)
+    labels[1, 2, 3] = 0
+    labels[1, 3, 5] = 1
+    out = propagate_labels(labels, _shift_flow(t, h, w, 2.0), np.ones((t, h, w), bool))
+    for f, x_red in ((0, 1), (1, 3), (2, 5), (3, 7)):
+        assert out[f, 2, x_red] == 0 and out[f, 3, x_red + 2] == 1
+        assert (out[f] != NO_LABEL).sum() == 2
+
+
+def test_carried_scribbles_stop_at_the_object_and_at_unreliable_flow():
+    t, h, w = 3, 4, 10
+    labels = np.full((t, h, w), NO_LABEL, np.int8)
+    labels[0, 1, 2] = 0
+    inside = np.ones((t, h, w), bool)
+    inside[1, 1, 4] = False  # the point would land off the object in frame 1
+    out = propagate_labels(labels, _shift_flow(t, h, w, 2.0), inside)
+    assert (out[1:] == NO_LABEL).all()
+    flow = _shift_flow(t, h, w, 2.0)
+    flow.forward_ok[0, 1, 2] = False
+    out = propagate_labels(labels, flow, np.ones((t, h, w), bool))
+    assert (out[1:] == NO_LABEL).all()
+    assert np.array_equal(propagate_labels(labels, None, inside), labels)  # a single frame: nothing to carry
