@@ -66,6 +66,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FOLDER",
         help="foreground mask sequence, one folder per foreground layer (>0.5 = foreground)",
     )
+    f.add_argument(
+        C.SCRIBBLE_ARG,
+        default=None,
+        metavar="FOLDER",
+        help="split the one --mask object into layers: red/green/... strokes per frame (paper Sec. 4.4)",
+    )
     f.add_argument("--out", required=True, metavar="RUN_DIR", help="run folder (created; never overwritten)")
     f.add_argument("--preset", default="balanced", help="draft | balanced | final | paper (default: balanced)")
     f.add_argument("--device", default="auto", help="auto | cpu | cuda | mps (default: auto)")
@@ -381,6 +387,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
             resume=args.resume,
             frame_range=args.frames,
             progress_bar=not args.no_bar,
+            scribble_dir=args.scribbles,
         )
     except FitCancelled as exc:
         print(f"cancelled: {exc}; continue with: python -m engine fit --resume --out {run_dir}", file=sys.stderr)

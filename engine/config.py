@@ -59,6 +59,11 @@ class FitConfig:
     """Reconstruction of image gradients (finite differences)."""
     w_sparsity: float = 1000.0
     """Sparsity ||(1-alpha) c_f||^2: the foreground atlas holds nothing where the foreground is absent."""
+    w_atlas_sparsity: float = 10.0
+    """Two or more foreground layers (paper Sec. 4.3): l1 on atlas colours at random atlas points replaces
+    the sparsity term above (which would blacken what one object hides of another)."""
+    atlas_sparsity_samples: int = 1024
+    """Random atlas points per foreground layer per step for ``w_atlas_sparsity``."""
     w_flow: float = 5.0
     """Flow consistency of the mappings (alpha-weighted per layer), in pixels."""
     w_alpha_flow: float = 49.0
@@ -79,6 +84,11 @@ class FitConfig:
     """Mask bootstrap: BCE between alpha and the masks, for steps < bootstrap_steps."""
     bootstrap_steps: int = 10000
     """Length of the mask bootstrap (paper: 10k of 400k steps)."""
+    w_scribble: float = 2000.0
+    """Scribbles (paper Sec. 4.4, ``fit --scribbles``): -log(alpha_i) at layer i's scribbled pixels, during the
+    bootstrap only, like the mask term it refines (same weight: a scribble is as sure as a mask)."""
+    scribble_samples: int = 512
+    """Scribbled pixels drawn per step (they are too sparse to be hit often by the random pixel batch)."""
     w_mask_prior: float = 0.0
     """After the bootstrap, a weak BCE far from the mask boundary keeps alpha from drifting (0 = paper)."""
     mask_prior_margin_px: float = 12.0

@@ -159,6 +159,22 @@ ATLAS_EXR_EXT = ".exr"
 ATLAS_PNG_EXT = ".png"
 
 
+#: Scribbles (``fit --mask OBJECT --scribbles FOLDER``, paper Sec. 4.4): one image per scribbled frame, named
+#: with the frame number like masks (00012.png for frame 00012); frames without a file have no scribbles.
+#: An 8-bit pixel whose R, G, B are each within SCRIBBLE_TOLERANCE of SCRIBBLE_COLOURS[k] (and whose alpha,
+#: if any, is > 127) marks foreground layer k+1; anything else (black, transparent) marks nothing. The mask
+#: is the whole object; the fit gives it as many foreground layers as the highest colour index used.
+SCRIBBLE_ARG = "--scribbles"
+SCRIBBLE_COLOURS: tuple[tuple[int, int, int], ...] = (
+    (255, 0, 0),  # red -> Foreground1
+    (0, 255, 0),  # green -> Foreground2
+    (0, 0, 255),  # blue -> Foreground3
+    (255, 255, 0),  # yellow -> Foreground4
+)
+SCRIBBLE_TOLERANCE = 48
+SCRIBBLE_FILE_FORMAT = "{:05d}.png"  # what the add-on writes; the engine reads any numbered png/tif
+
+
 def layer_name(index: int, num_layers: int) -> str:
     """Layer names used in channel names and file names: Background, Foreground (or Foreground1, 2, ...)."""
     if index == 0:

@@ -115,6 +115,28 @@ def anchor_loss(
     mean = ((_f32(uv) - _f32(uv_anchor)) * w).sum(0) / w.sum().clamp_min(MIN_COUNT)
     return (mean**2).sum() / float(uv_per_px) ** 2
 
+def atlas_sparsity_loss(rgb: torch.Tensor) -> torch.Tensor:
+    """Mean l1 norm of atlas colours [N, 3] sampled at random atlas points (paper Sec. 4.3, N > 1 layers).
+
+    With several foreground layers an object is often hidden behind another, so "black where alpha is 0"
+    (``sparsity_loss``) would blacken texels that other frames show; an l1 pull on the atlas itself only
+    keeps each atlas from holding content no frame needs, which is what decides which layer owns an object.
+    """
+    return _f32(rgb).abs().sum(-1).mean() if rgb.numel() else _f32(rgb).sum()
+
+
+def scribble_loss(alpha_fg: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
+    """-log(alpha_i) at pixels scribbled for foreground layer i (paper Sec. 4.4), alpha clamped by LOG_EPS.
+
+    ``alpha_fg`` [N, F] are the foreground layers' weights, ``labels`` [N] the scribbled layer (0-based
+    foreground index) of each sample, -1 where nothing is scribbled; no scribbled sample gives 0.
+    """
+    a = _f32(alpha_fg)
+    lab = labels.long()
+    has = lab >= 0
+    picked = a.gather(1, lab.clamp(min=0)[:, None]).squeeze(1).clamp(LOG_EPS, 1.0)
+    return masked_mean(-torch.log(picked), has)
+
 
 def mask_bce(alpha: torch.Tensor, target: torch.Tensor, valid: torch.Tensor | None = None) -> torch.Tensor:
     """Binary cross-entropy of alpha against a (coarse) mask, alpha clamped away from 0 and 1 by LOG_EPS."""

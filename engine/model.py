@@ -53,6 +53,11 @@ class AtlasModel(nn.Module):
         """Per-layer opacity weights [N, L], summing to one."""
         raise NotImplementedError
 
+    def atlas_extent(self, layer: int) -> tuple[float, float]:
+        """Half-width and half-height of the atlas region that can hold colour (random atlas samples are
+        drawn there: the multi-layer sparsity term); the whole [-1, 1] square unless a model knows better."""
+        return 1.0, 1.0
+
     def param_groups(self, cfg: FitConfig) -> list[dict]:
         raise NotImplementedError
 
@@ -202,6 +207,10 @@ class FastModel(AtlasModel):
 
     def uv_anchor(self, layer: int, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         return self.mappings[layer].initial(xy, t)
+
+    def atlas_extent(self, layer: int) -> tuple[float, float]:
+        inv = self.atlases[layer].inv_aspect
+        return 1.0 / float(inv[0]), 1.0 / float(inv[1])
 
     def alpha(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         xn = xy[:, 0:1] / (self.width / 2.0) - 1.0

@@ -87,11 +87,13 @@ def estimate_layer_motion(
     size: tuple[int, int],
     fit_motion: bool = True,
     margin: float = 0.06,
+    extent_masks: np.ndarray | None = None,
 ) -> LayerMotion:
     """Per-frame similarity to the reference frame for one layer.
 
     ``region_masks`` (bool [T, H, W]) selects the layer's pixels (None = whole frame); the atlas extent
-    covers where those pixels land (the whole frame when a mask frame is empty).
+    covers where those pixels land (the whole frame when a mask frame is empty), or where ``extent_masks``
+    land when given (a scribbled part: its motion from its scribbles, its extent from the whole object's).
     """
     w, h = size
     t_count = 1 if flow is None else flow.forward.shape[0] + 1
@@ -107,9 +109,10 @@ def estimate_layer_motion(
     to_ref = chain_motion(pairs)
     pts = []
     corners = np.array([[0, 0], [w, 0], [0, h], [w, h]], dtype=np.float64)
+    extent = region_masks if extent_masks is None else extent_masks
     for t in range(t_count):
-        if region_masks is not None and region_masks[t].any():
-            ys, xs = np.nonzero(region_masks[t])
+        if extent is not None and extent[t].any():
+            ys, xs = np.nonzero(extent[t])
             p = np.array(
                 [
                     [xs.min(), ys.min()],
@@ -119,7 +122,7 @@ def estimate_layer_motion(
                 ],
                 dtype=np.float64,
             )
-        elif region_masks is not None:
+        elif extent is not None:
             continue
         else:
             p = corners

@@ -36,7 +36,21 @@ def weights_at(cfg: FitConfig, step: int) -> dict[str, float]:
         "mask": cfg.w_mask if boot else 0.0,
         "mask_prior": 0.0 if boot else cfg.w_mask_prior,
         "anchor": cfg.w_anchor,
+        "atlas_sparsity": cfg.w_atlas_sparsity,
+        "scribble": cfg.w_scribble if boot else 0.0,
     }
+
+
+def _step_generator(cfg: FitConfig, step: int, device: torch.device) -> torch.Generator:
+    """Random atlas points and scribble samples depend on (seed, step) only, so a resumed fit draws the same."""
+    return torch.Generator(device=device).manual_seed(cfg.seed * 1_000_003 + step)
+
+
+def mask_alphas(weights: torch.Tensor, mask_layers: tuple[tuple[int, ...], ...] | None) -> torch.Tensor:
+    """[N, F] alpha each mask is compared with: its layer's weight, or the sum over the layers it covers."""
+    if mask_layers is None:
+        return weights[:, 1:]
+    return torch.stack([weights[:, list(group)].sum(-1) for group in mask_layers], -1)
 
 
 def compute_losses(
@@ -129,21 +143,45 @@ def compute_losses(
     terms["flow"] = 0.5 * sum(flow_terms) if flow_terms else zero
     terms["alpha_flow"] = 0.5 * sum(alpha_terms) if alpha_terms else zero
 
-    terms["sparsity"] = sum(L.sparsity_loss(wts0[:, i : i + 1], cols[i][:n]) for i in range(1, nl)) if nl > 1 else zero
+    gen = None
+    if nl > 2:
+        # several foreground layers (Sec. 4.3): an object hidden behind another keeps its atlas colours, so
+        # the alpha-weighted term would be wrong; an l1 on random atlas points replaces it
+        terms["sparsity"] = zero
+        gen = _step_generator(cfg, step, xy.device)
+        cols_s = []
+        for i in range(1, nl):
+            ax, ay = model.atlas_extent(i)
+            r = torch.rand((cfg.atlas_sparsity_samples, 2), generator=gen, device=xy.device) * 2.0 - 1.0
+            cols_s.append(model.color(i, r * torch.tensor([ax, ay], device=xy.device)))
+        terms["atlas_sparsity"] = L.atlas_sparsity_loss(torch.cat(cols_s))
+    elif nl > 1:
+        terms["sparsity"] = sum(L.sparsity_loss(wts0[:, i : i + 1], cols[i][:n]) for i in range(1, nl))
+    else:
+        terms["sparsity"] = zero
+
+    if video.scribble_xyt is not None and wts["scribble"] > 0 and video.scribble_xyt.shape[0]:
+        gen = gen or _step_generator(cfg, step, xy.device)
+        pick = torch.randint(0, video.scribble_xyt.shape[0], (cfg.scribble_samples,), generator=gen, device=xy.device)
+        sxyt = video.scribble_xyt[pick]
+        a = model.alpha(sxyt[:, :2].float() + 0.5, sxyt[:, 2])
+        terms["scribble"] = L.scribble_loss(a[:, 1:], video.scribble_label[pick])
 
     # a bounded atlas (the fast model): keep each foreground where its atlas box was drawn (gauge fixing)
     if nl > 1 and wts["anchor"] > 0:
         m_all = video.masks[:, t, iy, ix]  # [F, N]
+        groups = video.mask_layers or tuple((f + 1,) for f in range(m_all.shape[0]))
         anchor = []
-        for i in range(1, nl):
-            u0 = model.uv_anchor(i, xy, t)
-            if u0 is not None:
-                anchor.append(L.anchor_loss(uvs[i][:n], u0, m_all[i - 1], model.uv_per_px(i)))
+        for f, group in enumerate(groups):
+            for i in group:  # scribbled parts share their object's mask
+                u0 = model.uv_anchor(i, xy, t)
+                if u0 is not None:
+                    anchor.append(L.anchor_loss(uvs[i][:n], u0, m_all[f], model.uv_per_px(i)))
         if anchor:
             terms["anchor"] = sum(anchor)
 
     if nl > 1 and (wts["mask"] > 0 or wts["mask_prior"] > 0):
-        fg_alpha = wts0[:, 1:]
+        fg_alpha = mask_alphas(wts0, video.mask_layers)
         m = video.masks[:, t, iy, ix].t()  # [N, F]
         valid = video.mask_valid[:, t].t()
         terms["mask"] = L.mask_bce(fg_alpha, m, valid)

@@ -140,10 +140,12 @@ class _Sprite:
     stripe_phase: float
     spots: np.ndarray  # [N, 3]: cx, cy, radius
     spot_rgb: np.ndarray  # [N, 3]
+    stripes: tuple[tuple[float, float, float], ...] = tuple(map(tuple, _FG_STRIPES))
 
     def color(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         s = 0.5 + 0.5 * np.sin(self.stripe_freq[0] * u + self.stripe_freq[1] * v + self.stripe_phase)
-        c = _FG_STRIPES[0] * (1.0 - s[..., None]) + _FG_STRIPES[1] * s[..., None]
+        stripes = np.asarray(self.stripes)
+        c = stripes[0] * (1.0 - s[..., None]) + stripes[1] * s[..., None]
         for (cx, cy, r), rgb in zip(self.spots, self.spot_rgb, strict=True):
             g = _bump(u, v, cx, cy, r)[..., None]
             c = c * (1.0 - g) + rgb * g
@@ -286,6 +288,118 @@ def make_scene(spec: SceneSpec | None = None) -> SyntheticScene:
         fg_offset=fg_offset.astype(np.float32),
         spec=spec,
     )
+
+
+# --- two objects crossing -------------------------------------------------------------------------------
+
+#: The second object's stripes (lime / violet), so the two objects differ in colour as well as in motion.
+_FG2_STRIPES = ((0.55, 0.95, 0.10), (0.35, 0.10, 0.90))
+
+
+@dataclass(frozen=True)
+class TwoObjectSpec:
+    """Two textured ellipses on a panning plate whose paths cross: object A passes in front of object B,
+    so each occludes (A) or is occluded (B) for a few frames. The multi-layer (paper Sec. 4.3) and
+    scribble (Sec. 4.4) tests need exactly this: two rigid parts whose screen regions overlap."""
+
+    width: int = 160
+    height: int = 96
+    frames: int = 12
+    bg_velocity: tuple[float, float] = (1.5, 0.4)
+    a_start: tuple[float, float] = (38.0, 22.0)  # object A's bounding box top-left at frame 0 (px)
+    a_velocity: tuple[float, float] = (4.0, 0.5)
+    a_size: tuple[int, int] = (40, 30)
+    b_start: tuple[float, float] = (84.0, 42.0)
+    b_velocity: tuple[float, float] = (-4.0, -0.3)
+    b_size: tuple[int, int] = (36, 34)
+    seed: int = 3
+
+
+@dataclass
+class TwoObjectScene:
+    """A rendered two-object clip and its ground truth; object 0 is A (in front), object 1 is B."""
+
+    frames: np.ndarray  # float32 [T, H, W, 3]
+    masks: np.ndarray  # bool [2, T, H, W]: each object's VISIBLE pixels (coverage > 0.5, A wins overlaps)
+    coverage: np.ndarray  # bool [2, T, H, W]: each object's full silhouette, occluded or not
+    offsets: np.ndarray  # float32 [2, T, 2]: object k's top-left; frame (x, y) shows its texture (x-ox, y-oy)
+    bg_offset: np.ndarray  # float32 [T, 2]
+    spec: TwoObjectSpec
+
+    def object_color(self, k: int, tex_xy: Any) -> np.ndarray:
+        """Exact colour of object ``k`` at its texture point(s) ``tex_xy`` ([..., 2]) -> [..., 3]."""
+        p = np.asarray(tex_xy, dtype=np.float64)
+        return _two_object_textures(self.spec)[1 + k].color(p[..., 0], p[..., 1])
+
+    @property
+    def union(self) -> np.ndarray:
+        """bool [T, H, W]: pixels of either object (one mask for a two-part object)."""
+        return self.masks.any(0)
+
+
+@lru_cache(maxsize=4)
+def _two_object_textures(spec: TwoObjectSpec) -> tuple[_Background, _Sprite, _Sprite]:
+    common = dict(width=spec.width, height=spec.height, frames=spec.frames, bg_velocity=spec.bg_velocity)
+    background, sprite_a = _textures(SceneSpec(**common, fg_size=spec.a_size, seed=spec.seed))
+    _, b = _textures(SceneSpec(**common, fg_size=spec.b_size, seed=spec.seed + 101))
+    sprite_b = _Sprite(b.size, b.stripe_freq, b.stripe_phase, b.spots, b.spot_rgb, _FG2_STRIPES)
+    return background, sprite_a, sprite_b
+
+
+def make_two_object_scene(spec: TwoObjectSpec | None = None) -> TwoObjectScene:
+    """Render ``spec``: background, then B, then A over it (each anti-aliased like ``make_scene``)."""
+    spec = TwoObjectSpec() if spec is None else spec
+    background, sprite_a, sprite_b = _two_object_textures(spec)
+    t_idx = np.arange(spec.frames, dtype=np.float64)[:, None]
+    bg_offset = t_idx * np.asarray(spec.bg_velocity, dtype=np.float64)
+    offsets = np.stack(
+        [
+            np.asarray(start, dtype=np.float64) + t_idx * np.asarray(vel, dtype=np.float64)
+            for start, vel in ((spec.a_start, spec.a_velocity), (spec.b_start, spec.b_velocity))
+        ]
+    )
+    ys, xs = np.mgrid[0 : spec.height, 0 : spec.width].astype(np.float64)
+    xv, yv = np.arange(spec.width, dtype=np.float64), np.arange(spec.height, dtype=np.float64)
+    frames = np.empty((spec.frames, spec.height, spec.width, 3), dtype=np.float32)
+    cover = np.empty((2, spec.frames, spec.height, spec.width), dtype=bool)
+    for t in range(spec.frames):
+        img = background.grid(xv + bg_offset[t, 0], yv + bg_offset[t, 1])
+        for k, sprite in ((1, sprite_b), (0, sprite_a)):  # back to front
+            u, v = xs - offsets[k, t, 0], ys - offsets[k, t, 1]
+            cov = sprite.coverage(u, v)
+            inside = cov > 0.0
+            if inside.any():
+                c = cov[inside][:, None]
+                img[inside] = c * sprite.color(u[inside], v[inside]) + (1.0 - c) * img[inside]
+            cover[k, t] = cov > 0.5
+        frames[t] = img
+    visible = cover.copy()
+    visible[1] &= ~cover[0]
+    return TwoObjectScene(
+        frames=frames,
+        masks=visible,
+        coverage=cover,
+        offsets=offsets.astype(np.float32),
+        bg_offset=bg_offset.astype(np.float32),
+        spec=spec,
+    )
+
+
+def write_two_object_scene(scene: TwoObjectScene, folder: Path, union: bool = False) -> tuple[Path, list[Path]]:
+    """Write ``frames/``, and ``masks_a/`` + ``masks_b/`` (or one ``masks/`` of both when ``union``).
+    Returns (frames_dir, mask_dirs). Not idempotent like ``write_scene``: for tests, into a fresh folder."""
+    folder = Path(folder)
+    frames_dir = folder / "frames"
+    layers = [("masks", scene.union)] if union else [("masks_a", scene.masks[0]), ("masks_b", scene.masks[1])]
+    mask_dirs = [folder / name for name, _ in layers]
+    for d in (frames_dir, *mask_dirs):
+        d.mkdir(parents=True, exist_ok=True)
+    rgb8 = np.clip(np.rint(scene.frames * 255.0), 0, 255).astype(np.uint8)
+    for t in range(scene.frames.shape[0]):
+        _imwrite(frames_dir / f"{t:05d}.png", cv2.cvtColor(rgb8[t], cv2.COLOR_RGB2BGR))
+        for d, (_, m) in zip(mask_dirs, layers, strict=True):
+            _imwrite(d / f"{t:05d}.png", np.where(m[t], 255, 0).astype(np.uint8))
+    return frames_dir, mask_dirs
 
 
 # --- files -------------------------------------------------------------------------------------------------

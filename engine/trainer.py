@@ -36,6 +36,7 @@ from engine.model import AtlasModel, FastModel, motion_regions
 from engine.motion_init import estimate_layer_motion
 from engine.objective import compute_losses
 from engine.paper_model import PaperModel
+from engine.scribbles import propagate_labels, read_scribbles, scribble_layers
 from engine.video import VideoTensors, build_video_tensors, frame_pixels, sample_pixels
 
 #: Pixels per forward chunk when evaluating whole frames (bounds memory of the evaluation).
@@ -83,6 +84,19 @@ class PreparedClip:
     mask_dirs: list[str]
     flow: FlowField
     fingerprint: str
+    scribbles: np.ndarray | None = None  # int8 [T, H, W]: 0-based foreground layer, -1 = no scribble
+    scribble_dir: str | None = None
+
+    @property
+    def mask_layers(self) -> tuple[tuple[int, ...], ...] | None:
+        """Model layers each mask covers (None: one layer per mask); scribbles split the one mask."""
+        if self.scribbles is None:
+            return None
+        return (tuple(range(1, 1 + scribble_layers(self.scribbles))),)
+
+    @property
+    def num_foreground(self) -> int:
+        return self.masks.shape[0] if self.scribbles is None else scribble_layers(self.scribbles)
 
 
 def to_fitting_values(frames: np.ndarray, colorspace: str) -> tuple[np.ndarray, list[int]]:
@@ -102,6 +116,7 @@ def prepare_clip(
     frame_range: tuple[int, int] | None,
     reporter: Reporter,
     expect_fingerprint: str | None = None,
+    scribble_dir: str | Path | None = None,
 ) -> PreparedClip:
     """Read, validate and sanitise the clip and masks, and compute (or load) its flow.
 
@@ -119,6 +134,21 @@ def prepare_clip(
         if mask_dirs
         else np.zeros((0, len(frames), size[1], size[0]), dtype=bool)
     )
+    scribbles = None
+    if scribble_dir is not None:
+        if len(mask_dirs) != 1:
+            raise InputError(
+                scribble_dir,
+                f"scribbles split one object, but {len(mask_dirs)} mask folders were given",
+                "pass exactly one --mask (the whole object) with --scribbles",
+            )
+        scribbles = read_scribbles(scribble_dir, info, size)
+        if scribble_layers(scribbles) < 2:
+            raise InputError(
+                scribble_dir,
+                "the scribbles use only the first colour (red), so they split nothing",
+                "scribble the object's other part in green",
+            )
     fingerprint = hashlib.sha256(memoryview(np.ascontiguousarray(frames)).cast("B")).hexdigest()[:32]
     if expect_fingerprint is not None and fingerprint != expect_fingerprint:
         raise InputError(
@@ -131,13 +161,23 @@ def prepare_clip(
         cache_dir=run_dir / C.FLOW_CACHE_DIR,
         threshold_px=cfg.flow_threshold_px,
     )
-    return PreparedClip(info, size, frames, masks, [str(Path(m).resolve()) for m in mask_dirs], flow, fingerprint)
+    return PreparedClip(
+        info,
+        size,
+        frames,
+        masks,
+        [str(Path(m).resolve()) for m in mask_dirs],
+        flow,
+        fingerprint,
+        scribbles,
+        None if scribble_dir is None else str(Path(scribble_dir).resolve()),
+    )
 
 
 def build_model(cfg: FitConfig, clip: PreparedClip) -> AtlasModel:
     t = clip.frames.shape[0]
     if cfg.model == "paper":
-        return PaperModel(cfg, clip.size, t, num_layers=1 + clip.masks.shape[0])
+        return PaperModel(cfg, clip.size, t, num_layers=1 + clip.num_foreground)
     if cfg.model != "fast":
         raise InputError(None, f"unknown model {cfg.model!r}", "use --set model=fast or model=paper")
     flow = clip.flow if t > 1 else None
@@ -147,6 +187,17 @@ def build_model(cfg: FitConfig, clip: PreparedClip) -> AtlasModel:
     else:
         bg_region, fg_regions = None, []
     motions.append(estimate_layer_motion(flow, bg_region, clip.size, cfg.init_motion))
+    if clip.scribbles is not None:
+        # each part moves like its scribbles (carried to every frame by the flow); its atlas spans the object
+        carried = propagate_labels(clip.scribbles, flow, clip.masks[0])
+        for k in range(clip.num_foreground):
+            region = carried == k
+            motions.append(
+                estimate_layer_motion(
+                    flow, region, clip.size, cfg.init_motion, margin=cfg.atlas_margin_fg, extent_masks=fg_regions[0]
+                )
+            )
+        return FastModel(cfg, clip.size, t, motions)
     for region in fg_regions:
         motions.append(estimate_layer_motion(flow, region, clip.size, cfg.init_motion, margin=cfg.atlas_margin_fg))
     return FastModel(cfg, clip.size, t, motions)
@@ -196,7 +247,8 @@ def evaluate_full(model: AtlasModel, video: VideoTensors, size: tuple[int, int],
         sq += float(((rec - frames_np[t]) ** 2).sum())
         n += rec.size
         for f in range(masks_np.shape[0]):
-            a = wts[..., f + 1] > 0.5
+            group = video.mask_layers[f] if video.mask_layers is not None else (f + 1,)
+            a = wts[..., list(group)].sum(-1) > 0.5
             m = masks_np[f, t]
             inter[f] += float((a & m).sum())
             union[f] += float((a | m).sum())
@@ -280,6 +332,7 @@ def fit(
     frame_range: tuple[int, int] | None = None,
     progress_bar: bool = True,
     stream: Any = None,
+    scribble_dir: str | Path | None = None,
 ) -> dict[str, Any]:
     """Fit a layered atlas to ``clip``; writes config, clip record, checkpoint and metrics into ``run_dir``."""
     run_dir = Path(run_dir)
@@ -289,6 +342,7 @@ def fit(
         clip = clip or clip_rec["source"]
         mask_dirs = mask_dirs or clip_rec["masks"]
         frame_range = frame_range or tuple(clip_rec["frame_range"])  # type: ignore[assignment]
+        scribble_dir = scribble_dir or clip_rec.get("scribbles")
     else:
         if ckpt_path.exists():
             raise InputError(
@@ -304,7 +358,7 @@ def fit(
     # the input is read and validated before anything is written: bad input leaves no run folder behind
     reporter = Reporter(None, stream)
     expect = clip_rec.get("fingerprint") if resume else None
-    prepared = prepare_clip(clip, mask_dirs, cfg, run_dir, frame_range, reporter, expect)  # type: ignore[arg-type]
+    prepared = prepare_clip(clip, mask_dirs, cfg, run_dir, frame_range, reporter, expect, scribble_dir)  # type: ignore[arg-type]
     run_dir.mkdir(parents=True, exist_ok=True)
     reporter.log_path = run_dir / C.RUN_LOG
     info = prepared.info
@@ -322,6 +376,8 @@ def fit(
         "masks": prepared.mask_dirs,
         "fingerprint": prepared.fingerprint,
     }
+    if prepared.scribble_dir is not None:
+        clip_record["scribbles"] = prepared.scribble_dir
     state = None
     if resume:
         if clip_rec.get("fingerprint") != prepared.fingerprint:
@@ -337,7 +393,15 @@ def fit(
 
     reporter.emit(C.EVENT_STAGE, stage="init", message=f"building the {cfg.model} model on {device.type}")
     model = build_model(cfg, prepared).to(device)
-    video = build_video_tensors(prepared.frames, prepared.masks, prepared.flow, cfg.mask_prior_margin_px, device)
+    video = build_video_tensors(
+        prepared.frames,
+        prepared.masks,
+        prepared.flow,
+        cfg.mask_prior_margin_px,
+        device,
+        prepared.scribbles,
+        prepared.mask_layers,
+    )
     optim = make_optimizer(model, cfg, device)
     sched = torch.optim.lr_scheduler.LambdaLR(optim, _lr_lambda(cfg))
     gen = torch.Generator().manual_seed(cfg.seed)
@@ -449,7 +513,10 @@ def load_run(run_dir: str | Path, device_name: str = "cpu") -> tuple[AtlasModel,
     cfg = FitConfig.from_json((run_dir / C.RUN_CONFIG).read_text(encoding="utf-8"), run_dir / C.RUN_CONFIG)
     rec = _read_json(run_dir / C.RUN_CLIP)
     frame_range = (int(rec["frame_range"][0]), int(rec["frame_range"][1]))
-    prepared = prepare_clip(rec["source"], rec["masks"], cfg, run_dir, frame_range, Reporter(None, io.StringIO()))
+    reporter = Reporter(None, io.StringIO())
+    prepared = prepare_clip(
+        rec["source"], rec["masks"], cfg, run_dir, frame_range, reporter, scribble_dir=rec.get("scribbles")
+    )
     device = select_device(device_name)
     model = build_model(cfg, prepared).to(device)
     model.load_state_dict(load_checkpoint(run_dir / C.RUN_CHECKPOINT, device)["model"])

@@ -24,6 +24,11 @@ class VideoTensors:
     bwd: torch.Tensor  # float32 [T-1, H, W, 2]
     fwd_ok: torch.Tensor  # bool [T-1, H, W]
     bwd_ok: torch.Tensor  # bool [T-1, H, W]
+    #: Foreground layers (1-based model layers) each mask covers; None = mask f is layer f+1 alone. A mask
+    #: split by scribbles covers several layers, and its BCE applies to the sum of their alphas (Sec. 4.4).
+    mask_layers: tuple[tuple[int, ...], ...] | None = None
+    scribble_xyt: torch.Tensor | None = None  # long [S, 3]: x, y, t of every scribbled pixel
+    scribble_label: torch.Tensor | None = None  # long [S]: its 0-based foreground layer
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -48,7 +53,13 @@ def mask_prior(masks: np.ndarray, margin_px: float) -> np.ndarray:
 
 
 def build_video_tensors(
-    frames: np.ndarray, masks: np.ndarray, flow: FlowField, margin_px: float, device: torch.device
+    frames: np.ndarray,
+    masks: np.ndarray,
+    flow: FlowField,
+    margin_px: float,
+    device: torch.device,
+    scribbles: np.ndarray | None = None,
+    mask_layers: tuple[tuple[int, ...], ...] | None = None,
 ) -> VideoTensors:
     t = frames.shape[0]
     fl = masks.shape[0]
@@ -67,6 +78,9 @@ def build_video_tensors(
         bwd=dev(np.asarray(flow.backward, dtype=np.float32)),
         fwd_ok=dev(flow.forward_ok),
         bwd_ok=dev(flow.backward_ok),
+        mask_layers=mask_layers,
+        scribble_xyt=None if scribbles is None else dev(np.argwhere(scribbles >= 0)[:, ::-1].astype(np.int64)),
+        scribble_label=None if scribbles is None else dev(scribbles[scribbles >= 0].astype(np.int64)),
     )
 
 

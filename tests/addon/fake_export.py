@@ -16,6 +16,8 @@ from engine import contract as C
 W, H = 40, 24
 FRAMES = (3, 4, 5)  # plate frame numbers: not starting at 0 or 1, so frame mapping is tested
 ATLAS_SIZES = {"Background": (32, 32), "Foreground": (16, 16)}
+#: Atlas sizes of the extra layers of a multi-foreground export (Foreground1, Foreground2, ...).
+EXTRA_ATLAS_SIZE = (24, 16)
 
 
 def write_png(path: Path, rgba8: np.ndarray) -> None:
@@ -63,15 +65,25 @@ def _uv_grid(t: int, layer: int, size: tuple[int, int]) -> tuple[np.ndarray, np.
     return u.astype(np.float32), v.astype(np.float32)
 
 
-def _alphas(t: int) -> tuple[np.ndarray, np.ndarray]:
+def _alphas(t: int, foregrounds: int = 1) -> list[np.ndarray]:
+    """[bg, fg1, fg2, ...]: discs crossing each other; each later disc is behind the earlier ones."""
     y, x = np.mgrid[0:H, 0:W]
-    d = np.hypot(x + 0.5 - (14 + 4 * t), y + 0.5 - 12)
-    fg = np.clip((9.0 - d) / 3.0, 0, 1).astype(np.float32)
-    bg = (0.85 * (1 - fg)).astype(np.float32)  # below 1 - fg: the plate shows through, as the equation allows
-    return bg, fg
+    fgs: list[np.ndarray] = []
+    left = np.ones((H, W), np.float32)
+    for k in range(foregrounds):
+        d = np.hypot(x + 0.5 - (14 + 4 * t) - 10 * k, y + 0.5 - 12 + 3 * k)
+        fg = (np.clip((9.0 - d) / 3.0, 0, 1) * left).astype(np.float32)
+        left = left - fg
+        fgs.append(fg)
+    bg = (0.85 * left).astype(np.float32)  # below 1 - sum(fg): the plate shows through, as the equation allows
+    return [bg, *fgs]
 
 
-def make_export(root: Path, seed: int = 0) -> Path:
+def layer_names(foregrounds: int = 1) -> list[str]:
+    return [C.layer_name(i, foregrounds + 1) for i in range(foregrounds + 1)]
+
+
+def make_export(root: Path, seed: int = 0, foregrounds: int = 1) -> Path:
     """Write plate, passes, atlases and edit layers; returns the manifest path."""
     rng = np.random.default_rng(seed)
     run = root / "run"
@@ -85,8 +97,9 @@ def make_export(root: Path, seed: int = 0) -> Path:
         write_png(path, img)
         frame_files.append(str(path))
     layers = []
-    for idx, name in enumerate(("Background", "Foreground")):
-        aw, ah = ATLAS_SIZES[name]
+    names = layer_names(foregrounds)
+    for idx, name in enumerate(names):
+        aw, ah = ATLAS_SIZES.get(name, EXTRA_ATLAS_SIZE)
         edit = rng.integers(0, 256, (ah, aw, 4), dtype=np.uint8)
         edit[..., 3][rng.random((ah, aw)) < 0.2] = 0
         edit[..., 3][rng.random((ah, aw)) < 0.2] = 255
@@ -109,10 +122,9 @@ def make_export(root: Path, seed: int = 0) -> Path:
             }
         )
     for t in FRAMES:
-        bg, fg = _alphas(t)
         ch = {}
-        for idx, (name, z) in enumerate((("Background", bg), ("Foreground", fg))):
-            u, v = _uv_grid(t, idx, ATLAS_SIZES[name])
+        for idx, (name, z) in enumerate(zip(names, _alphas(t, foregrounds), strict=True)):
+            u, v = _uv_grid(t, idx, ATLAS_SIZES.get(name, EXTRA_ATLAS_SIZE))
             ch[C.channel_name(C.uv_pass(name), "X")] = u
             ch[C.channel_name(C.uv_pass(name), "Y")] = v
             ch[C.channel_name(C.uv_pass(name), "Z")] = z

@@ -133,6 +133,27 @@ def test_compositor_matches_render_equation(blender, tmp_path, lut, filt):
         assert 0.01 < err < 0.5  # 4.x has no bilinear: EWA differs at hard texel edges (documented)
 
 
+def test_compositor_three_layers_matches_render_equation(blender, tmp_path, lut):
+    """Two foreground layers (paper Sec. 4.3): the tree sums every layer, checked against the equation."""
+    manifest = make_export(tmp_path, foregrounds=2)
+    scene = _import(blender, manifest, P.FILTER_NEAREST)
+    tree = _tree(scene)
+    ours = {n.name for n in tree.nodes if n.name.startswith(P.PREFIX)}
+    assert len(ours) == 18
+    assert {"NA_MapUV_Background", "NA_MapUV_Foreground1", "NA_MapUV_Foreground2"} <= ours
+    out_dir = tmp_path / "out"
+    assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out_dir), file_format="exr") == {"FINISHED"}
+    err = max(
+        np.abs(
+            read_exr_rgba(out_dir / f"edit.{f:05d}.exr")[..., :3]
+            - reference_frame(manifest, f, "nearest", lut_decoder(lut))
+        ).max()
+        for f in FRAMES
+    )
+    print(f"{TAG} three layers, nearest: max abs err {err:.2e}")
+    assert err <= 1e-5
+
+
 def test_float_exr_edit_layer_is_used_premultiplied(blender, tmp_path):
     """An edit layer may be a linear float EXR with premultiplied alpha (no decode, no premultiply)."""
     from fake_export import write_exr

@@ -199,6 +199,24 @@ def test_float_edit_layer_wins_over_the_png_when_both_exist(tmp_path):
     spec = next(i for i in P.plan_tree(m, str(mp), edits={"Foreground": png}).images if i.name.endswith("Foreground"))
     assert spec.filepath == png
 
+def test_plan_from_a_three_layer_export(tmp_path):
+    mp = make_export(tmp_path, foregrounds=2)
+    m = C.load_manifest(str(mp))
+    plan = P.plan_tree(m, str(mp), P.FILTER_NEAREST)
+    assert plan.layers == ["Background", "Foreground1", "Foreground2"]
+    k = plan.kinds()
+    assert (k[P.IMAGE], k[P.MAP_UV], k[P.SEPARATE], k[P.ADD_COLOR], k[P.ADD_VALUE]) == (4, 3, 3, 2, 2)
+    assert (k[P.SET_ALPHA], k[P.ALPHA_OVER], k[P.OUTPUT], k[P.PLATE]) == (1, 1, 1, 1)
+    links = {(lk.from_node, lk.from_socket, lk.to_node, lk.to_socket) for lk in plan.links}
+    for name in plan.layers:
+        assert ("NA_Passes", f"UV{name}", f"NA_MapUV_{name}", "uv") in links
+        assert any(i.name == f"NA_Edit_{name}" for i in plan.images)
+    # every Map UV output reaches the colour sum exactly once, every alpha the alpha sum exactly once
+    adds = [lk for lk in plan.links if lk.to_node.startswith("NA_AddColor_")]
+    assert {lk.from_node for lk in adds if lk.from_node.startswith("NA_MapUV_")} == {
+        f"NA_MapUV_{n}" for n in plan.layers
+    }
+
 
 def test_plan_rejects_gaps_and_unknown_edits(tmp_path):
     mp = make_export(tmp_path)

@@ -200,3 +200,34 @@ def test_anchor_loss_without_weighted_pixels_is_zero_with_finite_gradient():
     loss.backward()
     assert float(loss) == 0.0 and torch.isfinite(uv.grad).all()
 
+
+def test_atlas_sparsity_is_mean_l1_and_zero_when_empty():
+    rgb = torch.tensor([[0.0, 0.0, 0.0], [0.5, 0.25, 0.25]])
+    assert L.atlas_sparsity_loss(rgb).item() == pytest.approx(0.5)
+    empty = L.atlas_sparsity_loss(torch.zeros(0, 3, requires_grad=True))
+    assert empty.item() == 0.0 and math.isfinite(empty.item())
+
+
+def test_scribble_loss_value_and_unlabelled_pixels_ignored():
+    alpha = torch.tensor([[0.5, 0.25], [0.9, 0.1], [0.2, 0.8]])
+    labels = torch.tensor([0, -1, 1])
+    assert L.scribble_loss(alpha, labels).item() == pytest.approx(-(math.log(0.5) + math.log(0.8)) / 2)
+
+
+def test_scribble_loss_no_scribbled_sample_is_zero_not_nan():
+    alpha = torch.full((4, 2), 0.5, requires_grad=True)
+    loss = L.scribble_loss(alpha, torch.full((4,), -1))
+    loss.backward()
+    assert loss.item() == 0.0 and torch.isfinite(alpha.grad).all()
+
+
+def test_scribble_loss_zero_alpha_is_clamped_by_log_eps():
+    alpha = torch.tensor([[0.0, 1.0]], requires_grad=True)
+    loss = L.scribble_loss(alpha, torch.tensor([0]))
+    loss.backward()
+    assert loss.item() == pytest.approx(-math.log(L.LOG_EPS)) and torch.isfinite(alpha.grad).all()
+
+
+def test_scribble_loss_gradcheck_interior():
+    alpha = torch.tensor([[0.3, 0.6], [0.7, 0.2]], dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda a: L.scribble_loss(a, torch.tensor([1, 0])), (alpha,))
