@@ -138,10 +138,9 @@ class FitConfig:
     init_motion: bool = True
     """Fast model: initialise each layer's per-frame motion from the optical flow (robust similarity fit)."""
     atlas_margin_fg: float = 0.06
-    """Fast model: a foreground atlas's content rectangle is the object's extent (from the eroded masks, mapped
-    by the initial motion) grown by this fraction; outside it the atlas is empty, so parts of the object that
-    the mapping later moves outside (a swan's tail) fall to the background. Larger is not better: on blackswan
-    draft, 0.3 gave alpha IoU 0.31 against 0.89 at 0.06 (one run each)."""
+    """Fast model: a foreground atlas's content rectangle is the object's extent (its masks, mapped by the
+    initial motion) grown by this fraction; outside it the atlas is empty. The 0.31 alpha IoU that 0.3 once gave
+    on blackswan draft was the mapping drifting into the empty (black) area, fixed by ``w_anchor``."""
 
     # --- bookkeeping
     eval_every: int = 100
