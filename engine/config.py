@@ -126,6 +126,14 @@ class FitConfig:
     the mapping later moves outside (a swan's tail) fall to the background. Larger is not better: on blackswan
     draft, 0.3 gave alpha IoU 0.31 against 0.89 at 0.06 (one run each)."""
 
+    # --- scene analysis (engine.scene)
+    components: str = "auto"
+    """``auto``: compute only what the scene calls for (a static camera gets a near-identity background
+    mapping, a pan/zoom a similarity with a small residual and no warp grid; no foreground or alpha networks
+    for a background-only clip; no flow for a single frame; loss terms without anything to act on are not
+    evaluated). ``all``: every component on, as before the analysis (to compare, or if the analysis is
+    wrong for a clip). The decisions and their reasons are written to RUN_DIR/scene.json."""
+
     # --- bookkeeping
     eval_every: int = 100
     """Steps between progress lines with PSNR on a fixed pixel sample."""
