@@ -159,9 +159,7 @@ def transparency(width: int = 96, height: int = 64, frames: int = 6, seed: int =
     spec = _spec(width, height, frames, seed)
     zero = np.zeros((height, width))
     still = _plate(spec, zero, zero)
-    return _render(
-        spec, "transparency", transparency.__doc__ or "", lambda t: still, True, opacity=TRANSPARENT_OPACITY
-    )
+    return _render(spec, "transparency", transparency.__doc__ or "", lambda t: still, True, opacity=TRANSPARENT_OPACITY)
 
 
 def lighting_change(width: int = 96, height: int = 64, frames: int = 6, seed: int = 0) -> NamedScene:

@@ -255,3 +255,40 @@ def test_auto_masks_fit_uses_found_masks_or_falls_back(tmp_path):
     scene = read_scene_file(run)
     assert scene is not None and scene.num_layers == 1 and scene.layers_source == C.SCENE_LAYERS_AUTO
     assert "no moving object was found" in scene.reasons["layers"]
+
+
+def test_pan_builds_a_small_residual_and_no_warp_grid(tmp_path):
+    """Pan/zoom background: similarity + a 16-wide residual MLP, no warp grid; the same clip with
+    components=all gets the full mapping (warp grid, 64-wide MLP)."""
+    from engine.model import PANZOOM_MAPPING_HIDDEN
+
+    s = make_named_scene("pan")
+    frames_dir, masks_dir = _write_clip(tmp_path / "clip", s.frames, s.masks)
+    built = {}
+    for comp in ("auto", "all"):
+        cfg = apply_overrides(preset_config("draft"), {"components": comp})
+        prep = prepare_clip(frames_dir, [masks_dir], cfg, tmp_path / comp, None, Reporter(None, io.StringIO()))
+        scene = analyse_scene(len(prep.frames), prep.flow, prep.masks, cfg)
+        built[comp] = (scene, build_model(cfg, prep, scene))
+    scene, model = built["auto"]
+    assert scene.background_motion == C.BG_MOTION_PAN_ZOOM and "global_rigidity_bg" in scene.active_terms
+    bg = model.mappings[0]
+    assert bg.warp is None and bg.residual.linears[0].out_features == PANZOOM_MAPPING_HIDDEN
+    assert model.mappings[1].kind == C.BG_MOTION_DEFORMABLE  # foreground mappings are never reduced
+    full = built["all"][1].mappings[0]
+    assert full.warp is not None and full.residual.linears[0].out_features == 64
+
+
+def test_scene_speed_compares_the_same_fit_with_and_without_the_analysis(tmp_path):
+    """The measurement helper behind the docs' speed-up table: both fits, same steps; numbers only, no
+    timing assertion (the ratio depends on the machine)."""
+    from engine.scene_speed import compare_components
+
+    s = make_named_scene("lighting_change", width=48, height=32, frames=3)
+    frames_dir, _ = _write_clip(tmp_path / "clip", np.repeat(s.frames[:1], 3, axis=0))
+    res = compare_components(frames_dir, [], tmp_path / "runs", steps=10, long_edge=48)
+    assert res["auto"]["background_motion"] == C.BG_MOTION_STATIC
+    assert res["all"]["background_motion"] == C.BG_MOTION_DEFORMABLE
+    assert len(res["auto"]["active_terms"]) < len(res["all"]["active_terms"])
+    assert np.isfinite(res["speedup"]) and res["speedup"] > 0
+    assert all(np.isfinite(res[c]["psnr"]) for c in ("auto", "all"))
