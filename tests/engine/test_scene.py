@@ -292,3 +292,23 @@ def test_scene_speed_compares_the_same_fit_with_and_without_the_analysis(tmp_pat
     assert len(res["auto"]["active_terms"]) < len(res["all"]["active_terms"])
     assert np.isfinite(res["speedup"]) and res["speedup"] > 0
     assert all(np.isfinite(res[c]["psnr"]) for c in ("auto", "all"))
+
+
+def test_textureless_clip_is_deformable_because_nothing_can_be_measured():
+    """The MIN_VECTORS guard: flat frames give no reliable flow; the analysis says so and keeps the full
+    mapping (the safe choice) instead of calling an unmeasured camera static."""
+    frames = np.broadcast_to(np.array([0.3, 0.55, 0.7], np.float32), (3, 24, 32, 3)).copy()
+    flow = compute_flow(frames, DISFlow("medium"))
+    flow.forward_ok[:] = False  # whatever DIS returns on a flat image, nothing is reliable
+    scene = analyse_scene(3, flow, np.zeros((0, 3, 24, 32), bool), preset_config("draft"))
+    assert scene.background_motion == C.BG_MOTION_DEFORMABLE and "too little" in scene.reasons["background_motion"]
+    assert scene.measured["background_median_motion_px"] is None and scene.measured["pairs_measured"] == 0
+
+
+def test_auto_masks_and_masks_together_is_one_line_error(tmp_path):
+    s = make_named_scene("static_camera", width=48, height=32, frames=3)
+    frames_dir, masks_dir = _write_clip(tmp_path / "clip", s.frames, s.masks)
+    cfg = apply_overrides(preset_config("draft"), TINY)
+    with pytest.raises(InputError, match="--auto-masks and --mask"):
+        fit(frames_dir, [masks_dir], tmp_path / "run", cfg, device_name="cpu", progress_bar=False, auto_masks=True)
+    assert not (tmp_path / "run").exists()
