@@ -34,6 +34,7 @@ from engine.config import FitConfig, apply_overrides, preset_config
 from engine.errors import InputError
 from engine.eta import StepClock
 from engine.losses import psnr_from_mse
+from engine.scene import analyse_scene
 from engine.tracking import (
     TAPVID_EVAL_SIZE,
     Tracks,
@@ -488,7 +489,9 @@ def _run_bench(
     for state in states:
         for cfg in cfgs:
             torch.manual_seed(cfg.seed)
-            model = build_model(cfg, state.prepared).to(device)
+            prep = state.prepared
+            scene = analyse_scene(prep.frames.shape[0], prep.flow, prep.masks, cfg)  # what `fit` would build
+            model = build_model(cfg, prep, scene).to(device)
             optim = make_optimizer(model, cfg, device)
             run = Run(state, cfg, model, optim, make_scheduler(optim, cfg), torch.Generator().manual_seed(cfg.seed), [])
             run.eval_times = list(schedule)

@@ -20,6 +20,7 @@ import torch
 from engine import contract as C
 from engine.bench import torch_threads
 from engine.config import PRESETS, apply_overrides, preset_config
+from engine.scene import analyse_scene
 from engine.trainer import (
     EVAL_CHUNK,
     Reporter,
@@ -136,7 +137,9 @@ def _estimate(
     rows = []
     for cfg in cfgs:
         torch.manual_seed(cfg.seed)
-        model = build_model(cfg, prepared).to(device)
+        # the model `fit` would build: the scene analysis decides components (a tripod shot costs less)
+        scene = analyse_scene(t_count, prepared.flow, prepared.masks, cfg)
+        model = build_model(cfg, prepared, scene).to(device)
         optim = make_optimizer(model, cfg, device)
         run = (model, video, cfg, optim, make_scheduler(optim, cfg), torch.Generator().manual_seed(cfg.seed))
         early_steps = min(cfg.global_rigidity_steps, cfg.steps)

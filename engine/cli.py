@@ -72,6 +72,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FOLDER",
         help="split the one --mask object into layers: red/green/... strokes per frame (paper Sec. 4.4)",
     )
+    f.add_argument(
+        C.FIT_AUTO_MASKS_FLAG,
+        dest="auto_masks",
+        action="store_true",
+        help=f"no masks: find moving objects (masks written to RUN_DIR/{C.AUTO_MASKS_DIR} for checking) and fit "
+        "them; nothing moving gives a background-only fit. Without --mask or this, the fit is background-only",
+    )
     f.add_argument("--out", required=True, metavar="RUN_DIR", help="run folder (created; never overwritten)")
     f.add_argument("--preset", default="balanced", help="draft | balanced | final | paper (default: balanced)")
     f.add_argument("--device", default="auto", help="auto | cpu | cuda | mps (default: auto)")
@@ -388,6 +395,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
             frame_range=args.frames,
             progress_bar=not args.no_bar,
             scribble_dir=args.scribbles,
+            auto_masks=args.auto_masks,
         )
     except FitCancelled as exc:
         print(f"cancelled: {exc}; continue with: python -m engine fit --resume --out {run_dir}", file=sys.stderr)

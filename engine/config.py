@@ -142,6 +142,14 @@ class FitConfig:
     initial motion) grown by this fraction; outside it the atlas is empty. The 0.31 alpha IoU that 0.3 once gave
     on blackswan draft was the mapping drifting into the empty (black) area, fixed by ``w_anchor``."""
 
+    # --- scene analysis (engine.scene)
+    components: str = "auto"
+    """``auto``: compute only what the scene calls for (a static camera gets a near-identity background
+    mapping, a pan/zoom a similarity with a small residual and no warp grid; no foreground or alpha networks
+    for a background-only clip; no flow for a single frame; loss terms without anything to act on are not
+    evaluated). ``all``: every component on, as before the analysis (to compare, or if the analysis is
+    wrong for a clip). The decisions and their reasons are written to RUN_DIR/scene.json."""
+
     # --- bookkeeping
     eval_every: int = 100
     """Steps between progress lines with PSNR on a fixed pixel sample."""

@@ -68,6 +68,34 @@ RUN_CHECKPOINT = "checkpoint.pt"
 RUN_CLIP = "clip.json"  # what was fitted: source, frame range, sizes, content fingerprint
 RUN_LOG = "fit.log"
 FLOW_CACHE_DIR = "flow_cache"
+#: The scene analysis of a fit (engine.scene.SceneAnalysis as JSON): which components the run computes, and why.
+#: {"schema": SCHEMA_VERSION, "components": "auto"|"all", "num_layers": int, "layers_source": SCENE_LAYERS_*,
+#:  "background_motion": BG_MOTION_*, "flow": bool, "scribbles": int, "alpha_network": bool,
+#:  "active_terms": [str], "reasons": {decision: one line}, "measured": {name: number|null},
+#:  "overrides": [str] (what components=all forced on that the analysis would have left off)}
+SCENE_FILE = "scene.json"
+SCENE_KEYS: tuple[str, ...] = (
+    "components",
+    "num_layers",
+    "layers_source",
+    "background_motion",
+    "flow",
+    "active_terms",
+    "reasons",
+)
+#: Where the layers came from: --mask folders, masks found from motion (--auto-masks), or none (background only).
+SCENE_LAYERS_GIVEN = "given"
+SCENE_LAYERS_AUTO = "auto"
+SCENE_LAYERS_NONE = "none"
+#: Background mapping classes: near-identity (tripod), similarity + small residual (pan/zoom), full (deformable).
+BG_MOTION_STATIC = "static"
+BG_MOTION_PAN_ZOOM = "pan_zoom"
+BG_MOTION_DEFORMABLE = "deformable"
+BG_MOTIONS: tuple[str, ...] = (BG_MOTION_STATIC, BG_MOTION_PAN_ZOOM, BG_MOTION_DEFORMABLE)
+#: ``fit --auto-masks``: find foreground masks from motion, write them to RUN_DIR/auto_masks/ (the artist can
+#: check and fix them, then fit again with --mask RUN_DIR/auto_masks), and fit with them.
+FIT_AUTO_MASKS_FLAG = "--auto-masks"
+AUTO_MASKS_DIR = "auto_masks"
 
 # --- progress protocol: one JSON object per stdout line ---------------------------------------------------
 PROGRESS_TAG = "neural_atlas"  # every machine-readable line carries {"neural_atlas": SCHEMA_VERSION, ...}
@@ -214,7 +242,8 @@ def pass_file_name(frame_number: int) -> str:
 #:              "atlas_box": [u0, v0, u1, v1],
 #:              "channels": [full EXR channel names, e.g. "Atlas.UVForeground.X"] (optional: derivable)}],
 #:  "fit": {"preset": str, "model": str, "steps": int, "train_seconds": float, "psnr": float|None,
-#:          "alpha_iou": [float]|None}}
+#:          "alpha_iou": [float]|None},
+#:  "scene": the run's SCENE_FILE (optional: manifests of runs fitted before the scene analysis have none)}
 MANIFEST_KEYS: tuple[str, ...] = ("engine_version", "run_dir", "created", "clip", "passes", "layers", "fit")
 MANIFEST_CLIP_KEYS: tuple[str, ...] = (
     "source",
@@ -281,7 +310,25 @@ def validate_manifest(data: Any) -> dict[str, Any]:
     frames = data["passes"]["frames"]
     if not isinstance(frames, list) or not frames or not all(isinstance(f, int) for f in frames):
         raise ManifestError("manifest 'passes' lists no frames")
+    if "scene" in data:
+        validate_scene(data["scene"], len(layers))
     return data
+
+
+def validate_scene(scene: Any, num_layers: int | None = None) -> dict[str, Any]:
+    """Check a scene analysis record (SCENE_FILE, or a manifest's "scene"); raises ManifestError (one line)."""
+    if not isinstance(scene, dict):
+        raise ManifestError("manifest 'scene' is not an object")
+    for key in SCENE_KEYS:
+        if key not in scene:
+            raise ManifestError(f"manifest 'scene' has no {key!r}")
+    if scene["background_motion"] not in BG_MOTIONS:
+        raise ManifestError(f"manifest 'scene' has unknown background_motion {scene['background_motion']!r}")
+    if num_layers is not None and scene["num_layers"] != num_layers:
+        raise ManifestError(f"manifest 'scene' says {scene['num_layers']!r} layers but the manifest has {num_layers}")
+    if not isinstance(scene["active_terms"], list) or not isinstance(scene["reasons"], dict):
+        raise ManifestError("manifest 'scene' active_terms is not a list or reasons is not an object")
+    return scene
 
 
 def load_manifest(path: str) -> dict[str, Any]:

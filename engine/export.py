@@ -35,6 +35,7 @@ from engine.colour import srgb_to_linear
 from engine.errors import InputError
 from engine.image_io import write_exr, write_png
 from engine.model import AtlasModel
+from engine.scene import read_scene_file
 from engine.trainer import EVAL_CHUNK, PreparedClip, Reporter, load_run
 
 #: Atlas cells whose aggregated coverage exceeds this decide where the layer's atlas box lies (a foreground's
@@ -171,9 +172,7 @@ class _Coverage:
         """Coverage at every texel centre of ``frame`` [H, W] (bilinear)."""
         uv = frame.texel_centres()
         map_xy = ((uv + COVERAGE_DOMAIN) * self.scale - 0.5).astype(np.float32)
-        return cv2.remap(
-            self.grid(), map_xy[..., 0], map_xy[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT
-        )
+        return cv2.remap(self.grid(), map_xy[..., 0], map_xy[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
 
 
 def _fill_holes(total: np.ndarray, count: np.ndarray) -> np.ndarray:
@@ -387,6 +386,9 @@ def export_run(
         atomic_write_text(edits_dir / C.EDITS_LAYOUT, json.dumps(layout, indent=2))
 
         manifest = _manifest(run_dir, final, prepared, clip_rec, names, frames_by_layer, selected, cfg, metrics)
+        scene = read_scene_file(run_dir)
+        if scene is not None:  # runs from before the scene analysis have none; readers accept both
+            manifest["scene"] = scene.to_dict()
         C.validate_manifest(manifest)
         atomic_write_text(staging / C.MANIFEST_NAME, json.dumps(manifest, indent=2))
         (staging / ".pid").unlink()

@@ -13,6 +13,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from engine import contract as C
 from engine.config import FitConfig
 from engine.fields import MLP, Grid2D, Grid3D, level_resolutions
 from engine.motion_init import LayerMotion
@@ -23,6 +24,14 @@ ALPHA_FLOOR = 0.001
 ALPHA_SPAN = 0.99
 #: The finest alpha grid has at least this many cells along the long edge (all pixels if the clip is smaller).
 ALPHA_MIN_CELLS = 128
+#: Pan/zoom background (engine.scene): the per-frame similarity carries the camera; a residual MLP this
+#: narrow and shallow only absorbs lens distortion and rolling shutter, at a fraction of the default's cost.
+PANZOOM_MAPPING_HIDDEN = 16
+PANZOOM_MAPPING_LAYERS = 1
+#: Mapping kinds (contract.BG_MOTION_*): what a layer's mapping is built from.
+MAPPING_DEFORMABLE = C.BG_MOTION_DEFORMABLE
+MAPPING_PAN_ZOOM = C.BG_MOTION_PAN_ZOOM
+MAPPING_STATIC = C.BG_MOTION_STATIC
 
 
 class AtlasModel(nn.Module):
@@ -32,6 +41,10 @@ class AtlasModel(nn.Module):
     width: int
     height: int
     frames: int
+    #: Loss terms the objective evaluates for this model (engine.scene decides them from the clip); None =
+    #: every term. It lives on the model because the model was built for that scene: a term for a component
+    #: the model does not have (sparsity without a foreground) has nothing to act on.
+    active_terms: frozenset[str] | None = None
 
     def uv(self, layer: int, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         """Atlas coordinates [N, 2] (roughly in [-1, 1]) of working pixels ``xy`` [N, 2] at frames ``t`` [N]."""
@@ -91,26 +104,38 @@ class FastLayerMapping(nn.Module):
     """Per-frame similarity (initialised from flow) + a smooth residual MLP on raw (x, y, t).
 
     No positional encoding of (x, y, t): the mapping must stay smooth so the atlas stays coherent.
+    ``kind`` (engine.scene) sizes it to the motion: ``deformable`` is the full mapping (+ warp grid when
+    ``warp``); ``pan_zoom`` keeps a small residual MLP and no warp grid; ``static`` is the per-frame affine
+    correction alone (a tripod: nothing else can move the background, and nothing else is evaluated).
     """
 
     def __init__(
-        self, motion: LayerMotion, size: tuple[int, int], frames: int, cfg: FitConfig, warp: bool = True
+        self,
+        motion: LayerMotion,
+        size: tuple[int, int],
+        frames: int,
+        cfg: FitConfig,
+        warp: bool = True,
+        kind: str = MAPPING_DEFORMABLE,
     ) -> None:
         super().__init__()
         w, h = size
         hidden, layers = cfg.mapping_hidden, cfg.mapping_layers
+        if kind == MAPPING_PAN_ZOOM:
+            hidden, layers = PANZOOM_MAPPING_HIDDEN, PANZOOM_MAPPING_LAYERS
+        self.kind = kind
         self.register_buffer("to_ref", torch.tensor(motion.to_ref, dtype=torch.float32))
         self.register_buffer("center", torch.tensor(motion.center, dtype=torch.float32))
         self.half_extent = float(motion.half_extent)
         self.delta = nn.Parameter(torch.zeros(frames, 2, 3))
-        self.residual = MLP(3, 2, hidden, layers + 1, zero_last=True)
+        self.residual = None if kind == MAPPING_STATIC else MLP(3, 2, hidden, layers + 1, zero_last=True)
         self.half = max(w, h) / 2.0
         self.size = (w, h)
         self.frames = frames
         # a coarse per-frame displacement field (pixels) for non-rigid motion the MLP is too smooth for;
         # cells of several pixels keep it low-frequency, and the rigidity terms keep it regular
         self.warp: Grid3D | None = None
-        if warp and cfg.warp_levels > 0:
+        if warp and kind == MAPPING_DEFORMABLE and cfg.warp_levels > 0:
             res = []
             for i in range(cfg.warp_levels):
                 cell = cfg.warp_cell_px * 2.0 ** (cfg.warp_levels - 1 - i)
@@ -130,7 +155,8 @@ class FastLayerMapping(nn.Module):
         tn = t.to(xy.dtype) / max(self.frames / 2.0, 0.5) - 1.0
         d = self.delta[t]
         uv = uv + torch.einsum("nij,nj->ni", d[:, :, :2], xn) + d[:, :, 2]
-        uv = uv + self.residual(torch.cat((xn, tn[:, None]), -1))
+        if self.residual is not None:
+            uv = uv + self.residual(torch.cat((xn, tn[:, None]), -1))
         if self.warp is not None:
             w, h = self.size
             g = torch.stack(
@@ -173,15 +199,39 @@ class FastAtlas(nn.Module):
 class FastModel(AtlasModel):
     """The default: quality per CPU-second. Same inputs, outputs and losses as the paper's model."""
 
-    def __init__(self, cfg: FitConfig, size: tuple[int, int], frames: int, motions: list[LayerMotion]) -> None:
+    def __init__(
+        self,
+        cfg: FitConfig,
+        size: tuple[int, int],
+        frames: int,
+        motions: list[LayerMotion],
+        background: str = MAPPING_DEFORMABLE,
+        alpha_network: bool = True,
+    ) -> None:
+        """``background``: the background mapping's kind (engine.scene); ``alpha_network=False`` (one layer
+        only) builds no alpha grid or decoder: the single layer's alpha is 1 everywhere."""
         super().__init__()
         self.width, self.height = size
         self.frames = frames
         self.num_layers = len(motions)
+        if not alpha_network and self.num_layers > 1:
+            raise ValueError("a model with foreground layers needs its alpha network")
         self.mappings = nn.ModuleList(
-            FastLayerMapping(m, size, frames, cfg, warp=(i == 0 or cfg.warp_foreground)) for i, m in enumerate(motions)
+            FastLayerMapping(
+                m,
+                size,
+                frames,
+                cfg,
+                warp=(i == 0 or cfg.warp_foreground),
+                kind=background if i == 0 else MAPPING_DEFORMABLE,
+            )
+            for i, m in enumerate(motions)
         )
         self.atlases = nn.ModuleList(FastAtlas(m, cfg) for m in motions)
+        self.alpha_grid: Grid3D | None = None
+        self.alpha_decoder: MLP | None = None
+        if not alpha_network:
+            return
         # small clips keep a usable alpha resolution: at least ALPHA_MIN_CELLS on the long edge (or every pixel)
         long_edge = max(self.width, self.height)
         density = max(cfg.alpha_density, min(1.0, ALPHA_MIN_CELLS / long_edge))
@@ -213,6 +263,8 @@ class FastModel(AtlasModel):
         return 1.0 / float(inv[0]), 1.0 / float(inv[1])
 
     def alpha(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        if self.alpha_grid is None or self.alpha_decoder is None:
+            return torch.ones((xy.shape[0], 1), dtype=torch.float32, device=xy.device)
         xn = xy[:, 0:1] / (self.width / 2.0) - 1.0
         yn = xy[:, 1:2] / (self.height / 2.0) - 1.0
         tn = (t.to(xy.dtype)[:, None] / max(self.frames - 1, 1)) * 2.0 - 1.0
@@ -223,8 +275,10 @@ class FastModel(AtlasModel):
         return torch.softmax(logits, -1)
 
     def param_groups(self, cfg: FitConfig) -> list[dict]:
-        grids = list(self.alpha_grid.parameters()) + [p for a in self.atlases for p in a.grid.parameters()]
-        mlps = list(self.alpha_decoder.parameters()) + [p for a in self.atlases for p in a.decoder.parameters()]
+        alpha_grid = [] if self.alpha_grid is None else list(self.alpha_grid.parameters())
+        alpha_mlp = [] if self.alpha_decoder is None else list(self.alpha_decoder.parameters())
+        grids = alpha_grid + [p for a in self.atlases for p in a.grid.parameters()]
+        mlps = alpha_mlp + [p for a in self.atlases for p in a.decoder.parameters()]
         warps = [p for m in self.mappings if m.warp is not None for p in m.warp.parameters()]
         ids = {id(p) for p in warps}
         mapping = [p for m in self.mappings for p in m.parameters() if id(p) not in ids]

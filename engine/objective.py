@@ -62,8 +62,17 @@ def compute_losses(
     iy: torch.Tensor,
     t: torch.Tensor,
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    """Total weighted loss and each unweighted term (for logging)."""
+    """Total weighted loss and each unweighted term (for logging).
+
+    Only the terms in ``model.active_terms`` (engine.scene; None = all) are evaluated at all: a term the
+    scene does not call for costs nothing, not just weight 0, and is absent from the returned dict.
+    """
     wts = weights_at(cfg, step)
+    active = model.active_terms
+
+    def on(term: str) -> bool:
+        return active is None or term in active
+
     t_count, h, w = video.shape
     n = ix.shape[0]
     nl = model.num_layers
@@ -92,7 +101,7 @@ def compute_losses(
     terms["gradient"] = L.gradient_loss(rec_dx - rec, rec_dy - rec, gt_dx, gt_dy, ix < w - 1, iy < h - 1)
 
     rig = []
-    for i in range(nl):
+    for i in range(nl if on("rigidity") else 0):
         u = uvs[i]
         if cfg.rigidity_delta == 1.0:
             u_dx, u_dy = u[n : 2 * n], u[2 * n :]
@@ -101,22 +110,31 @@ def compute_losses(
             u_dx = model.uv(i, xy + d * one_x, t)
             u_dy = model.uv(i, xy + d * one_y, t)
         rig.append(L.rigidity_loss(u[:n], u_dx, u_dy, cfg.rigidity_delta, model.uv_per_px(i)))
-    terms["rigidity"] = sum(rig)
+    if on("rigidity"):
+        terms["rigidity"] = sum(rig)
 
-    if wts["global_rigidity_fg"] > 0 or wts["global_rigidity_bg"] > 0:
+    glob_bg = on("global_rigidity_bg") and (active is None or wts["global_rigidity_bg"] > 0)
+    glob_fg = on("global_rigidity_fg") and (active is None or wts["global_rigidity_fg"] > 0)
+    if (wts["global_rigidity_fg"] > 0 or wts["global_rigidity_bg"] > 0) and (glob_bg or glob_fg):
         d = cfg.global_rigidity_delta
-        g = []
+        g: dict[int, torch.Tensor] = {}
         for i in range(nl):
+            if (i == 0 and not glob_bg) or (i > 0 and not glob_fg):
+                continue
             u_dx = model.uv(i, xy + d * one_x, t)
             u_dy = model.uv(i, xy + d * one_y, t)
-            g.append(L.rigidity_loss(uvs[i][:n], u_dx, u_dy, d, model.uv_per_px(i)))
-        terms["global_rigidity_bg"] = g[0]
-        terms["global_rigidity_fg"] = sum(g[1:]) if nl > 1 else torch.zeros((), device=xy.device)
+            g[i] = L.rigidity_loss(uvs[i][:n], u_dx, u_dy, d, model.uv_per_px(i))
+        if glob_bg:
+            terms["global_rigidity_bg"] = g[0]
+        if glob_fg:
+            fg = [g[i] for i in range(1, nl)]
+            terms["global_rigidity_fg"] = sum(fg) if fg else torch.zeros((), device=xy.device)
 
     # flow consistency, forward (t -> t+1) and backward (t -> t-1), only where the flow is reliable
     flow_terms, alpha_terms = [], []
+    want_flow, want_alpha_flow = on("flow"), on("alpha_flow") and nl > 1
     for direction in (1, -1):
-        if t_count < 2:
+        if t_count < 2 or not (want_flow or want_alpha_flow):
             break
         if direction == 1:
             has = t < t_count - 1
@@ -132,35 +150,38 @@ def compute_losses(
             continue
         q = xy[sel] + vec[sel]
         tq = t[sel] + direction
-        wq = model.alpha(q, tq)
-        per_layer = []
-        for i in range(nl):
-            uq = model.uv(i, q, tq)
-            per_layer.append(L.flow_loss(uvs[i][:n][sel], uq, wts0[sel, i], None, model.uv_per_px(i)))
-        flow_terms.append(sum(per_layer))
-        alpha_terms.append(L.alpha_flow_loss(wts0[sel, 1:], wq[:, 1:], None))
+        if want_flow:
+            per_layer = []
+            for i in range(nl):
+                uq = model.uv(i, q, tq)
+                per_layer.append(L.flow_loss(uvs[i][:n][sel], uq, wts0[sel, i], None, model.uv_per_px(i)))
+            flow_terms.append(sum(per_layer))
+        if want_alpha_flow:
+            wq = model.alpha(q, tq)
+            alpha_terms.append(L.alpha_flow_loss(wts0[sel, 1:], wq[:, 1:], None))
     zero = torch.zeros((), device=xy.device)
-    terms["flow"] = 0.5 * sum(flow_terms) if flow_terms else zero
-    terms["alpha_flow"] = 0.5 * sum(alpha_terms) if alpha_terms else zero
+    if on("flow"):
+        terms["flow"] = 0.5 * sum(flow_terms) if flow_terms else zero
+    if on("alpha_flow"):
+        terms["alpha_flow"] = 0.5 * sum(alpha_terms) if alpha_terms else zero
 
     gen = None
     if nl > 2:
         # several foreground layers (Sec. 4.3): an object hidden behind another keeps its atlas colours, so
         # the alpha-weighted term would be wrong; an l1 on random atlas points replaces it
-        terms["sparsity"] = zero
-        gen = _step_generator(cfg, step, xy.device)
-        cols_s = []
-        for i in range(1, nl):
-            ax, ay = model.atlas_extent(i)
-            r = torch.rand((cfg.atlas_sparsity_samples, 2), generator=gen, device=xy.device) * 2.0 - 1.0
-            cols_s.append(model.color(i, r * torch.tensor([ax, ay], device=xy.device)))
-        terms["atlas_sparsity"] = L.atlas_sparsity_loss(torch.cat(cols_s))
-    elif nl > 1:
-        terms["sparsity"] = sum(L.sparsity_loss(wts0[:, i : i + 1], cols[i][:n]) for i in range(1, nl))
-    else:
-        terms["sparsity"] = zero
+        if on("atlas_sparsity"):
+            gen = _step_generator(cfg, step, xy.device)
+            cols_s = []
+            for i in range(1, nl):
+                ax, ay = model.atlas_extent(i)
+                r = torch.rand((cfg.atlas_sparsity_samples, 2), generator=gen, device=xy.device) * 2.0 - 1.0
+                cols_s.append(model.color(i, r * torch.tensor([ax, ay], device=xy.device)))
+            terms["atlas_sparsity"] = L.atlas_sparsity_loss(torch.cat(cols_s))
+    elif on("sparsity"):
+        sp = [L.sparsity_loss(wts0[:, i : i + 1], cols[i][:n]) for i in range(1, nl)]
+        terms["sparsity"] = sum(sp) if sp else zero
 
-    if video.scribble_xyt is not None and wts["scribble"] > 0 and video.scribble_xyt.shape[0]:
+    if on("scribble") and video.scribble_xyt is not None and wts["scribble"] > 0 and video.scribble_xyt.shape[0]:
         gen = gen or _step_generator(cfg, step, xy.device)
         pick = torch.randint(0, video.scribble_xyt.shape[0], (cfg.scribble_samples,), generator=gen, device=xy.device)
         sxyt = video.scribble_xyt[pick]
@@ -168,7 +189,7 @@ def compute_losses(
         terms["scribble"] = L.scribble_loss(a[:, 1:], video.scribble_label[pick])
 
     # a bounded atlas (the fast model): keep each foreground where its atlas box was drawn (gauge fixing)
-    if nl > 1 and wts["anchor"] > 0:
+    if nl > 1 and on("anchor") and wts["anchor"] > 0:
         m_all = video.masks[:, t, iy, ix]  # [F, N]
         groups = video.mask_layers or tuple((f + 1,) for f in range(m_all.shape[0]))
         anchor = []
@@ -180,7 +201,7 @@ def compute_losses(
         if anchor:
             terms["anchor"] = sum(anchor)
 
-    if nl > 1 and (wts["mask"] > 0 or wts["mask_prior"] > 0):
+    if nl > 1 and (on("mask") or on("mask_prior")) and (wts["mask"] > 0 or wts["mask_prior"] > 0):
         fg_alpha = mask_alphas(wts0, video.mask_layers)
         m = video.masks[:, t, iy, ix].t()  # [N, F]
         valid = video.mask_valid[:, t].t()

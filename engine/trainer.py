@@ -36,6 +36,7 @@ from engine.model import AtlasModel, FastModel, motion_regions
 from engine.motion_init import estimate_layer_motion
 from engine.objective import compute_losses
 from engine.paper_model import PaperModel
+from engine.scene import SceneAnalysis, analyse_scene, read_scene_file, write_scene_file
 from engine.scribbles import propagate_labels, read_scribbles, scribble_layers
 from engine.video import VideoTensors, build_video_tensors, frame_pixels, sample_pixels
 
@@ -154,13 +155,19 @@ def prepare_clip(
         raise InputError(
             info.source, "the clip changed since this run started", "fit it into a new --out instead of --resume"
         )
-    reporter.emit(C.EVENT_STAGE, stage="flow", message="optical flow (cached per clip content)")
-    flow = compute_flow(
-        frames.clip(0.0, 1.0),
-        DISFlow(cfg.flow_preset),
-        cache_dir=run_dir / C.FLOW_CACHE_DIR,
-        threshold_px=cfg.flow_threshold_px,
-    )
+    if len(frames) < 2:  # a single frame has no flow: nothing is computed, nothing cached
+        h, w = frames.shape[1:3]
+        empty = np.zeros((0, h, w, 2), np.float32)
+        ok = np.zeros((0, h, w), bool)
+        flow = FlowField(empty, empty.copy(), ok, ok.copy(), DISFlow(cfg.flow_preset).name, cfg.flow_threshold_px)
+    else:
+        reporter.emit(C.EVENT_STAGE, stage="flow", message="optical flow (cached per clip content)")
+        flow = compute_flow(
+            frames.clip(0.0, 1.0),
+            DISFlow(cfg.flow_preset),
+            cache_dir=run_dir / C.FLOW_CACHE_DIR,
+            threshold_px=cfg.flow_threshold_px,
+        )
     return PreparedClip(
         info,
         size,
@@ -174,19 +181,25 @@ def prepare_clip(
     )
 
 
-def build_model(cfg: FitConfig, clip: PreparedClip) -> AtlasModel:
+def build_model(cfg: FitConfig, clip: PreparedClip, scene: SceneAnalysis | None = None) -> AtlasModel:
+    """The model ``scene`` calls for (engine.scene); None = every component (runs from before the analysis)."""
     t = clip.frames.shape[0]
     if cfg.model == "paper":
-        return PaperModel(cfg, clip.size, t, num_layers=1 + clip.num_foreground)
+        model: AtlasModel = PaperModel(cfg, clip.size, t, num_layers=1 + clip.num_foreground)
+        model.active_terms = None if scene is None else scene.term_set
+        return model
     if cfg.model != "fast":
         raise InputError(None, f"unknown model {cfg.model!r}", "use --set model=fast or model=paper")
     flow = clip.flow if t > 1 else None
+    background = C.BG_MOTION_DEFORMABLE if scene is None else scene.background_motion
     motions = []
     if clip.masks.shape[0]:
         bg_region, fg_regions = motion_regions(clip.masks)
     else:
         bg_region, fg_regions = None, []
-    motions.append(estimate_layer_motion(flow, bg_region, clip.size, cfg.init_motion))
+    # a static camera's background is the identity: the flow's noise must not tilt it
+    fit_bg = cfg.init_motion and background != C.BG_MOTION_STATIC
+    motions.append(estimate_layer_motion(flow, bg_region, clip.size, fit_bg))
     if clip.scribbles is not None:
         # each part moves like its scribbles (carried to every frame by the flow); its atlas spans the object
         carried = propagate_labels(clip.scribbles, flow, clip.masks[0])
@@ -197,16 +210,19 @@ def build_model(cfg: FitConfig, clip: PreparedClip) -> AtlasModel:
                     flow, region, clip.size, cfg.init_motion, margin=cfg.atlas_margin_fg, extent_masks=fg_regions[0]
                 )
             )
-        return FastModel(cfg, clip.size, t, motions)
-    # motion from the eroded mask (flow at object boundaries is unreliable), atlas box from the whole mask (an
-    # eroded box cut the rim off small objects: a 30 px object lost 6 px on every side to the background)
-    for region, full in zip(fg_regions, clip.masks, strict=True):
-        motions.append(
-            estimate_layer_motion(
-                flow, region, clip.size, cfg.init_motion, margin=cfg.atlas_margin_fg, extent_masks=full
+    else:
+        # motion from the eroded mask (flow at object boundaries is unreliable), atlas box from the whole mask
+        # (an eroded box cut the rim off small objects: a 30 px object lost 6 px on every side)
+        for region, full in zip(fg_regions, clip.masks, strict=True):
+            motions.append(
+                estimate_layer_motion(
+                    flow, region, clip.size, cfg.init_motion, margin=cfg.atlas_margin_fg, extent_masks=full
+                )
             )
-        )
-    return FastModel(cfg, clip.size, t, motions)
+    alpha_network = True if scene is None else (scene.alpha_network or len(motions) > 1)
+    model = FastModel(cfg, clip.size, t, motions, background=background, alpha_network=alpha_network)
+    model.active_terms = None if scene is None else scene.term_set
+    return model
 
 
 @torch.no_grad()
@@ -339,8 +355,12 @@ def fit(
     progress_bar: bool = True,
     stream: Any = None,
     scribble_dir: str | Path | None = None,
+    auto_masks: bool = False,
 ) -> dict[str, Any]:
-    """Fit a layered atlas to ``clip``; writes config, clip record, checkpoint and metrics into ``run_dir``."""
+    """Fit a layered atlas to ``clip``; writes config, clip record, scene analysis, checkpoint and metrics
+    into ``run_dir``. ``auto_masks``: no masks given, find them from motion (written to RUN_DIR/auto_masks
+    for the artist to check) and fit with them; nothing moving gives a background-only fit. ``scribble_dir``:
+    red/green/... strokes that split the one mask's object into several foreground layers (paper Sec. 4.4)."""
     run_dir = Path(run_dir)
     ckpt_path = run_dir / C.RUN_CHECKPOINT
     if resume:
@@ -364,6 +384,12 @@ def fit(
     # the input is read and validated before anything is written: bad input leaves no run folder behind
     reporter = Reporter(None, stream)
     expect = clip_rec.get("fingerprint") if resume else None
+    layers_source, masks_note = None, None
+    if auto_masks and not resume:
+        if mask_dirs:
+            raise InputError(None, f"{C.FIT_AUTO_MASKS_FLAG} and --mask both given", "pass one of them")
+        mask_dirs, masks_note = _find_auto_masks(clip, run_dir, frame_range, reporter)  # type: ignore[arg-type]
+        layers_source = C.SCENE_LAYERS_AUTO
     prepared = prepare_clip(clip, mask_dirs, cfg, run_dir, frame_range, reporter, expect, scribble_dir)  # type: ignore[arg-type]
     run_dir.mkdir(parents=True, exist_ok=True)
     reporter.log_path = run_dir / C.RUN_LOG
@@ -393,12 +419,26 @@ def fit(
                 "fit it into a new --out instead of --resume",
             )
         state = load_checkpoint(ckpt_path, device)
+        scene = read_scene_file(run_dir)  # None: a run from before the analysis, resumed as it was built
     else:
+        scene = analyse_scene(
+            prepared.frames.shape[0],
+            prepared.flow,
+            prepared.masks,
+            cfg,
+            layers_source=layers_source,
+            scribbles=0 if prepared.scribbles is None else int((prepared.scribbles >= 0).any((1, 2)).sum()),
+            masks_note=masks_note,
+            foreground_layers=prepared.num_foreground,
+        )
         atomic_write_text(run_dir / C.RUN_CONFIG, cfg.to_json())
         atomic_write_text(run_dir / C.RUN_CLIP, json.dumps(clip_record, indent=2))
+        write_scene_file(run_dir, scene)
+    if scene is not None:
+        reporter.emit(C.EVENT_STAGE, stage="scene", message=scene.summary(), scene=scene.to_dict())
 
     reporter.emit(C.EVENT_STAGE, stage="init", message=f"building the {cfg.model} model on {device.type}")
-    model = build_model(cfg, prepared).to(device)
+    model = build_model(cfg, prepared, scene).to(device)
     video = build_video_tensors(
         prepared.frames,
         prepared.masks,
@@ -524,9 +564,29 @@ def load_run(run_dir: str | Path, device_name: str = "cpu") -> tuple[AtlasModel,
         rec["source"], rec["masks"], cfg, run_dir, frame_range, reporter, scribble_dir=rec.get("scribbles")
     )
     device = select_device(device_name)
-    model = build_model(cfg, prepared).to(device)
+    model = build_model(cfg, prepared, read_scene_file(run_dir)).to(device)
     model.load_state_dict(load_checkpoint(run_dir / C.RUN_CHECKPOINT, device)["model"])
     return model.eval(), prepared, cfg
+
+
+def _find_auto_masks(
+    clip: str | Path, run_dir: Path, frame_range: tuple[int, int] | None, reporter: Reporter
+) -> tuple[list[str | Path], str]:
+    """``fit --auto-masks``: masks from motion into RUN_DIR/auto_masks (PNGs the artist can check and fix,
+    then fit again with ``--mask``). Returns the mask folders to fit with (none when nothing moves) and the
+    analysis' one-line message for the scene record."""
+    from engine.auto_masks import write_auto_masks
+
+    info = open_clip(clip, frame_range)
+    if info.num_frames < 2:
+        return [], "a single frame has no motion to find an object by"
+    folder = run_dir / C.AUTO_MASKS_DIR
+    reporter.emit(C.EVENT_STAGE, stage="masks", message=f"finding moving objects; masks go to {folder}")
+    report = write_auto_masks(clip, folder, frame_range)
+    print(f"auto masks: {report.result.message} ({folder})", file=sys.stderr)
+    if not report.result.found:
+        return [], report.result.message
+    return [folder], report.result.message
 
 
 def _check_writable(run_dir: Path) -> None:

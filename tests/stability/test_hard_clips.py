@@ -150,7 +150,7 @@ def test_mask_covers_the_whole_frame(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("count", [1, 2])
 def test_one_and_two_frame_clips(tmp_path, monkeypatch, count):
-    """One frame: no flow at all (flow terms are exactly 0). Two frames: a single flow pair."""
+    """One frame: no flow at all (flow terms are not evaluated). Two frames: a single flow pair."""
     _, frames, masks = _scene_dirs(
         tmp_path, SceneSpec(width=48, height=32, frames=count, fg_size=(16, 12), fg_start=(10.0, 8.0))
     )

@@ -22,8 +22,9 @@ CLIP = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "vtest-s
 @pytest.mark.shared_data
 def test_real_static_camera_background_holds_still(tmp_path):
     """8 frames at 192x144, 150 draft steps. Over background pixels (outside the masks) of every frame: the
-    atlas point of a pixel moves < 1.5 px from frame 0 at the 95th percentile (measured 0.84; people walk
-    through the plate and the masks are coarse), and the mapping's Jacobian has
+    atlas point of a pixel moves < 1.5 px from frame 0 at the 95th percentile (measured 0.84 with the
+    deformable mapping; 0.153 since the scene analysis gives this tripod shot its static mapping; people
+    walk through the plate and the masks are coarse), and the mapping's Jacobian has
     singular values within [0.9, 1.1] px/px at the 5th/95th percentiles."""
     if not (CLIP / "frames").is_dir():
         pytest.skip(f"{CLIP} is not available")
