@@ -103,9 +103,7 @@ def sparsity_loss(alpha_fg: torch.Tensor, rgb_fg: torch.Tensor) -> torch.Tensor:
     return (((1.0 - _f32(alpha_fg)) * _f32(rgb_fg)) ** 2).sum(-1).mean()
 
 
-def anchor_loss(
-    uv: torch.Tensor, uv_anchor: torch.Tensor, weight: torch.Tensor, uv_per_px: float
-) -> torch.Tensor:
+def anchor_loss(uv: torch.Tensor, uv_anchor: torch.Tensor, weight: torch.Tensor, uv_per_px: float) -> torch.Tensor:
     """Squared length, in pixels, of the weighted MEAN displacement of a mapping from its anchor.
 
     A layer's atlas is defined only up to a translation of the whole mapping; only the mean is penalised,
@@ -114,6 +112,7 @@ def anchor_loss(
     w = _f32(weight)[:, None]
     mean = ((_f32(uv) - _f32(uv_anchor)) * w).sum(0) / w.sum().clamp_min(MIN_COUNT)
     return (mean**2).sum() / float(uv_per_px) ** 2
+
 
 def atlas_sparsity_loss(rgb: torch.Tensor) -> torch.Tensor:
     """Mean l1 norm of atlas colours [N, 3] sampled at random atlas points (paper Sec. 4.3, N > 1 layers).

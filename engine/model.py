@@ -214,6 +214,7 @@ class FastModel(AtlasModel):
         self.width, self.height = size
         self.frames = frames
         self.num_layers = len(motions)
+        self.layer_motions = list(motions)  # saved in checkpoints: a reload rebuilds the same shapes
         if not alpha_network and self.num_layers > 1:
             raise ValueError("a model with foreground layers needs its alpha network")
         self.mappings = nn.ModuleList(

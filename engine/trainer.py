@@ -33,7 +33,7 @@ from engine.eta import StepClock
 from engine.flow import DISFlow, FlowField, compute_flow
 from engine.losses import psnr_from_mse
 from engine.model import AtlasModel, FastModel, motion_regions
-from engine.motion_init import estimate_layer_motion
+from engine.motion_init import LayerMotion, estimate_layer_motion
 from engine.objective import compute_losses
 from engine.paper_model import PaperModel
 from engine.scene import SceneAnalysis, analyse_scene, read_scene_file, write_scene_file
@@ -181,8 +181,14 @@ def prepare_clip(
     )
 
 
-def build_model(cfg: FitConfig, clip: PreparedClip, scene: SceneAnalysis | None = None) -> AtlasModel:
-    """The model ``scene`` calls for (engine.scene); None = every component (runs from before the analysis)."""
+def build_model(
+    cfg: FitConfig, clip: PreparedClip, scene: SceneAnalysis | None = None, saved_motions: list | None = None
+) -> AtlasModel:
+    """The model ``scene`` calls for (engine.scene); None = every component (runs from before the analysis).
+
+    ``saved_motions`` (a checkpoint's ``motions``): the layers' starting motion and atlas boxes exactly as the
+    fit built them, so a run reloads into the same shapes and scales whatever the engine version or the flow
+    backend computes today."""
     t = clip.frames.shape[0]
     if cfg.model == "paper":
         model: AtlasModel = PaperModel(cfg, clip.size, t, num_layers=1 + clip.num_foreground)
@@ -192,6 +198,8 @@ def build_model(cfg: FitConfig, clip: PreparedClip, scene: SceneAnalysis | None 
         raise InputError(None, f"unknown model {cfg.model!r}", "use --set model=fast or model=paper")
     flow = clip.flow if t > 1 else None
     background = C.BG_MOTION_DEFORMABLE if scene is None else scene.background_motion
+    if saved_motions is not None:
+        return _fast_model(cfg, clip, scene, background, [motion_from_state(m) for m in saved_motions])
     motions = []
     if clip.masks.shape[0]:
         bg_region, fg_regions = motion_regions(clip.masks)
@@ -216,9 +224,21 @@ def build_model(cfg: FitConfig, clip: PreparedClip, scene: SceneAnalysis | None 
         for region, full in zip(fg_regions, clip.masks, strict=True):
             motions.append(
                 estimate_layer_motion(
-                    flow, region, clip.size, cfg.init_motion, margin=cfg.atlas_margin_fg, extent_masks=full
+                    flow,
+                    region,
+                    clip.size,
+                    cfg.init_motion,
+                    margin=cfg.atlas_margin_fg,
+                    extent_masks=full if cfg.atlas_box_full_mask else None,
                 )
             )
+    return _fast_model(cfg, clip, scene, background, motions)
+
+
+def _fast_model(
+    cfg: FitConfig, clip: PreparedClip, scene: SceneAnalysis | None, background: str, motions: list[LayerMotion]
+) -> FastModel:
+    t = clip.frames.shape[0]
     alpha_network = True if scene is None else (scene.alpha_network or len(motions) > 1)
     model = FastModel(cfg, clip.size, t, motions, background=background, alpha_network=alpha_network)
     model.active_terms = None if scene is None else scene.term_set
@@ -438,7 +458,7 @@ def fit(
         reporter.emit(C.EVENT_STAGE, stage="scene", message=scene.summary(), scene=scene.to_dict())
 
     reporter.emit(C.EVENT_STAGE, stage="init", message=f"building the {cfg.model} model on {device.type}")
-    model = build_model(cfg, prepared, scene).to(device)
+    model = build_model(cfg, prepared, scene, None if state is None else state.get("motions")).to(device)
     video = build_video_tensors(
         prepared.frames,
         prepared.masks,
@@ -478,6 +498,7 @@ def fit(
                 "step": step,
                 "train_seconds": train_seconds,
                 "fingerprint": prepared.fingerprint,
+                "motions": model_motions(model),
             },
         )
         reporter.emit(C.EVENT_CHECKPOINT, step=step, path=str(ckpt_path))
@@ -564,8 +585,9 @@ def load_run(run_dir: str | Path, device_name: str = "cpu") -> tuple[AtlasModel,
         rec["source"], rec["masks"], cfg, run_dir, frame_range, reporter, scribble_dir=rec.get("scribbles")
     )
     device = select_device(device_name)
-    model = build_model(cfg, prepared, read_scene_file(run_dir)).to(device)
-    model.load_state_dict(load_checkpoint(run_dir / C.RUN_CHECKPOINT, device)["model"])
+    state = load_checkpoint(run_dir / C.RUN_CHECKPOINT, device)
+    model = build_model(cfg, prepared, read_scene_file(run_dir), state.get("motions")).to(device)
+    model.load_state_dict(state["model"])
     return model.eval(), prepared, cfg
 
 
@@ -587,6 +609,31 @@ def _find_auto_masks(
     if not report.result.found:
         return [], report.result.message
     return [folder], report.result.message
+
+
+def model_motions(model: AtlasModel) -> list[dict[str, Any]] | None:
+    """The fast model's per-layer starting motion and atlas box, for the checkpoint (None: other models)."""
+    motions = getattr(model, "layer_motions", None)
+    if motions is None:
+        return None
+    return [
+        {
+            "to_ref": torch.from_numpy(np.asarray(m.to_ref, np.float64)),
+            "center": torch.from_numpy(np.asarray(m.center, np.float64)),
+            "half_extent": float(m.half_extent),
+            "aspect": [float(a) for a in m.aspect],
+        }
+        for m in motions
+    ]
+
+
+def motion_from_state(rec: dict[str, Any]) -> LayerMotion:
+    return LayerMotion(
+        to_ref=rec["to_ref"].cpu().numpy().astype(np.float64),
+        center=rec["center"].cpu().numpy().astype(np.float64),
+        half_extent=float(rec["half_extent"]),
+        aspect=(float(rec["aspect"][0]), float(rec["aspect"][1])),
+    )
 
 
 def _check_writable(run_dir: Path) -> None:
