@@ -127,8 +127,8 @@ def test_estimate_json(clip, capsys):
     result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert result[C.ESTIMATE_TAG] == C.SCHEMA_VERSION
     draft, balanced = result["presets"]
-    assert (draft["preset"], draft["expected_psnr"]) == ("draft", 25.75)
-    assert balanced["expected_psnr"] == 27.66 and "blackswan" in balanced["expected_psnr_note"]
+    assert (draft["preset"], draft["expected_psnr"]) == ("draft", 25.78)
+    assert balanced["expected_psnr"] == 27.73 and "blackswan" in balanced["expected_psnr_note"]
     for row in (draft, balanced):
         assert row["total_seconds"] >= row["train_seconds"] > 0
         assert row["minutes"] == pytest.approx(row["total_seconds"] / 60, abs=0.06)
@@ -139,7 +139,7 @@ def test_estimate_table(clip, capsys):
     args = ["estimate", str(clip / "frames"), "--mask", str(clip / "masks"), "--presets", "draft"]
     assert main([*args, "--calib-seconds", "0.02", "--threads", "1", "--set", "batch=200"]) == C.EXIT_OK
     out = capsys.readouterr().out
-    assert "| draft | fast | 800 |" in out and "25.75 dB" in out
+    assert "| draft | fast | 800 |" in out and "25.78 dB" in out
 
 
 def test_resolve_clip_layouts(clip):
