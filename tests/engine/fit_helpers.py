@@ -44,3 +44,17 @@ def atlas_consistency_px(model, layer: int, pts_frames: list[np.ndarray], ts: li
             uvs.append(model.uv(layer, xy, torch.full((len(p),), t, dtype=torch.long)).numpy())
     ref = uvs[0]
     return np.concatenate([np.linalg.norm(u - ref, axis=-1) for u in uvs[1:]]) / model.uv_per_px(layer)
+
+
+def object_drift_per_frame(model, scene, k: int, samples: int = 200, seed: int = 0) -> list[float]:
+    """Median atlas drift (pixels) of object ``k``'s texture points in its own layer ``k + 1``: frame 0 vs
+    each later frame (scenes with per-object offsets: make_two_object_scene and its scribble variant)."""
+    rng = np.random.default_rng(seed)
+    ys, xs = np.nonzero(scene.masks[k, 0])
+    sel = rng.choice(len(xs), samples)
+    p0 = np.stack([xs[sel], ys[sel]], -1).astype(float)
+    tex = p0 - scene.offsets[k, 0]
+    return [
+        float(np.median(atlas_consistency_px(model, k + 1, [p0, tex + scene.offsets[k, t]], [0, t])))
+        for t in range(1, scene.spec.frames)
+    ]

@@ -26,7 +26,7 @@ from engine.config import apply_overrides, preset_config
 from engine.errors import InputError
 from engine.synthetic import make_two_object_scene, write_two_object_scene
 from engine.trainer import fit, load_run, render_frame
-from tests.engine.fit_helpers import TINY_OVERRIDES, atlas_consistency_px
+from tests.engine.fit_helpers import TINY_OVERRIDES, object_drift_per_frame
 
 pytestmark = pytest.mark.slow
 
@@ -90,17 +90,9 @@ def test_part_atlas_rigidity_is_reported(fitted):
     asserted."""
     scene, run, _, _ = fitted
     model, _, _ = load_run(run)
-    rng = np.random.default_rng(0)
     drift = []
     for k in range(2):
-        ys, xs = np.nonzero(scene.masks[k, 0])
-        sel = rng.choice(len(xs), 200)
-        p0 = np.stack([xs[sel], ys[sel]], -1).astype(float)
-        tex = p0 - scene.offsets[k, 0]
-        per_t = [
-            float(np.median(atlas_consistency_px(model, k + 1, [p0, tex + scene.offsets[k, t]], [0, t])))
-            for t in range(1, scene.spec.frames)
-        ]
+        per_t = object_drift_per_frame(model, scene, k, seed=k)
         print(f"part {'AB'[k]}: own-layer atlas drift vs frame 0, median px per frame {np.round(per_t, 1).tolist()}")
         drift.append(per_t)
     assert max(drift[1]) < 1.0
