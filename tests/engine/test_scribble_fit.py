@@ -83,11 +83,11 @@ def test_each_scribbled_part_lands_in_its_own_layer(fitted):
     assert clip["scribbles"].endswith("scribbles")
 
 
-def test_part_atlas_rigidity_is_reported(fitted):
+def test_each_part_gets_a_rigid_atlas(fitted):
     """How rigid each part's own atlas is: median atlas distance (px) a part's texture point travels
-    between frame 0 and frame t in its own layer. Part B is rigid (< 1 px); part A's mapping JUMPS by
-    ~29 px between frames 2 and 5 (it holds A twice) at this tiny budget: a known gap, printed, not
-    asserted."""
+    between frame 0 and frame t in its own layer. Measured at most 0.3 px (A) and 0.4 px (B). Before the
+    gauge anchor and the whole-mask atlas box, part A's mapping jumped by ~29 px between frames 2 and 5
+    (its atlas held A twice)."""
     scene, run, _, _ = fitted
     model, _, _ = load_run(run)
     drift = []
@@ -95,7 +95,7 @@ def test_part_atlas_rigidity_is_reported(fitted):
         per_t = object_drift_per_frame(model, scene, k, seed=k)
         print(f"part {'AB'[k]}: own-layer atlas drift vs frame 0, median px per frame {np.round(per_t, 1).tolist()}")
         drift.append(per_t)
-    assert max(drift[1]) < 1.0
+    assert max(drift[0]) < 1.0 and max(drift[1]) < 1.0
 
 
 def test_scribbles_need_one_mask_and_two_colours(fitted, tmp_path):
