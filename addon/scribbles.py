@@ -16,6 +16,7 @@ from __future__ import annotations
 import os
 from typing import Any
 
+from ..engine import contract as C
 from . import scribble_math as S
 
 
@@ -60,12 +61,32 @@ def scribbled_frames(annotation: Any) -> list[int]:
     return sorted(frames)
 
 
-def write_scribbles(clip: Any, out_dir: str, width: int, height: int, file_name: Any) -> list[str]:
+def scribble_labels(annotation: Any, frames: Any = None) -> set[int]:
+    """The colour indices (0 = red, 1 = green, ...) that have strokes, on ``frames`` only when given."""
+    labels: set[int] = set()
+    if annotation is None:
+        return labels
+    wanted = None if frames is None else set(frames)
+    for layer in annotation.layers:
+        label = S.layer_label(tuple(layer.color))
+        if getattr(layer, "annotation_hide", False) or label is None:
+            continue
+        if any(len(f.strokes) and (wanted is None or f.frame_number in wanted) for f in layer.frames):
+            labels.add(label)
+    return labels
+
+
+def write_scribbles(clip: Any, out_dir: str, width: int, height: int, file_name: Any, frames: Any = None) -> list[str]:
     """Write one PNG per scribbled frame into ``out_dir``; ``file_name(scene_frame)`` names it (the plate's
-    file number, like masks: ``mask_math.mask_file_names``). Returns the paths (empty: nothing scribbled)."""
+    file number, like masks: ``mask_math.mask_file_names``). ``frames``: only these scene frames (the fitted
+    range; a scribble outside it would name a frame the engine does not read). Returns the paths (empty:
+    nothing scribbled)."""
     annotation = clip_annotation(clip)
+    wanted = None if frames is None else set(frames)
     paths = []
     for frame in scribbled_frames(annotation):
+        if wanted is not None and frame not in wanted:
+            continue
         rows = S.rasterize(frame_strokes(annotation, frame, width, height), width, height)
         os.makedirs(out_dir, exist_ok=True)
         path = os.path.join(out_dir, file_name(frame))
@@ -73,3 +94,23 @@ def write_scribbles(clip: Any, out_dir: str, width: int, height: int, file_name:
             f.write(S.encode_png(rows))
         paths.append(path)
     return paths
+
+
+def clear_scribbles(out_dir: str) -> None:
+    """Remove the scribble PNGs a previous fit wrote into the add-on's own ``out_dir`` (a frame whose strokes
+    the artist has since erased must not keep its old scribble). Only numbered ``.png`` files are touched."""
+    if not os.path.isdir(out_dir):
+        return
+    for name in os.listdir(out_dir):
+        stem, ext = os.path.splitext(name)
+        if ext.lower() == ".png" and stem.isdigit():
+            os.remove(os.path.join(out_dir, name))
+
+
+def legend() -> list[tuple[str, str]]:
+    """(colour name, what it marks) for the panel, from the engine's colour code."""
+    names = {(255, 0, 0): "red", (0, 255, 0): "green", (0, 0, 255): "blue", (255, 255, 0): "yellow"}
+    out = []
+    for k, rgb in enumerate(C.SCRIBBLE_COLOURS):
+        out.append((names.get(tuple(rgb), "#{:02x}{:02x}{:02x}".format(*rgb)), f"part {k + 1} (Foreground{k + 1})"))
+    return out
