@@ -9,7 +9,7 @@ import shlex
 from typing import Any
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, FloatProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
 from ..engine import contract as C
 from . import compositor, estimate, mask_math, masks, paint, preferences, scribbles
@@ -504,6 +504,26 @@ class NEURALATLAS_OT_find_masks(_EngineOperator, bpy.types.Operator):
         return {"FINISHED"}
 
 
+class NEURALATLAS_OT_scribble_layers(bpy.types.Operator):
+    """Add annotation layers in the scribble colours to the clip (part 1 red, part 2 green, ...); draw on them
+    with the Annotate tool"""
+
+    bl_idname = "neural_atlas.scribble_layers"
+    bl_label = "Add Scribble Layers"
+
+    parts: IntProperty(name="Parts", default=2, min=2, max=len(C.SCRIBBLE_COLOURS))
+
+    def execute(self, context):
+        props = context.scene.neural_atlas
+        if props.clip is None:
+            self.report({"ERROR"}, "choose the clip to scribble on")
+            return {"CANCELLED"}
+        data = bpy.data.annotations if hasattr(bpy.data, "annotations") else bpy.data.grease_pencils
+        names = scribbles.ensure_scribble_layers(props.clip, self.parts, data.new)
+        self.report({"INFO"}, f"scribble layers: {', '.join(names)}; draw on each with the Annotate tool")
+        return {"FINISHED"}
+
+
 class NEURALATLAS_OT_estimate(bpy.types.Operator):
     """Time a few steps of every preset on this clip with the engine (replaces the documented estimate)"""
 
@@ -700,6 +720,7 @@ class NEURALATLAS_OT_layer_remove(bpy.types.Operator):
 classes = (
     NEURALATLAS_OT_fit,
     NEURALATLAS_OT_find_masks,
+    NEURALATLAS_OT_scribble_layers,
     NEURALATLAS_OT_estimate,
     NEURALATLAS_OT_cancel,
     NEURALATLAS_OT_import,

@@ -5,10 +5,13 @@ part, green the second, ...: ``engine.contract.SCRIBBLE_COLOURS``), on one or a 
 frames that hold an annotation keyframe are written (the engine accepts sparse frames).
 
 Versions: 4.5 keeps the clip's annotations in ``clip.grease_pencil`` (legacy GreasePencil), 5.0 in
-``clip.annotation`` (Annotation); layers, frames, strokes and points read the same on both. Neither
-version can create strokes from Python (``frame.strokes`` has no ``new``), so the stroke reading is
-tested on stand-in objects and the datablock access on real ones (tests/addon/test_scribbles.py).
-The layer's ``thickness`` is in screen pixels; it is taken as the stroke's width in frame pixels.
+``clip.annotation`` (Annotation); layers, frames, strokes and points read the same on both. An
+annotation keyframe's ``frame_number`` is the SCENE frame (measured: clip starting at 2, scene frame 3
+-> 3). ``frame.strokes`` has no ``new``, but the Annotate operator run in a Movie Clip Editor area with a
+``stroke`` list draws a real stroke on both versions; headless its points are NaN (the editor's
+stabilisation matrix exists only once it has drawn) and ``point.co`` is writable, which is how
+tests/addon/test_scribble_fit.py builds real strokes. The layer's ``thickness`` is in screen pixels; it
+is taken as the stroke's width in frame pixels.
 """
 
 from __future__ import annotations
@@ -59,6 +62,38 @@ def scribbled_frames(annotation: Any) -> list[int]:
             continue
         frames |= {f.frame_number for f in layer.frames if len(f.strokes)}
     return sorted(frames)
+
+
+#: Annotation thickness (screen pixels, taken as frame pixels) of the layers the add-on creates: a stroke
+#: 6 px wide marks a part clearly without bleeding over a thin limb's edges.
+SCRIBBLE_THICKNESS = 6
+
+
+def ensure_scribble_layers(clip: Any, parts: int, new_annotation: Any) -> list[str]:
+    """Give ``clip`` one annotation layer per part in the code colours ("Part 1 (red)", ...), keeping any
+    layer that already has a part's colour; the first part's layer becomes the active one (the Annotate
+    tool draws on it). ``new_annotation(name)`` makes the datablock when the clip has none (4.5:
+    ``bpy.data.grease_pencils.new``, 5.0: ``bpy.data.annotations.new``). Returns the names of the layers
+    the parts are drawn on."""
+    annotation = clip_annotation(clip)
+    if annotation is None:
+        annotation = new_annotation(f"{clip.name} scribbles")
+        setattr(clip, "annotation" if hasattr(clip, "annotation") else "grease_pencil", annotation)
+    existing = {}
+    for layer in annotation.layers:
+        label = S.layer_label(tuple(layer.color))
+        if label is not None and label not in existing:
+            existing[label] = layer.info
+    names = []
+    for k, (colour, _) in enumerate(legend()[:parts]):
+        if k not in existing:
+            layer = annotation.layers.new(f"Part {k + 1} ({colour})")
+            layer.color = tuple(c / 255.0 for c in C.SCRIBBLE_COLOURS[k])
+            layer.thickness = SCRIBBLE_THICKNESS
+            existing[k] = layer.info
+        names.append(existing[k])
+    annotation.layers.active_note = names[0]
+    return names
 
 
 def scribble_labels(annotation: Any, frames: Any = None) -> set[int]:

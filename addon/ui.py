@@ -44,6 +44,7 @@ def _draw_scribbles(box, props) -> None:
     box.label(text="Annotate tool, one annotation layer per colour:", icon="GREASEPENCIL")
     for colour, meaning in scribbles.legend():
         box.label(text=f"{colour.title()}: {meaning}", icon=COLOUR_ICONS.get(colour, "NONE"))
+    box.operator("neural_atlas.scribble_layers", icon="ADD")
     box.label(text="A few strokes on a few frames are enough")
     if len(props.layers) != 1:
         box.label(text="Keep exactly one foreground layer: the whole object", icon="ERROR")

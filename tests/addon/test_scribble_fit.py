@@ -1,8 +1,13 @@
 """Fit Atlas with "Split with Scribbles" (paper Sec. 4.4) inside Blender, with the fake engine: the clip's
 annotation strokes are rasterized into the run's scribble folder (exact pixels), the fit gets exactly one
 --mask and --scribbles, the refusals are clear and start no engine, and the three-layer import shows every
-layer. Annotation strokes cannot be created from Python on 4.5 or 5.0 (test_scribbles.py), so the clip's
-annotation is a stand-in shaped like the RNA, returned by a patched ``scribbles.clip_annotation``.
+layer.
+
+Real strokes: the Annotate operator, run in a Movie Clip Editor area with a ``stroke`` list, draws a real
+stroke (right point count, on the scene's current frame) on 4.5 and 5.0; headless its points are NaN (the
+editor's stabilisation matrix is only computed when it draws), so the test then writes each point's ``co``
+(writable on both). The other tests use a stand-in annotation shaped like the RNA (patched
+``scribbles.clip_annotation``), which is quicker to vary.
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ bpy = pytest.importorskip("bpy")
 from fake_export import FRAMES, H, W, make_export, write_png  # noqa: E402
 from helpers import fake_python  # noqa: E402
 from neural_atlas.addon import compat, operators, scribbles  # noqa: E402
+from neural_atlas.addon import scribble_math as S  # noqa: E402
 from test_scribbles import _decode_rgb_png  # noqa: E402
 
 from engine import contract as C  # noqa: E402
@@ -36,7 +42,7 @@ def _layer(colour, thickness, strokes_by_frame, hide=False):
 
 
 @pytest.fixture
-def scribble_scene(blender, tmp_path, monkeypatch):
+def plain_scene(blender, tmp_path, monkeypatch):
     """The fake export's plate (files 00003..00005 = scene frames 1..3), one mask folder, the fake engine."""
     make_export(tmp_path / "src")
     clip = bpy.data.movieclips.load(str(tmp_path / "src" / "plate" / f"{FRAMES[0]:05d}.png"))
@@ -51,6 +57,14 @@ def scribble_scene(blender, tmp_path, monkeypatch):
     layer.folder = str(mask_dir)
     props.run_dir = str(tmp_path / "run")
     props.use_scribbles = True
+    return props
+
+
+@pytest.fixture
+def scribble_scene(plain_scene, monkeypatch):
+    """``plain_scene`` whose clip's annotation is a stand-in (set its ``layers``)."""
+    props = plain_scene
+    clip = props.clip
     annotation = NS(layers=[])
     monkeypatch.setattr(scribbles, "clip_annotation", lambda c: annotation if c == clip else None)
     return props, annotation
@@ -188,3 +202,61 @@ def test_panel_says_which_colour_marks_which_part(scribble_scene):
     assert ("red, green on frame(s) 1, 3", "CHECKMARK") in _panel_labels(bpy.context)
     props.layers.add()
     assert ("Keep exactly one foreground layer: the whole object", "ERROR") in _panel_labels(bpy.context)
+
+
+def _draw_real_stroke(clip, layer_name: str, frame: int, points: list[tuple[float, float]]) -> None:
+    """A real annotation stroke on ``layer_name`` at scene ``frame`` (the Annotate operator in a clip editor),
+    then its points placed at ``points`` (frame-normalised; the operator leaves NaN headless)."""
+    scene = bpy.context.scene
+    scene.frame_set(frame)
+    window = bpy.context.window_manager.windows[0]
+    area = window.screen.areas[0]
+    area.type = "CLIP_EDITOR"
+    space = area.spaces.active
+    space.clip = clip
+    region = next(r for r in area.regions if r.type == "WINDOW")
+    scribbles.clip_annotation(clip).layers.active_note = layer_name
+    stroke = [
+        {"name": "", "location": (0, 0, 0), "mouse": (10.0 + 10 * i, 10.0), "mouse_event": (0, 0), "is_start": i == 0}
+        | {"pressure": 1.0, "size": 1.0, "time": float(i), "x_tilt": 0.0, "y_tilt": 0.0}
+        for i in range(len(points))
+    ]
+    with bpy.context.temp_override(window=window, area=area, region=region, space_data=space):
+        assert bpy.ops.gpencil.annotate(mode="DRAW", wait_for_input=False, stroke=stroke) == {"FINISHED"}
+    layer = next(lyr for lyr in scribbles.clip_annotation(clip).layers if lyr.info == layer_name)
+    gp_frame = next(f for f in layer.frames if f.frame_number == frame)
+    real = gp_frame.strokes[len(gp_frame.strokes) - 1]
+    assert len(real.points) == len(points)
+    for p, (x, y) in zip(real.points, points, strict=True):
+        p.co = (x, y, 0.0)
+
+
+def test_real_annotation_strokes_from_the_scribble_layers(plain_scene, tmp_path):
+    props = plain_scene
+    clip = props.clip
+    assert bpy.ops.neural_atlas.scribble_layers("EXEC_DEFAULT", parts=2) == {"FINISHED"}
+    annotation = scribbles.clip_annotation(clip)
+    assert [(lyr.info, S.layer_label(tuple(lyr.color)), lyr.thickness) for lyr in annotation.layers] == [
+        ("Part 1 (red)", 0, scribbles.SCRIBBLE_THICKNESS),
+        ("Part 2 (green)", 1, scribbles.SCRIBBLE_THICKNESS),
+    ]
+    assert annotation.layers.active_note == "Part 1 (red)"
+    assert bpy.ops.neural_atlas.scribble_layers("EXEC_DEFAULT", parts=3) == {"FINISHED"}  # adds blue, keeps both
+    assert sorted(lyr.info for lyr in annotation.layers) == ["Part 1 (red)", "Part 2 (green)", "Part 3 (blue)"]
+    annotation.layers.remove(next(lyr for lyr in annotation.layers if lyr.info == "Part 3 (blue)"))
+
+    red_stroke = [(0.1, 0.3), (0.3, 0.4), (0.45, 0.4)]
+    green_stroke = [(0.55, 0.7), (0.9, 0.75)]
+    _draw_real_stroke(clip, "Part 1 (red)", 2, red_stroke)
+    _draw_real_stroke(clip, "Part 2 (green)", 2, green_stroke)
+    assert scribbles.scribbled_frames(annotation) == [2]
+    assert bpy.ops.neural_atlas.fit("EXEC_DEFAULT") == {"FINISHED"}, props.status
+    folder = tmp_path / "run.scribbles"
+    assert sorted(p.name for p in folder.iterdir()) == ["00004.png"]  # scene frame 2 = plate file 00004
+    labels = _labels(folder / "00004.png")
+    radius = scribbles.SCRIBBLE_THICKNESS / 2
+    red, green = _expected(red_stroke, radius), _expected(green_stroke, radius)
+    assert not (red & green).any()
+    assert np.array_equal(labels == 0, red) and np.array_equal(labels == 1, green)
+    assert np.array_equal(labels == -1, ~(red | green))
+    assert props.imported_layers == "Background, Foreground1, Foreground2"
