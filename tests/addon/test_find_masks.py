@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import os
 import subprocess
+import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -144,3 +146,29 @@ def test_find_masks_errors_name_the_fix_and_the_log(masks_scene, tmp_path, monke
     assert props.status == "Find Masks: cancelled. The layers are unchanged"
     assert len(props.layers) == 0 and operators._SESSIONS == {}
     assert props.log_path == str(tmp_path / "run") + ".masks.log"
+
+
+def test_find_masks_modal_path_with_timer_events(masks_scene, tmp_path):
+    """The UI path without an event loop: the modal operator polled by hand-made TIMER events (none fire
+    headless), then the layer is added as on the blocking path."""
+    props, root = masks_scene
+    props.clip = bpy.data.movieclips.load(str(root / "moving" / "frames" / "00000.png"))
+    context = bpy.context
+    session = operators.MasksSession(context)
+    reports = []
+    op = SimpleNamespace(_session=session, report=lambda level, msg: reports.append((level, msg)))
+    op._timer = context.window_manager.event_timer_add(0.1, window=context.window)
+    op._finish = lambda ctx, s: operators.NEURALATLAS_OT_find_masks._finish(op, ctx, s)
+    operators._SESSIONS[session.scene_name] = session
+    props.running = True
+    session.start()
+    assert not bpy.ops.neural_atlas.find_masks.poll() and not bpy.ops.neural_atlas.fit.poll()  # one at a time
+    for _ in range(1500):
+        ret = operators.NEURALATLAS_OT_find_masks.modal(op, context, SimpleNamespace(type="TIMER"))
+        if ret != {"PASS_THROUGH"}:
+            break
+        time.sleep(0.02)
+    assert ret == {"FINISHED"}, reports
+    assert reports[-1][0] == {"INFO"} and "foreground layer 1" in reports[-1][1]
+    assert [lyr.folder for lyr in props.layers] == [str(tmp_path / "run" / operators.AUTO_MASKS_DIR)]
+    assert not props.running and operators._SESSIONS == {} and bpy.ops.neural_atlas.find_masks.poll()
