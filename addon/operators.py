@@ -26,6 +26,8 @@ AUTO_MASKS_DIR = "auto_masks"
 #: start when nothing moved (engine/auto_masks.py): the engine still writes empty masks and exits 0 then.
 MASKS_SUMMARY_PREFIX = "auto masks: "
 MASKS_NOTHING_FOUND = "no foreground"
+#: The Movie Clip the found masks are loaded as, for checking (Blender numbers repeats: NA_AutoMasks.001).
+AUTO_MASKS_CLIP = f"{P.PREFIX}AutoMasks"
 
 
 def is_running(scene: Any) -> bool:
@@ -498,8 +500,12 @@ class NEURALATLAS_OT_find_masks(_EngineOperator, bpy.types.Operator):
         layer.source = "FOLDER"
         layer.folder = session.out_dir
         props.layer_index = len(props.layers) - 1
+        # the masks as a clip of their own, to scrub through in the clip editor (the plate stays the fitted clip)
+        check = bpy.data.movieclips.load(files[0], check_existing=False)
+        check.name = AUTO_MASKS_CLIP
+        check.colorspace_settings.name = "Non-Color"
         props.progress = 1.0
-        props.status = f"Find Masks: {summary}; check them in {session.out_dir} before fitting"
+        props.status = f"Find Masks: {summary}; check them (clip {check.name}) before fitting"
         self.report({"INFO"}, f"Find Masks: {summary} -> foreground layer {len(props.layers)} ({session.out_dir})")
         return {"FINISHED"}
 

@@ -89,7 +89,10 @@ def test_find_masks_adds_a_layer_that_matches_the_true_masks(masks_scene, tmp_pa
     layer = props.layers[0]
     out = tmp_path / "run" / operators.AUTO_MASKS_DIR
     assert layer.source == "FOLDER" and layer.folder == str(out)
-    assert props.status.startswith("Find Masks: foreground in 6/6 frames") and str(out) in props.status
+    assert props.status.startswith("Find Masks: foreground in 6/6 frames")
+    check = bpy.data.movieclips[operators.AUTO_MASKS_CLIP]  # to scrub through in the clip editor
+    assert check.source == "SEQUENCE" and check.frame_duration == 6 and tuple(check.size) == (96, 64)
+    assert check.filepath == str(out / "00000.png") and props.clip.name == "00000.png"
     argv = Path(props.log_path).read_text().splitlines()[0].split(" ")
     assert argv[argv.index(C.VERB_MASKS) + 1] == str(root / "moving" / "frames")
     assert argv[argv.index("--frames") + 1] == "0:5"
@@ -121,6 +124,7 @@ def test_find_masks_on_a_static_clip_reports_and_keeps_the_layers(masks_scene, t
     assert props.status.endswith("The layers are unchanged")
     assert [lyr.folder for lyr in props.layers] == ["/somewhere/hand_made_masks"]
     assert not (tmp_path / "run" / operators.AUTO_MASKS_DIR).exists()  # its empty masks are not left behind
+    assert operators.AUTO_MASKS_CLIP not in bpy.data.movieclips
     assert "no foreground found" in Path(props.log_path).read_text()
     assert not props.running and operators._SESSIONS == {}
 
