@@ -1,4 +1,5 @@
-"""Operators: Fit Atlas (modal in the UI, blocking in background mode), Cancel, Import, Render, Paint."""
+"""Operators: Fit Atlas and Find Masks (modal in the UI, blocking in background mode), Cancel, Import, Render,
+Paint."""
 
 from __future__ import annotations
 
@@ -8,16 +9,25 @@ import shlex
 from typing import Any
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, FloatProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
 from ..engine import contract as C
-from . import compositor, estimate, mask_math, masks, paint, preferences
+from . import compositor, estimate, mask_math, masks, paint, preferences, scribbles
 from . import engine_process as EP
 from . import engine_setup as ES
 from . import tree_plan as P
 
-#: running fits by scene name, so Cancel (another operator) can reach the modal operator's job
-_SESSIONS: dict[str, FitSession] = {}
+#: running engine sessions (a fit or a mask search) by scene name, so Cancel (another operator) can reach the
+#: modal operator's job, and a second one cannot start in the same scene
+_SESSIONS: dict[str, EngineSession] = {}
+#: The Find Masks output, inside the Run Folder (a numbered sibling when it already holds masks).
+AUTO_MASKS_DIR = "auto_masks"
+#: What ``engine masks`` prints before its one-line summary (engine/cli.py ``_cmd_masks``), and the summary's
+#: start when nothing moved (engine/auto_masks.py): the engine still writes empty masks and exits 0 then.
+MASKS_SUMMARY_PREFIX = "auto masks: "
+MASKS_NOTHING_FOUND = "no foreground"
+#: The Movie Clip the found masks are loaded as, for checking (Blender numbers repeats: NA_AutoMasks.001).
+AUTO_MASKS_CLIP = f"{P.PREFIX}AutoMasks"
 
 
 def is_running(scene: Any) -> bool:
@@ -51,18 +61,54 @@ def clip_range(props: Any) -> tuple[int, int]:
     return first, last
 
 
-def engine_inputs(props: Any, run_dir: str) -> tuple[str, list[str], list[str]]:
-    """(plate, ["--mask", dir, ..., "--frames", "A:B"], ["--set", k=v, ...]); rasterizes Mask layers."""
+def scribble_dir(run_dir: str) -> str:
+    """Where Fit Atlas rasterizes the clip's scribbles (beside the Run Folder, like the rasterized masks)."""
+    return run_dir + ".scribbles"
+
+
+def scribble_args(clip: Any, run_dir: str, frames: list[int], first_number: int | None) -> list[str]:
+    """Rasterize the clip's code-coloured annotation strokes on ``frames``; [SCRIBBLE_ARG, folder]."""
+    colours = ", ".join(f"part {i + 1} in {name}" for i, (name, _) in enumerate(scribbles.legend()[:2]))
+    labels = scribbles.scribble_labels(scribbles.clip_annotation(clip), frames)
+    if not labels:
+        raise UserError(
+            f"Split with Scribbles: clip {clip.name!r} has no annotation strokes in the scribble colours on "
+            f"frames {frames[0]}-{frames[-1]}: with the Annotate tool draw {colours}"
+        )
+    if max(labels) < 1:
+        raise UserError("Split with Scribbles: only red strokes, so nothing is split: scribble the other part in green")
+    folder = scribble_dir(run_dir)
+    scribbles.clear_scribbles(folder)
+    offset = first_number or 0  # a movie's frames are numbered from 0, a sequence's by its files
+
+    def name(frame: int) -> str:
+        return C.SCRIBBLE_FILE_FORMAT.format(offset + frame - clip.frame_start)
+
+    width, height = clip.size
+    scribbles.write_scribbles(clip, folder, width, height, name, frames)
+    return [C.SCRIBBLE_ARG, folder]
+
+
+def engine_inputs(props: Any, run_dir: str, with_scribbles: bool = True) -> tuple[str, list[str], list[str]]:
+    """(plate, ["--mask", dir, ..., "--frames", "A:B"(, "--scribbles", dir)], ["--set", k=v, ...]); rasterizes
+    Mask layers (and, with ``props.use_scribbles``, the clip's scribbles)."""
     clip = props.clip
     if clip is None:
         raise UserError("choose the clip to fit")
     if not props.layers:
         raise UserError("add a foreground layer (a Mask or a folder of mask images)")
+    scribbled = with_scribbles and props.use_scribbles
+    if scribbled and len(props.layers) != 1:
+        raise UserError(
+            f"Split with Scribbles splits one object: keep exactly one foreground layer (the whole object's mask), "
+            f"not {len(props.layers)}, or turn Split with Scribbles off"
+        )
     plate, first_number = clip_plate(clip)
     first, last = clip_range(props)
     frames = list(range(first, last + 1))
     width, height = clip.size
     args = []
+    scribble = scribble_args(clip, run_dir, frames, first_number) if scribbled else []
     names = mask_math.mask_file_names(frames, first_number, clip.frame_start)
     for i, layer in enumerate(props.layers, start=1):
         if layer.source == "MASK":
@@ -76,7 +122,7 @@ def engine_inputs(props: Any, run_dir: str) -> tuple[str, list[str], list[str]]:
                 raise UserError(f"layer {i}: mask folder {folder!r} does not exist")
         args += ["--mask", folder]
     # the engine's --frames are positions in the sequence, not scene frames
-    args += ["--frames", f"{first - clip.frame_start}:{last - clip.frame_start}"]
+    args += ["--frames", f"{first - clip.frame_start}:{last - clip.frame_start}", *scribble]
     sets = []
     for item in [f"long_edge={props.long_edge}", *shlex.split(props.overrides)]:
         sets += ["--set", item]
@@ -91,7 +137,44 @@ def _run_dir(props: Any) -> str:
     return _abs(props.run_dir).rstrip(os.sep)
 
 
-class FitSession:
+class EngineSession:
+    """What the modal operators drive: ``start()``, then ``step()`` until False, then ``result``."""
+
+    scene_name: str
+    log_path: str
+    job: EP.EngineJob | None = None
+    result: EP.JobResult | None = None
+
+    def start(self) -> None:
+        raise NotImplementedError
+
+    def step(self) -> bool:
+        raise NotImplementedError
+
+    def status_text(self) -> str:
+        raise NotImplementedError
+
+    def run_blocking(self, timeout: float | None = None, on_step: Any = None) -> EP.JobResult:
+        import time
+
+        self.start()
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while self.step():
+            if on_step is not None:
+                on_step()
+            if deadline is not None and time.monotonic() > deadline:
+                self.cancel()
+                deadline = None
+            time.sleep(0.1)
+        assert self.result is not None
+        return self.result
+
+    def cancel(self) -> None:
+        if self.job is not None:
+            self.job.cancel()
+
+
+class FitSession(EngineSession):
     """One Fit Atlas run: masks -> ``engine fit`` -> ``engine export`` -> import. Driven by ``step()``."""
 
     def __init__(self, context: Any, resume: bool = False):
@@ -149,25 +232,6 @@ class FitSession:
         self.phase = "done"
         return False
 
-    def run_blocking(self, timeout: float | None = None, on_step: Any = None) -> EP.JobResult:
-        import time
-
-        self.start()
-        deadline = None if timeout is None else time.monotonic() + timeout
-        while self.step():
-            if on_step is not None:
-                on_step()
-            if deadline is not None and time.monotonic() > deadline:
-                self.cancel()
-                deadline = None
-            time.sleep(0.1)
-        assert self.result is not None
-        return self.result
-
-    def cancel(self) -> None:
-        if self.job is not None:
-            self.job.cancel()
-
     def status_text(self) -> str:
         if self.job is None:
             return "starting…"
@@ -177,7 +241,87 @@ class FitSession:
         return st.summary()
 
 
-def _show(props: Any, session: FitSession) -> None:
+def _fresh_dir(base: str) -> str:
+    """``base``, else ``base_2``, ``base_3``...: the first that is missing or empty (masks are never overwritten,
+    an artist may have fixed the last ones)."""
+    candidate, n = base, 1
+    while os.path.exists(candidate) and (not os.path.isdir(candidate) or os.listdir(candidate)):
+        n += 1
+        candidate = f"{base}_{n}"
+    return candidate
+
+
+def masks_summary(log_path: str) -> str:
+    """The engine's one-line summary of a mask search (the last ``auto masks: ...`` line of the log), or ""."""
+    try:
+        with open(log_path, encoding="utf-8", errors="replace") as f:
+            lines = [ln.strip() for ln in f if ln.startswith(MASKS_SUMMARY_PREFIX)]
+    except OSError:
+        return ""
+    return lines[-1].removeprefix(MASKS_SUMMARY_PREFIX) if lines else ""
+
+
+class MasksSession(EngineSession):
+    """Find Masks: ``engine masks CLIP --out RUN/auto_masks --frames A:B``; the operator then adds a layer."""
+
+    def __init__(self, context: Any):
+        scene = context.scene
+        props = scene.neural_atlas
+        self.scene_name = scene.name
+        python = preferences.engine_python(context)
+        if not python:
+            raise UserError("no engine Python: run Set up engine in the add-on's preferences")
+        clip = props.clip
+        if clip is None:
+            raise UserError("choose the clip to find masks in")
+        run_dir = _run_dir(props)
+        plate, _ = clip_plate(clip)
+        first, last = clip_range(props)
+        if last <= first:
+            raise UserError("Find Masks needs at least two frames: the foreground is found by what moves")
+        self.out_dir = _fresh_dir(os.path.join(run_dir, AUTO_MASKS_DIR))
+        self.created = not os.path.exists(self.out_dir)
+        self.log_path = run_dir + ".masks.log"
+        frames = f"{first - clip.frame_start}:{last - clip.frame_start}"
+        self.argv = ES.engine_argv(python, C.VERB_MASKS, plate, "--out", self.out_dir, "--frames", frames)
+        self.summary = ""
+        self.job = None
+        self.result = None
+
+    def start(self) -> None:
+        os.makedirs(os.path.dirname(self.log_path) or ".", exist_ok=True)
+        if os.path.exists(self.log_path):
+            os.remove(self.log_path)  # the add-on's own log of the previous search
+        self.job = EP.EngineJob(self.argv, self.log_path, env=ES.engine_env()).start()
+
+    def step(self) -> bool:
+        assert self.job is not None
+        self.job.poll()
+        if not self.job.done():
+            return True
+        self.result = self.job.result()
+        self.summary = masks_summary(self.log_path)
+        return False
+
+    def mask_files(self) -> list[str]:
+        if not os.path.isdir(self.out_dir):
+            return []
+        return sorted(os.path.join(self.out_dir, n) for n in os.listdir(self.out_dir) if n.lower().endswith(".png"))
+
+    def discard(self) -> None:
+        """Remove the (empty) masks this search wrote into its fresh folder, and the folder if it made it."""
+        for path in self.mask_files():
+            os.remove(path)
+        if self.created and os.path.isdir(self.out_dir) and not os.listdir(self.out_dir):
+            os.rmdir(self.out_dir)
+
+    def status_text(self) -> str:
+        if self.job is None:
+            return "starting…"
+        return self.job.state.message or "finding what moves…"
+
+
+def _show(props: Any, session: EngineSession) -> None:
     if session.job is not None:
         props.progress = session.job.state.fraction
     props.status = session.status_text()
@@ -201,59 +345,45 @@ def import_manifest(
     if setup_paint:
         paint.setup_canvases(context, plan.layers)
     props.manifest = manifest_path
+    props.imported_layers = ", ".join(plan.layers)
     return plan
 
 
-class NEURALATLAS_OT_fit(bpy.types.Operator):
-    """Fit layered neural atlases to the clip with the engine, then import the result"""
+class _EngineOperator:
+    """Blocking ``execute`` (background mode, scripts, tests), modal ``invoke`` polled by a 0.1 s timer (the UI;
+    ESC or the Cancel button stops the engine). Subclasses make the session and finish it."""
 
-    bl_idname = "neural_atlas.fit"
-    bl_label = "Fit Atlas"
-
-    resume: BoolProperty(name="Resume", default=False, options={"SKIP_SAVE"})
-    timeout: FloatProperty(name="Timeout", default=0.0, options={"SKIP_SAVE", "HIDDEN"}, description="0: none")
-
+    timeout: float
     _timer = None
-    _session: FitSession | None = None
+    _session: EngineSession | None = None
 
     @classmethod
     def poll(cls, context):
         # the live session, not the saved flag: a .blend saved during a fit must not block the next one
         return context.scene is not None and not is_running(context.scene)
 
-    def _prepare(self, context) -> FitSession | None:
+    def _make_session(self, context) -> EngineSession:
+        raise NotImplementedError
+
+    def _finish(self, context, session: EngineSession) -> set[str]:
+        raise NotImplementedError
+
+    def _prepare(self, context) -> EngineSession | None:
         props = context.scene.neural_atlas
         try:
-            return FitSession(context, resume=self.resume)
-        except (UserError, RuntimeError) as exc:
+            return self._make_session(context)
+        except (UserError, RuntimeError, OSError) as exc:
             props.status = str(exc)
             self.report({"ERROR"}, str(exc))
             return None
 
-    def _finish(self, context, session: FitSession) -> set[str]:
+    def _end(self, context, session: EngineSession) -> EP.JobResult:
         props = context.scene.neural_atlas
         _SESSIONS.pop(session.scene_name, None)
         props.running = False
         props.log_path = session.log_path
-        result = session.result
-        assert result is not None
-        props.can_resume = os.path.exists(os.path.join(session.run_dir, C.RUN_CHECKPOINT))
-        if result.status == EP.STATUS_OK and session.manifest:
-            try:
-                import_manifest(context, session.manifest)
-            except (C.ManifestError, P.PlanError, RuntimeError) as exc:
-                props.status = f"import failed: {exc}"
-                self.report({"ERROR"}, f"{props.status} (log: {session.log_path})")
-                return {"CANCELLED"}
-            props.progress = 1.0
-            props.status = "done: the atlas is in the compositor"
-            props.can_resume = False
-            self.report({"INFO"}, f"Fit Atlas done; imported {session.manifest}")
-            return {"FINISHED"}
-        props.status = result.message
-        level = "WARNING" if result.status == EP.STATUS_CANCELLED else "ERROR"
-        self.report({level}, f"Fit Atlas {result.status}: {result.message} (log: {session.log_path})")
-        return {"CANCELLED"}
+        assert session.result is not None
+        return session.result
 
     def execute(self, context):
         session = self._prepare(context)
@@ -297,6 +427,109 @@ class NEURALATLAS_OT_fit(bpy.types.Operator):
         return self._finish(context, session)
 
 
+class NEURALATLAS_OT_fit(_EngineOperator, bpy.types.Operator):
+    """Fit layered neural atlases to the clip with the engine, then import the result"""
+
+    bl_idname = "neural_atlas.fit"
+    bl_label = "Fit Atlas"
+
+    resume: BoolProperty(name="Resume", default=False, options={"SKIP_SAVE"})
+    timeout: FloatProperty(name="Timeout", default=0.0, options={"SKIP_SAVE", "HIDDEN"}, description="0: none")
+
+    def _make_session(self, context) -> EngineSession:
+        return FitSession(context, resume=self.resume)
+
+    def _finish(self, context, session: FitSession) -> set[str]:
+        props = context.scene.neural_atlas
+        result = _EngineOperator._end(self, context, session)
+        props.can_resume = os.path.exists(os.path.join(session.run_dir, C.RUN_CHECKPOINT))
+        if result.status == EP.STATUS_OK and session.manifest:
+            try:
+                plan = import_manifest(context, session.manifest)
+            except (C.ManifestError, P.PlanError, RuntimeError) as exc:
+                props.status = f"import failed: {exc}"
+                self.report({"ERROR"}, f"{props.status} (log: {session.log_path})")
+                return {"CANCELLED"}
+            props.progress = 1.0
+            props.status = f"done: {len(plan.layers)} layers in the compositor ({', '.join(plan.layers)})"
+            props.can_resume = False
+            self.report({"INFO"}, f"Fit Atlas done; imported {session.manifest}")
+            return {"FINISHED"}
+        props.status = result.message
+        level = "WARNING" if result.status == EP.STATUS_CANCELLED else "ERROR"
+        self.report({level}, f"Fit Atlas {result.status}: {result.message} (log: {session.log_path})")
+        return {"CANCELLED"}
+
+
+class NEURALATLAS_OT_find_masks(_EngineOperator, bpy.types.Operator):
+    """Find the moving object's masks from motion with the engine and add them as a foreground layer to check
+    (and fix) before fitting"""
+
+    bl_idname = "neural_atlas.find_masks"
+    bl_label = "Find Masks"
+
+    timeout: FloatProperty(name="Timeout", default=0.0, options={"SKIP_SAVE", "HIDDEN"}, description="0: none")
+
+    def _make_session(self, context) -> EngineSession:
+        return MasksSession(context)
+
+    def _finish(self, context, session: MasksSession) -> set[str]:
+        props = context.scene.neural_atlas
+        result = _EngineOperator._end(self, context, session)
+        if result.status == EP.STATUS_CANCELLED:
+            session.discard()  # nothing to resume: a search starts over
+            props.status = "Find Masks: cancelled. The layers are unchanged"
+            self.report({"WARNING"}, f"{props.status} (log: {session.log_path})")
+            return {"CANCELLED"}
+        if result.status != EP.STATUS_OK:
+            props.status = f"Find Masks: {result.message}"
+            self.report({"ERROR"}, f"Find Masks {result.status}: {result.message} (log: {session.log_path})")
+            return {"CANCELLED"}
+        files = session.mask_files()
+        if not files:
+            props.status = f"Find Masks: the engine wrote no masks to {session.out_dir}"
+            self.report({"ERROR"}, f"{props.status} (log: {session.log_path})")
+            return {"CANCELLED"}
+        summary = session.summary or f"{len(files)} masks"
+        if summary.startswith(MASKS_NOTHING_FOUND):
+            session.discard()
+            props.status = f"Find Masks: {summary}. The layers are unchanged"
+            self.report({"WARNING"}, f"{props.status} (log: {session.log_path})")
+            return {"CANCELLED"}
+        layer = props.layers.add()
+        layer.source = "FOLDER"
+        layer.folder = session.out_dir
+        props.layer_index = len(props.layers) - 1
+        # the masks as a clip of their own, to scrub through in the clip editor (the plate stays the fitted clip)
+        check = bpy.data.movieclips.load(files[0], check_existing=False)
+        check.name = AUTO_MASKS_CLIP
+        check.colorspace_settings.name = "Non-Color"
+        props.progress = 1.0
+        props.status = f"Find Masks: {summary}; check them (clip {check.name}) before fitting"
+        self.report({"INFO"}, f"Find Masks: {summary} -> foreground layer {len(props.layers)} ({session.out_dir})")
+        return {"FINISHED"}
+
+
+class NEURALATLAS_OT_scribble_layers(bpy.types.Operator):
+    """Add annotation layers in the scribble colours to the clip (part 1 red, part 2 green, ...); draw on them
+    with the Annotate tool"""
+
+    bl_idname = "neural_atlas.scribble_layers"
+    bl_label = "Add Scribble Layers"
+
+    parts: IntProperty(name="Parts", default=2, min=2, max=len(C.SCRIBBLE_COLOURS))
+
+    def execute(self, context):
+        props = context.scene.neural_atlas
+        if props.clip is None:
+            self.report({"ERROR"}, "choose the clip to scribble on")
+            return {"CANCELLED"}
+        data = bpy.data.annotations if hasattr(bpy.data, "annotations") else bpy.data.grease_pencils
+        names = scribbles.ensure_scribble_layers(props.clip, self.parts, data.new)
+        self.report({"INFO"}, f"scribble layers: {', '.join(names)}; draw on each with the Annotate tool")
+        return {"FINISHED"}
+
+
 class NEURALATLAS_OT_estimate(bpy.types.Operator):
     """Time a few steps of every preset on this clip with the engine (replaces the documented estimate)"""
 
@@ -310,7 +543,7 @@ class NEURALATLAS_OT_estimate(bpy.types.Operator):
             if not python:
                 raise UserError("no engine Python: run Set up engine in the add-on's preferences")
             run_dir = _run_dir(props)
-            plate, masks_and_frames, sets = engine_inputs(props, run_dir)
+            plate, masks_and_frames, sets = engine_inputs(props, run_dir, with_scribbles=False)
         except (UserError, RuntimeError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
@@ -492,6 +725,8 @@ class NEURALATLAS_OT_layer_remove(bpy.types.Operator):
 
 classes = (
     NEURALATLAS_OT_fit,
+    NEURALATLAS_OT_find_masks,
+    NEURALATLAS_OT_scribble_layers,
     NEURALATLAS_OT_estimate,
     NEURALATLAS_OT_cancel,
     NEURALATLAS_OT_import,

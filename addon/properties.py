@@ -66,10 +66,17 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
     )
     layers: CollectionProperty(type=NEURALATLAS_PG_layer)
     layer_index: IntProperty()
+    use_scribbles: BoolProperty(
+        name="Split with Scribbles",
+        default=False,
+        description="Split the one foreground layer into parts (e.g. two legs) marked with the clip's annotation "
+        "strokes: part 1 in red, part 2 in green, part 3 in blue, part 4 in yellow, on a few frames",
+    )
     run_dir: StringProperty(
         name="Run Folder", subtype="DIR_PATH", default="//neural_atlas/", description="Where the fit is written"
     )
     manifest: StringProperty(name="Manifest", subtype="FILE_PATH", description="The imported export")
+    imported_layers: StringProperty(default="", description="The imported run's layers, comma separated")
     filter_type: EnumProperty(
         name="Filter",
         items=[

@@ -6,13 +6,22 @@ import json
 
 import bpy
 
-from . import estimate, operators, preferences
+from . import estimate, operators, preferences, scribbles
+
+#: Theme colour-set icons that show the scribble colours in the panel (default theme: red, green, blue, yellow).
+COLOUR_ICONS = {
+    "red": "COLORSET_01_VEC",
+    "green": "COLORSET_03_VEC",
+    "blue": "COLORSET_04_VEC",
+    "yellow": "COLORSET_09_VEC",
+}
 
 
 class NEURALATLAS_UL_layers(bpy.types.UIList):
     def draw_item(self, context, layout, data, item, icon, active_data, active_propname, index=0):
         row = layout.row(align=True)
-        row.label(text=f"Foreground {index + 1}")
+        split = data.use_scribbles and len(data.layers) == 1
+        row.label(text="Object (split by scribbles)" if split else f"Foreground {index + 1}")
         row.prop(item, "source", text="")
         row.prop(item, "mask" if item.source == "MASK" else "folder", text="")
 
@@ -28,6 +37,25 @@ def _estimate_text(props) -> str:
     except ValueError:
         engine_rows = {}
     return estimate.estimate_text(props.preset, engine_rows, seconds)
+
+
+def _draw_scribbles(box, props) -> None:
+    """Which colour means what (from the engine's colour code), and what the clip holds so far."""
+    box.label(text="Annotate tool, one annotation layer per colour:", icon="GREASEPENCIL")
+    for colour, meaning in scribbles.legend():
+        box.label(text=f"{colour.title()}: {meaning}", icon=COLOUR_ICONS.get(colour, "NONE"))
+    box.operator("neural_atlas.scribble_layers", icon="ADD")
+    box.label(text="A few strokes on a few frames are enough")
+    if len(props.layers) != 1:
+        box.label(text="Keep exactly one foreground layer: the whole object", icon="ERROR")
+    annotation = scribbles.clip_annotation(props.clip) if props.clip is not None else None
+    frames = scribbles.scribbled_frames(annotation)
+    if not frames:
+        box.label(text="No strokes in these colours yet", icon="INFO")
+        return
+    names = [c for k, (c, _) in enumerate(scribbles.legend()) if k in scribbles.scribble_labels(annotation)]
+    shown = ", ".join(str(f) for f in frames[:8]) + (" …" if len(frames) > 8 else "")
+    box.label(text=f"{', '.join(names)} on frame(s) {shown}", icon="CHECKMARK" if len(names) > 1 else "ERROR")
 
 
 class NEURALATLAS_PT_fit(bpy.types.Panel):
@@ -62,6 +90,10 @@ class NEURALATLAS_PT_fit(bpy.types.Panel):
         sub = row.column(align=True)
         sub.operator("neural_atlas.layer_add", icon="ADD", text="")
         sub.operator("neural_atlas.layer_remove", icon="REMOVE", text="")
+        col.operator("neural_atlas.find_masks", icon="VIEWZOOM")
+        col.prop(props, "use_scribbles")
+        if props.use_scribbles:
+            _draw_scribbles(col.box(), props)
         col.prop(props, "run_dir")
         if operators.is_running(context.scene):
             col.progress(factor=props.progress, type="BAR", text=props.status or "running…")
@@ -91,6 +123,8 @@ class NEURALATLAS_PT_edit(bpy.types.Panel):
         col.operator("neural_atlas.import_run", icon="IMPORT")
         if props.manifest:
             col.label(text=props.manifest)
+            if props.imported_layers:
+                col.label(text=f"Layers: {props.imported_layers}", icon="RENDERLAYERS")
         col.prop(props, "filter_type")
         row = col.row(align=True)
         row.operator("neural_atlas.paint_setup", icon="BRUSH_DATA")

@@ -30,7 +30,10 @@ def main(argv: list[str]) -> int:
     if verb == C.VERB_EXPORT:
         from fake_export import make_export
 
-        manifest = make_export(Path(out).parent / (Path(out).name + ".fake_export"))
+        # a scribble fit splits its one object: Background, Foreground1, Foreground2
+        fit_argv = Path(out) / "fake_fit_argv.txt"
+        scribbled = fit_argv.exists() and C.SCRIBBLE_ARG in fit_argv.read_text().split("\n")
+        manifest = make_export(Path(out).parent / (Path(out).name + ".fake_export"), foregrounds=2 if scribbled else 1)
         say(C.EVENT_EXPORTED, manifest=str(manifest))
         print(manifest)
         return 0
@@ -66,6 +69,7 @@ def main(argv: list[str]) -> int:
             break
         time.sleep(0.05)
     Path(out).mkdir(parents=True, exist_ok=True)
+    (Path(out) / "fake_fit_argv.txt").write_text("\n".join(argv))
     say(C.EVENT_DONE, metrics={"psnr": 30.0, "steps": total})
     return 0
 

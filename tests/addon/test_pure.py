@@ -199,6 +199,7 @@ def test_float_edit_layer_wins_over_the_png_when_both_exist(tmp_path):
     spec = next(i for i in P.plan_tree(m, str(mp), edits={"Foreground": png}).images if i.name.endswith("Foreground"))
     assert spec.filepath == png
 
+
 def test_plan_from_a_three_layer_export(tmp_path):
     mp = make_export(tmp_path, foregrounds=2)
     m = C.load_manifest(str(mp))

@@ -1,9 +1,10 @@
 """Scribbles from Movie Clip Editor annotations: the pure raster maths, stroke reading on stand-in
 annotation objects, and the datablock access on real bpy 4.5 / 5.0 annotations.
 
-Neither bpy version can create annotation strokes from Python (``frame.strokes`` has no ``new``), so the
-strokes themselves are stand-ins shaped like the RNA (layer.color/thickness/frames, frame.frame_number/
-strokes, point.co); what bpy can build (clip, annotation datablock, layers, frames) is tested for real.
+``frame.strokes`` has no ``new`` (real strokes need the Annotate operator in a clip editor:
+test_scribble_fit.py), so here the strokes are stand-ins shaped like the RNA (layer.color/thickness/frames,
+frame.frame_number/strokes, point.co); what bpy can build (clip, annotation datablock, layers, frames) is
+tested for real.
 """
 
 from __future__ import annotations
@@ -137,4 +138,4 @@ def test_real_clip_annotation_datablock(tmp_path):
     # a keyframe without strokes is not a scribbled frame, and writes nothing
     assert scribbles.scribbled_frames(ann) == []
     assert scribbles.write_scribbles(clip, str(tmp_path / "scr"), 40, 20, str) == []
-    assert not hasattr(layer.frames[0].strokes, "new")  # why the strokes above are stand-ins
+    assert not hasattr(layer.frames[0].strokes, "new")  # real strokes need the Annotate operator (test_scribble_fit)
