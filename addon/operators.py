@@ -22,10 +22,6 @@ from . import tree_plan as P
 _SESSIONS: dict[str, EngineSession] = {}
 #: The Find Masks output, inside the Run Folder (a numbered sibling when it already holds masks).
 AUTO_MASKS_DIR = "auto_masks"
-#: What ``engine masks`` prints before its one-line summary (engine/cli.py ``_cmd_masks``), and the summary's
-#: start when nothing moved (engine/auto_masks.py): the engine still writes empty masks and exits 0 then.
-MASKS_SUMMARY_PREFIX = "auto masks: "
-MASKS_NOTHING_FOUND = "no foreground"
 #: The Movie Clip the found masks are loaded as, for checking (Blender numbers repeats: NA_AutoMasks.001).
 AUTO_MASKS_CLIP = f"{P.PREFIX}AutoMasks"
 
@@ -251,14 +247,20 @@ def _fresh_dir(base: str) -> str:
     return candidate
 
 
-def masks_summary(log_path: str) -> str:
-    """The engine's one-line summary of a mask search (the last ``auto masks: ...`` line of the log), or ""."""
+def masks_result(log_path: str) -> tuple[bool | None, str]:
+    """What a mask search found, from the engine's ``masks`` event (contract.EVENT_MASKS) in the log: (found,
+    message); (None, "") when the log has none (the engine failed before it finished)."""
+    found: bool | None = None
+    message = ""
     try:
         with open(log_path, encoding="utf-8", errors="replace") as f:
-            lines = [ln.strip() for ln in f if ln.startswith(MASKS_SUMMARY_PREFIX)]
+            for ln in f:
+                msg = C.parse_progress_line(ln)
+                if msg is not None and msg.get("event") == C.EVENT_MASKS:
+                    found, message = bool(msg.get("found")), str(msg.get("message", ""))
     except OSError:
-        return ""
-    return lines[-1].removeprefix(MASKS_SUMMARY_PREFIX) if lines else ""
+        pass
+    return found, message
 
 
 class MasksSession(EngineSession):
@@ -285,6 +287,7 @@ class MasksSession(EngineSession):
         frames = f"{first - clip.frame_start}:{last - clip.frame_start}"
         self.argv = ES.engine_argv(python, C.VERB_MASKS, plate, "--out", self.out_dir, "--frames", frames)
         self.summary = ""
+        self.found: bool | None = None
         self.job = None
         self.result = None
 
@@ -300,7 +303,7 @@ class MasksSession(EngineSession):
         if not self.job.done():
             return True
         self.result = self.job.result()
-        self.summary = masks_summary(self.log_path)
+        self.found, self.summary = masks_result(self.log_path)
         return False
 
     def mask_files(self) -> list[str]:
@@ -491,7 +494,7 @@ class NEURALATLAS_OT_find_masks(_EngineOperator, bpy.types.Operator):
             self.report({"ERROR"}, f"{props.status} (log: {session.log_path})")
             return {"CANCELLED"}
         summary = session.summary or f"{len(files)} masks"
-        if summary.startswith(MASKS_NOTHING_FOUND):
+        if session.found is False:
             session.discard()
             props.status = f"Find Masks: {summary}. The layers are unchanged"
             self.report({"WARNING"}, f"{props.status} (log: {session.log_path})")

@@ -362,6 +362,8 @@ def _cmd_masks(args: argparse.Namespace) -> int:
     )
     for line in report.summary():
         print(line)
+    print(C.progress_line(C.EVENT_MASKS, found=bool(report.result.found), folder=str(report.folder),
+                          message=report.result.message))  # fmt: skip
     print(report.folder)
     return C.EXIT_OK
 

@@ -106,7 +106,17 @@ EVENT_DONE = "done"  # metrics{}
 EVENT_CANCELLED = "cancelled"  # step, checkpoint
 EVENT_ERROR = "error"  # message, log
 EVENT_EXPORTED = "exported"  # manifest (absolute path of the manifest.json an export wrote)
-EVENTS = (EVENT_STAGE, EVENT_PROGRESS, EVENT_CHECKPOINT, EVENT_DONE, EVENT_CANCELLED, EVENT_ERROR, EVENT_EXPORTED)
+EVENT_MASKS = "masks"  # found (bool: a moving object was found), folder, message: what `engine masks` did
+EVENTS = (
+    EVENT_STAGE,
+    EVENT_PROGRESS,
+    EVENT_CHECKPOINT,
+    EVENT_DONE,
+    EVENT_CANCELLED,
+    EVENT_ERROR,
+    EVENT_EXPORTED,
+    EVENT_MASKS,
+)
 
 
 def progress_line(event: str, **fields: Any) -> str:

@@ -168,6 +168,8 @@ def test_cli_writes_one_png_per_frame(small_clip, tmp_path, capsys):
     assert lines[-1] == str(out.resolve())
     assert lines[0].startswith("auto masks: foreground in 6/6 frames")
     assert "IoU against the given masks: mean 0.9" in lines[1]  # measured 0.95
+    event = C.parse_progress_line(lines[-2])  # what the add-on reads (Find Masks)
+    assert event["event"] == C.EVENT_MASKS and event["found"] is True and event["folder"] == str(out.resolve())
     names = sorted(p.name for p in out.iterdir())
     assert names == sorted(p.name for p in frames_dir.iterdir())
     png = cv2.imread(str(out / names[0]), cv2.IMREAD_UNCHANGED)
@@ -201,6 +203,8 @@ def test_cli_no_foreground_writes_empty_masks(tmp_path, capsys):
     assert main([C.VERB_MASKS, str(frames_dir), "--out", str(out)]) == C.EXIT_OK
     printed = capsys.readouterr().out
     assert "no foreground found" in printed
+    events = [C.parse_progress_line(ln) for ln in printed.splitlines()]
+    assert [e["found"] for e in events if e and e["event"] == C.EVENT_MASKS] == [False]
     assert len(list(out.iterdir())) == 4
     assert all(cv2.imread(str(p), cv2.IMREAD_UNCHANGED).max() == 0 for p in out.iterdir())
 
