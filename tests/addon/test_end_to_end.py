@@ -9,7 +9,6 @@ engine has no export/render verbs yet.
 
 from __future__ import annotations
 
-import os
 import subprocess
 import time
 from pathlib import Path
@@ -26,6 +25,7 @@ from fake_export import (  # noqa: E402
     read_exr_rgba,
     reference_frame,
 )
+from helpers import engine_python  # noqa: E402
 from neural_atlas.addon import compat  # noqa: E402
 from neural_atlas.addon import tree_plan as P  # noqa: E402
 
@@ -38,19 +38,7 @@ FAST = "steps=60 bootstrap_steps=30 global_rigidity_steps=20 eval_every=20"
 
 
 def _engine_python() -> str:
-    py = os.environ.get("NEURAL_ATLAS_TEST_ENGINE_PYTHON") or str(ROOT / ".venv" / "bin" / "python")
-    if not os.path.exists(py):
-        pytest.skip(f"no engine Python at {py}")
-    probe = subprocess.run(
-        [py, "-c", "import torch, engine.cli as c; p = c.build_parser(); p.parse_args(['render', '-h'])"],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    if "usage:" not in probe.stdout:
-        pytest.skip(f"engine at {py} has no torch or no render verb yet: {probe.stderr.strip()[-200:]}")
-    return py
+    return engine_python("render", "torch")
 
 
 def _paint(img_name: str, rgba, box) -> None:

@@ -19,7 +19,7 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from helpers import fake_python  # noqa: E402
+from helpers import engine_python, fake_python  # noqa: E402
 from neural_atlas.addon import operators  # noqa: E402
 
 from engine import contract as C  # noqa: E402
@@ -31,19 +31,7 @@ MIN_IOU = 0.93
 
 
 def _engine_python() -> str:
-    py = os.environ.get("NEURAL_ATLAS_TEST_ENGINE_PYTHON") or str(ROOT / ".venv" / "bin" / "python")
-    if not os.path.exists(py):
-        pytest.skip(f"no engine Python at {py}")
-    probe = subprocess.run(
-        [py, "-c", "import cv2, engine.cli as c; c.build_parser().parse_args(['masks', '-h'])"],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    if "usage:" not in probe.stdout:
-        pytest.skip(f"engine at {py} has no masks verb: {probe.stderr.strip()[-200:]}")
-    return py
+    return engine_python("masks", "cv2")
 
 
 @pytest.fixture(scope="module")
