@@ -8,11 +8,12 @@ draft 204 s - 134 s = 70 s for 50 frames at 0.33 Mpx). Steps cost about the same
 
 from __future__ import annotations
 
-#: preset -> (steps, seconds per step) from docs/engine.md
+#: preset -> (steps, seconds per step) from docs/engine.md (session 4: blackswan draft 97 s / 800 steps,
+#: balanced 692 s / 6000 steps; final's steps at balanced's rate)
 PRESET_STEPS: dict[str, tuple[int, float]] = {
-    "draft": (800, 0.167),
-    "balanced": (6000, 0.176),
-    "final": (18000, 0.176),
+    "draft": (800, 0.121),
+    "balanced": (6000, 0.115),
+    "final": (28000, 0.115),
     "paper": (400000, 4.43),
 }
 #: seconds of flow + evaluation per frame per working megapixel (70 s / 50 frames / 0.332 Mpx)

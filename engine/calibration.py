@@ -36,8 +36,8 @@ from engine.video import build_video_tensors, frame_pixels
 #: Full-frame PSNR of complete fits with each preset, measured on blackswan (50 frames, 768x432, 2-core
 #: CPU; docs/engine.md). None: not measured yet.
 BENCHMARK_TABLE: dict[str, dict[str, Any]] = {
-    "draft": {"psnr": 25.78, "clip": "blackswan", "note": "measured on blackswan, docs/engine.md"},
-    "balanced": {"psnr": 27.73, "clip": "blackswan", "note": "measured on blackswan, docs/engine.md"},
+    "draft": {"psnr": 26.01, "clip": "blackswan", "note": "measured on blackswan, docs/engine.md"},
+    "balanced": {"psnr": 28.73, "clip": "blackswan", "note": "measured on blackswan, docs/engine.md"},
     "final": {"psnr": None, "clip": "blackswan", "note": "not yet measured"},
     "paper": {
         "psnr": None,

@@ -171,6 +171,9 @@ def _add_bench_parsers(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--eval-frames", type=int, default=5, help="frames evaluated (default: 5; 0 = all)")
     b.add_argument("--slice-seconds", type=float, default=5.0, help="interleaving slice (default: 5)")
     b.add_argument("--sequential", action="store_true", help="run presets one after another, not interleaved")
+    b.add_argument(
+        "--eval-at", default="", metavar="S,S,...", help="also evaluate at these training seconds (e.g. 180,600,1200)"
+    )
     b.add_argument("--eval-at-start", action="store_true", help="also evaluate each model before its first step")
     b.add_argument("--stride", type=int, default=4, help="pixel grid of the consistency and tracking search")
     b.add_argument("--set", action="append", default=[], metavar="[PRESET.]KEY=VALUE", help="config override")
@@ -191,6 +194,15 @@ def _add_bench_parsers(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--device", default="auto")
     e.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
     e.add_argument("--json", action="store_true", help="print one JSON object (contract.ESTIMATE_TAG) instead")
+
+
+def parse_eval_at(text: str) -> tuple[float, ...]:
+    """``--eval-at 180,600,1200`` -> (180.0, 600.0, 1200.0); a bad entry is a one-line input error."""
+    try:
+        return tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        problem, fix = f"--eval-at {text!r} is not a list of seconds", "write e.g. --eval-at 180,600,1200"
+        raise InputError(None, problem, fix) from None
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -215,6 +227,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         command=["python", "-m", "engine", *getattr(args, "argv", sys.argv[1:])],
         threads=args.threads,
         eval_at_start=args.eval_at_start,
+        eval_at=parse_eval_at(args.eval_at),
     )
     print(summary_table(record))
     print(str((Path(args.out) / "bench.json").resolve()))

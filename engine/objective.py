@@ -6,6 +6,8 @@ per step on [pixel, pixel+dx, pixel+dy] (reconstruction, gradient loss and local
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import torch
 
 from engine import losses as L
@@ -53,6 +55,16 @@ def mask_alphas(weights: torch.Tensor, mask_layers: tuple[tuple[int, ...], ...] 
     return torch.stack([weights[:, list(group)].sum(-1) for group in mask_layers], -1)
 
 
+def _evaluate(
+    field: Callable[[torch.Tensor, torch.Tensor], torch.Tensor], chunks: list[tuple[torch.Tensor, torch.Tensor]]
+) -> list[torch.Tensor]:
+    """``field`` on every chunk of (points, frames) in one call, split back into one output per chunk."""
+    if len(chunks) == 1:
+        return [field(*chunks[0])]
+    out = field(torch.cat([c[0] for c in chunks]), torch.cat([c[1] for c in chunks]))
+    return list(out.split([c[0].shape[0] for c in chunks]))
+
+
 def compute_losses(
     model: AtlasModel,
     video: VideoTensors,
@@ -82,8 +94,50 @@ def compute_losses(
     xy3 = torch.cat((xy, xy + one_x, xy + one_y))
     t3 = t.repeat(3)
 
-    weights3 = model.alpha(xy3, t3)  # [3N, L]
-    uvs = [model.uv(i, xy3, t3) for i in range(nl)]
+    # Every point a field is asked about this step, gathered so each field runs ONCE per layer: a grid's
+    # backward zero-fills a gradient the size of the whole grid per call, so one call instead of five
+    # (pixels, global-rigidity neighbours, flow targets both ways) is most of a step's saving.
+    want_flow, want_alpha_flow = on("flow"), on("alpha_flow") and nl > 1
+    flow_parts: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []  # (selected samples, q, t of q)
+    for direction in (1, -1):
+        if t_count < 2 or not (want_flow or want_alpha_flow):
+            break
+        if direction == 1:
+            has = t < t_count - 1
+            tt = t.clamp(max=t_count - 2)
+            vec, ok = video.fwd[tt, iy, ix], video.fwd_ok[tt, iy, ix]
+        else:
+            has = t > 0
+            tt = (t - 1).clamp(min=0)
+            vec, ok = video.bwd[tt, iy, ix], video.bwd_ok[tt, iy, ix]
+        sel = (has & ok).nonzero().squeeze(1)
+        if sel.numel():
+            flow_parts.append((sel, xy[sel] + vec[sel], t[sel] + direction))
+
+    glob_bg = on("global_rigidity_bg") and (active is None or wts["global_rigidity_bg"] > 0)
+    glob_fg = on("global_rigidity_fg") and (active is None or wts["global_rigidity_fg"] > 0)
+    glob_on = (wts["global_rigidity_fg"] > 0 or wts["global_rigidity_bg"] > 0) and (glob_bg or glob_fg)
+    glob_layers = [i for i in range(nl) if glob_on and ((i == 0 and glob_bg) or (i > 0 and glob_fg))]
+    local_extra = on("rigidity") and cfg.rigidity_delta != 1.0
+
+    def neighbours(d: float) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        return [(xy + d * one_x, t), (xy + d * one_y, t)]
+
+    uv_parts: list[list[torch.Tensor]] = []
+    for i in range(nl):
+        chunks = [(xy3, t3)]
+        if local_extra:
+            chunks += neighbours(cfg.rigidity_delta)
+        if i in glob_layers:
+            chunks += neighbours(cfg.global_rigidity_delta)
+        if want_flow:
+            chunks += [(q, tq) for _, q, tq in flow_parts]
+        uv_parts.append(_evaluate(lambda a, b, _i=i: model.uv(_i, a, b), chunks))
+    alpha_chunks = [(xy3, t3)] + ([(q, tq) for _, q, tq in flow_parts] if want_alpha_flow else [])
+    alpha_parts = _evaluate(model.alpha, alpha_chunks)
+
+    weights3 = alpha_parts[0]  # [3N, L]
+    uvs = [parts[0] for parts in uv_parts]
     cols = [model.color(i, uv) for i, uv in enumerate(uvs)]
     rec3 = sum(weights3[:, i : i + 1] * cols[i] for i in range(nl))
     rec, rec_dx, rec_dy = rec3[:n], rec3[n : 2 * n], rec3[2 * n :]
@@ -100,30 +154,22 @@ def compute_losses(
     terms["rgb"] = L.rgb_loss(rec, target)
     terms["gradient"] = L.gradient_loss(rec_dx - rec, rec_dy - rec, gt_dx, gt_dy, ix < w - 1, iy < h - 1)
 
-    rig = []
-    for i in range(nl if on("rigidity") else 0):
-        u = uvs[i]
-        if cfg.rigidity_delta == 1.0:
-            u_dx, u_dy = u[n : 2 * n], u[2 * n :]
-        else:
-            d = cfg.rigidity_delta
-            u_dx = model.uv(i, xy + d * one_x, t)
-            u_dy = model.uv(i, xy + d * one_y, t)
-        rig.append(L.rigidity_loss(u[:n], u_dx, u_dy, cfg.rigidity_delta, model.uv_per_px(i)))
     if on("rigidity"):
+        rig = []
+        for i in range(nl):
+            u = uvs[i]
+            u_dx, u_dy = (uv_parts[i][1], uv_parts[i][2]) if local_extra else (u[n : 2 * n], u[2 * n :])
+            rig.append(L.rigidity_loss(u[:n], u_dx, u_dy, cfg.rigidity_delta, model.uv_per_px(i)))
         terms["rigidity"] = sum(rig)
 
-    glob_bg = on("global_rigidity_bg") and (active is None or wts["global_rigidity_bg"] > 0)
-    glob_fg = on("global_rigidity_fg") and (active is None or wts["global_rigidity_fg"] > 0)
-    if (wts["global_rigidity_fg"] > 0 or wts["global_rigidity_bg"] > 0) and (glob_bg or glob_fg):
-        d = cfg.global_rigidity_delta
-        g: dict[int, torch.Tensor] = {}
-        for i in range(nl):
-            if (i == 0 and not glob_bg) or (i > 0 and not glob_fg):
-                continue
-            u_dx = model.uv(i, xy + d * one_x, t)
-            u_dy = model.uv(i, xy + d * one_y, t)
-            g[i] = L.rigidity_loss(uvs[i][:n], u_dx, u_dy, d, model.uv_per_px(i))
+    if glob_on:
+        first = 3 if local_extra else 1
+        g = {
+            i: L.rigidity_loss(
+                uvs[i][:n], uv_parts[i][first], uv_parts[i][first + 1], cfg.global_rigidity_delta, model.uv_per_px(i)
+            )
+            for i in glob_layers
+        }
         if glob_bg:
             terms["global_rigidity_bg"] = g[0]
         if glob_fg:
@@ -132,33 +178,15 @@ def compute_losses(
 
     # flow consistency, forward (t -> t+1) and backward (t -> t-1), only where the flow is reliable
     flow_terms, alpha_terms = [], []
-    want_flow, want_alpha_flow = on("flow"), on("alpha_flow") and nl > 1
-    for direction in (1, -1):
-        if t_count < 2 or not (want_flow or want_alpha_flow):
-            break
-        if direction == 1:
-            has = t < t_count - 1
-            tt = t.clamp(max=t_count - 2)
-            vec, ok = video.fwd[tt, iy, ix], video.fwd_ok[tt, iy, ix]
-        else:
-            has = t > 0
-            tt = (t - 1).clamp(min=0)
-            vec, ok = video.bwd[tt, iy, ix], video.bwd_ok[tt, iy, ix]
-        valid = has & ok
-        sel = valid.nonzero().squeeze(1)
-        if sel.numel() == 0:
-            continue
-        q = xy[sel] + vec[sel]
-        tq = t[sel] + direction
+    for k, (sel, _, _) in enumerate(flow_parts):
         if want_flow:
             per_layer = []
             for i in range(nl):
-                uq = model.uv(i, q, tq)
+                uq = uv_parts[i][len(uv_parts[i]) - len(flow_parts) + k]
                 per_layer.append(L.flow_loss(uvs[i][:n][sel], uq, wts0[sel, i], None, model.uv_per_px(i)))
             flow_terms.append(sum(per_layer))
         if want_alpha_flow:
-            wq = model.alpha(q, tq)
-            alpha_terms.append(L.alpha_flow_loss(wts0[sel, 1:], wq[:, 1:], None))
+            alpha_terms.append(L.alpha_flow_loss(wts0[sel, 1:], alpha_parts[1 + k][:, 1:], None))
     zero = torch.zeros((), device=xy.device)
     if on("flow"):
         terms["flow"] = 0.5 * sum(flow_terms) if flow_terms else zero

@@ -353,6 +353,45 @@ def train_step(
     return loss, terms
 
 
+#: The ETA measures the two cost regimes' ratio before training only when the early one (global rigidity on)
+#: is at least this share of the steps; below it (the paper preset: 5000 of 400000) a wrong guess costs
+#: little and the probe's steps (seconds each for the paper model) would not pay for themselves.
+REGIME_PROBE_MIN_SHARE = 0.05
+#: ... and only for fits of at least this many steps: the probe costs about five steps, under 1% here, and a
+#: shorter fit is over before an ETA matters (the stability tests' tiny fits count every objective call).
+REGIME_PROBE_MIN_STEPS = 500
+
+
+def regime_cost_ratio(
+    model: AtlasModel, video: VideoTensors, cfg: FitConfig, device: torch.device, repeats: int = 2
+) -> float | None:
+    """Seconds of a step after the global-rigidity term ends over one while it is on (forward and backward,
+    the best of ``repeats``), so the ETA of a fit still in the early regime does not assume the later steps
+    cost as much. The fit's state is untouched: its own generator, no optimiser step, gradients cleared."""
+    boundary = cfg.global_rigidity_steps
+    if not (0 < boundary < cfg.steps) or boundary < REGIME_PROBE_MIN_SHARE * cfg.steps:
+        return None
+    if cfg.steps < REGIME_PROBE_MIN_STEPS:
+        return None
+    gen = torch.Generator().manual_seed(cfg.seed + 104_729)
+
+    def timed(step: int) -> float:
+        ix, iy, tt = sample_pixels(video.shape, cfg.batch, gen, device)
+        t0 = time.perf_counter()
+        loss, _ = compute_losses(model, video, cfg, step, ix, iy, tt)
+        loss.backward()
+        if device.type == "cuda":
+            torch.cuda.synchronize()
+        seconds = time.perf_counter() - t0
+        model.zero_grad(set_to_none=True)
+        return seconds
+
+    timed(0)  # warm-up: allocator, kernels
+    early = min(timed(0) for _ in range(repeats))
+    late = min(timed(boundary) for _ in range(repeats))
+    return late / early if early > 0 else None
+
+
 def _lr_lambda(cfg: FitConfig) -> Callable[[int], float]:
     ratio = max(cfg.lr_final_ratio, 1e-6)
     steps = max(cfg.steps, 1)
@@ -515,7 +554,7 @@ def fit(
     last_ckpt = time.monotonic()
     # the ETA extrapolates this session's steps only (not calibration, not time before a resume), each cost
     # regime at its own rate (engine.eta)
-    clock = StepClock(cfg.global_rigidity_steps)
+    clock = StepClock(cfg.global_rigidity_steps, regime_cost_ratio(model, video, cfg, device))
     terms: dict[str, torch.Tensor] = {}
     with _Stop() as stop:
         while step < cfg.steps:

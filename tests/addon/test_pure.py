@@ -264,7 +264,7 @@ def test_mask_file_names_follow_plate_numbers():
 
 def test_estimate_grows_with_frames_and_preset():
     draft = estimate.estimate_seconds("draft", 50, 854, 480)
-    assert draft == pytest.approx(800 * 0.167 + 70.0, rel=0.02)  # docs/engine.md: 3 min 24 s measured
+    assert draft == pytest.approx(800 * 0.121 + 70.0, rel=0.02)  # docs/engine.md: 97 s of training + flow, eval
     assert estimate.estimate_seconds("balanced", 50, 854, 480) > draft
     assert estimate.working_size(854, 480, 768) == (768, 432)
 

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from engine import contract as C
 from engine.bench import (
@@ -20,6 +21,7 @@ from engine.bench import (
     resolve_clip,
     run_bench,
 )
+from engine.calibration import BENCHMARK_TABLE
 from engine.cli import main
 from engine.errors import InputError
 from engine.eta import StepClock
@@ -127,8 +129,9 @@ def test_estimate_json(clip, capsys):
     result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert result[C.ESTIMATE_TAG] == C.SCHEMA_VERSION
     draft, balanced = result["presets"]
-    assert (draft["preset"], draft["expected_psnr"]) == ("draft", 25.78)
-    assert balanced["expected_psnr"] == 27.73 and "blackswan" in balanced["expected_psnr_note"]
+    assert (draft["preset"], draft["expected_psnr"]) == ("draft", BENCHMARK_TABLE["draft"]["psnr"])
+    assert balanced["expected_psnr"] == BENCHMARK_TABLE["balanced"]["psnr"]
+    assert "blackswan" in balanced["expected_psnr_note"]
     for row in (draft, balanced):
         assert row["total_seconds"] >= row["train_seconds"] > 0
         assert row["minutes"] == pytest.approx(row["total_seconds"] / 60, abs=0.06)
@@ -139,7 +142,7 @@ def test_estimate_table(clip, capsys):
     args = ["estimate", str(clip / "frames"), "--mask", str(clip / "masks"), "--presets", "draft"]
     assert main([*args, "--calib-seconds", "0.02", "--threads", "1", "--set", "batch=200"]) == C.EXIT_OK
     out = capsys.readouterr().out
-    assert "| draft | fast | 800 |" in out and "25.78 dB" in out
+    assert "| draft | fast | 800 |" in out and f"{BENCHMARK_TABLE['draft']['psnr']:.2f} dB" in out
 
 
 def test_resolve_clip_layouts(clip):
@@ -192,6 +195,48 @@ def test_step_clock_extrapolates_each_regime_at_its_own_rate():
     assert clock.eta(10, 10) == 0.0
 
 
+def test_step_clock_scales_an_unreached_regime_by_the_measured_ratio():
+    clock = StepClock(boundary=4, late_ratio=0.5)
+    clock.add(0, 9.0)
+    for step in (1, 2, 3):
+        clock.add(step, 2.0)
+    assert clock.eta(4, 10) == pytest.approx(6 * 2.0 * 0.5)  # late steps measured at half the cost
+    resumed = StepClock(boundary=4, late_ratio=0.5)  # a resume past the boundary: the early rate is derived
+    for step in (6, 7, 8):
+        resumed.add(step, 1.0)
+    assert resumed.rate(0) == pytest.approx(2.0) and resumed.eta(9, 10) == pytest.approx(1.0)
+    for bad in (0.0, -1.0, float("inf"), float("nan")):  # guarded: an unusable ratio falls back to the same rate
+        c = StepClock(boundary=4, late_ratio=bad)
+        for step in (0, 1):
+            c.add(step, 2.0)
+        assert c.eta(4, 10) == pytest.approx(12.0)
+
+
+def test_regime_cost_ratio_leaves_the_fit_untouched(clip):
+    """The probe times both regimes without changing the model, its gradients or the fit's random state."""
+    import io
+
+    from engine.config import apply_overrides, preset_config
+    from engine.trainer import Reporter, build_model, prepare_clip, regime_cost_ratio
+    from engine.video import build_video_tensors
+
+    cfg = apply_overrides(preset_config("draft"), {"batch": "300"})
+    prepared = prepare_clip(clip / "frames", [clip / "masks"], cfg, clip / "work", None, Reporter(None, io.StringIO()))
+    cpu = torch.device("cpu")
+    video = build_video_tensors(prepared.frames, prepared.masks, prepared.flow, cfg.mask_prior_margin_px, cpu)
+    model = build_model(cfg, prepared)
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    ratio = regime_cost_ratio(model, video, cfg, cpu)
+    assert ratio is not None and 0.1 < ratio < 2.0  # the late regime drops the global-rigidity passes
+    assert all(torch.equal(before[k], v) for k, v in model.state_dict().items())
+    assert all(p.grad is None for p in model.parameters())
+    assert regime_cost_ratio(model, video, apply_overrides(cfg, {"global_rigidity_steps": "0"}), cpu) is None
+    paper_like = apply_overrides(cfg, {"steps": "400000", "global_rigidity_steps": "5000"})
+    assert regime_cost_ratio(model, video, paper_like, cpu) is None  # 1.25%: not worth probing
+    tiny = apply_overrides(cfg, {"steps": "24", "global_rigidity_steps": "12"})
+    assert regime_cost_ratio(model, video, tiny, cpu) is None  # five probe steps would be 20% of this fit
+
+
 def test_sequential_bench_runs_presets_in_turn(clip, tmp_path):
     spec = resolve_clip(clip)
     rec = run_bench(
@@ -203,3 +248,13 @@ def test_sequential_bench_runs_presets_in_turn(clip, tmp_path):
         assert run["finished_steps"] and run["steps"] == 4  # its steps ended it, long before the budget
         assert [p["step"] for p in run["curve"]] == [0, 4]  # before the first step, and at the end
     assert not (tmp_path / BENCH_PNG).exists() and (tmp_path / BENCH_JSON).exists()
+
+
+def test_eval_schedule_adds_the_target_marks_within_the_budget():
+    from engine.bench import _eval_schedule
+    from engine.cli import parse_eval_at
+
+    assert _eval_schedule(3600.0, 2, parse_eval_at("180, 600,1200,3600,9000")) == [112.5, 180.0, 600.0, 1200.0, 3600.0]
+    assert _eval_schedule(60.0, 1) == [60.0]
+    with pytest.raises(InputError, match="--eval-at"):
+        parse_eval_at("3min")
