@@ -123,13 +123,18 @@ def compute_losses(
     def neighbours(d: float) -> list[tuple[torch.Tensor, torch.Tensor]]:
         return [(xy + d * one_x, t), (xy + d * one_y, t)]
 
+    # where each kind of point starts in a layer's chunk list (the same for every layer that has it)
+    local_at = 1
+    glob_at = local_at + (2 if local_extra else 0)
     uv_parts: list[list[torch.Tensor]] = []
+    flow_at: list[int] = []
     for i in range(nl):
         chunks = [(xy3, t3)]
         if local_extra:
             chunks += neighbours(cfg.rigidity_delta)
         if i in glob_layers:
             chunks += neighbours(cfg.global_rigidity_delta)
+        flow_at.append(len(chunks))
         if want_flow:
             chunks += [(q, tq) for _, q, tq in flow_parts]
         uv_parts.append(_evaluate(lambda a, b, _i=i: model.uv(_i, a, b), chunks))
@@ -158,15 +163,14 @@ def compute_losses(
         rig = []
         for i in range(nl):
             u = uvs[i]
-            u_dx, u_dy = (uv_parts[i][1], uv_parts[i][2]) if local_extra else (u[n : 2 * n], u[2 * n :])
+            u_dx, u_dy = uv_parts[i][local_at : local_at + 2] if local_extra else (u[n : 2 * n], u[2 * n :])
             rig.append(L.rigidity_loss(u[:n], u_dx, u_dy, cfg.rigidity_delta, model.uv_per_px(i)))
         terms["rigidity"] = sum(rig)
 
     if glob_on:
-        first = 3 if local_extra else 1
         g = {
             i: L.rigidity_loss(
-                uvs[i][:n], uv_parts[i][first], uv_parts[i][first + 1], cfg.global_rigidity_delta, model.uv_per_px(i)
+                uvs[i][:n], *uv_parts[i][glob_at : glob_at + 2], cfg.global_rigidity_delta, model.uv_per_px(i)
             )
             for i in glob_layers
         }
@@ -182,7 +186,7 @@ def compute_losses(
         if want_flow:
             per_layer = []
             for i in range(nl):
-                uq = uv_parts[i][len(uv_parts[i]) - len(flow_parts) + k]
+                uq = uv_parts[i][flow_at[i] + k]
                 per_layer.append(L.flow_loss(uvs[i][:n][sel], uq, wts0[sel, i], None, model.uv_per_px(i)))
             flow_terms.append(sum(per_layer))
         if want_alpha_flow:
