@@ -1,20 +1,22 @@
-"""A documented fit-time estimate per preset, until the engine's own calibration lands. No bpy here.
+"""The documented fit-time estimate per preset: what the panel shows before the engine's own calibration
+(``engine estimate``) has measured this clip on this machine. No bpy here.
 
-Measured on a 2-core CPU (docs/engine.md: blackswan, 50 frames fitted at 768x432): seconds per training
-step per preset, and the per-frame cost of optical flow and evaluation (wall time minus train time:
-draft 204 s - 134 s = 70 s for 50 frames at 0.33 Mpx). Steps cost about the same at any resolution
-(a fixed pixel batch); flow and evaluation scale with the working pixels.
+Step budgets are the engine's (``contract.PRESET_STEPS``); seconds per step are the 60-minute side-by-side
+bench on blackswan (docs/accuracy-vs-time.md, 2-core AMD EPYC: draft 106 s / 800 steps, balanced 907 s / 6000,
+final 0.154 s/step, paper 4.54 s/step). Flow and evaluation cost per frame and working pixel (docs/engine.md:
+draft 204 s wall - 134 s training = 70 s for 50 frames at 0.33 Mpx). Steps cost about the same at any
+resolution (a fixed pixel batch); flow and evaluation scale with the working pixels.
 """
 
 from __future__ import annotations
 
-#: preset -> (steps, seconds per step) from docs/engine.md (session 4: blackswan draft 97 s / 800 steps,
-#: balanced 692 s / 6000 steps; final's steps at balanced's rate)
+from ..engine import contract as C
+
+#: preset -> seconds per training step on a 2-core CPU (docs/bench/blackswan-60min.json)
+SECONDS_PER_STEP: dict[str, float] = {"draft": 0.132, "balanced": 0.151, "final": 0.154, "paper": 4.54}
+#: preset -> (steps, seconds per step): the preset menu and the documented estimate
 PRESET_STEPS: dict[str, tuple[int, float]] = {
-    "draft": (800, 0.121),
-    "balanced": (6000, 0.115),
-    "final": (28000, 0.115),
-    "paper": (400000, 4.43),
+    name: (steps, SECONDS_PER_STEP[name]) for name, steps in C.PRESET_STEPS.items()
 }
 #: seconds of flow + evaluation per frame per working megapixel (70 s / 50 frames / 0.332 Mpx)
 OVERHEAD_SECONDS_PER_FRAME_MPX = 70.0 / 50 / (768 * 432 / 1e6)

@@ -164,7 +164,7 @@ def _prepare(spec: BenchClip, cfg: FitConfig, work: Path, eval_frames: int, devi
         n_tr = min(tracks.num_frames, t_count)
         scale = np.array(tracks.image_size, dtype=np.float64) / np.array(prepared.size, dtype=np.float64)
         keep = np.rint(tracks.query_txy[:, 0]).astype(int) < n_tr
-        tracks = Tracks(tracks.xy[keep, :n_tr], tracks.occluded[keep, :n_tr], tracks.query_txy[keep], tracks.image_size)
+        tracks = tracks.subset(keep, n_tr)
         qt = np.rint(tracks.query_txy[:, 0]).astype(int)
         qxy = tracks.query_txy[:, 1:3].astype(np.float64) / scale
     state = ClipState(spec, prepared, video, subset, tracks, n_tr, qxy, qt, scale, time.perf_counter() - t0)
@@ -182,7 +182,13 @@ def _track_scores(pred_native: np.ndarray, tracks: Tracks) -> dict:
     s256 = tapvid_scores(
         pred_native, tracks.xy, tracks.occluded, qt, scale=(TAPVID_EVAL_SIZE[0] / w, TAPVID_EVAL_SIZE[1] / h)
     )
-    return {**native, "coords": "native", "delta_avg_256": s256["delta_avg"]}
+    out = {**native, "coords": "native", "delta_avg_256": s256["delta_avg"]}
+    if tracks.on_mask is not None:  # where an atlas falls short: on the masked object or in the background
+        out["by_query_mask"] = {
+            name: tapvid_scores(pred_native[sel], tracks.xy[sel], tracks.occluded[sel], qt[sel])
+            for name, sel in (("on_mask", tracks.on_mask), ("off_mask", ~tracks.on_mask))
+        }
+    return out
 
 
 # --- runs -------------------------------------------------------------------------------------------------

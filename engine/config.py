@@ -16,7 +16,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
-from engine.contract import SCHEMA_VERSION
+from engine.contract import PRESET_STEPS, SCHEMA_VERSION
 from engine.errors import InputError
 
 
@@ -241,16 +241,17 @@ def _fast(**kw: Any) -> FitConfig:
     return FitConfig(**base)
 
 
-#: Named presets. Budgets (steps) are set from measured blackswan runs on a 2-core CPU at 768x432
-#: (docs/engine.md): draft ~3 minutes, balanced ~20, final ~60; paper is the reference's 400k steps.
+#: Named presets; their step budgets are the contract's (``PRESET_STEPS``: the add-on's menu reads them too).
 PRESETS: dict[str, FitConfig] = {
-    "draft": _fast(preset="draft", steps=800, bootstrap_steps=300, global_rigidity_steps=150),
-    "balanced": _fast(preset="balanced", steps=6000, bootstrap_steps=2000, global_rigidity_steps=1000),
-    "final": _fast(preset="final", steps=28000, bootstrap_steps=5000, global_rigidity_steps=2500),
+    "draft": _fast(preset="draft", steps=PRESET_STEPS["draft"], bootstrap_steps=300, global_rigidity_steps=150),
+    "balanced": _fast(
+        preset="balanced", steps=PRESET_STEPS["balanced"], bootstrap_steps=2000, global_rigidity_steps=1000
+    ),
+    "final": _fast(preset="final", steps=PRESET_STEPS["final"], bootstrap_steps=5000, global_rigidity_steps=2500),
     "paper": FitConfig(
         preset="paper",
         model="paper",
-        steps=400000,
+        steps=PRESET_STEPS["paper"],
         batch=10000,
         lr=1e-4,
         lr_final_ratio=1.0,

@@ -56,6 +56,12 @@ VERB_PROJECT_FRAME = "project-frame"  # project-frame MANIFEST --frame N --edit 
 VERB_PREVIEW = "preview"  # preview MANIFEST [--out DIR]
 VERB_MASKS = "masks"  # masks CLIP --out FOLDER [--frames FIRST:LAST]; last stdout line = the masks folder
 
+#: The presets (``fit --preset``) and their step budgets. engine/config.py builds its presets with these and
+#: the add-on's preset menu and documented fallback estimate read them, so the two sides cannot disagree.
+#: Budgets from measured blackswan runs on a 2-core CPU at 768x432 (docs/accuracy-vs-time.md): draft about
+#: 3 minutes, balanced about 15-20, final about 60-75; paper is the reference's 400k steps (days on a CPU).
+PRESET_STEPS: dict[str, int] = {"draft": 800, "balanced": 6000, "final": 28000, "paper": 400000}
+
 EXIT_OK = 0
 EXIT_FAILED = 1  # an engine bug or an unexpected error: the log has the traceback
 EXIT_BAD_INPUT = 2  # the user's input is wrong: one line on stderr names the file and the fix

@@ -36,10 +36,21 @@ class Tracks:
     occluded: np.ndarray  # bool [N, T]
     query_txy: np.ndarray  # float32 [N, 3]: (t, x, y)
     image_size: tuple[int, int]  # native (W, H)
+    #: bool [N]: the query pixel lies on the clip's mask (None: unknown). Scores are split by it because an
+    #: atlas can only follow what its layers model: a point on a car driving through the background moves
+    #: against the background layer, which chained flow follows and a background atlas cannot.
+    on_mask: np.ndarray | None = None
 
     @property
     def num_frames(self) -> int:
         return int(self.xy.shape[1])
+
+    def subset(self, keep: np.ndarray, frames: int) -> Tracks:
+        """The tracks ``keep`` selects, cut to the first ``frames`` frames."""
+        on_mask = None if self.on_mask is None else self.on_mask[keep]
+        return Tracks(
+            self.xy[keep, :frames], self.occluded[keep, :frames], self.query_txy[keep], self.image_size, on_mask
+        )
 
 
 def load_tracks(path: str | Path) -> Tracks:
@@ -54,6 +65,7 @@ def load_tracks(path: str | Path) -> Tracks:
             d["occluded"].astype(bool),
             d["query_points_txy"].astype(np.float32),
             (w, h),
+            d["on_mask_at_query"].astype(bool) if "on_mask_at_query" in d.files else None,
         )
 
 
@@ -66,7 +78,7 @@ def save_tracks(path: str | Path, tracks: Tracks) -> None:
         occluded=tracks.occluded,
         query_points_txy=tracks.query_txy.astype(np.float32),
         frame_indices=np.arange(t, dtype=np.int32),
-        on_mask_at_query=np.zeros(n, dtype=bool),
+        on_mask_at_query=np.zeros(n, dtype=bool) if tracks.on_mask is None else tracks.on_mask.astype(bool),
         image_size_wh=np.asarray(tracks.image_size, dtype=np.int32),
     )
 

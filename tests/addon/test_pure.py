@@ -264,9 +264,19 @@ def test_mask_file_names_follow_plate_numbers():
 
 def test_estimate_grows_with_frames_and_preset():
     draft = estimate.estimate_seconds("draft", 50, 854, 480)
-    assert draft == pytest.approx(800 * 0.121 + 70.0, rel=0.02)  # docs/engine.md: 97 s of training + flow, eval
+    assert draft == pytest.approx(800 * 0.132 + 70.0, rel=0.02)  # the 60-min bench's 106 s of training + flow, eval
     assert estimate.estimate_seconds("balanced", 50, 854, 480) > draft
     assert estimate.working_size(854, 480, 768) == (768, 432)
+
+
+def test_preset_menu_is_the_engines_presets():
+    """The menu and the fallback estimate read the contract's budgets, the engine builds its presets with them."""
+    from engine.config import PRESETS
+
+    assert list(estimate.PRESET_STEPS) == list(PRESETS) == list(C.PRESET_STEPS)
+    assert {name: steps for name, (steps, _) in estimate.PRESET_STEPS.items()} == {
+        name: cfg.steps for name, cfg in PRESETS.items()
+    }
 
 
 def test_engine_estimate_parsed_and_preferred():

@@ -163,3 +163,25 @@ def test_tracks_file_round_trip(tmp_path):
     assert back.image_size == (64, 48) and back.num_frames == 3
     np.testing.assert_array_equal(back.occluded, occ)
     assert back.xy[0, 1].tolist() == [0.0, 0.0]  # occluded positions are zeroed, as in the shared files
+
+
+def test_track_scores_split_by_the_query_mask(tmp_path):
+    """Points on the masked object and background points are scored apart (bench JSON: ``by_query_mask``)."""
+    from engine.bench import _track_scores
+
+    t = 4
+    gt = np.zeros((2, t, 2), np.float32)
+    gt[:, :, 0] = np.arange(t)[None, :] * 5.0  # both points move 5 px per frame
+    occ = np.zeros((2, t), bool)
+    query = np.array([[0, 0, 0], [0, 0, 0]], np.float32)
+    tr = Tracks(gt, occ, query, (64, 48), on_mask=np.array([True, False]))
+    save_tracks(tmp_path / "tracks_tapvid.npz", tr)
+    back = load_tracks(tmp_path / "tracks_tapvid.npz")
+    np.testing.assert_array_equal(back.on_mask, [True, False])
+    pred = gt.copy()
+    pred[1] = 0.0  # the background point is left where it started
+    s = _track_scores(pred, back.subset(np.array([True, True]), t))
+    assert s["by_query_mask"]["on_mask"]["delta_avg"] == pytest.approx(1.0)
+    # 5, 10, 15 px off: within 8 px once, within 16 px thrice -> (0 + 0 + 0 + 1/3 + 1) / 5
+    assert s["by_query_mask"]["off_mask"]["delta_avg"] == pytest.approx(4 / 15)
+    assert s["delta_avg"] == pytest.approx((1.0 + 4 / 15) / 2)
