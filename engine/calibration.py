@@ -36,13 +36,9 @@ from engine.video import build_video_tensors, frame_pixels
 #: Full-frame PSNR of complete fits with each preset, measured on blackswan (50 frames, 768x432, 2-core
 #: CPU; docs/engine.md). None: not measured yet.
 BENCHMARK_TABLE: dict[str, dict[str, Any]] = {
-    "draft": {"psnr": 26.01, "clip": "blackswan", "note": "measured on blackswan, docs/engine.md"},
-    "balanced": {"psnr": 28.73, "clip": "blackswan", "note": "measured on blackswan, docs/engine.md"},
-    "final": {
-        "psnr": 33.08,
-        "clip": "blackswan",
-        "note": "measured on blackswan, docs/accuracy-vs-time.md; its alpha left the swan (IoU 0.78): check it",
-    },
+    "draft": {"psnr": 25.80, "clip": "blackswan", "note": "measured on blackswan, docs/engine.md"},
+    "balanced": {"psnr": 28.61, "clip": "blackswan", "note": "measured on blackswan, docs/engine.md"},
+    "final": {"psnr": 30.61, "clip": "blackswan", "note": "measured on blackswan, docs/accuracy-vs-time.md"},
     "paper": {
         "psnr": None,
         "clip": "blackswan",

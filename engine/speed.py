@@ -18,7 +18,7 @@ import torch
 from engine.config import preset_config
 from engine.objective import compute_losses
 from engine.trainer import Reporter, build_model, make_optimizer, prepare_clip, select_device
-from engine.video import build_video_tensors, sample_pixels
+from engine.video import build_video_tensors, sample_batch
 
 
 @dataclass
@@ -52,7 +52,7 @@ def measure_step_times(
     def block(cfg, model, optim, gen, n: int) -> float:
         t0 = time.perf_counter()
         for _ in range(n):
-            ix, iy, t = sample_pixels(video.shape, cfg.batch, gen, device)
+            ix, iy, t = sample_batch(video, cfg.batch, cfg.object_sample_share, gen, device)
             loss, _ = compute_losses(model, video, cfg, 0, ix, iy, t)  # step 0: every bootstrap term is on
             optim.zero_grad(set_to_none=True)
             loss.backward()

@@ -38,7 +38,7 @@ from engine.objective import compute_losses
 from engine.paper_model import PaperModel
 from engine.scene import SceneAnalysis, analyse_scene, read_scene_file, write_scene_file
 from engine.scribbles import propagate_labels, read_scribbles, scribble_layers
-from engine.video import VideoTensors, build_video_tensors, frame_pixels, sample_pixels
+from engine.video import VideoTensors, build_video_tensors, frame_pixels, sample_batch, sample_pixels
 
 #: Pixels per forward chunk when evaluating whole frames (bounds memory of the evaluation).
 EVAL_CHUNK = 65536
@@ -344,7 +344,7 @@ def train_step(
     device: torch.device,
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """One optimisation step at ``step`` (the loss weights in force there); ``fit`` and ``bench`` share it."""
-    ix, iy, tt = sample_pixels(video.shape, cfg.batch, gen, device)
+    ix, iy, tt = sample_batch(video, cfg.batch, cfg.object_sample_share, gen, device)
     loss, terms = compute_losses(model, video, cfg, step, ix, iy, tt)
     optim.zero_grad(set_to_none=True)
     loss.backward()
@@ -376,7 +376,7 @@ def regime_cost_ratio(
     gen = torch.Generator().manual_seed(cfg.seed + 104_729)
 
     def timed(step: int) -> float:
-        ix, iy, tt = sample_pixels(video.shape, cfg.batch, gen, device)
+        ix, iy, tt = sample_batch(video, cfg.batch, cfg.object_sample_share, gen, device)
         t0 = time.perf_counter()
         loss, _ = compute_losses(model, video, cfg, step, ix, iy, tt)
         loss.backward()

@@ -29,6 +29,9 @@ class VideoTensors:
     mask_layers: tuple[tuple[int, ...], ...] | None = None
     scribble_xyt: torch.Tensor | None = None  # long [S, 3]: x, y, t of every scribbled pixel
     scribble_label: torch.Tensor | None = None  # long [S]: its 0-based foreground layer
+    #: int32/int64 [R]: flat indices t*H*W + y*W + x of every pixel on or within the prior's margin of a mask (any
+    #: layer, frames with a mask only), the pool ``sample_batch`` oversamples objects from.
+    object_region: torch.Tensor | None = None
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -69,11 +72,12 @@ def build_video_tensors(
         # on the CPU the tensor shares the prepared array's memory: no second copy of a long clip
         return torch.from_numpy(np.ascontiguousarray(a)).to(device)
 
+    prior = mask_prior(masks, margin_px)
     return VideoTensors(
         frames=dev(np.asarray(frames, dtype=np.float32)),
         masks=dev(masks),
         mask_valid=dev(valid),
-        prior=dev(mask_prior(masks, margin_px)),
+        prior=dev(prior),
         fwd=dev(np.asarray(flow.forward, dtype=np.float32)),
         bwd=dev(np.asarray(flow.backward, dtype=np.float32)),
         fwd_ok=dev(flow.forward_ok),
@@ -81,7 +85,22 @@ def build_video_tensors(
         mask_layers=mask_layers,
         scribble_xyt=None if scribbles is None else dev(np.argwhere(scribbles >= 0)[:, ::-1].astype(np.int64)),
         scribble_label=None if scribbles is None else dev(scribbles[scribbles >= 0].astype(np.int64)),
+        object_region=dev(object_region(prior, valid)),
     )
+
+
+def object_region(prior: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Flat pixel indices (ascending; int32 unless the clip has 2**31 pixels) of the objects and the band
+    around them: wherever some layer's prior (``mask_prior``) is not "far outside", in frames where that
+    layer has a mask. Frames without a mask have no prior at all (every pixel "ignore") and add nothing."""
+    fl, t = prior.shape[:2]
+    region = np.zeros(prior.shape[1:], dtype=bool)
+    for f in range(fl):
+        for i in range(t):
+            if valid[f, i]:
+                region[i] |= prior[f, i] != 0
+    index_type = np.int32 if region.size <= np.iinfo(np.int32).max else np.int64  # half the memory when it fits
+    return np.flatnonzero(region).astype(index_type)
 
 
 def frame_pixels(size: tuple[int, int], t: int, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
@@ -103,3 +122,25 @@ def sample_pixels(
     x = torch.randint(0, w, (n,), generator=gen)
     y = torch.randint(0, h, (n,), generator=gen)
     return x.to(device), y.to(device), t.to(device)
+
+
+def sample_batch(
+    video: VideoTensors, n: int, share: float, gen: torch.Generator, device: torch.device
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """A training batch: ``round(share * n)`` pixels drawn from the objects' region (``object_region``), the
+    rest uniform (``sample_pixels``). Why: a uniform batch of 4000 gives an object covering 2.5% of the frame
+    ~100 pixels a step, too few for its mapping to follow a deforming dog or rider. ``share`` 0, or a clip
+    without masks, gives exactly ``sample_pixels`` (same draws: earlier runs reproduce)."""
+    region = video.object_region
+    k = min(max(round(float(share) * n), 0), n)
+    if k == 0 or region is None or region.numel() == 0:
+        return sample_pixels(video.shape, n, gen, device)
+    ux, uy, ut = sample_pixels(video.shape, n - k, gen, device)
+    pick = region[torch.randint(0, region.numel(), (k,), generator=gen).to(region.device)].long()
+    _, h, w = video.shape
+    rt, rem = pick // (h * w), pick % (h * w)
+    return (
+        torch.cat((ux, (rem % w).to(device))),
+        torch.cat((uy, (rem // w).to(device))),
+        torch.cat((ut, rt.to(device))),
+    )
