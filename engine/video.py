@@ -93,12 +93,7 @@ def object_region(prior: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """Flat pixel indices (ascending; int32 unless the clip has 2**31 pixels) of the objects and the band
     around them: wherever some layer's prior (``mask_prior``) is not "far outside", in frames where that
     layer has a mask. Frames without a mask have no prior at all (every pixel "ignore") and add nothing."""
-    fl, t = prior.shape[:2]
-    region = np.zeros(prior.shape[1:], dtype=bool)
-    for f in range(fl):
-        for i in range(t):
-            if valid[f, i]:
-                region[i] |= prior[f, i] != 0
+    region = ((prior != 0) & np.asarray(valid, dtype=bool)[:, :, None, None]).any(axis=0)
     index_type = np.int32 if region.size <= np.iinfo(np.int32).max else np.int64  # half the memory when it fits
     return np.flatnonzero(region).astype(index_type)
 
