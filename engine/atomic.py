@@ -13,14 +13,26 @@ from collections.abc import Callable
 from pathlib import Path
 
 
+def _current_umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def atomic_write(path: Path, write: Callable[[str], None], fsync: bool = True) -> Path:
-    """Call ``write(tmp_path)``, optionally fsync the result, and rename it to ``path``."""
+    """Call ``write(tmp_path)``, optionally fsync the result, and rename it to ``path``.
+
+    The result gets the permissions a plain ``open(path, "w")`` would (0666 less the umask), not the
+    temp file's private 0600: a manifest or pass written on a render node must stay readable by the
+    artist's workstation and the rest of the team.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
     os.close(fd)
     try:
         write(tmp)
+        os.chmod(tmp, 0o666 & ~_current_umask())
         if fsync:
             with open(tmp, "rb+") as f:
                 os.fsync(f.fileno())

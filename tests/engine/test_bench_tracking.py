@@ -185,3 +185,30 @@ def test_track_scores_split_by_the_query_mask(tmp_path):
     # 5, 10, 15 px off: within 8 px once, within 16 px thrice -> (0 + 0 + 0 + 1/3 + 1) / 5
     assert s["by_query_mask"]["off_mask"]["delta_avg"] == pytest.approx(4 / 15)
     assert s["delta_avg"] == pytest.approx((1.0 + 4 / 15) / 2)
+    # each point's own score and median error (native px), in the file's order
+    on, off = s["per_point"]
+    assert on == {"delta_avg": pytest.approx(1.0), "scored_points": 3, "median_px": 0.0}
+    assert off == {"delta_avg": pytest.approx(4 / 15), "scored_points": 3, "median_px": 10.0}
+
+
+def test_per_point_scores_weighted_by_their_counts_give_the_aggregate():
+    """``per_point`` is a breakdown, not a second metric: count-weighted it is ``delta_avg`` exactly, with
+    occluded frames and each track's own query frame left out as TAP-Vid does."""
+    from engine.bench import _track_scores
+
+    rng = np.random.default_rng(3)
+    n, t = 6, 9
+    gt = rng.uniform(0, 60, (n, t, 2)).astype(np.float32)
+    occ = rng.random((n, t)) < 0.3
+    occ[5] = True  # a track never visible after its query: nothing to score
+    qt = rng.integers(0, t, n)
+    occ[np.arange(n), qt] = False
+    query = np.c_[qt, gt[np.arange(n), qt]].astype(np.float32)
+    pred = gt + rng.normal(0, 6, gt.shape)
+    s = _track_scores(pred, Tracks(gt, occ, query, (64, 48)))
+    pts = s["per_point"]
+    assert len(pts) == n and pts[5] == {"delta_avg": None, "scored_points": 0, "median_px": None}
+    total = sum(p["scored_points"] for p in pts)
+    assert total == s["scored_points"]
+    weighted = sum(p["delta_avg"] * p["scored_points"] for p in pts if p["scored_points"]) / total
+    assert weighted == pytest.approx(s["delta_avg"])
