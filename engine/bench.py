@@ -42,6 +42,7 @@ from engine.tracking import (
     chained_flow_tracks,
     load_tracks,
     mapping_consistency,
+    scored_positions,
     tapvid_scores,
 )
 from engine.trainer import (
@@ -198,15 +199,15 @@ def _per_point(pred_native: np.ndarray, tracks: Tracks) -> list[dict]:
     decide a clip. ``delta_avg`` weighted by ``scored_points`` gives the aggregate back."""
     qt = np.rint(tracks.query_txy[:, 0]).astype(int)
     err = np.linalg.norm(np.asarray(pred_native, np.float64) - tracks.xy, axis=-1)
+    scored = scored_positions(tracks.occluded, qt)
     out = []
     for i in range(len(qt)):
         s = tapvid_scores(pred_native[i : i + 1], tracks.xy[i : i + 1], tracks.occluded[i : i + 1], qt[i : i + 1])
-        scored = ~tracks.occluded[i] & (np.arange(err.shape[1]) != qt[i])
         out.append(
             {
                 "delta_avg": s["delta_avg"],
                 "scored_points": s["scored_points"],
-                "median_px": round(float(np.median(err[i][scored])), 3) if scored.any() else None,
+                "median_px": round(float(np.median(err[i][scored[i]])), 3) if scored[i].any() else None,
             }
         )
     return out

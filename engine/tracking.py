@@ -83,6 +83,12 @@ def save_tracks(path: str | Path, tracks: Tracks) -> None:
     )
 
 
+def scored_positions(occluded: np.ndarray, query_t: np.ndarray) -> np.ndarray:
+    """bool [N, T]: the positions TAP-Vid scores, visible ones other than each track's query frame."""
+    occ = np.asarray(occluded, dtype=bool)
+    return ~occ & (np.arange(occ.shape[1])[None, :] != np.asarray(query_t, dtype=np.int64)[:, None])
+
+
 def tapvid_scores(
     pred_xy: np.ndarray,
     gt_xy: np.ndarray,
@@ -100,9 +106,7 @@ def tapvid_scores(
     """
     pred = np.asarray(pred_xy, dtype=np.float64) * np.asarray(scale, dtype=np.float64)
     gt = np.asarray(gt_xy, dtype=np.float64) * np.asarray(scale, dtype=np.float64)
-    occ = np.asarray(occluded, dtype=bool)
-    t = occ.shape[1]
-    evaluated = ~occ & (np.arange(t)[None, :] != np.asarray(query_t, dtype=np.int64)[:, None])
+    evaluated = scored_positions(occluded, query_t)
     count = int(evaluated.sum())
     d2 = ((pred - gt) ** 2).sum(-1)
     fractions = {}
@@ -317,5 +321,6 @@ __all__ = [
     "mapping_consistency",
     "owners",
     "save_tracks",
+    "scored_positions",
     "tapvid_scores",
 ]
