@@ -119,7 +119,7 @@ def save_edits() -> list[str]:
 
 
 def srgb_to_linear(c: float) -> float:
-    """The exact IEC 61966-2-1 decode, the engine's (``engine/colour.py``), for converting paint once."""
+    """The exact IEC 61966-2-1 decode, the engine's (``engine/io/colour.py``), for converting paint once."""
     return c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4
 
 

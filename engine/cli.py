@@ -128,7 +128,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _cmd_speed(args: argparse.Namespace) -> int:
     import tempfile
 
-    from engine.speed import format_table, measure_step_times
+    from engine.bench.speed import format_table, measure_step_times
 
     with tempfile.TemporaryDirectory() as tmp:
         rows = measure_step_times(
@@ -206,7 +206,7 @@ def parse_eval_at(text: str) -> tuple[float, ...]:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
-    from engine.bench import resolve_clip, run_bench, summary_table
+    from engine.bench.bench import resolve_clip, run_bench, summary_table
     from engine.config import parse_set_args
 
     if (args.mask or args.tracks) and len(args.clips) != 1:
@@ -237,8 +237,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 def _cmd_estimate(args: argparse.Namespace) -> int:
     import json
 
-    from engine.calibration import estimate, format_estimate
     from engine.config import parse_set_args
+    from engine.fit.estimate import estimate, format_estimate
 
     result = estimate(
         args.clip,
@@ -310,7 +310,7 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
-    from engine.export import export_run
+    from engine.export.exporter import export_run
 
     path = export_run(
         args.run, atlas_size=args.atlas_size, frames=args.frames, device_name=args.device, progress_bar=not args.no_bar
@@ -320,7 +320,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 
 def _cmd_render(args: argparse.Namespace) -> int:
-    from engine.render import parse_edit_args, render_manifest
+    from engine.edit.render import parse_edit_args, render_manifest
 
     out = render_manifest(
         args.manifest,
@@ -336,7 +336,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
 
 
 def _cmd_project_frame(args: argparse.Namespace) -> int:
-    from engine.project import project_frame
+    from engine.edit.project_frame import project_frame
 
     written = project_frame(args.manifest, args.frame, args.edit, args.layer)
     for path in written.values():
@@ -345,7 +345,7 @@ def _cmd_project_frame(args: argparse.Namespace) -> int:
 
 
 def _cmd_preview(args: argparse.Namespace) -> int:
-    from engine.preview import write_previews
+    from engine.edit.preview import write_previews
 
     for path in write_previews(args.manifest, args.out, movies=not args.no_movies):
         print(str(path))
@@ -368,7 +368,7 @@ def _add_masks_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_masks(args: argparse.Namespace) -> int:
-    from engine.auto_masks import write_auto_masks
+    from engine.data.auto_masks import write_auto_masks
 
     report = write_auto_masks(
         args.clip, args.out, frame_range=args.frames, truth=args.truth, say=lambda m: print(m, file=sys.stderr)
@@ -387,7 +387,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     if args.help_config:
         print(config_help())
         return C.EXIT_OK
-    from engine.trainer import FitCancelled, fit
+    from engine.fit.trainer import FitCancelled, fit
 
     run_dir = Path(args.out)
     overrides = parse_set_args(args.set)
@@ -447,7 +447,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.verb == C.VERB_DEMO:
             from engine.config import parse_set_args
             from engine.demo import run_demo
-            from engine.trainer import FitCancelled
+            from engine.fit.trainer import FitCancelled
 
             try:
                 run_demo(Path(args.out), args.preset, parse_set_args(args.set))

@@ -145,7 +145,7 @@ class FitConfig:
     initial motion) grown by this fraction; outside it the atlas is empty. The 0.31 alpha IoU that 0.3 once gave
     on blackswan draft was the mapping drifting into the empty (black) area, fixed by ``w_anchor``."""
 
-    # --- scene analysis (engine.scene)
+    # --- scene analysis (engine.data.scene_analysis)
     components: str = "auto"
     """``auto``: compute only what the scene calls for (a static camera gets a near-identity background
     mapping, a pan/zoom a similarity with a small residual and no warp grid; no foreground or alpha networks

@@ -74,7 +74,8 @@ RUN_CHECKPOINT = "checkpoint.pt"
 RUN_CLIP = "clip.json"  # what was fitted: source, frame range, sizes, content fingerprint
 RUN_LOG = "fit.log"
 FLOW_CACHE_DIR = "flow_cache"
-#: The scene analysis of a fit (engine.scene.SceneAnalysis as JSON): which components the run computes, and why.
+#: The scene analysis of a fit (engine.data.scene_analysis.SceneAnalysis as JSON): which components the run computes,
+#: and why.
 #: {"schema": SCHEMA_VERSION, "components": "auto"|"all", "num_layers": int, "layers_source": SCENE_LAYERS_*,
 #:  "background_motion": BG_MOTION_*, "flow": bool, "scribbles": int, "alpha_network": bool,
 #:  "active_terms": [str], "reasons": {decision: one line}, "measured": {name: number|null},

@@ -22,7 +22,7 @@ import numpy as np  # noqa: E402
 from fake_export import blender_read_rgba8, write_png  # noqa: E402
 from neural_atlas import addon  # noqa: E402
 
-from engine.synthetic import SceneSpec, make_scene, write_scene  # noqa: E402
+from engine.data.synthetic import SceneSpec, make_scene, write_scene  # noqa: E402
 
 
 def main(out_png: Path) -> None:

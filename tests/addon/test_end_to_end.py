@@ -63,8 +63,9 @@ def test_fit_paint_render_matches_engine_render(blender, tmp_path, monkeypatch):
         [
             py,
             "-c",
-            "import sys; from pathlib import Path; from engine.synthetic import SceneSpec, make_scene, write_scene; "
-            "from engine.image_io import read_image, write_rgba_exr; from engine.colour import srgb_to_linear; "
+            "import sys; from pathlib import Path; "
+            "from engine.data.synthetic import SceneSpec, make_scene, write_scene; "
+            "from engine.io.images import read_image, write_rgba_exr; from engine.io.colour import srgb_to_linear; "
             "d = Path(sys.argv[1]); write_scene(make_scene(SceneSpec(width=64, height=48, frames=4)), d)\n"
             "for f in sorted((d / 'frames').glob('*.png')):\n"
             "    write_rgba_exr(d / 'frames_exr' / (f.stem + '.exr'), srgb_to_linear(read_image(f)[0][..., :3]))",

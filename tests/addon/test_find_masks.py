@@ -41,7 +41,7 @@ def clips(tmp_path_factory):
     root = tmp_path_factory.mktemp("masks_clips")
     script = (
         "import sys, shutil; from pathlib import Path; "
-        "from engine.synthetic import SceneSpec, make_scene, write_scene\n"
+        "from engine.data.synthetic import SceneSpec, make_scene, write_scene\n"
         "d = Path(sys.argv[1]); write_scene(make_scene(SceneSpec(width=96, height=64, frames=6)), d / 'moving')\n"
         "s = d / 'static' / 'frames'; s.mkdir(parents=True)\n"
         "for t in range(4): shutil.copy(d / 'moving' / 'frames' / '00000.png', s / f'{t:05d}.png')"

@@ -1,4 +1,4 @@
-"""A background-only run (engine.scene: no masks, or no moving object found) exports one layer: the
+"""A background-only run (engine.data.scene_analysis: no masks, or no moving object found) exports one layer: the
 compositor tree then holds that layer alone — one edit image and Map UV over the plate, no sums."""
 
 from __future__ import annotations

@@ -29,7 +29,8 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.paths import ROOT
+
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 STRICT = {"README.md", "guide.md", "troubleshooting.md", "architecture.md", "addon.md"}
 TAG = re.compile(r"<!--\s*(test|covered|manual)(?::\s*(.*?))?\s*-->\s*$")
@@ -123,7 +124,7 @@ def scratch(tmp_path_factory) -> Path:
     for name in (".venv", "engine", "addon", "__init__.py", "blender_manifest.toml"):
         os.symlink(ROOT / name, d / name)
     code = (
-        "import sys; from pathlib import Path; from engine.synthetic import SceneSpec, make_scene, write_scene; "
+        "import sys; from pathlib import Path; from engine.data.synthetic import SceneSpec, make_scene, write_scene; "
         "write_scene(make_scene(SceneSpec(width=64, height=48, frames=4)), Path(sys.argv[1]))"
     )
     subprocess.run([sys.executable, "-c", code, str(d / "clip")], cwd=ROOT, check=True, timeout=120)

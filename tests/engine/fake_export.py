@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from engine import contract as C
-from engine.export import layer_record
-from engine.image_io import write_exr, write_png
+from engine.export.exporter import layer_record
+from engine.io.images import write_exr, write_png
 
 UVFn = Callable[[int, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
 

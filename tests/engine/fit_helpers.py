@@ -9,8 +9,8 @@ import numpy as np
 import torch
 
 from engine.config import apply_overrides, preset_config
-from engine.synthetic import SceneSpec, SyntheticScene, make_scene, write_scene
-from engine.trainer import fit, load_run
+from engine.data.synthetic import SceneSpec, SyntheticScene, make_scene, write_scene
+from engine.fit.trainer import fit, load_run
 
 TINY_OVERRIDES = {
     "steps": "400",

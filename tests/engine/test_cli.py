@@ -8,14 +8,13 @@ import os
 import signal
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
 from engine import contract as C
-from engine.synthetic import SceneSpec, make_scene, write_scene
+from engine.data.synthetic import SceneSpec, make_scene, write_scene
+from tests.paths import ROOT
 
-ROOT = Path(__file__).resolve().parents[2]
 SMALL = SceneSpec(width=96, height=64, frames=6, fg_size=(28, 20), fg_start=(20.0, 20.0))
 
 

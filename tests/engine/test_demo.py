@@ -9,7 +9,8 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.paths import ROOT
+
 pytestmark = pytest.mark.slow
 
 
@@ -50,10 +51,10 @@ def test_demo_fits_exports_edits_renders_then_reuses(tmp_path):
     compare = json.loads((tmp_path / "blender_compare.json").read_text())
     assert blend.stat().st_size > 50_000 and compare["frames"] == 24
     assert "Blender" in first.stderr and "max abs error" in first.stderr
-    from engine.compositing import load_edit
-    from engine.image_io import read_image
-    from engine.manifest import Manifest
-    from engine.render import render_frames
+    from engine.edit.equations import load_edit
+    from engine.edit.render import render_frames
+    from engine.export.manifest import Manifest
+    from engine.io.images import read_image
 
     m = Manifest(manifest)
     edits = [load_edit(tmp_path / "example_edits" / f"{layer['name']}.png") for layer in m.layers]

@@ -24,7 +24,7 @@ import numpy as np
 
 from engine import cli
 from engine import contract as C
-from engine.synthetic import SceneSpec, make_scene, write_scene
+from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from tests.media_files import write_audio_only_movie, write_image
 from tests.stability.fitcheck import write_masks, write_sequence
 

@@ -1,6 +1,6 @@
 """Shared helpers of the stability suite: plates written in any format, and a fit that checks every step.
 
-``monitored_fit`` runs the real ``engine.trainer.fit`` (reading, flow, motion init, model, loop, evaluation)
+``monitored_fit`` runs the real ``engine.fit.trainer.fit`` (reading, flow, motion init, model, loop, evaluation)
 on a short schedule, with two probes patched in: every loss term and the total must be finite at every
 step, every gradient must be finite before each optimiser step, and every parameter finite after it.
 """
@@ -17,8 +17,8 @@ import numpy as np
 import torch
 
 from engine import contract as C
-from engine import trainer
 from engine.config import apply_overrides, preset_config
+from engine.fit import trainer
 from tests.media_files import write_image
 
 #: A short schedule that still crosses every phase: global rigidity, mask bootstrap, then the mask prior.
@@ -108,7 +108,7 @@ class FitMonitor:
         """Every step was checked, and nothing was ever non-finite."""
         assert not self.problems, self.problems[:5]
         assert self.steps == steps and self.optimizer_steps == steps, (self.steps, self.optimizer_steps)
-        # every term the scene analysis keeps (engine.scene) was evaluated and checked; a single frame has
+        # every term the scene analysis keeps (engine.data.scene_analysis) was evaluated and checked; a single frame has
         # no flow terms, a background-only clip no foreground terms: those are not evaluated at all
         expected = {"rgb", "gradient", "rigidity", "flow", "alpha_flow", "sparsity"}
         active = getattr(self.model, "active_terms", None)

@@ -25,10 +25,10 @@ import torch
 
 from engine import contract as C
 from engine.config import apply_overrides, parse_set_args, preset_config
-from engine.synthetic import SceneSpec, make_scene, write_scene
-from engine.trainer import fit
+from engine.data.synthetic import SceneSpec, make_scene, write_scene
+from engine.fit.trainer import fit
+from tests.paths import ROOT
 
-ROOT = Path(__file__).resolve().parents[2]
 SPEC = SceneSpec(width=48, height=32, frames=4, fg_size=(16, 12), fg_start=(10.0, 8.0))
 #: Long enough that the child is still mid-fit when the signal lands, even on a fast idle machine (the
 #: kills happen before step STEPS // 2; the rest of the fit takes seconds, the signal milliseconds).

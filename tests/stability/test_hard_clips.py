@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from engine.synthetic import SceneSpec, make_scene, write_scene
+from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from tests.stability.fitcheck import monitored_fit, write_masks, write_sequence
 
 #: Minimum PSNR gain (dB) from step 1 to step 24: the fit improves instead of diverging.
@@ -219,9 +219,9 @@ def test_extreme_flow_pointing_out_of_the_frame(tmp_path, monkeypatch):
     """|flow| = 3x the frame, out of the frame, from the flow stage itself: the consistency check rejects
     every vector (target outside the frame), the flow terms are exactly 0 and the fit proceeds on colour.
     (The objective's behaviour when such vectors are forced through is in test_losses_degenerate.py.)"""
-    import engine.trainer
+    import engine.fit.trainer
 
-    monkeypatch.setattr(engine.trainer, "DISFlow", _HugeFlow)
+    monkeypatch.setattr(engine.fit.trainer, "DISFlow", _HugeFlow)
     _, frames, masks = _scene_dirs(
         tmp_path, SceneSpec(width=48, height=32, frames=3, fg_size=(16, 12), fg_start=(10.0, 8.0))
     )

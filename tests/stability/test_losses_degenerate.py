@@ -2,7 +2,7 @@
 properties over random and adversarial values, and the whole objective on a built model with a collapsed
 mapping, flow far outside the frame and alpha saturated at exactly 0 and 1.
 
-Extends tests/engine/test_losses.py (which covers values, the collapsed J = 0 forward pass, a near-singular
+Extends tests/engine/model/test_losses.py (which covers values, the collapsed J = 0 forward pass, a near-singular
 gradcheck, zero flow distance, saturated BCE and two finiteness properties) without repeating it.
 """
 
@@ -17,12 +17,12 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from engine import losses as L
 from engine.config import apply_overrides, preset_config
-from engine.objective import TARGET_RANGE, compute_losses
-from engine.synthetic import SceneSpec, make_scene, write_scene
-from engine.trainer import Reporter, build_model, prepare_clip
-from engine.video import build_video_tensors
+from engine.data.synthetic import SceneSpec, make_scene, write_scene
+from engine.data.video import build_video_tensors
+from engine.fit.trainer import Reporter, build_model, prepare_clip
+from engine.model import losses as L
+from engine.model.objective import TARGET_RANGE, compute_losses
 from tests.stability.fitcheck import QUICK
 
 F64 = torch.float64

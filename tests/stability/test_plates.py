@@ -15,9 +15,9 @@ import torch
 
 from engine import contract as C
 from engine.config import apply_overrides, preset_config
-from engine.losses import psnr_from_mse
-from engine.synthetic import SceneSpec, make_scene
-from engine.trainer import build_model, render_frame
+from engine.data.synthetic import SceneSpec, make_scene
+from engine.fit.trainer import build_model, render_frame
+from engine.model.losses import psnr_from_mse
 from tests.stability.fitcheck import QUICK, monitored_fit, write_masks, write_sequence
 
 SPEC = SceneSpec(width=48, height=32, frames=3, fg_size=(16, 12), fg_start=(10.0, 8.0))

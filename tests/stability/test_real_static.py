@@ -6,16 +6,16 @@ Skipped when ../shared/data is absent (a user's fresh clone)."""
 from __future__ import annotations
 
 import io
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
 from engine.config import apply_overrides, preset_config
-from engine.trainer import fit, load_run
+from engine.fit.trainer import fit, load_run
+from tests.paths import CLIPS
 
-CLIP = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "vtest-static"
+CLIP = CLIPS / "vtest-static"
 
 
 @pytest.mark.slow

@@ -15,11 +15,11 @@ import torch
 
 from engine import cli
 from engine import contract as C
-from engine.checkpoint import load_checkpoint
+from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.errors import InputError
-from engine.synthetic import SceneSpec, make_scene, write_scene
+from engine.fit.checkpoint import load_checkpoint
+from tests.paths import ROOT
 
-ROOT = Path(__file__).resolve().parents[2]
 SCANNED = ("engine", "addon")
 #: Calls that hand a string to a shell.
 SHELL_CALLS = {("os", "system"), ("os", "popen"), ("subprocess", "getoutput"), ("subprocess", "getstatusoutput")}

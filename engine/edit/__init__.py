@@ -1,0 +1,1 @@
+"""Edits applied from an export alone: the edit equations, render, project-frame and preview."""

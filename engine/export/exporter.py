@@ -1,0 +1,483 @@
+"""Export a fitted run for compositing: per-frame UV + alpha EXR passes at the plate's native
+resolution, an atlas texture per layer, empty edit layers (never overwritten) and a manifest.
+
+The networks are continuous, so passes are evaluated at every native pixel centre whatever the working
+resolution of the fit. Each export goes to a new versioned folder (``exports/v001``, ``v002``, ...),
+assembled under a hidden name and renamed into place when complete, so an earlier export is never
+touched and a killed export leaves nothing a compositor could mistake for a result.
+
+Atlas frame: each layer's texture covers the bounding box of the atlas cells the layer covers (aggregated
+alpha > ``BOX_COVERAGE``: median over frames for foregrounds, maximum for the background), plus a margin.
+Once an edit layer exists, the box it was painted in is recorded in ``edits/layout.json`` and reused by
+every later export, so paint never shifts against the object.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+import math
+import os
+import shutil
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from engine import contract as C
+from engine.data.scene_analysis import read_scene_file
+from engine.errors import InputError
+from engine.fit.checkpoint import atomic_write_text
+from engine.fit.trainer import EVAL_CHUNK, PreparedClip, Reporter, load_run
+from engine.io.colour import srgb_to_linear
+from engine.io.images import write_exr, write_png
+from engine.model.atlas_model import AtlasModel
+
+#: Atlas cells whose aggregated coverage exceeds this decide where the layer's atlas box lies (a foreground's
+#: faint halo, seen in a few frames only, stays below it and does not inflate the box).
+BOX_COVERAGE = 0.5
+#: Fallback when no cell is covered: the pixels whose layer alpha exceeds this.
+BOX_ALPHA = 0.25
+#: The box grows by this fraction of its extent on each side (plus BOX_MARGIN_CELLS cells), so soft
+#: edges and slightly off-box pixels still land inside the texture.
+BOX_MARGIN = 0.03
+BOX_MARGIN_CELLS = 2.0
+#: Coverage is accumulated on a grid over [-COVERAGE_DOMAIN, COVERAGE_DOMAIN]^2 of model atlas units, at
+#: about one cell per working pixel; mappings that land farther out than this are clamped.
+COVERAGE_DOMAIN = 1.5
+#: Largest coverage grid side (cells), bounding memory for extreme atlas scales.
+COVERAGE_MAX_CELLS = 2048
+#: Smallest atlas box extent in model units (a layer that never shows gets this instead of a point).
+MIN_BOX_EXTENT = 1e-3
+DEFAULT_ATLAS_SIZE = 1000
+
+
+@dataclass
+class LayerFrame:
+    """Where one layer's texture sits in the model's atlas space: [u0, u1] x [v0, v1] (v down)."""
+
+    box: tuple[float, float, float, float]  # u0, v0, u1, v1 in model atlas units
+    size: tuple[int, int]  # texture W, H
+
+    def to_texture_uv(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Model uv [..., 2] -> texture (u, v) in [0, 1] with v up (bottom-left origin), and inside-mask."""
+        u0, v0, u1, v1 = self.box
+        u = (uv[..., 0] - u0) / (u1 - u0)
+        v = (v1 - uv[..., 1]) / (v1 - v0)
+        inside = (u >= 0.0) & (u <= 1.0) & (v >= 0.0) & (v <= 1.0)
+        return np.stack((np.clip(u, 0.0, 1.0), np.clip(v, 0.0, 1.0)), -1).astype(np.float32), inside
+
+    def texel_centres(self) -> np.ndarray:
+        """Model uv of every texel centre, [H, W, 2], row 0 at the top (the image file's first row)."""
+        u0, v0, u1, v1 = self.box
+        w, h = self.size
+        us = u0 + (np.arange(w) + 0.5) / w * (u1 - u0)
+        vs = v0 + (np.arange(h) + 0.5) / h * (v1 - v0)
+        uu, vv = np.meshgrid(us, vs)
+        return np.stack((uu, vv), -1).astype(np.float32)
+
+
+def layer_frame_for(box: tuple[float, float, float, float], atlas_size: int) -> LayerFrame:
+    """Texture size for a box: ``atlas_size`` on the long side, square texels (paint is not stretched)."""
+    u0, v0, u1, v1 = box
+    eu, ev = max(u1 - u0, MIN_BOX_EXTENT), max(v1 - v0, MIN_BOX_EXTENT)
+    if eu >= ev:
+        size = (atlas_size, max(1, round(atlas_size * ev / eu)))
+    else:
+        size = (max(1, round(atlas_size * eu / ev)), atlas_size)
+    return LayerFrame((u0, v0, u0 + eu, v0 + ev), size)
+
+
+class _Coverage:
+    """Per-layer accumulation of where the layer's mapping lands and with what alpha (paper Sec. 4:
+    the atlas alpha is the median over frames for foregrounds, the maximum for the background)."""
+
+    def __init__(self, uv_per_px: float, frames: int, foreground: bool) -> None:
+        self.cells = int(min(COVERAGE_MAX_CELLS, math.ceil(2 * COVERAGE_DOMAIN / max(uv_per_px, 1e-9))))
+        self.scale = self.cells / (2 * COVERAGE_DOMAIN)  # cells per model unit
+        self.foreground = foreground
+        n = self.cells * self.cells
+        if foreground:
+            self.stack = np.full((frames, n), np.nan, dtype=np.float16)
+        else:
+            self.max = np.full(n, -1.0, dtype=np.float32)
+        self.lo = np.array([np.inf, np.inf])
+        self.hi = np.array([-np.inf, -np.inf])
+        self.any_lo = np.array([np.inf, np.inf])
+        self.any_hi = np.array([-np.inf, -np.inf])
+
+    def add(self, t: int, uv: np.ndarray, alpha: np.ndarray) -> None:
+        own = alpha > BOX_ALPHA
+        if own.any():
+            self.lo = np.minimum(self.lo, uv[own].min(0))
+            self.hi = np.maximum(self.hi, uv[own].max(0))
+        some = alpha > 0.01
+        if some.any():
+            self.any_lo = np.minimum(self.any_lo, uv[some].min(0))
+            self.any_hi = np.maximum(self.any_hi, uv[some].max(0))
+        c = np.floor((uv + COVERAGE_DOMAIN) * self.scale).astype(np.int64)
+        ok = (c >= 0).all(-1) & (c < self.cells).all(-1)
+        idx = c[ok, 1] * self.cells + c[ok, 0]
+        n = self.cells * self.cells
+        total = np.bincount(idx, weights=alpha[ok], minlength=n)
+        count = np.bincount(idx, minlength=n).astype(np.float64)
+        grid = _fill_holes(total.reshape(self.cells, self.cells), count.reshape(self.cells, self.cells))
+        if self.foreground:
+            self.stack[t] = grid.reshape(-1).astype(np.float16)
+        else:
+            g = grid.reshape(-1)
+            hit = np.isfinite(g)
+            self.max[hit] = np.maximum(self.max[hit], g[hit])
+
+    def box(self) -> tuple[float, float, float, float]:
+        """Bounding box of the cells whose aggregated coverage exceeds BOX_COVERAGE, else of the pixels with
+        alpha > BOX_ALPHA, else of any faintly visible pixel, else the model's whole atlas square; plus a
+        margin."""
+        rows, cols = np.nonzero(self.grid() > BOX_COVERAGE)
+        if len(rows):
+            lo = np.array([cols.min(), rows.min()]) / self.scale - COVERAGE_DOMAIN
+            hi = (np.array([cols.max(), rows.max()]) + 1.0) / self.scale - COVERAGE_DOMAIN
+        elif np.isfinite(self.lo).all():
+            lo, hi = self.lo, self.hi
+        elif np.isfinite(self.any_lo).all():
+            lo, hi = self.any_lo, self.any_hi
+        else:
+            lo, hi = np.array([-1.0, -1.0]), np.array([1.0, 1.0])
+        lo = np.clip(lo, -COVERAGE_DOMAIN, COVERAGE_DOMAIN)
+        hi = np.clip(hi, -COVERAGE_DOMAIN, COVERAGE_DOMAIN)
+        pad = (hi - lo) * BOX_MARGIN + BOX_MARGIN_CELLS / self.scale
+        lo, hi = lo - pad, hi + pad
+        return float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])
+
+    def grid(self) -> np.ndarray:
+        """Coverage alpha over the domain grid [cells, cells] (row = v), 0 where nothing ever landed."""
+        if self.foreground:
+            with np.errstate(all="ignore"):
+                import warnings
+
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN cells: never hit
+                    med = np.nanmedian(self.stack.astype(np.float32), axis=0)
+            g = np.nan_to_num(med, nan=0.0)
+        else:
+            g = np.clip(self.max, 0.0, None)
+        return g.reshape(self.cells, self.cells).astype(np.float32)
+
+    def sample(self, frame: LayerFrame) -> np.ndarray:
+        """Coverage at every texel centre of ``frame`` [H, W] (bilinear)."""
+        uv = frame.texel_centres()
+        map_xy = ((uv + COVERAGE_DOMAIN) * self.scale - 0.5).astype(np.float32)
+        return cv2.remap(self.grid(), map_xy[..., 0], map_xy[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+
+
+def _fill_holes(total: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """Mean alpha per cell; cells no pixel hit but whose 3x3 neighbourhood was hit get the neighbours' mean
+    (a frame zoomed in relative to the atlas leaves one-cell gaps between its pixels); NaN elsewhere."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(count > 0, total / np.maximum(count, 1.0), np.nan)
+    k = np.ones((3, 3), np.float32)
+    hit = (count > 0).astype(np.float32)
+    nsum = cv2.filter2D(np.nan_to_num(mean).astype(np.float32), -1, k, borderType=cv2.BORDER_CONSTANT)
+    ncnt = cv2.filter2D(hit, -1, k, borderType=cv2.BORDER_CONSTANT)
+    holes = (count == 0) & (ncnt > 0)
+    mean[holes] = nsum[holes] / ncnt[holes]
+    return mean
+
+
+@torch.no_grad()
+def _eval_pixels(model: AtlasModel, xy: torch.Tensor, t: int) -> tuple[list[np.ndarray], np.ndarray]:
+    """Model uv of every layer [N, 2] and layer weights [N, L] at working-resolution points ``xy``."""
+    n = xy.shape[0]
+    uvs = [np.empty((n, 2), np.float32) for _ in range(model.num_layers)]
+    wts = np.empty((n, model.num_layers), np.float32)
+    for s in range(0, n, EVAL_CHUNK):
+        sl = slice(s, s + EVAL_CHUNK)
+        tt = torch.full((xy[sl].shape[0],), t, dtype=torch.long, device=xy.device)
+        wts[sl] = model.alpha(xy[sl], tt).float().cpu().numpy()
+        for i in range(model.num_layers):
+            uvs[i][sl] = model.uv(i, xy[sl], tt).float().cpu().numpy()
+    return uvs, wts
+
+
+def _pixel_grid(size: tuple[int, int], scale: tuple[float, float], device: torch.device) -> torch.Tensor:
+    """Pixel centres of a ``size`` frame, in working-resolution coordinates (x * sx, y * sy)."""
+    w, h = size
+    ys, xs = torch.meshgrid(
+        torch.arange(h, device=device, dtype=torch.float32),
+        torch.arange(w, device=device, dtype=torch.float32),
+        indexing="ij",
+    )
+    return torch.stack(((xs.reshape(-1) + 0.5) * scale[0], (ys.reshape(-1) + 0.5) * scale[1]), -1)
+
+
+@torch.no_grad()
+def _atlas_colours(model: AtlasModel, layer: int, frame: LayerFrame, device: torch.device) -> np.ndarray:
+    uv = torch.from_numpy(frame.texel_centres().reshape(-1, 2)).to(device)
+    out = np.empty((uv.shape[0], 3), np.float32)
+    for s in range(0, uv.shape[0], EVAL_CHUNK):
+        out[s : s + EVAL_CHUNK] = model.color(layer, uv[s : s + EVAL_CHUNK]).float().cpu().numpy()
+    w, h = frame.size
+    return np.clip(out.reshape(h, w, 3), 0.0, 1.0)
+
+
+def _read_layout(edits_dir: Path) -> dict[str, Any]:
+    path = edits_dir / C.EDITS_LAYOUT
+    if not path.exists():
+        return {"schema": C.SCHEMA_VERSION, "layers": {}}
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError):
+        raise InputError(path, "edit layout is not valid JSON", "restore it from a backup or delete it") from None
+    if data.get("schema") != C.SCHEMA_VERSION or not isinstance(data.get("layers"), dict):
+        raise InputError(path, "edit layout has an unknown schema", "restore it or delete it (paint may shift)")
+    return data
+
+
+def _next_version(exports: Path) -> tuple[Path, Path]:
+    exports.mkdir(parents=True, exist_ok=True)
+    n = 1
+    while True:
+        final = exports / C.EXPORT_VERSION_FORMAT.format(n)
+        staging = exports / f".{final.name}.partial"
+        if not final.exists():
+            try:
+                staging.mkdir()
+            except FileExistsError:  # a killed export's leftovers (or a concurrent export): clear and reuse
+                if (staging / ".pid").exists() and _pid_alive((staging / ".pid").read_text().strip()):
+                    n += 1
+                    continue
+                shutil.rmtree(staging)
+                staging.mkdir()
+            (staging / ".pid").write_text(str(os.getpid()))
+            return final, staging
+        n += 1
+
+
+def _pid_alive(text: str) -> bool:
+    try:
+        pid = int(text)
+        if pid == os.getpid():
+            return False
+        os.kill(pid, 0)
+    except (ValueError, ProcessLookupError):
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _selected(prepared: PreparedClip, clip_rec: dict[str, Any], frames: tuple[int, int] | None) -> list[int]:
+    """Run frame indices to export; ``frames`` are positions in the source sequence, like `fit --frames`."""
+    first, last = clip_rec["frame_range"]
+    if frames is None:
+        return list(range(prepared.frames.shape[0]))
+    a, b = frames
+    if a > b or a < first or b > last:
+        raise InputError(
+            None,
+            f"--frames {a}:{b} is outside the fitted frames {first}:{last}",
+            f"choose a range inside {first}:{last}",
+        )
+    return list(range(a - first, b - first + 1))
+
+
+def export_run(
+    run_dir: str | Path,
+    atlas_size: int = DEFAULT_ATLAS_SIZE,
+    frames: tuple[int, int] | None = None,
+    device_name: str = "cpu",
+    progress_bar: bool = True,
+    stream: Any = None,
+) -> Path:
+    """Export ``run_dir``; returns the path of the manifest.json written."""
+    run_dir = Path(run_dir).resolve()
+    if atlas_size < 8 or atlas_size > 16384:
+        raise InputError(None, f"--atlas-size {atlas_size} is out of range", "use 8..16384 (paper: 1000)")
+    for name in (C.RUN_CONFIG, C.RUN_CLIP, C.RUN_CHECKPOINT):
+        if not (run_dir / name).exists():
+            raise InputError(run_dir / name, "this is not a fitted run folder", "pass the --out folder of a `fit`")
+    reporter = Reporter(None, stream)
+    reporter.emit(C.EVENT_STAGE, stage="load", message=f"loading the fit in {run_dir}")
+    model, prepared, cfg = load_run(run_dir, device_name)
+    device = next(model.parameters()).device
+    clip_rec = json.loads((run_dir / C.RUN_CLIP).read_text(encoding="utf-8"))
+    metrics_path = run_dir / C.RUN_METRICS
+    metrics = json.loads(metrics_path.read_text(encoding="utf-8")) if metrics_path.exists() else {}
+    if not metrics:
+        print(f"warning: {run_dir} has no metrics.json: exporting an unfinished fit", file=sys.stderr)
+    selected = _selected(prepared, clip_rec, frames)
+    t_count = prepared.frames.shape[0]
+    names = [C.layer_name(i, model.num_layers) for i in range(model.num_layers)]
+
+    # 1. where each layer's mapping lands, and with what alpha (every frame, working resolution)
+    reporter.emit(C.EVENT_STAGE, stage="atlas", message="atlas extent and coverage")
+    cov = [_Coverage(model.uv_per_px(i), t_count, foreground=i > 0) for i in range(model.num_layers)]
+    xy_work = _pixel_grid(prepared.size, (1.0, 1.0), device)
+    bar = tqdm(total=t_count + len(selected), disable=not progress_bar, file=sys.stderr, unit="frame")
+    for t in range(t_count):
+        uvs, wts = _eval_pixels(model, xy_work, t)
+        for i in range(model.num_layers):
+            cov[i].add(t, uvs[i], wts[:, i])
+        bar.update(1)
+
+    # 2. the atlas frame of every layer: an existing edit layer's frame wins (its paint must not shift)
+    edits_dir = run_dir / C.EDITS_DIR
+    layout = _read_layout(edits_dir)
+    frames_by_layer: list[LayerFrame] = []
+    for i, name in enumerate(names):
+        rec = layout["layers"].get(name)
+        painted = any((edits_dir / f"{name}{ext}").exists() for ext in (C.EDIT_LAYER_EXT, C.EDIT_LAYER_FLOAT_EXT))
+        if rec is not None and painted:
+            frames_by_layer.append(layer_frame_for(tuple(rec["atlas_box"]), atlas_size))  # type: ignore[arg-type]
+        else:
+            frames_by_layer.append(layer_frame_for(cov[i].box(), atlas_size))
+
+    final, staging = _next_version(run_dir / C.EXPORTS_DIR)
+    try:
+        # 3. atlas textures: colours from the atlas network, coverage from the alpha network
+        for i, name in enumerate(names):
+            fr = frames_by_layer[i]
+            rgb = _atlas_colours(model, i, fr, device)
+            alpha = np.clip(cov[i].sample(fr), 0.0, 1.0)[..., None]
+            write_png(staging / C.ATLASES_DIR / f"{name}{C.ATLAS_PNG_EXT}", np.concatenate((rgb, alpha), -1), 16)
+            lin = srgb_to_linear(rgb) * alpha
+            write_exr(
+                staging / C.ATLASES_DIR / f"{name}{C.ATLAS_EXR_EXT}",
+                {"R": lin[..., 0], "G": lin[..., 1], "B": lin[..., 2], "A": alpha[..., 0]},
+            )
+
+        # 4. passes at native resolution
+        reporter.emit(C.EVENT_STAGE, stage="passes", message=f"{len(selected)} frames of UV + alpha passes")
+        nw, nh = prepared.info.width, prepared.info.height
+        ww, wh = prepared.size
+        xy_native = _pixel_grid((nw, nh), (ww / nw, wh / nh), device)
+        frame_numbers = [int(n) for n in clip_rec["frame_numbers"]]
+        for k, t in enumerate(selected):
+            uvs, wts = _eval_pixels(model, xy_native, t)
+            chans: dict[str, np.ndarray] = {}
+            for i, name in enumerate(names):
+                tex_uv, inside = frames_by_layer[i].to_texture_uv(uvs[i])
+                a = wts[:, i]
+                uv_pass, alpha_pass = C.uv_pass(name), C.alpha_pass(name)
+                chans[C.channel_name(uv_pass, "X")] = tex_uv[:, 0].reshape(nh, nw)
+                chans[C.channel_name(uv_pass, "Y")] = tex_uv[:, 1].reshape(nh, nw)
+                chans[C.channel_name(uv_pass, "Z")] = (a * inside).reshape(nh, nw)
+                chans[C.channel_name(alpha_pass, C.ALPHA_CHANNELS[0])] = a.reshape(nh, nw)
+            write_exr(staging / C.PASSES_DIR / C.pass_file_name(frame_numbers[t]), chans)
+            bar.update(1)
+            reporter.emit(C.EVENT_PROGRESS, step=k + 1, total=len(selected), psnr=None, elapsed=None, eta=None)
+        bar.close()
+
+        # 5. edit layers: created once, never overwritten; their atlas frame recorded for later exports
+        for i, name in enumerate(names):
+            path = edits_dir / f"{name}{C.EDIT_LAYER_EXT}"
+            fr = frames_by_layer[i]
+            if not path.exists():  # a new (or deleted) edit layer: it is painted in this export's frame
+                w, h = fr.size
+                write_png(path, np.zeros((h, w, 4), np.float32), 8)
+                layout["layers"][name] = {"atlas_box": list(fr.box), "atlas_size": list(fr.size)}
+            elif name not in layout["layers"]:  # the artist's own image: record the frame it now lives in
+                layout["layers"][name] = {"atlas_box": list(fr.box), "atlas_size": list(fr.size)}
+        atomic_write_text(edits_dir / C.EDITS_LAYOUT, json.dumps(layout, indent=2))
+
+        manifest = _manifest(run_dir, final, prepared, clip_rec, names, frames_by_layer, selected, cfg, metrics)
+        scene = read_scene_file(run_dir)
+        if scene is not None:  # runs from before the scene analysis have none; readers accept both
+            manifest["scene"] = scene.to_dict()
+        C.validate_manifest(manifest)
+        atomic_write_text(staging / C.MANIFEST_NAME, json.dumps(manifest, indent=2))
+        (staging / ".pid").unlink()
+        os.replace(staging, final)
+    except BaseException:
+        if staging.exists():
+            shutil.rmtree(staging)
+        raise
+    manifest_path = final / C.MANIFEST_NAME
+    reporter.emit(C.EVENT_EXPORTED, manifest=str(manifest_path))
+    return manifest_path
+
+
+def layer_record(
+    name: str, index: int, atlas_size: tuple[int, int], box: tuple[float, ...], edit_layer: str
+) -> dict[str, Any]:
+    """One layer's manifest entry (contract.MANIFEST_LAYER_KEYS); paths relative to the export folder."""
+    return {
+        "name": name,
+        "index": index,
+        "role": C.ROLE_BACKGROUND if index == 0 else C.ROLE_FOREGROUND,
+        "uv_pass": C.uv_pass(name),
+        "alpha_pass": C.alpha_pass(name),
+        "uv_channels": list(C.UV_CHANNELS),
+        "alpha_channels": list(C.ALPHA_CHANNELS),
+        "channels": [C.channel_name(C.uv_pass(name), c) for c in C.UV_CHANNELS]
+        + [C.channel_name(C.alpha_pass(name), c) for c in C.ALPHA_CHANNELS],
+        "atlas_exr": f"{C.ATLASES_DIR}/{name}{C.ATLAS_EXR_EXT}",
+        "atlas_png": f"{C.ATLASES_DIR}/{name}{C.ATLAS_PNG_EXT}",
+        "atlas_size": list(atlas_size),
+        "edit_layer": edit_layer,
+        "atlas_box": [round(float(b), 7) for b in box],
+    }
+
+
+def _manifest(
+    run_dir: Path,
+    final: Path,
+    prepared: PreparedClip,
+    clip_rec: dict[str, Any],
+    names: list[str],
+    frames_by_layer: list[LayerFrame],
+    selected: list[int],
+    cfg: Any,
+    metrics: dict[str, Any],
+) -> dict[str, Any]:
+    info = prepared.info
+    numbers = [int(n) for n in clip_rec["frame_numbers"]]
+    rel_edits = os.path.relpath(run_dir / C.EDITS_DIR, final)
+    layers = [
+        layer_record(name, i, fr.size, fr.box, f"{rel_edits}/{name}{C.EDIT_LAYER_EXT}")
+        for i, (name, fr) in enumerate(zip(names, frames_by_layer, strict=True))
+    ]
+    ext = C.PASS_FILE_EXT
+    return {
+        C.MANIFEST_TAG: C.MANIFEST_VERSION,
+        "engine_version": C.ENGINE_VERSION,
+        "run_dir": str(run_dir),
+        "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "clip": {
+            "source": info.source,
+            "kind": info.kind,
+            "frame_files": list(info.frame_files),
+            "frame_numbers": numbers,
+            "first_frame": numbers[0],
+            "last_frame": numbers[-1],
+            "fps": info.fps,
+            "resolution": [info.width, info.height],
+            "working_resolution": list(prepared.size),
+            "colorspace": info.colorspace,
+        },
+        "passes": {
+            "dir": C.PASSES_DIR,
+            "pattern": f"{C.PASS_FILE_PREFIX}{{frame:0{C.PASS_FILE_DIGITS}d}}{ext}",
+            "blender_pattern": f"{C.PASS_FILE_PREFIX}{'#' * C.PASS_FILE_DIGITS}{ext}",
+            "frames": [numbers[t] for t in selected],
+            "exr_layer": C.EXR_LAYER,
+            "resolution": [info.width, info.height],
+        },
+        "layers": layers,
+        "fit": {
+            "preset": cfg.preset,
+            "model": cfg.model,
+            "steps": int(metrics.get("steps", 0)),
+            "train_seconds": float(metrics.get("train_seconds", 0.0)),
+            "psnr": metrics.get("psnr"),
+            "alpha_iou": metrics.get("alpha_iou"),
+        },
+    }
+
+
+__all__ = ["DEFAULT_ATLAS_SIZE", "LayerFrame", "export_run", "layer_frame_for", "layer_record"]

@@ -1,0 +1,1 @@
+"""The training loop, its checkpoints, its time estimate and the fit's contact sheet."""

@@ -1,0 +1,215 @@
+"""How long each preset will take on this machine and this clip, and what it is expected to reach.
+
+A short calibration times a few real training steps of every preset on the prepared clip, in each of the
+two cost regimes of a fit (while the global-rigidity term is on, which costs two more mapping passes per
+layer, and after), and multiplies by the preset's step budget; flow and evaluation are timed too. Expected
+PSNR comes from ``BENCHMARK_TABLE``: full fits measured on blackswan (docs/engine.md), not this clip.
+"""
+
+from __future__ import annotations
+
+import io
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from engine import contract as C
+from engine.bench.bench import torch_threads
+from engine.config import PRESETS, apply_overrides, preset_config
+from engine.data.scene_analysis import analyse_scene
+from engine.data.video import build_video_tensors, frame_pixels
+from engine.fit.trainer import (
+    EVAL_CHUNK,
+    Reporter,
+    build_model,
+    make_optimizer,
+    make_scheduler,
+    prepare_clip,
+    select_device,
+    train_step,
+)
+
+#: Full-frame PSNR of complete fits with each preset, measured on blackswan (50 frames, 768x432, 2-core
+#: CPU; docs/engine.md). None: not measured yet.
+BENCHMARK_TABLE: dict[str, dict[str, Any]] = {
+    "draft": {"psnr": 25.80, "clip": "blackswan", "note": "measured on blackswan, docs/engine.md"},
+    "balanced": {"psnr": 28.61, "clip": "blackswan", "note": "measured on blackswan, docs/engine.md"},
+    "final": {"psnr": 30.61, "clip": "blackswan", "note": "measured on blackswan, docs/accuracy-vs-time.md"},
+    "paper": {
+        "psnr": None,
+        "clip": "blackswan",
+        "note": "not measured on a CPU; the paper reports 29.92 dB after 10 hours on a GPU",
+    },
+}
+#: Timed steps per regime: at least this many, and at least ``calib_seconds`` of them (one paper-model
+#: step is already seconds long).
+MIN_TIMED_STEPS = 1
+
+
+@dataclass
+class PresetEstimate:
+    preset: str
+    model: str
+    steps: int
+    batch: int
+    seconds_per_step_early: float  # while global rigidity is on (the first global_rigidity_steps)
+    seconds_per_step_late: float
+    train_seconds: float
+    eval_seconds: float  # the live PSNR every eval_every steps and the final full-frame evaluation
+    total_seconds: float  # preparation (flow) + train + eval
+    minutes: float
+    expected_psnr: float | None
+    expected_psnr_note: str
+
+
+def _time_steps(run: tuple, step: int, calib_seconds: float, device: torch.device) -> float:
+    model, video, cfg, optim, sched, gen = run
+    train_step(model, video, cfg, optim, sched, gen, step, device)  # warm-up: allocator, kernels
+    n, t0 = 0, time.perf_counter()
+    while n < MIN_TIMED_STEPS or time.perf_counter() - t0 < calib_seconds:
+        train_step(model, video, cfg, optim, sched, gen, step, device)
+        n += 1
+    if device.type == "cuda":
+        torch.cuda.synchronize()
+    return (time.perf_counter() - t0) / n
+
+
+@torch.no_grad()
+def _time_render(model: Any, size: tuple[int, int], device: torch.device) -> float:
+    """Seconds to reconstruct one pixel (timed on one evaluation chunk)."""
+    xy, tt = frame_pixels(size, 0, device)
+    xy, tt = xy[:EVAL_CHUNK], tt[:EVAL_CHUNK]
+    model.reconstruct(xy[:256], tt[:256])
+    t0 = time.perf_counter()
+    model.reconstruct(xy, tt)
+    return (time.perf_counter() - t0) / xy.shape[0]
+
+
+def estimate(
+    clip: str | Path,
+    mask_dirs: list[str | Path],
+    presets: list[str] | None = None,
+    work_dir: str | Path | None = None,
+    calib_seconds: float = 2.0,
+    device_name: str = "auto",
+    frame_range: tuple[int, int] | None = None,
+    overrides: dict[str, str] | None = None,
+    threads: int | None = None,
+) -> dict[str, Any]:
+    """Estimate every preset's fit time on ``clip``. ``work_dir`` holds the flow cache in a run folder's
+    layout (``work_dir/flow_cache``): pass the future run folder and ``fit`` reuses the flow."""
+    with torch_threads(threads):
+        return _estimate(
+            clip,
+            list(mask_dirs),
+            presets or list(PRESETS),
+            work_dir,
+            calib_seconds,
+            device_name,
+            frame_range,
+            overrides or {},
+        )
+
+
+def _estimate(
+    clip: str | Path,
+    mask_dirs: list[str | Path],
+    presets: list[str],
+    work_dir: str | Path | None,
+    calib_seconds: float,
+    device_name: str,
+    frame_range: tuple[int, int] | None,
+    overrides: dict[str, str],
+) -> dict[str, Any]:
+    device = select_device(device_name)
+    cfgs = [apply_overrides(preset_config(p), overrides or {}) for p in presets]
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(work_dir) if work_dir else Path(tmp)
+        t0 = time.perf_counter()
+        prepared = prepare_clip(clip, list(mask_dirs), cfgs[0], work, frame_range, Reporter(None, io.StringIO()))
+        prepare_seconds = time.perf_counter() - t0
+    video = build_video_tensors(prepared.frames, prepared.masks, prepared.flow, cfgs[0].mask_prior_margin_px, device)
+    t_count, h, w = video.shape
+    rows = []
+    for cfg in cfgs:
+        torch.manual_seed(cfg.seed)
+        # the model `fit` would build: the scene analysis decides components (a tripod shot costs less)
+        scene = analyse_scene(t_count, prepared.flow, prepared.masks, cfg)
+        model = build_model(cfg, prepared, scene).to(device)
+        optim = make_optimizer(model, cfg, device)
+        run = (model, video, cfg, optim, make_scheduler(optim, cfg), torch.Generator().manual_seed(cfg.seed))
+        early_steps = min(cfg.global_rigidity_steps, cfg.steps)
+        early = _time_steps(run, 0, calib_seconds, device) if early_steps > 0 else 0.0
+        late_step = max(cfg.global_rigidity_steps, 0)
+        late = _time_steps(run, late_step, calib_seconds, device) if cfg.steps > early_steps else early
+        train = early_steps * early + (cfg.steps - early_steps) * late
+        per_px = _time_render(model, prepared.size, device)
+        live = (cfg.steps // max(cfg.eval_every, 1)) * cfg.eval_pixels * per_px
+        final = t_count * h * w * per_px
+        total = prepare_seconds + train + live + final
+        bench = BENCHMARK_TABLE.get(cfg.preset, {"psnr": None, "note": "no benchmark for this preset"})
+        rows.append(
+            PresetEstimate(
+                preset=cfg.preset,
+                model=cfg.model,
+                steps=cfg.steps,
+                batch=cfg.batch,
+                seconds_per_step_early=round(early, 4),
+                seconds_per_step_late=round(late, 4),
+                train_seconds=round(train, 1),
+                eval_seconds=round(live + final, 1),
+                total_seconds=round(total, 1),
+                minutes=round(total / 60.0, 1),
+                expected_psnr=bench["psnr"],
+                expected_psnr_note=bench["note"],
+            )
+        )
+    return {
+        C.ESTIMATE_TAG: C.SCHEMA_VERSION,
+        "clip": prepared.info.source,
+        "frames": int(t_count),
+        "working_size": [w, h],
+        "device": device.type,
+        "torch_threads": torch.get_num_threads(),
+        "prepare_seconds": round(prepare_seconds, 1),
+        "calib_seconds": calib_seconds,
+        "presets": [asdict(r) for r in rows],
+    }
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 90 * 60:
+        return f"{seconds / 60:.1f} min"
+    if seconds < 48 * 3600:
+        return f"{seconds / 3600:.1f} h"
+    return f"{seconds / 86400:.1f} days"
+
+
+def format_estimate(result: dict[str, Any]) -> str:
+    w, h = result["working_size"]
+    lines = [
+        f"{result['clip']}: {result['frames']} frames at {w}x{h} on {result['device']} "
+        f"({result['torch_threads']} threads); preparation (flow) {result['prepare_seconds']:.0f} s",
+        "| preset | model | steps | s/step (early / late) | estimated time | minutes | expected PSNR |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in result["presets"]:
+        psnr = (
+            f"{r['expected_psnr']:.2f} dB ({r['expected_psnr_note']})"
+            if r["expected_psnr"]
+            else r["expected_psnr_note"]
+        )
+        lines.append(
+            f"| {r['preset']} | {r['model']} | {r['steps']} | {r['seconds_per_step_early']:.3f} / "
+            f"{r['seconds_per_step_late']:.3f} | {_duration(r['total_seconds'])} | {r['minutes']:.1f} | {psnr} |"
+        )
+    return "\n".join(lines)
+
+
+__all__ = ["BENCHMARK_TABLE", "PresetEstimate", "estimate", "format_estimate"]

@@ -1,0 +1,1 @@
+"""Files in and out: plates and masks, images and EXRs, colour transfer, atomic writes (no torch)."""

@@ -1,0 +1,245 @@
+"""One training step's losses: the paper's terms evaluated on a random pixel batch.
+
+Model-agnostic: it only calls ``AtlasModel.uv/color/alpha``. Points are stacked so each field runs once
+per step on [pixel, pixel+dx, pixel+dy] (reconstruction, gradient loss and local rigidity share them).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import torch
+
+from engine.config import FitConfig
+from engine.data.video import PRIOR_IGNORE, VideoTensors
+from engine.model import losses as L
+from engine.model.atlas_model import AtlasModel
+
+#: What a reconstruction can reach: a convex combination of atlas colours in [0, 1]. Plate values outside
+#: it (a linear EXR's highlights, display-encoded: 50 becomes 5.3) cannot be fitted, so the colour and
+#: gradient terms compare against the plate clamped to this range; otherwise those pixels dominate the
+#: gradient of the shared decoders (measured on an HDR plate, 150 steps: -1.9 dB everywhere else).
+TARGET_RANGE = (0.0, 1.0)
+
+
+def weights_at(cfg: FitConfig, step: int) -> dict[str, float]:
+    """The loss weights in force at ``step`` (bootstrap terms switch off, the mask prior takes over)."""
+    boot = step < cfg.bootstrap_steps
+    glob = step < cfg.global_rigidity_steps
+    return {
+        "rgb": cfg.w_rgb,
+        "gradient": cfg.w_gradient,
+        "sparsity": cfg.w_sparsity,
+        "flow": cfg.w_flow,
+        "alpha_flow": cfg.w_alpha_flow,
+        "rigidity": cfg.w_rigidity,
+        "global_rigidity_fg": cfg.w_global_rigidity_fg if glob else 0.0,
+        "global_rigidity_bg": cfg.w_global_rigidity_bg if glob else 0.0,
+        "mask": cfg.w_mask if boot else 0.0,
+        "mask_prior": 0.0 if boot else cfg.w_mask_prior,
+        "anchor": cfg.w_anchor,
+        "atlas_sparsity": cfg.w_atlas_sparsity,
+        "scribble": cfg.w_scribble if boot else 0.0,
+    }
+
+
+def _step_generator(cfg: FitConfig, step: int, device: torch.device) -> torch.Generator:
+    """Random atlas points and scribble samples depend on (seed, step) only, so a resumed fit draws the same."""
+    return torch.Generator(device=device).manual_seed(cfg.seed * 1_000_003 + step)
+
+
+def mask_alphas(weights: torch.Tensor, mask_layers: tuple[tuple[int, ...], ...] | None) -> torch.Tensor:
+    """[N, F] alpha each mask is compared with: its layer's weight, or the sum over the layers it covers."""
+    if mask_layers is None:
+        return weights[:, 1:]
+    return torch.stack([weights[:, list(group)].sum(-1) for group in mask_layers], -1)
+
+
+def _evaluate(
+    field: Callable[[torch.Tensor, torch.Tensor], torch.Tensor], chunks: list[tuple[torch.Tensor, torch.Tensor]]
+) -> list[torch.Tensor]:
+    """``field`` on every chunk of (points, frames) in one call, split back into one output per chunk."""
+    if len(chunks) == 1:
+        return [field(*chunks[0])]
+    out = field(torch.cat([c[0] for c in chunks]), torch.cat([c[1] for c in chunks]))
+    return list(out.split([c[0].shape[0] for c in chunks]))
+
+
+def compute_losses(
+    model: AtlasModel,
+    video: VideoTensors,
+    cfg: FitConfig,
+    step: int,
+    ix: torch.Tensor,
+    iy: torch.Tensor,
+    t: torch.Tensor,
+) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """Total weighted loss and each unweighted term (for logging).
+
+    Only the terms in ``model.active_terms`` (engine.data.scene_analysis; None = all) are evaluated at all: a term the
+    scene does not call for costs nothing, not just weight 0, and is absent from the returned dict.
+    """
+    wts = weights_at(cfg, step)
+    active = model.active_terms
+
+    def on(term: str) -> bool:
+        return active is None or term in active
+
+    t_count, h, w = video.shape
+    n = ix.shape[0]
+    nl = model.num_layers
+    xy = torch.stack((ix, iy), -1).float() + 0.5
+    one_x = torch.tensor([1.0, 0.0], device=xy.device)
+    one_y = torch.tensor([0.0, 1.0], device=xy.device)
+    xy3 = torch.cat((xy, xy + one_x, xy + one_y))
+    t3 = t.repeat(3)
+
+    # Every point a field is asked about this step, gathered so each field runs ONCE per layer: a grid's
+    # backward zero-fills a gradient the size of the whole grid per call, so one call instead of five
+    # (pixels, global-rigidity neighbours, flow targets both ways) is most of a step's saving.
+    want_flow, want_alpha_flow = on("flow"), on("alpha_flow") and nl > 1
+    flow_parts: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []  # (selected samples, q, t of q)
+    for direction in (1, -1):
+        if t_count < 2 or not (want_flow or want_alpha_flow):
+            break
+        if direction == 1:
+            has = t < t_count - 1
+            tt = t.clamp(max=t_count - 2)
+            vec, ok = video.fwd[tt, iy, ix], video.fwd_ok[tt, iy, ix]
+        else:
+            has = t > 0
+            tt = (t - 1).clamp(min=0)
+            vec, ok = video.bwd[tt, iy, ix], video.bwd_ok[tt, iy, ix]
+        sel = (has & ok).nonzero().squeeze(1)
+        if sel.numel():
+            flow_parts.append((sel, xy[sel] + vec[sel], t[sel] + direction))
+
+    glob_bg = on("global_rigidity_bg") and (active is None or wts["global_rigidity_bg"] > 0)
+    glob_fg = on("global_rigidity_fg") and (active is None or wts["global_rigidity_fg"] > 0)
+    glob_on = (wts["global_rigidity_fg"] > 0 or wts["global_rigidity_bg"] > 0) and (glob_bg or glob_fg)
+    glob_layers = [i for i in range(nl) if glob_on and ((i == 0 and glob_bg) or (i > 0 and glob_fg))]
+    local_extra = on("rigidity") and cfg.rigidity_delta != 1.0
+
+    def neighbours(d: float) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        return [(xy + d * one_x, t), (xy + d * one_y, t)]
+
+    # where each kind of point starts in a layer's chunk list (the same for every layer that has it)
+    local_at = 1
+    glob_at = local_at + (2 if local_extra else 0)
+    uv_parts: list[list[torch.Tensor]] = []
+    flow_at: list[int] = []
+    for i in range(nl):
+        chunks = [(xy3, t3)]
+        if local_extra:
+            chunks += neighbours(cfg.rigidity_delta)
+        if i in glob_layers:
+            chunks += neighbours(cfg.global_rigidity_delta)
+        flow_at.append(len(chunks))
+        if want_flow:
+            chunks += [(q, tq) for _, q, tq in flow_parts]
+        uv_parts.append(_evaluate(lambda a, b, _i=i: model.uv(_i, a, b), chunks))
+    alpha_chunks = [(xy3, t3)] + ([(q, tq) for _, q, tq in flow_parts] if want_alpha_flow else [])
+    alpha_parts = _evaluate(model.alpha, alpha_chunks)
+
+    weights3 = alpha_parts[0]  # [3N, L]
+    uvs = [parts[0] for parts in uv_parts]
+    cols = [model.color(i, uv) for i, uv in enumerate(uvs)]
+    rec3 = sum(weights3[:, i : i + 1] * cols[i] for i in range(nl))
+    rec, rec_dx, rec_dy = rec3[:n], rec3[n : 2 * n], rec3[2 * n :]
+    wts0 = weights3[:n]
+
+    lo, hi = TARGET_RANGE
+    target = video.frames[t, iy, ix].clamp(lo, hi)
+    nx = (ix + 1).clamp(max=w - 1)
+    ny = (iy + 1).clamp(max=h - 1)
+    gt_dx = video.frames[t, iy, nx].clamp(lo, hi) - target
+    gt_dy = video.frames[t, ny, ix].clamp(lo, hi) - target
+
+    terms: dict[str, torch.Tensor] = {}
+    terms["rgb"] = L.rgb_loss(rec, target)
+    terms["gradient"] = L.gradient_loss(rec_dx - rec, rec_dy - rec, gt_dx, gt_dy, ix < w - 1, iy < h - 1)
+
+    if on("rigidity"):
+        rig = []
+        for i in range(nl):
+            u = uvs[i]
+            u_dx, u_dy = uv_parts[i][local_at : local_at + 2] if local_extra else (u[n : 2 * n], u[2 * n :])
+            rig.append(L.rigidity_loss(u[:n], u_dx, u_dy, cfg.rigidity_delta, model.uv_per_px(i)))
+        terms["rigidity"] = sum(rig)
+
+    if glob_on:
+        g = {
+            i: L.rigidity_loss(
+                uvs[i][:n], *uv_parts[i][glob_at : glob_at + 2], cfg.global_rigidity_delta, model.uv_per_px(i)
+            )
+            for i in glob_layers
+        }
+        if glob_bg:
+            terms["global_rigidity_bg"] = g[0]
+        if glob_fg:
+            fg = [g[i] for i in range(1, nl)]
+            terms["global_rigidity_fg"] = sum(fg) if fg else torch.zeros((), device=xy.device)
+
+    # flow consistency, forward (t -> t+1) and backward (t -> t-1), only where the flow is reliable
+    flow_terms, alpha_terms = [], []
+    for k, (sel, _, _) in enumerate(flow_parts):
+        if want_flow:
+            per_layer = []
+            for i in range(nl):
+                uq = uv_parts[i][flow_at[i] + k]
+                per_layer.append(L.flow_loss(uvs[i][:n][sel], uq, wts0[sel, i], None, model.uv_per_px(i)))
+            flow_terms.append(sum(per_layer))
+        if want_alpha_flow:
+            alpha_terms.append(L.alpha_flow_loss(wts0[sel, 1:], alpha_parts[1 + k][:, 1:], None))
+    zero = torch.zeros((), device=xy.device)
+    if on("flow"):
+        terms["flow"] = 0.5 * sum(flow_terms) if flow_terms else zero
+    if on("alpha_flow"):
+        terms["alpha_flow"] = 0.5 * sum(alpha_terms) if alpha_terms else zero
+
+    gen = None
+    if nl > 2:
+        # several foreground layers (Sec. 4.3): an object hidden behind another keeps its atlas colours, so
+        # the alpha-weighted term would be wrong; an l1 on random atlas points replaces it
+        if on("atlas_sparsity"):
+            gen = _step_generator(cfg, step, xy.device)
+            cols_s = []
+            for i in range(1, nl):
+                ax, ay = model.atlas_extent(i)
+                r = torch.rand((cfg.atlas_sparsity_samples, 2), generator=gen, device=xy.device) * 2.0 - 1.0
+                cols_s.append(model.color(i, r * torch.tensor([ax, ay], device=xy.device)))
+            terms["atlas_sparsity"] = L.atlas_sparsity_loss(torch.cat(cols_s))
+    elif on("sparsity"):
+        sp = [L.sparsity_loss(wts0[:, i : i + 1], cols[i][:n]) for i in range(1, nl)]
+        terms["sparsity"] = sum(sp) if sp else zero
+
+    if on("scribble") and video.scribble_xyt is not None and wts["scribble"] > 0 and video.scribble_xyt.shape[0]:
+        gen = gen or _step_generator(cfg, step, xy.device)
+        pick = torch.randint(0, video.scribble_xyt.shape[0], (cfg.scribble_samples,), generator=gen, device=xy.device)
+        sxyt = video.scribble_xyt[pick]
+        a = model.alpha(sxyt[:, :2].float() + 0.5, sxyt[:, 2])
+        terms["scribble"] = L.scribble_loss(a[:, 1:], video.scribble_label[pick])
+
+    # a bounded atlas (the fast model): keep each foreground where its atlas box was drawn (gauge fixing)
+    if nl > 1 and on("anchor") and wts["anchor"] > 0:
+        m_all = video.masks[:, t, iy, ix]  # [F, N]
+        groups = video.mask_layers or tuple((f + 1,) for f in range(m_all.shape[0]))
+        anchor = []
+        for f, group in enumerate(groups):
+            for i in group:  # scribbled parts share their object's mask
+                u0 = model.uv_anchor(i, xy, t)
+                if u0 is not None:
+                    anchor.append(L.anchor_loss(uvs[i][:n], u0, m_all[f], model.uv_per_px(i)))
+        if anchor:
+            terms["anchor"] = sum(anchor)
+
+    if nl > 1 and (on("mask") or on("mask_prior")) and (wts["mask"] > 0 or wts["mask_prior"] > 0):
+        fg_alpha = mask_alphas(wts0, video.mask_layers)
+        m = video.masks[:, t, iy, ix].t()  # [N, F]
+        valid = video.mask_valid[:, t].t()
+        terms["mask"] = L.mask_bce(fg_alpha, m, valid)
+        prior = video.prior[:, t, iy, ix].t()
+        terms["mask_prior"] = L.mask_bce(fg_alpha, prior.clamp(min=0), prior != PRIOR_IGNORE)
+
+    total = sum(wts[k] * v for k, v in terms.items() if wts.get(k, 0.0) != 0.0)
+    return total, terms

@@ -1,0 +1,260 @@
+"""A seconds-long ``bench`` and ``estimate`` on a tiny synthetic clip: the JSON schema, monotone best-so-far
+PSNR, scores in range, the recorded ETA, the plot; and how clips and per-preset overrides are resolved.
+No timed assertions."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from engine import contract as C
+from engine.bench.bench import (
+    BENCH_JSON,
+    BENCH_PNG,
+    BENCH_TAG,
+    bench_configs,
+    fit_eta_errors,
+    resolve_clip,
+    run_bench,
+)
+from engine.bench.tracking import Tracks, save_tracks
+from engine.cli import main
+from engine.data.synthetic import SceneSpec, make_scene, write_scene
+from engine.errors import InputError
+from engine.fit.estimate import BENCHMARK_TABLE
+from engine.fit.eta import StepClock
+
+SPEC = SceneSpec(width=64, height=48, frames=6, fg_size=(24, 18), fg_start=(12.0, 10.0), fg_velocity=(3.0, 1.0))
+TINY = ["--threads", "1", "--set", "batch=400", "--set", "paper.batch=300", "--set", "paper.pretrain_iters=2"]
+
+
+@pytest.fixture(scope="module")
+def clip(tmp_path_factory) -> Path:
+    """``clip/frames``, ``clip/masks`` and ground-truth ``clip/tracks_tapvid.npz`` (the shared-data layout)."""
+    root = tmp_path_factory.mktemp("bench") / "synth"
+    scene = make_scene(SPEC)
+    write_scene(scene, root)
+    tex = np.array([[12.0, 9.0], [6.3, 8.2], [17.5, 10.4]])
+    xy = np.stack([np.stack([scene.fg_point_in_frame(p, f) for f in range(SPEC.frames)]) for p in tex]) + 0.5
+    occluded = np.zeros((3, SPEC.frames), bool)
+    occluded[2, 4:] = True
+    query = np.c_[[0, 2, 0], xy[[0, 1, 2], [0, 2, 0]]].astype(np.float32)
+    save_tracks(root / "tracks_tapvid.npz", Tracks(xy.astype(np.float32), occluded, query, (SPEC.width, SPEC.height)))
+    return root
+
+
+@pytest.fixture(scope="module")
+def bench_record(clip, tmp_path_factory) -> tuple[dict, Path, str]:
+    out = tmp_path_factory.mktemp("bench_out")
+    args = ["bench", str(clip), "--presets", "draft,paper", "--budget-seconds", "2", "--out", str(out)]
+    args += ["--evals", "3", "--eval-frames", "2", "--slice-seconds", "0.5", "--set", "draft.steps=12", *TINY]
+    assert main(args) == C.EXIT_OK
+    return json.loads((out / BENCH_JSON).read_text()), out, " ".join(args)
+
+
+def test_bench_json_schema(bench_record):
+    rec, _, _ = bench_record
+    assert rec[BENCH_TAG] == 1
+    for key in ("created", "command", "machine", "versions", "settings", "clips", "runs", "peak_rss_mb"):
+        assert key in rec
+    assert {"cpu", "cores", "torch_threads", "load_average_at_start"} <= set(rec["machine"])
+    assert {"engine", "torch", "numpy", "python"} <= set(rec["versions"])
+    assert rec["settings"]["budget_seconds"] == 2.0 and rec["settings"]["mode"] == "interleaved"
+    assert rec["command"][:4] == ["python", "-m", "engine", "bench"]
+    (clip,) = rec["clips"]
+    assert clip["name"] == "synth" and clip["working_size"] == [SPEC.width, SPEC.height]
+    assert clip["eval_frames"] == [0, SPEC.frames - 1] and clip["track_queries"] == 3
+    assert {"delta_avg", "delta", "scored_points", "coords", "delta_avg_256"} <= set(clip["tracking_baseline"])
+    assert [r["preset"] for r in rec["runs"]] == ["draft", "paper"]
+    for run in rec["runs"]:
+        assert {"clip", "model", "steps", "train_seconds", "params", "curve", "eta", "config"} <= set(run)
+        assert run["curve"], "every run is evaluated at least once"
+        for point in run["curve"]:
+            assert {
+                "train_seconds",
+                "step",
+                "psnr",
+                "best_psnr",
+                "consistency_texels",
+                "tracking",
+                "eval_seconds",
+                "rss_mb",
+                "peak_rss_mb",
+            } <= set(point)
+            assert point["peak_rss_mb"] > 0
+
+
+def test_bench_curves_are_monotone_and_in_range(bench_record):
+    rec, _, _ = bench_record
+    for run in rec["runs"]:
+        curve = run["curve"]
+        best = [p["best_psnr"] for p in curve]
+        assert best == sorted(best), "best-so-far PSNR never decreases"
+        assert all(b >= p["psnr"] - 1e-9 for b, p in zip(best, curve, strict=True))
+        times = [p["train_seconds"] for p in curve]
+        assert times == sorted(times) and len(set(times)) == len(times)
+        for p in curve:
+            assert 0.0 <= p["tracking"]["delta_avg"] <= 1.0
+            assert p["consistency_texels"] >= 0.0 and p["consistency_pixels"] > 0
+            assert np.isfinite(p["psnr"])
+
+
+def test_bench_stops_at_steps_or_budget_and_records_the_eta(bench_record):
+    rec, _, _ = bench_record
+    draft, paper = rec["runs"]
+    assert draft["finished_steps"] and draft["steps"] == 12  # done before the budget: its steps ran out
+    assert [e["fraction"] for e in draft["eta"]] == [0.1, 0.25, 0.5]
+    for e in draft["eta"]:
+        assert e["actual_seconds"] > 0
+        # both seconds are rounded to 1 ms: the recomputed ratio is exact only to about 1 ms / actual
+        tol = 2e-3 + 2e-3 / e["actual_seconds"]
+        assert e["error_mean"] == pytest.approx(e["eta_mean_seconds"] / e["actual_seconds"] - 1, abs=tol)
+        assert (e["error"] is None) == (e["step"] == 1)  # the fit's ETA leaves the warm-up step out
+    assert not paper["finished_steps"] and paper["train_seconds"] >= 2.0  # the budget ended it
+    assert all("error" not in e for e in paper["eta"])
+
+
+def test_bench_writes_a_plot(bench_record):
+    _, out, _ = bench_record
+    assert (out / BENCH_PNG).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_estimate_json(clip, capsys):
+    args = ["estimate", str(clip / "frames"), "--mask", str(clip / "masks"), "--presets", "draft,balanced"]
+    assert main([*args, "--calib-seconds", "0.05", "--json", "--threads", "1", "--set", "batch=300"]) == C.EXIT_OK
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert result[C.ESTIMATE_TAG] == C.SCHEMA_VERSION
+    draft, balanced = result["presets"]
+    assert (draft["preset"], draft["expected_psnr"]) == ("draft", BENCHMARK_TABLE["draft"]["psnr"])
+    assert balanced["expected_psnr"] == BENCHMARK_TABLE["balanced"]["psnr"]
+    assert "blackswan" in balanced["expected_psnr_note"]
+    for row in (draft, balanced):
+        assert row["total_seconds"] >= row["train_seconds"] > 0
+        assert row["minutes"] == pytest.approx(row["total_seconds"] / 60, abs=0.06)
+    assert balanced["train_seconds"] > draft["train_seconds"]  # 7.5x the steps at about the same cost
+
+
+def test_estimate_table(clip, capsys):
+    args = ["estimate", str(clip / "frames"), "--mask", str(clip / "masks"), "--presets", "draft"]
+    assert main([*args, "--calib-seconds", "0.02", "--threads", "1", "--set", "batch=200"]) == C.EXIT_OK
+    out = capsys.readouterr().out
+    assert "| draft | fast | 800 |" in out and f"{BENCHMARK_TABLE['draft']['psnr']:.2f} dB" in out
+
+
+def test_resolve_clip_layouts(clip):
+    a = resolve_clip(clip)
+    assert (a.name, a.frames.name, [m.name for m in a.masks], a.tracks.name) == (
+        "synth",
+        "frames",
+        ["masks"],
+        "tracks_tapvid.npz",
+    )
+    b = resolve_clip(clip / "frames", [clip / "masks"])
+    assert (b.name, b.tracks) == ("synth", a.tracks)
+    with pytest.raises(InputError):
+        resolve_clip(clip / "nowhere")
+
+
+def test_per_preset_overrides():
+    draft, paper = bench_configs(["draft", "paper"], {"batch": "100", "paper.steps": "7"})
+    assert (draft.batch, paper.batch, draft.steps, paper.steps) == (100, 100, 800, 7)
+    with pytest.raises(InputError, match="not one of the benched presets"):
+        bench_configs(["draft"], {"final.steps": "3"})
+    with pytest.raises(InputError, match="long_edge"):
+        bench_configs(["draft", "paper"], {"paper.long_edge": "100"})
+
+
+def test_eta_error_of_a_fit_log(tmp_path):
+    """Steps that get cheaper after the first half: the early ETA overestimates, the error says by how much."""
+    lines = [C.progress_line(C.EVENT_STAGE, stage="train", message="x")]
+    for step, elapsed in ((10, 20.0), (50, 100.0)):  # 2 s/step so far
+        lines.append(C.progress_line(C.EVENT_PROGRESS, step=step, total=100, elapsed=elapsed, eta=(100 - step) * 2.0))
+    (tmp_path / C.RUN_LOG).write_text("\n".join(lines) + "\n")
+    (tmp_path / C.RUN_METRICS).write_text(json.dumps({"train_seconds": 150.0}))  # the second half at 1 s/step
+    rows = fit_eta_errors(tmp_path)
+    assert [(r["step"], r["eta_seconds"], r["actual_seconds"]) for r in rows] == [(10, 180.0, 130.0), (50, 100.0, 50.0)]
+    assert rows[1]["error"] == pytest.approx(1.0) and rows[0]["fraction"] == 0.1
+
+
+def test_step_clock_extrapolates_each_regime_at_its_own_rate():
+    clock = StepClock(boundary=4)
+    assert clock.eta(0, 10) is None
+    clock.add(0, 9.0)  # warm-up step: not a rate
+    assert clock.eta(1, 10) is None
+    for step in (1, 2, 3):
+        clock.add(step, 2.0)
+    assert clock.eta(4, 10) == pytest.approx(6 * 2.0)  # the late regime is not reached: assume the same rate
+    for step in (4, 5):
+        clock.add(step, 1.0)
+    assert clock.eta(6, 10) == pytest.approx(4 * 1.0)
+    assert clock.eta(2, 10) == pytest.approx(2 * 2.0 + 6 * 1.0)
+    assert clock.eta(10, 10) == 0.0
+
+
+def test_step_clock_scales_an_unreached_regime_by_the_measured_ratio():
+    clock = StepClock(boundary=4, late_ratio=0.5)
+    clock.add(0, 9.0)
+    for step in (1, 2, 3):
+        clock.add(step, 2.0)
+    assert clock.eta(4, 10) == pytest.approx(6 * 2.0 * 0.5)  # late steps measured at half the cost
+    resumed = StepClock(boundary=4, late_ratio=0.5)  # a resume past the boundary: the early rate is derived
+    for step in (6, 7, 8):
+        resumed.add(step, 1.0)
+    assert resumed.rate(0) == pytest.approx(2.0) and resumed.eta(9, 10) == pytest.approx(1.0)
+    for bad in (0.0, -1.0, float("inf"), float("nan")):  # guarded: an unusable ratio falls back to the same rate
+        c = StepClock(boundary=4, late_ratio=bad)
+        for step in (0, 1):
+            c.add(step, 2.0)
+        assert c.eta(4, 10) == pytest.approx(12.0)
+
+
+def test_regime_cost_ratio_leaves_the_fit_untouched(clip):
+    """The probe times both regimes without changing the model, its gradients or the fit's random state."""
+    import io
+
+    from engine.config import apply_overrides, preset_config
+    from engine.data.video import build_video_tensors
+    from engine.fit.trainer import Reporter, build_model, prepare_clip, regime_cost_ratio
+
+    cfg = apply_overrides(preset_config("draft"), {"batch": "300"})
+    prepared = prepare_clip(clip / "frames", [clip / "masks"], cfg, clip / "work", None, Reporter(None, io.StringIO()))
+    cpu = torch.device("cpu")
+    video = build_video_tensors(prepared.frames, prepared.masks, prepared.flow, cfg.mask_prior_margin_px, cpu)
+    model = build_model(cfg, prepared)
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    ratio = regime_cost_ratio(model, video, cfg, cpu)
+    assert ratio is not None and 0.1 < ratio < 2.0  # the late regime drops the global-rigidity passes
+    assert all(torch.equal(before[k], v) for k, v in model.state_dict().items())
+    assert all(p.grad is None for p in model.parameters())
+    assert regime_cost_ratio(model, video, apply_overrides(cfg, {"global_rigidity_steps": "0"}), cpu) is None
+    paper_like = apply_overrides(cfg, {"steps": "400000", "global_rigidity_steps": "5000"})
+    assert regime_cost_ratio(model, video, paper_like, cpu) is None  # 1.25%: not worth probing
+    tiny = apply_overrides(cfg, {"steps": "24", "global_rigidity_steps": "12"})
+    assert regime_cost_ratio(model, video, tiny, cpu) is None  # five probe steps would be 20% of this fit
+
+
+def test_sequential_bench_runs_presets_in_turn(clip, tmp_path):
+    spec = resolve_clip(clip)
+    rec = run_bench(
+        [spec], ["draft", "final"], 30.0, tmp_path, overrides={"steps": "4", "batch": "200"}, evals=1,
+        eval_frames=0, sequential=True, device_name="cpu", threads=1, plot=False, eval_at_start=True,
+    )  # fmt: skip
+    assert rec["settings"]["mode"] == "sequential" and rec["clips"][0]["eval_frames"] == list(range(SPEC.frames))
+    for run in rec["runs"]:
+        assert run["finished_steps"] and run["steps"] == 4  # its steps ended it, long before the budget
+        assert [p["step"] for p in run["curve"]] == [0, 4]  # before the first step, and at the end
+    assert not (tmp_path / BENCH_PNG).exists() and (tmp_path / BENCH_JSON).exists()
+
+
+def test_eval_schedule_adds_the_target_marks_within_the_budget():
+    from engine.bench.bench import _eval_schedule
+    from engine.cli import parse_eval_at
+
+    assert _eval_schedule(3600.0, 2, parse_eval_at("180, 600,1200,3600,9000")) == [112.5, 180.0, 600.0, 1200.0, 3600.0]
+    assert _eval_schedule(60.0, 1) == [60.0]
+    with pytest.raises(InputError, match="--eval-at"):
+        parse_eval_at("3min")
