@@ -14,18 +14,19 @@ if [ -z "$PY" ]; then
 fi
 [ -n "$PY" ] || { echo "error: no python3 found — install Python 3.11" >&2; exit 2; }
 
-# The requirements are listed once, in engine/contract.py (stdlib-only, so any Python can read them).
-REQS="$("$PY" -c 'import sys; sys.path.insert(0, "."); from engine import contract as c; print("\n".join(c.ENGINE_REQUIREMENTS + c.DEV_REQUIREMENTS))' 2>/dev/null \
-  || "$PY" - <<'PYEOF'
-import ast, pathlib
-tree = ast.parse(pathlib.Path("engine/contract.py").read_text())
-vals = {}
-for node in tree.body:
-    if isinstance(node, ast.AnnAssign) and node.target.id in ("ENGINE_REQUIREMENTS", "DEV_REQUIREMENTS"):
-        vals[node.target.id] = ast.literal_eval(node.value)
-print("\n".join(vals["ENGINE_REQUIREMENTS"] + vals["DEV_REQUIREMENTS"]))
+# The requirements are listed once, in engine/contract.py: read as literals (no engine code runs), so any
+# Python 3 can read them before the venv exists.
+contract_list() {  # the named tuples of engine/contract.py, one item per line
+  "$PY" - "$@" <<'PYEOF'
+import ast, pathlib, sys
+values = {}
+for node in ast.parse(pathlib.Path("engine/contract.py").read_text()).body:
+    if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name) and node.target.id in sys.argv[1:]:
+        values[node.target.id] = ast.literal_eval(node.value)
+print("\n".join(item for name in sys.argv[1:] for item in values[name]))
 PYEOF
-)"
+}
+REQS="$(contract_list ENGINE_REQUIREMENTS DEV_REQUIREMENTS)"
 STAMP=".venv/.requirements.sha256"
 WANT="$(printf '%s\n' "$REQS" | sha256sum | cut -d' ' -f1)"
 if [ ! -x .venv/bin/python ] || [ "$(cat "$STAMP" 2>/dev/null)" != "$WANT" ]; then
@@ -39,10 +40,7 @@ if [ ! -x .venv/bin/python ] || [ "$(cat "$STAMP" 2>/dev/null)" != "$WANT" ]; th
 fi
 
 # Blender 5.0 for the add-on tests: a second venv (bpy 4.5 lives in .venv; one bpy per interpreter).
-BPY5_REQS='bpy==5.0.1
-numpy<2
-OpenEXR==3.5.*
-pytest>=8'
+BPY5_REQS="$(contract_list BPY5_REQUIREMENTS)"
 setup_bpy5() {
   local want
   want="$(printf '%s\n' "$BPY5_REQS" | sha256sum | cut -d' ' -f1)"
@@ -64,6 +62,7 @@ case "${1:-}" in
   test)
     shift
     .venv/bin/ruff check .
+    .venv/bin/mypy  # the files listed in pyproject.toml's [tool.mypy]
     setup_bpy5
     rc=0
     .venv/bin/python -m pytest -q "$@" || rc=$?

@@ -100,9 +100,9 @@ class FitConfig:
     w_anchor: float = 0.0
     """Fast model: squared pixels of a foreground mapping's mean drift (over the layer's mask pixels) from its
     flow-fitted start. A mapping is free to translate as a whole; with a bounded atlas that drift is not
-    harmless: blackswan's mapping slid 85-150 px until 16-40% of the swan mapped outside its atlas box, where
-    the empty atlas is black, i.e. a free fit for a black swan, and the rest fell to the background. Only the
-    mean is pinned, so no deformation is resisted (draft: drift 147 px -> 1 px, alpha IoU 0.89 -> 0.95)."""
+    harmless: the part of the object that slides outside its atlas box lands on empty atlas, which is black (a
+    free fit for a dark object), and the rest falls to the background. Only the mean is pinned, so no
+    deformation is resisted (docs/engine.md has the drift and alpha IoU with and without it)."""
 
     # --- paper model
     uv_mapping_scale: float = 0.8
@@ -142,21 +142,21 @@ class FitConfig:
     """Fast model: initialise each layer's per-frame motion from the optical flow (robust similarity fit)."""
     atlas_margin_fg: float = 0.06
     """Fast model: a foreground atlas's content rectangle is the object's extent (its masks, mapped by the
-    initial motion) grown by this fraction; outside it the atlas is empty. The 0.31 alpha IoU that 0.3 once gave
-    on blackswan draft was the mapping drifting into the empty (black) area, fixed by ``w_anchor``."""
+    initial motion) grown by this fraction; outside it the atlas is empty. Kept small: empty atlas inside the box
+    is black, and a mapping that drifts into it fits dark content for free (``w_anchor`` pins that drift)."""
 
     # --- scene analysis (engine.data.scene_analysis)
     components: str = "auto"
     """``auto``: compute only what the scene calls for (a static camera gets a near-identity background
     mapping, a pan/zoom a similarity with a small residual and no warp grid; no foreground or alpha networks
     for a background-only clip; no flow for a single frame; loss terms without anything to act on are not
-    evaluated). ``all``: every component on, as before the analysis (to compare, or if the analysis is
-    wrong for a clip). The decisions and their reasons are written to RUN_DIR/scene.json."""
+    evaluated). ``all``: every component on whatever the clip (to compare, or if the analysis is wrong for a
+    clip). The decisions and their reasons are written to RUN_DIR/scene.json."""
 
     atlas_box_full_mask: bool = False
     """Fast model: a foreground atlas box spans the whole masks (True, every preset) rather than the eroded
-    ones the motion is fitted on (False: runs made before this field existed; their checkpoints need it).
-    The eroded box cut the rim off small objects: a 30 px object lost 6 px on every side to the background."""
+    ones the motion is fitted on (False): the erosion keeps the motion fit off unreliable boundary flow, but a
+    box drawn from it cuts the rim off small objects (a 30 px object loses 6 px on every side)."""
 
     # --- bookkeeping
     eval_every: int = 100
@@ -237,20 +237,15 @@ def parse_set_args(items: list[str]) -> dict[str, str]:
 
 
 def _fast(**kw: Any) -> FitConfig:
-    # lr_warp 0.05: the background warp is where a deformable background's PSNR is (blackswan, 2000 balanced
-    # steps: 26.66 -> 27.41 dB, alpha IoU unchanged); decaying it towards zero gave the gain back (docs/engine.md)
-    # object_sample_share 0.25: a quarter of each batch on the objects (balanced, 600 s: libby tracking
-    # delta_avg 0.077 -> 0.228, bmx-trees 0.253 -> 0.421, PSNR -0.2 to +1.1 dB; docs/accuracy-vs-time.md)
-    base = dict(
-        model="fast",
-        w_mask_prior=20.0,
-        w_anchor=10.0,
-        atlas_box_full_mask=True,
-        lr_warp=0.05,
-        object_sample_share=0.25,
+    """The fast model's presets share these. lr_warp: the background's warp grid is where a deformable
+    background (water, foliage) gains its PSNR, and it needs a faster rate than the MLPs to get there; decaying
+    it towards zero gives the gain back (docs/engine.md). object_sample_share: a quarter of each batch on the
+    objects lets a small object's mapping follow it, at little cost to the background
+    (docs/accuracy-vs-time.md)."""
+    fast = FitConfig(
+        model="fast", w_mask_prior=20.0, w_anchor=10.0, atlas_box_full_mask=True, lr_warp=0.05, object_sample_share=0.25
     )
-    base.update(kw)
-    return FitConfig(**base)
+    return dataclasses.replace(fast, **kw)
 
 
 #: Named presets; their step budgets are the contract's (``PRESET_STEPS``: the add-on's menu reads them too).
@@ -259,10 +254,10 @@ PRESETS: dict[str, FitConfig] = {
     "balanced": _fast(
         preset="balanced", steps=PRESET_STEPS["balanced"], bootstrap_steps=2000, global_rigidity_steps=1000
     ),
-    # final: 28000 steps leave the alpha ~20000 steps free after the bootstrap. With the prior at 20 and a
-    # 5000-step bootstrap, blackswan's alpha took the reflection and a haze over the water from step ~9000 on
-    # (PSNR +1.2 dB for ~0.8 loss units of prior: a trade the reconstruction wins; alpha IoU 0.96 -> 0.78).
-    # The paper's 10000-step bootstrap and a prior ten times stronger make that trade a loss.
+    # final: its long schedule leaves the alpha free for most of the fit after the bootstrap; that long with the
+    # balanced bootstrap and prior, the alpha takes reflections and haze into the foreground (the reconstruction
+    # gains more than the prior costs: docs/engine.md). The paper's 10000-step bootstrap and a prior ten times
+    # stronger make that trade a loss.
     "final": _fast(
         preset="final",
         steps=PRESET_STEPS["final"],
@@ -299,13 +294,13 @@ def config_help() -> str:
     import ast
     import inspect
 
-    src = inspect.getsource(FitConfig)
-    tree = ast.parse(src)
+    (cls,) = ast.parse(inspect.getsource(FitConfig)).body
+    assert isinstance(cls, ast.ClassDef)
     docs: dict[str, str] = {}
-    body = tree.body[0].body  # type: ignore[attr-defined]
-    for node, nxt in itertools.pairwise(body):
-        if isinstance(node, ast.AnnAssign) and isinstance(nxt, ast.Expr) and isinstance(nxt.value, ast.Constant):
-            docs[node.target.id] = str(nxt.value.value)  # type: ignore[union-attr]
+    for node, nxt in itertools.pairwise(cls.body):
+        doc = nxt.value if isinstance(nxt, ast.Expr) and isinstance(nxt.value, ast.Constant) else None
+        if doc is not None and isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            docs[node.target.id] = str(doc.value)
     default = FitConfig()
     lines = []
     for f in fields(FitConfig):

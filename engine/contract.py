@@ -37,6 +37,16 @@ DEV_REQUIREMENTS: tuple[str, ...] = (
     "ruff>=0.6",
     "matplotlib>=3.8",
     "bpy==4.5.*",  # Blender as a module, for the add-on tests (4.5 LTS; needs numpy<2)
+    "mypy==2.4.1",  # type-checks the modules listed in pyproject.toml ([tool.mypy] files)
+)
+
+#: The add-on tests run a second time on Blender 5.0, in a second venv (run.sh's .venv-bpy5): one bpy per
+#: interpreter, so these are installed beside .venv's bpy 4.5 rather than into it.
+BPY5_REQUIREMENTS: tuple[str, ...] = (
+    "bpy==5.0.1",
+    "numpy<2",
+    "OpenEXR==3.5.*",
+    "pytest>=8",
 )
 
 # --- CLI -----------------------------------------------------------------------------------------------
@@ -55,6 +65,13 @@ VERB_RENDER = "render"  # render MANIFEST [--edit LAYER=IMAGE ...] --out DIR [--
 VERB_PROJECT_FRAME = "project-frame"  # project-frame MANIFEST --frame N --edit IMAGE
 VERB_PREVIEW = "preview"  # preview MANIFEST [--out DIR]
 VERB_MASKS = "masks"  # masks CLIP --out FOLDER [--frames FIRST:LAST]; last stdout line = the masks folder
+
+#: The other direction: the add-on's one headless entry point, a script run by Blender (``blender -b -P``) or by
+#: a Python with the ``bpy`` module, that builds a .blend with the add-on's compositor tree for a manifest and
+#: renders it (``--help`` lists its arguments). ``engine demo`` starts it as a separate process to compare
+#: Blender's render with its own; the engine never imports bpy or add-on code. Relative to the folder that holds
+#: engine/ and addon/ (the checkout, or the installed extension).
+HEADLESS_SCRIPT = "addon/headless.py"
 
 #: The presets (``fit --preset``) and their step budgets. engine/config.py builds its presets with these and
 #: the add-on's preset menu and documented fallback estimate read them, so the two sides cannot disagree.

@@ -1,47 +1,211 @@
-"""The house rules that keep engine and add-on apart, enforced by walking the imports."""
+"""The house rules that keep the engine, its development bench and the add-on apart, checked on the source.
+
+Every import is resolved to the module it loads, whatever its spelling: ``import engine.cli``,
+``from ..engine import cli``, ``from .. import engine``, the extension's package name
+(``neural_atlas.engine.cli``), and ``importlib.import_module`` / ``__import__`` with a literal name. A
+dynamic import whose name is not a literal cannot be checked, so it is refused.
+
+A string that names a file or module of the other side reaches into it as surely as an import does (a
+script path handed to ``subprocess``, a module name handed to ``importlib``), so string literals are checked
+too; docstrings are prose and may mention files.
+
+The engine's one way into the add-on is a process, and it is named once: ``contract.HEADLESS_SCRIPT``.
+``engine demo`` ends with the artist's Blender steps done headless (import the export, build the compositor
+tree, render) and compares Blender's render with its own; that is product behaviour, and the script that does
+it must run inside Blender, so it belongs to the add-on. The contract already names everything that crosses
+the process boundary the other way (the CLI verbs the add-on runs); the headless script is the same kind of
+entry point in the reverse direction, so it is defined there, next to them. The engine refers to it only
+through that name: no engine file spells an ``addon`` path or module itself, and none imports bpy or add-on
+code (the script runs in its own process).
+"""
 
 from __future__ import annotations
 
 import ast
+import re
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
+from engine import contract as C
 from tests.paths import ROOT
 
+#: The package Blender loads the extension as (``addon/headless.py`` loads the checkout under it too); an
+#: absolute import through it names the same modules as a relative one.
+EXTENSION_PACKAGE = "neural_atlas"
+BLENDER_MODULES = ("bpy", "bmesh", "mathutils", "gpu", "bl_math", "blf", "aud")
+#: What the engine's fit runs on; the add-on runs it in another process and imports none of it.
+ENGINE_THIRD_PARTY = ("torch", "numpy", "cv2", "OpenImageIO", "OpenEXR", "av", "scipy", "tqdm")
+DYNAMIC_IMPORTS = ("import_module", "__import__", "run_module")
+_ADDON_IN_STRING = re.compile(r"(?:^|[/\\.])addon(?:$|[/\\.])")
+_ENGINE_IN_STRING = re.compile(r"(?:^|[/\\.])engine[/\\.](?!contract(?:$|\.py$|\.))")
 
-def _imports(path: Path) -> list[tuple[str, int]]:
-    """(module, level) for every import in a file; level > 0 for relative imports."""
-    out = []
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-        if isinstance(node, ast.Import):
-            out += [(a.name, 0) for a in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            out.append((node.module or "", node.level))
-            if node.module is None or node.module.split(".")[-1] == "engine":
-                out += [(f"{node.module or ''}.{a.name}".lstrip("."), node.level) for a in node.names]
+
+def _package(path: Path) -> list[str]:
+    """The package a file's relative imports start from (``engine/fit/trainer.py`` -> engine.fit)."""
+    return list(path.relative_to(ROOT).parts[:-1])
+
+
+def _absolute(name: str, level: int, package: list[str]) -> str:
+    """A module name as the repository root names it: relative levels resolved, the extension's prefix dropped."""
+    if level:
+        base = package[: len(package) - (level - 1)] if level - 1 <= len(package) else []
+        name = ".".join([*base, name] if name else base)
+    prefix = f"{EXTENSION_PACKAGE}."
+    return name[len(prefix) :] if name.startswith(prefix) else name
+
+
+def _docstrings(tree: ast.AST) -> set[int]:
+    out = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Module | ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef) and node.body:
+            first = node.body[0]
+            if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant):
+                out.add(id(first.value))
     return out
 
 
-def test_engine_never_imports_bpy_or_addon():
-    for py in (ROOT / "engine").rglob("*.py"):
-        for mod, _level in _imports(py):
-            top = mod.split(".")[0]
-            assert top not in ("bpy", "addon", "bmesh", "mathutils"), f"{py} imports {mod}"
+def imports(path: Path) -> Iterator[tuple[str, int]]:
+    """(module the statement loads, line) for every import in a file, resolved against the repository root.
+
+    ``from M import a`` yields ``M.a`` (a submodule or an attribute of M: either way it is inside M), so
+    ``from .. import engine`` yields ``engine`` and ``from ..engine import contract`` yields ``engine.contract``.
+    A dynamic import with a name that is not a literal yields ``<dynamic>``."""
+    package = _package(path)
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield _absolute(alias.name, 0, package), node.lineno
+        elif isinstance(node, ast.ImportFrom):
+            module = _absolute(node.module or "", node.level, package)
+            for alias in node.names:
+                yield (f"{module}.{alias.name}" if module else alias.name), node.lineno
+        elif isinstance(node, ast.Call):
+            func = node.func
+            name = func.id if isinstance(func, ast.Name) else func.attr if isinstance(func, ast.Attribute) else ""
+            if name not in DYNAMIC_IMPORTS:
+                continue
+            arg = node.args[0] if node.args else None
+            if isinstance(arg, ast.Constant) and isinstance(arg.value, str):
+                level = len(arg.value) - len(arg.value.lstrip("."))
+                yield _absolute(arg.value.lstrip("."), level, package), node.lineno
+            else:
+                yield "<dynamic>", node.lineno
+
+
+def strings(path: Path) -> Iterator[tuple[str, int]]:
+    """Every string literal of a file but its docstrings (f-string parts included), with its line."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    skip = _docstrings(tree)
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in skip:
+            yield node.value, node.lineno
+
+
+def _top(module: str) -> str:
+    return module.split(".")[0]
+
+
+def _inside(module: str, package: str) -> bool:
+    return module == package or module.startswith(f"{package}.")
+
+
+def _files(folder: str) -> list[Path]:
+    files = sorted((ROOT / folder).rglob("*.py"))
+    assert files, folder
+    return files
+
+
+def test_imports_are_resolved_whatever_the_spelling(tmp_path, monkeypatch):
+    """The resolver itself: each spelling of an engine import from the add-on names the module it loads."""
+    monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
+    src = tmp_path / "addon" / "ops" / "x.py"
+    src.parent.mkdir(parents=True)
+    src.write_text(
+        "from ... import engine\n"
+        "from ...engine import contract, cli\n"
+        "from ...engine.contract import EXIT_OK\n"
+        "from ..core import plan\n"
+        "import neural_atlas.engine.fit.trainer\n"
+        "import importlib\n"
+        "importlib.import_module('...engine.demo', __package__)\n"
+        "__import__(name)\n"
+    )
+    assert [m for m, _ in imports(src)] == [
+        "engine",
+        "engine.contract",
+        "engine.cli",
+        "engine.contract.EXIT_OK",
+        "addon.core.plan",
+        "engine.fit.trainer",
+        "importlib",
+        "engine.demo",
+        "<dynamic>",
+    ]
+
+
+def test_engine_never_imports_bpy_or_the_addon():
+    for py in _files("engine"):
+        for mod, line in imports(py):
+            assert mod != "<dynamic>", f"{py}:{line}: a dynamic import the boundary cannot check"
+            assert _top(mod) not in ("addon", *BLENDER_MODULES), f"{py}:{line} imports {mod}"
+
+
+def test_engine_reaches_the_addon_only_through_the_contracts_headless_script():
+    """No engine file names an add-on file or module; the one entry point is ``contract.HEADLESS_SCRIPT``."""
+    named = {
+        (py.relative_to(ROOT).as_posix(), text)
+        for py in _files("engine")
+        for text, _ in strings(py)
+        if _ADDON_IN_STRING.search(text)
+    }
+    assert named == {("engine/contract.py", C.HEADLESS_SCRIPT)}
+    script = ROOT / C.HEADLESS_SCRIPT
+    assert script.is_file() and '__name__ == "__main__"' in script.read_text(encoding="utf-8")
+
+
+def test_product_never_imports_the_development_bench():
+    """engine/bench (accuracy-vs-time curves, speed tables) is left out of the extension zip: nothing else in
+    engine/ may import it, or the installed extension would fail on a missing module."""
+    for py in _files("engine"):
+        if _inside(".".join(py.relative_to(ROOT).with_suffix("").parts), "engine.bench"):
+            continue
+        for mod, line in imports(py):
+            assert not _inside(mod, "engine.bench"), f"{py}:{line} imports {mod}"
 
 
 def test_contract_is_standard_library_only():
-    for mod, level in _imports(ROOT / "engine" / "contract.py"):
-        assert level == 0 and mod.split(".")[0] in sys.stdlib_module_names | {"__future__"}, mod
+    for mod, line in imports(ROOT / "engine" / "contract.py"):
+        assert _top(mod) in sys.stdlib_module_names | {"__future__"}, f"contract.py:{line} imports {mod}"
 
 
 def test_addon_imports_only_the_contract_of_the_engine():
-    for py in (ROOT / "addon").rglob("*.py"):
-        for mod, level in _imports(py):
-            parts = mod.split(".")
-            assert parts[0] not in ("torch", "numpy", "cv2", "OpenImageIO", "OpenEXR"), f"{py} imports {mod}"
-            if "engine" in parts:
-                assert parts[parts.index("engine") + 1 :] in (["contract"], []), f"{py} imports {mod}"
-                assert level > 0 or parts[0] == "engine", f"{py}: use a relative import of the contract"
+    for py in _files("addon"):
+        for mod, line in imports(py):
+            assert mod != "<dynamic>", f"{py}:{line}: a dynamic import the boundary cannot check"
+            assert _top(mod) not in ENGINE_THIRD_PARTY, f"{py}:{line} imports {mod}"
+            if _top(mod) == "engine":
+                assert _inside(mod, "engine.contract"), f"{py}:{line} imports {mod}: only engine.contract"
+
+
+def test_addon_imports_the_contract_relatively():
+    """``import engine.contract`` would load whatever ``engine`` is first on sys.path, not the copy shipped in
+    the extension beside the add-on: the contract is imported relatively (or through the extension package)."""
+    for py in _files("addon"):
+        for node in ast.walk(ast.parse(py.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0:
+                names = [node.module or ""]
+            else:
+                continue
+            assert not any(_top(n) == "engine" for n in names), f"{py}:{node.lineno}: import the contract relatively"
+
+
+def test_addon_names_no_engine_module_or_file_but_the_contract():
+    for py in _files("addon"):
+        for text, line in strings(py):
+            assert not _ENGINE_IN_STRING.search(text), f"{py}:{line} names {text!r}"
 
 
 def test_root_shim_is_two_lines():
