@@ -8,6 +8,7 @@ folder's file names, the JSON progress lines the engine prints, and the pinned r
 from __future__ import annotations
 
 import json
+import math
 import os
 from typing import Any
 
@@ -208,12 +209,16 @@ def edit_layer_file(edit_layer: str) -> str:
     """The edit layer file in use for a manifest's ``edit_layer`` path (the PNG the export made): its float
     twin ``<same name>.exr`` when that exists, else the path itself. The engine and the add-on both call this,
     so they always read the same paint."""
-    root, ext = os.path.splitext(edit_layer)
-    if ext.lower() == EDIT_LAYER_EXT:
-        exr = root + EDIT_LAYER_FLOAT_EXT
+    if os.path.splitext(edit_layer)[1].lower() == EDIT_LAYER_EXT:
+        exr = float_edit_layer(edit_layer)
         if os.path.exists(exr):
             return exr
     return edit_layer
+
+
+def float_edit_layer(edit_layer: str) -> str:
+    """The float twin of an edit layer: ``<same name>.exr`` beside it (whether or not it exists yet)."""
+    return os.path.splitext(edit_layer)[0] + EDIT_LAYER_FLOAT_EXT
 
 
 #: Atlas textures: a float EXR (linear, premultiplied RGBA) and a 16-bit PNG (sRGB, straight alpha).
@@ -378,3 +383,47 @@ def load_manifest(path: str) -> dict[str, Any]:
         return validate_manifest(data)
     except ManifestError as exc:
         raise ManifestError(f"{path}: {exc} — export the run again with this engine") from None
+
+
+# --- definitions the engine and the add-on share (each computed here, once) ----------------------------------
+#: The working resolution's long edge when none is asked for (``fit --set long_edge=N``, the add-on's Working Size).
+DEFAULT_LONG_EDGE = 768
+#: A mask image's pixel marks foreground above this fraction of full scale.
+MASK_THRESHOLD = 0.5
+
+
+def working_size(width: int, height: int, long_edge: int = DEFAULT_LONG_EDGE) -> tuple[int, int]:
+    """Working ``(W, H)``: the long edge scaled to ``long_edge``, aspect kept, never enlarged; each side rounds
+    half up (``floor(x + 0.5)``, not Python's half-to-even ``round``). 854x480 -> (768, 432)."""
+    if width < 1 or height < 1 or long_edge < 1:
+        raise ValueError(f"working_size needs positive sizes, got {width}x{height}, long_edge={long_edge}")
+    scale = long_edge / max(width, height)
+    if scale >= 1.0:
+        return width, height
+    return max(1, math.floor(width * scale + 0.5)), max(1, math.floor(height * scale + 0.5))
+
+
+#: The sRGB transfer function (IEC 61966-2-1): encoded values at or below SRGB_ENCODED_CUTOFF decode through the
+#: linear segment (divide by SRGB_SLOPE), the others as ((c + SRGB_OFFSET) / SRGB_SCALE) ** SRGB_GAMMA.
+SRGB_ENCODED_CUTOFF = 0.04045
+#: Linear values at or below this encode through the linear segment.
+SRGB_LINEAR_CUTOFF = 0.0031308
+SRGB_SLOPE = 12.92
+SRGB_OFFSET = 0.055
+SRGB_SCALE = 1.055
+SRGB_GAMMA = 2.4
+
+
+def srgb_to_linear(c: float) -> float:
+    """Decode one sRGB-encoded value to linear; values outside [0, 1] extend the curve symmetrically.
+    (``engine.io.colour.srgb_to_linear`` is the same curve over arrays, with these constants.)"""
+    a = abs(c)
+    lin = a / SRGB_SLOPE if a <= SRGB_ENCODED_CUTOFF else ((a + SRGB_OFFSET) / SRGB_SCALE) ** SRGB_GAMMA
+    return math.copysign(lin, c)
+
+
+def resolve_manifest_path(manifest_path: str, path: str) -> str:
+    """A path written in a manifest: as it is when absolute, else relative to the manifest's folder (normalised)."""
+    if os.path.isabs(path):
+        return path
+    return os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(manifest_path)), path))

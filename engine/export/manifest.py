@@ -40,8 +40,8 @@ class Manifest:
         self.folder = self.path.parent
 
     def resolve(self, rel: str) -> Path:
-        p = Path(rel)
-        return p if p.is_absolute() else (self.folder / p).resolve()
+        """A path from the manifest (``contract.resolve_manifest_path``: the add-on resolves them the same way)."""
+        return Path(C.resolve_manifest_path(str(self.path), rel))
 
     @property
     def layers(self) -> list[dict[str, Any]]:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import contextlib
 import itertools
-import math
 import os
 import re
 import sys
@@ -25,6 +24,7 @@ import cv2
 import numpy as np
 import OpenImageIO as oiio
 
+from engine import contract as C
 from engine.errors import InputError
 
 IMAGE_EXTENSIONS: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".exr", ".dpx", ".tif", ".tiff")
@@ -111,18 +111,14 @@ def read_frames(info: ClipInfo, size: tuple[int, int] | None = None) -> np.ndarr
     return frames
 
 
-def working_size(width: int, height: int, long_edge: int = 768) -> tuple[int, int]:
-    """Working ``(W, H)``: the long edge scaled to ``long_edge``, aspect kept, never enlarged.
+def working_size(width: int, height: int, long_edge: int = C.DEFAULT_LONG_EDGE) -> tuple[int, int]:
+    """Working ``(W, H)``: the long edge scaled to ``long_edge``, aspect kept, never enlarged
+    (``contract.working_size``, which the add-on's estimate uses too). 854x480 -> (768, 432); 480x854 -> (432, 768).
 
     Fitting cost grows with pixel count, so big plates are shrunk; small ones are kept native because
-    upsampling adds no information. 854x480 -> (768, 432); 480x854 -> (432, 768).
+    upsampling adds no information.
     """
-    if width < 1 or height < 1 or long_edge < 1:
-        raise ValueError(f"working_size needs positive sizes, got {width}x{height}, long_edge={long_edge}")
-    scale = long_edge / max(width, height)
-    if scale >= 1.0:
-        return width, height
-    return max(1, math.floor(width * scale + 0.5)), max(1, math.floor(height * scale + 0.5))
+    return C.working_size(width, height, long_edge)
 
 
 def read_masks(folder: str | Path, info: ClipInfo, size: tuple[int, int]) -> np.ndarray:

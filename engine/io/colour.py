@@ -8,17 +8,19 @@ from __future__ import annotations
 
 import numpy as np
 
-#: Linear values at or below this use the linear segment of the sRGB curve (IEC 61966-2-1).
-SRGB_LINEAR_CUTOFF = 0.0031308
-#: Encoded values at or below this decode through the linear segment.
-SRGB_ENCODED_CUTOFF = 0.04045
+from engine import contract as C
+
+# The curve's constants are the contract's (IEC 61966-2-1), shared with the add-on's scalar decode.
+SRGB_LINEAR_CUTOFF = C.SRGB_LINEAR_CUTOFF
+SRGB_ENCODED_CUTOFF = C.SRGB_ENCODED_CUTOFF
 
 
 def srgb_to_linear(x: np.ndarray) -> np.ndarray:
     """Decode sRGB to linear (float32). Values outside [0, 1] extend the curve symmetrically."""
     x = np.asarray(x, dtype=np.float32)
     a = np.abs(x)
-    lin = np.where(a <= SRGB_ENCODED_CUTOFF, a / 12.92, np.power((a + 0.055) / 1.055, 2.4, dtype=np.float32))
+    decoded = np.power((a + C.SRGB_OFFSET) / C.SRGB_SCALE, C.SRGB_GAMMA, dtype=np.float32)
+    lin = np.where(a <= SRGB_ENCODED_CUTOFF, a / C.SRGB_SLOPE, decoded)
     return (np.sign(x) * lin).astype(np.float32)
 
 
@@ -26,7 +28,8 @@ def linear_to_srgb(x: np.ndarray) -> np.ndarray:
     """Encode linear to sRGB (float32); negatives mirror, values above 1 follow the curve (no clipping)."""
     x = np.asarray(x, dtype=np.float32)
     a = np.abs(x)
-    enc = np.where(a <= SRGB_LINEAR_CUTOFF, a * 12.92, 1.055 * np.power(a, 1.0 / 2.4, dtype=np.float32) - 0.055)
+    encoded = C.SRGB_SCALE * np.power(a, 1.0 / C.SRGB_GAMMA, dtype=np.float32) - C.SRGB_OFFSET
+    enc = np.where(a <= SRGB_LINEAR_CUTOFF, a * C.SRGB_SLOPE, encoded)
     return (np.sign(x) * enc).astype(np.float32)
 
 
