@@ -182,6 +182,35 @@ class FitConfig:
         return apply_overrides(cfg, data["config"], source=path)
 
 
+def loss_weights(cfg: FitConfig, step: int) -> dict[str, float]:
+    """Every loss term's weight at ``step``: global rigidity and the mask bootstrap (with the scribbles that
+    refine it) end at their step counts, where the mask prior takes over from the bootstrap. The weights change
+    only at those two steps."""
+    boot = step < cfg.bootstrap_steps
+    glob = step < cfg.global_rigidity_steps
+    return {
+        "rgb": cfg.w_rgb,
+        "gradient": cfg.w_gradient,
+        "rigidity": cfg.w_rigidity,
+        "global_rigidity_bg": cfg.w_global_rigidity_bg if glob else 0.0,
+        "global_rigidity_fg": cfg.w_global_rigidity_fg if glob else 0.0,
+        "flow": cfg.w_flow,
+        "alpha_flow": cfg.w_alpha_flow,
+        "sparsity": cfg.w_sparsity,
+        "mask": cfg.w_mask if boot else 0.0,
+        "mask_prior": 0.0 if boot else cfg.w_mask_prior,
+        "atlas_sparsity": cfg.w_atlas_sparsity,
+        "scribble": cfg.w_scribble if boot else 0.0,
+        "anchor": cfg.w_anchor,
+    }
+
+
+def weight_ever_on(cfg: FitConfig, term: str) -> bool:
+    """Whether ``term`` has a non-zero weight at some step of the fit (``loss_weights`` at each of its phases)."""
+    phases = {0} | {s for s in (cfg.bootstrap_steps, cfg.global_rigidity_steps) if 0 < s < cfg.steps}
+    return any(loss_weights(cfg, step)[term] != 0.0 for step in phases)
+
+
 def _field_doc_names() -> list[str]:
     return [f.name for f in fields(FitConfig)]
 
@@ -308,4 +337,13 @@ def config_help() -> str:
     return "\n".join(lines)
 
 
-__all__ = ["PRESETS", "FitConfig", "apply_overrides", "config_help", "parse_set_args", "preset_config"]
+__all__ = [
+    "PRESETS",
+    "FitConfig",
+    "apply_overrides",
+    "config_help",
+    "loss_weights",
+    "parse_set_args",
+    "preset_config",
+    "weight_ever_on",
+]

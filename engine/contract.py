@@ -229,8 +229,8 @@ ATLAS_PNG_EXT = ".png"
 #: Scribbles (``fit --mask OBJECT --scribbles FOLDER``, paper Sec. 4.4): one image per scribbled frame, named
 #: with the frame number like masks (00012.png for frame 00012); frames without a file have no scribbles.
 #: An 8-bit pixel whose R, G, B are each within SCRIBBLE_TOLERANCE of SCRIBBLE_COLOURS[k] (and whose alpha,
-#: if any, is > 127) marks foreground layer k+1; anything else (black, transparent) marks nothing. The mask
-#: is the whole object; the fit gives it as many foreground layers as the highest colour index used.
+#: if any, is above SCRIBBLE_ALPHA_CUTOFF) marks foreground layer k+1; anything else (black, transparent) marks
+#: nothing. The mask is the whole object; the fit gives it as many foreground layers as the highest colour index used.
 SCRIBBLE_ARG = "--scribbles"
 SCRIBBLE_COLOURS: tuple[tuple[int, int, int], ...] = (
     (255, 0, 0),  # red -> Foreground1
@@ -239,6 +239,7 @@ SCRIBBLE_COLOURS: tuple[tuple[int, int, int], ...] = (
     (255, 255, 0),  # yellow -> Foreground4
 )
 SCRIBBLE_TOLERANCE = 48
+SCRIBBLE_ALPHA_CUTOFF = 127  # half of 8-bit full scale: a stroke's soft edge counts where it is mostly opaque
 SCRIBBLE_FILE_FORMAT = "{:05d}.png"  # what the add-on writes; the engine reads any numbered png/tif
 
 

@@ -25,19 +25,19 @@ import cv2
 import numpy as np
 
 from engine import contract as C
-from engine.config import FitConfig
+from engine.config import FitConfig, weight_ever_on
 from engine.data.flow import FlowField
 from engine.errors import InputError
 from engine.io.atomic import atomic_write_text
 
 #: A background whose median flow magnitude (working px per frame) stays under this in (almost) every frame
-#: pair is *static*: a tripod. DIS noise on a real tripod shot is far below it (vtest-static at 384 px:
-#: 0.03 px; docs/engine.md), while the slowest DAVIS pan (blackswan) moves 3.2 px per frame at 384 px.
+#: pair is *static*: a tripod. DIS noise on a real tripod shot is far below it, and the slowest real camera
+#: pan far above it (docs/engine.md lists the clips measured).
 STATIC_MOTION_PX = 0.25
 #: A background whose flow a per-pair similarity (rotation, uniform scale, translation) explains to within
 #: this (working px, at RESIDUAL_PERCENTILE of the vectors) is a *pan/zoom*: a low-capacity mapping suffices.
-#: Parallax, water and foliage leave larger residuals: 0.61-2.9 px on the four DAVIS clips at 384 px, 0.06 px
-#: on vtest-static (docs/engine.md lists them).
+#: Parallax, water and foliage leave larger residuals, a tripod shot a far smaller one (docs/engine.md lists
+#: the clips measured).
 PANZOOM_RESIDUAL_PX = 0.35
 #: Percentile of the per-vector similarity residual that represents a pair: high enough that a distinct
 #: depth plane covering a fifth of the background counts, low enough that flow outliers at edges do not.
@@ -54,7 +54,7 @@ RANSAC_PX = 1.0
 #: Margin (px) around the masks that is not background for the measurement (coarse masks bleed).
 MASK_MARGIN_PX = 6
 
-#: Every loss term the objective knows, in its order (engine.model.objective).
+#: Every loss term the objective knows (engine.model.objective), in the order of ``config.loss_weights``.
 ALL_TERMS: tuple[str, ...] = (
     "rgb",
     "gradient",
@@ -70,17 +70,10 @@ ALL_TERMS: tuple[str, ...] = (
     "scribble",
     "anchor",
 )
+#: Terms a background-only clip has: reconstruction, and the background mapping's rigidity and flow.
+_BACKGROUND_TERMS = ("rgb", "gradient", "rigidity", "global_rigidity_bg", "flow")
 #: Terms that exist only for foreground layers (they act on alpha or on a foreground atlas).
-FOREGROUND_TERMS: tuple[str, ...] = (
-    "global_rigidity_fg",
-    "alpha_flow",
-    "sparsity",
-    "mask",
-    "mask_prior",
-    "atlas_sparsity",
-    "scribble",
-    "anchor",
-)
+FOREGROUND_TERMS: tuple[str, ...] = tuple(t for t in ALL_TERMS if t not in _BACKGROUND_TERMS)
 
 
 @dataclass
@@ -115,8 +108,8 @@ class SceneAnalysis:
 
     @property
     def term_set(self) -> frozenset[str] | None:
-        """The terms the objective evaluates; None = every term (components=all: the behaviour before the
-        analysis, including terms that evaluate to zero)."""
+        """The terms the objective evaluates; None = every term (components=all: including terms that
+        evaluate to zero)."""
         return None if self.components == "all" else frozenset(self.active_terms)
 
     def to_dict(self) -> dict[str, Any]:
@@ -216,26 +209,6 @@ def classify_background(measure: MotionMeasure | None, frames: int) -> tuple[str
     )
 
 
-def _weight_never_on(cfg: FitConfig, term: str) -> bool:
-    """True when ``term`` has weight 0 for the whole fit (its weight, or its schedule's length, is 0)."""
-    weights = {
-        "rgb": cfg.w_rgb,
-        "gradient": cfg.w_gradient,
-        "rigidity": cfg.w_rigidity,
-        "global_rigidity_bg": cfg.w_global_rigidity_bg if cfg.global_rigidity_steps > 0 else 0.0,
-        "global_rigidity_fg": cfg.w_global_rigidity_fg if cfg.global_rigidity_steps > 0 else 0.0,
-        "flow": cfg.w_flow,
-        "alpha_flow": cfg.w_alpha_flow,
-        "sparsity": cfg.w_sparsity,
-        "mask": cfg.w_mask if cfg.bootstrap_steps > 0 else 0.0,
-        "mask_prior": cfg.w_mask_prior if cfg.bootstrap_steps < cfg.steps else 0.0,
-        "atlas_sparsity": cfg.w_atlas_sparsity,
-        "scribble": cfg.w_scribble if cfg.bootstrap_steps > 0 else 0.0,
-        "anchor": cfg.w_anchor,
-    }
-    return weights[term] == 0.0
-
-
 def analyse_scene(
     frames: int,
     flow: FlowField | None,
@@ -287,7 +260,7 @@ def analyse_scene(
             reasons[term] = "off: the paper model's atlas is unbounded, there is no box to keep the object in"
         elif term == "global_rigidity_bg" and motion == C.BG_MOTION_STATIC:
             reasons[term] = "off: a near-identity mapping is globally rigid by construction"
-        elif _weight_never_on(cfg, term):
+        elif not weight_ever_on(cfg, term):
             reasons[term] = "off: its weight (or schedule) is 0 in this config"
         else:
             active.append(term)
@@ -318,7 +291,7 @@ def analyse_scene(
 
 
 def force_all(scene: SceneAnalysis) -> SceneAnalysis:
-    """components=all: every component on (the behaviour before the analysis), recording what was forced."""
+    """components=all: every component on, recording what the analysis would have left off."""
     overrides = []
     if scene.background_motion != C.BG_MOTION_DEFORMABLE:
         overrides.append(f"background_motion: deformable instead of {scene.background_motion}")
@@ -346,14 +319,14 @@ def write_scene_file(run_dir: Path, scene: SceneAnalysis) -> Path:
     return path
 
 
-def read_scene_file(run_dir: Path) -> SceneAnalysis | None:
-    """The run's scene analysis; None for a run fitted before the analysis existed (everything on)."""
+def read_scene_file(run_dir: Path) -> SceneAnalysis:
+    """The run's scene analysis (every fit writes it before its first step)."""
     path = Path(run_dir) / C.SCENE_FILE
-    if not path.exists():
-        return None
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
         C.validate_scene(data)
+    except FileNotFoundError:
+        raise InputError(path, "the run has no scene analysis", "restore it or fit into a new --out") from None
     except (json.JSONDecodeError, C.ManifestError) as exc:
         raise InputError(path, f"not a valid scene analysis ({exc})", "restore it or fit into a new --out") from None
     return SceneAnalysis.from_dict(data)

@@ -16,7 +16,7 @@ import numpy as np
 from engine import contract as C
 from engine.data.flow import FlowField
 from engine.errors import InputError
-from engine.io.clip import ClipInfo
+from engine.io.clip import ClipInfo, same_aspect
 
 #: No scribble at this pixel.
 NO_LABEL = -1
@@ -30,7 +30,7 @@ _NUMBER = re.compile(r"(\d+)(?!.*\d)")
 def labels_from_rgba(image: np.ndarray) -> np.ndarray:
     """int8 [H, W] labels (0-based foreground layer, NO_LABEL) of an 8-bit RGB or RGBA image [H, W, 3|4]."""
     rgb = image[..., :3].astype(np.int16)
-    drawn = image[..., 3] > 127 if image.shape[-1] == 4 else np.ones(rgb.shape[:2], dtype=bool)
+    drawn = image[..., 3] > C.SCRIBBLE_ALPHA_CUTOFF if image.shape[-1] == 4 else np.ones(rgb.shape[:2], dtype=bool)
     out = np.full(rgb.shape[:2], NO_LABEL, dtype=np.int8)
     for k, colour in enumerate(C.SCRIBBLE_COLOURS):
         near = (np.abs(rgb - np.asarray(colour, dtype=np.int16)) <= C.SCRIBBLE_TOLERANCE).all(-1)
@@ -82,7 +82,7 @@ def read_scribbles(folder: str | Path, info: ClipInfo, size: tuple[int, int]) ->
             raise InputError(file, "not an 8-bit RGB(A) image", "save scribbles as 8-bit RGB or RGBA PNG")
         image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGBA if image.shape[-1] == 4 else cv2.COLOR_BGR2RGB)
         ih, iw = image.shape[:2]
-        if abs(iw / ih - info.width / info.height) > 0.01 * info.width / info.height:
+        if not same_aspect((iw, ih), (info.width, info.height)):
             raise InputError(
                 file,
                 f"scribble image is {iw}x{ih} but the clip is {info.width}x{info.height}",

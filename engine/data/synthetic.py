@@ -23,10 +23,24 @@ from typing import Any
 import cv2
 import numpy as np
 
+from engine import contract as C
+
 #: Bump when the textures or the file layout change: write_scene then rewrites existing demo folders.
 SYNTHETIC_VERSION = 1
 SCENE_JSON = "scene.json"
 _FRAME_NAME = re.compile(r"^\d{5}\.png$")
+#: Band limits of both textures (so optical flow sees clean motion): no wave shorter than this...
+MIN_WAVELENGTH_PX = 8.0
+#: ...and no bump (a spot on the sprite) narrower than this radius.
+MIN_BUMP_RADIUS_PX = 4.0
+#: Background blobs: about one per square of this side, scattered over every texture point a frame shows and a
+#: margin of this many pixels around them.
+BLOB_SPACING_PX = 44.0
+BLOB_MARGIN_PX = 30.0
+#: The random streams of the background and of the sprite, each seeded with (spec.seed, stream), so a change to
+#: one texture's draws leaves the other as it was.
+BACKGROUND_STREAM = 0x5CE4E
+SPRITE_STREAM = 0x5941
 
 
 @dataclass(frozen=True)
@@ -158,8 +172,9 @@ class _Sprite:
         return ((u - a) / a) ** 2 + ((v - b) / b) ** 2
 
     def coverage(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """Anti-aliased ellipse coverage: a smooth step over ~1 px of (approximate) signed distance.
-        Coverage > 0.5 exactly where the pixel centre is inside the ellipse."""
+        """Anti-aliased ellipse coverage: a smooth step over ~1 px of (approximate) signed distance, centred on
+        the outline: coverage is above one half (``contract.MASK_THRESHOLD``) exactly where the pixel centre is
+        inside the ellipse."""
         a, b = self.size[0] / 2.0, self.size[1] / 2.0
         f = self._q(u, v) - 1.0
         grad = 2.0 * np.hypot((u - a) / (a * a), (v - b) / (b * b))
@@ -171,21 +186,20 @@ class _Sprite:
 @lru_cache(maxsize=16)
 def _textures(spec: SceneSpec) -> tuple[_Background, _Sprite]:
     """Texture parameters, deterministic from the spec (the seed, and the pan for where blobs go)."""
-    rng = np.random.default_rng([spec.seed, 0x5CE4E])
+    rng = np.random.default_rng([spec.seed, BACKGROUND_STREAM])
     base = _BG_PALETTE[rng.integers(len(_BG_PALETTE))] * 0.6 + 0.2
     waves_lo = _random_waves(rng, 5, (50.0, 160.0), 0.09)
-    waves_mid = _random_waves(rng, 6, (8.0, 24.0), 0.03)
+    waves_mid = _random_waves(rng, 6, (MIN_WAVELENGTH_PX, 24.0), 0.03)
     waves = _Waves(
         np.concatenate((waves_lo.freq, waves_mid.freq)),
         np.concatenate((waves_lo.phase, waves_mid.phase)),
         np.concatenate((waves_lo.amp, waves_mid.amp)),
     )
-    # Blobs over every texture point any frame shows (plus a margin), about one per 44x44 px.
     t_last = max(spec.frames - 1, 0)
     ends = (0.0, t_last * spec.bg_velocity[0]), (0.0, t_last * spec.bg_velocity[1])
-    x0, x1 = min(ends[0]) - 30.0, max(ends[0]) + spec.width + 30.0
-    y0, y1 = min(ends[1]) - 30.0, max(ends[1]) + spec.height + 30.0
-    n = max(4, int((x1 - x0) * (y1 - y0) / 44.0**2))
+    x0, x1 = min(ends[0]) - BLOB_MARGIN_PX, max(ends[0]) + spec.width + BLOB_MARGIN_PX
+    y0, y1 = min(ends[1]) - BLOB_MARGIN_PX, max(ends[1]) + spec.height + BLOB_MARGIN_PX
+    n = max(4, int((x1 - x0) * (y1 - y0) / BLOB_SPACING_PX**2))
     blobs = np.stack(
         (
             rng.uniform(x0, x1, n),
@@ -197,13 +211,13 @@ def _textures(spec: SceneSpec) -> tuple[_Background, _Sprite]:
     )
     blob_rgb = _BG_PALETTE[rng.integers(len(_BG_PALETTE), size=n)] + rng.uniform(-0.06, 0.06, (n, 3))
 
-    srng = np.random.default_rng([spec.seed, 0x5941])
+    srng = np.random.default_rng([spec.seed, SPRITE_STREAM])
     w, h = spec.fg_size
-    wavelength = max(8.0, min(w, h) / 3.0)
+    wavelength = max(MIN_WAVELENGTH_PX, min(w, h) / 3.0)
     angle = srng.uniform(0.2, 1.3)
     stripe_freq = np.array([np.cos(angle), np.sin(angle)]) * (2.0 * np.pi / wavelength)
     k = int(srng.integers(4, 7))
-    radius = max(4.0, min(w, h) / 4.5)
+    radius = max(MIN_BUMP_RADIUS_PX, min(w, h) / 4.5)
     spots = np.stack(
         (
             srng.uniform(0.15 * w, 0.85 * w, k),
@@ -225,7 +239,7 @@ class SyntheticScene:
     """A rendered clip and its ground truth (sprite coverage and both layers' exact motion)."""
 
     frames: np.ndarray  # float32 [T, H, W, 3] in [0, 1]
-    masks: np.ndarray  # bool [T, H, W]: the sprite's coverage > 0.5
+    masks: np.ndarray  # bool [T, H, W]: the sprite's coverage > contract.MASK_THRESHOLD
     bg_offset: np.ndarray  # float32 [T, 2]: frame pixel (x, y) shows background texture point (x+ox, y+oy)
     fg_offset: np.ndarray  # float32 [T, 2]: sprite top-left; frame (x, y) shows sprite texture (x-ox, y-oy)
     spec: SceneSpec
@@ -257,6 +271,17 @@ class SyntheticScene:
         return flow
 
 
+def paint_sprite(img: np.ndarray, sprite: _Sprite, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Composite ``sprite`` over ``img`` [H, W, 3] in place, pixel (y, x) showing its texture point
+    (u[y, x], v[y, x]) with its anti-aliased coverage; returns the coverage [H, W]."""
+    cov = sprite.coverage(u, v)
+    inside = cov > 0.0
+    if inside.any():
+        c = cov[inside][:, None]
+        img[inside] = c * sprite.color(u[inside], v[inside]) + (1.0 - c) * img[inside]
+    return cov
+
+
 def make_scene(spec: SceneSpec | None = None) -> SyntheticScene:
     """Render ``spec`` (default ``SceneSpec()``). Colours are computed in float64 then stored as float32."""
     spec = SceneSpec() if spec is None else spec
@@ -271,16 +296,9 @@ def make_scene(spec: SceneSpec | None = None) -> SyntheticScene:
     frames = np.empty((spec.frames, spec.height, spec.width, 3), dtype=np.float32)
     masks = np.empty((spec.frames, spec.height, spec.width), dtype=bool)
     for t in range(spec.frames):
-        bg = background.grid(xv + bg_offset[t, 0], yv + bg_offset[t, 1])
-        u, v = xs - fg_offset[t, 0], ys - fg_offset[t, 1]
-        cov = sprite.coverage(u, v)
-        inside = cov > 0.0
-        img = bg
-        if inside.any():
-            c = cov[inside][:, None]
-            img[inside] = c * sprite.color(u[inside], v[inside]) + (1.0 - c) * bg[inside]
+        img = background.grid(xv + bg_offset[t, 0], yv + bg_offset[t, 1])
+        masks[t] = paint_sprite(img, sprite, xs - fg_offset[t, 0], ys - fg_offset[t, 1]) > C.MASK_THRESHOLD
         frames[t] = img
-        masks[t] = cov > 0.5
     return SyntheticScene(
         frames=frames,
         masks=masks,
@@ -288,118 +306,6 @@ def make_scene(spec: SceneSpec | None = None) -> SyntheticScene:
         fg_offset=fg_offset.astype(np.float32),
         spec=spec,
     )
-
-
-# --- two objects crossing -------------------------------------------------------------------------------
-
-#: The second object's stripes (lime / violet), so the two objects differ in colour as well as in motion.
-_FG2_STRIPES = ((0.55, 0.95, 0.10), (0.35, 0.10, 0.90))
-
-
-@dataclass(frozen=True)
-class TwoObjectSpec:
-    """Two textured ellipses on a panning plate whose paths cross: object A passes in front of object B,
-    so each occludes (A) or is occluded (B) for a few frames. The multi-layer (paper Sec. 4.3) and
-    scribble (Sec. 4.4) tests need exactly this: two rigid parts whose screen regions overlap."""
-
-    width: int = 160
-    height: int = 96
-    frames: int = 12
-    bg_velocity: tuple[float, float] = (1.5, 0.4)
-    a_start: tuple[float, float] = (38.0, 22.0)  # object A's bounding box top-left at frame 0 (px)
-    a_velocity: tuple[float, float] = (4.0, 0.5)
-    a_size: tuple[int, int] = (40, 30)
-    b_start: tuple[float, float] = (84.0, 42.0)
-    b_velocity: tuple[float, float] = (-4.0, -0.3)
-    b_size: tuple[int, int] = (36, 34)
-    seed: int = 3
-
-
-@dataclass
-class TwoObjectScene:
-    """A rendered two-object clip and its ground truth; object 0 is A (in front), object 1 is B."""
-
-    frames: np.ndarray  # float32 [T, H, W, 3]
-    masks: np.ndarray  # bool [2, T, H, W]: each object's VISIBLE pixels (coverage > 0.5, A wins overlaps)
-    coverage: np.ndarray  # bool [2, T, H, W]: each object's full silhouette, occluded or not
-    offsets: np.ndarray  # float32 [2, T, 2]: object k's top-left; frame (x, y) shows its texture (x-ox, y-oy)
-    bg_offset: np.ndarray  # float32 [T, 2]
-    spec: TwoObjectSpec
-
-    def object_color(self, k: int, tex_xy: Any) -> np.ndarray:
-        """Exact colour of object ``k`` at its texture point(s) ``tex_xy`` ([..., 2]) -> [..., 3]."""
-        p = np.asarray(tex_xy, dtype=np.float64)
-        return _two_object_textures(self.spec)[1 + k].color(p[..., 0], p[..., 1])
-
-    @property
-    def union(self) -> np.ndarray:
-        """bool [T, H, W]: pixels of either object (one mask for a two-part object)."""
-        return self.masks.any(0)
-
-
-@lru_cache(maxsize=4)
-def _two_object_textures(spec: TwoObjectSpec) -> tuple[_Background, _Sprite, _Sprite]:
-    common = dict(width=spec.width, height=spec.height, frames=spec.frames, bg_velocity=spec.bg_velocity)
-    background, sprite_a = _textures(SceneSpec(**common, fg_size=spec.a_size, seed=spec.seed))
-    _, b = _textures(SceneSpec(**common, fg_size=spec.b_size, seed=spec.seed + 101))
-    sprite_b = _Sprite(b.size, b.stripe_freq, b.stripe_phase, b.spots, b.spot_rgb, _FG2_STRIPES)
-    return background, sprite_a, sprite_b
-
-
-def make_two_object_scene(spec: TwoObjectSpec | None = None) -> TwoObjectScene:
-    """Render ``spec``: background, then B, then A over it (each anti-aliased like ``make_scene``)."""
-    spec = TwoObjectSpec() if spec is None else spec
-    background, sprite_a, sprite_b = _two_object_textures(spec)
-    t_idx = np.arange(spec.frames, dtype=np.float64)[:, None]
-    bg_offset = t_idx * np.asarray(spec.bg_velocity, dtype=np.float64)
-    offsets = np.stack(
-        [
-            np.asarray(start, dtype=np.float64) + t_idx * np.asarray(vel, dtype=np.float64)
-            for start, vel in ((spec.a_start, spec.a_velocity), (spec.b_start, spec.b_velocity))
-        ]
-    )
-    ys, xs = np.mgrid[0 : spec.height, 0 : spec.width].astype(np.float64)
-    xv, yv = np.arange(spec.width, dtype=np.float64), np.arange(spec.height, dtype=np.float64)
-    frames = np.empty((spec.frames, spec.height, spec.width, 3), dtype=np.float32)
-    cover = np.empty((2, spec.frames, spec.height, spec.width), dtype=bool)
-    for t in range(spec.frames):
-        img = background.grid(xv + bg_offset[t, 0], yv + bg_offset[t, 1])
-        for k, sprite in ((1, sprite_b), (0, sprite_a)):  # back to front
-            u, v = xs - offsets[k, t, 0], ys - offsets[k, t, 1]
-            cov = sprite.coverage(u, v)
-            inside = cov > 0.0
-            if inside.any():
-                c = cov[inside][:, None]
-                img[inside] = c * sprite.color(u[inside], v[inside]) + (1.0 - c) * img[inside]
-            cover[k, t] = cov > 0.5
-        frames[t] = img
-    visible = cover.copy()
-    visible[1] &= ~cover[0]
-    return TwoObjectScene(
-        frames=frames,
-        masks=visible,
-        coverage=cover,
-        offsets=offsets.astype(np.float32),
-        bg_offset=bg_offset.astype(np.float32),
-        spec=spec,
-    )
-
-
-def write_two_object_scene(scene: TwoObjectScene, folder: Path, union: bool = False) -> tuple[Path, list[Path]]:
-    """Write ``frames/``, and ``masks_a/`` + ``masks_b/`` (or one ``masks/`` of both when ``union``).
-    Returns (frames_dir, mask_dirs). Not idempotent like ``write_scene``: for tests, into a fresh folder."""
-    folder = Path(folder)
-    frames_dir = folder / "frames"
-    layers = [("masks", scene.union)] if union else [("masks_a", scene.masks[0]), ("masks_b", scene.masks[1])]
-    mask_dirs = [folder / name for name, _ in layers]
-    for d in (frames_dir, *mask_dirs):
-        d.mkdir(parents=True, exist_ok=True)
-    rgb8 = np.clip(np.rint(scene.frames * 255.0), 0, 255).astype(np.uint8)
-    for t in range(scene.frames.shape[0]):
-        _imwrite(frames_dir / f"{t:05d}.png", cv2.cvtColor(rgb8[t], cv2.COLOR_RGB2BGR))
-        for d, (_, m) in zip(mask_dirs, layers, strict=True):
-            _imwrite(d / f"{t:05d}.png", np.where(m[t], 255, 0).astype(np.uint8))
-    return frames_dir, mask_dirs
 
 
 # --- files -------------------------------------------------------------------------------------------------
@@ -434,6 +340,16 @@ def _imwrite(path: Path, img: np.ndarray) -> None:
         raise OSError(f"could not write {path}")
 
 
+def write_pngs(frames: np.ndarray, frames_dir: Path, masks: dict[Path, np.ndarray]) -> None:
+    """``frames`` [T, H, W, 3] as 8-bit sRGB ``frames_dir/00000.png ...``, and each folder's bool masks [T, H, W]
+    as 0/255 PNGs with the same names (the folders must exist)."""
+    rgb8 = np.clip(np.rint(frames * 255.0), 0, 255).astype(np.uint8)
+    for t in range(frames.shape[0]):
+        _imwrite(frames_dir / f"{t:05d}.png", cv2.cvtColor(rgb8[t], cv2.COLOR_RGB2BGR))
+        for folder, m in masks.items():
+            _imwrite(folder / f"{t:05d}.png", np.where(m[t], 255, 0).astype(np.uint8))
+
+
 def write_scene(scene: SyntheticScene, folder: Path) -> tuple[Path, Path]:
     """Write ``folder/frames/00000.png ...`` (8-bit sRGB) and ``folder/masks/00000.png ...`` (0/255).
 
@@ -451,10 +367,7 @@ def write_scene(scene: SyntheticScene, folder: Path) -> tuple[Path, Path]:
             if _FRAME_NAME.match(old.name):
                 old.unlink()
     (folder / SCENE_JSON).unlink(missing_ok=True)
-    rgb8 = np.clip(np.rint(scene.frames * 255.0), 0, 255).astype(np.uint8)
-    for t in range(scene.frames.shape[0]):
-        _imwrite(frames_dir / f"{t:05d}.png", cv2.cvtColor(rgb8[t], cv2.COLOR_RGB2BGR))
-        _imwrite(masks_dir / f"{t:05d}.png", np.where(scene.masks[t], 255, 0).astype(np.uint8))
+    write_pngs(scene.frames, frames_dir, {masks_dir: scene.masks})
     tmp = folder / f".{SCENE_JSON}.tmp"
     tmp.write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
     os.replace(tmp, folder / SCENE_JSON)

@@ -12,6 +12,9 @@ from engine.data.flow import FlowField
 
 #: Prior label meaning "no opinion" (near a mask boundary, or a frame without a mask).
 PRIOR_IGNORE = -1
+#: A coarse mask's trusted core reaches at most this fraction of the object's thickness (its largest distance
+#: inside), so an object thinner than twice the margin still keeps a core.
+CORE_FRACTION = 0.4
 
 
 @dataclass
@@ -39,19 +42,29 @@ class VideoTensors:
         return t, h, w
 
 
+def mask_core(mask: np.ndarray, margin_px: float) -> np.ndarray:
+    """bool [H, W]: the pixels of a (non-empty) mask farther than ``margin_px`` from its boundary, or than
+    CORE_FRACTION of the object's thickness when that is less."""
+    inside = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 5)
+    return np.asarray(inside > min(margin_px, CORE_FRACTION * float(inside.max())))
+
+
+def far_outside(mask: np.ndarray, margin_px: float) -> np.ndarray:
+    """bool [H, W]: the pixels farther than ``margin_px`` from every pixel of ``mask``."""
+    return np.asarray(cv2.distanceTransform(1 - mask.astype(np.uint8), cv2.DIST_L2, 5) > margin_px)
+
+
 def mask_prior(masks: np.ndarray, margin_px: float) -> np.ndarray:
     """Trimap from coarse masks: trust only pixels farther than ``margin_px`` from the mask boundary
-    (inside: at most 40% of the object's thickness, so small objects keep a core)."""
+    (inside: the ``mask_core``, so small objects keep one)."""
     out = np.full(masks.shape, PRIOR_IGNORE, dtype=np.int8)
     for f in range(masks.shape[0]):
         for t in range(masks.shape[1]):
-            m = masks[f, t].astype(np.uint8)
+            m = masks[f, t]
             if not m.any():
                 continue
-            inside = cv2.distanceTransform(m, cv2.DIST_L2, 5)
-            outside = cv2.distanceTransform(1 - m, cv2.DIST_L2, 5)
-            out[f, t][inside > min(margin_px, 0.4 * float(inside.max()))] = 1
-            out[f, t][outside > margin_px] = 0
+            out[f, t][mask_core(m, margin_px)] = 1
+            out[f, t][far_outside(m, margin_px)] = 0
     return out
 
 
@@ -125,7 +138,7 @@ def sample_batch(
     """A training batch: ``round(share * n)`` pixels drawn from the objects' region (``object_region``), the
     rest uniform (``sample_pixels``). Why: a uniform batch of 4000 gives an object covering 2.5% of the frame
     ~100 pixels a step, too few for its mapping to follow a deforming dog or rider. ``share`` 0, or a clip
-    without masks, gives exactly ``sample_pixels`` (same draws: earlier runs reproduce)."""
+    without masks, gives exactly ``sample_pixels`` (the same draws)."""
     region = video.object_region
     k = min(max(round(float(share) * n), 0), n)
     if k == 0 or region is None or region.numel() == 0:

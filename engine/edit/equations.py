@@ -64,8 +64,7 @@ def sample_texture(tex: np.ndarray, uv: np.ndarray, filter: str = "bilinear") ->
     inside = (u >= 0.0) & (u <= 1.0) & (v >= 0.0) & (v <= 1.0)
     if filter == "nearest":
         # the texel coordinate in float32, as Blender's Map UV (and a GPU) computes it: in float64 a UV on a
-        # texel edge can land on the other side (v*H = 116.9999978 vs 117.0 in float32, measured in the demo)
-        # and pick the neighbouring texel
+        # texel edge can round to the other side of it and pick the neighbouring texel
         col = np.clip(np.floor(uv[..., 0].astype(np.float32) * np.float32(tw)), 0, tw - 1).astype(np.int64)
         row_up = np.clip(np.floor(uv[..., 1].astype(np.float32) * np.float32(th)), 0, th - 1).astype(np.int64)
         out = tex[th - 1 - row_up, col]

@@ -26,8 +26,13 @@ from engine.edit.render import MovieWriter, plate_frames, render_frames, to_disp
 from engine.export.manifest import Manifest
 from engine.io.images import read_image
 
-#: Width of one frame tile in the contact sheets.
+#: Width of one frame tile in the contact sheets, and of one atlas in the atlas sheet.
 TILE_W = 320
+ATLAS_TILE_W = 384
+#: Cells of the grey checker behind an atlas, along each side.
+ATLAS_CHECKER_CELLS = 24
+#: Frame rate of the preview movies when the plate has none (an image sequence carries no rate).
+PREVIEW_FPS = 12.0
 #: Frames shown in a contact sheet.
 SHEET_FRAMES = 4
 #: Checker squares along the atlas's long side.
@@ -77,10 +82,11 @@ def atlas_sheet(manifest: Manifest) -> np.ndarray:
         rgb, a = pixels[..., :3], pixels[..., 3:4]
         h, w = a.shape[:2]
         yy, xx = np.mgrid[0:h, 0:w]
-        check = np.where(((yy // max(1, h // 24)) + (xx // max(1, w // 24))) % 2 == 0, 0.35, 0.55)
+        cells = ATLAS_CHECKER_CELLS
+        check = np.where(((yy // max(1, h // cells)) + (xx // max(1, w // cells))) % 2 == 0, 0.35, 0.55)
         over = rgb * a + check[..., None] * (1.0 - a)
-        top = label(tile((np.clip(over, 0, 1) * 255).astype(np.uint8), 384), f"{layer['name']} atlas")
-        cov = label(tile((np.repeat(a, 3, -1) * 255).astype(np.uint8), 384), "coverage")
+        top = label(tile((np.clip(over, 0, 1) * 255).astype(np.uint8), ATLAS_TILE_W), f"{layer['name']} atlas")
+        cov = label(tile((np.repeat(a, 3, -1) * 255).astype(np.uint8), ATLAS_TILE_W), "coverage")
         cols.append(np.concatenate((top, cov), 0))
     return grid([cols])
 
@@ -132,7 +138,7 @@ def write_previews(manifest_path: str | Path, out_dir: str | Path | None = None,
     stripes = project_to_textures(manifest, manifest.read_passes(first), stripes_frame_edit(manifest.resolution))
 
     picks = set(_sheet_frames(manifest.frames))
-    fps = float(manifest.clip.get("fps") or 12.0)
+    fps = float(manifest.clip.get("fps") or PREVIEW_FPS)
     rows: dict[str, list[np.ndarray]] = {"original": [], "checkerboard": [], "propagation": []}
     for name, edits in (("checkerboard", checker), ("propagation", stripes)):
         writer = MovieWriter(out / f"{name}.mp4", fps, manifest.resolution) if movies else None

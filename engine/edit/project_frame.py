@@ -24,6 +24,7 @@ from engine import contract as C
 from engine.edit.equations import edit_to_premultiplied, load_edit
 from engine.errors import InputError
 from engine.export.manifest import LayerPasses, Manifest
+from engine.io.clip import same_aspect
 from engine.io.colour import linear_to_srgb
 from engine.io.images import image_header, read_image, write_png, write_rgba_exr
 
@@ -46,7 +47,7 @@ def read_frame_edit(path: str | Path, size: tuple[int, int]) -> np.ndarray:
     edit = edit_to_premultiplied(pixels, is_float)
     h, w = edit.shape[:2]
     if (w, h) != size:
-        if abs(w / h - size[0] / size[1]) > 0.01 * size[0] / size[1]:
+        if not same_aspect((w, h), size):
             raise InputError(
                 path, f"frame edit is {w}x{h} but the plate is {size[0]}x{size[1]}", "paint at the plate's size"
             )

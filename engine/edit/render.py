@@ -26,6 +26,8 @@ FORMATS = ("exr", "png")
 OUTPUT_PREFIX = "edit."
 #: Frames per second of the movie when the plate has no rate (image sequences).
 DEFAULT_FPS = 25.0
+#: H.264 constant rate factor of the movies: visually lossless, so the movie judges the edit, not the codec.
+MOVIE_CRF = 18
 
 
 def parse_edit_args(items: list[str]) -> dict[str, str]:
@@ -126,12 +128,12 @@ class MovieWriter:
         self.path = path
         self.tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
         self.container = av.open(str(self.tmp), mode="w")
-        self.stream = self.container.add_stream("libx264", rate=round(fps) if fps else 25)
+        self.stream = self.container.add_stream("libx264", rate=round(fps or DEFAULT_FPS))
         w, h = size
         self.size = (w + w % 2, h + h % 2)
         self.stream.width, self.stream.height = self.size
         self.stream.pix_fmt = "yuv420p"
-        self.stream.options = {"crf": "18"}
+        self.stream.options = {"crf": str(MOVIE_CRF)}
 
     def write(self, rgb_u8: np.ndarray) -> None:
         import av

@@ -30,8 +30,9 @@ from engine.errors import InputError
 IMAGE_EXTENSIONS: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".exr", ".dpx", ".tif", ".tiff")
 MOVIE_EXTENSIONS: tuple[str, ...] = (".mp4", ".mov", ".mkv", ".avi", ".webm", ".m4v")
 
-#: Masks whose aspect ratio differs from the clip's by more than this (relative) are rejected.
-MASK_ASPECT_TOLERANCE = 0.01
+#: An image drawn for a clip (a mask, scribbles, a painted frame) may have another resolution than the plate,
+#: but an aspect ratio that differs from the plate's by more than this fraction means it belongs to another one.
+ASPECT_TOLERANCE = 0.01
 
 _SEQUENCE = "sequence"
 _MOVIE = "movie"
@@ -133,8 +134,8 @@ def read_masks(folder: str | Path, info: ClipInfo, size: tuple[int, int]) -> np.
     uses the alpha (a cut-out matte: colour may be the plate itself); otherwise the max over the colour
     channels (so a white-on-black matte in any channel counts). Values are taken as a fraction of full
     scale (8/16-bit normalised, floats raw, NaN as background); the mask is resized with INTER_AREA on
-    these float values and THEN thresholded at > 0.5, so a coarse mask stays coarse instead of being
-    sharpened.
+    these float values and THEN thresholded (above ``contract.MASK_THRESHOLD``), so a coarse mask stays coarse
+    instead of being sharpened.
     """
     out_w, out_h = _check_size(size)
     mask_dir = os.path.abspath(os.path.expanduser(os.fspath(folder)))
@@ -149,20 +150,24 @@ def read_masks(folder: str | Path, info: ClipInfo, size: tuple[int, int]) -> np.
             "export one mask image per frame into this folder",
         )
     files = _match_masks(mask_dir, masks, info)
-    clip_aspect = info.width / info.height
     out = np.empty((len(files), out_h, out_w), dtype=bool)
     for i, path in enumerate(files):
         image = _read_image(path, _MASK)
-        aspect = image.width / image.height
-        if abs(aspect - clip_aspect) > MASK_ASPECT_TOLERANCE * clip_aspect:
+        if not same_aspect((image.width, image.height), (info.width, info.height)):
             raise InputError(
                 path,
-                f"mask is {image.width}x{image.height} (aspect {aspect:.3f}) but the clip is "
-                f"{info.width}x{info.height} (aspect {clip_aspect:.3f})",
+                f"mask is {image.width}x{image.height} (aspect {image.width / image.height:.3f}) but the clip is "
+                f"{info.width}x{info.height} (aspect {info.width / info.height:.3f})",
                 "export the masks at the clip's resolution, or at least with the same aspect ratio",
             )
-        out[i] = _resize(image.matte(), (out_w, out_h), grow=cv2.INTER_AREA) > 0.5
+        out[i] = _resize(image.matte(), (out_w, out_h), grow=cv2.INTER_AREA) > C.MASK_THRESHOLD
     return out
+
+
+def same_aspect(size: tuple[int, int], clip_size: tuple[int, int]) -> bool:
+    """Whether an image of ``size`` (W, H) has the aspect ratio of a clip of ``clip_size``, within ASPECT_TOLERANCE."""
+    clip_aspect = clip_size[0] / clip_size[1]
+    return abs(size[0] / size[1] - clip_aspect) <= ASPECT_TOLERANCE * clip_aspect
 
 
 # --- what is being read: frames or masks (decides the wording of errors) ------------------------------

@@ -15,6 +15,7 @@ from torch import nn
 
 from engine import contract as C
 from engine.config import FitConfig
+from engine.data.video import far_outside, mask_core
 from engine.model.fields import MLP, Grid2D, Grid3D, level_resolutions
 from engine.model.motion_init import LayerMotion
 
@@ -294,11 +295,9 @@ class FastModel(AtlasModel):
 
 
 def motion_regions(masks: np.ndarray, margin_px: float = 6.0) -> tuple[np.ndarray, list[np.ndarray]]:
-    """Regions for motion estimation: background = outside every mask by ``margin_px``; each foreground
-    = its mask shrunk by ``margin_px`` or by 40% of the object's thickness when it is small, so small
-    objects keep enough flow vectors."""
-    import cv2
-
+    """Regions for motion estimation, away from mask boundaries where flow is unreliable: background = outside
+    every mask by ``margin_px``; each foreground = its mask shrunk by ``margin_px``, or to ``video.CORE_FRACTION`` of
+    the object's thickness when it is small, so small objects keep enough flow vectors (``mask_core``)."""
     bg = np.ones(masks.shape[1:], dtype=bool)
     fgs = []
     for layer in masks:
@@ -306,9 +305,7 @@ def motion_regions(masks: np.ndarray, margin_px: float = 6.0) -> tuple[np.ndarra
         for t, m in enumerate(layer):
             if not m.any():
                 continue
-            m8 = m.astype(np.uint8)
-            inside = cv2.distanceTransform(m8, cv2.DIST_L2, 5)
-            ero[t] = inside > min(margin_px, 0.4 * float(inside.max()))
-            bg[t] &= cv2.distanceTransform(1 - m8, cv2.DIST_L2, 5) > margin_px
+            ero[t] = mask_core(m, margin_px)
+            bg[t] &= far_outside(m, margin_px)
         fgs.append(ero)
     return bg, fgs

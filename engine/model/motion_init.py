@@ -21,10 +21,15 @@ MIN_POINTS = 12
 STRIDE = 4
 #: The stride is chosen so a region yields about this many flow vectors.
 TARGET_POINTS = 2000
-#: RANSAC inlier threshold in pixels.
+#: RANSAC inlier threshold in pixels, iterations and confidence of the similarity fit.
 RANSAC_PX = 1.5
+RANSAC_ITERATIONS = 500
+RANSAC_CONFIDENCE = 0.99
 #: Similarity scales outside [1/MAX_SCALE_STEP, MAX_SCALE_STEP] per frame are rejected as outliers.
 MAX_SCALE_STEP = 1.25
+#: Reference pixels added on every side of a layer's content box beyond its relative margin, so that even a
+#: one-pixel object gets a box with room around it.
+EXTENT_PAD_PX = 2.0
 
 
 @dataclass
@@ -51,7 +56,12 @@ def _pair_similarity(flow: np.ndarray, ok: np.ndarray, region: np.ndarray | None
     src = np.stack((xs[sel] + 0.5, ys[sel] + 0.5), -1).astype(np.float32)
     dst = src + flow[ys[sel], xs[sel]].astype(np.float32)
     m, inliers = cv2.estimateAffinePartial2D(
-        src, dst, method=cv2.RANSAC, ransacReprojThreshold=RANSAC_PX, maxIters=500, confidence=0.99
+        src,
+        dst,
+        method=cv2.RANSAC,
+        ransacReprojThreshold=RANSAC_PX,
+        maxIters=RANSAC_ITERATIONS,
+        confidence=RANSAC_CONFIDENCE,
     )
     if m is None or inliers is None or int(inliers.sum()) < MIN_POINTS:
         return np.eye(2, 3)
@@ -76,7 +86,7 @@ def chain_motion(pair_motions: list[np.ndarray]) -> np.ndarray:
 def _extent(points: np.ndarray, margin: float) -> tuple[np.ndarray, float, tuple[float, float]]:
     lo, hi = points.min(0), points.max(0)
     center = (lo + hi) / 2.0
-    halves = (hi - lo) / 2.0 * (1.0 + margin) + 2.0
+    halves = (hi - lo) / 2.0 * (1.0 + margin) + EXTENT_PAD_PX
     half = float(halves.max())
     return center, half, (float(halves[0] / half), float(halves[1] / half))
 

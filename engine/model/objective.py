@@ -10,42 +10,24 @@ from collections.abc import Callable
 
 import torch
 
-from engine.config import FitConfig
+from engine.config import FitConfig, loss_weights
 from engine.data.video import PRIOR_IGNORE, VideoTensors
 from engine.model import losses as L
 from engine.model.atlas_model import AtlasModel
 
 #: What a reconstruction can reach: a convex combination of atlas colours in [0, 1]. Plate values outside
-#: it (a linear EXR's highlights, display-encoded: 50 becomes 5.3) cannot be fitted, so the colour and
+#: it (a linear EXR's highlights, display-encoded, stay far above 1) cannot be fitted, so the colour and
 #: gradient terms compare against the plate clamped to this range; otherwise those pixels dominate the
-#: gradient of the shared decoders (measured on an HDR plate, 150 steps: -1.9 dB everywhere else).
+#: gradient of the shared decoders and cost the fit everywhere else (docs/robustness.md).
 TARGET_RANGE = (0.0, 1.0)
-
-
-def weights_at(cfg: FitConfig, step: int) -> dict[str, float]:
-    """The loss weights in force at ``step`` (bootstrap terms switch off, the mask prior takes over)."""
-    boot = step < cfg.bootstrap_steps
-    glob = step < cfg.global_rigidity_steps
-    return {
-        "rgb": cfg.w_rgb,
-        "gradient": cfg.w_gradient,
-        "sparsity": cfg.w_sparsity,
-        "flow": cfg.w_flow,
-        "alpha_flow": cfg.w_alpha_flow,
-        "rigidity": cfg.w_rigidity,
-        "global_rigidity_fg": cfg.w_global_rigidity_fg if glob else 0.0,
-        "global_rigidity_bg": cfg.w_global_rigidity_bg if glob else 0.0,
-        "mask": cfg.w_mask if boot else 0.0,
-        "mask_prior": 0.0 if boot else cfg.w_mask_prior,
-        "anchor": cfg.w_anchor,
-        "atlas_sparsity": cfg.w_atlas_sparsity,
-        "scribble": cfg.w_scribble if boot else 0.0,
-    }
+#: The per-step generator's seed is ``seed * SEED_STRIDE + step``: a prime above any step count, so no two
+#: (seed, step) pairs share a stream.
+SEED_STRIDE = 1_000_003
 
 
 def _step_generator(cfg: FitConfig, step: int, device: torch.device) -> torch.Generator:
     """Random atlas points and scribble samples depend on (seed, step) only, so a resumed fit draws the same."""
-    return torch.Generator(device=device).manual_seed(cfg.seed * 1_000_003 + step)
+    return torch.Generator(device=device).manual_seed(cfg.seed * SEED_STRIDE + step)
 
 
 def mask_alphas(weights: torch.Tensor, mask_layers: tuple[tuple[int, ...], ...] | None) -> torch.Tensor:
@@ -79,7 +61,7 @@ def compute_losses(
     Only the terms in ``model.active_terms`` (engine.data.scene_analysis; None = all) are evaluated at all: a term the
     scene does not call for costs nothing, not just weight 0, and is absent from the returned dict.
     """
-    wts = weights_at(cfg, step)
+    wts = loss_weights(cfg, step)
     active = model.active_terms
 
     def on(term: str) -> bool:
@@ -192,6 +174,7 @@ def compute_losses(
         if want_alpha_flow:
             alpha_terms.append(L.alpha_flow_loss(wts0[sel, 1:], alpha_parts[1 + k][:, 1:], None))
     zero = torch.zeros((), device=xy.device)
+    # forward and backward count half each
     if on("flow"):
         terms["flow"] = 0.5 * sum(flow_terms) if flow_terms else zero
     if on("alpha_flow"):

@@ -15,6 +15,16 @@ from engine.model.atlas_model import ALPHA_FLOOR, ALPHA_SPAN, AtlasModel
 from engine.model.fields import MLP, PositionalEncoding
 
 HIDDEN = 256
+#: Linear layers of the background and foreground mappings, the atlas and the alpha MLPs (each HIDDEN wide).
+BG_MAPPING_LAYERS, FG_MAPPING_LAYERS, ATLAS_LAYERS, ALPHA_LAYERS = 4, 6, 8, 8
+#: The atlas MLP feeds its encoded input again to these layers.
+ATLAS_SKIPS = (4, 7)
+#: Positional-encoding frequencies of the atlas (u, v) and alpha (x, y, t) inputs.
+ATLAS_FREQUENCIES, ALPHA_FREQUENCIES = 10, 5
+#: Pixels per step of the mappings' calibration (at most the training batch).
+PRETRAIN_MAX_BATCH = 10000
+#: The calibration draws from its own random stream (the seed plus this), not the training sampler's.
+PRETRAIN_SEED_OFFSET = 1
 
 
 class PaperModel(AtlasModel):
@@ -26,13 +36,13 @@ class PaperModel(AtlasModel):
         self.frames = frames
         self.num_layers = 2
         self.scale = cfg.uv_mapping_scale
-        self.map_bg = MLP(3, 2, HIDDEN, 4)
-        self.map_fg = MLP(3, 2, HIDDEN, 6)
-        self.pe_atlas = PositionalEncoding(10)
+        self.map_bg = MLP(3, 2, HIDDEN, BG_MAPPING_LAYERS)
+        self.map_fg = MLP(3, 2, HIDDEN, FG_MAPPING_LAYERS)
+        self.pe_atlas = PositionalEncoding(ATLAS_FREQUENCIES)
         d_atlas = self.pe_atlas.out_dim(2)
-        self.atlas = MLP(d_atlas, 3, HIDDEN, 8, skips=(4, 7))
-        self.pe_alpha = PositionalEncoding(5)
-        self.alpha_mlp = MLP(self.pe_alpha.out_dim(3), 1, HIDDEN, 8)
+        self.atlas = MLP(d_atlas, 3, HIDDEN, ATLAS_LAYERS, skips=ATLAS_SKIPS)
+        self.pe_alpha = PositionalEncoding(ALPHA_FREQUENCIES)
+        self.alpha_mlp = MLP(self.pe_alpha.out_dim(3), 1, HIDDEN, ALPHA_LAYERS)
 
     def uv(self, layer: int, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         net = self.map_bg if layer == 0 else self.map_fg
@@ -55,11 +65,11 @@ class PaperModel(AtlasModel):
 
     def prepare(self, cfg: FitConfig, device: torch.device) -> None:
         """Calibrate both mappings to scale * identity (the reference's pre-training)."""
-        gen = torch.Generator(device="cpu").manual_seed(cfg.seed + 1)
+        gen = torch.Generator(device="cpu").manual_seed(cfg.seed + PRETRAIN_SEED_OFFSET)
+        n = min(cfg.batch, PRETRAIN_MAX_BATCH)
         for net in (self.map_fg, self.map_bg):
             opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
             for _ in range(cfg.pretrain_iters):
-                n = min(cfg.batch, 10000)
                 xy = torch.rand(n, 2, generator=gen) * torch.tensor([self.width, self.height])
                 t = torch.randint(0, self.frames, (n,), generator=gen)
                 xyt = self.normalized_xyt(xy.to(device), t.to(device))

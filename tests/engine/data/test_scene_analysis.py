@@ -1,8 +1,5 @@
 """Scene analysis (engine.data.scene_analysis): each decision on a named scene that has exactly that property, the model
 and objective computing only what the analysis keeps, and the record in scene.json, progress and manifest.
-
-Measured when written (96x64, 6 frames, DIS medium): background median motion static_camera 0.017 px,
-lighting_change 0.117 px, pan 1.99 px; similarity residual pan 0.237 px, parallax 1.38 px.
 """
 
 from __future__ import annotations
@@ -180,7 +177,7 @@ def test_fit_records_scene_and_export_has_one_layer(tmp_path):
     print(f"\nbackground-only still plate, 60 steps: psnr auto {psnr['auto']:.2f} dB, all {psnr['all']:.2f} dB")
     assert psnr["auto"] > 25.0 and psnr["auto"] > psnr["all"] - 0.5 and metrics["alpha_iou"] == []
     scene = read_scene_file(run)
-    assert scene is not None and scene.background_motion == C.BG_MOTION_STATIC and scene.num_layers == 1
+    assert scene.background_motion == C.BG_MOTION_STATIC and scene.num_layers == 1
     events = [m for m in map(C.parse_progress_line, stream.getvalue().splitlines()) if m]
     staged = [m for m in events if m["event"] == C.EVENT_STAGE and m["stage"] == "scene"]
     assert len(staged) == 1 and staged[0]["scene"]["background_motion"] == C.BG_MOTION_STATIC
@@ -201,7 +198,13 @@ def test_fit_records_scene_and_export_has_one_layer(tmp_path):
     assert np.array_equal(chans[C.channel_name(C.alpha_pass("Background"), "V")], np.ones((40, 64), np.float32))
 
 
-def test_manifest_scene_is_optional_and_validated():
+def test_a_run_without_its_scene_analysis_is_refused(tmp_path):
+    with pytest.raises(InputError, match="no scene analysis") as err:
+        read_scene_file(tmp_path)
+    assert C.SCENE_FILE in str(err.value) and "\n" not in str(err.value)
+
+
+def test_manifest_scene_is_validated():
     good = {"components": "auto", "num_layers": 1, "layers_source": "none", "background_motion": "static"}
     good |= {"flow": True, "active_terms": ["rgb"], "reasons": {}}
     C.validate_scene(good, 1)
@@ -240,7 +243,7 @@ def test_auto_masks_fit_uses_found_masks_or_falls_back(tmp_path):
     run = tmp_path / "run_obj"
     fit(frames_dir, [], run, cfg, device_name="cpu", progress_bar=False, stream=io.StringIO(), auto_masks=True)
     scene = read_scene_file(run)
-    assert scene is not None and scene.layers_source == C.SCENE_LAYERS_AUTO and scene.num_layers == 2
+    assert scene.layers_source == C.SCENE_LAYERS_AUTO and scene.num_layers == 2
     info = open_clip(frames_dir)
     found = read_masks(run / C.AUTO_MASKS_DIR, info, (128, 80))
     iou = mask_iou(found, read_masks(masks_dir, info, (128, 80)))
@@ -253,7 +256,7 @@ def test_auto_masks_fit_uses_found_masks_or_falls_back(tmp_path):
     run = tmp_path / "run_still"
     fit(frames_dir, [], run, cfg, device_name="cpu", progress_bar=False, stream=io.StringIO(), auto_masks=True)
     scene = read_scene_file(run)
-    assert scene is not None and scene.num_layers == 1 and scene.layers_source == C.SCENE_LAYERS_AUTO
+    assert scene.num_layers == 1 and scene.layers_source == C.SCENE_LAYERS_AUTO
     assert "no moving object was found" in scene.reasons["layers"]
 
 

@@ -16,10 +16,10 @@ from engine.data.scribbles import (
     resize_labels,
     scribble_layers,
 )
-from engine.data.synthetic import TwoObjectSpec, make_two_object_scene, write_two_object_scene
 from engine.errors import InputError
 from engine.io.clip import open_clip
 from engine.model.objective import mask_alphas
+from tests.two_object_scene import TwoObjectSpec, make_two_object_scene, write_two_object_scene
 
 SMALL = TwoObjectSpec(
     width=80, height=48, frames=4, a_start=(10.0, 8.0), b_start=(40.0, 14.0), a_size=(20, 16), b_size=(18, 16)
