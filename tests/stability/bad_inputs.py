@@ -119,29 +119,14 @@ def _no_video_stream(d: Path) -> list[str]:
     return _fit_args(write_audio_only_movie(d / "sound.mp4"), None, d)
 
 
-def _unknown_preset(d: Path) -> list[str]:
-    frames, masks = _clip(d)
-    return [*_fit_args(frames, masks, d), "--preset", "drafty"]
+def _good_clip_with(*option: str) -> Callable[[Path], list[str]]:
+    """A good clip and masks, fitted with ``option`` added last (the bad one under test)."""
 
+    def build(d: Path) -> list[str]:
+        frames, masks = _clip(d)
+        return _fit_args(frames, masks, d, *option)
 
-def _unknown_key(d: Path) -> list[str]:
-    frames, masks = _clip(d)
-    return [*_fit_args(frames, masks, d), "--set", "stesp=10"]
-
-
-def _bad_value(d: Path) -> list[str]:
-    frames, masks = _clip(d)
-    return [*_fit_args(frames, masks, d), "--set", "steps=ten"]
-
-
-def _frame_range(d: Path) -> list[str]:
-    frames, masks = _clip(d)
-    return [*_fit_args(frames, masks, d), "--frames", "1:9"]
-
-
-def _unknown_device(d: Path) -> list[str]:
-    frames, masks = _clip(d)
-    return [*_fit_args(frames, masks, d), "--device", "tpu"]
+    return build
 
 
 def _not_writable(d: Path) -> list[str]:
@@ -158,24 +143,28 @@ def _fitted(d: Path) -> tuple[Path, Path]:
     return frames, masks
 
 
+def _resume(d: Path) -> list[str]:
+    return ["--resume", "--out", str(d / "run"), "--no-bar"]
+
+
 def _old_schema(d: Path) -> list[str]:
     _fitted(d)
     cfg = d / "run" / C.RUN_CONFIG
     data = json.loads(cfg.read_text())
     data["schema"] = 0
     cfg.write_text(json.dumps(data))
-    return ["--resume", "--out", str(d / "run"), "--no-bar"]
+    return _resume(d)
 
 
 def _resume_changed(d: Path) -> list[str]:
     frames, _ = _fitted(d)
     write_image(frames / "00001.png", np.full((24, 32, 3), 128, np.uint8))
-    return ["--resume", "--out", str(d / "run"), "--no-bar"]
+    return _resume(d)
 
 
 def _resume_nothing(d: Path) -> list[str]:
     (d / "run").mkdir()
-    return ["--resume", "--out", str(d / "run"), "--no-bar"]
+    return _resume(d)
 
 
 def _resume_before_checkpoint(d: Path) -> list[str]:
@@ -183,7 +172,7 @@ def _resume_before_checkpoint(d: Path) -> list[str]:
     _fitted(d)
     (d / "run" / C.RUN_CHECKPOINT).unlink()
     (d / "run" / C.RUN_METRICS).unlink()
-    return ["--resume", "--out", str(d / "run"), "--no-bar"]
+    return _resume(d)
 
 
 def _refit_existing(d: Path) -> list[str]:
@@ -203,11 +192,15 @@ CASES: tuple[Case, ...] = (
     Case("empty_mask_folder", "a mask folder with no images", _empty_masks, ("empty_masks", "one mask image")),
     Case("missing_mask_folder", "a mask folder that does not exist", _missing_masks, ("no_such_masks",)),
     Case("movie_without_video", "an .mp4 with only audio", _no_video_stream, ("sound.mp4", "video stream")),
-    Case("unknown_preset", "--preset drafty", _unknown_preset, ("drafty", "did you mean 'draft'")),
-    Case("unknown_config_key", "--set stesp=10", _unknown_key, ("stesp", "did you mean 'steps'")),
-    Case("bad_config_value", "--set steps=ten", _bad_value, ("steps=ten", "int")),
-    Case("frame_range_outside_clip", "--frames 1:9 on 3 frames", _frame_range, ("1..9", "0..2")),
-    Case("unknown_device", "--device tpu", _unknown_device, ("tpu", "auto")),
+    Case(
+        "unknown_preset", "--preset drafty", _good_clip_with("--preset", "drafty"), ("drafty", "did you mean 'draft'")
+    ),
+    Case(
+        "unknown_config_key", "--set stesp=10", _good_clip_with("--set", "stesp=10"), ("stesp", "did you mean 'steps'")
+    ),
+    Case("bad_config_value", "--set steps=ten", _good_clip_with("--set", "steps=ten"), ("steps=ten", "int")),
+    Case("frame_range_outside_clip", "--frames 1:9 on 3 frames", _good_clip_with("--frames", "1:9"), ("1..9", "0..2")),
+    Case("unknown_device", "--device tpu", _good_clip_with("--device", "tpu"), ("tpu", "auto")),
     Case("output_not_writable", "--out below a regular file", _not_writable, ("a_file", "--out")),
     Case("incompatible_run_schema", "--resume of a run with config schema 0", _old_schema, ("config.json", "0")),
     Case("resume_changed_clip", "--resume after a frame changed", _resume_changed, ("clip", "changed", "new --out")),

@@ -116,6 +116,27 @@ class FitMonitor:
         assert expected <= self.term_names, (expected, self.term_names)
 
 
+def background_mapping_motion(model: Any, size: tuple[int, int], frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """How the background mapping moves each pixel of each frame: the distance (px) of its atlas point from the
+    same pixel's in frame 0, [T, H*W], and the singular values (px per px) of the mapping's finite-difference
+    Jacobian there, [T, H*W, 2] (1 and 1 for a rotation: a rigid, unscaled mapping)."""
+    w, h = size
+    ys, xs = np.mgrid[0:h, 0:w]
+    xy = torch.tensor(np.stack([xs.ravel(), ys.ravel()], -1), dtype=torch.float32) + 0.5
+    upp = model.uv_per_px(0)
+    drifts, svals = [], []
+    with torch.no_grad():
+        uv0 = model.uv(0, xy, torch.zeros(len(xy), dtype=torch.long))
+        for t in range(frames):
+            tt = torch.full((len(xy),), t, dtype=torch.long)
+            uvt = model.uv(0, xy, tt)
+            drifts.append(((uvt - uv0).norm(dim=-1) / upp).numpy())
+            jx = (model.uv(0, xy + torch.tensor([1.0, 0.0]), tt) - uvt) / upp
+            jy = (model.uv(0, xy + torch.tensor([0.0, 1.0]), tt) - uvt) / upp
+            svals.append(torch.linalg.svdvals(torch.stack([jx, jy], -1)).numpy())
+    return np.stack(drifts), np.stack(svals)
+
+
 #: The trainer's own functions, captured once, so probes installed twice in one test do not nest.
 _ORIGINALS = (trainer.compute_losses, trainer.make_optimizer, trainer.prepare_clip)
 

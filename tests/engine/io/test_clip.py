@@ -9,6 +9,7 @@ import av
 import numpy as np
 import pytest
 
+from engine import contract as C
 from engine.errors import InputError
 from engine.io.clip import (
     IMAGE_EXTENSIONS,
@@ -307,27 +308,29 @@ def test_masks_for_full_clip_with_a_frame_range(tmp_path: Path) -> None:
     np.testing.assert_array_equal(read_masks(tmp_path / "subset", open_clip(frames, (1, 3)), (8, 6)), subset)
 
 
-def test_mask_threshold_is_above_half(tmp_path: Path) -> None:
-    frames = make_sequence(tmp_path / "frames", count=1, size=(2, 1))
+@pytest.mark.parametrize(
+    ("name", "pixels", "fmt", "expected"),
+    [
+        # above half of full scale is foreground (contract.MASK_THRESHOLD), in 8 and in 16 bits
+        ("0.png", np.array([[128, 127]], np.uint8), None, [True, False]),
+        ("0.png", np.array([[32768, 32767, 65535]], np.uint16), None, [True, False, True]),
+        # floats are taken raw; NaN is background
+        ("0.exr", np.array([[0.6, 0.4, np.nan, 3.0]], np.float32), "half", [True, False, False, True]),
+        # RGBA whose alpha is constant: the colour is the matte
+        ("0.png", np.array([[[255, 255, 255, 255], [0, 0, 0, 255]]], np.uint8), None, [True, False]),
+    ],
+    ids=["threshold_8bit", "threshold_16bit", "float_exr", "rgba_constant_alpha_uses_colour"],
+)
+def test_mask_values(tmp_path: Path, name: str, pixels: np.ndarray, fmt: str | None, expected: list[bool]) -> None:
+    width = pixels.shape[1]
+    frames = make_sequence(tmp_path / "frames", count=1, size=(width, 1))
     (tmp_path / "masks").mkdir()
-    write_image(tmp_path / "masks" / "0.png", np.array([[128, 127]], np.uint8))
-    np.testing.assert_array_equal(read_masks(tmp_path / "masks", open_clip(frames), (2, 1)), [[[True, False]]])
+    write_image(tmp_path / "masks" / name, pixels, fmt)
+    np.testing.assert_array_equal(read_masks(tmp_path / "masks", open_clip(frames), (width, 1)), [[expected]])
 
 
-def test_mask_16bit(tmp_path: Path) -> None:
-    frames = make_sequence(tmp_path / "frames", count=1, size=(3, 1))
-    (tmp_path / "masks").mkdir()
-    write_image(tmp_path / "masks" / "0.png", np.array([[32768, 32767, 65535]], np.uint16))
-    np.testing.assert_array_equal(read_masks(tmp_path / "masks", open_clip(frames), (3, 1)), [[[True, False, True]]])
-
-
-def test_mask_float_exr(tmp_path: Path) -> None:
-    frames = make_sequence(tmp_path / "frames", count=1, size=(4, 1))
-    (tmp_path / "masks").mkdir()
-    write_image(tmp_path / "masks" / "0.exr", np.array([[0.6, 0.4, np.nan, 3.0]], np.float32), "half")
-    np.testing.assert_array_equal(
-        read_masks(tmp_path / "masks", open_clip(frames), (4, 1)), [[[True, False, False, True]]]
-    )
+def test_mask_threshold_is_the_contracts() -> None:
+    assert 127 / 255 < C.MASK_THRESHOLD < 128 / 255 and 32767 / 65535 < C.MASK_THRESHOLD < 32768 / 65535
 
 
 def test_mask_channels(tmp_path: Path) -> None:
@@ -338,13 +341,6 @@ def test_mask_channels(tmp_path: Path) -> None:
     write_image(tmp_path / "masks" / "1.png", np.array([[[255, 255, 255, 0], [0, 0, 0, 255]]], np.uint8))
     masks = read_masks(tmp_path / "masks", open_clip(frames), (2, 1))
     np.testing.assert_array_equal(masks, [[[True, False]], [[False, True]]])
-
-
-def test_mask_rgba_with_constant_alpha_uses_colour(tmp_path: Path) -> None:
-    frames = make_sequence(tmp_path / "frames", count=1, size=(2, 1))
-    (tmp_path / "masks").mkdir()
-    write_image(tmp_path / "masks" / "0.png", np.array([[[255, 255, 255, 255], [0, 0, 0, 255]]], np.uint8))
-    np.testing.assert_array_equal(read_masks(tmp_path / "masks", open_clip(frames), (2, 1)), [[[True, False]]])
 
 
 def test_coarse_mask_stays_coarse(tmp_path: Path) -> None:
@@ -415,27 +411,52 @@ def test_gap_in_numbering(tmp_path: Path) -> None:
     assert open_clip(folder, (3, 4)).frame_numbers == (8, 9)
 
 
-def test_frames_of_different_sizes(tmp_path: Path) -> None:
-    folder = make_sequence(tmp_path / "frames", count=3, size=(8, 6))
-    write_image(folder / "00002.png", const(5, 8, (1, 2, 3)))
+@pytest.mark.parametrize(
+    ("count", "name", "height", "names"),
+    [
+        (3, "00002.png", 5, ("00002.png", "8x5", "8x6")),  # a frame of another size
+        (3, "00003.jpg", 6, ("00003.jpg", ".png", ".jpg")),
+        (2, "thumbnail.png", 6, ("thumbnail.png",)),
+        (2, "1.png", 6, ("00001.png", "1.png")),
+    ],
+    ids=["frames_of_different_sizes", "mixed_extensions", "unnumbered_mixed_with_numbered", "duplicate_numbers"],
+)
+def test_an_image_that_does_not_belong_to_the_sequence(
+    tmp_path: Path, count: int, name: str, height: int, names: tuple[str, ...]
+) -> None:
+    folder = make_sequence(tmp_path / "frames", count=count, size=(8, 6))
+    write_image(folder / name, const(height, 8, (1, 2, 3)))
     with pytest.raises(InputError) as exc:
         open_clip(folder)
-    assert_one_line(exc, "00002.png", "8x5", "8x6")
+    assert_one_line(exc, *names)
 
 
-def test_corrupt_first_frame_detected_at_open(tmp_path: Path) -> None:
-    folder = make_sequence(tmp_path / "frames", count=2)
-    (folder / "00000.png").write_bytes(b"not a png at all")
+@pytest.mark.parametrize(
+    ("count", "name", "data", "names"),
+    [
+        (2, "00000.png", b"not a png at all", ("00000.png", "re-export")),  # the first frame is decoded
+        (3, "00002.png", b"", ("00002.png",)),  # later frames: their headers are read
+    ],
+    ids=["corrupt_first_frame", "unreadable_later_frame_header"],
+)
+def test_unreadable_frame_detected_at_open(tmp_path: Path, count: int, name: str, data: bytes, names: tuple) -> None:
+    folder = make_sequence(tmp_path / "frames", count=count)
+    (folder / name).write_bytes(data)
     with pytest.raises(InputError) as exc:
         open_clip(folder)
-    assert_one_line(exc, "00000.png", "re-export")
+    assert_one_line(exc, *names)
+
+
+def truncate(path: Path) -> None:
+    """Replace a 64x64 frame by the first half of a noisy PNG: its header intact, its pixels cut off."""
+    noisy = (np.random.default_rng(0).random((64, 64, 3)) * 255).astype(np.uint8)
+    data = write_image(path, noisy).read_bytes()
+    path.write_bytes(data[: len(data) // 2])
 
 
 def test_truncated_first_frame_detected_at_open(tmp_path: Path) -> None:
     folder = make_sequence(tmp_path / "frames", count=2, size=(64, 64))
-    noisy = (np.random.default_rng(0).random((64, 64, 3)) * 255).astype(np.uint8)
-    data = write_image(folder / "00000.png", noisy).read_bytes()
-    (folder / "00000.png").write_bytes(data[: len(data) // 2])
+    truncate(folder / "00000.png")
     with pytest.raises(InputError) as exc:
         open_clip(folder)
     assert_one_line(exc, "00000.png", "re-export")
@@ -443,45 +464,11 @@ def test_truncated_first_frame_detected_at_open(tmp_path: Path) -> None:
 
 def test_truncated_later_frame_detected_at_read(tmp_path: Path) -> None:
     folder = make_sequence(tmp_path / "frames", count=3, size=(64, 64))
-    noisy = (np.random.default_rng(0).random((64, 64, 3)) * 255).astype(np.uint8)
-    data = write_image(folder / "00001.png", noisy).read_bytes()
-    (folder / "00001.png").write_bytes(data[: len(data) // 2])
+    truncate(folder / "00001.png")
     info = open_clip(folder)  # headers are intact
     with pytest.raises(InputError) as exc:
         read_frames(info)
     assert_one_line(exc, "00001.png", "re-export")
-
-
-def test_unreadable_later_frame_header_detected_at_open(tmp_path: Path) -> None:
-    folder = make_sequence(tmp_path / "frames", count=3)
-    (folder / "00002.png").write_bytes(b"")
-    with pytest.raises(InputError) as exc:
-        open_clip(folder)
-    assert_one_line(exc, "00002.png")
-
-
-def test_mixed_extensions(tmp_path: Path) -> None:
-    folder = make_sequence(tmp_path / "frames", count=3)
-    write_image(folder / "00003.jpg", const(6, 8, (1, 2, 3)))
-    with pytest.raises(InputError) as exc:
-        open_clip(folder)
-    assert_one_line(exc, "00003.jpg", ".png", ".jpg")
-
-
-def test_unnumbered_mixed_with_numbered(tmp_path: Path) -> None:
-    folder = make_sequence(tmp_path / "frames", count=2)
-    write_image(folder / "thumbnail.png", const(6, 8, (1, 2, 3)))
-    with pytest.raises(InputError) as exc:
-        open_clip(folder)
-    assert_one_line(exc, "thumbnail.png")
-
-
-def test_duplicate_numbers(tmp_path: Path) -> None:
-    folder = make_sequence(tmp_path / "frames", count=2)
-    write_image(folder / "1.png", const(6, 8, (1, 2, 3)))
-    with pytest.raises(InputError) as exc:
-        open_clip(folder)
-    assert_one_line(exc, "00001.png", "1.png")
 
 
 @pytest.mark.parametrize("frame_range", [(0, 3), (2, 1), (-1, 1), (3, 3)])
