@@ -1,6 +1,7 @@
-"""Every difference between Blender 4.2-4.5 and 5.0 the add-on meets. The only module that reads
-``bpy.app.version`` (BLENDER_NOTES section (c)): the compositor tree and its output, Map UV filtering,
-Alpha Over, Set Alpha and Math sockets, and the render's file/video settings.
+"""Every difference between Blender 4.2-4.5 and 5.0 the add-on meets, and the only module that branches on
+one (a version or a feature check): the compositor tree and its output, Map UV filtering, Alpha Over, Set
+Alpha and Math sockets, the render's file/video settings, float EXR saving, the clip's annotation datablock,
+animation F-curves and material nodes. The facts behind each branch: docs/blender-compat.md.
 """
 
 from __future__ import annotations
@@ -9,7 +10,7 @@ from typing import Any
 
 import bpy
 
-from . import tree_plan as P
+from .core import tree_plan as P
 
 V5 = bpy.app.version >= (5, 0, 0)
 
@@ -28,6 +29,14 @@ _NODE_TYPES = {
 
 #: the name of the 5.0 compositing node group the add-on creates when the scene has none
 TREE_NAME = f"{P.PREFIX}Compositing"
+#: The Map UV filter whose result ``engine render`` reproduces to float precision: 5.0's Bilinear, or Nearest on
+#: 4.x (its smooth filter is EWA, which differs from bilinear at hard texel edges).
+EXACT_FILTER = P.FILTER_SMOOTH if V5 else P.FILTER_NEAREST
+
+
+def matches_engine(filter_type: str) -> bool:
+    """Does a render with this Map UV filter match ``engine render`` (nearest or bilinear) to float precision?"""
+    return filter_type in (P.FILTER_NEAREST, EXACT_FILTER)
 
 
 def node_type(kind: str) -> str:
@@ -50,8 +59,8 @@ def scene_tree(scene: Any, create: bool = True) -> Any:
         fresh = scene.node_tree is None
         scene.use_nodes = True
         if fresh:
-            # Blender's default tree: its Render Layers node would make every render an EEVEE render of the
-            # (empty) scene, 30 s per frame on a CPU; nothing in it is the artist's yet
+            # Blender's default tree: its Render Layers node would make every render a slow EEVEE render of the
+            # (empty) scene; nothing in it is the artist's yet
             scene.node_tree.nodes.clear()
     return scene.node_tree
 
@@ -168,6 +177,27 @@ def make_output_active(tree: Any, node: Any) -> None:
     node.is_active_output = True
 
 
+def image_settings_state(settings: Any) -> dict[str, Any]:
+    """What ``set_render_format`` changes of the render's image settings, to restore after a render."""
+    return {
+        "media_type": settings.media_type if V5 else None,
+        "file_format": settings.file_format,
+        "color_depth": settings.color_depth,
+        "color_mode": settings.color_mode,
+    }
+
+
+def restore_image_settings(settings: Any, state: dict[str, Any]) -> None:
+    if V5 and settings.media_type != state["media_type"]:
+        settings.media_type = state["media_type"]  # first: it decides which file formats exist
+    settings.file_format = state["file_format"]
+    try:
+        settings.color_depth = state["color_depth"]
+        settings.color_mode = state["color_mode"]
+    except TypeError:
+        pass  # the format restored does not offer them (a movie's colour depth)
+
+
 def set_render_format(scene: Any, file_format: str) -> None:
     """'exr' (float32 RGBA, linear), 'png' (8-bit RGBA) or 'movie' (H.264 MP4)."""
     s = scene.render.image_settings
@@ -223,3 +253,29 @@ def ensure_material_nodes(mat: Any) -> None:
     """5.0 materials always use nodes (``use_nodes`` is deprecated there)."""
     if not V5:
         mat.use_nodes = True
+
+
+def set_float_exr(image: Any) -> None:
+    """Save ``image`` as a full-float OpenEXR (the half-float switch exists in some versions only)."""
+    image.file_format = "OPEN_EXR"
+    if hasattr(image, "use_half_precision"):
+        image.use_half_precision = False
+
+
+# --- the Movie Clip Editor's annotations: ``clip.grease_pencil`` (legacy GreasePencil) up to 4.5, ``clip.annotation``
+# (Annotation) in 5.0; layers, frames, strokes and points read the same on both.
+def _annotation_attribute(clip: Any) -> str:
+    return "annotation" if hasattr(clip, "annotation") else "grease_pencil"
+
+
+def clip_annotation(clip: Any) -> Any | None:
+    """The clip's annotation datablock, or None."""
+    return getattr(clip, _annotation_attribute(clip), None)
+
+
+def new_clip_annotation(clip: Any, name: str) -> Any:
+    """A new annotation datablock, given to ``clip``."""
+    data = bpy.data.annotations if hasattr(bpy.data, "annotations") else bpy.data.grease_pencils
+    annotation = data.new(name)
+    setattr(clip, _annotation_attribute(clip), annotation)
+    return annotation

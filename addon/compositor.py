@@ -1,4 +1,4 @@
-"""Turn a ``TreePlan`` into images, a movie clip and compositor nodes; render the result.
+"""Turn a ``TreePlan`` (``core.tree_plan``) into images, a movie clip and compositor nodes; render the result.
 
 Only datablocks and nodes whose names start with ``tree_plan.PREFIX`` are created, reused or removed,
 so rebuilding is idempotent and the artist's own nodes and images are never touched.
@@ -12,19 +12,26 @@ from typing import Any
 import bpy
 
 from . import compat
-from . import tree_plan as P
+from .core import tree_plan as P
+
+
+def _ours(collection: Any, spec: P.ImageSpec) -> tuple[Any, bool]:
+    """The datablock ``spec`` names in ``collection`` (images, movie clips), loaded from its file unless it
+    already shows that file (then it is reused); (datablock, reused)."""
+    path = os.path.abspath(spec.filepath)
+    block = collection.get(spec.name)
+    if block is not None and os.path.abspath(bpy.path.abspath(block.filepath)) == path:
+        return block, True
+    if block is not None:
+        collection.remove(block)
+    block = collection.load(path, check_existing=False)
+    block.name = spec.name
+    return block, False
 
 
 def _load_image(spec: P.ImageSpec) -> Any:
-    img = bpy.data.images.get(spec.name)
-    path = os.path.abspath(spec.filepath)
-    if img is not None and os.path.abspath(bpy.path.abspath(img.filepath)) != path:
-        bpy.data.images.remove(img)
-        img = None
-    if img is None:
-        img = bpy.data.images.load(path, check_existing=False)
-        img.name = spec.name
-    else:
+    img, reused = _ours(bpy.data.images, spec)
+    if reused:
         img.reload()
     img.source = "SEQUENCE" if spec.sequence else "FILE"
     img.colorspace_settings.name = spec.colorspace
@@ -36,14 +43,7 @@ def _load_image(spec: P.ImageSpec) -> Any:
 
 
 def _load_plate(spec: P.ImageSpec) -> Any:
-    path = os.path.abspath(spec.filepath)
-    clip = bpy.data.movieclips.get(spec.name)
-    if clip is not None and os.path.abspath(bpy.path.abspath(clip.filepath)) != path:
-        bpy.data.movieclips.remove(clip)
-        clip = None
-    if clip is None:
-        clip = bpy.data.movieclips.load(path, check_existing=False)
-        clip.name = spec.name
+    clip, _ = _ours(bpy.data.movieclips, spec)
     clip.colorspace_settings.name = spec.colorspace
     # scene frame F shows plate frame F: a sequence starts at its first file's number, a movie at frame 0
     clip.frame_start = spec.frame_start
@@ -94,6 +94,14 @@ def build(scene: Any, plan: P.TreePlan) -> dict[str, Any]:
     return nodes
 
 
+def add_output(tree: Any, socket: Any) -> Any:
+    """A compositor output node (the version's kind) fed by ``socket``; returns the node."""
+    out = compat.new_node(tree, P.OUTPUT)
+    compat.setup_node(out, P.OUTPUT, {})
+    tree.links.new(socket, compat.input_socket(out, P.OUTPUT, "image"))
+    return out
+
+
 def configure_scene(scene: Any, plan: P.TreePlan) -> None:
     scene.frame_start = plan.frame_start
     scene.frame_end = plan.frame_end
@@ -127,12 +135,9 @@ def render(scene: Any, out_dir: str, file_format: str = "exr") -> list[str]:
         "dither": r.dither_intensity,
         "view": scene.view_settings.view_transform,
         "look": scene.view_settings.look,
-        "media": getattr(s, "media_type", None),
-        "format": s.file_format,
-        "depth": s.color_depth,
-        "mode": s.color_mode,
         "extension": r.use_file_extension,
     }
+    image_settings = compat.image_settings_state(s)
     try:
         scene.view_settings.view_transform = "Standard"
         scene.view_settings.look = "None"
@@ -148,14 +153,7 @@ def render(scene: Any, out_dir: str, file_format: str = "exr") -> list[str]:
         if "FINISHED" not in result:
             raise RuntimeError(f"render returned {result}")
     finally:
-        if saved["media"] is not None and saved["media"] != s.media_type:
-            s.media_type = saved["media"]
-        s.file_format = saved["format"]
-        try:
-            s.color_depth = saved["depth"]
-            s.color_mode = saved["mode"]
-        except TypeError:
-            pass
+        compat.restore_image_settings(s, image_settings)
         r.filepath = saved["filepath"]
         r.use_file_extension = saved["extension"]
         r.dither_intensity = saved["dither"]

@@ -13,7 +13,7 @@ every exported frame through the compositor as scene-linear float EXR ``DIR/edit
 writes what was done (Blender version, filter, files) as JSON for the caller.
 
 Exit: 0 on success; 2 with a one-line ``error: ...`` on bad input. On bpy 4.5 a script that ends with classes
-still registered hangs at exit (BLENDER_NOTES, "Exit bug"), so everything is unregistered and the process ends
+still registered can hang at exit (docs/blender-compat.md), so everything is unregistered and the process ends
 with ``os._exit`` after flushing.
 """
 
@@ -64,10 +64,10 @@ def run(ns: argparse.Namespace) -> dict:
 
     t0 = time.monotonic()
     addon = load_addon()
-    from neural_atlas.addon import compositor, operators
-    from neural_atlas.addon import tree_plan as P
-
-    C = operators.C  # the engine's contract, as the add-on imports it (the add-on's only engine import)
+    from neural_atlas.addon import compat, compositor
+    from neural_atlas.addon.core import tree_plan as P
+    from neural_atlas.addon.ops.import_run import import_manifest
+    from neural_atlas.engine import contract as C  # the add-on's only engine import, through the extension package
 
     edits: dict[str, str] = {}
     for item in ns.edit:
@@ -84,10 +84,9 @@ def run(ns: argparse.Namespace) -> dict:
     addon.register()
     try:
         scene = bpy.context.scene
-        v5 = bpy.app.version >= (5, 0, 0)
-        filt = {"exact": P.FILTER_SMOOTH if v5 else P.FILTER_NEAREST}.get(ns.filter, ns.filter)
+        filt = compat.EXACT_FILTER if ns.filter == "exact" else ns.filter
         scene.neural_atlas.filter_type = filt
-        plan = operators.import_manifest(bpy.context, manifest_path, setup_paint=True, edits=edits)
+        plan = import_manifest(bpy.context, manifest_path, setup_paint=True, edits=edits)
         blend = os.path.abspath(ns.blend)
         os.makedirs(os.path.dirname(blend), exist_ok=True)
         tmp = blend[: -len(".blend")] + ".tmp.blend" if blend.endswith(".blend") else blend + ".tmp"
@@ -101,7 +100,7 @@ def run(ns: argparse.Namespace) -> dict:
             "filter": filt,
             # the engine's filter this render matches; exact: to float precision (4.x Smooth is EWA, not bilinear)
             "engine_filter": "nearest" if filt == P.FILTER_NEAREST else "bilinear",
-            "exact": filt == P.FILTER_NEAREST or v5,
+            "exact": compat.matches_engine(filt),
             "manifest": manifest_path,
             "blend": blend,
             "layers": plan.layers,
@@ -148,4 +147,4 @@ if __name__ == "__main__":
     finally:
         sys.stdout.flush()
         sys.stderr.flush()
-        os._exit(rc)  # bpy 4.5 can hang at interpreter exit (BLENDER_NOTES): leave without it
+        os._exit(rc)  # bpy 4.5 can hang at interpreter exit (docs/blender-compat.md): leave without it

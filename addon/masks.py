@@ -1,10 +1,10 @@
 """Rasterize a Blender Mask datablock per frame into mask images the engine reads.
 
 The compositor's Mask node (feather off, the scene's size) renders the mask exactly at pixel centres
-(BLENDER_NOTES (g)); it runs in a temporary scene so the artist's scene and compositor stay untouched.
+(docs/blender-compat.md); it runs in a temporary scene so the artist's scene and compositor stay untouched.
 Animated masks: layer shape keys (what the clip editor's mask tools key) are evaluated by an animation
-render; F-curves are written into the datablock frame by frame. Measured exact (IoU 1.0) for both on 4.5
-and 5.0 (tests/addon/test_blender.py); a mask animated both ways at once is not supported.
+render; F-curves are written into the datablock frame by frame. Both are exact on every supported version
+(tests/addon/test_blender.py); a mask animated both ways at once is not supported.
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from typing import Any
 
 import bpy
 
-from . import compat
-from . import tree_plan as P
+from . import compat, compositor
+from .core import tree_plan as P
 
 TEMP_SCENE = f"{P.PREFIX}MaskRaster"
 
@@ -32,9 +32,9 @@ def _apply_fcurves(mask: Any, frame: int) -> None:
         except ValueError:
             continue
         value = fc.evaluate(frame)
-        if hasattr(prop, "__setitem__"):
-            prop[fc.array_index] = value
-        else:
+        try:
+            prop[fc.array_index] = value  # an array property (a point's co, a handle)
+        except TypeError:  # a single value
             owner_path, _, attr = fc.data_path.rpartition(".")
             setattr(mask.path_resolve(owner_path) if owner_path else mask, attr, value)
 
@@ -52,9 +52,7 @@ def rasterize(mask: Any, width: int, height: int, scene_frames: list[int], out_d
         node = tree.nodes.new("CompositorNodeMask")
         node.mask = mask
         compat.mask_node_setup(node)
-        out = compat.new_node(tree, P.OUTPUT)
-        compat.setup_node(out, P.OUTPUT, {})
-        tree.links.new(node.outputs["Mask"], compat.input_socket(out, P.OUTPUT, "image"))
+        compositor.add_output(tree, node.outputs["Mask"])
         r = scene.render
         r.resolution_x, r.resolution_y, r.resolution_percentage = width, height, 100
         r.pixel_aspect_x = r.pixel_aspect_y = 1.0

@@ -2,9 +2,9 @@
 as the active paint slot; saving the edit layers back to their files in the format each has (8-bit sRGB PNG,
 straight alpha, or float EXR, scene-linear and premultiplied); and turning a PNG edit layer into a float one.
 
-Float edit layers exist because Blender decodes 8-bit sRGB through OCIO, which differs from the exact IEC
-61966-2-1 formula the engine uses by up to 2.4e-5: a float layer is read raw by both, so the compositor and
-``engine render`` agree to float precision, and paint keeps values above 1 and below 1/255."""
+Float edit layers exist because Blender decodes 8-bit sRGB through OCIO, which differs slightly from the exact
+IEC 61966-2-1 formula the engine uses (docs/blender-compat.md): a float layer is read raw by both, so the
+compositor and ``engine render`` agree to float precision, and paint keeps values above 1 and below 1/255."""
 
 from __future__ import annotations
 
@@ -16,7 +16,8 @@ import bpy
 
 from ..engine import contract as C
 from . import compat
-from . import tree_plan as P
+from .core import float_edit
+from .core import tree_plan as P
 
 
 def canvas_name(layer: str) -> str:
@@ -97,7 +98,7 @@ def save_edits() -> list[str]:
     """Write every painted edit layer back to its file, keeping the format it has; returns the paths.
 
     A PNG stays 8-bit sRGB with straight alpha; an EXR stays a full-float, scene-linear, premultiplied EXR
-    (Non-Color since the import, so Blender writes the raw values; BLENDER_NOTES: a Linear one is saved encoded)."""
+    (Non-Color since the import, so Blender writes the raw values: a Linear one would be saved encoded)."""
     saved = []
     for img in bpy.data.images:
         if not img.name.startswith(P.PREFIX + "Edit_") or not img.is_dirty:
@@ -107,41 +108,13 @@ def save_edits() -> list[str]:
         img.filepath_raw = path
         if _is_exr(path):
             # the import made it Non-Color (raw values on save); setting the colourspace here, even to the same
-            # name, would reload the image from disk and silently drop the unsaved paint (measured, bpy 4.5)
-            img.file_format = "OPEN_EXR"
-            if hasattr(img, "use_half_precision"):
-                img.use_half_precision = False
+            # name, would reload the image from disk and silently drop the unsaved paint (docs/blender-compat.md)
+            compat.set_float_exr(img)
         else:
             img.file_format = "PNG"
         img.save()
         saved.append(path)
     return saved
-
-
-def srgb_to_linear(c: float) -> float:
-    """The exact IEC 61966-2-1 decode, the engine's (``engine/io/colour.py``), for converting paint once."""
-    return c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4
-
-
-def straight_srgb_to_premultiplied_linear(px: array.array) -> array.array:
-    """RGBA floats (sRGB-encoded, straight alpha) -> linear, premultiplied. Pure Python (the add-on ships no
-    numpy); the decoded values are cached because an 8-bit image has at most 256 of them."""
-    out = array.array("f", bytes(len(px) * 4))
-    cache: dict[float, float] = {}
-    for i in range(0, len(px), 4):
-        a = min(max(px[i + 3], 0.0), 1.0)
-        for k in range(3):
-            c = px[i + k]
-            lin = cache.get(c)
-            if lin is None:
-                lin = cache[c] = srgb_to_linear(c)
-            out[i + k] = lin * a
-        out[i + 3] = a
-    return out
-
-
-def float_edit_path(png_path: str) -> str:
-    return os.path.splitext(png_path)[0] + C.EDIT_LAYER_FLOAT_EXT
 
 
 def make_float_edit(layer: str) -> str:
@@ -154,22 +127,20 @@ def make_float_edit(layer: str) -> str:
     src = bpy.path.abspath(img.filepath)
     if _is_exr(src):
         raise ValueError(f"{src} is already a float edit layer")
-    dst = float_edit_path(src)
+    dst = C.float_edit_layer(src)
     if os.path.exists(dst):
         raise ValueError(f"{dst} exists (it is used instead of the PNG): import the atlas again to paint in it")
     w, h = img.size
-    px = array.array("f", bytes(w * h * 4 * 4))
+    px = array.array("f", [0.0]) * (w * h * float_edit.CHANNELS)
     img.pixels.foreach_get(px)  # a byte image gives its stored sRGB values, straight alpha, rows bottom-up
-    out = straight_srgb_to_premultiplied_linear(px)
+    out = float_edit.straight_srgb_to_premultiplied_linear(px)
     tmp = bpy.data.images.new(f"{P.PREFIX}tmp_float_edit", w, h, alpha=True, float_buffer=True)
     try:
         tmp.colorspace_settings.name = "Non-Color"  # raw values on save (a Linear image would be sRGB-encoded)
         tmp.alpha_mode = "PREMUL"
         tmp.pixels.foreach_set(out)
         tmp.filepath_raw = dst
-        tmp.file_format = "OPEN_EXR"
-        if hasattr(tmp, "use_half_precision"):
-            tmp.use_half_precision = False
+        compat.set_float_exr(tmp)
         os.makedirs(os.path.dirname(dst), exist_ok=True)
         tmp.save()
     finally:

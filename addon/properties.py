@@ -13,13 +13,9 @@ from bpy.props import (
     StringProperty,
 )
 
-from . import estimate
-from . import tree_plan as P
-
-PRESET_ITEMS = [
-    (name, name.title(), f"{steps} steps, about {per_step:.2f} s per step on a 2-core CPU")
-    for name, (steps, per_step) in estimate.PRESET_STEPS.items()
-]
+from ..engine import contract as C
+from .core import estimate
+from .core import tree_plan as P
 
 
 def _forget_estimate(self, context):
@@ -42,7 +38,9 @@ class NEURALATLAS_PG_layer(bpy.types.PropertyGroup):
         default="MASK",
     )
     mask: PointerProperty(name="Mask", type=bpy.types.Mask, description="Roto of this foreground object")
-    folder: StringProperty(name="Folder", subtype="DIR_PATH", description="Mask images (>50% = foreground)")
+    folder: StringProperty(
+        name="Folder", subtype="DIR_PATH", description=f"Mask images (>{C.MASK_THRESHOLD:.0%} = foreground)"
+    )
 
 
 class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
@@ -54,13 +52,13 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
     frame_end: IntProperty(name="End", default=50, description="Last scene frame to fit")
     long_edge: IntProperty(
         name="Working Size",
-        default=768,
+        default=C.DEFAULT_LONG_EDGE,
         min=64,
         max=4096,
         description="Long edge of the resolution the fit runs at",
         update=_forget_estimate,
     )
-    preset: EnumProperty(name="Preset", items=PRESET_ITEMS, default="draft")
+    preset: EnumProperty(name="Preset", items=estimate.preset_items(), default="draft")
     overrides: StringProperty(
         name="Overrides", default="", description="Engine config overrides, space separated KEY=VALUE (advanced)"
     )
@@ -97,7 +95,7 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
         default="exr",
     )
     estimate_json: StringProperty(default="", description="The engine's time estimate per preset (JSON)")
-    # live state of a fit (written by the operator, shown by the panel)
+    # live state of an engine job (written by the operators, shown by the panel)
     running: BoolProperty(default=False)
     progress: FloatProperty(default=0.0, min=0.0, max=1.0, subtype="FACTOR")
     status: StringProperty(default="")

@@ -5,29 +5,28 @@ from __future__ import annotations
 
 import bpy
 
-from . import operators, preferences, properties, ui
+from . import ops, preferences, properties, ui
+from .core import running
 
-classes = (*properties.classes, *preferences.classes, *operators.classes, *ui.classes)
+classes = (*properties.classes, *preferences.classes, *ops.classes, *ui.classes)
 
 
 @bpy.app.handlers.persistent
-def _cancel_fits(*_args) -> None:
+def _cancel_jobs(*_args) -> None:
     """Loading another file (or unregistering) ends the modal operators: stop their engines too."""
-    for session in list(operators._SESSIONS.values()):
-        session.cancel()
-    operators._SESSIONS.clear()
+    running.cancel_all()
 
 
 def register() -> None:
     for cls in classes:
         bpy.utils.register_class(cls)
     properties.register_props()
-    bpy.app.handlers.load_pre.append(_cancel_fits)
+    bpy.app.handlers.load_pre.append(_cancel_jobs)
 
 
 def unregister() -> None:
-    _cancel_fits()
-    for handler in [h for h in bpy.app.handlers.load_pre if getattr(h, "__name__", "") == "_cancel_fits"]:
+    _cancel_jobs()
+    for handler in [h for h in bpy.app.handlers.load_pre if getattr(h, "__name__", "") == "_cancel_jobs"]:
         bpy.app.handlers.load_pre.remove(handler)
     properties.unregister_props()
     for cls in reversed(classes):

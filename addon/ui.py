@@ -6,7 +6,9 @@ import json
 
 import bpy
 
-from . import estimate, operators, preferences, scribbles
+from . import preferences, scribbles
+from .core import estimate, running
+from .core import scribble_math as S
 
 #: Theme colour-set icons that show the scribble colours in the panel (default theme: red, green, blue, yellow).
 COLOUR_ICONS = {
@@ -15,6 +17,8 @@ COLOUR_ICONS = {
     "blue": "COLORSET_04_VEC",
     "yellow": "COLORSET_09_VEC",
 }
+#: How many scribbled frames the panel lists.
+FRAMES_SHOWN = 8
 
 
 class NEURALATLAS_UL_layers(bpy.types.UIList):
@@ -42,7 +46,7 @@ def _estimate_text(props) -> str:
 def _draw_scribbles(box, props) -> None:
     """Which colour means what (from the engine's colour code), and what the clip holds so far."""
     box.label(text="Annotate tool, one annotation layer per colour:", icon="GREASEPENCIL")
-    for colour, meaning in scribbles.legend():
+    for colour, meaning in S.legend():
         box.label(text=f"{colour.title()}: {meaning}", icon=COLOUR_ICONS.get(colour, "NONE"))
     box.operator("neural_atlas.scribble_layers", icon="ADD")
     box.label(text="A few strokes on a few frames are enough")
@@ -53,24 +57,28 @@ def _draw_scribbles(box, props) -> None:
     if not frames:
         box.label(text="No strokes in these colours yet", icon="INFO")
         return
-    names = [c for k, (c, _) in enumerate(scribbles.legend()) if k in scribbles.scribble_labels(annotation)]
-    shown = ", ".join(str(f) for f in frames[:8]) + (" …" if len(frames) > 8 else "")
+    names = [c for k, (c, _) in enumerate(S.legend()) if k in scribbles.scribble_labels(annotation)]
+    shown = ", ".join(str(f) for f in frames[:FRAMES_SHOWN]) + (" …" if len(frames) > FRAMES_SHOWN else "")
     box.label(text=f"{', '.join(names)} on frame(s) {shown}", icon="CHECKMARK" if len(names) > 1 else "ERROR")
 
 
-class NEURALATLAS_PT_fit(bpy.types.Panel):
-    bl_idname = "NEURALATLAS_PT_fit"
-    bl_label = "Fit Atlas"
+class _SidebarPanel:
+    """The add-on's tab in the Movie Clip Editor's sidebar."""
+
     bl_space_type = "CLIP_EDITOR"
     bl_region_type = "UI"
     bl_category = "Fit Atlas"
 
+
+class NEURALATLAS_PT_fit(_SidebarPanel, bpy.types.Panel):
+    bl_idname = "NEURALATLAS_PT_fit"
+    bl_label = "Fit Atlas"
+
     def draw(self, context):
-        layout = self.layout
         props = context.scene.neural_atlas
         if not preferences.engine_python(context):
-            layout.label(text="Set up the engine in the preferences", icon="ERROR")
-        col = layout.column()
+            self.layout.label(text="Set up the engine in the preferences", icon="ERROR")
+        col = self.layout.column()
         col.prop(props, "clip")
         col.prop(props, "use_clip_range")
         if not props.use_clip_range:
@@ -95,7 +103,7 @@ class NEURALATLAS_PT_fit(bpy.types.Panel):
         if props.use_scribbles:
             _draw_scribbles(col.box(), props)
         col.prop(props, "run_dir")
-        if operators.is_running(context.scene):
+        if running.is_running(context.scene.name):
             col.progress(factor=props.progress, type="BAR", text=props.status or "running…")
             col.operator("neural_atlas.cancel", icon="CANCEL")
         else:
@@ -109,17 +117,13 @@ class NEURALATLAS_PT_fit(bpy.types.Panel):
                 col.label(text=f"log: {props.log_path}")
 
 
-class NEURALATLAS_PT_edit(bpy.types.Panel):
+class NEURALATLAS_PT_edit(_SidebarPanel, bpy.types.Panel):
     bl_idname = "NEURALATLAS_PT_edit"
     bl_label = "Paint & Render"
-    bl_space_type = "CLIP_EDITOR"
-    bl_region_type = "UI"
-    bl_category = "Fit Atlas"
 
     def draw(self, context):
-        layout = self.layout
         props = context.scene.neural_atlas
-        col = layout.column()
+        col = self.layout.column()
         col.operator("neural_atlas.import_run", icon="IMPORT")
         if props.manifest:
             col.label(text=props.manifest)

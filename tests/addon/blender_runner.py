@@ -4,7 +4,7 @@
 
 Blender's bundled Python has numpy but not pytest or OpenEXR: install them once into a folder and point
 NEURAL_ATLAS_TEST_SITE at it (see docs/addon.md). Without pytest args it runs tests/addon. The exit code
-is pytest's; the process ends with os._exit so Blender 4.x cannot hang at exit (BLENDER_NOTES (h)).
+is pytest's; the process ends with os._exit so Blender 4.x cannot hang at exit (docs/blender-compat.md).
 """
 
 from __future__ import annotations

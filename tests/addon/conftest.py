@@ -57,7 +57,7 @@ def pytest_sessionfinish(session, exitstatus):
 
 @pytest.hookimpl(trylast=True)
 def pytest_unconfigure(config):
-    # bpy < 5 can hang at interpreter exit (BLENDER_NOTES (h)); the summary is printed by now
+    # bpy < 5 can hang at interpreter exit (docs/blender-compat.md); the summary is printed by now
     bpy = sys.modules.get("bpy")
     if bpy is not None and bpy.app.version < (5, 0, 0):
         sys.stdout.flush()

@@ -169,32 +169,39 @@ def srgb_to_linear(c: np.ndarray) -> np.ndarray:
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
 
 
-def read_png_rgba8(path: Path) -> np.ndarray:
-    """Decoder for the PNGs ``write_png`` writes (filter 0, 8-bit RGBA)."""
-    data = Path(path).read_bytes()
-    pos, idat, w, h = 8, b"", 0, 0
+#: PNG colour types the decoder reads: RGB and RGBA, 8 bits per channel.
+PNG_CHANNELS = {2: 3, 6: 4}
+
+
+def decode_png(data: bytes) -> np.ndarray:
+    """(h, w, 3 or 4) uint8, rows top-first, of an 8-bit RGB or RGBA PNG (any row filters: Blender's writer
+    uses them)."""
+    pos, idat, w, h, channels = 8, b"", 0, 0, 0
     while pos < len(data):
         (n,) = struct.unpack(">I", data[pos : pos + 4])
         tag, body = data[pos + 4 : pos + 8], data[pos + 8 : pos + 8 + n]
         if tag == b"IHDR":
             w, h = struct.unpack(">II", body[:8])
+            assert body[8] == 8, "8 bits per channel"
+            channels = PNG_CHANNELS[body[9]]
         elif tag == b"IDAT":
             idat += body
         pos += 12 + n
-    raw = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(h, 1 + 4 * w)
-    out = np.zeros((h, 4 * w), np.int32)
-    for r in range(h):  # undo the PNG row filters (Blender's own writer uses them)
+    stride = channels * w
+    raw = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(h, 1 + stride)
+    out = np.zeros((h, stride), np.int32)
+    for r in range(h):  # undo the PNG row filters
         kind, line = raw[r, 0], raw[r, 1:].astype(np.int32)
-        prev = out[r - 1] if r else np.zeros(4 * w, np.int32)
+        prev = out[r - 1] if r else np.zeros(stride, np.int32)
         if kind == 0:
             out[r] = line
         elif kind == 2:
             out[r] = (line + prev) % 256
         else:
-            cur = np.zeros(4 * w, np.int32)
-            for i in range(4 * w):
-                a = cur[i - 4] if i >= 4 else 0
-                c = prev[i - 4] if i >= 4 else 0
+            cur = np.zeros(stride, np.int32)
+            for i in range(stride):
+                a = cur[i - channels] if i >= channels else 0
+                c = prev[i - channels] if i >= channels else 0
                 b = prev[i]
                 if kind == 1:
                     pred = a
@@ -206,7 +213,14 @@ def read_png_rgba8(path: Path) -> np.ndarray:
                     pred = a if pa <= pb and pa <= pc else (b if pb <= pc else c)
                 cur[i] = (line[i] + pred) % 256
             out[r] = cur
-    return out.reshape(h, w, 4).astype(np.uint8)
+    return out.reshape(h, w, channels).astype(np.uint8)
+
+
+def read_png_rgba8(path: Path) -> np.ndarray:
+    """(h, w, 4) uint8 of an RGBA PNG (what ``write_png`` and Blender write), rows top-first."""
+    rgba = decode_png(Path(path).read_bytes())
+    assert rgba.shape[2] == 4, f"{path} is not RGBA"
+    return rgba
 
 
 def sample(tex: np.ndarray, u: np.ndarray, v: np.ndarray, filt: str) -> np.ndarray:
@@ -235,7 +249,7 @@ def sample(tex: np.ndarray, u: np.ndarray, v: np.ndarray, filt: str) -> np.ndarr
 
 
 def _resolve(manifest_path: Path, path: str) -> Path:
-    return Path(path) if Path(path).is_absolute() else (Path(manifest_path).parent / path).resolve()
+    return Path(C.resolve_manifest_path(str(manifest_path), path))
 
 
 def reference_frame(
@@ -270,10 +284,22 @@ def reference_frame(
     return plate * (1 - alpha_sum[..., None]) + rgb_sum
 
 
+def render_error(out_dir: Path, manifest_path: Path, filt: str, decode=srgb_to_linear, frames=FRAMES) -> float:
+    """The largest difference, over ``frames``, between a render's ``out_dir/edit.#####.exr`` (RGB) and the
+    render equation of the export (``filt``: the engine's filter, nearest or bilinear)."""
+    return max(
+        float(
+            np.abs(
+                read_exr_rgba(out_dir / f"edit.{f:05d}.exr")[..., :3] - reference_frame(manifest_path, f, filt, decode)
+            ).max()
+        )
+        for f in frames
+    )
+
+
 def blender_srgb_lut(bpy, folder: Path) -> np.ndarray:
     """Blender's own decode of the 256 sRGB byte values to linear, measured through a compositor render."""
-    from neural_atlas.addon import compat
-    from neural_atlas.addon import tree_plan as P
+    from neural_atlas.addon import compat, compositor
 
     ramp = np.zeros((4, 256, 4), np.uint8)  # 4 rows: Blender's smallest render height
     ramp[..., :3] = np.arange(256, dtype=np.uint8)[None, :, None]
@@ -285,14 +311,10 @@ def blender_srgb_lut(bpy, folder: Path) -> np.ndarray:
     img.colorspace_settings.name = "sRGB"
     n_img = tree.nodes.new("CompositorNodeImage")
     n_img.image = img
-    n_out = compat.new_node(tree, P.OUTPUT)
-    compat.setup_node(n_out, P.OUTPUT, {})
-    tree.links.new(n_img.outputs["Image"], compat.input_socket(n_out, P.OUTPUT, "image"))
+    compositor.add_output(tree, n_img.outputs["Image"])
     r = scene.render
     r.resolution_x, r.resolution_y, r.resolution_percentage = 256, 4, 100
     scene.frame_start = scene.frame_end = 1
-    from neural_atlas.addon import compositor
-
     out = compositor.render(scene, str(folder / "lut"), "exr")
     lut = read_exr_rgba(Path(out[0]))[0, :, 0].astype(np.float64)
     assert (np.diff(lut) > 0).all(), "the ramp did not render"

@@ -1,10 +1,15 @@
-"""Shared helpers for the add-on tests (no bpy)."""
+"""Shared helpers for the add-on tests (none imports bpy): stand-in engines and pip, the real engine's Python,
+and stand-ins for what Blender only creates while its UI runs (a panel's layout, an operator instance, the
+timer events of a modal operator)."""
 
 from __future__ import annotations
 
 import os
 import sys
+import time
+import types
 from pathlib import Path
+from types import SimpleNamespace
 
 HERE = Path(__file__).resolve().parent
 
@@ -46,3 +51,77 @@ def engine_python(verb: str, needs: str) -> str:
     if "usage:" not in probe.stdout:
         pytest.skip(f"engine at {py} cannot run {verb} ({needs}): {probe.stderr.strip()[-200:]}")
     return py
+
+
+def stand_in_pip(venv) -> None:
+    """``venv/bin/python``: prints pip's first line, then fails as pip does offline."""
+    (venv / "bin").mkdir(parents=True)
+    pip = venv / "bin" / "python"
+    pip.write_text(
+        f"#!{sys.executable}\nimport sys, time\nprint('Collecting torch==2.13.0', flush=True)\ntime.sleep(0.3)\n"
+        "print('ERROR: Could not find a version that satisfies the requirement torch==2.13.0', flush=True)\n"
+        "sys.exit(1)\n"
+    )
+    pip.chmod(0o755)
+
+
+class RecordingLayout:
+    """A stand-in for a panel's ``layout`` (``draw()`` never runs headless: there is no region): every call is
+    recorded in ``calls`` as (name, args, kwargs) and returns the layout again."""
+
+    def __init__(self):
+        self.calls: list[tuple[str, tuple, dict]] = []
+
+    def __getattr__(self, name):
+        def record(*args, **kwargs):
+            self.calls.append((name, args, kwargs))
+            return self
+
+        return record
+
+    def draw(self, panel_cls, context) -> list[tuple[str, tuple, dict]]:
+        """Run ``panel_cls.draw`` with this layout; the calls it made."""
+        self.calls.clear()
+        panel_cls.draw(SimpleNamespace(layout=self), context)
+        return list(self.calls)
+
+
+def as_operator(cls, **attrs) -> SimpleNamespace:
+    """A stand-in instance of the operator class ``cls`` (Blender makes the real ones only when it runs an
+    operator): its add-on methods bound to it, its plain class values, ``attrs``, and ``reports`` that
+    collects what ``report`` says."""
+    op = SimpleNamespace()
+    for klass in reversed(cls.__mro__):
+        if not klass.__module__.startswith("neural_atlas."):
+            continue
+        for name, value in vars(klass).items():
+            if isinstance(value, classmethod):
+                setattr(op, name, value.__get__(None, cls))
+            elif isinstance(value, staticmethod):
+                setattr(op, name, value.__func__)
+            elif isinstance(value, types.FunctionType):
+                setattr(op, name, types.MethodType(value, op))
+            elif not name.startswith("__") and isinstance(value, str | int | float | tuple | type(None)):
+                setattr(op, name, value)
+    op.reports = []
+    op.report = lambda level, message: op.reports.append((level, message))
+    for name, value in attrs.items():
+        setattr(op, name, value)
+    return op
+
+
+def drive_modal(cls, context, events, limit: int = 1500, **attrs):
+    """The UI path of an engine operator without an event loop (none runs headless): its job made and started
+    as ``invoke`` does, then ``modal`` called with the event ``events(tick, job)`` names until it ends.
+    Returns (what modal returned, the operator stand-in, the job)."""
+    op = as_operator(cls, **attrs)
+    job = op._begin(context)
+    assert job is not None, op.reports
+    op._job = job
+    op._timer = context.window_manager.event_timer_add(0.1, window=context.window)
+    for tick in range(limit):
+        ret = op.modal(context, SimpleNamespace(type=events(tick, job)))
+        if ret != {"PASS_THROUGH"}:
+            return ret, op, job
+        time.sleep(0.02)
+    raise AssertionError("the modal operator never finished")

@@ -6,34 +6,26 @@ from __future__ import annotations
 import json
 import os
 import sys
-import time
 from pathlib import Path
-from typing import ClassVar
 
 import numpy as np
 import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from fake_export import (  # noqa: E402
-    FRAMES,
-    H,
-    W,
-    blender_srgb_lut,
-    lut_decoder,
-    make_export,
-    read_exr_rgba,
-    read_png_rgba8,
-    reference_frame,
-)
-from helpers import fake_python  # noqa: E402
-from neural_atlas.addon import compat, mask_math, operators  # noqa: E402
-from neural_atlas.addon import tree_plan as P  # noqa: E402
+import fake_export as X  # noqa: E402
+from helpers import RecordingLayout, drive_modal, fake_python, stand_in_pip  # noqa: E402
+from mask_reference import px_to_mask, rasterize_polygon  # noqa: E402
+from neural_atlas.addon import compat  # noqa: E402
+from neural_atlas.addon.core import running  # noqa: E402
+from neural_atlas.addon.core import tree_plan as P  # noqa: E402
+from neural_atlas.addon.ops import fit as fit_ops  # noqa: E402
+from neural_atlas.addon.ops import setup as setup_ops  # noqa: E402
 
 from engine import contract as C  # noqa: E402
 
-V5 = bpy.app.version >= (5, 0, 0)
-#: measured numbers are printed with this tag (pytest -s, or the runner's log) for docs/addon.md
+FRAMES, H, W, make_export = X.FRAMES, X.H, X.W, X.make_export
+#: the numbers the tests print carry this tag (pytest -s, or the runner's log)
 TAG = f"[bpy {bpy.app.version_string}]"
 
 
@@ -60,31 +52,19 @@ def test_register_unregister_repeatable(registered):
         assert hasattr(bpy.types, "NEURALATLAS_PT_fit")
         assert bpy.ops.neural_atlas.fit.poll()
     assert len(registration.classes) == len(set(registration.classes)) >= 13
-    assert [h.__name__ for h in bpy.app.handlers.load_pre].count("_cancel_fits") == 1
+    assert [h.__name__ for h in bpy.app.handlers.load_pre].count("_cancel_jobs") == 1
     assert bpy.context.scene.neural_atlas.preset == "draft"
 
 
 def test_panel_draws_with_a_fake_layout(blender):
     """draw() never runs headless (no region): call it with a recording layout."""
-
-    class Layout:
-        calls: ClassVar[list] = []
-
-        def __getattr__(self, name):
-            def record(*args, **kwargs):
-                Layout.calls.append((name, args, kwargs))
-                return self
-
-            return record
-
     from neural_atlas.addon import ui
 
     scene = blender.context.scene
     scene.neural_atlas.layers.add()
-    for panel in (ui.NEURALATLAS_PT_fit, ui.NEURALATLAS_PT_edit):
-        fake = type("P", (), {"layout": Layout()})()
-        panel.draw(fake, blender.context)
-    ops = [a[0] for name, a, _ in Layout.calls if name == "operator"]
+    layout = RecordingLayout()
+    calls = layout.draw(ui.NEURALATLAS_PT_fit, blender.context) + layout.draw(ui.NEURALATLAS_PT_edit, blender.context)
+    ops = [a[0] for name, a, _ in calls if name == "operator"]
     assert {"neural_atlas.fit", "neural_atlas.import_run", "neural_atlas.render", "neural_atlas.save_edits"} <= set(ops)
 
 
@@ -92,13 +72,11 @@ def test_panel_draws_with_a_fake_layout(blender):
 @pytest.fixture(scope="module")
 def lut(tmp_path_factory, registered):
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    return blender_srgb_lut(bpy, tmp_path_factory.mktemp("lut"))
+    return X.blender_srgb_lut(bpy, tmp_path_factory.mktemp("lut"))
 
 
 def test_blender_srgb_decode_is_close_to_the_formula(lut):
-    from fake_export import srgb_to_linear
-
-    err = np.abs(lut - srgb_to_linear(np.arange(256) / 255)).max()
+    err = np.abs(lut - X.srgb_to_linear(np.arange(256) / 255)).max()
     print(f"{TAG} Blender 8-bit sRGB decode vs exact formula: max abs err {err:.2e}")
     assert err < 5e-5
 
@@ -117,16 +95,14 @@ def test_compositor_matches_render_equation(blender, tmp_path, lut, filt):
         "FINISHED"
     }
     ref_filter = "nearest" if filt == P.FILTER_NEAREST else "bilinear"
-    errs, errs_exact = [], []
     for f in FRAMES:
-        out = read_exr_rgba(tmp_path / "out" / f"edit.{f:05d}.exr")
+        out = X.read_exr_rgba(tmp_path / "out" / f"edit.{f:05d}.exr")
         assert out.shape == (H, W, 4)
         np.testing.assert_allclose(out[..., 3], 1.0, atol=1e-6)
-        errs.append(np.abs(out[..., :3] - reference_frame(manifest, f, ref_filter, lut_decoder(lut))).max())
-        errs_exact.append(np.abs(out[..., :3] - reference_frame(manifest, f, ref_filter)).max())
-    err, err_exact = max(errs), max(errs_exact)
+    err = X.render_error(tmp_path / "out", manifest, ref_filter, X.lut_decoder(lut))
+    err_exact = X.render_error(tmp_path / "out", manifest, ref_filter)
     print(f"{TAG} filter {filt}: max abs err {err:.2e} (Blender's sRGB decode), {err_exact:.2e} (exact sRGB)")
-    if filt == P.FILTER_NEAREST or V5:
+    if compat.matches_engine(filt):
         assert err <= 1e-5
         assert err_exact <= 5e-5
     else:
@@ -143,29 +119,21 @@ def test_compositor_three_layers_matches_render_equation(blender, tmp_path, lut)
     assert {"NA_MapUV_Background", "NA_MapUV_Foreground1", "NA_MapUV_Foreground2"} <= ours
     out_dir = tmp_path / "out"
     assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out_dir), file_format="exr") == {"FINISHED"}
-    err = max(
-        np.abs(
-            read_exr_rgba(out_dir / f"edit.{f:05d}.exr")[..., :3]
-            - reference_frame(manifest, f, "nearest", lut_decoder(lut))
-        ).max()
-        for f in FRAMES
-    )
+    err = X.render_error(out_dir, manifest, "nearest", X.lut_decoder(lut))
     print(f"{TAG} three layers, nearest: max abs err {err:.2e}")
     assert err <= 1e-5
 
 
 def test_float_exr_edit_layer_is_used_premultiplied(blender, tmp_path):
     """An edit layer may be a linear float EXR with premultiplied alpha (no decode, no premultiply)."""
-    from fake_export import write_exr
-
     manifest = make_export(tmp_path)
     data = json.loads(manifest.read_text())
     layer = data["layers"][1]
-    edit8 = read_png_rgba8(Path(layer["edit_layer"]))
+    edit8 = X.read_png_rgba8(Path(layer["edit_layer"]))
     a = edit8[..., 3] / 255.0
     rgb = (edit8[..., :3] / 255.0) ** 2.2 * a[..., None]  # any linear premultiplied values
     exr = tmp_path / "run" / "edits" / "Foreground.exr"
-    write_exr(exr, {"R": rgb[..., 0], "G": rgb[..., 1], "B": rgb[..., 2], "A": a})
+    X.write_exr(exr, {"R": rgb[..., 0], "G": rgb[..., 1], "B": rgb[..., 2], "A": a})
     layer["edit_layer"] = str(exr)
     manifest.write_text(json.dumps(data))
     _import(blender, manifest)
@@ -173,13 +141,7 @@ def test_float_exr_edit_layer_is_used_premultiplied(blender, tmp_path):
     assert img.colorspace_settings.name == "Non-Color" and img.alpha_mode == "PREMUL"
     out = tmp_path / "out"
     assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out), file_format="exr") == {"FINISHED"}
-    lut = blender_srgb_lut(bpy, tmp_path / "lut")
-    decode = lut_decoder(lut)
-    errs = []
-    for f in FRAMES:
-        ref = reference_frame(manifest, f, "nearest", decode)
-        errs.append(np.abs(read_exr_rgba(out / f"edit.{f:05d}.exr")[..., :3] - ref).max())
-    err = max(errs)
+    err = X.render_error(out, manifest, "nearest", X.lut_decoder(X.blender_srgb_lut(bpy, tmp_path / "lut")))
     print(f"{TAG} float EXR edit layer, nearest: max abs err {err:.2e}")
     assert err <= 1e-5
 
@@ -213,7 +175,7 @@ def test_paint_then_save_and_render_png(blender, tmp_path):
     assert bpy.data.objects["NA_Canvas_Background"].location.x == 0.0 and canvas.location.x == pytest.approx(1.2)
     mat = canvas.data.materials[0]
     assert mat.node_tree.nodes.active.image.name == "NA_Edit_Foreground"
-    # headless painting is impossible (BLENDER_NOTES (f)): write pixels as a brush would
+    # headless painting is impossible (docs/blender-compat.md): write pixels as a brush would
     img = bpy.data.images["NA_Edit_Foreground"]
     w, h = img.size
     px = np.zeros(w * h * 4, np.float32)
@@ -223,7 +185,7 @@ def test_paint_then_save_and_render_png(blender, tmp_path):
     img.pixels.foreach_set(px.ravel())
     img.update()
     assert blender.ops.neural_atlas.save_edits("EXEC_DEFAULT") == {"FINISHED"}
-    on_disk = read_png_rgba8(Path(bpy.path.abspath(img.filepath)))[::-1]  # rows bottom-up like pixels
+    on_disk = X.read_png_rgba8(Path(bpy.path.abspath(img.filepath)))[::-1]  # rows bottom-up like pixels
     assert (on_disk[: h // 2, : w // 2] == [255, 0, 0, 255]).all()
     np.testing.assert_allclose(on_disk / 255.0, px, atol=0.5 / 255)
     assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(tmp_path / "png"), file_format="png") == {
@@ -243,7 +205,7 @@ def _polygon_mask(corners_by_frame, width, height):
     for frame, corners in corners_by_frame:
         for i, (p, (x, y)) in enumerate(zip(spline.points, corners, strict=True)):
             p.handle_left_type = p.handle_right_type = "VECTOR"
-            p.co = p.handle_left = p.handle_right = mask_math.px_to_mask(x, y, width, height)
+            p.co = p.handle_left = p.handle_right = px_to_mask(x, y, width, height)
             for prop in ("co", "handle_left", "handle_right"):
                 mask.keyframe_insert(f'layers["L"].splines[0].points[{i}].{prop}', frame=frame)
     return mask
@@ -265,7 +227,7 @@ def test_mask_datablock_rasterizes_exactly(blender, tmp_path):
         px = np.zeros(w * h * img.channels, np.float32)
         img.pixels.foreach_get(px)
         got = px.reshape(h, w, img.channels)[..., 0] > 0.5  # rows bottom-up
-        ref = np.array(mask_math.rasterize_polygon(corners, w, h))
+        ref = np.array(rasterize_polygon(corners, w, h))
         iou = (got & ref).sum() / (got | ref).sum()
         assert iou == 1.0, f"IoU {iou}"
         bpy.data.images.remove(img)
@@ -273,8 +235,7 @@ def test_mask_datablock_rasterizes_exactly(blender, tmp_path):
 
 
 def test_mask_shape_keys_rasterize_exactly(blender, tmp_path):
-    """Layer shape keys, keyed as the clip editor's mask tools do (BLENDER_NOTES (g))."""
-    from fake_export import write_png
+    """Layer shape keys, keyed as the clip editor's mask tools do (docs/blender-compat.md)."""
     from neural_atlas.addon import masks
 
     w, h = 64, 48
@@ -285,7 +246,7 @@ def test_mask_shape_keys_rasterize_exactly(blender, tmp_path):
     ]
     black = np.zeros((h, w, 4), np.uint8)
     black[..., 3] = 255
-    write_png(tmp_path / "clip" / "0001.png", black)
+    X.write_png(tmp_path / "clip" / "0001.png", black)
     clip = bpy.data.movieclips.load(str(tmp_path / "clip" / "0001.png"))
     mask = bpy.data.masks.new("RotoKeys")
     spline = mask.layers.new(name="L").splines.new()
@@ -301,7 +262,7 @@ def test_mask_shape_keys_rasterize_exactly(blender, tmp_path):
         scene.frame_set(frame)  # before editing: a frame change re-applies existing keys
         for p, (x, y) in zip(spline.points, corners, strict=True):
             p.handle_left_type = p.handle_right_type = "VECTOR"
-            p.co = p.handle_left = p.handle_right = mask_math.px_to_mask(x, y, w, h)
+            p.co = p.handle_left = p.handle_right = px_to_mask(x, y, w, h)
             p.select = True
         with bpy.context.temp_override(window=window, area=area, region=area.regions[-1], space_data=space):
             assert bpy.ops.mask.shape_key_insert() == {"FINISHED"}
@@ -312,7 +273,7 @@ def test_mask_shape_keys_rasterize_exactly(blender, tmp_path):
         px = np.zeros(w * h * img.channels, np.float32)
         img.pixels.foreach_get(px)
         got = px.reshape(h, w, img.channels)[..., 0] > 0.5
-        ref = np.array(mask_math.rasterize_polygon(corners, w, h))
+        ref = np.array(rasterize_polygon(corners, w, h))
         assert (got & ref).sum() / (got | ref).sum() == 1.0
     assert sorted(os.listdir(tmp_path / "m")) == names
 
@@ -452,24 +413,6 @@ def test_check_engine_operator(blender, tmp_path, monkeypatch):
         bpy.ops.neural_atlas.check_engine("EXEC_DEFAULT")
 
 
-def test_setup_engine_offline_error_is_clear(blender, tmp_path, monkeypatch):
-    """Creates a real venv, then pip cannot reach an index: the report says offline, nothing hangs."""
-    from neural_atlas.addon import preferences
-
-    for var in ("PIP_FIND_LINKS", "PIP_EXTRA_INDEX_URL"):
-        monkeypatch.delenv(var, raising=False)
-    monkeypatch.setenv("PIP_CONFIG_FILE", os.devnull)
-    monkeypatch.setenv("PIP_INDEX_URL", "http://127.0.0.1:9/simple")
-    monkeypatch.setenv("PIP_RETRIES", "0")
-    monkeypatch.setenv("PIP_DEFAULT_TIMEOUT", "2")
-    lines = []
-    ok, message, python = preferences.run_setup(str(tmp_path / "venv"), lines.append, timeout=120)
-    assert not ok and "offline" in message and str(tmp_path / "venv" / "setup.log") in message
-    assert os.path.exists(python)  # the environment itself was created
-    assert lines[0] == "creating the environment" and lines[1].startswith("installing torch")
-    assert operators._SESSIONS == {}
-
-
 def test_operators_refuse_without_inputs(blender, monkeypatch):
     props = blender.context.scene.neural_atlas
     monkeypatch.setenv("NEURAL_ATLAS_ENGINE_PYTHON", sys.executable)
@@ -482,95 +425,69 @@ def test_operators_refuse_without_inputs(blender, monkeypatch):
         bpy.ops.neural_atlas.render("EXEC_DEFAULT")
 
 
-class _Event:
-    def __init__(self, type_):
-        self.type = type_
-
-
-def _drive_modal(context, session, events):
-    """Run the modal operator's TIMER/ESC handling without an event loop (none exists headless)."""
-    from types import SimpleNamespace
-
-    reports = []
-    op = SimpleNamespace(_session=session, report=lambda level, msg: reports.append((level, msg)))
-    op._timer = context.window_manager.event_timer_add(0.1, window=context.window)
-    op._finish = lambda ctx, s: operators.NEURALATLAS_OT_fit._finish(op, ctx, s)
-    operators._SESSIONS[session.scene_name] = session
-    session.start()
-    ticks = 0
-    while True:
-        event = events(ticks, session)
-        ret = operators.NEURALATLAS_OT_fit.modal(op, context, _Event(event))
-        ticks += 1
-        if ret != {"PASS_THROUGH"}:
-            return ret, reports, ticks
-        assert ticks < 600, "the modal operator never finished"
-        import time
-
-        time.sleep(0.02)
-
-
 def test_modal_path_progress_then_import(fit_scene):
     props, _ = fit_scene
-    session = operators.FitSession(bpy.context)
     seen = []
 
-    def events(_tick, s):
+    def events(_tick, job):
         seen.append((props.progress, props.status))
         return "TIMER"
 
-    ret, reports, _ = _drive_modal(bpy.context, session, events)
-    assert ret == {"FINISHED"} and reports[-1][0] == {"INFO"}
+    ret, op, _ = drive_modal(fit_ops.NEURALATLAS_OT_fit, bpy.context, events, resume=False)
+    assert ret == {"FINISHED"} and op.reports[-1][0] == {"INFO"}
     assert any(status.startswith("step ") and " dB · ETA " in status for _, status in seen)
     assert any(0.0 < p < 1.0 for p, _ in seen)
-    assert props.manifest and not operators.is_running(bpy.context.scene)
+    assert props.manifest and not running.is_running(bpy.context.scene.name)
 
 
 @pytest.mark.parametrize("how", ["escape", "cancel_button"])
 def test_modal_path_cancel(fit_scene, monkeypatch, how):
     props, _ = fit_scene
     monkeypatch.setenv("FAKE_ENGINE_MODE", "hang")
-    session = operators.FitSession(bpy.context)
 
-    def events(tick, s):
-        if s.job.state.step >= 3 and tick % 2 == 0:
+    def events(tick, job):
+        if job.state.step >= 3 and tick % 2 == 0:
             if how == "escape":
                 return "ESC"
             assert bpy.ops.neural_atlas.cancel() == {"FINISHED"}
         return "TIMER"
 
-    ret, reports, _ = _drive_modal(bpy.context, session, events)
-    assert ret == {"CANCELLED"} and reports[-1][0] == {"WARNING"}
-    assert "cancelled at step" in reports[-1][1] and props.can_resume
+    ret, op, _ = drive_modal(fit_ops.NEURALATLAS_OT_fit, bpy.context, events, resume=False)
+    assert ret == {"CANCELLED"} and op.reports[-1][0] == {"WARNING"}
+    assert "cancelled at step" in op.reports[-1][1] and props.can_resume
     assert bpy.ops.neural_atlas.fit.poll()
+
+
+def test_modal_estimate_keeps_the_ui_free_and_fills_the_estimate(fit_scene):
+    """Estimate Time runs like Fit Atlas: polled by the timer, the panel shows it, the scene gets the rows."""
+    props, _ = fit_scene
+    busy = []
+
+    def events(_tick, job):
+        busy.append((bpy.ops.neural_atlas.fit.poll(), props.running))
+        return "TIMER"
+
+    ret, op, job = drive_modal(fit_ops.NEURALATLAS_OT_estimate, bpy.context, events)
+    assert ret == {"FINISHED"} and op.reports[-1] == ({"INFO"}, "about 1m01s here (engine estimate), ~25.7 dB")
+    assert busy[0] == (False, True)  # one job per scene: no fit while it runs
+    assert json.loads(props.estimate_json) == job.rows and not props.running and running.jobs() == {}
 
 
 def test_setup_engine_modal_path_reports_progress_and_offline(blender, tmp_path):
     """The GUI path of Set up engine, driven by hand-made TIMER events; pip is a stand-in that fails offline."""
-    from types import SimpleNamespace
-
-    from neural_atlas.addon import preferences
-
     venv = tmp_path / "venv"
-    (venv / "bin").mkdir(parents=True)
-    pip = venv / "bin" / "python"
-    pip.write_text(
-        f"#!{sys.executable}\nimport sys, time\nprint('Collecting torch==2.13.0', flush=True)\ntime.sleep(0.3)\n"
-        "print('ERROR: Could not find a version that satisfies the requirement torch==2.13.0', flush=True)\n"
-        "sys.exit(1)\n"
-    )
-    pip.chmod(0o755)
-    session = preferences.SetupSession(str(venv))
-    assert len(session.steps) == 1  # the environment exists: only the install runs
-    reports, statuses = [], []
-    op = SimpleNamespace(_session=session, report=lambda level, msg: reports.append((level, msg)))
-    op._timer = blender.context.window_manager.event_timer_add(0.1, window=blender.context.window)
-    for _ in range(200):
-        ret = preferences.NEURALATLAS_OT_setup_engine.modal(op, blender.context, _Event("TIMER"))
-        statuses.append(session.status())
-        if ret != {"PASS_THROUGH"}:
-            break
-        time.sleep(0.02)
+    stand_in_pip(venv)
+    statuses = []
+
+    def events(_tick, job):
+        assert len(job.commands) == 1  # the environment exists: only the install runs
+        statuses.append(job.status_text())
+        return "TIMER"
+
+    ret, op, _ = drive_modal(setup_ops.NEURALATLAS_OT_setup_engine, blender.context, events, venv_dir=str(venv))
     assert ret == {"CANCELLED"}
     assert any("Collecting torch" in s for s in statuses)  # pip's latest line is what the preferences show
+    reports = op.reports
     assert reports[-1][0] == {"ERROR"} and "offline" in reports[-1][1] and "setup.log" in reports[-1][1]
+    assert reports[0] == ({"INFO"}, "Set up engine: installing torch and the engine's packages (about 1 GB)…")
+    assert running.jobs() == {}

@@ -44,6 +44,7 @@ def built_zip(tmp_path_factory):
 def test_zip_holds_the_extension_and_only_the_built_paths(built_zip):
     names = zipfile.ZipFile(built_zip).namelist()
     assert {"__init__.py", "blender_manifest.toml", "addon/__init__.py", "engine/contract.py"} <= set(names)
+    assert {"addon/core/jobs.py", "addon/ops/__init__.py", "addon/ops/driver.py"} <= set(names)
     assert {n.split("/")[0] for n in names} <= {"__init__.py", "blender_manifest.toml", "addon", "engine", "README.md"}
     assert not any("__pycache__" in n or n.endswith(".pyc") for n in names)
     assert built_zip.name == f"{EXT_ID}-0.1.0.zip"
@@ -65,7 +66,8 @@ INSTALL_SCRIPT = textwrap.dedent(
     out["installed_dir"] = os.path.dirname(sys.modules[mod].__file__)
     prefs.engine_python = engine_python
     from bl_ext.user_default.neural_atlas.addon import preferences as p
-    out["check"] = p.check_engine(p.engine_python())
+    from bl_ext.user_default.neural_atlas.addon.core import engine_setup
+    out["check"] = engine_setup.check_engine(p.engine_python())
     addon_utils.disable(mod, default_set=True)
     out["panel_after_disable"] = hasattr(bpy.types, "NEURALATLAS_PT_fit")
     print("RESULT " + json.dumps(out))
@@ -118,6 +120,7 @@ def test_readme_build_command_runs_verbatim():
     proc = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     try:
-        assert "addon/operators.py" in zipfile.ZipFile(zip_path).namelist()
+        names = zipfile.ZipFile(zip_path).namelist()
+        assert {"addon/ops/fit.py", "addon/core/jobs.py", "addon/compat.py"} <= set(names)
     finally:
         zip_path.unlink(missing_ok=True)

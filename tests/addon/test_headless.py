@@ -9,21 +9,15 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from fake_export import (  # noqa: E402
-    FRAMES,
-    blender_srgb_lut,
-    lut_decoder,
-    make_export,
-    read_exr_rgba,
-    reference_frame,
-)
+import fake_export as X  # noqa: E402
 from neural_atlas.addon import compat  # noqa: E402
-from neural_atlas.addon import tree_plan as P  # noqa: E402
+from neural_atlas.addon.core import tree_plan as P  # noqa: E402
+
+from engine import contract as C  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = ROOT / "addon" / "headless.py"
@@ -37,9 +31,9 @@ def _run(*args: str) -> subprocess.CompletedProcess:
 
 
 def test_headless_builds_the_blend_and_renders_the_equation(blender, tmp_path):
-    manifest = make_export(tmp_path)
+    manifest = X.make_export(tmp_path)
     m = json.loads(manifest.read_text())
-    fg_edit = Path(P.resolve(str(manifest), m["layers"][1]["edit_layer"]))
+    fg_edit = Path(C.resolve_manifest_path(str(manifest), m["layers"][1]["edit_layer"]))
     other = tmp_path / "elsewhere" / "paint.png"
     other.parent.mkdir()
     shutil.copy(fg_edit, other)  # same pixels, another file: the override must be what the .blend uses
@@ -51,17 +45,14 @@ def test_headless_builds_the_blend_and_renders_the_equation(blender, tmp_path):
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
     report = json.loads((out / "report.json").read_text())
-    assert report["exact"] and report["frames"] == list(FRAMES) and len(report["files"]) == len(FRAMES)
-    assert report["engine_filter"] == ("bilinear" if bpy.app.version >= (5, 0, 0) else "nearest")
+    assert report["exact"] and report["frames"] == list(X.FRAMES) and len(report["files"]) == len(X.FRAMES)
+    assert report["engine_filter"] == ("bilinear" if compat.V5 else "nearest")
     assert "shot.blend" in proc.stdout.splitlines()[-1]
 
-    lut = blender_srgb_lut(bpy, tmp_path / "lut")
-    errs = []
-    for f in FRAMES:
-        img = read_exr_rgba(out / "render" / f"edit.{f:05d}.exr")[..., :3]
-        errs.append(np.abs(img - reference_frame(manifest, f, report["engine_filter"], lut_decoder(lut))).max())
-    print(f"{TAG} headless.py render vs the render equation ({report['engine_filter']}): {max(errs):.2e}")
-    assert max(errs) <= 1e-5
+    decode = X.lut_decoder(X.blender_srgb_lut(bpy, tmp_path / "lut"))
+    err = X.render_error(out / "render", manifest, report["engine_filter"], decode)
+    print(f"{TAG} headless.py render vs the render equation ({report['engine_filter']}): {err:.2e}")
+    assert err <= 1e-5
 
     # the saved .blend is what an artist opens: the add-on's tree, the override as the Foreground edit layer
     bpy.ops.wm.open_mainfile(filepath=str(out / "shot.blend"))
@@ -70,7 +61,7 @@ def test_headless_builds_the_blend_and_renders_the_equation(blender, tmp_path):
     edit = bpy.data.images[P.edit_image_name("Foreground")]
     assert Path(bpy.path.abspath(edit.filepath)).resolve() == other.resolve()
     assert bpy.data.objects.get("NA_Canvas_Foreground") is not None
-    assert bpy.context.scene.frame_start == FRAMES[0] and bpy.context.scene.frame_end == FRAMES[-1]
+    assert bpy.context.scene.frame_start == X.FRAMES[0] and bpy.context.scene.frame_end == X.FRAMES[-1]
 
 
 def test_headless_bad_input_is_one_line_exit_2(tmp_path):
@@ -79,7 +70,7 @@ def test_headless_bad_input_is_one_line_exit_2(tmp_path):
     assert (
         proc.stderr.strip().splitlines()[-1].startswith(f"error: {tmp_path / 'nowhere' / 'manifest.json'}: no manifest")
     )
-    manifest = make_export(tmp_path)
+    manifest = X.make_export(tmp_path)
     proc = _run(str(manifest), "--blend", str(tmp_path / "x.blend"), "--edit", "Foreground")
     assert proc.returncode == 2 and "is not LAYER=IMAGE" in proc.stderr
     proc = _run(str(manifest), "--blend", str(tmp_path / "x.blend"), "--edit", "Nope=" + str(manifest))

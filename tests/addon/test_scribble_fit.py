@@ -15,18 +15,17 @@ from __future__ import annotations
 import itertools
 from pathlib import Path
 from types import SimpleNamespace as NS
-from typing import ClassVar
 
 import numpy as np
 import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from fake_export import FRAMES, H, W, make_export, write_png  # noqa: E402
-from helpers import fake_python  # noqa: E402
-from neural_atlas.addon import compat, operators, scribbles  # noqa: E402
-from neural_atlas.addon import scribble_math as S  # noqa: E402
-from test_scribbles import _decode_rgb_png  # noqa: E402
+from fake_export import FRAMES, H, W, decode_png, make_export, write_png  # noqa: E402
+from helpers import RecordingLayout, fake_python  # noqa: E402
+from neural_atlas.addon import compat, scribbles  # noqa: E402
+from neural_atlas.addon.core import running  # noqa: E402
+from neural_atlas.addon.core import scribble_math as S  # noqa: E402
 
 from engine import contract as C  # noqa: E402
 
@@ -84,10 +83,10 @@ def _expected(points, radius, width=W, height=H) -> np.ndarray:
 
 
 def _labels(path: Path) -> np.ndarray:
-    w, h, rows = _decode_rgb_png(path.read_bytes())
-    assert (w, h) == (W, H)
+    px = decode_png(path.read_bytes())
+    assert px.shape == (H, W, 3)
     colours = {(0, 0, 0): -1, **{tuple(c): k for k, c in enumerate(C.SCRIBBLE_COLOURS)}}
-    return np.array([[colours[p] for p in row] for row in rows])
+    return np.array([[colours[tuple(p)] for p in row] for row in px])
 
 
 def test_scribble_fit_rasterizes_passes_the_folder_and_imports_three_layers(scribble_scene, tmp_path):
@@ -156,7 +155,7 @@ def test_scribble_fit_refusals_are_clear_and_start_no_engine(scribble_scene, cas
         bpy.ops.neural_atlas.fit("EXEC_DEFAULT")
     assert match.split(" ")[0] in props.status
     assert not Path(props.run_dir + ".blender.log").exists()  # refused before any engine started
-    assert not props.running and operators._SESSIONS == {}
+    assert not props.running and running.jobs() == {}
 
 
 def test_scribbles_off_or_estimate_pass_no_scribbles(scribble_scene):
@@ -170,23 +169,14 @@ def test_scribbles_off_or_estimate_pass_no_scribbles(scribble_scene):
     assert props.imported_layers == "Background, Foreground"
 
 
-class _Layout:
-    calls: ClassVar[list] = []
+def _panel(context) -> list[tuple[str, tuple, dict]]:
+    from neural_atlas.addon import ui
 
-    def __getattr__(self, name):
-        def record(*args, **kwargs):
-            _Layout.calls.append((name, args, kwargs))
-            return self
-
-        return record
+    return RecordingLayout().draw(ui.NEURALATLAS_PT_fit, context)
 
 
 def _panel_labels(context) -> list[tuple[str, str]]:
-    from neural_atlas.addon import ui
-
-    _Layout.calls.clear()
-    ui.NEURALATLAS_PT_fit.draw(type("P", (), {"layout": _Layout()})(), context)
-    return [(kw.get("text", ""), kw.get("icon", "")) for name, _, kw in _Layout.calls if name == "label"]
+    return [(kw.get("text", ""), kw.get("icon", "")) for name, _, kw in _panel(context) if name == "label"]
 
 
 def test_panel_says_which_colour_marks_which_part(scribble_scene):
@@ -196,7 +186,7 @@ def test_panel_says_which_colour_marks_which_part(scribble_scene):
     assert ("Green: part 2 (Foreground2)", "COLORSET_03_VEC") in labels
     assert ("Blue: part 3 (Foreground3)", "COLORSET_04_VEC") in labels
     assert ("No strokes in these colours yet", "INFO") in labels
-    ops = [a[0] for name, a, _ in _Layout.calls if name == "operator"]
+    ops = [a[0] for name, a, _ in _panel(bpy.context) if name == "operator"]
     assert "neural_atlas.find_masks" in ops
     annotation.layers = [_layer(RED, 2, {1: [[(0.2, 0.2)]]}), _layer(GREEN, 2, {3: [[(0.7, 0.7)]]})]
     assert ("red, green on frame(s) 1, 3", "CHECKMARK") in _panel_labels(bpy.context)

@@ -1,15 +1,10 @@
-"""Blender mask space <-> pixels, and the reference rasterizer for polygons. No bpy here.
+"""Blender's mask space and an exact polygon rasterizer: the oracle the mask tests compare Blender with (no bpy).
 
 Blender's mask space spans 0..1 along the frame's longer side and centres the shorter side; pixels are
-counted bottom-up. A Mask datablock is rasterized by the compositor's Mask node (``masks.py``); this
-module holds the arithmetic around it, and an exact even-odd pixel-centre rasterizer that the tests use
-as the oracle for polygons.
+counted bottom-up.
 """
 
 from __future__ import annotations
-
-import os
-import re
 
 
 def px_to_mask(x: float, y: float, width: int, height: int) -> tuple[float, float]:
@@ -47,23 +42,3 @@ def iou(a: list[list[bool]], b: list[list[bool]]) -> float:
     inter = sum(x and y for ra, rb in zip(a, b, strict=True) for x, y in zip(ra, rb, strict=True))
     union = sum(x or y for ra, rb in zip(a, b, strict=True) for x, y in zip(ra, rb, strict=True))
     return 1.0 if union == 0 else inter / union
-
-
-_DIGITS = re.compile(r"(\d+)(?=\.[^.]+$)")
-
-
-def file_number(path: str) -> int | None:
-    """The frame number in a sequence file name (``plate_0012.png`` -> 12)."""
-    m = _DIGITS.search(os.path.basename(path))
-    return int(m.group(1)) if m else None
-
-
-def mask_file_names(scene_frames: list[int], first_file_number: int | None, clip_frame_start: int) -> list[str]:
-    """Names of the mask images for the given scene frames.
-
-    For an image-sequence plate they carry the plate's file numbers (the engine then matches masks to
-    frames by number); for a movie, the position in the selected range (matched by count).
-    """
-    if first_file_number is None:
-        return [f"{i:05d}.png" for i in range(len(scene_frames))]
-    return [f"{first_file_number + f - clip_frame_start:05d}.png" for f in scene_frames]

@@ -2,10 +2,11 @@
 
 The engine is a child process started from an argv list (never a shell string). Two reader threads copy
 its stdout and stderr into the log file; stdout lines that are progress messages (``engine.contract``)
-are queued for the caller, which drains them with ``poll()`` — from a 0.1 s modal timer in the UI, or in
-a loop in ``wait()`` for the blocking path. ``cancel()`` sends SIGTERM (the engine writes a checkpoint and
-exits with EXIT_CANCELLED) and kills after a grace period. Whatever the child does — a bad argv, a crash,
-a signal — the caller gets a ``JobResult``, never an exception.
+are queued for the caller, which drains them with ``step()`` — from a modal timer in the UI, or in
+``run_blocking`` for the blocking path (the pattern of Blender's own extension manager, bl_pkg).
+``cancel()`` sends SIGTERM (the engine writes a checkpoint and exits with EXIT_CANCELLED) and kills after a
+grace period. Whatever the child does — a bad argv, a crash, a signal — the caller gets a ``JobResult``, never
+an exception.
 """
 
 from __future__ import annotations
@@ -17,15 +18,19 @@ import subprocess
 import threading
 import time
 import weakref
-from dataclasses import dataclass, field
-from typing import Any
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Protocol
 
-from ..engine import contract as C
+from ...engine import contract as C  # type: ignore[import-not-found]
+from .progress import JobState
 
 #: Seconds between SIGTERM and SIGKILL when cancelling (the engine needs a moment to write a checkpoint).
 CANCEL_GRACE_SECONDS = 30.0
-#: Lines of stderr kept in memory for the report (the full text is in the log).
-STDERR_TAIL_LINES = 20
+#: Seconds between two polls of a running job, in the UI's modal timer and in the blocking loop.
+POLL_SECONDS = 0.1
+#: Seconds to wait for the reader threads once the process has exited.
+READER_JOIN_SECONDS = 5.0
 
 STATUS_RUNNING = "running"
 STATUS_OK = "ok"
@@ -55,69 +60,6 @@ class JobResult:
     metrics: dict[str, Any] | None = None
 
 
-@dataclass
-class JobState:
-    """What the progress bar shows; updated from the messages as they arrive."""
-
-    stage: str = ""
-    message: str = ""
-    step: int = 0
-    total: int = 0
-    psnr: float | None = None
-    elapsed: float | None = None
-    eta: float | None = None
-    checkpoint: str | None = None
-    manifest: str | None = None
-    metrics: dict[str, Any] | None = None
-    error: str | None = None
-    last_stdout: str = ""
-    stderr_tail: list[str] = field(default_factory=list)
-
-    @property
-    def fraction(self) -> float:
-        return min(1.0, self.step / self.total) if self.total > 0 else 0.0
-
-    def apply(self, msg: dict[str, Any]) -> None:
-        event = msg["event"]
-        if event == C.EVENT_STAGE:
-            self.stage = str(msg.get("stage", ""))
-            self.message = str(msg.get("message", self.stage))
-        elif event == C.EVENT_PROGRESS:
-            self.step = int(msg.get("step", self.step))
-            self.total = int(msg.get("total", self.total))
-            self.psnr = msg.get("psnr", self.psnr)
-            self.elapsed = msg.get("elapsed", self.elapsed)
-            self.eta = msg.get("eta", self.eta)
-        elif event == C.EVENT_CHECKPOINT:
-            self.checkpoint = msg.get("path", self.checkpoint)
-        elif event == C.EVENT_DONE:
-            self.metrics = msg.get("metrics")
-        elif event == C.EVENT_CANCELLED:
-            self.checkpoint = msg.get("checkpoint", self.checkpoint)
-        elif event == C.EVENT_ERROR:
-            self.error = str(msg.get("message", "engine error"))
-        elif event == C.EVENT_EXPORTED:
-            self.manifest = msg.get("manifest", self.manifest)
-
-    def summary(self) -> str:
-        """One line for the progress bar: step, PSNR and ETA."""
-        if self.total <= 0:
-            return self.message or self.stage or "starting…"
-        text = f"step {self.step}/{self.total}"
-        if self.psnr is not None:
-            text += f" · {self.psnr:.1f} dB"
-        if self.eta is not None:
-            text += f" · ETA {format_seconds(self.eta)}"
-        return text
-
-
-def format_seconds(seconds: float) -> str:
-    seconds = max(0, round(float(seconds)))
-    h, rem = divmod(seconds, 3600)
-    m, s = divmod(rem, 60)
-    return f"{h}h{m:02d}m" if h else (f"{m}m{s:02d}s" if m else f"{s}s")
-
-
 class EngineJob:
     """One engine process: start, poll, cancel, wait. Not thread-safe for several callers."""
 
@@ -138,6 +80,8 @@ class EngineJob:
         self._cancel_time: float | None = None
         self._launch_error: str | None = None
         self._result: JobResult | None = None
+        #: the progress messages the last ``step()`` drained
+        self.messages: list[dict[str, Any]] = []
 
     # --- lifecycle -----------------------------------------------------------------------------------------
     def start(self) -> EngineJob:
@@ -184,16 +128,23 @@ class EngineJob:
             self.state.apply(msg)
             out.append(msg)
         overdue = self._cancel_time is not None and time.monotonic() - self._cancel_time > CANCEL_GRACE_SECONDS
-        if overdue and self.running:
-            self._proc.kill()  # type: ignore[union-attr]
+        if overdue and self._proc is not None and self.running:
+            self._proc.kill()
         return out
+
+    def step(self) -> bool:
+        """Poll once; True while the process runs (its messages so far are in ``messages``)."""
+        finished = self.done()  # before draining: once done, this drain reads everything the process wrote
+        self.messages = self.poll()
+        return not finished
 
     def cancel(self) -> None:
         """Ask the engine to stop (SIGTERM: it writes a checkpoint); SIGKILL after the grace period."""
         self._cancel_requested = True
-        if self.running and self._cancel_time is None:
+        if self._proc is not None and self.running and self._cancel_time is None:
             self._cancel_time = time.monotonic()
-            self._proc.terminate()  # type: ignore[union-attr]
+            self._write_log("cancel requested: SIGTERM\n")
+            self._proc.terminate()
 
     def done(self) -> bool:
         """True once the process has exited and its output is fully read."""
@@ -210,20 +161,17 @@ class EngineJob:
             self._result = self._finish()
         return self._result
 
-    def wait(self, timeout: float | None = None, on_message: Any = None, interval: float = 0.1) -> JobResult:
-        """The blocking path: poll until the process exits (cancel on timeout)."""
-        deadline = None if timeout is None else time.monotonic() + timeout
-        while not self.done():
-            for msg in self.poll():
+    def wait(
+        self, timeout: float | None = None, on_message: Callable[[dict[str, Any]], None] | None = None
+    ) -> JobResult:
+        """The blocking path for one process (``run_blocking``); ``on_message`` sees every progress message."""
+
+        def forward() -> None:
+            for msg in self.messages:
                 if on_message is not None:
                     on_message(msg)
-            if deadline is not None and time.monotonic() > deadline and not self._cancel_requested:
-                self._write_log(f"timed out after {timeout} s: cancelling\n")
-                self.cancel()
-            time.sleep(interval)
-        for msg in self.poll():
-            if on_message is not None:
-                on_message(msg)
+
+        run_blocking(self, timeout, forward)
         return self.result()
 
     # --- internals -----------------------------------------------------------------------------------------
@@ -243,10 +191,8 @@ class EngineJob:
                     self._queue.put(msg)
                 elif text.strip():
                     self.state.last_stdout = text.strip()
-            elif text.strip() and "\r" not in text:
-                tail = self.state.stderr_tail
-                tail.append(text.strip())
-                del tail[:-STDERR_TAIL_LINES]
+            else:
+                self.state.note_stderr(text)
         stream.close()
 
     def _finish(self) -> JobResult:
@@ -257,7 +203,7 @@ class EngineJob:
             assert self._proc is not None
             rc = self._proc.wait()
             for t in self._threads:
-                t.join(timeout=5)
+                t.join(timeout=READER_JOIN_SECONDS)
             self._write_log(f"[exit code {rc}]\n")
             manifest = st.manifest
             if manifest is None and st.last_stdout.endswith(C.MANIFEST_NAME):
@@ -294,3 +240,32 @@ class EngineJob:
             return f"the engine was killed by signal {-rc}"
         last = tail[-1] if tail else "no output"
         return f"the engine failed (exit code {rc}): {last}"
+
+
+class Steppable(Protocol):
+    """What ``run_blocking`` (and the add-on's modal operator) drive: an ``EngineJob`` or a ``jobs.Job``."""
+
+    def step(self) -> bool: ...
+
+    def cancel(self) -> None: ...
+
+
+def run_blocking(
+    job: Steppable,
+    timeout: float | None = None,
+    on_step: Callable[[], None] | None = None,
+    interval: float = POLL_SECONDS,
+) -> None:
+    """The blocking path (background mode, scripts, tests): ``step()`` until it returns False, calling ``on_step``
+    after each step; past ``timeout`` seconds the job is cancelled once (and still stepped to its end)."""
+    deadline = None if timeout is None else time.monotonic() + timeout
+    while True:
+        more = job.step()
+        if on_step is not None:
+            on_step()
+        if not more:
+            return
+        if deadline is not None and time.monotonic() > deadline:
+            job.cancel()
+            deadline = None
+        time.sleep(interval)

@@ -8,7 +8,7 @@ A_i = edit_i(uv_i).a * Z_i) the tree computes the engine's render equation
 not a chain of Alpha Overs (which would give plate(1-A0)(1-A1) + P0(1-A1) + P1 where layers overlap).
 The colour sum uses Mix/Add, whose alpha is its first input's, so the alphas are summed separately
 (Separate Color -> Math/Add) and put back with Set Alpha; one premultiplied Alpha Over puts the sum over
-the plate. ``compositor.py`` turns a plan into nodes; ``compat.py`` maps the abstract socket keys used
+the plate. ``addon/compositor.py`` turns a plan into nodes; ``addon/compat.py`` maps the abstract socket keys used
 here to each Blender version's sockets.
 """
 
@@ -18,12 +18,12 @@ import os
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..engine import contract as C
+from ...engine import contract as C  # type: ignore[import-not-found]
 
 #: Every node and image the add-on creates starts with this; rebuilding removes only these.
 PREFIX = "NA_"
 
-# node kinds (compat.py knows each version's node type and sockets)
+# node kinds (addon/compat.py knows each version's node type and sockets)
 PLATE = "plate"  # MovieClip node; output "image"
 IMAGE = "image"  # Image node; outputs "image" or one per pass of a multilayer EXR
 MAP_UV = "map_uv"  # inputs "image", "uv"; output "image"
@@ -102,11 +102,6 @@ def atlas_image_name(layer: str) -> str:
     return f"{PREFIX}Atlas_{layer}"
 
 
-def resolve(manifest_path: str, path: str) -> str:
-    """Manifest paths are relative to the manifest's folder unless absolute."""
-    return path if os.path.isabs(path) else os.path.normpath(os.path.join(os.path.dirname(manifest_path), path))
-
-
 def contiguous_frames(frames: list[int]) -> tuple[int, int]:
     first, last = min(frames), max(frames)
     if sorted(frames) != list(range(first, last + 1)):
@@ -124,11 +119,15 @@ def plan_tree(
     if filter_type not in (FILTER_NEAREST, FILTER_SMOOTH):
         raise PlanError(f"unknown filter {filter_type!r}")
     edits = edits or {}
+
+    def at(path: str) -> str:
+        return C.resolve_manifest_path(manifest_path, path)
+
     passes = manifest["passes"]
     clip = manifest["clip"]
     first, last = contiguous_frames(passes["frames"])
     count = last - first + 1
-    pass_dir = resolve(manifest_path, passes["dir"])
+    pass_dir = at(passes["dir"])
     pass_first = os.path.join(pass_dir, passes["pattern"].format(frame=first))
 
     if clip["kind"] == "sequence":
@@ -136,10 +135,10 @@ def plan_tree(
         files = list(clip["frame_files"])
         if first not in numbers:
             raise PlanError(f"plate has no frame {first}; export frames that exist in the clip")
-        plate_file = resolve(manifest_path, files[numbers.index(first)])
+        plate_file = at(files[numbers.index(first)])
         plate = ImageSpec(PLATE_CLIP, plate_file, _plate_colorspace(clip), True, first, count)
     else:
-        plate = ImageSpec(PLATE_CLIP, resolve(manifest_path, clip["source"]), _plate_colorspace(clip), False, 0, count)
+        plate = ImageSpec(PLATE_CLIP, at(clip["source"]), _plate_colorspace(clip), False, 0, count)
 
     images = [ImageSpec(PASSES_IMAGE, pass_first, "Non-Color", True, first, count)]
     layers = [layer["name"] for layer in manifest["layers"]]
@@ -149,9 +148,9 @@ def plan_tree(
     for layer in manifest["layers"]:
         name = layer["name"]
         # the float edit layer <Layer>.exr wins over the export's PNG when both exist (the same rule as the engine)
-        edit = edits.get(name) or C.edit_layer_file(resolve(manifest_path, layer["edit_layer"]))
+        edit = edits.get(name) or C.edit_layer_file(at(layer["edit_layer"]))
         images.append(ImageSpec(edit_image_name(name), edit, edit_colorspace(edit)))
-        images.append(ImageSpec(atlas_image_name(name), resolve(manifest_path, layer["atlas_png"]), "sRGB"))
+        images.append(ImageSpec(atlas_image_name(name), at(layer["atlas_png"]), "sRGB"))
 
     nodes: list[NodeSpec] = []
     links: list[LinkSpec] = []
@@ -214,7 +213,7 @@ def _separate(nodes: list[NodeSpec], links: list[LinkSpec], n_map: str) -> tuple
 
 def edit_colorspace(path: str) -> str:
     """An edit layer is an sRGB PNG with straight alpha, or a linear float EXR with premultiplied alpha."""
-    return "Non-Color" if path.lower().endswith(".exr") else "sRGB"
+    return "Non-Color" if path.lower().endswith(C.EDIT_LAYER_FLOAT_EXT) else "sRGB"
 
 
 def _plate_colorspace(clip: dict[str, Any]) -> str:

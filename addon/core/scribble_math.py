@@ -14,12 +14,22 @@ import struct
 import zlib
 from dataclasses import dataclass
 
-from ..engine import contract as C
+from ...engine import contract as C  # type: ignore[import-not-found]
 
 #: No label at this pixel (the PNG is black there).
 NO_LABEL = -1
 #: A stroke thinner than this radius (pixels) is widened to it, so a one-pixel stroke still marks pixels.
 MIN_RADIUS_PX = 0.75
+#: The names of the code colours in the panel (any other colour is shown as its hex code).
+COLOUR_NAMES: dict[tuple[int, int, int], str] = {
+    (255, 0, 0): "red",
+    (0, 255, 0): "green",
+    (0, 0, 255): "blue",
+    (255, 255, 0): "yellow",
+}
+#: The scribble PNGs: 8 bits per channel, RGB (PNG colour type 2).
+PNG_BIT_DEPTH = 8
+PNG_COLOUR_TYPE_RGB = 2
 
 
 @dataclass(frozen=True)
@@ -86,5 +96,13 @@ def encode_png(rows: list[list[int]]) -> bytes:
     def chunk(tag: bytes, data: bytes) -> bytes:
         return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
 
-    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    header = struct.pack(">IIBBBBB", width, height, PNG_BIT_DEPTH, PNG_COLOUR_TYPE_RGB, 0, 0, 0)
     return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b"")
+
+
+def legend() -> list[tuple[str, str]]:
+    """(colour name, what it marks) for each code colour, from the engine's colour code."""
+    return [
+        (COLOUR_NAMES.get(rgb, "#{:02x}{:02x}{:02x}".format(*rgb)), f"part {k + 1} (Foreground{k + 1})")
+        for k, rgb in enumerate(C.SCRIBBLE_COLOURS)
+    ]

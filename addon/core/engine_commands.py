@@ -1,0 +1,91 @@
+"""The engine command lines the add-on runs, one function per verb, and the environment they run in. No bpy here.
+
+Every command is an argv list (``python -m engine <verb> ...``, never a shell string); the verbs and their
+arguments are the contract's (``engine.contract``). The engine runs with its own interpreter and finds the
+engine shipped inside the extension through PYTHONPATH.
+"""
+
+from __future__ import annotations
+
+import os
+import shlex
+from dataclasses import dataclass
+
+from ...engine import contract as C  # type: ignore[import-not-found]
+
+#: The fit's own progress bar is for terminals: the add-on reads the JSON progress lines instead.
+NO_BAR_FLAG = "--no-bar"
+
+
+def extension_root() -> str:
+    """The folder that holds ``engine/`` and ``addon/`` (the extension root, or the checkout)."""
+    return os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def engine_env(base: dict[str, str] | None = None) -> dict[str, str]:
+    """Environment for engine processes: the extension root first on PYTHONPATH, unbuffered output."""
+    env = dict(os.environ if base is None else base)
+    root = extension_root()
+    env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
+def engine_argv(python: str, verb: str, *args: str) -> list[str]:
+    return [python, "-m", C.CLI_MODULE, verb, *args]
+
+
+def version_argv(python: str) -> list[str]:
+    return [python, "-m", C.CLI_MODULE, "--version"]
+
+
+@dataclass(frozen=True)
+class ClipInputs:
+    """What the engine reads of a clip: the plate (a sequence's folder or a movie file), one mask folder per
+    foreground layer, the frames as positions in the plate (first and last, inclusive) and, for a fit that
+    splits one object with scribbles, the scribble folder."""
+
+    plate: str
+    masks: tuple[str, ...]
+    first: int
+    last: int
+    scribbles: str | None = None
+
+    def args(self) -> list[str]:
+        """``--mask M ... --frames A:B [--scribbles S]`` (the plate is the verb's first argument)."""
+        out = [arg for folder in self.masks for arg in ("--mask", folder)]
+        out += ["--frames", frames_arg(self.first, self.last)]
+        return out + ([C.SCRIBBLE_ARG, self.scribbles] if self.scribbles else [])
+
+
+def frames_arg(first: int, last: int) -> str:
+    """The engine's ``--frames`` value: positions in the plate, not scene frames."""
+    return f"{first}:{last}"
+
+
+def set_args(long_edge: int, overrides: str = "") -> list[str]:
+    """``--set long_edge=N`` then each of the artist's space-separated ``KEY=VALUE`` overrides."""
+    return [arg for item in [f"long_edge={long_edge}", *shlex.split(overrides)] for arg in ("--set", item)]
+
+
+def fit_argv(python: str, clip: ClipInputs, run_dir: str, preset: str, sets: list[str]) -> list[str]:
+    args = [clip.plate, *clip.args(), "--out", run_dir, "--preset", preset, *sets, NO_BAR_FLAG]
+    return engine_argv(python, C.VERB_FIT, *args)
+
+
+def resume_argv(python: str, run_dir: str) -> list[str]:
+    return engine_argv(python, C.VERB_FIT, "--resume", "--out", run_dir, NO_BAR_FLAG)
+
+
+def export_argv(python: str, run_dir: str) -> list[str]:
+    return engine_argv(python, C.VERB_EXPORT, run_dir)
+
+
+def masks_argv(python: str, plate: str, out_dir: str, first: int, last: int) -> list[str]:
+    return engine_argv(python, C.VERB_MASKS, plate, "--out", out_dir, "--frames", frames_arg(first, last))
+
+
+def estimate_argv(python: str, clip: ClipInputs, sets: list[str]) -> list[str]:
+    """The estimate times the fit without scribbles (the verb takes none)."""
+    plain = ClipInputs(clip.plate, clip.masks, clip.first, clip.last)
+    return engine_argv(python, C.VERB_ESTIMATE, clip.plate, *plain.args(), *sets, "--json")

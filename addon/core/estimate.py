@@ -1,0 +1,73 @@
+"""How long a fit takes: the documented estimate per preset, which the panel shows until the engine's own
+(``engine estimate``) has timed this clip on this machine, and the engine's, once it has. No bpy here.
+
+The documented estimate: each preset's step budget (``contract.PRESET_STEPS``) times its seconds per step, plus
+flow and evaluation, which scale with the frames and the working pixels (steps cost about the same at any
+resolution: a fixed pixel batch). The per-step and overhead figures are the 2-core CPU bench of
+docs/accuracy-vs-time.md (its data: docs/bench/blackswan-60min.json).
+"""
+
+from __future__ import annotations
+
+import json
+
+from ...engine import contract as C  # type: ignore[import-not-found]
+from .progress import format_seconds
+
+#: preset -> seconds per training step on the documented 2-core CPU
+SECONDS_PER_STEP: dict[str, float] = {"draft": 0.132, "balanced": 0.151, "final": 0.154, "paper": 4.54}
+#: The documented flow + evaluation time: OVERHEAD_SECONDS for OVERHEAD_FRAMES frames at OVERHEAD_SIZE.
+OVERHEAD_SECONDS = 70.0
+OVERHEAD_FRAMES = 50
+OVERHEAD_SIZE = (768, 432)
+PIXELS_PER_MEGAPIXEL = 1e6
+#: seconds of flow + evaluation per frame per working megapixel
+OVERHEAD_SECONDS_PER_FRAME_MPX = (
+    OVERHEAD_SECONDS / OVERHEAD_FRAMES / (OVERHEAD_SIZE[0] * OVERHEAD_SIZE[1] / PIXELS_PER_MEGAPIXEL)
+)
+#: The preset the estimate falls back to for a name it does not know.
+FALLBACK_PRESET = "balanced"
+
+
+def preset_items() -> list[tuple[str, str, str]]:
+    """The preset menu: (name, title, description with its steps and seconds per step), in the contract's order."""
+    return [
+        (name, name.title(), f"{steps} steps, about {SECONDS_PER_STEP[name]:.2f} s per step on a 2-core CPU")
+        for name, steps in C.PRESET_STEPS.items()
+    ]
+
+
+def estimate_seconds(preset: str, frames: int, width: int, height: int, long_edge: int = C.DEFAULT_LONG_EDGE) -> float:
+    """The documented fit time of ``frames`` frames of a ``width`` x ``height`` clip."""
+    name = preset if preset in C.PRESET_STEPS else FALLBACK_PRESET
+    w, h = C.working_size(width, height, long_edge)
+    training = C.PRESET_STEPS[name] * SECONDS_PER_STEP[name]
+    return training + OVERHEAD_SECONDS_PER_FRAME_MPX * frames * (w * h / PIXELS_PER_MEGAPIXEL)
+
+
+def parse_engine_estimate(text: str, tag: str) -> dict[str, dict[str, float | None]]:
+    """``engine estimate --json`` output (the line carrying ``tag``) -> {preset: {seconds, psnr}}."""
+    for line in reversed(text.strip().splitlines()):
+        line = line.strip()
+        if not line.startswith("{"):
+            continue
+        try:
+            data = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if isinstance(data, dict) and tag in data:
+            return {
+                p["preset"]: {"seconds": float(p["total_seconds"]), "psnr": p.get("expected_psnr")}
+                for p in data.get("presets", [])
+            }
+    return {}
+
+
+def estimate_text(preset: str, engine: dict[str, dict[str, float | None]], fallback_seconds: float) -> str:
+    """The panel's line: the engine's estimate for this clip when it has one, else the documented estimate."""
+    row = engine.get(preset)
+    if row is None:
+        return f"about {format_seconds(fallback_seconds)} on a 2-core CPU (documented)"
+    text = f"about {format_seconds(row['seconds'] or 0.0)} here (engine estimate)"
+    psnr = row.get("psnr")
+    return text + (f", ~{psnr:.1f} dB" if psnr else "")

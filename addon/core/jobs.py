@@ -1,0 +1,200 @@
+"""The engine jobs the operators drive: one state machine for all of them. No bpy here.
+
+A job runs its commands one after another into one log, each only once the one before succeeded, and is
+driven by ``start()`` then ``step()`` until it returns False (from a modal operator's timer in the UI, or by
+``engine_process.run_blocking`` in background mode); ``cancel()`` stops the running command. Its ``result``
+is then the last command's, as each kind of job reads it:
+
+- ``FitJob``: ``engine fit`` (or ``fit --resume``), then ``engine export``; the result names the manifest.
+- ``MasksJob``: ``engine masks`` into a fresh folder; what it found comes from the log's ``masks`` event.
+- ``EstimateJob``: ``engine estimate --json``; the rows per preset come from the log.
+- ``engine_setup.SetupJob``: create the engine's environment, then pip-install its requirements.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from ...engine import contract as C  # type: ignore[import-not-found]
+from . import engine_commands as EC
+from . import engine_process as EP
+from . import estimate, progress
+from .errors import UserError
+from .run_files import RunFiles, png_files
+
+
+@dataclass(frozen=True)
+class Command:
+    """One engine command of a job: what the status line calls it, and its argv."""
+
+    label: str
+    argv: list[str]
+
+
+class Job:
+    """Commands run in turn into ``log_path``; ``result`` once ``step()`` has returned False."""
+
+    #: what the status line says before the first progress message
+    idle_text = "starting…"
+
+    def __init__(
+        self, commands: list[Command], log_path: str, env: dict[str, str] | None = None, keep_log: bool = False
+    ):
+        self.commands = commands
+        self.log_path = log_path
+        self.env = env
+        #: append to the log (a resumed fit continues its log) instead of starting it afresh
+        self.keep_log = keep_log
+        self.index = -1
+        self.process: EP.EngineJob | None = None
+        self.result: EP.JobResult | None = None
+
+    @property
+    def label(self) -> str:
+        """The running command's label ('' before the start)."""
+        return self.commands[self.index].label if 0 <= self.index < len(self.commands) else ""
+
+    @property
+    def state(self) -> progress.JobState:
+        return self.process.state if self.process is not None else progress.JobState()
+
+    @property
+    def fraction(self) -> float:
+        return self.state.fraction
+
+    def start(self) -> None:
+        os.makedirs(os.path.dirname(self.log_path) or ".", exist_ok=True)
+        if not self.keep_log and os.path.exists(self.log_path):
+            os.remove(self.log_path)  # the add-on's own log of the previous run
+        self._run(0)
+
+    def step(self) -> bool:
+        """Poll; start the next command when one succeeds. True while there is more to do."""
+        if self.result is not None:
+            return False
+        assert self.process is not None, "start() the job first"
+        if self.process.step():
+            return True
+        result = self.process.result()
+        if result.status == EP.STATUS_OK and self.index + 1 < len(self.commands):
+            self._run(self.index + 1)
+            return True
+        self.result = self.finish(result)
+        return False
+
+    def cancel(self) -> None:
+        if self.process is not None:
+            self.process.cancel()
+
+    def status_text(self) -> str:
+        if self.process is None:
+            return self.idle_text
+        return self.state.summary() if self.state.total else (self.state.message or self.idle_text)
+
+    def finish(self, result: EP.JobResult) -> EP.JobResult:
+        """The job's result from its last command's (each kind reads what it needs)."""
+        return result
+
+    def _run(self, index: int) -> None:
+        self.index = index
+        self.process = EP.EngineJob(self.commands[index].argv, self.log_path, env=self.env).start()
+
+
+def failed(result: EP.JobResult, message: str) -> EP.JobResult:
+    """``result`` turned into a failure saying ``message`` (the command succeeded but did not do its work)."""
+    return EP.JobResult(EP.STATUS_FAILED, result.returncode, message, result.log_path)
+
+
+class FitJob(Job):
+    """Fit Atlas: ``engine fit`` (or ``fit --resume``), then ``engine export`` of the run."""
+
+    def __init__(
+        self, python: str, run_dir: str, clip: Callable[[], EC.ClipInputs] | None, preset: str, sets: list[str]
+    ):
+        """``clip`` gathers the inputs (rasterising masks and scribbles) once the Run Folder is known to be free;
+        None resumes the fit in ``run_dir``."""
+        files = RunFiles(run_dir)
+        self.run_dir = run_dir
+        if clip is None:
+            if not files.has_fit():
+                raise UserError(f"nothing to resume in {run_dir}")
+            fit = EC.resume_argv(python, run_dir)
+        else:
+            if files.has_fit():
+                raise UserError(f"{run_dir} already holds a fit: Resume it, or choose another Run Folder")
+            fit = EC.fit_argv(python, clip(), run_dir, preset, sets)
+        commands = [Command("fit", fit), Command("export", EC.export_argv(python, run_dir))]
+        super().__init__(commands, files.fit_log, EC.engine_env(), keep_log=clip is None)
+        self.manifest: str | None = None
+
+    def can_resume(self) -> bool:
+        return RunFiles(self.run_dir).has_fit()
+
+    def status_text(self) -> str:
+        if self.label == "export":
+            st = self.state
+            return f"exporting passes {st.step}/{st.total}" if st.total else "exporting passes…"
+        return super().status_text()
+
+    def finish(self, result: EP.JobResult) -> EP.JobResult:
+        if self.label == "export" and result.status == EP.STATUS_OK:
+            self.manifest = result.manifest
+            if not self.manifest:
+                return failed(result, "export wrote no manifest")
+        return result
+
+
+class MasksJob(Job):
+    """Find Masks: ``engine masks PLATE --out RUN/auto_masks --frames A:B`` into a fresh folder."""
+
+    idle_text = "finding what moves…"
+
+    def __init__(self, python: str, run_dir: str, plate: str, first: int, last: int):
+        """``first``, ``last``: positions in the plate."""
+        if last <= first:
+            raise UserError("Find Masks needs at least two frames: the foreground is found by what moves")
+        files = RunFiles(run_dir)
+        self.out_dir = files.fresh_auto_masks()
+        #: the folder is new (``discard`` removes it again)
+        self.created = not os.path.exists(self.out_dir)
+        argv = EC.masks_argv(python, plate, self.out_dir, first, last)
+        super().__init__([Command("masks", argv)], files.masks_log, EC.engine_env())
+        #: what the search found (None: the engine ended before saying) and its one-line summary
+        self.found: bool | None = None
+        self.summary = ""
+
+    def finish(self, result: EP.JobResult) -> EP.JobResult:
+        events = progress.logged_events(self.log_path, C.EVENT_MASKS)
+        if events:
+            self.found, self.summary = bool(events[-1].get("found")), str(events[-1].get("message", ""))
+        return result
+
+    def mask_files(self) -> list[str]:
+        return png_files(self.out_dir)
+
+    def discard(self) -> None:
+        """Remove the (empty) masks this search wrote into its fresh folder, and the folder if it made it."""
+        for path in self.mask_files():
+            os.remove(path)
+        if self.created and os.path.isdir(self.out_dir) and not os.listdir(self.out_dir):
+            os.rmdir(self.out_dir)
+
+
+class EstimateJob(Job):
+    """Estimate Time: ``engine estimate --json``, a few timed steps of every preset on this clip."""
+
+    idle_text = "timing the presets…"
+
+    def __init__(self, python: str, run_dir: str, clip: EC.ClipInputs, sets: list[str]):
+        argv = EC.estimate_argv(python, clip, sets)
+        super().__init__([Command("estimate", argv)], RunFiles(run_dir).estimate_log, EC.engine_env())
+        #: preset -> {"seconds", "psnr"}: the engine's estimate
+        self.rows: dict[str, dict[str, float | None]] = {}
+
+    def finish(self, result: EP.JobResult) -> EP.JobResult:
+        self.rows = estimate.parse_engine_estimate(progress.read_log(self.log_path), C.ESTIMATE_TAG)
+        if result.status == EP.STATUS_OK and not self.rows:
+            return failed(result, "the engine printed no estimate")
+        return result

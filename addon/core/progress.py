@@ -1,0 +1,112 @@
+"""What the engine's progress lines say: the state a progress bar shows while a command runs, and the events a
+finished command left in its log. No bpy here.
+
+The engine prints one JSON object per stdout line for each event (``engine.contract``: stage, progress,
+checkpoint, done, cancelled, error, exported, masks); every other line (tqdm, warnings) is noise for the log.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from ...engine import contract as C  # type: ignore[import-not-found]
+
+#: Lines of stderr kept in memory for the report (the full text is in the log).
+STDERR_TAIL_LINES = 20
+
+
+@dataclass
+class JobState:
+    """What the progress bar shows; ``apply`` updates it from each message as it arrives."""
+
+    #: how far it is: step of total, the latest PSNR (dB), the seconds it expects to need still
+    step: int = 0
+    total: int = 0
+    psnr: float | None = None
+    eta: float | None = None
+    #: the engine's stage ("flow", "train", ...) and what it says about it
+    stage: str = ""
+    message: str = ""
+    #: what it has written: the last checkpoint, the export's manifest, the fit's metrics; or what went wrong
+    checkpoint: str | None = None
+    manifest: str | None = None
+    metrics: dict[str, Any] | None = None
+    error: str | None = None
+    #: the last stdout line that is no progress message (pip's "Collecting ...", the path `export` prints)
+    last_stdout: str = ""
+    stderr_tail: list[str] = field(default_factory=list)
+
+    @property
+    def fraction(self) -> float:
+        return min(1.0, self.step / self.total) if self.total > 0 else 0.0
+
+    def apply(self, msg: dict[str, Any]) -> None:
+        event = msg["event"]
+        if event == C.EVENT_STAGE:
+            self.stage = str(msg.get("stage", ""))
+            self.message = str(msg.get("message", self.stage))
+        elif event == C.EVENT_PROGRESS:
+            self.step = int(msg.get("step", self.step))
+            self.total = int(msg.get("total", self.total))
+            self.psnr = msg.get("psnr", self.psnr)
+            self.eta = msg.get("eta", self.eta)
+        elif event == C.EVENT_CHECKPOINT:
+            self.checkpoint = msg.get("path", self.checkpoint)
+        elif event == C.EVENT_DONE:
+            self.metrics = msg.get("metrics")
+        elif event == C.EVENT_CANCELLED:
+            self.checkpoint = msg.get("checkpoint", self.checkpoint)
+        elif event == C.EVENT_ERROR:
+            self.error = str(msg.get("message", "engine error"))
+        elif event == C.EVENT_EXPORTED:
+            self.manifest = msg.get("manifest", self.manifest)
+
+    def note_stderr(self, line: str) -> None:
+        """Keep the last STDERR_TAIL_LINES non-empty stderr lines (a progress bar's ``\\r`` redraws are skipped)."""
+        if line.strip() and "\r" not in line:
+            self.stderr_tail.append(line.strip())
+            del self.stderr_tail[:-STDERR_TAIL_LINES]
+
+    def summary(self) -> str:
+        """One line for the progress bar: step, PSNR and ETA."""
+        if self.total <= 0:
+            return self.message or self.stage or "starting…"
+        text = f"step {self.step}/{self.total}"
+        if self.psnr is not None:
+            text += f" · {self.psnr:.1f} dB"
+        if self.eta is not None:
+            text += f" · ETA {format_seconds(self.eta)}"
+        return text
+
+
+def format_seconds(seconds: float) -> str:
+    """``3h05m``, ``1m35s`` or ``42s``."""
+    whole = max(0, round(float(seconds)))
+    h, rem = divmod(whole, 3600)
+    m, s = divmod(rem, 60)
+    return f"{h}h{m:02d}m" if h else (f"{m}m{s:02d}s" if m else f"{s}s")
+
+
+def logged_events(log_path: str, event: str) -> list[dict[str, Any]]:
+    """Every progress message of kind ``event`` in a log the add-on wrote (the engine's stdout is copied there);
+    [] when the log cannot be read."""
+    found = []
+    try:
+        with open(log_path, encoding="utf-8", errors="replace") as f:
+            for line in f:
+                msg = C.parse_progress_line(line)
+                if msg is not None and msg.get("event") == event:
+                    found.append(msg)
+    except OSError:
+        return []
+    return found
+
+
+def read_log(log_path: str) -> str:
+    """A log's text ('' when it cannot be read)."""
+    try:
+        with open(log_path, encoding="utf-8", errors="replace") as f:
+            return f.read()
+    except OSError:
+        return ""

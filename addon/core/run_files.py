@@ -1,0 +1,65 @@
+"""The files the add-on writes beside a Run Folder. No bpy here.
+
+The engine owns the Run Folder RUN itself (``engine.contract``: checkpoint, exports, edits, auto_masks). Beside
+it the add-on keeps what it made for the engine and what it logged:
+
+    RUN.masks/layer<N>/   each Mask layer rasterised (one image per frame)
+    RUN.scribbles/        the clip's annotation strokes rasterised (one image per scribbled frame)
+    RUN.blender.log       the fit and export commands' output
+    RUN.masks.log         Find Masks' output
+    RUN.estimate.log      Estimate Time's output
+"""
+
+from __future__ import annotations
+
+import os
+
+from ...engine import contract as C  # type: ignore[import-not-found]
+
+
+class RunFiles:
+    """The Run Folder ``run_dir`` (absolute, no trailing separator) and the add-on's files beside it."""
+
+    def __init__(self, run_dir: str):
+        self.run_dir = run_dir
+        self.fit_log = run_dir + ".blender.log"
+        self.masks_log = run_dir + ".masks.log"
+        self.estimate_log = run_dir + ".estimate.log"
+        self.scribbles = run_dir + ".scribbles"
+
+    def layer_masks(self, index: int) -> str:
+        """The folder foreground layer ``index`` (1-based) is rasterised into."""
+        return os.path.join(self.run_dir + ".masks", f"layer{index}")
+
+    def has_fit(self) -> bool:
+        """A fit's checkpoint is there (Resume continues it; a new fit would overwrite it)."""
+        return os.path.exists(os.path.join(self.run_dir, C.RUN_CHECKPOINT))
+
+    def fresh_auto_masks(self) -> str:
+        """Where Find Masks writes: ``RUN/auto_masks``, or a numbered sibling when that already holds masks."""
+        return fresh_dir(os.path.join(self.run_dir, C.AUTO_MASKS_DIR))
+
+
+def fresh_dir(base: str) -> str:
+    """``base``, else ``base_2``, ``base_3``...: the first that is missing or empty (masks are never overwritten,
+    an artist may have fixed the last ones)."""
+    candidate, n = base, 1
+    while os.path.exists(candidate) and (not os.path.isdir(candidate) or os.listdir(candidate)):
+        n += 1
+        candidate = f"{base}_{n}"
+    return candidate
+
+
+def png_files(folder: str) -> list[str]:
+    """The PNG images in ``folder``, sorted ([] when it does not exist)."""
+    if not os.path.isdir(folder):
+        return []
+    return sorted(os.path.join(folder, n) for n in os.listdir(folder) if n.lower().endswith(".png"))
+
+
+def clear_numbered_pngs(folder: str) -> None:
+    """Remove the numbered PNGs (``00012.png``) a previous fit wrote into the add-on's own ``folder`` (a frame
+    whose strokes the artist has since erased must not keep its old scribble); nothing else is touched."""
+    for path in png_files(folder):
+        if os.path.splitext(os.path.basename(path))[0].isdigit():
+            os.remove(path)

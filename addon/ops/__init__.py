@@ -1,0 +1,16 @@
+"""The add-on's operators, thin: each reads the scene, calls the logic in ``addon/core`` (or the bpy helpers
+beside it) and reports. Grouped by what they act on:
+
+- ``fit``: engine jobs for a scene: Fit Atlas, Find Masks, Estimate Time, Cancel (driven by ``driver``);
+- ``layers``: the foreground layer list and the clip's scribble layers;
+- ``import_run``: Import Atlas;
+- ``paint``: paint canvases, Save Edits, Float Edit Layers;
+- ``render``: Render Edited Clip;
+- ``setup``: the preferences' Set up engine and Check engine.
+"""
+
+from __future__ import annotations
+
+from . import fit, import_run, layers, paint, render, setup
+
+classes = (*fit.classes, *layers.classes, *import_run.classes, *paint.classes, *render.classes, *setup.classes)

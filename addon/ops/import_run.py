@@ -1,0 +1,58 @@
+"""Import Atlas: an export's manifest -> the compositor tree, the edit layers and their paint canvases."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import bpy
+from bpy.props import BoolProperty, StringProperty
+
+from ...engine import contract as C
+from .. import compositor, paint
+from ..core import tree_plan as P
+from .scene_inputs import abspath
+
+#: What a manifest that cannot be imported raises (both say what is wrong and what to do).
+IMPORT_ERRORS = (C.ManifestError, P.PlanError)
+
+
+def import_manifest(
+    context: Any, manifest_path: str, setup_paint: bool = True, edits: dict[str, str] | None = None
+) -> P.TreePlan:
+    """Read the manifest, build the compositor tree and the paint canvases (``edits``: layer -> other image)."""
+    props = context.scene.neural_atlas
+    manifest = C.load_manifest(manifest_path)
+    plan = P.plan_tree(manifest, manifest_path, props.filter_type, edits)
+    compositor.build(context.scene, plan)
+    if setup_paint:
+        paint.setup_canvases(context, plan.layers)
+    props.manifest = manifest_path
+    props.imported_layers = ", ".join(plan.layers)
+    return plan
+
+
+class NEURALATLAS_OT_import(bpy.types.Operator):
+    """Import an exported run (manifest.json): compositor tree, edit layers and paint canvases"""
+
+    bl_idname = "neural_atlas.import_run"
+    bl_label = "Import Atlas"
+
+    filepath: StringProperty(subtype="FILE_PATH")
+    filter_glob: StringProperty(default=C.MANIFEST_NAME, options={"HIDDEN"})
+    setup_paint: BoolProperty(name="Paint Canvases", default=True)
+
+    def execute(self, context):
+        try:
+            plan = import_manifest(context, abspath(self.filepath), self.setup_paint)
+        except IMPORT_ERRORS as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"imported {len(plan.layers)} layers, frames {plan.frame_start}-{plan.frame_end}")
+        return {"FINISHED"}
+
+    def invoke(self, context, event):
+        context.window_manager.fileselect_add(self)
+        return {"RUNNING_MODAL"}
+
+
+classes = (NEURALATLAS_OT_import,)

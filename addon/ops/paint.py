@@ -1,0 +1,80 @@
+"""The edit layers' operators: paint canvases, Save Edits, and Float Edit Layers."""
+
+from __future__ import annotations
+
+import os
+
+import bpy
+
+from ...engine import contract as C
+from .. import paint
+from ..core import tree_plan as P
+from .import_run import import_manifest
+from .scene_inputs import abspath
+
+#: What the operators that work on an imported atlas say without one.
+NO_ATLAS = "import an atlas first"
+
+
+class NEURALATLAS_OT_float_edits(bpy.types.Operator):
+    """Paint in float: each layer's edit becomes a linear, premultiplied EXR beside its PNG (the engine uses it too)"""
+
+    bl_idname = "neural_atlas.float_edits"
+    bl_label = "Float Edit Layers"
+
+    def execute(self, context):
+        props = context.scene.neural_atlas
+        if not props.manifest:
+            self.report({"ERROR"}, NO_ATLAS)
+            return {"CANCELLED"}
+        made, skipped = [], []
+        try:
+            manifest = C.load_manifest(props.manifest)
+            for layer in manifest["layers"]:
+                img = bpy.data.images.get(P.edit_image_name(layer["name"]))
+                if img is None or abspath(img.filepath).lower().endswith(C.EDIT_LAYER_FLOAT_EXT):
+                    continue  # not imported, or already float
+                run_edit = os.path.normpath(C.resolve_manifest_path(props.manifest, layer["edit_layer"]))
+                if abspath(img.filepath) != run_edit:
+                    skipped.append(layer["name"])  # another image was given for this layer: not the run's edit
+                    continue
+                made.append(paint.make_float_edit(layer["name"]))
+            keep = {name: abspath(bpy.data.images[P.edit_image_name(name)].filepath) for name in skipped}
+            import_manifest(context, props.manifest, True, keep)  # the tree and canvases now use the EXRs
+        except (ValueError, OSError) as exc:  # ManifestError, PlanError, an existing EXR, a full disk
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        msg = f"{len(made)} float edit layer(s): " + (", ".join(os.path.basename(p) for p in made) or "none")
+        if skipped:
+            msg += f"; not converted (they use another image than the run's edit layer): {', '.join(skipped)}"
+        self.report({"INFO"}, msg)
+        return {"FINISHED"}
+
+
+class NEURALATLAS_OT_save_edits(bpy.types.Operator):
+    """Save the painted edit layers to their files in the run folder (PNG or float EXR, as each layer is)"""
+
+    bl_idname = "neural_atlas.save_edits"
+    bl_label = "Save Edits"
+
+    def execute(self, context):
+        saved = paint.save_edits()
+        self.report({"INFO"}, f"saved {len(saved)} edit layer(s)")
+        return {"FINISHED"}
+
+
+class NEURALATLAS_OT_paint_setup(bpy.types.Operator):
+    """A canvas per layer: the edit layer as the active paint slot over the atlas"""
+
+    bl_idname = "neural_atlas.paint_setup"
+    bl_label = "Paint Canvases"
+
+    def execute(self, context):
+        prefix = P.edit_image_name("")
+        layers = [img.name.removeprefix(prefix) for img in bpy.data.images if img.name.startswith(prefix)]
+        objs = paint.setup_canvases(context, layers)
+        self.report({"INFO"}, f"{len(objs)} canvas(es): select one and switch to Texture Paint")
+        return {"FINISHED"}
+
+
+classes = (NEURALATLAS_OT_float_edits, NEURALATLAS_OT_save_edits, NEURALATLAS_OT_paint_setup)

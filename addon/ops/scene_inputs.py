@@ -1,0 +1,114 @@
+"""What the engine operators read from the scene: the engine Python, the Run Folder, the clip and its frame
+range, and each foreground layer's masks (rasterised from a Mask datablock, or a folder of images), plus the
+clip's scribbles for a fit that splits one object."""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import bpy
+
+from .. import masks, preferences, scribbles
+from ..core import engine_commands as EC
+from ..core import frames as F
+from ..core import scribble_math as S
+from ..core.errors import UserError
+from ..core.run_files import RunFiles, clear_numbered_pngs
+
+
+def abspath(path: str) -> str:
+    """A path as the artist typed it (``//`` is the .blend's folder), absolute and normalised; '' stays ''."""
+    return os.path.normpath(bpy.path.abspath(path)) if path else ""
+
+
+def engine_python(context: Any) -> str:
+    python = preferences.engine_python(context)
+    if not python:
+        raise UserError("no engine Python: run Set up engine in the add-on's preferences")
+    return python
+
+
+def run_dir(props: Any) -> str:
+    if not props.run_dir:
+        raise UserError("choose a Run Folder")
+    if props.run_dir.startswith("//") and not bpy.data.filepath:
+        raise UserError("save the .blend file first (the Run Folder is relative to it), or choose an absolute one")
+    return abspath(props.run_dir).rstrip(os.sep)
+
+
+def clip_plate(clip: Any) -> tuple[str, int | None]:
+    """(what the engine reads: a sequence's folder or the movie file, the first file's number or None)."""
+    path = abspath(clip.filepath)
+    if clip.source == "SEQUENCE":
+        return os.path.dirname(path), F.file_number(path)
+    return path, None
+
+
+def clip_range(props: Any) -> tuple[int, int]:
+    """The scene frames to fit (first, last)."""
+    clip = props.clip
+    return F.frame_range(
+        clip.frame_start, clip.frame_duration, props.frame_start, props.frame_end, props.use_clip_range
+    )
+
+
+def _scribbles(clip: Any, folder: str, frames: list[int], first_number: int | None) -> str:
+    """Rasterise the clip's code-coloured annotation strokes on ``frames`` into ``folder``; returns it."""
+    colours = ", ".join(f"part {i + 1} in {name}" for i, (name, _) in enumerate(S.legend()[:2]))
+    labels = scribbles.scribble_labels(scribbles.clip_annotation(clip), frames)
+    if not labels:
+        raise UserError(
+            f"Split with Scribbles: clip {clip.name!r} has no annotation strokes in the scribble colours on "
+            f"frames {frames[0]}-{frames[-1]}: with the Annotate tool draw {colours}"
+        )
+    if max(labels) < 1:
+        raise UserError("Split with Scribbles: only red strokes, so nothing is split: scribble the other part in green")
+    clear_numbered_pngs(folder)
+
+    def name(frame: int) -> str:
+        return F.scribble_file_name(frame, first_number, clip.frame_start)
+
+    width, height = clip.size
+    scribbles.write_scribbles(clip, folder, width, height, name, frames)
+    return folder
+
+
+def clip_inputs(props: Any, files: RunFiles, with_scribbles: bool = True) -> EC.ClipInputs:
+    """The plate, each layer's mask folder (Mask layers rasterised now), the frames and (with
+    ``props.use_scribbles``) the rasterised scribbles."""
+    clip = props.clip
+    if clip is None:
+        raise UserError("choose the clip to fit")
+    if not props.layers:
+        raise UserError("add a foreground layer (a Mask or a folder of mask images)")
+    scribbled = with_scribbles and props.use_scribbles
+    if scribbled and len(props.layers) != 1:
+        raise UserError(
+            f"Split with Scribbles splits one object: keep exactly one foreground layer (the whole object's mask), "
+            f"not {len(props.layers)}, or turn Split with Scribbles off"
+        )
+    plate, first_number = clip_plate(clip)
+    first, last = clip_range(props)
+    frames = list(range(first, last + 1))
+    scribble_dir = _scribbles(clip, files.scribbles, frames, first_number) if scribbled else None
+    width, height = clip.size
+    names = F.mask_file_names(frames, first_number, clip.frame_start)
+    folders = []
+    for i, layer in enumerate(props.layers, start=1):
+        if layer.source == "MASK":
+            if layer.mask is None:
+                raise UserError(f"layer {i} has no Mask")
+            folder = files.layer_masks(i)
+            masks.rasterize(layer.mask, width, height, frames, folder, names)
+        else:
+            folder = abspath(layer.folder)
+            if not os.path.isdir(folder):
+                raise UserError(f"layer {i}: mask folder {folder!r} does not exist")
+        folders.append(folder)
+    return EC.ClipInputs(plate, tuple(folders), *F.positions(first, last, clip.frame_start), scribble_dir)
+
+
+def sets(props: Any) -> list[str]:
+    """The engine's ``--set`` arguments: the working size and the artist's overrides."""
+    return EC.set_args(props.long_edge, props.overrides)

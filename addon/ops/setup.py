@@ -1,0 +1,85 @@
+"""The preferences' operators: Set up engine (create its environment, install its requirements) and Check
+engine (``python -m engine --version``)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import bpy
+from bpy.props import StringProperty
+
+from .. import preferences
+from ..core import engine_process as EP
+from ..core import engine_setup as ES
+from ..core.jobs import Job
+from .driver import EngineJobOperator
+
+#: ``core.running``'s key for Set up engine: one at a time, whatever the scene.
+SETUP_KEY = "Set up engine"
+
+
+class NEURALATLAS_OT_setup_engine(EngineJobOperator, bpy.types.Operator):
+    """Create a Python environment in the extension's user folder and install the engine's requirements"""
+
+    bl_idname = "neural_atlas.setup_engine"
+    bl_label = "Set up engine"
+
+    venv_dir: StringProperty(name="Folder", default="", options={"SKIP_SAVE"})
+    timeout = ES.SETUP_TIMEOUT_SECONDS
+    redraw_areas = ("PREFERENCES",)
+    _label = ""
+
+    @classmethod
+    def job_key(cls, context: Any) -> str:
+        return SETUP_KEY
+
+    def make_job(self, context) -> ES.SetupJob:
+        prefs = preferences.addon_prefs(context)
+        cpu_only = prefs is not None and prefs.torch_cpu
+        return ES.SetupJob(self.venv_dir or preferences.default_venv_dir(), cpu_only)
+
+    def set_running(self, context, on: bool) -> None:
+        pass  # the preferences show the job's status line instead
+
+    def show(self, context, job: Job) -> None:
+        if job.label != self._label:  # a new command: said once (the blocking path shows nothing else)
+            self._label = job.label
+            self.report({"INFO"}, f"Set up engine: {job.label}…")
+        self._set_status(context, job.status_text())
+
+    def finish(self, context, job: ES.SetupJob, result: EP.JobResult) -> set[str]:
+        self._set_status(context, result.message)
+        if result.status != EP.STATUS_OK:
+            self.report({"ERROR"}, result.message)
+            return {"CANCELLED"}
+        prefs = preferences.addon_prefs(context)
+        if prefs is not None:
+            prefs.engine_python = job.python
+        self.report({"INFO"}, result.message)
+        return {"FINISHED"}
+
+    def fail(self, context, message: str) -> None:
+        self._set_status(context, message)
+        self.report({"ERROR"}, message)
+
+    @staticmethod
+    def _set_status(context: Any, text: str) -> None:
+        prefs = preferences.addon_prefs(context)
+        if prefs is not None:
+            prefs.setup_status = text
+
+
+class NEURALATLAS_OT_check_engine(bpy.types.Operator):
+    """Run `python -m engine --version` with the engine Python"""
+
+    bl_idname = "neural_atlas.check_engine"
+    bl_label = "Check engine"
+
+    def execute(self, context):
+        ok, message = ES.check_engine(preferences.engine_python(context))
+        self.report({"INFO" if ok else "ERROR"}, message)
+        NEURALATLAS_OT_setup_engine._set_status(context, message)
+        return {"FINISHED"} if ok else {"CANCELLED"}
+
+
+classes = (NEURALATLAS_OT_setup_engine, NEURALATLAS_OT_check_engine)

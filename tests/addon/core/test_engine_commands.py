@@ -1,0 +1,40 @@
+"""The engine command lines (``core.engine_commands``): each verb's argv exactly as the engine's CLI takes it."""
+
+from __future__ import annotations
+
+from neural_atlas.addon.core import engine_commands as EC
+
+from engine import contract as C
+
+CLIP = EC.ClipInputs("/clip/plate", ("/run.masks/layer1", "/hand/masks"), 0, 2)
+
+
+def test_fit_argv_plate_masks_frames_out_preset_sets_no_bar():
+    argv = EC.fit_argv("py", CLIP, "/run", "draft", EC.set_args(512, "steps=60 'eval_every=20'"))
+    assert argv == [
+        *("py", "-m", C.CLI_MODULE, C.VERB_FIT, "/clip/plate"),
+        *("--mask", "/run.masks/layer1", "--mask", "/hand/masks", "--frames", "0:2"),
+        *("--out", "/run", "--preset", "draft"),
+        *("--set", "long_edge=512", "--set", "steps=60", "--set", "eval_every=20"),
+        EC.NO_BAR_FLAG,
+    ]
+
+
+def test_scribbles_go_to_the_fit_but_not_to_the_estimate():
+    scribbled = EC.ClipInputs(CLIP.plate, CLIP.masks[:1], 0, 2, "/run.scribbles")
+    fit = EC.fit_argv("py", scribbled, "/run", "draft", [])
+    assert fit[fit.index(C.SCRIBBLE_ARG) + 1] == "/run.scribbles" and fit.index(C.SCRIBBLE_ARG) > fit.index("--frames")
+    estimate = EC.estimate_argv("py", scribbled, EC.set_args(768))
+    assert estimate == [
+        *("py", "-m", "engine", C.VERB_ESTIMATE, "/clip/plate", "--mask", "/run.masks/layer1"),
+        *("--frames", "0:2", "--set", "long_edge=768", "--json"),
+    ]
+
+
+def test_resume_export_masks_and_version():
+    assert EC.resume_argv("py", "/run") == ["py", "-m", "engine", C.VERB_FIT, "--resume", "--out", "/run", "--no-bar"]
+    assert EC.export_argv("py", "/run") == ["py", "-m", "engine", C.VERB_EXPORT, "/run"]
+    assert EC.masks_argv("py", "/clip/plate", "/run/auto_masks", 0, 5) == [
+        *("py", "-m", "engine", C.VERB_MASKS, "/clip/plate", "--out", "/run/auto_masks", "--frames", "0:5")
+    ]
+    assert EC.version_argv("py") == ["py", "-m", "engine", "--version"]

@@ -1,0 +1,68 @@
+"""The engine's Python (``core.engine_setup``) and the environment of its processes (``core.engine_commands``):
+pip's command, the offline explanation, a real set-up that cannot reach an index, and the version check."""
+
+from __future__ import annotations
+
+import os
+
+from helpers import HERE, fake_python, stand_in_pip
+from neural_atlas.addon.core import engine_commands as EC
+from neural_atlas.addon.core import engine_setup as ES
+from neural_atlas.addon.core import running
+
+from engine import contract as C
+
+
+def test_setup_commands_install_the_contract_requirements():
+    argv = ES.pip_install_argv("/x/bin/python")
+    assert argv[:4] == ["/x/bin/python", "-m", "pip", "install"]
+    assert tuple(argv[-len(C.ENGINE_REQUIREMENTS) :]) == C.ENGINE_REQUIREMENTS
+    assert EC.engine_argv("py", "fit", "a") == ["py", "-m", "engine", "fit", "a"]
+    cpu = ES.pip_install_argv("/x/bin/python", cpu_only=True)
+    assert cpu[cpu.index("--extra-index-url") + 1] == "https://download.pytorch.org/whl/cpu"
+    env = EC.engine_env({"PYTHONPATH": "/other"})
+    assert env["PYTHONPATH"].split(":")[0] == EC.extension_root()
+    assert (HERE.parents[1] / "engine" / "contract.py").samefile(f"{EC.extension_root()}/engine/contract.py")
+
+
+def test_setup_failure_offline_is_explained():
+    log = "WARNING: Retrying ... NewConnectionError('Failed to establish a new connection')\nERROR: No matching"
+    assert "offline" in ES.explain_setup_failure(log)
+    assert ES.explain_setup_failure("ERROR: torch wheel is broken\n") == "ERROR: torch wheel is broken"
+
+
+def test_setup_engine_offline_error_is_clear(tmp_path, monkeypatch):
+    """Creates a real venv, then pip cannot reach an index: the report says offline, nothing hangs."""
+    for var in ("PIP_FIND_LINKS", "PIP_EXTRA_INDEX_URL"):
+        monkeypatch.delenv(var, raising=False)
+    monkeypatch.setenv("PIP_CONFIG_FILE", os.devnull)
+    monkeypatch.setenv("PIP_INDEX_URL", "http://127.0.0.1:9/simple")
+    monkeypatch.setenv("PIP_RETRIES", "0")
+    monkeypatch.setenv("PIP_DEFAULT_TIMEOUT", "2")
+    lines = []
+    ok, message, python = ES.run_setup(str(tmp_path / "venv"), lines.append, timeout=120)
+    assert not ok and "offline" in message and str(tmp_path / "venv" / "setup.log") in message
+    assert os.path.exists(python)  # the environment itself was created
+    assert lines[0] == "creating the environment" and lines[1].startswith("installing torch")
+    assert running.jobs() == {}
+
+
+def test_setup_job_status_shows_pips_latest_line(tmp_path):
+    venv = tmp_path / "venv"
+    stand_in_pip(venv)
+    job = ES.SetupJob(str(venv))
+    assert [c.label for c in job.commands] == ["installing torch and the engine's packages (about 1 GB)"]
+    job.start()
+    statuses = []
+    while job.step():
+        statuses.append(job.status_text())
+    assert any(s.startswith("1/1 installing torch") and s.endswith(": Collecting torch==2.13.0") for s in statuses)
+    assert job.result is not None and "offline" in job.result.message and "setup.log" in job.result.message
+
+
+def test_check_engine_answers_with_the_engines_version(tmp_path):
+    ok, message = ES.check_engine(fake_python(tmp_path))
+    assert ok and message.startswith("neural-atlas engine")
+    ok, message = ES.check_engine(str(tmp_path / "missing_python"))
+    assert not ok and message.startswith(f"the engine does not run with {tmp_path / 'missing_python'}: cannot start")
+    assert ES.check_engine("") == (False, "no engine Python set: run Set up engine, or choose one in the preferences")

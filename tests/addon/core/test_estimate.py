@@ -1,0 +1,50 @@
+"""The fit-time estimate (``core.estimate``): the documented one, the preset menu, and the engine's own."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from neural_atlas.addon.core import estimate
+
+from engine import contract as C
+
+
+def test_estimate_grows_with_frames_and_preset():
+    draft = estimate.estimate_seconds("draft", 50, 854, 480)
+    assert draft == pytest.approx(800 * 0.132 + 70.0, rel=0.02)  # the documented training time + flow, eval
+    assert estimate.estimate_seconds("balanced", 50, 854, 480) > draft
+    assert estimate.estimate_seconds("draft", 100, 854, 480) > draft
+    balanced = estimate.estimate_seconds("balanced", 50, 854, 480)
+    assert estimate.estimate_seconds("no such preset", 50, 854, 480) == balanced
+    assert C.working_size(854, 480, 768) == (768, 432)
+
+
+def test_working_size_rounds_half_up_like_the_engine():
+    """One definition (``contract.working_size``): a half rounds up, where Python's ``round`` rounds to even."""
+    assert C.working_size(10, 5, 5) == (5, 3) and round(5 * 0.5) == 2
+    assert C.working_size(480, 854, 768) == (432, 768)
+    assert C.working_size(320, 240, 768) == (320, 240)  # never enlarged
+    with pytest.raises(ValueError, match="positive"):
+        C.working_size(0, 240)
+
+
+def test_preset_menu_is_the_engines_presets():
+    """The menu and the fallback estimate read the contract's budgets, the engine builds its presets with them."""
+    from engine.config import PRESETS as presets
+
+    assert list(estimate.SECONDS_PER_STEP) == list(presets) == list(C.PRESET_STEPS)
+    assert [name for name, _, _ in estimate.preset_items()] == list(presets)
+    assert {name: int(text.split(" steps")[0]) for name, _, text in estimate.preset_items()} == {
+        name: cfg.steps for name, cfg in presets.items()
+    }
+
+
+def test_engine_estimate_parsed_and_preferred():
+    row = {"preset": "draft", "total_seconds": 61.0, "expected_psnr": 25.7}
+    text = "noise\n" + json.dumps({C.ESTIMATE_TAG: 1, "presets": [row]}) + "\n"
+    rows = estimate.parse_engine_estimate(text, C.ESTIMATE_TAG)
+    assert rows == {"draft": {"seconds": 61.0, "psnr": 25.7}}
+    assert estimate.estimate_text("draft", rows, 999) == "about 1m01s here (engine estimate), ~25.7 dB"
+    assert estimate.estimate_text("final", rows, 204) == "about 3m24s on a 2-core CPU (documented)"
+    assert estimate.parse_engine_estimate("not json\n", C.ESTIMATE_TAG) == {}

@@ -1,0 +1,172 @@
+"""The compositor tree as plain data (``core.tree_plan``): topology, the layers' images, float edit layers, and
+manifest paths."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from fake_export import FRAMES, make_export
+from neural_atlas.addon.core import tree_plan as P
+
+from engine import contract as C
+
+
+def test_plan_topology_two_layers(tmp_path):
+    mp = make_export(tmp_path)
+    plan = P.plan_tree(C.load_manifest(str(mp)), str(mp), P.FILTER_NEAREST)
+    assert plan.kinds() == {
+        P.PLATE: 1,
+        P.IMAGE: 3,  # passes + one edit layer per layer
+        P.MAP_UV: 2,
+        P.SEPARATE: 2,
+        P.ADD_COLOR: 1,
+        P.ADD_VALUE: 1,
+        P.SET_ALPHA: 1,
+        P.ALPHA_OVER: 1,
+        P.OUTPUT: 1,
+    }
+    assert all(n.name.startswith(P.PREFIX) for n in plan.nodes)
+    assert all(i.name.startswith(P.PREFIX) for i in plan.images)
+    links = {(lk.from_node, lk.from_socket, lk.to_node, lk.to_socket) for lk in plan.links}
+    assert ("NA_Passes", "UVForeground", "NA_MapUV_Foreground", "uv") in links
+    assert ("NA_Plate", "image", "NA_Over", "bg") in links
+    assert ("NA_SetAlpha", "image", "NA_Over", "fg") in links
+    assert ("NA_AddColor_1", "result", "NA_SetAlpha", "image") in links
+    assert ("NA_AddAlpha_1", "value", "NA_SetAlpha", "alpha") in links
+    assert (plan.frame_start, plan.frame_end) == (FRAMES[0], FRAMES[-1])
+    assert plan.plate.sequence and plan.plate.frame_start == FRAMES[0]
+    passes = next(i for i in plan.images if i.name == P.PASSES_IMAGE)
+    assert passes.colorspace == "Non-Color" and passes.filepath.endswith(C.pass_file_name(FRAMES[0]))
+    assert {i.colorspace for i in plan.images if i.name.startswith("NA_Edit_")} == {"sRGB"}
+
+
+def test_plan_three_layers_sums_every_layer(tmp_path):
+    mp = make_export(tmp_path)
+    m = C.load_manifest(str(mp))
+    extra = dict(m["layers"][1], name="Foreground2", index=2, uv_pass="UVForeground2")
+    m["layers"].append(extra)
+    plan = P.plan_tree(m, str(mp))
+    k = plan.kinds()
+    assert (k[P.MAP_UV], k[P.ADD_COLOR], k[P.ADD_VALUE], k[P.SEPARATE]) == (3, 2, 2, 3)
+
+
+def test_float_edit_layer_wins_over_the_png_when_both_exist(tmp_path):
+    """contract.edit_layer_file: the export makes <Layer>.png; an <Layer>.exr beside it is used instead."""
+    mp = make_export(tmp_path)
+    m = C.load_manifest(str(mp))
+    png = C.resolve_manifest_path(str(mp), m["layers"][1]["edit_layer"])
+    assert png.endswith(".png") and C.edit_layer_file(png) == png
+    spec = next(i for i in P.plan_tree(m, str(mp)).images if i.name == P.edit_image_name("Foreground"))
+    assert (spec.filepath, spec.colorspace) == (png, "sRGB")
+    exr = png[: -len(".png")] + C.EDIT_LAYER_FLOAT_EXT
+    Path(exr).write_bytes(b"")  # existence is the rule; the content is read by Blender / the engine
+    assert C.edit_layer_file(png) == exr
+    assert C.edit_layer_file(exr) == exr and C.edit_layer_file("elsewhere/paint.png") == "elsewhere/paint.png"
+    spec = next(i for i in P.plan_tree(m, str(mp)).images if i.name == P.edit_image_name("Foreground"))
+    assert (spec.filepath, spec.colorspace) == (exr, "Non-Color")
+    # an explicit edit override is used as given
+    spec = next(i for i in P.plan_tree(m, str(mp), edits={"Foreground": png}).images if i.name.endswith("Foreground"))
+    assert spec.filepath == png
+
+
+def test_plan_from_a_three_layer_export(tmp_path):
+    mp = make_export(tmp_path, foregrounds=2)
+    m = C.load_manifest(str(mp))
+    plan = P.plan_tree(m, str(mp), P.FILTER_NEAREST)
+    assert plan.layers == ["Background", "Foreground1", "Foreground2"]
+    k = plan.kinds()
+    assert (k[P.IMAGE], k[P.MAP_UV], k[P.SEPARATE], k[P.ADD_COLOR], k[P.ADD_VALUE]) == (4, 3, 3, 2, 2)
+    assert (k[P.SET_ALPHA], k[P.ALPHA_OVER], k[P.OUTPUT], k[P.PLATE]) == (1, 1, 1, 1)
+    links = {(lk.from_node, lk.from_socket, lk.to_node, lk.to_socket) for lk in plan.links}
+    for name in plan.layers:
+        assert ("NA_Passes", f"UV{name}", f"NA_MapUV_{name}", "uv") in links
+        assert any(i.name == f"NA_Edit_{name}" for i in plan.images)
+    # every Map UV output reaches the colour sum exactly once, every alpha the alpha sum exactly once
+    adds = [lk for lk in plan.links if lk.to_node.startswith("NA_AddColor_")]
+    assert {lk.from_node for lk in adds if lk.from_node.startswith("NA_MapUV_")} == {
+        f"NA_MapUV_{n}" for n in plan.layers
+    }
+
+
+def test_plan_rejects_gaps_and_unknown_edits(tmp_path):
+    mp = make_export(tmp_path)
+    m = C.load_manifest(str(mp))
+    with pytest.raises(P.PlanError, match="unknown layer"):
+        P.plan_tree(m, str(mp), edits={"Nope": "x.png"})
+    m["passes"]["frames"] = [3, 5]
+    with pytest.raises(P.PlanError, match="gaps"):
+        P.plan_tree(m, str(mp))
+
+
+def test_manifest_paths_resolve_relative_to_the_manifest(tmp_path):
+    mp = make_export(tmp_path)
+    data = json.loads(mp.read_text())
+    plan = P.plan_tree(data, str(mp))
+    atlas = next(i for i in plan.images if i.name == "NA_Atlas_Foreground")
+    assert atlas.filepath == str(mp.parent / "atlases" / "Foreground.png")
+
+
+def test_manifest_paths_absolute_stay_relative_normalise(tmp_path):
+    """One rule for the add-on and the engine (``contract.resolve_manifest_path``)."""
+    mp = str(tmp_path / "run" / "exports" / "v001" / C.MANIFEST_NAME)
+    assert C.resolve_manifest_path(mp, "/elsewhere/paint.png") == "/elsewhere/paint.png"
+    edit = C.resolve_manifest_path(mp, "../../edits/Foreground.png")
+    assert edit == str(tmp_path / "run" / "edits" / "Foreground.png")
+    assert C.resolve_manifest_path(mp, "./passes") == str(Path(mp).parent / "passes")
+
+
+# --- one layer ------------------------------------------------------------------------------------------------
+# A background-only run (engine.data.scene_analysis: no masks, or no moving object found) exports one layer: the
+# compositor tree then holds that layer alone — one edit image and Map UV over the plate, no sums.
+SCENE = {
+    "schema": C.SCHEMA_VERSION,
+    "components": "auto",
+    "num_layers": 1,
+    "layers_source": C.SCENE_LAYERS_NONE,
+    "background_motion": C.BG_MOTION_STATIC,
+    "flow": True,
+    "active_terms": ["rgb", "gradient", "rigidity", "flow"],
+    "reasons": {"layers": "background only: no masks were given"},
+}
+
+
+def _one_layer_manifest(tmp_path):
+    path = make_export(tmp_path)
+    data = json.loads(path.read_text())
+    data["layers"] = data["layers"][:1]
+    data["scene"] = SCENE
+    path.write_text(json.dumps(data))
+    return path
+
+
+def test_one_layer_manifest_plans_a_tree_with_only_the_background(tmp_path):
+    path = _one_layer_manifest(tmp_path)
+    manifest = C.load_manifest(str(path))  # the add-on's reader accepts the optional "scene"
+    plan = P.plan_tree(manifest, str(path))
+    assert plan.layers == ["Background"]
+    kinds = plan.kinds()
+    assert kinds[P.MAP_UV] == 1 and kinds[P.ALPHA_OVER] == 1 and kinds[P.OUTPUT] == 1
+    assert P.ADD_COLOR not in kinds and P.ADD_VALUE not in kinds and P.SET_ALPHA not in kinds
+    assert P.SEPARATE not in kinds
+    names = {n.name for n in plan.nodes}
+    assert not any("Foreground" in n for n in names)
+    assert {i.name for i in plan.images} == {
+        P.PASSES_IMAGE,
+        P.edit_image_name("Background"),
+        P.atlas_image_name("Background"),
+    }
+    # the background's Map UV goes straight over the plate
+    over = [link for link in plan.links if link.to_node == f"{P.PREFIX}Over" and link.to_socket == "fg"]
+    assert len(over) == 1 and over[0].from_node == f"{P.PREFIX}MapUV_Background"
+
+
+def test_manifest_whose_scene_disagrees_with_its_layers_is_refused(tmp_path):
+    path = _one_layer_manifest(tmp_path)
+    data = json.loads(path.read_text())
+    data["scene"] = {**SCENE, "num_layers": 2}
+    path.write_text(json.dumps(data))
+    with pytest.raises(C.ManifestError, match="2 layers") as err:
+        C.load_manifest(str(path))
+    assert str(path) in str(err.value)
