@@ -7,7 +7,7 @@ Convention: the line right before a ```bash fence says what the block is.
 - ``<!-- covered: tests/path.py -->``: too slow or too big to run here (the demo, the whole suite); the named
   test runs it. The file must exist and name the command's verb.
 - ``<!-- manual: REASON -->``: needs what CI does not have (the Blender GUI, a GPU, the network, a
-  ``blender`` binary, ``../shared`` data); the reason is shown.
+  ``blender`` binary, the real clips of tests/paths.py); the reason is shown.
 
 In README.md and the docs pages listed in ``STRICT`` every bash block must carry one of these (the
 commands documented for users are all accounted for); elsewhere only the tagged blocks run.
