@@ -283,7 +283,7 @@ def pass_file_name(frame_number: int) -> str:
 #:              "channels": [full EXR channel names, e.g. "Atlas.UVForeground.X"] (optional: derivable)}],
 #:  "fit": {"preset": str, "model": str, "steps": int, "train_seconds": float, "psnr": float|None,
 #:          "alpha_iou": [float]|None},
-#:  "scene": the run's SCENE_FILE (optional: manifests of runs fitted before the scene analysis have none)}
+#:  "scene": the run's SCENE_FILE (every export writes it; checked by ``validate_scene`` when present)}
 MANIFEST_KEYS: tuple[str, ...] = ("engine_version", "run_dir", "created", "clip", "passes", "layers", "fit")
 MANIFEST_CLIP_KEYS: tuple[str, ...] = (
     "source",

@@ -92,10 +92,11 @@ class DISFlow:
         if a.shape != b.shape or a.ndim != 3 or a.shape[2] != 3:
             raise ValueError(f"DISFlow needs two [H, W, 3] frames of equal size, got {a.shape} and {b.shape}")
         # A fresh instance per call: DIS objects are stateful and not thread-safe; creation is cheap.
-        dis = cv2.DISOpticalFlow_create(_DIS_PRESETS[self.preset])
+        dis = cv2.DISOpticalFlow.create(_DIS_PRESETS[self.preset])
         h, w = a.shape[:2]
         ga, gb = _pad_min(_to_grey_u8(a)), _pad_min(_to_grey_u8(b))
-        flow = dis.calc(ga, gb, None)[:h, :w]
+        # None: OpenCV allocates the output (its stubs list only an array there)
+        flow = dis.calc(ga, gb, None)[:h, :w]  # type: ignore[call-overload]
         return np.nan_to_num(np.asarray(flow, dtype=np.float32), nan=0.0, posinf=0.0, neginf=0.0)
 
 
@@ -194,7 +195,7 @@ def content_key(frames: np.ndarray, backend: FlowBackend, threshold_px: float) -
     h.update(f"neural-atlas-flow:v{FLOW_CACHE_VERSION}\n".encode())
     h.update(f"shape={tuple(arr.shape)};dtype={arr.dtype.str}\n".encode())
     h.update(f"backend={backend.name};threshold={float(threshold_px)!r}\n".encode())
-    h.update(memoryview(arr).cast("B"))
+    h.update(arr.data.cast("B"))  # the pixels themselves, without copying the clip
     return h.hexdigest()
 
 

@@ -97,7 +97,7 @@ def checker_edit(size: tuple[int, int], squares: int = CHECKER_SQUARES) -> np.nd
     cell = max(1, max(w, h) // squares)
     yy, xx = np.mgrid[0:h, 0:w]
     on = ((yy // cell) + (xx // cell)) % 2 == 0
-    srgb = np.where(on[..., None], np.float32([0.95, 0.95, 0.95]), np.float32([0.05, 0.05, 0.05]))
+    srgb = np.where(on[..., None], np.full(3, 0.95, np.float32), np.full(3, 0.05, np.float32))
     rgba = np.concatenate((srgb, np.full((h, w, 1), CHECKER_ALPHA, np.float32)), -1)
     return edit_to_premultiplied(rgba, is_float=False)
 

@@ -197,7 +197,7 @@ def project_to_textures(
             continue
         path = _edit_file(manifest, layer)
         size = image_header(path)[:2] if path.exists() else tuple(layer["atlas_size"])
-        out.append(splat_layer(frame_edit, passes[i], own[i], size))  # type: ignore[arg-type]
+        out.append(splat_layer(frame_edit, passes[i], own[i], size))
     return out
 
 

@@ -7,7 +7,7 @@
 
 In both cases the resumed fit ends where an uninterrupted fit of the same config ends: the checkpoint holds
 the model, the optimiser, the schedule and the sampler's random state, so the bound asserted is a
-full-frame PSNR within ``SAME_QUALITY_DB`` of the uninterrupted fit (measured: identical).
+full-frame PSNR within ``SAME_QUALITY_DB`` of the uninterrupted fit (docs/robustness.md has the measurement).
 """
 
 from __future__ import annotations

@@ -25,7 +25,7 @@ T, H, W = 300, 24, 32
 BYTES_PER_PIXEL_FRAME = 12 + 1 + 1 + 16 + 2
 #: Peak resident growth allowed during the fit: a few copies of the frames while flow is computed
 #: (< 64 B per pixel per frame in total) plus a fixed allowance for the model, optimiser and torch's
-#: own buffers (measured about 110 MB on CPU for this clip).
+#: own buffers, which do not grow with the clip (the allowance is several times what they take here).
 PEAK_BYTES_PER_PIXEL_FRAME = 64
 FIXED_ALLOWANCE = 400 * 2**20
 
