@@ -121,11 +121,6 @@ def set_map_uv_filter(node: Any, filter_type: str) -> None:
         node.filter_type = "NEAREST" if filter_type == P.FILTER_NEAREST else "ANISOTROPIC"
 
 
-def map_uv_filter(node: Any) -> str:
-    value = node.inputs["Interpolation"].default_value if V5 else node.filter_type
-    return P.FILTER_NEAREST if value.upper() == "NEAREST" else P.FILTER_SMOOTH
-
-
 def _enabled(sockets: Any, name: str) -> Any:
     return next(s for s in sockets if s.name == name and s.enabled)
 

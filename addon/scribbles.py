@@ -33,7 +33,7 @@ def _code_layers(annotation: Any) -> Iterator[tuple[int, Any]]:
         return
     for layer in annotation.layers:
         label = S.layer_label(tuple(layer.color))
-        if label is not None and not getattr(layer, "annotation_hide", False):
+        if label is not None and not layer.annotation_hide:
             yield label, layer
 
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 import os
 import sys
 import tempfile
-from collections.abc import Callable
 
 from ...engine import contract as C  # type: ignore[import-not-found]
 from . import engine_commands as EC
@@ -31,7 +30,7 @@ OFFLINE_MARKERS = (
 )
 #: PyTorch's CPU-only wheels (on Linux, PyPI's torch is a multi-GB CUDA build)
 TORCH_CPU_INDEX = "https://download.pytorch.org/whl/cpu"
-#: The blocking set-up (background mode) gives up after this long: torch alone is a large download.
+#: Set up engine in background mode (no event loop: it blocks) gives up after this long; torch is a large download.
 SETUP_TIMEOUT_SECONDS = 3600.0
 #: ``python -m engine --version`` answers within this, or the engine Python is reported as not working.
 CHECK_TIMEOUT_SECONDS = 120.0
@@ -89,28 +88,6 @@ class SetupJob(Job):
             return failed(result, f"{explain_setup_failure(progress.read_log(self.log_path))} (log: {self.log_path})")
         result.message = f"engine ready: {self.python}"
         return result
-
-
-def run_setup(
-    venv_dir: str,
-    on_label: Callable[[str], None] | None = None,
-    timeout: float = SETUP_TIMEOUT_SECONDS,
-    cpu_only: bool = False,
-) -> tuple[bool, str, str]:
-    """The blocking set-up; ``on_label`` hears each command's label as it starts. (ok, message, python)."""
-    job = SetupJob(venv_dir, cpu_only)
-    labels: list[str] = []
-
-    def announce() -> None:
-        if on_label is not None and job.label and job.label not in labels:
-            labels.append(job.label)
-            on_label(job.label)
-
-    job.start()
-    announce()
-    EP.run_blocking(job, timeout, announce)
-    assert job.result is not None
-    return job.result.status == EP.STATUS_OK, job.result.message, job.python
 
 
 def check_engine(python: str) -> tuple[bool, str]:

@@ -28,8 +28,7 @@ class JobState:
     #: the engine's stage ("flow", "train", ...) and what it says about it
     stage: str = ""
     message: str = ""
-    #: what it has written: the last checkpoint, the export's manifest, the fit's metrics; or what went wrong
-    checkpoint: str | None = None
+    #: what it has written: the export's manifest, the fit's metrics; or what went wrong
     manifest: str | None = None
     metrics: dict[str, Any] | None = None
     error: str | None = None
@@ -51,12 +50,8 @@ class JobState:
             self.total = int(msg.get("total", self.total))
             self.psnr = msg.get("psnr", self.psnr)
             self.eta = msg.get("eta", self.eta)
-        elif event == C.EVENT_CHECKPOINT:
-            self.checkpoint = msg.get("path", self.checkpoint)
         elif event == C.EVENT_DONE:
             self.metrics = msg.get("metrics")
-        elif event == C.EVENT_CANCELLED:
-            self.checkpoint = msg.get("checkpoint", self.checkpoint)
         elif event == C.EVENT_ERROR:
             self.error = str(msg.get("message", "engine error"))
         elif event == C.EVENT_EXPORTED:

@@ -84,15 +84,6 @@ class TreePlan:
     resolution: tuple[int, int]
     layers: list[str]
 
-    def node(self, name: str) -> NodeSpec:
-        return next(n for n in self.nodes if n.name == name)
-
-    def kinds(self) -> dict[str, int]:
-        out: dict[str, int] = {}
-        for n in self.nodes:
-            out[n.kind] = out.get(n.kind, 0) + 1
-        return out
-
 
 def edit_image_name(layer: str) -> str:
     return f"{PREFIX}Edit_{layer}"

@@ -33,6 +33,12 @@ def _tree(scene):
     return compat.scene_tree(scene, create=False)
 
 
+def _map_uv_filter(node) -> str:
+    """The filter a Map UV node samples with, read back from the version's own setting."""
+    value = node.inputs["Interpolation"].default_value if compat.V5 else node.filter_type
+    return P.FILTER_NEAREST if value.upper() == "NEAREST" else P.FILTER_SMOOTH
+
+
 def _import(blender, manifest, filt=P.FILTER_NEAREST):
     scene = blender.context.scene
     scene.neural_atlas.filter_type = filt
@@ -88,7 +94,7 @@ def test_compositor_matches_render_equation(blender, tmp_path, lut, filt):
     tree = _tree(scene)
     ours = [n for n in tree.nodes if n.name.startswith(P.PREFIX)]
     assert len(ours) == 13
-    assert compat.map_uv_filter(tree.nodes["NA_MapUV_Foreground"]) == filt
+    assert _map_uv_filter(tree.nodes["NA_MapUV_Foreground"]) == filt
     assert (scene.frame_start, scene.frame_end) == (FRAMES[0], FRAMES[-1])
     assert (scene.render.resolution_x, scene.render.resolution_y) == (W, H)
     assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(tmp_path / "out"), file_format="exr") == {
@@ -491,3 +497,11 @@ def test_setup_engine_modal_path_reports_progress_and_offline(blender, tmp_path)
     assert reports[-1][0] == {"ERROR"} and "offline" in reports[-1][1] and "setup.log" in reports[-1][1]
     assert reports[0] == ({"INFO"}, "Set up engine: installing torch and the engine's packages (about 1 GB)…")
     assert running.jobs() == {}
+
+
+def test_setup_engine_blocking_path_reports_offline(blender, tmp_path):
+    """Set up engine in background mode (``execute``: the same job, stepped in a loop)."""
+    stand_in_pip(tmp_path / "venv")
+    with pytest.raises(RuntimeError, match=r"cannot download the engine's packages \(offline.*setup\.log"):
+        bpy.ops.neural_atlas.setup_engine("EXEC_DEFAULT", venv_dir=str(tmp_path / "venv"))
+    assert running.jobs() == {} and bpy.ops.neural_atlas.setup_engine.poll()

@@ -7,6 +7,7 @@ import os
 
 from helpers import HERE, fake_python, stand_in_pip
 from neural_atlas.addon.core import engine_commands as EC
+from neural_atlas.addon.core import engine_process as EP
 from neural_atlas.addon.core import engine_setup as ES
 from neural_atlas.addon.core import running
 
@@ -39,8 +40,18 @@ def test_setup_engine_offline_error_is_clear(tmp_path, monkeypatch):
     monkeypatch.setenv("PIP_INDEX_URL", "http://127.0.0.1:9/simple")
     monkeypatch.setenv("PIP_RETRIES", "0")
     monkeypatch.setenv("PIP_DEFAULT_TIMEOUT", "2")
+    job = ES.SetupJob(str(tmp_path / "venv"))
     lines = []
-    ok, message, python = ES.run_setup(str(tmp_path / "venv"), lines.append, timeout=120)
+
+    def note_label() -> None:
+        if job.label not in lines:
+            lines.append(job.label)
+
+    job.start()
+    note_label()
+    EP.run_blocking(job, 120, note_label)  # the blocking path of Set up engine (background mode)
+    assert job.result is not None
+    ok, message, python = job.result.status == EP.STATUS_OK, job.result.message, job.python
     assert not ok and "offline" in message and str(tmp_path / "venv" / "setup.log") in message
     assert os.path.exists(python)  # the environment itself was created
     assert lines[0] == "creating the environment" and lines[1].startswith("installing torch")

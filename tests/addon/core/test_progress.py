@@ -24,8 +24,7 @@ def test_state_follows_each_event():
     _apply(st, C.EVENT_DONE, metrics={"psnr": 30.0})
     _apply(st, C.EVENT_EXPORTED, manifest="/run/exports/v001/manifest.json")
     _apply(st, C.EVENT_ERROR, message="out of memory")
-    assert (st.checkpoint, st.metrics, st.manifest, st.error) == (
-        "/run/checkpoint.pt",
+    assert (st.metrics, st.manifest, st.error) == (
         {"psnr": 30.0},
         "/run/exports/v001/manifest.json",
         "out of memory",
