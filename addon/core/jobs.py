@@ -36,8 +36,9 @@ class Command:
 class Job:
     """Commands run in turn into ``log_path``; ``result`` once ``step()`` has returned False."""
 
-    #: what the status line says before the first progress message
+    #: what the status line says before the first progress message, and once Cancel was pressed
     idle_text = "starting…"
+    cancel_text = "cancelling…"
 
     def __init__(
         self, commands: list[Command], log_path: str, env: dict[str, str] | None = None, keep_log: bool = False
@@ -50,6 +51,7 @@ class Job:
         self.index = -1
         self.process: EP.EngineJob | None = None
         self.result: EP.JobResult | None = None
+        self.cancelling = False
 
     @property
     def label(self) -> str:
@@ -85,10 +87,13 @@ class Job:
         return False
 
     def cancel(self) -> None:
+        self.cancelling = True
         if self.process is not None:
             self.process.cancel()
 
     def status_text(self) -> str:
+        if self.cancelling:
+            return self.cancel_text
         if self.process is None:
             return self.idle_text
         return self.state.summary() if self.state.total else (self.state.message or self.idle_text)
@@ -109,6 +114,8 @@ def failed(result: EP.JobResult, message: str) -> EP.JobResult:
 
 class FitJob(Job):
     """Fit Atlas: ``engine fit`` (or ``fit --resume``), then ``engine export`` of the run."""
+
+    cancel_text = "cancelling: writing a checkpoint…"
 
     def __init__(
         self, python: str, run_dir: str, clip: Callable[[], EC.ClipInputs] | None, preset: str, sets: list[str]
@@ -133,7 +140,7 @@ class FitJob(Job):
         return RunFiles(self.run_dir).has_fit()
 
     def status_text(self) -> str:
-        if self.label == "export":
+        if self.label == "export" and not self.cancelling:
             st = self.state
             return f"exporting passes {st.step}/{st.total}" if st.total else "exporting passes…"
         return super().status_text()

@@ -7,12 +7,12 @@ stop them all.
 
 from __future__ import annotations
 
-from .engine_process import Steppable
+from .jobs import Job
 
-_RUNNING: dict[str, Steppable] = {}
+_RUNNING: dict[str, Job] = {}
 
 
-def add(key: str, job: Steppable) -> None:
+def add(key: str, job: Job) -> None:
     if key in _RUNNING:
         raise RuntimeError(f"a job is already running for {key!r}")
     _RUNNING[key] = job
@@ -22,7 +22,7 @@ def remove(key: str) -> None:
     _RUNNING.pop(key, None)
 
 
-def get(key: str) -> Steppable | None:
+def get(key: str) -> Job | None:
     return _RUNNING.get(key)
 
 
@@ -30,7 +30,7 @@ def is_running(key: str) -> bool:
     return key in _RUNNING
 
 
-def jobs() -> dict[str, Steppable]:
+def jobs() -> dict[str, Job]:
     """A copy of the table."""
     return dict(_RUNNING)
 

@@ -166,7 +166,7 @@ class NEURALATLAS_OT_cancel(bpy.types.Operator):
             context.scene.neural_atlas.running = False
             return {"CANCELLED"}
         job.cancel()
-        context.scene.neural_atlas.status = "cancelling: writing a checkpoint…"
+        context.scene.neural_atlas.status = job.cancel_text
         return {"FINISHED"}
 
 

@@ -456,6 +456,7 @@ def test_modal_path_cancel(fit_scene, monkeypatch, how):
             if how == "escape":
                 return "ESC"
             assert bpy.ops.neural_atlas.cancel() == {"FINISHED"}
+            assert props.status == "cancelling: writing a checkpoint…"
         return "TIMER"
 
     ret, op, _ = drive_modal(fit_ops.NEURALATLAS_OT_fit, bpy.context, events, resume=False)

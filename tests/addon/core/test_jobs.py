@@ -73,6 +73,7 @@ def test_cancelled_fit_stops_before_the_export_and_can_resume(tmp_path, monkeypa
         job.step()
         time.sleep(0.01)
     job.cancel()
+    assert job.status_text() == "cancelling: writing a checkpoint…"
     while job.step():
         time.sleep(0.01)
     assert job.result is not None and job.result.status == EP.STATUS_CANCELLED

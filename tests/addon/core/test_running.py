@@ -4,14 +4,15 @@ from __future__ import annotations
 
 import pytest
 from neural_atlas.addon.core import running
+from neural_atlas.addon.core.jobs import Job
 
 
-class _Job:
+class _Job(Job):
+    """A job that only records whether it was cancelled."""
+
     def __init__(self):
+        super().__init__([], "unused.log")
         self.cancelled = False
-
-    def step(self) -> bool:
-        return not self.cancelled
 
     def cancel(self) -> None:
         self.cancelled = True
