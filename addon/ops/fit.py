@@ -7,6 +7,7 @@ turns the result into the scene's state and a report.
 from __future__ import annotations
 
 import json
+from typing import Any
 
 import bpy
 from bpy.props import BoolProperty, FloatProperty
@@ -26,7 +27,8 @@ from .import_run import IMPORT_ERRORS, import_manifest
 AUTO_MASKS_CLIP = f"{P.PREFIX}AutoMasks"
 
 
-def _timeout() -> FloatProperty:
+def _timeout() -> Any:
+    """The blocking path's limit in seconds, after which the job is cancelled (scripts, tests; 0: none)."""
     return FloatProperty(name="Timeout", default=0.0, options={"SKIP_SAVE", "HIDDEN"}, description="0: none")
 
 
