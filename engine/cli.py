@@ -64,7 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="append",
         default=[],
         metavar="FOLDER",
-        help="foreground mask sequence, one folder per foreground layer (>0.5 = foreground)",
+        help=f"foreground mask sequence, one folder per foreground layer (>{C.MASK_THRESHOLD} = foreground)",
     )
     f.add_argument(
         C.SCRIBBLE_ARG,
@@ -107,78 +107,13 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
     d.add_argument("--preset", default="draft", help="preset (default: draft)")
     d.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config field")
-    sp = sub.add_parser(
-        C.VERB_SPEED,
-        help="seconds per step of presets, side by side on one clip",
-        description="Interleaves short blocks of training steps of each preset in one process.",
-    )
-    sp.add_argument("clip")
-    sp.add_argument("--mask", action="append", default=[], metavar="FOLDER")
-    sp.add_argument("--presets", default="draft,balanced,paper", help="comma-separated (default: draft,balanced,paper)")
-    sp.add_argument("--steps", type=int, default=10, help="steps per block (default: 10)")
-    sp.add_argument("--rounds", type=int, default=3, help="interleaved rounds (default: 3)")
-    sp.add_argument("--device", default="auto")
-    sp.add_argument("--work", default=None, help="folder for the flow cache (default: a temp folder)")
-    _add_bench_parsers(sub)
+    _add_estimate_parser(sub)
     _add_export_parsers(sub)
     _add_masks_parser(sub)
     return p
 
 
-def _cmd_speed(args: argparse.Namespace) -> int:
-    import tempfile
-
-    from engine.bench.speed import format_table, measure_step_times
-
-    with tempfile.TemporaryDirectory() as tmp:
-        rows = measure_step_times(
-            args.clip,
-            args.mask,
-            args.presets.split(","),
-            Path(args.work or tmp),
-            steps=args.steps,
-            rounds=args.rounds,
-            device_name=args.device,
-        )
-    print(format_table(rows))
-    return C.EXIT_OK
-
-
-BENCH_EPILOG = """\
-clips: a folder holding frames/ and masks/ (and tracks_tapvid.npz: then atlas tracking is scored), e.g.
-  ../shared/data/blackswan, or a frame folder with --mask (one clip only).
---set KEY=VALUE applies to every preset, --set PRESET.KEY=VALUE to one (e.g. paper.batch=2000).
-writes OUT/bench.json (curves, machine, versions, command) and OUT/bench.png; see docs/accuracy-vs-time.md.
-"""
-
-
-def _add_bench_parsers(sub: argparse._SubParsersAction) -> None:
-    b = sub.add_parser(
-        C.VERB_BENCH,
-        help="accuracy against training time of several presets, in one process",
-        epilog=BENCH_EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-        description="Fit presets side by side for a training-time budget each; record PSNR, mapping "
-        "consistency and point-tracking accuracy against training seconds (evaluation excluded).",
-    )
-    b.add_argument("clips", nargs="+", metavar="CLIP", help="clip folder (frames/, masks/) or a frame folder")
-    b.add_argument("--mask", action="append", default=[], metavar="FOLDER", help="mask folder (single clip only)")
-    b.add_argument("--tracks", default=None, metavar="NPZ", help="tracks_tapvid.npz (single clip only)")
-    b.add_argument("--presets", default="draft,balanced,paper", help="comma-separated (default: draft,balanced,paper)")
-    b.add_argument("--budget-seconds", type=float, required=True, help="training seconds per run")
-    b.add_argument("--out", default="bench_out", help="output folder (default: bench_out)")
-    b.add_argument("--evals", type=int, default=6, help="evaluations per run, geometric in time (default: 6)")
-    b.add_argument("--eval-frames", type=int, default=5, help="frames evaluated (default: 5; 0 = all)")
-    b.add_argument("--slice-seconds", type=float, default=5.0, help="interleaving slice (default: 5)")
-    b.add_argument("--sequential", action="store_true", help="run presets one after another, not interleaved")
-    b.add_argument(
-        "--eval-at", default="", metavar="S,S,...", help="also evaluate at these training seconds (e.g. 180,600,1200)"
-    )
-    b.add_argument("--eval-at-start", action="store_true", help="also evaluate each model before its first step")
-    b.add_argument("--stride", type=int, default=4, help="pixel grid of the consistency and tracking search")
-    b.add_argument("--set", action="append", default=[], metavar="[PRESET.]KEY=VALUE", help="config override")
-    b.add_argument("--device", default="auto")
-    b.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+def _add_estimate_parser(sub: argparse._SubParsersAction) -> None:
     e = sub.add_parser(
         C.VERB_ESTIMATE,
         help="estimated fit time of each preset on this machine and clip",
@@ -194,44 +129,6 @@ def _add_bench_parsers(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--device", default="auto")
     e.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
     e.add_argument("--json", action="store_true", help="print one JSON object (contract.ESTIMATE_TAG) instead")
-
-
-def parse_eval_at(text: str) -> tuple[float, ...]:
-    """``--eval-at 180,600,1200`` -> (180.0, 600.0, 1200.0); a bad entry is a one-line input error."""
-    try:
-        return tuple(float(x) for x in text.split(",") if x.strip())
-    except ValueError:
-        problem, fix = f"--eval-at {text!r} is not a list of seconds", "write e.g. --eval-at 180,600,1200"
-        raise InputError(None, problem, fix) from None
-
-
-def _cmd_bench(args: argparse.Namespace) -> int:
-    from engine.bench.bench import resolve_clip, run_bench, summary_table
-    from engine.config import parse_set_args
-
-    if (args.mask or args.tracks) and len(args.clips) != 1:
-        raise InputError(None, "--mask and --tracks need exactly one clip", "bench one clip, or use clip folders")
-    clips = [resolve_clip(c, args.mask or None, args.tracks) for c in args.clips]
-    record = run_bench(
-        clips,
-        [p.strip() for p in args.presets.split(",") if p.strip()],
-        args.budget_seconds,
-        args.out,
-        overrides=parse_set_args(args.set),
-        evals=args.evals,
-        eval_frames=args.eval_frames,
-        slice_seconds=args.slice_seconds,
-        sequential=args.sequential,
-        device_name=args.device,
-        stride=args.stride,
-        command=["python", "-m", "engine", *getattr(args, "argv", sys.argv[1:])],
-        threads=args.threads,
-        eval_at_start=args.eval_at_start,
-        eval_at=parse_eval_at(args.eval_at),
-    )
-    print(summary_table(record))
-    print(str((Path(args.out) / "bench.json").resolve()))
-    return C.EXIT_OK
 
 
 def _cmd_estimate(args: argparse.Namespace) -> int:
@@ -264,7 +161,12 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
         "once and never overwritten. The last line printed is the manifest's path.",
     )
     x.add_argument("run", metavar="RUN_DIR", help="the --out folder of a fit")
-    x.add_argument("--atlas-size", type=int, default=1000, help="atlas texture long side in texels (default: 1000)")
+    x.add_argument(
+        "--atlas-size",
+        type=int,
+        default=C.ATLAS_SIZE_DEFAULT,
+        help=f"atlas texture long side in texels (default: {C.ATLAS_SIZE_DEFAULT})",
+    )
     x.add_argument(
         "--frames",
         type=_frame_range,
@@ -382,23 +284,17 @@ def _cmd_masks(args: argparse.Namespace) -> int:
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
-    from engine.config import FitConfig, apply_overrides, config_help, parse_set_args, preset_config
+    from engine.config import apply_overrides, config_help, parse_set_args, preset_config
 
     if args.help_config:
         print(config_help())
         return C.EXIT_OK
+    from engine.fit.run_folder import RunFolder
     from engine.fit.trainer import FitCancelled, fit
 
     run_dir = Path(args.out)
-    overrides = parse_set_args(args.set)
-    if args.resume:
-        cfg_path = run_dir / C.RUN_CONFIG
-        if not cfg_path.exists():
-            raise InputError(cfg_path, "no fit to resume here", "run `fit` without --resume first")
-        cfg = FitConfig.from_json(cfg_path.read_text(encoding="utf-8"), cfg_path)
-    else:
-        cfg = preset_config(args.preset)
-    cfg = apply_overrides(cfg, overrides)
+    cfg = RunFolder(run_dir).read_config() if args.resume else preset_config(args.preset)
+    cfg = apply_overrides(cfg, parse_set_args(args.set))
     try:
         metrics = fit(
             args.clip,
@@ -426,19 +322,16 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    args.argv = list(sys.argv[1:] if argv is None else argv)  # recorded by bench
     if args.verb is None:
         parser.print_help()
         return C.EXIT_OK
     try:
         handlers = {
             C.VERB_FIT: _cmd_fit,
-            C.VERB_SPEED: _cmd_speed,
             C.VERB_EXPORT: _cmd_export,
             C.VERB_RENDER: _cmd_render,
             C.VERB_PROJECT_FRAME: _cmd_project_frame,
             C.VERB_PREVIEW: _cmd_preview,
-            C.VERB_BENCH: _cmd_bench,
             C.VERB_ESTIMATE: _cmd_estimate,
             C.VERB_MASKS: _cmd_masks,
         }

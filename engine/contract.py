@@ -54,8 +54,6 @@ BPY5_REQUIREMENTS: tuple[str, ...] = (
 CLI_MODULE = "engine"  # run as: python -m engine <verb> ...
 VERB_FIT = "fit"
 VERB_DEMO = "demo"
-VERB_SPEED = "speed"
-VERB_BENCH = "bench"  # bench CLIP... --presets P,Q --budget-seconds S [--out DIR]: accuracy-vs-time curves
 VERB_ESTIMATE = "estimate"  # estimate CLIP [--mask M ...] [--work RUN_DIR] --json: one JSON object on stdout
 #: ``estimate --json`` prints {"neural_atlas_estimate": SCHEMA_VERSION, "clip", "frames", "working_size",
 #: "device", "prepare_seconds", "presets": [{"preset", "model", "steps", "minutes", "total_seconds",
@@ -121,6 +119,150 @@ BG_MOTIONS: tuple[str, ...] = (BG_MOTION_STATIC, BG_MOTION_PAN_ZOOM, BG_MOTION_D
 #: check and fix them, then fit again with --mask RUN_DIR/auto_masks), and fit with them.
 FIT_AUTO_MASKS_FLAG = "--auto-masks"
 AUTO_MASKS_DIR = "auto_masks"
+
+# --- run folder files: their schemas ----------------------------------------------------------------------
+# Each JSON file of a run folder carries {"schema": <its version>}, bumped whenever its shape changes; a reader
+# refuses any other version (the run was made by another engine: fit again). engine/fit/run_folder.py is the
+# one module that reads and writes them, through ``validate_run_file``. Shapes:
+#   RUN_CONFIG   {"schema": 1, "config": {FitConfig field: value}}  (engine/config.py documents every field)
+#   RUN_CLIP     {"schema": 2, "source": str (absolute), "kind": "sequence"|"movie",
+#                 "frame_range": [first, last] (inclusive positions in the source), "frame_numbers": [int],
+#                 "frame_files": [str] (absolute; [] for a movie), "native_size": [W, H], "working_size": [W, H],
+#                 "fps": float|null, "colorspace": "sRGB"|"linear", "masks": [str] (absolute folders),
+#                 "scribbles": str|null, "layers": int (background + foreground layers of the model),
+#                 "fingerprint": str (hash of the fitted frames: a resume refuses a changed clip)}
+#                 Everything `export` needs besides the checkpoint: it never decodes the plate.
+#   RUN_METRICS  {"schema": 1, "psnr": float, "mse": float, "alpha_iou": [float] (one per mask), "steps": int,
+#                 "train_seconds": float, "seconds_per_step": float, "preset": str, "model": str, "device": str,
+#                 "working_size": [W, H], "frames": int, "engine_version": str, "torch_version": str}
+#   SCENE_FILE   see above (``validate_scene``)
+#   RUN_CHECKPOINT (torch, loaded with weights_only) {RUN_CHECKPOINT_KEYS}: "schema": RUN_CHECKPOINT_SCHEMA,
+#                 "motions": each layer's starting motion and atlas box (fast model; null for the paper model)
+RUN_CONFIG_SCHEMA = SCHEMA_VERSION
+RUN_CLIP_SCHEMA = 2
+RUN_METRICS_SCHEMA = SCHEMA_VERSION
+RUN_CHECKPOINT_SCHEMA = SCHEMA_VERSION
+RUN_CHECKPOINT_KEYS: tuple[str, ...] = (
+    "schema",
+    "model",
+    "optim",
+    "sched",
+    "gen",
+    "step",
+    "train_seconds",
+    "fingerprint",
+    "motions",
+)
+#: Field types, in words: "str", "int", "number" (int or float), "bool", "dict", "<type> list", "<type> pair"
+#: (a list of two), and "... or null".
+RUN_FILE_FIELDS: dict[str, dict[str, str]] = {
+    RUN_CONFIG: {"config": "dict"},
+    RUN_CLIP: {
+        "source": "str",
+        "kind": "str",
+        "frame_range": "int pair",
+        "frame_numbers": "int list",
+        "frame_files": "str list",
+        "native_size": "int pair",
+        "working_size": "int pair",
+        "fps": "number or null",
+        "colorspace": "str",
+        "masks": "str list",
+        "scribbles": "str or null",
+        "layers": "int",
+        "fingerprint": "str",
+    },
+    RUN_METRICS: {
+        "psnr": "number",
+        "mse": "number",
+        "alpha_iou": "number list",
+        "steps": "int",
+        "train_seconds": "number",
+        "seconds_per_step": "number",
+        "preset": "str",
+        "model": "str",
+        "device": "str",
+        "working_size": "int pair",
+        "frames": "int",
+        "engine_version": "str",
+        "torch_version": "str",
+    },
+}
+RUN_FILE_SCHEMAS: dict[str, int] = {
+    RUN_CONFIG: RUN_CONFIG_SCHEMA,
+    RUN_CLIP: RUN_CLIP_SCHEMA,
+    RUN_METRICS: RUN_METRICS_SCHEMA,
+}
+#: How each file is named in messages.
+RUN_FILE_WHAT: dict[str, str] = {RUN_CONFIG: "config", RUN_CLIP: "clip record", RUN_METRICS: "metrics"}
+#: The fix for a run file of another engine version (a refused schema).
+RUN_FILE_OTHER_VERSION_FIX = "fit into a new run folder or use the engine version that made this run"
+#: The fix for a run file that is damaged (not JSON, a key missing or of the wrong type).
+RUN_FILE_DAMAGED_FIX = "restore it, or fit into a new run folder"
+CLIP_KINDS: tuple[str, ...] = ("sequence", "movie")
+COLORSPACES: tuple[str, ...] = ("sRGB", "linear")
+
+
+class RunFileError(ValueError):
+    """A run-folder file that does not follow its schema: ``problem`` and ``fix``, one line each (the engine
+    adds the file's path, as every one-line error does)."""
+
+    def __init__(self, problem: str, fix: str) -> None:
+        super().__init__(f"{problem} — {fix}")
+        self.problem = problem
+        self.fix = fix
+
+
+def _is_type(value: Any, kind: str) -> bool:
+    if kind.endswith(" or null"):
+        return value is None or _is_type(value, kind[: -len(" or null")])
+    if kind.endswith(" list") or kind.endswith(" pair"):
+        item = kind.rsplit(" ", 1)[0]
+        ok = isinstance(value, list) and all(_is_type(v, item) for v in value)
+        return ok and (kind.endswith(" list") or len(value) == 2)
+    if kind == "number":
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if kind == "int":
+        return isinstance(value, int) and not isinstance(value, bool)
+    return isinstance(value, {"str": str, "bool": bool, "dict": dict}[kind])
+
+
+def validate_run_file(name: str, data: Any) -> dict[str, Any]:
+    """Check a decoded run-folder file (``RUN_CONFIG``, ``RUN_CLIP`` or ``RUN_METRICS``) against its schema above;
+    returns it, or raises RunFileError."""
+    what = RUN_FILE_WHAT[name]
+    if not isinstance(data, dict):
+        raise RunFileError(f"{what} is not a JSON object", RUN_FILE_DAMAGED_FIX)
+    version = data.get("schema")
+    if version != RUN_FILE_SCHEMAS[name]:
+        problem = f"{what} schema {version!r} is not supported (this engine writes {RUN_FILE_SCHEMAS[name]})"
+        raise RunFileError(problem, RUN_FILE_OTHER_VERSION_FIX)
+    for key, kind in RUN_FILE_FIELDS[name].items():
+        if key not in data:
+            raise RunFileError(f"{what} has no {key!r}", RUN_FILE_DAMAGED_FIX)
+        if not _is_type(data[key], kind):
+            raise RunFileError(f"{what} {key!r} is not a {kind}: {data[key]!r}", RUN_FILE_DAMAGED_FIX)
+    if name == RUN_CLIP:
+        _check_clip_record(data)
+    return data
+
+
+def _check_clip_record(data: dict[str, Any]) -> None:
+    """What the clip record's fields say of each other (their types are checked already)."""
+    count = len(data["frame_numbers"])
+    first, last = data["frame_range"]
+    problem = None
+    if count < 1 or last - first + 1 != count:
+        problem = f"clip record: frame_range {first}..{last} does not span its {count} frames"
+    elif data["frame_files"] and len(data["frame_files"]) != count:
+        problem = f"clip record lists {len(data['frame_files'])} frame files for {count} frames"
+    elif data["kind"] not in CLIP_KINDS or data["colorspace"] not in COLORSPACES:
+        problem = f"clip record: unknown kind or colour space {data['kind']!r}, {data['colorspace']!r}"
+    elif data["layers"] < 1 or min(data["native_size"] + data["working_size"]) < 1:
+        problem = "clip record: layers and sizes must be positive"
+    if problem is not None:
+        raise RunFileError(problem, RUN_FILE_DAMAGED_FIX)
+
 
 # --- progress protocol: one JSON object per stdout line ---------------------------------------------------
 PROGRESS_TAG = "neural_atlas"  # every machine-readable line carries {"neural_atlas": SCHEMA_VERSION, ...}
@@ -224,6 +366,9 @@ def float_edit_layer(edit_layer: str) -> str:
 #: Atlas textures: a float EXR (linear, premultiplied RGBA) and a 16-bit PNG (sRGB, straight alpha).
 ATLAS_EXR_EXT = ".exr"
 ATLAS_PNG_EXT = ".png"
+#: ``export --atlas-size``: texels on an atlas texture's long side (default: the paper's), and the range accepted.
+ATLAS_SIZE_DEFAULT = 1000
+ATLAS_SIZE_RANGE: tuple[int, int] = (8, 16384)
 
 
 #: Scribbles (``fit --mask OBJECT --scribbles FOLDER``, paper Sec. 4.4): one image per scribbled frame, named

@@ -1,6 +1,6 @@
 """The embedded demo: a generated plate with a moving object, fitted, exported, edited and rendered.
 
-README command 1 runs this. It needs nothing outside the repository (no ``../shared``, no downloads),
+README command 1 runs this. It needs nothing outside the repository (no clips, no downloads),
 and is idempotent: a second run reuses the clip, a finished fit (an interrupted one resumes), the newest
 complete export, and a render that is newer than its inputs.
 
@@ -39,13 +39,14 @@ from engine.edit.render import plate_frames, render_frames, render_manifest, to_
 from engine.export.exporter import export_run
 from engine.export.manifest import Manifest
 from engine.fit.contact_sheet import write_contact_sheet
+from engine.fit.run_folder import RunFolder
 from engine.fit.trainer import FitCancelled, fit, load_run
 from engine.io.atomic import atomic_write_text
 from engine.io.images import read_image, write_png
 
 DEMO_ATLAS_SIZE = 512
 ROOT = Path(__file__).resolve().parents[1]
-HEADLESS_SCRIPT = ROOT / "addon" / "headless.py"
+HEADLESS_SCRIPT = ROOT / C.HEADLESS_SCRIPT
 #: Blender's own render step for 24 small frames takes seconds; this only stops a hung Blender.
 BLENDER_TIMEOUT_S = 600
 #: Where `NEURAL_ATLAS_BLENDER` can point: a `blender` binary, or a Python 3.11 with the `bpy` module.
@@ -82,10 +83,10 @@ def stylised_background(atlas_png: Path) -> np.ndarray:
     return np.concatenate((warm, alpha), -1)
 
 
-def _newest_export(run: Path) -> Path | None:
+def _newest_export(run: RunFolder) -> Path | None:
     """The newest complete export made after the fit's last checkpoint (else None: export again)."""
-    ckpt = (run / C.RUN_CHECKPOINT).stat().st_mtime
-    found = sorted((run / C.EXPORTS_DIR).glob(f"v*/{C.MANIFEST_NAME}")) if (run / C.EXPORTS_DIR).exists() else []
+    ckpt = run.checkpoint.stat().st_mtime
+    found = sorted(run.exports.glob(f"v*/{C.MANIFEST_NAME}")) if run.exports.exists() else []
     for manifest in reversed(found):
         if manifest.stat().st_mtime >= ckpt:
             return manifest
@@ -193,11 +194,12 @@ def run_demo(out: Path, preset: str = "draft", overrides: dict[str, str] | None 
     _say(f"demo clip -> {out / 'clip'}")  # steps 1-5: the engine; 6: Blender
     frames_dir, masks_dir = write_scene(make_scene(demo_spec()), out / "clip")
     run = out / "run"
+    folder = RunFolder(run)
     cfg = apply_overrides(preset_config(preset), overrides or {})
-    if (run / C.RUN_METRICS).exists():
+    if folder.metrics.exists():
         _say(f"1/6 fit already done in {run} (delete it to refit)")
     else:
-        resume = (run / C.RUN_CHECKPOINT).exists()
+        resume = folder.holds_fit()
         _say(f"1/6 {'resuming' if resume else 'fitting'} ({preset}) -> {run}")
         try:
             # the bar on stderr is for people; the JSON progress lines go to the run's fit.log only
@@ -205,13 +207,14 @@ def run_demo(out: Path, preset: str = "draft", overrides: dict[str, str] | None 
         except FitCancelled:
             _say(f"cancelled; run the same command again to resume {run}")
             raise
-    metrics = json.loads((run / C.RUN_METRICS).read_text())
+    metrics = folder.read_metrics()
+    assert metrics is not None  # the fit above finished
     model, prepared, _ = load_run(run)
     fit_sheet = write_contact_sheet(model, prepared.frames, prepared.size, torch.device("cpu"), out / "fit_sheet.png")
 
-    manifest_path = _newest_export(run)
+    manifest_path = _newest_export(folder)
     if manifest_path is None:
-        _say(f"2/6 export (UV + alpha EXR passes, atlases) -> {run / C.EXPORTS_DIR}")
+        _say(f"2/6 export (UV + alpha EXR passes, atlases) -> {folder.exports}")
         manifest_path = export_run(run, atlas_size=DEMO_ATLAS_SIZE, stream=io.StringIO())
     else:
         _say(f"2/6 export already done: {manifest_path.parent}")

@@ -9,9 +9,7 @@ Writes ``bench.json`` (rewritten after every evaluation, so a killed bench keeps
 
 from __future__ import annotations
 
-import contextlib
 import datetime as _dt
-import io
 import json
 import math
 import os
@@ -20,7 +18,6 @@ import resource
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -40,23 +37,13 @@ from engine.bench.tracking import (
     tapvid_scores,
 )
 from engine.config import FitConfig, apply_overrides, preset_config
-from engine.data.scene_analysis import analyse_scene
 from engine.data.video import VideoTensors, build_video_tensors
 from engine.errors import InputError
-from engine.fit.checkpoint import atomic_write_text
-from engine.fit.eta import StepClock
-from engine.fit.trainer import (
-    PreparedClip,
-    Reporter,
-    build_model,
-    make_optimizer,
-    make_scheduler,
-    prepare_clip,
-    regime_cost_ratio,
-    render_frame,
-    select_device,
-    train_step,
-)
+from engine.fit.device import select_device, torch_threads
+from engine.fit.prepare import PreparedClip, prepare_clip
+from engine.fit.run_folder import RunFolder
+from engine.fit.trainer import Trainer, render_frame
+from engine.io.atomic import atomic_write_text
 from engine.model.losses import psnr_from_mse
 
 #: Version of bench.json (the tag key is BENCH_TAG).
@@ -67,6 +54,12 @@ BENCH_PNG = "bench.png"
 TRACKS_FILE = "tracks_tapvid.npz"
 #: Fractions of a run's steps at which the fit's ETA is recorded (compared with the actual remaining time).
 ETA_FRACTIONS: tuple[float, ...] = (0.1, 0.25, 0.5)
+#: The first evaluation is at this fraction of the budget (then geometric up to the budget: dense early on).
+FIRST_EVAL_FRACTION = 1.0 / 32.0
+#: A run's loss is checked for NaN/Inf every this many steps (a diverged run stops; it is recorded as failed).
+FINITE_CHECK_EVERY = 100
+#: Seconds ``git`` may take to name the checkout's commit for the record.
+GIT_TIMEOUT_S = 10
 #: Config fields that decide the prepared clip (frames, flow, mask prior); every preset of a bench shares it.
 SHARED_FIELDS: tuple[str, ...] = ("long_edge", "flow_preset", "flow_threshold_px", "mask_prior_margin_px")
 
@@ -82,8 +75,8 @@ class BenchClip:
 def resolve_clip(
     path: str | Path, masks: list[str | Path] | None = None, tracks: str | Path | None = None
 ) -> BenchClip:
-    """A clip given as ``<clip>/`` with ``frames/``, ``masks/`` and maybe ``tracks_tapvid.npz`` inside (the
-    ../shared/data layout), or as a frame folder whose masks come from ``masks`` (tracks then default to
+    """A clip given as ``<clip>/`` with ``frames/``, ``masks/`` and maybe ``tracks_tapvid.npz`` inside (a clip
+    folder), or as a frame folder whose masks come from ``masks`` (tracks then default to
     ``tracks_tapvid.npz`` beside the frame folder)."""
     p = Path(path).expanduser().resolve()
     if not p.is_dir():
@@ -154,7 +147,7 @@ class ClipState:
 
 def _prepare(spec: BenchClip, cfg: FitConfig, work: Path, eval_frames: int, device: torch.device) -> ClipState:
     t0 = time.perf_counter()
-    prepared = prepare_clip(spec.frames, list(spec.masks), cfg, work, None, Reporter(None, io.StringIO()))
+    prepared = prepare_clip(spec.frames, list(spec.masks), cfg, work, None)
     video = build_video_tensors(prepared.frames, prepared.masks, prepared.flow, cfg.mask_prior_margin_px, device)
     t_count = int(video.shape[0])
     count = t_count if eval_frames <= 0 else min(eval_frames, t_count)  # 0: every frame
@@ -218,26 +211,37 @@ def _per_point(pred_native: np.ndarray, tracks: Tracks) -> list[dict]:
 
 @dataclass
 class Run:
+    """One preset on one clip: its trainer (``engine.fit.trainer.Trainer``, as ``fit`` trains) and its record."""
+
     clip: ClipState
-    cfg: FitConfig
-    model: Any
-    optim: torch.optim.Optimizer
-    sched: Any
-    gen: torch.Generator
+    trainer: Trainer
     eval_times: list[float]
-    step: int = 0
-    train_seconds: float = 0.0
-    loop_start_seconds: float = 0.0
+    loop_start_seconds: float = 0.0  # the model's calibration, before the first step
     done: bool = False
     failed: str | None = None
     curve: list[dict] = field(default_factory=list)
     eta: list[dict] = field(default_factory=list)
     best_psnr: float = -math.inf
-    clock: StepClock | None = None
+
+    @property
+    def cfg(self) -> FitConfig:
+        return self.trainer.cfg
+
+    @property
+    def model(self) -> Any:
+        return self.trainer.model
+
+    @property
+    def step(self) -> int:
+        return self.trainer.step
+
+    @property
+    def train_seconds(self) -> float:
+        return self.trainer.train_seconds
 
     @property
     def finished_steps(self) -> bool:
-        return self.step >= self.cfg.steps
+        return self.trainer.finished
 
     def record(self) -> dict:
         return {
@@ -306,50 +310,26 @@ def evaluate(run: Run, device: torch.device, stride: int) -> dict:
     }
 
 
-@contextlib.contextmanager
-def torch_threads(n: int | None) -> Iterator[None]:
-    """Run with ``n`` torch CPU threads (None: leave as is), then restore the previous count.
-
-    On a loaded 2-core machine two threads per process can be many times slower than one (threads wait
-    for each other), so a bench states its thread count."""
-    before = torch.get_num_threads()
-    if n:
-        torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
-
-
 def _eval_schedule(budget: float, evals: int, extra: tuple[float, ...] = ()) -> list[float]:
-    """Training-clock times of the evaluations: geometric from budget/32 to the budget (dense early on),
+    """Training-clock times of the evaluations: geometric from FIRST_EVAL_FRACTION of the budget to the budget,
     plus ``extra`` times within the budget (the targets' marks: a curve read at 600 s should be measured
     there, not interpolated between geometric points)."""
-    times = [budget] if evals <= 1 else [float(x) for x in np.geomspace(budget / 32.0, budget, evals)]
+    times = [budget] if evals <= 1 else [float(x) for x in np.geomspace(budget * FIRST_EVAL_FRACTION, budget, evals)]
     times += [float(x) for x in extra if 0.0 < x < budget]
     return sorted(set(round(x, 6) for x in times))
 
 
-def _advance(run: Run, until: float, budget: float, device: torch.device) -> None:
+def _advance(run: Run, until: float, budget: float) -> None:
     """Train ``run`` until its clock reaches ``until`` (or the budget, or its last step)."""
     marks = {max(1, round(f * run.cfg.steps)): f for f in ETA_FRACTIONS}
-    if run.clock is None:  # as fit: the regimes' cost ratio is measured before the first step, off the clock
-        ratio = regime_cost_ratio(run.model, run.clip.video, run.cfg, device)
-        run.clock = StepClock(run.cfg.global_rigidity_steps, ratio)
-    while run.train_seconds < min(until, budget) and not run.finished_steps:
-        t0 = time.perf_counter()
-        loss, _ = train_step(run.model, run.clip.video, run.cfg, run.optim, run.sched, run.gen, run.step, device)
-        if device.type == "cuda":
-            torch.cuda.synchronize()
-        dt = time.perf_counter() - t0
-        run.clock.add(run.step, dt)
-        run.step += 1
-        run.train_seconds += dt
+    trainer = run.trainer
+    while trainer.train_seconds < min(until, budget) and not trainer.finished:
+        loss, _ = trainer.train_step()
         if run.step in marks:
             # eta_seconds: what fit reports (engine.fit.eta.StepClock: per cost regime, first step left out);
             # eta_mean_seconds: the plain extrapolation (mean seconds per step so far times the steps left)
             elapsed = run.train_seconds - run.loop_start_seconds
-            eta = run.clock.eta(run.step, run.cfg.steps)
+            eta = trainer.eta()
             run.eta.append(
                 {
                     "fraction": marks[run.step],
@@ -359,7 +339,7 @@ def _advance(run: Run, until: float, budget: float, device: torch.device) -> Non
                     "eta_mean_seconds": round(elapsed / run.step * (run.cfg.steps - run.step), 3),
                 }
             )
-        if run.step % 100 == 0 and not torch.isfinite(loss.detach()):
+        if run.step % FINITE_CHECK_EVERY == 0 and not torch.isfinite(loss.detach()):
             run.failed = f"loss became non-finite at step {run.step}"
             return
     if run.finished_steps:
@@ -398,10 +378,10 @@ def _versions() -> dict:
 
     commit = None
     try:
-        root = Path(__file__).resolve().parents[1]
+        root = Path(__file__).resolve().parents[2]  # the checkout
         commit = (
             subprocess.run(
-                ["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10
+                ["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=GIT_TIMEOUT_S
             ).stdout.strip()
             or None
         )
@@ -409,7 +389,7 @@ def _versions() -> dict:
             ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
             capture_output=True,
             text=True,
-            timeout=10,
+            timeout=GIT_TIMEOUT_S,
         ).stdout.strip()
         if commit and dirty:
             commit += "+dirty"
@@ -524,16 +504,10 @@ def _run_bench(
     runs: list[Run] = []
     for state in states:
         for cfg in cfgs:
-            torch.manual_seed(cfg.seed)
             prep = state.prepared
-            scene = analyse_scene(prep.frames.shape[0], prep.flow, prep.masks, cfg)  # what `fit` would build
-            model = build_model(cfg, prep, scene).to(device)
-            optim = make_optimizer(model, cfg, device)
-            run = Run(state, cfg, model, optim, make_scheduler(optim, cfg), torch.Generator().manual_seed(cfg.seed), [])
-            run.eval_times = list(schedule)
-            t0 = time.perf_counter()
-            model.prepare(cfg, device)  # counted as training, as in fit
-            run.train_seconds = run.loop_start_seconds = time.perf_counter() - t0
+            trainer = Trainer(cfg, prep, prep.analyse(cfg), device, video=state.video)  # what `fit` would train
+            trainer.calibrate()  # counted as training, as in fit
+            run = Run(state, trainer, list(schedule), loop_start_seconds=trainer.train_seconds)
             runs.append(run)
             if eval_at_start:  # the initialised model (fast: motion from the flow), before any step
                 run.curve.append(evaluate(run, device, stride))
@@ -547,7 +521,7 @@ def _run_bench(
     while active:
         for run in active[:1] if sequential else list(active):
             until = math.inf if sequential else run.train_seconds + slice_seconds
-            _advance(run, min(until, run.eval_times[0] if run.eval_times else math.inf), budget_seconds, device)
+            _advance(run, min(until, run.eval_times[0] if run.eval_times else math.inf), budget_seconds)
             over = run.train_seconds >= budget_seconds or run.finished_steps or run.failed is not None
             due = bool(run.eval_times) and run.train_seconds >= run.eval_times[0]
             if due or over:
@@ -578,10 +552,13 @@ def fit_eta_errors(run_dir: str | Path) -> list[dict]:
     see ``engine.fit.eta``), the predicted remaining training time against the actual
     one (``metrics.json``'s ``train_seconds`` minus the line's ``elapsed``). ``error`` = predicted / actual - 1.
     Training seconds exclude the live evaluation and checkpoints; a resumed fit is not supported."""
-    run_dir = Path(run_dir)
-    total = json.loads((run_dir / C.RUN_METRICS).read_text(encoding="utf-8"))["train_seconds"]
+    run = RunFolder(run_dir)
+    metrics = run.read_metrics()
+    if metrics is None:
+        raise InputError(run.metrics, "the fit has not finished", "let it finish (or resume it) first")
+    total = metrics["train_seconds"]
     rows = []
-    for line in (run_dir / C.RUN_LOG).read_text(encoding="utf-8").splitlines():
+    for line in run.log.read_text(encoding="utf-8").splitlines():
         msg = C.parse_progress_line(line)
         if not msg or msg["event"] != C.EVENT_PROGRESS or msg.get("eta") is None:
             continue
@@ -599,6 +576,25 @@ def fit_eta_errors(run_dir: str | Path) -> list[dict]:
             }
         )
     return rows
+
+
+def record_expected_psnr(preset: str, run_dir: str | Path, clip: str, note: str, path: Path | None = None) -> dict:
+    """Write a finished fit's full-frame PSNR into ``engine/fit/expected_psnr.json`` as ``preset``'s expected PSNR
+    (what ``estimate`` shows): the run must be a fit of that preset. Returns the row written."""
+    from engine.fit.estimate import EXPECTED_PSNR_FILE
+
+    run = RunFolder(run_dir)
+    metrics = run.read_metrics()
+    if metrics is None:
+        raise InputError(run.metrics, "the fit has not finished", "let it finish (or resume it) first")
+    if metrics["preset"] != preset:
+        raise InputError(run.metrics, f"this is a {metrics['preset']} fit, not {preset}", "pass the right run")
+    path = path or EXPECTED_PSNR_FILE
+    data = json.loads(path.read_text(encoding="utf-8"))
+    row = {"psnr": round(float(metrics["psnr"]), 2), "clip": clip, "note": note}
+    data["presets"][preset] = row
+    atomic_write_text(path, json.dumps(data, indent=2) + "\n")
+    return row
 
 
 # --- plot and summary -------------------------------------------------------------------------------------
@@ -674,6 +670,7 @@ __all__ = [
     "BenchClip",
     "fit_eta_errors",
     "plot_bench",
+    "record_expected_psnr",
     "resolve_clip",
     "run_bench",
     "summary_table",

@@ -1,7 +1,7 @@
 """What the scene analysis saves: the same clip fitted with ``components=auto`` and ``components=all``.
 
-    python -m engine.bench.scene_speed CLIP [--mask FOLDER] [--frames A:B] [--preset draft] [--steps N]
-                                 [--long-edge PX] [--out DIR]
+    python -m engine.bench scene-speed CLIP [--mask FOLDER] [--frames A:B] [--preset draft] [--steps N]
+                                        [--long-edge PX] [--out DIR]
 
 Both fits use the same config, seed and steps; only ``components`` differs. Prints one line per fit
 (seconds per step, full-frame PSNR, background mapping class, terms evaluated) and the ratio of seconds
@@ -11,17 +11,20 @@ cached; it is not part of ``train_seconds``). The numbers in docs/engine.md come
 
 from __future__ import annotations
 
-import argparse
 import io
 import json
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any
 
 from engine.config import apply_overrides, preset_config
-from engine.data.scene_analysis import read_scene_file
+from engine.fit.run_folder import RunFolder
 from engine.fit.trainer import fit
+
+#: A checkpoint interval longer than any of these fits: the comparison times training, not checkpoints.
+NO_CHECKPOINTS_S = "1e9"
+#: Guard against a zero-step fit's 0 s/step in the ratio.
+MIN_SECONDS_PER_STEP = 1e-9
 
 
 def compare_components(
@@ -44,7 +47,7 @@ def compare_components(
                 "steps": str(steps),
                 "long_edge": str(long_edge),
                 "eval_every": str(max(steps, 1)),
-                "checkpoint_seconds": "1e9",
+                "checkpoint_seconds": NO_CHECKPOINTS_S,
                 "components": comp,
                 **(overrides or {}),
             },
@@ -60,17 +63,17 @@ def compare_components(
             progress_bar=False,
             stream=io.StringIO(),
         )
-        scene = read_scene_file(run)
+        scene = RunFolder(run).read_scene()
         rows[comp] = {
             "seconds_per_step": metrics["seconds_per_step"],
             "psnr": metrics["psnr"],
             "alpha_iou": metrics["alpha_iou"],
-            "background_motion": scene.background_motion if scene else None,
-            "active_terms": scene.active_terms if scene else None,
+            "background_motion": scene.background_motion,
+            "active_terms": scene.active_terms,
             "working_size": metrics["working_size"],
             "frames": metrics["frames"],
         }
-    auto_sps = max(rows["auto"]["seconds_per_step"], 1e-9)  # guard: a zero-step fit has 0 s/step
+    auto_sps = max(rows["auto"]["seconds_per_step"], MIN_SECONDS_PER_STEP)
     return {
         "clip": str(clip),
         "steps": steps,
@@ -80,24 +83,8 @@ def compare_components(
     }
 
 
-def _frames(text: str) -> tuple[int, int]:
-    a, _, b = text.partition(":")
-    return int(a), int(b)
-
-
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m engine.bench.scene_speed", description=__doc__.split("\n\n")[0])
-    p.add_argument("clip")
-    p.add_argument("--mask", action="append", default=[])
-    p.add_argument("--frames", type=_frames, default=None, metavar="A:B")
-    p.add_argument("--preset", default="draft")
-    p.add_argument("--steps", type=int, default=300)
-    p.add_argument("--long-edge", type=int, default=384)
-    p.add_argument("--out", default=None, help="folder for the two runs (default: a temporary folder)")
-    args = p.parse_args(argv)
-    with tempfile.TemporaryDirectory() as tmp:
-        out = Path(args.out) if args.out else Path(tmp)
-        res = compare_components(args.clip, args.mask, out, args.preset, args.steps, args.long_edge, args.frames)
+def print_comparison(res: dict[str, Any]) -> None:
+    """One line per fit and the speed-up on stderr, the JSON summary as the last line of stdout."""
     for comp in ("auto", "all"):
         r = res[comp]
         print(
@@ -107,8 +94,3 @@ def main(argv: list[str] | None = None) -> int:
         )
     print(f"speed-up (all / auto seconds per step): {res['speedup']:.2f}x", file=sys.stderr)
     print(json.dumps(res))
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

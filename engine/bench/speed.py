@@ -6,19 +6,20 @@ ratios between presets are what to trust. (The full accuracy-vs-time benchmark b
 
 from __future__ import annotations
 
-import io
 import statistics
 import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import torch
-
 from engine.config import preset_config
-from engine.data.video import build_video_tensors, sample_batch
-from engine.fit.trainer import Reporter, build_model, make_optimizer, prepare_clip, select_device
-from engine.model.objective import compute_losses
+from engine.data.video import build_video_tensors
+from engine.fit.device import select_device, synchronize
+from engine.fit.prepare import prepare_clip
+from engine.fit.trainer import Trainer
+
+#: Untimed steps of each preset before the rounds (allocator, kernels).
+WARMUP_STEPS = 2
 
 
 @dataclass
@@ -39,43 +40,38 @@ def measure_step_times(
     rounds: int = 3,
     device_name: str = "auto",
 ) -> list[StepTiming]:
+    """Seconds per step of each preset's trainer (what ``fit`` would train, scene analysis included) at step 0,
+    where every bootstrap term is on: the median of ``rounds`` blocks of ``steps`` steps, presets interleaved."""
     device = select_device(device_name)
     cfgs = [preset_config(p) for p in presets]
-    prepared = prepare_clip(clip, mask_dirs, cfgs[0], work_dir, None, Reporter(None, io.StringIO()))
+    prepared = prepare_clip(clip, mask_dirs, cfgs[0], work_dir, None)
     video = build_video_tensors(prepared.frames, prepared.masks, prepared.flow, cfgs[0].mask_prior_margin_px, device)
-    runs = []
-    for cfg in cfgs:
-        model = build_model(cfg, prepared).to(device)
-        runs.append((cfg, model, make_optimizer(model, cfg, device), torch.Generator().manual_seed(cfg.seed)))
+    trainers = [Trainer(cfg, prepared, prepared.analyse(cfg), device, video=video) for cfg in cfgs]
     times: dict[str, list[float]] = {c.preset: [] for c in cfgs}
 
-    def block(cfg, model, optim, gen, n: int) -> float:
+    def block(trainer: Trainer, n: int) -> float:
         t0 = time.perf_counter()
         for _ in range(n):
-            ix, iy, t = sample_batch(video, cfg.batch, cfg.object_sample_share, gen, device)
-            loss, _ = compute_losses(model, video, cfg, 0, ix, iy, t)  # step 0: every bootstrap term is on
-            optim.zero_grad(set_to_none=True)
-            loss.backward()
-            optim.step()
-        if device.type == "cuda":
-            torch.cuda.synchronize()
+            trainer.optimise(0)
+        synchronize(device)
         return (time.perf_counter() - t0) / n
 
-    for run in runs:
-        block(*run, 2)  # warm-up: allocator, kernels
+    for trainer in trainers:
+        block(trainer, WARMUP_STEPS)
     for r in range(rounds):
-        for run in runs if r % 2 == 0 else reversed(runs):
-            times[run[0].preset].append(block(*run, steps))
-            print(f"round {r + 1}/{rounds} {run[0].preset}: {times[run[0].preset][-1]:.3f} s/step", file=sys.stderr)
+        for trainer in trainers if r % 2 == 0 else reversed(trainers):
+            preset = trainer.cfg.preset
+            times[preset].append(block(trainer, steps))
+            print(f"round {r + 1}/{rounds} {preset}: {times[preset][-1]:.3f} s/step", file=sys.stderr)
     return [
         StepTiming(
-            cfg.preset,
-            cfg.model,
-            cfg.batch,
-            statistics.median(times[cfg.preset]),
-            sum(p.numel() for p in model.parameters()),
+            t.cfg.preset,
+            t.cfg.model,
+            t.cfg.batch,
+            statistics.median(times[t.cfg.preset]),
+            sum(p.numel() for p in t.model.parameters()),
         )
-        for cfg, model, _, _ in runs
+        for t in trainers
     ]
 
 

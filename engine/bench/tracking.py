@@ -54,7 +54,9 @@ class Tracks:
 
 
 def load_tracks(path: str | Path) -> Tracks:
-    """``tracks_tapvid.npz`` (see ../shared/data/README.md); frame axis = the clip's frames 0..T-1."""
+    """``tracks_tapvid.npz``: ``tracks_xy`` [N, T, 2] and ``occluded`` [N, T] (native pixels), ``query_points_txy``
+    [N, 3], ``frame_indices`` (0..T-1: the clip's frames), ``image_size_wh`` and optionally ``on_mask_at_query``
+    [N] (whether each query lies on the clip's mask)."""
     with np.load(path, allow_pickle=False) as d:
         frames = d["frame_indices"]
         if not np.array_equal(frames, np.arange(len(frames))):

@@ -26,6 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from engine import contract as C
 from engine.data.flow import DISFlow, FlowField, compute_flow
 from engine.errors import InputError
 from engine.io.clip import ClipInfo, open_clip, read_frames, read_masks, working_size
@@ -45,6 +46,10 @@ MIN_WEIGHT = 1e-6
 #: A pair counts as static when its homography moves no grid point by more than the config's limit;
 #: the camera is static when at least this fraction of the pairs are.
 STATIC_PAIR_FRACTION = 0.8
+#: GrabCut draws its colour models' starting clusters from OpenCV's process-wide random generator; it is reset to
+#: this seed before the refinement, so the masks do not depend on earlier calls (0: OpenCV's own initial state,
+#: what the first call in a process has always seen).
+GRABCUT_SEED = 0
 
 
 @dataclass(frozen=True)
@@ -323,10 +328,10 @@ def _persistent(masks: np.ndarray, flow: FlowField, cfg: AutoMaskConfig) -> np.n
         seen = np.zeros(masks.shape[1:], dtype=bool)
         if t + 1 < t_count:
             v, inside = _pull(masks[t + 1].astype(np.float32), flow.forward[t])
-            seen |= (v > 0.5) & inside
+            seen |= (v > C.MASK_THRESHOLD) & inside
         if t > 0:
             v, inside = _pull(masks[t - 1].astype(np.float32), flow.backward[t - 1])
-            seen |= (v > 0.5) & inside
+            seen |= (v > C.MASK_THRESHOLD) & inside
         count, labels = cv2.connectedComponents(masks[t].astype(np.uint8), connectivity=8)
         if count <= 1:
             continue
@@ -384,6 +389,7 @@ def auto_masks(
     raw = mean_vote > cfg.vote_threshold
     cleaned = np.stack([clean_mask(m, cfg) for m in raw])
     masks = _persistent(cleaned, flow, cfg)
+    cv2.setRNGSeed(GRABCUT_SEED)
     masks = np.stack([clean_mask(refine_with_colour(f, m, cfg), cfg) for f, m in zip(frames, masks, strict=True)])
     homographies = np.stack([np.eye(3) if hm is None else hm for hm in homs])
     camera = "static camera" if static else "moving camera"
@@ -412,13 +418,14 @@ def mask_iou(pred: np.ndarray, truth: np.ndarray) -> np.ndarray:
 
 
 def resize_masks(masks: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """Bool masks [T, h, w] to ``size = (W, H)``: smooth (linear) resample of the 0/1 values, then > 0.5."""
+    """Bool masks [T, h, w] to ``size = (W, H)``: smooth (linear) resample of the 0/1 values, then
+    above ``contract.MASK_THRESHOLD``."""
     w, h = size
     if masks.shape[1:] == (h, w):
         return masks.copy()
     out = np.empty((masks.shape[0], h, w), dtype=bool)
     for i, m in enumerate(masks):
-        out[i] = cv2.resize(m.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR) > 0.5
+        out[i] = cv2.resize(m.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR) > C.MASK_THRESHOLD
     return out
 
 
@@ -442,11 +449,39 @@ class MasksReport:
         return lines
 
 
-def _mask_names(info: ClipInfo) -> list[str]:
+def mask_file_names(info: ClipInfo) -> list[str]:
     """One PNG name per selected frame: the frame file's stem for a sequence, the frame number for a movie."""
     if info.frame_files:
         return [f"{Path(f).stem}.png" for f in info.frame_files]
     return [f"{n:05d}.png" for n in info.frame_numbers]
+
+
+def mask_folder(info: ClipInfo, out: str | Path) -> tuple[Path, list[str]]:
+    """The folder the masks of ``info`` go to and their file names; a one-line error when the folder is a file,
+    the clip's own frame folder, or already holds one of the names (masks are never overwritten)."""
+    folder = Path(out).expanduser().resolve()
+    if folder.exists() and not folder.is_dir():
+        raise InputError(folder, "is a file, not a folder", "pass a folder for the masks with --out")
+    if info.kind == "sequence" and folder == Path(info.source).resolve():
+        raise InputError(
+            folder, "is the clip's own frame folder", "write the masks to a folder of their own with --out"
+        )
+    names = mask_file_names(info)
+    clash = [n for n in names if (folder / n).exists()]
+    if clash:
+        raise InputError(
+            folder,
+            f"already holds {clash[0]}" + (f" and {len(clash) - 1} more of the mask names" if len(clash) > 1 else ""),
+            "masks are never overwritten (an artist may have fixed them): choose a new --out or delete them",
+        )
+    return folder, names
+
+
+def write_mask_files(folder: Path, names: list[str], masks: np.ndarray) -> list[str]:
+    """Bool masks [T, H, W] (the clip's resolution) as 8-bit 0/255 PNGs ``folder/names[t]``; the paths written."""
+    return [
+        str(write_png(folder / name, m[..., None].astype(np.float32))) for name, m in zip(names, masks, strict=True)
+    ]
 
 
 def write_auto_masks(
@@ -468,21 +503,7 @@ def write_auto_masks(
             "a single frame has no motion to find the foreground by",
             "select at least two frames (--frames FIRST:LAST), or paint the mask by hand",
         )
-    folder = Path(out).expanduser().resolve()
-    if folder.exists() and not folder.is_dir():
-        raise InputError(folder, "is a file, not a folder", "pass a folder for the masks with --out")
-    if info.kind == "sequence" and folder == Path(info.source).resolve():
-        raise InputError(
-            folder, "is the clip's own frame folder", "write the masks to a folder of their own with --out"
-        )
-    names = _mask_names(info)
-    clash = [n for n in names if (folder / n).exists()]
-    if clash:
-        raise InputError(
-            folder,
-            f"already holds {clash[0]}" + (f" and {len(clash) - 1} more of the mask names" if len(clash) > 1 else ""),
-            "masks are never overwritten (an artist may have fixed them): choose a new --out or delete them",
-        )
+    folder, names = mask_folder(info, out)
     size = working_size(info.width, info.height, cfg.long_edge)
     if say is not None:
         say(f"finding what moves in {info.num_frames} frames at {size[0]}x{size[1]}")
@@ -493,7 +514,4 @@ def write_auto_masks(
     result = auto_masks(frames, cfg)
     full = resize_masks(result.masks, (info.width, info.height))
     iou = None if truth is None else mask_iou(full, read_masks(truth, info, (info.width, info.height)))
-    files = []
-    for name, m in zip(names, full, strict=True):
-        files.append(str(write_png(folder / name, m[..., None].astype(np.float32))))
-    return MasksReport(str(folder), files, result, iou)
+    return MasksReport(str(folder), write_mask_files(folder, names, full), result, iou)

@@ -30,10 +30,11 @@ import torch
 from tqdm import tqdm
 
 from engine import contract as C
-from engine.data.scene_analysis import read_scene_file
 from engine.errors import InputError
-from engine.fit.checkpoint import atomic_write_text
-from engine.fit.trainer import EVAL_CHUNK, PreparedClip, Reporter, load_run
+from engine.fit.progress import Reporter
+from engine.fit.run_folder import ClipRecord, RunFolder
+from engine.fit.trainer import EVAL_CHUNK, FittedRun, load_fitted
+from engine.io.atomic import atomic_write_text
 from engine.io.colour import srgb_to_linear
 from engine.io.images import write_exr, write_png
 from engine.model.atlas_model import AtlasModel
@@ -54,7 +55,7 @@ COVERAGE_DOMAIN = 1.5
 COVERAGE_MAX_CELLS = 2048
 #: Smallest atlas box extent in model units (a layer that never shows gets this instead of a point).
 MIN_BOX_EXTENT = 1e-3
-DEFAULT_ATLAS_SIZE = 1000
+DEFAULT_ATLAS_SIZE = C.ATLAS_SIZE_DEFAULT
 
 
 @dataclass
@@ -271,11 +272,11 @@ def _pid_alive(text: str) -> bool:
     return True
 
 
-def _selected(prepared: PreparedClip, clip_rec: dict[str, Any], frames: tuple[int, int] | None) -> list[int]:
+def _selected(clip: ClipRecord, frames: tuple[int, int] | None) -> list[int]:
     """Run frame indices to export; ``frames`` are positions in the source sequence, like `fit --frames`."""
-    first, last = clip_rec["frame_range"]
+    first, last = clip.frame_range
     if frames is None:
-        return list(range(prepared.frames.shape[0]))
+        return list(range(clip.num_frames))
     a, b = frames
     if a > b or a < first or b > last:
         raise InputError(
@@ -294,30 +295,28 @@ def export_run(
     progress_bar: bool = True,
     stream: Any = None,
 ) -> Path:
-    """Export ``run_dir``; returns the path of the manifest.json written."""
+    """Export ``run_dir``; returns the path of the manifest.json written. Reads the run folder only (its
+    ``clip.json`` says what export needs of the clip): the plate is not decoded."""
     run_dir = Path(run_dir).resolve()
-    if atlas_size < 8 or atlas_size > 16384:
-        raise InputError(None, f"--atlas-size {atlas_size} is out of range", "use 8..16384 (paper: 1000)")
-    for name in (C.RUN_CONFIG, C.RUN_CLIP, C.RUN_CHECKPOINT):
-        if not (run_dir / name).exists():
-            raise InputError(run_dir / name, "this is not a fitted run folder", "pass the --out folder of a `fit`")
-    reporter = Reporter(None, stream)
+    low, high = C.ATLAS_SIZE_RANGE
+    if not low <= atlas_size <= high:
+        raise InputError(None, f"--atlas-size {atlas_size} is out of range", f"use {low}..{high} (paper: 1000)")
+    RunFolder(run_dir).require_fit()
+    reporter = Reporter(stream=stream)
     reporter.emit(C.EVENT_STAGE, stage="load", message=f"loading the fit in {run_dir}")
-    model, prepared, cfg = load_run(run_dir, device_name)
+    fitted = load_fitted(run_dir, device_name)
+    model, clip = fitted.model, fitted.clip
     device = next(model.parameters()).device
-    clip_rec = json.loads((run_dir / C.RUN_CLIP).read_text(encoding="utf-8"))
-    metrics_path = run_dir / C.RUN_METRICS
-    metrics = json.loads(metrics_path.read_text(encoding="utf-8")) if metrics_path.exists() else {}
-    if not metrics:
-        print(f"warning: {run_dir} has no metrics.json: exporting an unfinished fit", file=sys.stderr)
-    selected = _selected(prepared, clip_rec, frames)
-    t_count = prepared.frames.shape[0]
+    if fitted.metrics is None:
+        print(f"warning: {run_dir} has no {C.RUN_METRICS}: exporting an unfinished fit", file=sys.stderr)
+    selected = _selected(clip, frames)
+    t_count = clip.num_frames
     names = [C.layer_name(i, model.num_layers) for i in range(model.num_layers)]
 
     # 1. where each layer's mapping lands, and with what alpha (every frame, working resolution)
     reporter.emit(C.EVENT_STAGE, stage="atlas", message="atlas extent and coverage")
     cov = [_Coverage(model.uv_per_px(i), t_count, foreground=i > 0) for i in range(model.num_layers)]
-    xy_work = _pixel_grid(prepared.size, (1.0, 1.0), device)
+    xy_work = _pixel_grid(clip.working_size, (1.0, 1.0), device)
     bar = tqdm(total=t_count + len(selected), disable=not progress_bar, file=sys.stderr, unit="frame")
     for t in range(t_count):
         uvs, wts = _eval_pixels(model, xy_work, t)
@@ -326,7 +325,7 @@ def export_run(
         bar.update(1)
 
     # 2. the atlas frame of every layer: an existing edit layer's frame wins (its paint must not shift)
-    edits_dir = run_dir / C.EDITS_DIR
+    edits_dir = fitted.folder.edits
     layout = _read_layout(edits_dir)
     frames_by_layer: list[LayerFrame] = []
     for i, name in enumerate(names):
@@ -337,7 +336,7 @@ def export_run(
         else:
             frames_by_layer.append(layer_frame_for(cov[i].box(), atlas_size))
 
-    final, staging = _next_version(run_dir / C.EXPORTS_DIR)
+    final, staging = _next_version(fitted.folder.exports)
     try:
         # 3. atlas textures: colours from the atlas network, coverage from the alpha network
         for i, name in enumerate(names):
@@ -353,10 +352,10 @@ def export_run(
 
         # 4. passes at native resolution
         reporter.emit(C.EVENT_STAGE, stage="passes", message=f"{len(selected)} frames of UV + alpha passes")
-        nw, nh = prepared.info.width, prepared.info.height
-        ww, wh = prepared.size
+        nw, nh = clip.native_size
+        ww, wh = clip.working_size
         xy_native = _pixel_grid((nw, nh), (ww / nw, wh / nh), device)
-        frame_numbers = [int(n) for n in clip_rec["frame_numbers"]]
+        frame_numbers = list(clip.frame_numbers)
         for k, t in enumerate(selected):
             uvs, wts = _eval_pixels(model, xy_native, t)
             chans: dict[str, np.ndarray] = {}
@@ -385,10 +384,7 @@ def export_run(
                 layout["layers"][name] = {"atlas_box": list(fr.box), "atlas_size": list(fr.size)}
         atomic_write_text(edits_dir / C.EDITS_LAYOUT, json.dumps(layout, indent=2))
 
-        manifest = _manifest(run_dir, final, prepared, clip_rec, names, frames_by_layer, selected, cfg, metrics)
-        scene = read_scene_file(run_dir)
-        if scene is not None:  # runs from before the scene analysis have none; readers accept both
-            manifest["scene"] = scene.to_dict()
+        manifest = _manifest(run_dir, final, fitted, names, frames_by_layer, selected)
         C.validate_manifest(manifest)
         atomic_write_text(staging / C.MANIFEST_NAME, json.dumps(manifest, indent=2))
         (staging / ".pid").unlink()
@@ -427,16 +423,13 @@ def layer_record(
 def _manifest(
     run_dir: Path,
     final: Path,
-    prepared: PreparedClip,
-    clip_rec: dict[str, Any],
+    fitted: FittedRun,
     names: list[str],
     frames_by_layer: list[LayerFrame],
     selected: list[int],
-    cfg: Any,
-    metrics: dict[str, Any],
 ) -> dict[str, Any]:
-    info = prepared.info
-    numbers = [int(n) for n in clip_rec["frame_numbers"]]
+    clip, cfg, metrics = fitted.clip, fitted.cfg, fitted.metrics or {}
+    numbers = list(clip.frame_numbers)
     rel_edits = os.path.relpath(run_dir / C.EDITS_DIR, final)
     layers = [
         layer_record(name, i, fr.size, fr.box, f"{rel_edits}/{name}{C.EDIT_LAYER_EXT}")
@@ -449,16 +442,16 @@ def _manifest(
         "run_dir": str(run_dir),
         "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "clip": {
-            "source": info.source,
-            "kind": info.kind,
-            "frame_files": list(info.frame_files),
+            "source": clip.source,
+            "kind": clip.kind,
+            "frame_files": list(clip.frame_files),
             "frame_numbers": numbers,
             "first_frame": numbers[0],
             "last_frame": numbers[-1],
-            "fps": info.fps,
-            "resolution": [info.width, info.height],
-            "working_resolution": list(prepared.size),
-            "colorspace": info.colorspace,
+            "fps": clip.fps,
+            "resolution": list(clip.native_size),
+            "working_resolution": list(clip.working_size),
+            "colorspace": clip.colorspace,
         },
         "passes": {
             "dir": C.PASSES_DIR,
@@ -466,7 +459,7 @@ def _manifest(
             "blender_pattern": f"{C.PASS_FILE_PREFIX}{'#' * C.PASS_FILE_DIGITS}{ext}",
             "frames": [numbers[t] for t in selected],
             "exr_layer": C.EXR_LAYER,
-            "resolution": [info.width, info.height],
+            "resolution": list(clip.native_size),
         },
         "layers": layers,
         "fit": {
@@ -477,6 +470,7 @@ def _manifest(
             "psnr": metrics.get("psnr"),
             "alpha_iou": metrics.get("alpha_iou"),
         },
+        "scene": fitted.scene.to_dict(),
     }
 
 

@@ -8,9 +8,9 @@ from typing import Any
 import torch
 
 from engine.errors import InputError
-from engine.io.atomic import atomic_write, atomic_write_bytes, atomic_write_text
+from engine.io.atomic import atomic_write
 
-__all__ = ["atomic_write_bytes", "atomic_write_text", "load_checkpoint", "save_checkpoint"]
+__all__ = ["load_checkpoint", "save_checkpoint"]
 
 
 def save_checkpoint(path: Path, state: dict[str, Any]) -> None:

@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from engine.data.video import frame_pixels
-from engine.fit.checkpoint import atomic_write_bytes
+from engine.io.atomic import atomic_write_bytes
 from engine.model.atlas_model import AtlasModel
 
 #: Atlas images in the sheet are rendered at this many pixels per side.

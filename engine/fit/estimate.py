@@ -3,12 +3,13 @@
 A short calibration times a few real training steps of every preset on the prepared clip, in each of the
 two cost regimes of a fit (while the global-rigidity term is on, which costs two more mapping passes per
 layer, and after), and multiplies by the preset's step budget; flow and evaluation are timed too. Expected
-PSNR comes from ``BENCHMARK_TABLE``: full fits measured on blackswan (docs/engine.md), not this clip.
+PSNR comes from ``BENCHMARK_TABLE``: complete fits of each preset on a reference clip, not this clip
+(``expected_psnr.json`` beside this module; docs/accuracy-vs-time.md says how they were measured).
 """
 
 from __future__ import annotations
 
-import io
+import json
 import tempfile
 import time
 from dataclasses import asdict, dataclass
@@ -18,33 +19,18 @@ from typing import Any
 import torch
 
 from engine import contract as C
-from engine.bench.bench import torch_threads
 from engine.config import PRESETS, apply_overrides, preset_config
-from engine.data.scene_analysis import analyse_scene
 from engine.data.video import build_video_tensors, frame_pixels
-from engine.fit.trainer import (
-    EVAL_CHUNK,
-    Reporter,
-    build_model,
-    make_optimizer,
-    make_scheduler,
-    prepare_clip,
-    select_device,
-    train_step,
-)
+from engine.fit.device import select_device, synchronize, torch_threads
+from engine.fit.prepare import prepare_clip
+from engine.fit.trainer import EVAL_CHUNK, Trainer
 
-#: Full-frame PSNR of complete fits with each preset, measured on blackswan (50 frames, 768x432, 2-core
-#: CPU; docs/engine.md). None: not measured yet.
-BENCHMARK_TABLE: dict[str, dict[str, Any]] = {
-    "draft": {"psnr": 25.80, "clip": "blackswan", "note": "measured on blackswan, docs/engine.md"},
-    "balanced": {"psnr": 28.61, "clip": "blackswan", "note": "measured on blackswan, docs/engine.md"},
-    "final": {"psnr": 30.61, "clip": "blackswan", "note": "measured on blackswan, docs/accuracy-vs-time.md"},
-    "paper": {
-        "psnr": None,
-        "clip": "blackswan",
-        "note": "not measured on a CPU; the paper reports 29.92 dB after 10 hours on a GPU",
-    },
-}
+#: The measured PSNR of each preset (data, with where it was measured): what ``estimate`` shows as expected.
+EXPECTED_PSNR_FILE = Path(__file__).with_name("expected_psnr.json")
+#: preset -> {"psnr": dB or None (not measured), "clip": the clip it was measured on, "note": one line}
+BENCHMARK_TABLE: dict[str, dict[str, Any]] = json.loads(EXPECTED_PSNR_FILE.read_text(encoding="utf-8"))["presets"]
+#: Pixels reconstructed untimed before the render is timed (warm-up: allocator, kernels).
+RENDER_WARMUP_PIXELS = 256
 #: Timed steps per regime: at least this many, and at least ``calib_seconds`` of them (one paper-model
 #: step is already seconds long).
 MIN_TIMED_STEPS = 1
@@ -66,15 +52,14 @@ class PresetEstimate:
     expected_psnr_note: str
 
 
-def _time_steps(run: tuple, step: int, calib_seconds: float, device: torch.device) -> float:
-    model, video, cfg, optim, sched, gen = run
-    train_step(model, video, cfg, optim, sched, gen, step, device)  # warm-up: allocator, kernels
+def _time_steps(trainer: Trainer, step: int, calib_seconds: float) -> float:
+    """Seconds per optimisation step with the loss weights of ``step``."""
+    trainer.optimise(step)  # warm-up: allocator, kernels
     n, t0 = 0, time.perf_counter()
     while n < MIN_TIMED_STEPS or time.perf_counter() - t0 < calib_seconds:
-        train_step(model, video, cfg, optim, sched, gen, step, device)
+        trainer.optimise(step)
         n += 1
-    if device.type == "cuda":
-        torch.cuda.synchronize()
+    synchronize(trainer.device)
     return (time.perf_counter() - t0) / n
 
 
@@ -83,7 +68,7 @@ def _time_render(model: Any, size: tuple[int, int], device: torch.device) -> flo
     """Seconds to reconstruct one pixel (timed on one evaluation chunk)."""
     xy, tt = frame_pixels(size, 0, device)
     xy, tt = xy[:EVAL_CHUNK], tt[:EVAL_CHUNK]
-    model.reconstruct(xy[:256], tt[:256])
+    model.reconstruct(xy[:RENDER_WARMUP_PIXELS], tt[:RENDER_WARMUP_PIXELS])
     t0 = time.perf_counter()
     model.reconstruct(xy, tt)
     return (time.perf_counter() - t0) / xy.shape[0]
@@ -130,24 +115,20 @@ def _estimate(
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(work_dir) if work_dir else Path(tmp)
         t0 = time.perf_counter()
-        prepared = prepare_clip(clip, list(mask_dirs), cfgs[0], work, frame_range, Reporter(None, io.StringIO()))
+        prepared = prepare_clip(clip, list(mask_dirs), cfgs[0], work, frame_range)
         prepare_seconds = time.perf_counter() - t0
     video = build_video_tensors(prepared.frames, prepared.masks, prepared.flow, cfgs[0].mask_prior_margin_px, device)
     t_count, h, w = video.shape
     rows = []
     for cfg in cfgs:
-        torch.manual_seed(cfg.seed)
-        # the model `fit` would build: the scene analysis decides components (a tripod shot costs less)
-        scene = analyse_scene(t_count, prepared.flow, prepared.masks, cfg)
-        model = build_model(cfg, prepared, scene).to(device)
-        optim = make_optimizer(model, cfg, device)
-        run = (model, video, cfg, optim, make_scheduler(optim, cfg), torch.Generator().manual_seed(cfg.seed))
+        # the trainer `fit` would build: the scene analysis decides components (a tripod shot costs less)
+        trainer = Trainer(cfg, prepared, prepared.analyse(cfg), device, video=video)
         early_steps = min(cfg.global_rigidity_steps, cfg.steps)
-        early = _time_steps(run, 0, calib_seconds, device) if early_steps > 0 else 0.0
+        early = _time_steps(trainer, 0, calib_seconds) if early_steps > 0 else 0.0
         late_step = max(cfg.global_rigidity_steps, 0)
-        late = _time_steps(run, late_step, calib_seconds, device) if cfg.steps > early_steps else early
+        late = _time_steps(trainer, late_step, calib_seconds) if cfg.steps > early_steps else early
         train = early_steps * early + (cfg.steps - early_steps) * late
-        per_px = _time_render(model, prepared.size, device)
+        per_px = _time_render(trainer.model, prepared.size, device)
         live = (cfg.steps // max(cfg.eval_every, 1)) * cfg.eval_pixels * per_px
         final = t_count * h * w * per_px
         total = prepare_seconds + train + live + final

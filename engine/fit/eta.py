@@ -2,18 +2,19 @@
 
 A step costs more while the global-rigidity term is on (two more mapping passes per layer, the first
 ``global_rigidity_steps``) than after; averaging over all steps so far therefore overestimates the time
-left once that term is off. The first step of a session is left out of the rates (allocator, kernels).
+left once that term is off. The first step after a start or a resume is left out of the rates (allocator, kernels).
 """
 
 from __future__ import annotations
 
 
 class StepClock:
-    """Seconds per step of this session, per regime; ``eta`` extrapolates each regime at its own rate.
+    """Seconds per step since the fit started (or resumed), per regime; ``eta`` extrapolates each regime at its
+    own rate.
 
     A regime not reached yet costs the other one's rate times ``late_ratio`` (late / early seconds per step,
     measured before training by ``trainer.regime_cost_ratio``), or the other one's rate when there is no
-    measurement. Without it, draft's ETA at 10% of its steps (still in the costlier regime) was 29% high.
+    measurement (without it the ETA of a fit still in the costlier regime runs high).
     """
 
     def __init__(self, boundary: int, late_ratio: float | None = None) -> None:

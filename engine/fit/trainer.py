@@ -1,20 +1,16 @@
-"""The fit: prepare the clip (frames, masks, flow), build a model, optimise, checkpoint, evaluate.
+"""The fit's training loop: ``Trainer`` (in the way of nerfstudio's Trainer) sets up a fit of a prepared clip
+(model, pixel tensors, optimiser, schedule, sampling generator), steps, evaluates, saves and restores it; ``fit``
+runs it on a clip into a run folder. The bench, ``estimate`` and the speed table train through the same object.
 
-Owns the loop, the optimiser, the schedule, checkpoints, signals and progress (nerfstudio's trainer role).
 Progress goes to stdout as JSON lines (``contract.progress_line``) and to stderr as a tqdm bar.
 """
 
 from __future__ import annotations
 
 import contextlib
-import hashlib
-import io
-import json
-import os
 import signal
 import sys
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -25,15 +21,15 @@ from tqdm import tqdm
 
 from engine import contract as C
 from engine.config import FitConfig
-from engine.data.flow import DISFlow, FlowField, compute_flow
-from engine.data.scene_analysis import SceneAnalysis, analyse_scene, read_scene_file, write_scene_file
-from engine.data.scribbles import propagate_labels, read_scribbles, scribble_layers
+from engine.data.scene_analysis import SceneAnalysis
+from engine.data.scribbles import propagate_labels
 from engine.data.video import VideoTensors, build_video_tensors, frame_pixels, sample_batch, sample_pixels
 from engine.errors import InputError
-from engine.fit.checkpoint import atomic_write_text, load_checkpoint, save_checkpoint
+from engine.fit.device import select_device, synchronize
 from engine.fit.eta import StepClock
-from engine.io.clip import ClipInfo, open_clip, read_frames, read_masks, working_size
-from engine.io.colour import linear_to_srgb
+from engine.fit.prepare import PreparedClip, prepare_clip
+from engine.fit.progress import Reporter
+from engine.fit.run_folder import ClipRecord, RunFolder
 from engine.model.atlas_model import AtlasModel, FastModel, motion_regions
 from engine.model.losses import psnr_from_mse
 from engine.model.motion_init import LayerMotion, estimate_layer_motion
@@ -42,165 +38,29 @@ from engine.model.paper_model import PaperModel
 
 #: Pixels per forward chunk when evaluating whole frames (bounds memory of the evaluation).
 EVAL_CHUNK = 65536
+#: The live PSNR's fixed pixel sample is drawn with seed ``cfg.seed + EVAL_SEED_OFFSET`` (apart from training's).
+EVAL_SEED_OFFSET = 7919
+#: The regime cost probe draws its batches with seed ``cfg.seed + PROBE_SEED_OFFSET`` (the fit's own are untouched).
+PROBE_SEED_OFFSET = 104_729
+#: A foreground alpha above this counts as the layer's when comparing it with its mask (alpha IoU).
+ALPHA_IOU_THRESHOLD = 0.5
+#: The learning rate's decay never goes below this fraction (a zero ratio would stop the decay's logarithm).
+MIN_LR_RATIO = 1e-6
 
 
-def select_device(name: str = "auto") -> torch.device:
-    """CUDA, then MPS, then CPU for ``auto``; an explicit device that is absent is a one-line error."""
-    if name == "auto":
-        if torch.cuda.is_available():
-            return torch.device("cuda")
-        if getattr(torch.backends, "mps", None) and torch.backends.mps.is_available():
-            return torch.device("mps")
-        return torch.device("cpu")
-    if name == "cuda" and not torch.cuda.is_available():
-        raise InputError(None, "--device cuda: no CUDA device is available", "use --device auto or cpu")
-    if name == "mps" and not (getattr(torch.backends, "mps", None) and torch.backends.mps.is_available()):
-        raise InputError(None, "--device mps: MPS is not available", "use --device auto or cpu")
-    if name not in ("cpu", "cuda", "mps"):
-        raise InputError(None, f"unknown device {name!r}", "use auto, cpu, cuda or mps")
-    return torch.device(name)
+# --- the model a clip calls for -----------------------------------------------------------------------------
 
 
-class Reporter:
-    """JSON progress lines on stdout (for the add-on) and a human log file."""
-
-    def __init__(self, log_path: Path | None, stream: Any = None) -> None:
-        self.stream = stream or sys.stdout
-        self.log_path = log_path
-
-    def emit(self, event: str, **fields: Any) -> None:
-        line = C.progress_line(event, **fields)
-        print(line, file=self.stream, flush=True)
-        if self.log_path is not None:
-            with open(self.log_path, "a", encoding="utf-8") as f:
-                f.write(line + "\n")
-
-
-@dataclass
-class PreparedClip:
-    info: ClipInfo
-    size: tuple[int, int]
-    frames: np.ndarray  # float32 [T, H, W, 3], working resolution, fitting values in [0, 1]-ish
-    masks: np.ndarray  # bool [F, T, H, W]
-    mask_dirs: list[str]
-    flow: FlowField
-    fingerprint: str
-    scribbles: np.ndarray | None = None  # int8 [T, H, W]: 0-based foreground layer, -1 = no scribble
-    scribble_dir: str | None = None
-
-    @property
-    def mask_layers(self) -> tuple[tuple[int, ...], ...] | None:
-        """Model layers each mask covers (None: one layer per mask); scribbles split the one mask."""
-        if self.scribbles is None:
-            return None
-        return (tuple(range(1, 1 + scribble_layers(self.scribbles))),)
-
-    @property
-    def num_foreground(self) -> int:
-        return self.masks.shape[0] if self.scribbles is None else scribble_layers(self.scribbles)
-
-
-def to_fitting_values(frames: np.ndarray, colorspace: str) -> tuple[np.ndarray, list[int]]:
-    """Frames as the values the model fits: display-encoded, finite. Returns the frames with NaN/Inf."""
-    bad = [int(i) for i in np.nonzero(~np.isfinite(frames).reshape(len(frames), -1).all(1))[0]]
-    out = np.nan_to_num(frames, nan=0.0, posinf=1.0, neginf=0.0)
-    if colorspace == "linear":
-        out = linear_to_srgb(np.clip(out, 0.0, None))
-    return out.astype(np.float32), bad
-
-
-def prepare_clip(
-    clip: str | Path,
-    mask_dirs: list[str | Path],
-    cfg: FitConfig,
-    run_dir: Path,
-    frame_range: tuple[int, int] | None,
-    reporter: Reporter,
-    expect_fingerprint: str | None = None,
-    scribble_dir: str | Path | None = None,
-) -> PreparedClip:
-    """Read, validate and sanitise the clip and masks, and compute (or load) its flow.
-
-    ``expect_fingerprint`` (a resume): a clip whose frames changed is refused before its flow is computed,
-    so the refusal is quick and writes nothing into the run folder.
-    """
-    info = open_clip(clip, frame_range)
-    size = working_size(info.width, info.height, cfg.long_edge)
-    reporter.emit(C.EVENT_STAGE, stage="read", message=f"reading {info.num_frames} frames at {size[0]}x{size[1]}")
-    frames, bad = to_fitting_values(read_frames(info, size), info.colorspace)
-    if bad:
-        print(f"warning: NaN/Inf pixels replaced in frames {bad} of {info.source}", file=sys.stderr)
-    masks = (
-        np.stack([read_masks(m, info, size) for m in mask_dirs])
-        if mask_dirs
-        else np.zeros((0, len(frames), size[1], size[0]), dtype=bool)
-    )
-    scribbles = None
-    if scribble_dir is not None:
-        if len(mask_dirs) != 1:
-            raise InputError(
-                scribble_dir,
-                f"scribbles split one object, but {len(mask_dirs)} mask folders were given",
-                "pass exactly one --mask (the whole object) with --scribbles",
-            )
-        scribbles = read_scribbles(scribble_dir, info, size)
-        if scribble_layers(scribbles) < 2:
-            raise InputError(
-                scribble_dir,
-                "the scribbles use only the first colour (red), so they split nothing",
-                "scribble the object's other part in green",
-            )
-    fingerprint = hashlib.sha256(memoryview(np.ascontiguousarray(frames)).cast("B")).hexdigest()[:32]
-    if expect_fingerprint is not None and fingerprint != expect_fingerprint:
-        raise InputError(
-            info.source, "the clip changed since this run started", "fit it into a new --out instead of --resume"
-        )
-    if len(frames) < 2:  # a single frame has no flow: nothing is computed, nothing cached
-        h, w = frames.shape[1:3]
-        empty = np.zeros((0, h, w, 2), np.float32)
-        ok = np.zeros((0, h, w), bool)
-        flow = FlowField(empty, empty.copy(), ok, ok.copy(), DISFlow(cfg.flow_preset).name, cfg.flow_threshold_px)
-    else:
-        reporter.emit(C.EVENT_STAGE, stage="flow", message="optical flow (cached per clip content)")
-        flow = compute_flow(
-            frames.clip(0.0, 1.0),
-            DISFlow(cfg.flow_preset),
-            cache_dir=run_dir / C.FLOW_CACHE_DIR,
-            threshold_px=cfg.flow_threshold_px,
-        )
-    return PreparedClip(
-        info,
-        size,
-        frames,
-        masks,
-        [str(Path(m).resolve()) for m in mask_dirs],
-        flow,
-        fingerprint,
-        scribbles,
-        None if scribble_dir is None else str(Path(scribble_dir).resolve()),
-    )
-
-
-def build_model(
-    cfg: FitConfig, clip: PreparedClip, scene: SceneAnalysis | None = None, saved_motions: list | None = None
-) -> AtlasModel:
-    """The model ``scene`` calls for (engine.data.scene_analysis); None = every component
-    (runs from before the analysis).
-
-    ``saved_motions`` (a checkpoint's ``motions``): the layers' starting motion and atlas boxes exactly as the
-    fit built them, so a run reloads into the same shapes and scales whatever the engine version or the flow
-    backend computes today."""
+def build_model(cfg: FitConfig, clip: PreparedClip, scene: SceneAnalysis | None = None) -> AtlasModel:
+    """A new model for ``clip``: the components ``scene`` calls for (engine.data.scene_analysis; None = every
+    component), the fast model's layers starting at the motion the flow shows inside their masks."""
     t = clip.frames.shape[0]
     if cfg.model == "paper":
-        model: AtlasModel = PaperModel(cfg, clip.size, t, num_layers=1 + clip.num_foreground)
-        model.active_terms = None if scene is None else scene.term_set
-        return model
+        return assemble_model(cfg, clip.size, t, 1 + clip.num_foreground, scene, None)
     if cfg.model != "fast":
         raise InputError(None, f"unknown model {cfg.model!r}", "use --set model=fast or model=paper")
     flow = clip.flow if t > 1 else None
     background = C.BG_MOTION_DEFORMABLE if scene is None else scene.background_motion
-    if saved_motions is not None:
-        return _fast_model(cfg, clip, scene, background, [motion_from_state(m) for m in saved_motions])
     motions = []
     if clip.masks.shape[0]:
         bg_region, fg_regions = motion_regions(clip.masks)
@@ -221,7 +81,7 @@ def build_model(
             )
     else:
         # motion from the eroded mask (flow at object boundaries is unreliable), atlas box from the whole mask
-        # (an eroded box cut the rim off small objects: a 30 px object lost 6 px on every side)
+        # (an eroded box cut the rim off small objects)
         for region, full in zip(fg_regions, clip.masks, strict=True):
             motions.append(
                 estimate_layer_motion(
@@ -233,17 +93,49 @@ def build_model(
                     extent_masks=full if cfg.atlas_box_full_mask else None,
                 )
             )
-    return _fast_model(cfg, clip, scene, background, motions)
+    return assemble_model(cfg, clip.size, t, len(motions), scene, motions)
 
 
-def _fast_model(
-    cfg: FitConfig, clip: PreparedClip, scene: SceneAnalysis | None, background: str, motions: list[LayerMotion]
-) -> FastModel:
-    t = clip.frames.shape[0]
-    alpha_network = True if scene is None else (scene.alpha_network or len(motions) > 1)
-    model = FastModel(cfg, clip.size, t, motions, background=background, alpha_network=alpha_network)
+def assemble_model(
+    cfg: FitConfig,
+    size: tuple[int, int],
+    frames: int,
+    layers: int,
+    scene: SceneAnalysis | None,
+    motions: list[LayerMotion] | None,
+) -> AtlasModel:
+    """The model of ``layers`` layers over ``frames`` frames of ``size`` (W, H) with ``scene``'s components; the
+    fast model's layers start at ``motions``. What ``build_model`` makes for a new fit and ``rebuild_model``
+    for a saved one."""
+    if cfg.model == "paper":
+        model: AtlasModel = PaperModel(cfg, size, frames, num_layers=layers)
+    elif cfg.model == "fast":
+        if motions is None or len(motions) != layers:
+            raise InputError(
+                None,
+                f"the fast model needs a starting motion for each of its {layers} layers",
+                C.RUN_FILE_OTHER_VERSION_FIX,
+            )
+        background = C.BG_MOTION_DEFORMABLE if scene is None else scene.background_motion
+        alpha_network = True if scene is None else (scene.alpha_network or len(motions) > 1)
+        model = FastModel(cfg, size, frames, motions, background=background, alpha_network=alpha_network)
+    else:
+        raise InputError(None, f"unknown model {cfg.model!r}", "use --set model=fast or model=paper")
     model.active_terms = None if scene is None else scene.term_set
     return model
+
+
+def rebuild_model(
+    cfg: FitConfig, clip: ClipRecord, scene: SceneAnalysis, saved_motions: list[dict[str, Any]] | None
+) -> AtlasModel:
+    """The model a checkpoint was saved from, built from the run folder alone (no frames, masks or flow): the
+    fast model's layers start at the motions the fit saved, so a run reloads into the same shapes and scales
+    whatever the engine version or the flow backend would compute today."""
+    motions = None if saved_motions is None else [motion_from_state(m) for m in saved_motions]
+    return assemble_model(cfg, clip.working_size, clip.num_frames, clip.layers, scene, motions)
+
+
+# --- evaluation --------------------------------------------------------------------------------------------
 
 
 @torch.no_grad()
@@ -291,13 +183,70 @@ def evaluate_full(model: AtlasModel, video: VideoTensors, size: tuple[int, int],
         n += rec.size
         for f in range(masks_np.shape[0]):
             group = video.mask_layers[f] if video.mask_layers is not None else (f + 1,)
-            a = wts[..., list(group)].sum(-1) > 0.5
+            a = wts[..., list(group)].sum(-1) > ALPHA_IOU_THRESHOLD
             m = masks_np[f, t]
             inter[f] += float((a & m).sum())
             union[f] += float((a | m).sum())
     mse = sq / max(n, 1)
     iou = [float(i / u) if u > 0 else 1.0 for i, u in zip(inter, union, strict=True)]
     return {"psnr": psnr_from_mse(mse), "mse": mse, "alpha_iou": iou}
+
+
+# --- optimisation ------------------------------------------------------------------------------------------
+
+
+def make_optimizer(model: AtlasModel, cfg: FitConfig, device: torch.device) -> torch.optim.Optimizer:
+    """Adam; the fused kernel where the device has one (on CPU it halves the cost of updating dense grids)."""
+    groups = model.param_groups(cfg)
+    try:
+        return torch.optim.Adam(groups, fused=device.type in ("cpu", "cuda"))
+    except (RuntimeError, TypeError):
+        return torch.optim.Adam(groups)
+
+
+#: The ETA measures the two cost regimes' ratio before training only when the early one (global rigidity on)
+#: is at least this share of the steps; below it (the paper preset: 5000 of 400000) a wrong guess costs
+#: little and the probe's steps (seconds each for the paper model) would not pay for themselves.
+REGIME_PROBE_MIN_SHARE = 0.05
+#: ... and only for fits of at least this many steps: the probe costs about five steps, under 1% here, and a
+#: shorter fit is over before an ETA matters (the stability tests' tiny fits count every objective call).
+REGIME_PROBE_MIN_STEPS = 500
+
+
+def regime_cost_ratio(
+    model: AtlasModel, video: VideoTensors, cfg: FitConfig, device: torch.device, repeats: int = 2
+) -> float | None:
+    """Seconds of a step after the global-rigidity term ends over one while it is on (forward and backward,
+    the best of ``repeats``), so the ETA of a fit still in the early regime does not assume the later steps
+    cost as much. The fit's state is untouched: its own generator, no optimiser step, gradients cleared."""
+    boundary = cfg.global_rigidity_steps
+    if not (0 < boundary < cfg.steps) or boundary < REGIME_PROBE_MIN_SHARE * cfg.steps:
+        return None
+    if cfg.steps < REGIME_PROBE_MIN_STEPS:
+        return None
+    gen = torch.Generator().manual_seed(cfg.seed + PROBE_SEED_OFFSET)
+
+    def timed(step: int) -> float:
+        ix, iy, tt = sample_batch(video, cfg.batch, cfg.object_sample_share, gen, device)
+        t0 = time.perf_counter()
+        loss, _ = compute_losses(model, video, cfg, step, ix, iy, tt)
+        loss.backward()
+        synchronize(device)
+        seconds = time.perf_counter() - t0
+        model.zero_grad(set_to_none=True)
+        return seconds
+
+    timed(0)  # warm-up: allocator, kernels
+    early = min(timed(0) for _ in range(repeats))
+    late = min(timed(boundary) for _ in range(repeats))
+    return late / early if early > 0 else None
+
+
+def make_scheduler(optim: torch.optim.Optimizer, cfg: FitConfig) -> torch.optim.lr_scheduler.LambdaLR:
+    """The fit's learning-rate schedule: exponential decay to ``lr_final_ratio`` at ``cfg.steps``."""
+    ratio = max(cfg.lr_final_ratio, MIN_LR_RATIO)
+    steps = max(cfg.steps, 1)
+    return torch.optim.lr_scheduler.LambdaLR(optim, lambda s: ratio ** (min(s, steps) / steps))
 
 
 class _Stop:
@@ -325,332 +274,6 @@ class FitCancelled(Exception):
     """The fit was interrupted by a signal after writing a checkpoint."""
 
 
-def make_optimizer(model: AtlasModel, cfg: FitConfig, device: torch.device) -> torch.optim.Optimizer:
-    """Adam; the fused kernel where the device has one (on CPU it halves the cost of updating dense grids)."""
-    groups = model.param_groups(cfg)
-    try:
-        return torch.optim.Adam(groups, fused=device.type in ("cpu", "cuda"))
-    except (RuntimeError, TypeError):
-        return torch.optim.Adam(groups)
-
-
-def train_step(
-    model: AtlasModel,
-    video: VideoTensors,
-    cfg: FitConfig,
-    optim: torch.optim.Optimizer,
-    sched: torch.optim.lr_scheduler.LRScheduler,
-    gen: torch.Generator,
-    step: int,
-    device: torch.device,
-) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    """One optimisation step at ``step`` (the loss weights in force there); ``fit`` and ``bench`` share it."""
-    ix, iy, tt = sample_batch(video, cfg.batch, cfg.object_sample_share, gen, device)
-    loss, terms = compute_losses(model, video, cfg, step, ix, iy, tt)
-    optim.zero_grad(set_to_none=True)
-    loss.backward()
-    optim.step()
-    sched.step()
-    return loss, terms
-
-
-#: The ETA measures the two cost regimes' ratio before training only when the early one (global rigidity on)
-#: is at least this share of the steps; below it (the paper preset: 5000 of 400000) a wrong guess costs
-#: little and the probe's steps (seconds each for the paper model) would not pay for themselves.
-REGIME_PROBE_MIN_SHARE = 0.05
-#: ... and only for fits of at least this many steps: the probe costs about five steps, under 1% here, and a
-#: shorter fit is over before an ETA matters (the stability tests' tiny fits count every objective call).
-REGIME_PROBE_MIN_STEPS = 500
-
-
-def regime_cost_ratio(
-    model: AtlasModel, video: VideoTensors, cfg: FitConfig, device: torch.device, repeats: int = 2
-) -> float | None:
-    """Seconds of a step after the global-rigidity term ends over one while it is on (forward and backward,
-    the best of ``repeats``), so the ETA of a fit still in the early regime does not assume the later steps
-    cost as much. The fit's state is untouched: its own generator, no optimiser step, gradients cleared."""
-    boundary = cfg.global_rigidity_steps
-    if not (0 < boundary < cfg.steps) or boundary < REGIME_PROBE_MIN_SHARE * cfg.steps:
-        return None
-    if cfg.steps < REGIME_PROBE_MIN_STEPS:
-        return None
-    gen = torch.Generator().manual_seed(cfg.seed + 104_729)
-
-    def timed(step: int) -> float:
-        ix, iy, tt = sample_batch(video, cfg.batch, cfg.object_sample_share, gen, device)
-        t0 = time.perf_counter()
-        loss, _ = compute_losses(model, video, cfg, step, ix, iy, tt)
-        loss.backward()
-        if device.type == "cuda":
-            torch.cuda.synchronize()
-        seconds = time.perf_counter() - t0
-        model.zero_grad(set_to_none=True)
-        return seconds
-
-    timed(0)  # warm-up: allocator, kernels
-    early = min(timed(0) for _ in range(repeats))
-    late = min(timed(boundary) for _ in range(repeats))
-    return late / early if early > 0 else None
-
-
-def _lr_lambda(cfg: FitConfig) -> Callable[[int], float]:
-    ratio = max(cfg.lr_final_ratio, 1e-6)
-    steps = max(cfg.steps, 1)
-    return lambda s: ratio ** (min(s, steps) / steps)
-
-
-def make_scheduler(optim: torch.optim.Optimizer, cfg: FitConfig) -> torch.optim.lr_scheduler.LambdaLR:
-    """The fit's learning-rate schedule: exponential decay to ``lr_final_ratio`` at ``cfg.steps``."""
-    return torch.optim.lr_scheduler.LambdaLR(optim, _lr_lambda(cfg))
-
-
-def fit(
-    clip: str | Path | None,
-    mask_dirs: list[str | Path],
-    run_dir: str | Path,
-    cfg: FitConfig,
-    device_name: str = "auto",
-    resume: bool = False,
-    frame_range: tuple[int, int] | None = None,
-    progress_bar: bool = True,
-    stream: Any = None,
-    scribble_dir: str | Path | None = None,
-    auto_masks: bool = False,
-) -> dict[str, Any]:
-    """Fit a layered atlas to ``clip``; writes config, clip record, scene analysis, checkpoint and metrics
-    into ``run_dir``. ``auto_masks``: no masks given, find them from motion (written to RUN_DIR/auto_masks
-    for the artist to check) and fit with them; nothing moving gives a background-only fit. ``scribble_dir``:
-    red/green/... strokes that split the one mask's object into several foreground layers (paper Sec. 4.4)."""
-    run_dir = Path(run_dir)
-    ckpt_path = run_dir / C.RUN_CHECKPOINT
-    if resume:
-        clip_rec = _read_json(run_dir / C.RUN_CLIP)
-        clip = clip or clip_rec["source"]
-        mask_dirs = mask_dirs or clip_rec["masks"]
-        frame_range = frame_range or tuple(clip_rec["frame_range"])  # type: ignore[assignment]
-        scribble_dir = scribble_dir or clip_rec.get("scribbles")
-    else:
-        if ckpt_path.exists():
-            raise InputError(
-                run_dir,
-                "this folder already holds a fit",
-                "pass --resume to continue it, or choose a new --out",
-            )
-        if clip is None:
-            raise InputError(None, "no clip given", "pass a frame folder or movie file")
-    _check_writable(run_dir)
-    device = select_device(device_name)
-    torch.manual_seed(cfg.seed)
-    # the input is read and validated before anything is written: bad input leaves no run folder behind
-    reporter = Reporter(None, stream)
-    expect = clip_rec.get("fingerprint") if resume else None
-    layers_source, masks_note = None, None
-    if auto_masks and not resume:
-        if mask_dirs:
-            raise InputError(None, f"{C.FIT_AUTO_MASKS_FLAG} and --mask both given", "pass one of them")
-        mask_dirs, masks_note = _find_auto_masks(clip, run_dir, frame_range, reporter)  # type: ignore[arg-type]
-        layers_source = C.SCENE_LAYERS_AUTO
-    prepared = prepare_clip(clip, mask_dirs, cfg, run_dir, frame_range, reporter, expect, scribble_dir)  # type: ignore[arg-type]
-    run_dir.mkdir(parents=True, exist_ok=True)
-    reporter.log_path = run_dir / C.RUN_LOG
-    info = prepared.info
-    first = frame_range[0] if frame_range else 0
-    clip_record = {
-        "schema": C.SCHEMA_VERSION,
-        "source": info.source,
-        "kind": info.kind,
-        "frame_range": [first, first + info.num_frames - 1],
-        "frame_numbers": list(info.frame_numbers),
-        "native_size": [info.width, info.height],
-        "working_size": list(prepared.size),
-        "fps": info.fps,
-        "colorspace": info.colorspace,
-        "masks": prepared.mask_dirs,
-        "fingerprint": prepared.fingerprint,
-    }
-    if prepared.scribble_dir is not None:
-        clip_record["scribbles"] = prepared.scribble_dir
-    state = None
-    if resume:
-        if clip_rec.get("fingerprint") != prepared.fingerprint:
-            raise InputError(
-                info.source,
-                "the clip changed since this run started",
-                "fit it into a new --out instead of --resume",
-            )
-        state = load_checkpoint(ckpt_path, device)
-        scene = read_scene_file(run_dir)  # None: a run from before the analysis, resumed as it was built
-    else:
-        scene = analyse_scene(
-            prepared.frames.shape[0],
-            prepared.flow,
-            prepared.masks,
-            cfg,
-            layers_source=layers_source,
-            scribbles=0 if prepared.scribbles is None else int((prepared.scribbles >= 0).any((1, 2)).sum()),
-            masks_note=masks_note,
-            foreground_layers=prepared.num_foreground,
-        )
-        atomic_write_text(run_dir / C.RUN_CONFIG, cfg.to_json())
-        atomic_write_text(run_dir / C.RUN_CLIP, json.dumps(clip_record, indent=2))
-        write_scene_file(run_dir, scene)
-    if scene is not None:
-        reporter.emit(C.EVENT_STAGE, stage="scene", message=scene.summary(), scene=scene.to_dict())
-
-    reporter.emit(C.EVENT_STAGE, stage="init", message=f"building the {cfg.model} model on {device.type}")
-    model = build_model(cfg, prepared, scene, None if state is None else state.get("motions")).to(device)
-    video = build_video_tensors(
-        prepared.frames,
-        prepared.masks,
-        prepared.flow,
-        cfg.mask_prior_margin_px,
-        device,
-        prepared.scribbles,
-        prepared.mask_layers,
-    )
-    optim = make_optimizer(model, cfg, device)
-    sched = torch.optim.lr_scheduler.LambdaLR(optim, _lr_lambda(cfg))
-    gen = torch.Generator().manual_seed(cfg.seed)
-    step, train_seconds = 0, 0.0
-    if state is not None:
-        model.load_state_dict(state["model"])
-        optim.load_state_dict(state["optim"])
-        sched.load_state_dict(state["sched"])
-        gen.set_state(state["gen"].cpu())
-        step, train_seconds = int(state["step"]), float(state["train_seconds"])
-    else:
-        t0 = time.perf_counter()
-        model.prepare(cfg, device)
-        train_seconds += time.perf_counter() - t0
-
-    eval_gen = torch.Generator().manual_seed(cfg.seed + 7919)
-    ex, ey, et = sample_pixels(video.shape, cfg.eval_pixels, eval_gen, device)
-
-    def checkpoint() -> None:
-        save_checkpoint(
-            ckpt_path,
-            {
-                "schema": C.SCHEMA_VERSION,
-                "model": model.state_dict(),
-                "optim": optim.state_dict(),
-                "sched": sched.state_dict(),
-                "gen": gen.get_state(),
-                "step": step,
-                "train_seconds": train_seconds,
-                "fingerprint": prepared.fingerprint,
-                "motions": model_motions(model),
-            },
-        )
-        reporter.emit(C.EVENT_CHECKPOINT, step=step, path=str(ckpt_path))
-
-    reporter.emit(C.EVENT_STAGE, stage="train", message=f"{cfg.steps} steps, preset {cfg.preset}")
-    bar = tqdm(
-        total=cfg.steps,
-        initial=step,
-        disable=not progress_bar,
-        file=sys.stderr,
-        unit="step",
-        dynamic_ncols=True,
-    )
-    last_ckpt = time.monotonic()
-    # the ETA extrapolates this session's steps only (not calibration, not time before a resume), each cost
-    # regime at its own rate (engine.fit.eta)
-    clock = StepClock(cfg.global_rigidity_steps, regime_cost_ratio(model, video, cfg, device))
-    terms: dict[str, torch.Tensor] = {}
-    with _Stop() as stop:
-        while step < cfg.steps:
-            t0 = time.perf_counter()
-            loss, terms = train_step(model, video, cfg, optim, sched, gen, step, device)
-            dt = time.perf_counter() - t0
-            clock.add(step, dt)
-            step += 1
-            train_seconds += dt
-            bar.update(1)
-            if step % cfg.eval_every == 0 or step == cfg.steps or step == 1:
-                psnr = psnr_from_mse(evaluate_pixels(model, video, ex, ey, et))
-                eta = clock.eta(step, cfg.steps)
-                reporter.emit(
-                    C.EVENT_PROGRESS,
-                    step=step,
-                    total=cfg.steps,
-                    psnr=round(psnr, 3),
-                    elapsed=round(train_seconds, 2),
-                    eta=None if eta is None else round(eta, 1),
-                    losses={k: round(float(v.detach()), 6) for k, v in terms.items()},
-                )
-                bar.set_postfix(psnr=f"{psnr:.2f}")
-                if not np.isfinite(float(loss.detach())):
-                    raise RuntimeError(f"loss became non-finite at step {step}: {terms}")
-            if stop.signum is not None:
-                checkpoint()
-                bar.close()
-                reporter.emit(C.EVENT_CANCELLED, step=step, checkpoint=str(ckpt_path))
-                raise FitCancelled(f"interrupted by signal {stop.signum} at step {step}")
-            if time.monotonic() - last_ckpt > cfg.checkpoint_seconds:
-                checkpoint()
-                last_ckpt = time.monotonic()
-    bar.close()
-    checkpoint()
-    reporter.emit(C.EVENT_STAGE, stage="evaluate", message="full-frame PSNR over every pixel")
-    ev = evaluate_full(model, video, prepared.size, device)
-    metrics = {
-        "schema": C.SCHEMA_VERSION,
-        "psnr": ev["psnr"],
-        "mse": ev["mse"],
-        "alpha_iou": ev["alpha_iou"],
-        "steps": step,
-        "train_seconds": train_seconds,
-        "seconds_per_step": train_seconds / max(step, 1),
-        "preset": cfg.preset,
-        "model": cfg.model,
-        "device": device.type,
-        "working_size": list(prepared.size),
-        "frames": int(video.shape[0]),
-        "engine_version": C.ENGINE_VERSION,
-        "torch_version": torch.__version__,
-    }
-    atomic_write_text(run_dir / C.RUN_METRICS, json.dumps(metrics, indent=2))
-    reporter.emit(C.EVENT_DONE, metrics=metrics)
-    return metrics
-
-
-def load_run(run_dir: str | Path, device_name: str = "cpu") -> tuple[AtlasModel, PreparedClip, FitConfig]:
-    """A finished (or checkpointed) fit: its model with the checkpoint's weights, its clip, its config."""
-    run_dir = Path(run_dir)
-    cfg = FitConfig.from_json((run_dir / C.RUN_CONFIG).read_text(encoding="utf-8"), run_dir / C.RUN_CONFIG)
-    rec = _read_json(run_dir / C.RUN_CLIP)
-    frame_range = (int(rec["frame_range"][0]), int(rec["frame_range"][1]))
-    reporter = Reporter(None, io.StringIO())
-    prepared = prepare_clip(
-        rec["source"], rec["masks"], cfg, run_dir, frame_range, reporter, scribble_dir=rec.get("scribbles")
-    )
-    device = select_device(device_name)
-    state = load_checkpoint(run_dir / C.RUN_CHECKPOINT, device)
-    model = build_model(cfg, prepared, read_scene_file(run_dir), state.get("motions")).to(device)
-    model.load_state_dict(state["model"])
-    return model.eval(), prepared, cfg
-
-
-def _find_auto_masks(
-    clip: str | Path, run_dir: Path, frame_range: tuple[int, int] | None, reporter: Reporter
-) -> tuple[list[str | Path], str]:
-    """``fit --auto-masks``: masks from motion into RUN_DIR/auto_masks (PNGs the artist can check and fix,
-    then fit again with ``--mask``). Returns the mask folders to fit with (none when nothing moves) and the
-    analysis' one-line message for the scene record."""
-    from engine.data.auto_masks import write_auto_masks
-
-    info = open_clip(clip, frame_range)
-    if info.num_frames < 2:
-        return [], "a single frame has no motion to find an object by"
-    folder = run_dir / C.AUTO_MASKS_DIR
-    reporter.emit(C.EVENT_STAGE, stage="masks", message=f"finding moving objects; masks go to {folder}")
-    report = write_auto_masks(clip, folder, frame_range)
-    print(f"auto masks: {report.result.message} ({folder})", file=sys.stderr)
-    if not report.result.found:
-        return [], report.result.message
-    return [folder], report.result.message
-
-
 def model_motions(model: AtlasModel) -> list[dict[str, Any]] | None:
     """The fast model's per-layer starting motion and atlas box, for the checkpoint (None: other models)."""
     motions = getattr(model, "layer_motions", None)
@@ -676,36 +299,323 @@ def motion_from_state(rec: dict[str, Any]) -> LayerMotion:
     )
 
 
-def _check_writable(run_dir: Path) -> None:
-    """One-line error if ``run_dir`` (or the nearest folder that exists above it) cannot be written."""
-    probe = run_dir
-    while not probe.exists() and probe != probe.parent:
-        probe = probe.parent
-    if not (probe.is_dir() and os.access(probe, os.W_OK | os.X_OK)):
-        raise InputError(run_dir, "output folder is not writable", "choose a folder you can write to with --out")
+# --- the training loop --------------------------------------------------------------------------------------
 
 
-def _read_json(path: Path) -> dict[str, Any]:
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(
-            path, "this run folder has no record of its clip", "resume a folder written by `fit`"
-        ) from None
-    except json.JSONDecodeError:
-        raise InputError(path, "not valid JSON", "restore it or fit into a new --out") from None
-    if data.get("schema") != C.SCHEMA_VERSION:
-        raise InputError(path, f"run schema {data.get('schema')!r} is incompatible", "fit into a new --out")
-    return data
+class Trainer:
+    """One fit of a prepared clip: its model, pixel tensors, optimiser, learning-rate schedule, sampling generator,
+    step count and training clock.
+
+    ``Trainer(cfg, clip, scene, device)`` sets a new fit up (the same seed gives the same model); with ``state``
+    (a checkpoint) it continues one. ``calibrate`` runs the model's own set-up, ``train_step`` trains the next
+    step, ``optimise`` one step at a given step's loss weights (the timed steps of ``estimate`` and the speed
+    table), ``evaluate_sample``/``evaluate_full`` measure, ``save``/``state_dict``/``restore`` are the
+    checkpoint, and ``train`` is the loop of ``fit``. ``video``: pixel tensors shared by several trainers of the
+    same clip (the bench and the estimate try several presets on one clip).
+    """
+
+    def __init__(
+        self,
+        cfg: FitConfig,
+        clip: PreparedClip,
+        scene: SceneAnalysis | None,
+        device: torch.device,
+        video: VideoTensors | None = None,
+        state: dict[str, Any] | None = None,
+    ) -> None:
+        self.cfg, self.clip, self.scene, self.device = cfg, clip, scene, device
+        torch.manual_seed(cfg.seed)  # the model's initial weights
+        if state is None:
+            model = build_model(cfg, clip, scene)
+        else:
+            motions = None if state["motions"] is None else [motion_from_state(m) for m in state["motions"]]
+            model = assemble_model(cfg, clip.size, clip.frames.shape[0], 1 + clip.num_foreground, scene, motions)
+        self.model = model.to(device)
+        if video is None:
+            video = build_video_tensors(
+                clip.frames, clip.masks, clip.flow, cfg.mask_prior_margin_px, device, clip.scribbles, clip.mask_layers
+            )
+        self.video = video
+        self.optim = make_optimizer(self.model, cfg, device)
+        self.sched = make_scheduler(self.optim, cfg)
+        self.gen = torch.Generator().manual_seed(cfg.seed)
+        self.step = 0  # steps done: the next step's index
+        self.train_seconds = 0.0  # optimisation steps and the model's calibration, nothing else
+        #: seconds per step since this start or resume, per cost regime: the ETA (set up at the first ``train_step``)
+        self.clock: StepClock | None = None
+        self._sample: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
+        if state is not None:
+            self.restore(state)
+
+    def calibrate(self) -> None:
+        """The model's own set-up before its first step (the paper model pre-trains its mappings), counted as
+        training time as the fit counts it."""
+        t0 = time.perf_counter()
+        self.model.prepare(self.cfg, self.device)
+        self.train_seconds += time.perf_counter() - t0
+
+    def optimise(self, at: int) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """One optimisation step with the loss weights in force at step ``at``; the step count and the clock are
+        left as they are."""
+        cfg, video = self.cfg, self.video
+        ix, iy, tt = sample_batch(video, cfg.batch, cfg.object_sample_share, self.gen, self.device)
+        loss, terms = compute_losses(self.model, video, cfg, at, ix, iy, tt)
+        self.optim.zero_grad(set_to_none=True)
+        loss.backward()
+        self.optim.step()
+        self.sched.step()
+        return loss, terms
+
+    def train_step(self) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """The fit's next step, timed into ``train_seconds`` and the clock (first-call set-up: the cost ratio of
+        the two regimes, measured off the clock with ``regime_cost_ratio``)."""
+        if self.clock is None:
+            ratio = regime_cost_ratio(self.model, self.video, self.cfg, self.device)
+            self.clock = StepClock(self.cfg.global_rigidity_steps, ratio)
+        t0 = time.perf_counter()
+        loss, terms = self.optimise(self.step)
+        synchronize(self.device)
+        dt = time.perf_counter() - t0
+        self.clock.add(self.step, dt)
+        self.step += 1
+        self.train_seconds += dt
+        return loss, terms
+
+    @property
+    def finished(self) -> bool:
+        return self.step >= self.cfg.steps
+
+    def eta(self) -> float | None:
+        """Seconds of training left (None before the clock has a rate)."""
+        return None if self.clock is None else self.clock.eta(self.step, self.cfg.steps)
+
+    def evaluate_sample(self) -> float:
+        """PSNR on the fit's fixed sample of ``eval_pixels`` pixels (the live PSNR of the progress lines)."""
+        if self._sample is None:
+            gen = torch.Generator().manual_seed(self.cfg.seed + EVAL_SEED_OFFSET)
+            self._sample = sample_pixels(self.video.shape, self.cfg.eval_pixels, gen, self.device)
+        return psnr_from_mse(evaluate_pixels(self.model, self.video, *self._sample))
+
+    def evaluate_full(self) -> dict:
+        """Full-frame PSNR over every pixel of every frame, and each mask's alpha IoU (``evaluate_full``)."""
+        return evaluate_full(self.model, self.video, self.clip.size, self.device)
+
+    def state_dict(self) -> dict[str, Any]:
+        """Everything a resume needs to continue exactly: weights, optimiser, schedule, sampling state, clock,
+        and the layers' starting motions (the model's shapes)."""
+        return {
+            "model": self.model.state_dict(),
+            "optim": self.optim.state_dict(),
+            "sched": self.sched.state_dict(),
+            "gen": self.gen.get_state(),
+            "step": self.step,
+            "train_seconds": self.train_seconds,
+            "fingerprint": self.clip.fingerprint,
+            "motions": model_motions(self.model),
+        }
+
+    def restore(self, state: dict[str, Any]) -> None:
+        self.model.load_state_dict(state["model"])
+        self.optim.load_state_dict(state["optim"])
+        self.sched.load_state_dict(state["sched"])
+        self.gen.set_state(state["gen"].cpu())
+        self.step, self.train_seconds = int(state["step"]), float(state["train_seconds"])
+
+    def save(self, run: RunFolder, reporter: Reporter) -> None:
+        run.save_checkpoint(self.state_dict())
+        reporter.emit(C.EVENT_CHECKPOINT, step=self.step, path=str(run.checkpoint))
+
+    def train(self, run: RunFolder, reporter: Reporter, progress_bar: bool = True) -> None:
+        """The fit's loop up to ``cfg.steps``: a progress line (live PSNR, ETA, loss terms) at the first step,
+        every ``eval_every`` steps and the last; a checkpoint every ``checkpoint_seconds``, at the end, and at
+        SIGINT/SIGTERM, which then raise ``FitCancelled``."""
+        cfg = self.cfg
+        reporter.emit(C.EVENT_STAGE, stage="train", message=f"{cfg.steps} steps, preset {cfg.preset}")
+        bar = tqdm(
+            total=cfg.steps,
+            initial=self.step,
+            disable=not progress_bar,
+            file=sys.stderr,
+            unit="step",
+            dynamic_ncols=True,
+        )
+        last_ckpt = time.monotonic()
+        with _Stop() as stop:
+            while not self.finished:
+                loss, terms = self.train_step()
+                bar.update(1)
+                if self.step % cfg.eval_every == 0 or self.step == cfg.steps or self.step == 1:
+                    psnr = self.evaluate_sample()
+                    eta = self.eta()
+                    reporter.emit(
+                        C.EVENT_PROGRESS,
+                        step=self.step,
+                        total=cfg.steps,
+                        psnr=round(psnr, 3),
+                        elapsed=round(self.train_seconds, 2),
+                        eta=None if eta is None else round(eta, 1),
+                        losses={k: round(float(v.detach()), 6) for k, v in terms.items()},
+                    )
+                    bar.set_postfix(psnr=f"{psnr:.2f}")
+                    if not np.isfinite(float(loss.detach())):
+                        raise RuntimeError(f"loss became non-finite at step {self.step}: {terms}")
+                if stop.signum is not None:
+                    self.save(run, reporter)
+                    bar.close()
+                    reporter.emit(C.EVENT_CANCELLED, step=self.step, checkpoint=str(run.checkpoint))
+                    raise FitCancelled(f"interrupted by signal {stop.signum} at step {self.step}")
+                if time.monotonic() - last_ckpt > cfg.checkpoint_seconds:
+                    self.save(run, reporter)
+                    last_ckpt = time.monotonic()
+        bar.close()
+        self.save(run, reporter)
+
+
+def fit(
+    clip: str | Path | None,
+    mask_dirs: list[str | Path],
+    run_dir: str | Path,
+    cfg: FitConfig,
+    device_name: str = "auto",
+    resume: bool = False,
+    frame_range: tuple[int, int] | None = None,
+    progress_bar: bool = True,
+    stream: Any = None,
+    scribble_dir: str | Path | None = None,
+    auto_masks: bool = False,
+) -> dict[str, Any]:
+    """Fit a layered atlas to ``clip``; writes config, clip record, scene analysis, checkpoint and metrics
+    into ``run_dir``. ``auto_masks``: no masks given, find them from motion (written to RUN_DIR/auto_masks
+    for the artist to check) and fit with them; nothing moving gives a background-only fit. ``scribble_dir``:
+    red/green/... strokes that split the one mask's object into several foreground layers (paper Sec. 4.4)."""
+    run = RunFolder(run_dir)
+    expect = None
+    if resume:
+        record = run.read_clip()
+        clip = clip or record.source
+        mask_dirs = mask_dirs or list(record.masks)
+        frame_range = frame_range or record.frame_range
+        scribble_dir = scribble_dir or record.scribbles
+        expect = record.fingerprint
+    else:
+        if run.holds_fit():
+            raise InputError(
+                run.path, "this folder already holds a fit", "pass --resume to continue it, or choose a new --out"
+            )
+        if clip is None:
+            raise InputError(None, "no clip given", "pass a frame folder or movie file")
+    run.check_writable()
+    device = select_device(device_name)
+    # the input is read and validated before anything is written: bad input leaves no run folder behind
+    reporter = Reporter(stream=stream)
+    find_masks = auto_masks and not resume
+    if find_masks and mask_dirs:
+        raise InputError(None, f"{C.FIT_AUTO_MASKS_FLAG} and --mask both given", "pass one of them")
+    prepared = prepare_clip(
+        clip, mask_dirs, cfg, run.path, frame_range, reporter, expect, scribble_dir, auto_masks=find_masks
+    )
+    run.path.mkdir(parents=True, exist_ok=True)
+    reporter.log_path = run.log
+    state = None
+    if resume:
+        state = run.load_checkpoint(device)
+        scene = run.read_scene()
+    else:
+        scene = prepared.analyse(cfg)
+        run.write_config(cfg)
+        run.write_clip(prepared.record())
+        run.write_scene(scene)
+    reporter.emit(C.EVENT_STAGE, stage="scene", message=scene.summary(), scene=scene.to_dict())
+
+    reporter.emit(C.EVENT_STAGE, stage="init", message=f"building the {cfg.model} model on {device.type}")
+    trainer = Trainer(cfg, prepared, scene, device, state=state)
+    if state is None:
+        trainer.calibrate()
+    trainer.train(run, reporter, progress_bar)
+    reporter.emit(C.EVENT_STAGE, stage="evaluate", message="full-frame PSNR over every pixel")
+    ev = trainer.evaluate_full()
+    metrics = {
+        "schema": C.RUN_METRICS_SCHEMA,
+        "psnr": ev["psnr"],
+        "mse": ev["mse"],
+        "alpha_iou": ev["alpha_iou"],
+        "steps": trainer.step,
+        "train_seconds": trainer.train_seconds,
+        "seconds_per_step": trainer.train_seconds / max(trainer.step, 1),
+        "preset": cfg.preset,
+        "model": cfg.model,
+        "device": device.type,
+        "working_size": list(prepared.size),
+        "frames": int(trainer.video.shape[0]),
+        "engine_version": C.ENGINE_VERSION,
+        "torch_version": torch.__version__,
+    }
+    run.write_metrics(metrics)
+    reporter.emit(C.EVENT_DONE, metrics=metrics)
+    return metrics
+
+
+# --- a fitted run, loaded back ------------------------------------------------------------------------------
+
+
+@dataclass
+class FittedRun:
+    """A fit as its run folder holds it, loaded without its clip: what ``export`` works from."""
+
+    folder: RunFolder
+    cfg: FitConfig
+    clip: ClipRecord
+    scene: SceneAnalysis
+    model: AtlasModel
+    metrics: dict[str, Any] | None  # None: the fit has not finished
+
+
+def load_fitted(run_dir: str | Path, device_name: str = "cpu") -> FittedRun:
+    """The model of a finished (or checkpointed) fit with its weights, from the run folder alone: the plate,
+    masks, scribbles and flow are not read."""
+    run = RunFolder(run_dir)
+    cfg = run.read_config()
+    record = run.read_clip()
+    scene = run.read_scene()
+    device = select_device(device_name)
+    state = run.load_checkpoint(device)
+    model = rebuild_model(cfg, record, scene, state["motions"]).to(device)
+    model.load_state_dict(state["model"])
+    return FittedRun(run, cfg, record, scene, model.eval(), run.read_metrics())
+
+
+def load_run(run_dir: str | Path, device_name: str = "cpu") -> tuple[AtlasModel, PreparedClip, FitConfig]:
+    """A finished (or checkpointed) fit's model with its weights, its clip prepared again (frames, masks, flow
+    from the cache) and its config: for looking at a fit against its plate (the demo's contact sheet)."""
+    fitted = load_fitted(run_dir, device_name)
+    record = fitted.clip
+    prepared = prepare_clip(
+        record.source,
+        list(record.masks),
+        fitted.cfg,
+        fitted.folder.path,
+        record.frame_range,
+        scribble_dir=record.scribbles,
+    )
+    return fitted.model, prepared, fitted.cfg
 
 
 __all__ = [
+    "EVAL_CHUNK",
     "FitCancelled",
+    "FittedRun",
     "PreparedClip",
+    "Reporter",
+    "Trainer",
     "build_model",
     "fit",
+    "load_fitted",
+    "load_run",
+    "make_optimizer",
+    "make_scheduler",
     "prepare_clip",
+    "rebuild_model",
+    "regime_cost_ratio",
     "render_frame",
     "select_device",
-    "train_step",
 ]

@@ -1,6 +1,6 @@
-"""A seconds-long ``bench`` and ``estimate`` on a tiny synthetic clip: the JSON schema, monotone best-so-far
-PSNR, scores in range, the recorded ETA, the plot; and how clips and per-preset overrides are resolved.
-No timed assertions."""
+"""A seconds-long ``bench`` (``python -m engine.bench bench``) and ``estimate`` on a tiny synthetic clip: the
+JSON schema, monotone best-so-far PSNR, scores in range, the recorded ETA, the plot; how clips and per-preset
+overrides are resolved; the measurement tools stay out of the product. No timed assertions."""
 
 from __future__ import annotations
 
@@ -12,6 +12,8 @@ import pytest
 import torch
 
 from engine import contract as C
+from engine.bench.__main__ import main as bench_main
+from engine.bench.__main__ import parse_eval_at
 from engine.bench.bench import (
     BENCH_JSON,
     BENCH_PNG,
@@ -27,6 +29,7 @@ from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.errors import InputError
 from engine.fit.estimate import BENCHMARK_TABLE
 from engine.fit.eta import StepClock
+from engine.fit.run_folder import RunFolder
 
 SPEC = SceneSpec(width=64, height=48, frames=6, fg_size=(24, 18), fg_start=(12.0, 10.0), fg_velocity=(3.0, 1.0))
 TINY = ["--threads", "1", "--set", "batch=400", "--set", "paper.batch=300", "--set", "paper.pretrain_iters=2"]
@@ -52,7 +55,7 @@ def bench_record(clip, tmp_path_factory) -> tuple[dict, Path, str]:
     out = tmp_path_factory.mktemp("bench_out")
     args = ["bench", str(clip), "--presets", "draft,paper", "--budget-seconds", "2", "--out", str(out)]
     args += ["--evals", "3", "--eval-frames", "2", "--slice-seconds", "0.5", "--set", "draft.steps=12", *TINY]
-    assert main(args) == C.EXIT_OK
+    assert bench_main(args) == C.EXIT_OK
     return json.loads((out / BENCH_JSON).read_text()), out, " ".join(args)
 
 
@@ -64,7 +67,7 @@ def test_bench_json_schema(bench_record):
     assert {"cpu", "cores", "torch_threads", "load_average_at_start"} <= set(rec["machine"])
     assert {"engine", "torch", "numpy", "python"} <= set(rec["versions"])
     assert rec["settings"]["budget_seconds"] == 2.0 and rec["settings"]["mode"] == "interleaved"
-    assert rec["command"][:4] == ["python", "-m", "engine", "bench"]
+    assert rec["command"][:4] == ["python", "-m", "engine.bench", "bench"]
     (clip,) = rec["clips"]
     assert clip["name"] == "synth" and clip["working_size"] == [SPEC.width, SPEC.height]
     assert clip["eval_frames"] == [0, SPEC.frames - 1] and clip["track_queries"] == 3
@@ -174,10 +177,31 @@ def test_eta_error_of_a_fit_log(tmp_path):
     for step, elapsed in ((10, 20.0), (50, 100.0)):  # 2 s/step so far
         lines.append(C.progress_line(C.EVENT_PROGRESS, step=step, total=100, elapsed=elapsed, eta=(100 - step) * 2.0))
     (tmp_path / C.RUN_LOG).write_text("\n".join(lines) + "\n")
-    (tmp_path / C.RUN_METRICS).write_text(json.dumps({"train_seconds": 150.0}))  # the second half at 1 s/step
+    metrics = {"psnr": 20.0, "mse": 0.01, "alpha_iou": [], "steps": 100, "train_seconds": 150.0}  # 2nd half: 1 s/step
+    metrics |= {"seconds_per_step": 1.5, "preset": "draft", "model": "fast", "device": "cpu", "working_size": [8, 8]}
+    RunFolder(tmp_path).write_metrics({**metrics, "frames": 2, "engine_version": "x", "torch_version": "y"})
     rows = fit_eta_errors(tmp_path)
     assert [(r["step"], r["eta_seconds"], r["actual_seconds"]) for r in rows] == [(10, 180.0, 130.0), (50, 100.0, 50.0)]
     assert rows[1]["error"] == pytest.approx(1.0) and rows[0]["fraction"] == 0.1
+
+
+def test_expected_psnr_is_recorded_from_a_finished_fit(tmp_path):
+    """``estimate``'s expected PSNR is data written from a fit's metrics.json, not numbers typed into code."""
+    import shutil
+
+    from engine.bench.bench import record_expected_psnr
+    from engine.fit.estimate import EXPECTED_PSNR_FILE
+
+    table = tmp_path / "expected_psnr.json"
+    shutil.copy(EXPECTED_PSNR_FILE, table)
+    metrics = {"psnr": 26.123, "mse": 0.01, "alpha_iou": [0.9], "steps": 800, "train_seconds": 150.0}
+    metrics |= {"seconds_per_step": 0.19, "preset": "draft", "model": "fast", "device": "cpu", "working_size": [8, 8]}
+    RunFolder(tmp_path / "run").write_metrics({**metrics, "frames": 2, "engine_version": "x", "torch_version": "y"})
+    row = record_expected_psnr("draft", tmp_path / "run", "blackswan", "docs/engine.md", table)
+    assert row == {"psnr": 26.12, "clip": "blackswan", "note": "docs/engine.md"}
+    assert json.loads(table.read_text())["presets"]["draft"] == row
+    with pytest.raises(InputError, match="not balanced"):
+        record_expected_psnr("balanced", tmp_path / "run", "blackswan", "x", table)
 
 
 def test_step_clock_extrapolates_each_regime_at_its_own_rate():
@@ -214,14 +238,13 @@ def test_step_clock_scales_an_unreached_regime_by_the_measured_ratio():
 
 def test_regime_cost_ratio_leaves_the_fit_untouched(clip):
     """The probe times both regimes without changing the model, its gradients or the fit's random state."""
-    import io
-
     from engine.config import apply_overrides, preset_config
     from engine.data.video import build_video_tensors
-    from engine.fit.trainer import Reporter, build_model, prepare_clip, regime_cost_ratio
+    from engine.fit.prepare import prepare_clip
+    from engine.fit.trainer import build_model, regime_cost_ratio
 
     cfg = apply_overrides(preset_config("draft"), {"batch": "300"})
-    prepared = prepare_clip(clip / "frames", [clip / "masks"], cfg, clip / "work", None, Reporter(None, io.StringIO()))
+    prepared = prepare_clip(clip / "frames", [clip / "masks"], cfg, clip / "work", None)
     cpu = torch.device("cpu")
     video = build_video_tensors(prepared.frames, prepared.masks, prepared.flow, cfg.mask_prior_margin_px, cpu)
     model = build_model(cfg, prepared)
@@ -252,9 +275,35 @@ def test_sequential_bench_runs_presets_in_turn(clip, tmp_path):
 
 def test_eval_schedule_adds_the_target_marks_within_the_budget():
     from engine.bench.bench import _eval_schedule
-    from engine.cli import parse_eval_at
 
     assert _eval_schedule(3600.0, 2, parse_eval_at("180, 600,1200,3600,9000")) == [112.5, 180.0, 600.0, 1200.0, 3600.0]
     assert _eval_schedule(60.0, 1) == [60.0]
     with pytest.raises(InputError, match="--eval-at"):
         parse_eval_at("3min")
+
+
+def test_the_tools_run_outside_the_product_cli(clip, tmp_path, capsys):
+    """``bench``, ``speed`` and ``scene-speed`` are ``python -m engine.bench`` tools: the product CLI has no such
+    verbs, and nothing in the product (engine/ outside engine/bench, which the extension zip leaves out) imports
+    the bench."""
+    import ast
+
+    from engine.cli import build_parser
+    from tests.paths import ROOT
+
+    sub = next(a for a in build_parser()._actions if a.dest == "verb")
+    assert not {"bench", "speed", "scene-speed"} & set(sub.choices)
+    for py in (ROOT / "engine").rglob("*.py"):
+        if "bench" in py.relative_to(ROOT / "engine").parts:
+            continue
+        for node in ast.walk(ast.parse(py.read_text(encoding="utf-8"))):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else []
+            if isinstance(node, ast.ImportFrom):
+                names = [node.module or ""] + [f"{node.module}.{a.name}" for a in node.names]
+            assert not any(n.startswith("engine.bench") for n in names), f"{py} imports the bench"
+    args = [str(clip / "frames"), "--mask", str(clip / "masks"), "--presets", "draft,paper", "--steps", "1"]
+    assert bench_main(["speed", *args, "--rounds", "1", "--device", "cpu", "--work", str(tmp_path)]) == C.EXIT_OK
+    table = capsys.readouterr().out
+    assert "| draft | fast |" in table and "| paper | paper |" in table
+    assert bench_main(["bench", str(clip), "--budget-seconds", "1", "--eval-at", "3min"]) == C.EXIT_BAD_INPUT
+    assert "--eval-at" in capsys.readouterr().err

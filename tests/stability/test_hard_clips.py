@@ -189,9 +189,9 @@ def test_extreme_flow_pointing_out_of_the_frame(tmp_path, monkeypatch):
     """|flow| = 3x the frame, out of the frame, from the flow stage itself: the consistency check rejects
     every vector (target outside the frame), the flow terms are exactly 0 and the fit proceeds on colour.
     (The objective's behaviour when such vectors are forced through is in test_losses_degenerate.py.)"""
-    import engine.fit.trainer
+    import engine.fit.prepare
 
-    monkeypatch.setattr(engine.fit.trainer, "DISFlow", _HugeFlow)
+    monkeypatch.setattr(engine.fit.prepare, "DISFlow", _HugeFlow)
     _, frames, masks = _scene_dirs(tmp_path, replace(SMALL, frames=3))
     metrics, mon = monitored_fit(monkeypatch, frames, [masks], tmp_path / "run")
     _report("huge flow", metrics, mon)

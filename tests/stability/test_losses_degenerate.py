@@ -8,7 +8,6 @@ gradcheck, zero flow distance, saturated BCE and two finiteness properties) with
 
 from __future__ import annotations
 
-import io
 import math
 
 import numpy as np
@@ -20,7 +19,8 @@ from hypothesis import strategies as st
 from engine.config import apply_overrides, preset_config
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.data.video import build_video_tensors
-from engine.fit.trainer import Reporter, build_model, prepare_clip
+from engine.fit.prepare import prepare_clip
+from engine.fit.trainer import build_model
 from engine.model import losses as L
 from engine.model.objective import TARGET_RANGE, compute_losses
 from tests.stability.fitcheck import QUICK
@@ -221,7 +221,7 @@ def built(tmp_path_factory):
     spec = SceneSpec(width=32, height=24, frames=3, fg_size=(12, 10), fg_start=(8.0, 6.0))
     frames, masks = write_scene(make_scene(spec), tmp / "clip")
     cfg = apply_overrides(preset_config("draft"), QUICK)
-    prepared = prepare_clip(frames, [masks], cfg, tmp / "run", None, Reporter(None, io.StringIO()))
+    prepared = prepare_clip(frames, [masks], cfg, tmp / "run", None)
     return prepared, cfg
 
 

@@ -1,6 +1,6 @@
 """Export, render and project-frame on a synthetic scene with exact ground-truth motion.
 
-Measured when written (2-core CPU, the default 192x108x12 scene, the 400-step tiny fit of fit_helpers):
+Typical results (2-core CPU, the default 192x108x12 scene, the 400-step tiny fit of fit_helpers):
 dots painted on the foreground atlas land 0.14 px (median) / 0.29 px (p95) from where the sprite's true
 motion puts them, on the background atlas 0.04 / 0.41 px; project-frame then render reproduces a frame
 edit exactly inside the strokes (0.016 mean abs error over whole strokes, rims included, through the
@@ -204,8 +204,12 @@ def _dot_errors(scene, manifest_path, layer_index: int, tex_point, radius_px: fl
         hh, ww = diff.shape
         if not (4 <= expected[0] < ww - 4 and 4 <= expected[1] < hh - 4):
             continue
-        if layer_index == 0 and scene.masks[f][max(0, int(expected[1]) - 4) : int(expected[1]) + 5,
-                                                max(0, int(expected[0]) - 4) : int(expected[0]) + 5].any():
+        if (
+            layer_index == 0
+            and scene.masks[f][
+                max(0, int(expected[1]) - 4) : int(expected[1]) + 5, max(0, int(expected[0]) - 4) : int(expected[0]) + 5
+            ].any()
+        ):
             continue  # the background point is behind (or next to) the sprite in this frame
         got = _centroid(diff, expected, window=6.0)
         assert got is not None, f"frame {f}: the dot vanished"

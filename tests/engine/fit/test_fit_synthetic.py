@@ -1,8 +1,8 @@
 """End-to-end: a tiny fit on a synthetic scene with known motion reaches stated numbers.
 
-Measured when written (2-core CPU, ~35 s, default fast config): PSNR 32.8 dB, alpha IoU 0.91, atlas
-consistency of background points 0.10 px median / 1.5 px p95, of foreground points 0.25 / 0.89 px.
-The bounds below leave room for CPU/BLAS differences.
+Typical results (2-core CPU, about 35 s, default fast config): PSNR 32.8 dB, alpha IoU 0.91, atlas consistency
+of background points 0.10 px median / 1.5 px p95, of foreground points 0.25 / 0.89 px. The bounds below leave
+room for CPU/BLAS differences.
 """
 
 from __future__ import annotations

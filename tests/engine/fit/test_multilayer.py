@@ -6,7 +6,7 @@ is measured, per object, over every frame:
     pixels are colour mixtures) whose largest layer weight is its own layer;
   * texture: PSNR of its own atlas, sampled at the pixels' UVs, against the object's exact texture;
   * paint: a dot painted on one foreground atlas, rendered, changes that object's pixels only.
-Measured when written (400 steps; the fit takes ~80 s alone on the 2-core CPU, 140 s shared): ownership
+Typical results (400 steps; the fit takes about 80 s alone on a 2-core CPU): ownership
 A 0.934 / B 0.998 on core pixels (0.89 / 0.96 on all visible pixels), alpha IoU 0.85 / 0.90, PSNR 33.2 dB,
 own-atlas texture 20.6 / 21.4 dB, a dot painted on one atlas: 100% of the change on its object, 0% on the
 other. The bounds leave room for BLAS drift.
@@ -24,7 +24,6 @@ import torch
 
 from engine import contract as C
 from engine.config import apply_overrides, preset_config
-from engine.data.synthetic import make_two_object_scene, write_two_object_scene
 from engine.edit.equations import load_edit
 from engine.edit.render import plate_frames, render_frames, render_manifest
 from engine.export.exporter import export_run
@@ -33,6 +32,7 @@ from engine.fit.trainer import fit, load_run, render_frame
 from engine.io.colour import srgb_to_linear
 from engine.io.images import read_exr, write_png
 from tests.engine.fit_helpers import TINY_OVERRIDES, object_drift_per_frame
+from tests.two_object_scene import make_two_object_scene, write_two_object_scene
 
 pytestmark = pytest.mark.slow
 

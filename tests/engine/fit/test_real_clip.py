@@ -1,6 +1,6 @@
-"""A short fit on a real clip from ../shared/data (skipped on a user's fresh clone without it).
+"""A short fit on a real clip (``tests.paths.CLIPS``; skipped on a fresh clone without the clips).
 
-Ten frames of blackswan at 384x216, 300 steps: measured 27.0 dB and alpha IoU 0.92 when written; the
+Ten frames of blackswan at 384x216, 300 steps: typically 27.0 dB and alpha IoU 0.92 on a 2-core CPU; the
 bounds leave room for machine differences. The full-length numbers are in docs/engine.md.
 """
 

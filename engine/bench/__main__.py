@@ -1,0 +1,207 @@
+"""The measurement tools for developing the engine, run as ``python -m engine.bench TOOL ...``. They are not
+part of the product (its CLI is ``python -m engine``) and not in the extension zip.
+
+    bench        accuracy against training time of several presets, in one process (docs/accuracy-vs-time.md)
+    speed        seconds per step of presets, side by side on one clip
+    scene-speed  what the scene analysis saves: one clip fitted with components=auto and components=all
+    expected-psnr  a finished fit's PSNR as its preset's expected PSNR (engine/fit/expected_psnr.json)
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import traceback
+from pathlib import Path
+
+from engine import contract as C
+from engine.errors import InputError
+
+BENCH = "bench"
+SPEED = "speed"
+SCENE_SPEED = "scene-speed"
+EXPECTED_PSNR = "expected-psnr"
+PROG = "python -m engine.bench"
+
+BENCH_EPILOG = """\
+clips: a folder holding frames/ and masks/ (and tracks_tapvid.npz: then atlas tracking is scored), or a frame
+  folder with --mask (one clip only).
+--set KEY=VALUE applies to every preset, --set PRESET.KEY=VALUE to one (e.g. paper.batch=2000).
+writes OUT/bench.json (curves, machine, versions, command) and OUT/bench.png; see docs/accuracy-vs-time.md.
+"""
+
+
+def _frame_range(text: str) -> tuple[int, int]:
+    a, sep, b = text.partition(":")
+    try:
+        if not sep:
+            raise ValueError
+        return int(a), int(b)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"frame range {text!r} must be FIRST:LAST, e.g. 0:49") from None
+
+
+def parse_eval_at(text: str) -> tuple[float, ...]:
+    """``--eval-at 180,600,1200`` -> (180.0, 600.0, 1200.0); a bad entry is a one-line input error."""
+    try:
+        return tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        problem, fix = f"--eval-at {text!r} is not a list of seconds", "write e.g. --eval-at 180,600,1200"
+        raise InputError(None, problem, fix) from None
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog=PROG, description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    sub = p.add_subparsers(dest="tool", metavar="TOOL")
+    b = sub.add_parser(
+        BENCH,
+        help="accuracy against training time of several presets, in one process",
+        epilog=BENCH_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Fit presets side by side for a training-time budget each; record PSNR, mapping "
+        "consistency and point-tracking accuracy against training seconds (evaluation excluded).",
+    )
+    b.add_argument("clips", nargs="+", metavar="CLIP", help="clip folder (frames/, masks/) or a frame folder")
+    b.add_argument("--mask", action="append", default=[], metavar="FOLDER", help="mask folder (single clip only)")
+    b.add_argument("--tracks", default=None, metavar="NPZ", help="tracks_tapvid.npz (single clip only)")
+    b.add_argument("--presets", default="draft,balanced,paper", help="comma-separated (default: draft,balanced,paper)")
+    b.add_argument("--budget-seconds", type=float, required=True, help="training seconds per run")
+    b.add_argument("--out", default="bench_out", help="output folder (default: bench_out)")
+    b.add_argument("--evals", type=int, default=6, help="evaluations per run, geometric in time (default: 6)")
+    b.add_argument("--eval-frames", type=int, default=5, help="frames evaluated (default: 5; 0 = all)")
+    b.add_argument("--slice-seconds", type=float, default=5.0, help="interleaving slice (default: 5)")
+    b.add_argument("--sequential", action="store_true", help="run presets one after another, not interleaved")
+    b.add_argument(
+        "--eval-at", default="", metavar="S,S,...", help="also evaluate at these training seconds (e.g. 180,600,1200)"
+    )
+    b.add_argument("--eval-at-start", action="store_true", help="also evaluate each model before its first step")
+    b.add_argument("--stride", type=int, default=4, help="pixel grid of the consistency and tracking search")
+    b.add_argument("--set", action="append", default=[], metavar="[PRESET.]KEY=VALUE", help="config override")
+    b.add_argument("--device", default="auto")
+    b.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+    sp = sub.add_parser(
+        SPEED,
+        help="seconds per step of presets, side by side on one clip",
+        description="Interleaves short blocks of training steps of each preset in one process.",
+    )
+    sp.add_argument("clip")
+    sp.add_argument("--mask", action="append", default=[], metavar="FOLDER")
+    sp.add_argument("--presets", default="draft,balanced,paper", help="comma-separated (default: draft,balanced,paper)")
+    sp.add_argument("--steps", type=int, default=10, help="steps per block (default: 10)")
+    sp.add_argument("--rounds", type=int, default=3, help="interleaved rounds (default: 3)")
+    sp.add_argument("--device", default="auto")
+    sp.add_argument("--work", default=None, help="folder for the flow cache (default: a temp folder)")
+    ss = sub.add_parser(
+        SCENE_SPEED,
+        help="one clip fitted with components=auto and =all: seconds per step, PSNR",
+        description="Both fits use the same config, seed and steps; only `components` differs. Prints one line "
+        "per fit and the ratio of seconds per step, then a JSON summary as the last line.",
+    )
+    ss.add_argument("clip")
+    ss.add_argument("--mask", action="append", default=[])
+    ss.add_argument("--frames", type=_frame_range, default=None, metavar="A:B")
+    ss.add_argument("--preset", default="draft")
+    ss.add_argument("--steps", type=int, default=300)
+    ss.add_argument("--long-edge", type=int, default=384)
+    ss.add_argument("--out", default=None, help="folder for the two runs (default: a temporary folder)")
+    ep = sub.add_parser(
+        EXPECTED_PSNR,
+        help="record a finished fit's PSNR as what `estimate` expects of its preset",
+        description="Writes RUN_DIR's full-frame PSNR (metrics.json) into engine/fit/expected_psnr.json.",
+    )
+    ep.add_argument("preset")
+    ep.add_argument("run", metavar="RUN_DIR", help="a finished fit of PRESET")
+    ep.add_argument("--clip", required=True, help="the clip's name, e.g. blackswan")
+    ep.add_argument("--note", required=True, help="one line: where the measurement is documented")
+    return p
+
+
+def _bench(args: argparse.Namespace) -> int:
+    from engine.bench.bench import BENCH_JSON, resolve_clip, run_bench, summary_table
+    from engine.config import parse_set_args
+
+    if (args.mask or args.tracks) and len(args.clips) != 1:
+        raise InputError(None, "--mask and --tracks need exactly one clip", "bench one clip, or use clip folders")
+    clips = [resolve_clip(c, args.mask or None, args.tracks) for c in args.clips]
+    record = run_bench(
+        clips,
+        [p.strip() for p in args.presets.split(",") if p.strip()],
+        args.budget_seconds,
+        args.out,
+        overrides=parse_set_args(args.set),
+        evals=args.evals,
+        eval_frames=args.eval_frames,
+        slice_seconds=args.slice_seconds,
+        sequential=args.sequential,
+        device_name=args.device,
+        stride=args.stride,
+        command=["python", "-m", "engine.bench", *args.argv],
+        threads=args.threads,
+        eval_at_start=args.eval_at_start,
+        eval_at=parse_eval_at(args.eval_at),
+    )
+    print(summary_table(record))
+    print(str((Path(args.out) / BENCH_JSON).resolve()))
+    return C.EXIT_OK
+
+
+def _speed(args: argparse.Namespace) -> int:
+    from engine.bench.speed import format_table, measure_step_times
+
+    with tempfile.TemporaryDirectory() as tmp:
+        rows = measure_step_times(
+            args.clip,
+            args.mask,
+            args.presets.split(","),
+            Path(args.work or tmp),
+            steps=args.steps,
+            rounds=args.rounds,
+            device_name=args.device,
+        )
+    print(format_table(rows))
+    return C.EXIT_OK
+
+
+def _scene_speed(args: argparse.Namespace) -> int:
+    from engine.bench.scene_speed import compare_components, print_comparison
+
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(args.out) if args.out else Path(tmp)
+        res = compare_components(args.clip, args.mask, out, args.preset, args.steps, args.long_edge, args.frames)
+    print_comparison(res)
+    return C.EXIT_OK
+
+
+def _expected_psnr(args: argparse.Namespace) -> int:
+    from engine.bench.bench import record_expected_psnr
+
+    print(record_expected_psnr(args.preset, args.run, args.clip, args.note))
+    return C.EXIT_OK
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = parser.parse_args(argv)
+    args.argv = argv  # recorded by bench
+    tools = {BENCH: _bench, SPEED: _speed, SCENE_SPEED: _scene_speed, EXPECTED_PSNR: _expected_psnr}
+    if args.tool not in tools:
+        parser.print_help()
+        return C.EXIT_OK
+    try:
+        return tools[args.tool](args)
+    except InputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return C.EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        return C.EXIT_CANCELLED
+    except Exception:
+        traceback.print_exc()
+        return C.EXIT_FAILED
+
+
+if __name__ == "__main__":
+    sys.exit(main())

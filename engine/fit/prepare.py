@@ -1,0 +1,258 @@
+"""A clip ready to fit: its frames at working resolution, masks, scribbles, optical flow and fingerprint.
+
+``prepare_clip`` opens and decodes the clip once. With ``auto_masks`` (``fit --auto-masks``) the masks are
+found in the same pass: the motion analysis reuses the decoded frames and, where it runs at the fit's working
+size and flow settings, the fit's own flow; the masks it finds go to the fit in memory and are written to
+RUN_DIR/auto_masks for the artist to check (and to fix, then fit again with ``--mask``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from engine import contract as C
+from engine.config import FitConfig
+from engine.data.auto_masks import AutoMaskConfig, auto_masks, mask_folder, resize_masks, write_mask_files
+from engine.data.flow import DISFlow, FlowField, compute_flow
+from engine.data.scene_analysis import SceneAnalysis, analyse_scene
+from engine.data.scribbles import read_scribbles, scribble_layers
+from engine.errors import InputError
+from engine.fit.progress import Reporter
+from engine.fit.run_folder import ClipRecord
+from engine.io.clip import ClipInfo, iter_frames, open_clip, read_frames, read_masks, working_size
+from engine.io.colour import linear_to_srgb
+
+#: Characters of the frames' SHA-256 kept as the clip's fingerprint.
+FINGERPRINT_CHARS = 32
+#: A single frame has no motion: the message ``fit --auto-masks`` records instead of looking for masks.
+SINGLE_FRAME_NOTE = "a single frame has no motion to find an object by"
+
+
+@dataclass
+class PreparedClip:
+    info: ClipInfo
+    size: tuple[int, int]
+    frames: np.ndarray  # float32 [T, H, W, 3], working resolution, fitting values in [0, 1]-ish
+    masks: np.ndarray  # bool [F, T, H, W]
+    mask_dirs: list[str]
+    flow: FlowField
+    fingerprint: str
+    scribbles: np.ndarray | None = None  # int8 [T, H, W]: 0-based foreground layer, -1 = no scribble
+    scribble_dir: str | None = None
+    frame_range: tuple[int, int] | None = None  # inclusive positions in the source; None: the whole clip
+    layers_source: str | None = None  # contract SCENE_LAYERS_*; None: given masks (or none)
+    masks_note: str | None = None  # what --auto-masks found, for the scene record
+
+    @property
+    def mask_layers(self) -> tuple[tuple[int, ...], ...] | None:
+        """Model layers each mask covers (None: one layer per mask); scribbles split the one mask."""
+        if self.scribbles is None:
+            return None
+        return (tuple(range(1, 1 + scribble_layers(self.scribbles))),)
+
+    @property
+    def num_foreground(self) -> int:
+        return self.masks.shape[0] if self.scribbles is None else scribble_layers(self.scribbles)
+
+    def analyse(self, cfg: FitConfig) -> SceneAnalysis:
+        """The scene analysis of this clip under ``cfg``: what the model computes (engine.data.scene_analysis)."""
+        scribbled = 0 if self.scribbles is None else int((self.scribbles >= 0).any((1, 2)).sum())
+        return analyse_scene(
+            self.frames.shape[0],
+            self.flow,
+            self.masks,
+            cfg,
+            layers_source=self.layers_source,
+            scribbles=scribbled,
+            masks_note=self.masks_note,
+            foreground_layers=self.num_foreground,
+        )
+
+    def record(self) -> ClipRecord:
+        """What the run folder records of this clip (``clip.json``)."""
+        info = self.info
+        first = self.frame_range[0] if self.frame_range else 0
+        return ClipRecord(
+            source=info.source,
+            kind=info.kind,
+            frame_range=(first, first + info.num_frames - 1),
+            frame_numbers=tuple(info.frame_numbers),
+            frame_files=tuple(info.frame_files),
+            native_size=(info.width, info.height),
+            working_size=self.size,
+            fps=info.fps,
+            colorspace=info.colorspace,
+            masks=tuple(self.mask_dirs),
+            scribbles=self.scribble_dir,
+            layers=1 + self.num_foreground,
+            fingerprint=self.fingerprint,
+        )
+
+
+def to_fitting_values(frames: np.ndarray, colorspace: str) -> tuple[np.ndarray, list[int]]:
+    """Frames as the values the model fits: display-encoded, finite. Returns the frames with NaN/Inf."""
+    bad = [int(i) for i in np.nonzero(~np.isfinite(frames).reshape(len(frames), -1).all(1))[0]]
+    out = np.nan_to_num(frames, nan=0.0, posinf=1.0, neginf=0.0)
+    if colorspace == "linear":
+        out = linear_to_srgb(np.clip(out, 0.0, None))
+    return out.astype(np.float32), bad
+
+
+def _frames_at(info: ClipInfo, sizes: list[tuple[int, int]]) -> list[np.ndarray]:
+    """The clip decoded once and shrunk to each of ``sizes`` (none larger than the clip), each exactly what
+    ``read_frames(info, size)`` returns (INTER_AREA: the readers' shrinking filter)."""
+    out = [np.empty((info.num_frames, h, w, 3), dtype=np.float32) for w, h in sizes]
+    for i, rgb in enumerate(iter_frames(info)):
+        for frames, (w, h) in zip(out, sizes, strict=True):
+            same = (rgb.shape[1], rgb.shape[0]) == (w, h)
+            frames[i] = rgb if same else cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA)
+    return out
+
+
+def _fit_flow(frames: np.ndarray, preset: str, threshold_px: float, cache_dir: Path) -> FlowField:
+    """Flow of display-encoded ``frames`` (cached per content); a single frame has none (nothing is cached)."""
+    if len(frames) < 2:
+        h, w = frames.shape[1:3]
+        empty = np.zeros((0, h, w, 2), np.float32)
+        ok = np.zeros((0, h, w), bool)
+        return FlowField(empty, empty.copy(), ok, ok.copy(), DISFlow(preset).name, threshold_px)
+    return compute_flow(frames.clip(0.0, 1.0), DISFlow(preset), cache_dir=cache_dir, threshold_px=threshold_px)
+
+
+def prepare_clip(
+    clip: str | Path,
+    mask_dirs: list[str | Path],
+    cfg: FitConfig,
+    run_dir: Path,
+    frame_range: tuple[int, int] | None,
+    reporter: Reporter | None = None,
+    expect_fingerprint: str | None = None,
+    scribble_dir: str | Path | None = None,
+    auto_masks: bool = False,
+) -> PreparedClip:
+    """Read, validate and sanitise the clip and masks, and compute (or load from RUN_DIR/flow_cache) its flow.
+
+    ``expect_fingerprint`` (a resume): a clip whose frames changed is refused before its flow is computed,
+    so the refusal is quick and writes nothing into the run folder. ``auto_masks``: no masks are given; find
+    them from motion (written to RUN_DIR/auto_masks) and fit with them; nothing found: background only.
+    """
+    reporter = reporter or Reporter.null()
+    info = open_clip(clip, frame_range)
+    size = working_size(info.width, info.height, cfg.long_edge)
+    finder = _AutoMasks(info, Path(run_dir)) if auto_masks else None
+    reporter.emit(C.EVENT_STAGE, stage="read", message=f"reading {info.num_frames} frames at {size[0]}x{size[1]}")
+    if finder is not None and finder.size not in (None, size):
+        raw, analysis_raw = _frames_at(info, [size, finder.size])
+    else:
+        raw = analysis_raw = read_frames(info, size)
+    frames, bad = to_fitting_values(raw, info.colorspace)
+    if bad:
+        print(f"warning: NaN/Inf pixels replaced in frames {bad} of {info.source}", file=sys.stderr)
+    masks = (
+        np.stack([read_masks(m, info, size) for m in mask_dirs])
+        if mask_dirs
+        else np.zeros((0, len(frames), size[1], size[0]), dtype=bool)
+    )
+    scribbles = None if scribble_dir is None else _read_scribbles(scribble_dir, info, size)
+    if scribbles is not None and finder is None:
+        _check_one_mask(scribble_dir, len(mask_dirs))  # type: ignore[arg-type]
+    fingerprint = hashlib.sha256(memoryview(np.ascontiguousarray(frames)).cast("B")).hexdigest()[:FINGERPRINT_CHARS]
+    if expect_fingerprint is not None and fingerprint != expect_fingerprint:
+        raise InputError(
+            info.source, "the clip changed since this run started", "fit it into a new --out instead of --resume"
+        )
+    if len(frames) >= 2:
+        reporter.emit(C.EVENT_STAGE, stage="flow", message="optical flow (cached per clip content)")
+    cache = Path(run_dir) / C.FLOW_CACHE_DIR
+    flow = _fit_flow(frames, cfg.flow_preset, cfg.flow_threshold_px, cache)
+    prepared = PreparedClip(
+        info,
+        size,
+        frames,
+        masks,
+        [str(Path(m).resolve()) for m in mask_dirs],
+        flow,
+        fingerprint,
+        scribbles,
+        None if scribble_dir is None else str(Path(scribble_dir).resolve()),
+        frame_range,
+    )
+    if finder is not None:
+        finder.find(prepared, cfg, analysis_raw if analysis_raw is not raw else None, reporter)
+        if scribbles is not None:
+            _check_one_mask(scribble_dir, len(prepared.mask_dirs))  # type: ignore[arg-type]
+    return prepared
+
+
+def _read_scribbles(scribble_dir: str | Path, info: ClipInfo, size: tuple[int, int]) -> np.ndarray:
+    scribbles = read_scribbles(scribble_dir, info, size)
+    if scribble_layers(scribbles) < 2:
+        raise InputError(
+            scribble_dir,
+            "the scribbles use only the first colour (red), so they split nothing",
+            "scribble the object's other part in green",
+        )
+    return scribbles
+
+
+def _check_one_mask(scribble_dir: str | Path, masks: int) -> None:
+    if masks != 1:
+        raise InputError(
+            scribble_dir,
+            f"scribbles split one object, but {masks} mask folders were given",
+            "pass exactly one --mask (the whole object) with --scribbles",
+        )
+
+
+class _AutoMasks:
+    """``fit --auto-masks`` within ``prepare_clip``: the masks of one moving object, found from motion at the
+    analysis resolution (``AutoMaskConfig.long_edge``) in the frames already decoded."""
+
+    def __init__(self, info: ClipInfo, run_dir: Path, cfg: AutoMaskConfig | None = None) -> None:
+        self.info = info
+        self.cfg = cfg or AutoMaskConfig()
+        self.shown = run_dir / C.AUTO_MASKS_DIR  # the folder as messages name it
+        self.cache = run_dir / C.FLOW_CACHE_DIR
+        #: the analysis size; None: a single frame, nothing to analyse
+        self.size = working_size(info.width, info.height, self.cfg.long_edge) if info.num_frames >= 2 else None
+        # checked before anything is decoded: a folder that holds masks already is refused at once
+        self.folder, self.names = mask_folder(info, self.shown) if self.size is not None else (self.shown, [])
+
+    def find(self, prepared: PreparedClip, fit_cfg: FitConfig, raw: np.ndarray | None, reporter: Reporter) -> None:
+        """Set ``prepared``'s masks from motion. ``raw``: the frames decoded at the analysis size (None: the
+        analysis size is the working size: ``prepared.frames`` are the frames to analyse)."""
+        prepared.layers_source = C.SCENE_LAYERS_AUTO
+        if self.size is None:
+            prepared.masks_note = SINGLE_FRAME_NOTE
+            return
+        cfg = self.cfg
+        reporter.emit(C.EVENT_STAGE, stage="masks", message=f"finding moving objects; masks go to {self.shown}")
+        if raw is None:
+            frames = prepared.frames
+            shared = (fit_cfg.flow_preset, fit_cfg.flow_threshold_px) == (cfg.flow_preset, cfg.flow_threshold_px)
+        else:
+            frames, shared = to_fitting_values(raw, self.info.colorspace)[0], False
+        flow = prepared.flow if shared else _fit_flow(frames, cfg.flow_preset, cfg.flow_threshold_px, self.cache)
+        result = auto_masks(frames, cfg, flow=flow)
+        native = resize_masks(result.masks, (self.info.width, self.info.height))
+        write_mask_files(self.folder, self.names, native)
+        print(f"auto masks: {result.message} ({self.shown})", file=sys.stderr)
+        prepared.masks_note = result.message
+        if result.found:
+            # in memory, what reading the written files back at the working size gives (read_masks: the files'
+            # 0/1 values shrunk with INTER_AREA, then above contract.MASK_THRESHOLD)
+            w, h = prepared.size
+            matte = native.astype(np.float32)
+            if native.shape[1:] != (h, w):
+                matte = np.stack([cv2.resize(m, (w, h), interpolation=cv2.INTER_AREA) for m in matte])
+            prepared.masks = (matte > C.MASK_THRESHOLD)[None]
+            prepared.mask_dirs = [str(self.folder)]
+
+
+__all__ = ["PreparedClip", "prepare_clip", "to_fitting_values"]

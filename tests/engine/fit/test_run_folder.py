@@ -1,0 +1,165 @@
+"""The run folder's files against their versioned schemas (contract.validate_run_file): what a fit writes reads
+back exactly, and a file of another version, damaged or edited by hand is ONE line naming the file and the fix."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+
+from engine import contract as C
+from engine.config import preset_config
+from engine.errors import InputError
+from engine.fit.run_folder import ClipRecord, RunFolder
+
+RECORD = ClipRecord(
+    source="/plates/shot",
+    kind="sequence",
+    frame_range=(2, 4),
+    frame_numbers=(1002, 1003, 1004),
+    frame_files=("/plates/shot/f.1002.exr", "/plates/shot/f.1003.exr", "/plates/shot/f.1004.exr"),
+    native_size=(1920, 1080),
+    working_size=(768, 432),
+    fps=None,
+    colorspace="linear",
+    masks=("/plates/mask",),
+    scribbles=None,
+    layers=2,
+    fingerprint="0123abcd",
+)
+METRICS = {
+    "psnr": 27.5,
+    "mse": 0.0018,
+    "alpha_iou": [0.91],
+    "steps": 800,
+    "train_seconds": 106.0,
+    "seconds_per_step": 0.1325,
+    "preset": "draft",
+    "model": "fast",
+    "device": "cpu",
+    "working_size": [768, 432],
+    "frames": 3,
+    "engine_version": C.ENGINE_VERSION,
+    "torch_version": torch.__version__,
+}
+
+
+def _one_line(err: pytest.ExceptionInfo, path, *needles: str) -> None:
+    text = str(err.value)
+    assert text.startswith(f"{path}: ") and "\n" not in text and " — " in text, text
+    for n in needles:
+        assert n in text, text
+
+
+def test_what_is_written_reads_back(tmp_path):
+    run = RunFolder(tmp_path)
+    cfg = preset_config("draft")
+    run.write_config(cfg)
+    run.write_clip(RECORD)
+    run.write_metrics(METRICS)
+    assert run.read_config() == cfg
+    assert run.read_clip() == RECORD and run.read_clip().num_frames == 3
+    assert run.read_metrics() == {"schema": C.RUN_METRICS_SCHEMA, **METRICS}
+    data = json.loads(run.clip.read_text())
+    assert data["schema"] == C.RUN_CLIP_SCHEMA and set(data) == {"schema", *C.RUN_FILE_FIELDS[C.RUN_CLIP]}
+    assert RunFolder(tmp_path / "nothing").read_metrics() is None  # an unfinished fit has none
+
+
+@pytest.mark.parametrize(
+    ("edit", "needles"),
+    [
+        (lambda d: d.update(schema=1), ("clip record schema 1 is not supported (this engine writes 2)", "new run")),
+        (lambda d: d.pop("layers"), ("clip record has no 'layers'", "restore it")),
+        (lambda d: d.update(native_size=[1920]), ("'native_size' is not a int pair",)),
+        (lambda d: d.update(fps="25"), ("'fps' is not a number or null",)),
+        (lambda d: d.update(frame_range=[2, 9]), ("frame_range 2..9 does not span its 3 frames",)),
+        (lambda d: d.update(frame_files=["/a.exr"]), ("1 frame files for 3 frames",)),
+        (lambda d: d.update(kind="stream"), ("unknown kind",)),
+        (lambda d: d.update(layers=0), ("layers and sizes must be positive",)),
+    ],
+)
+def test_a_clip_record_off_its_schema_is_one_line(tmp_path, edit, needles):
+    run = RunFolder(tmp_path)
+    data = RECORD.to_dict()
+    edit(data)
+    run.clip.write_text(json.dumps(data))
+    with pytest.raises(InputError) as err:
+        run.read_clip()
+    _one_line(err, run.clip, *needles)
+
+
+def test_damaged_or_missing_files_are_one_line(tmp_path):
+    run = RunFolder(tmp_path)
+    with pytest.raises(InputError) as err:
+        run.read_config()
+    _one_line(err, run.config, "no fit to resume here — run `fit` without --resume first")
+    with pytest.raises(InputError) as err:
+        run.read_clip()
+    _one_line(err, run.clip, "no record of its clip")
+    run.metrics.write_text('{"schema": 1, "psnr": ')
+    with pytest.raises(InputError) as err:
+        run.read_metrics()
+    _one_line(err, run.metrics, "not valid JSON — restore it")
+    run.metrics.write_text(json.dumps({"schema": 1, **METRICS, "steps": "800"}))
+    with pytest.raises(InputError) as err:
+        run.read_metrics()
+    _one_line(err, run.metrics, "metrics 'steps' is not a int")
+    with pytest.raises(InputError) as err:
+        run.read_scene()
+    _one_line(err, run.scene, "no scene analysis", "fit into a new --out")
+    with pytest.raises(InputError) as err:
+        run.require_fit()
+    _one_line(err, run.config, "this is not a fitted run folder — pass the --out folder of a `fit`")
+
+
+def test_config_of_another_version_says_so(tmp_path):
+    """The message docs/robustness.md shows for a --resume of a run with config schema 0."""
+    run = RunFolder(tmp_path)
+    run.write_config(preset_config("draft"))
+    data = json.loads(run.config.read_text())
+    data["schema"] = 0
+    run.config.write_text(json.dumps(data))
+    with pytest.raises(InputError) as err:
+        run.read_config()
+    _one_line(
+        err,
+        run.config,
+        "config schema 0 is not supported (this engine writes 1) — fit into a new run folder or use the engine "
+        "version that made this run",
+    )
+
+
+def test_an_engine_bug_never_writes_a_file_off_its_schema(tmp_path):
+    run = RunFolder(tmp_path)
+    with pytest.raises(InputError, match="metrics has no 'frames'"):
+        run.write_metrics({k: v for k, v in METRICS.items() if k != "frames"})
+    assert not run.metrics.exists()
+
+
+def test_checkpoint_keys_and_version_are_checked(tmp_path):
+    run = RunFolder(tmp_path)
+    cpu = torch.device("cpu")
+    state = {k: 0 for k in C.RUN_CHECKPOINT_KEYS if k != "schema"}
+    run.save_checkpoint(state)
+    assert run.load_checkpoint(cpu)["schema"] == C.RUN_CHECKPOINT_SCHEMA
+    run.save_checkpoint({**state, "schema": 99})
+    with pytest.raises(InputError) as err:
+        run.load_checkpoint(cpu)
+    _one_line(err, run.checkpoint, "checkpoint schema 99 is not supported")
+    del state["motions"]
+    run.save_checkpoint(state)
+    with pytest.raises(InputError) as err:
+        run.load_checkpoint(cpu)
+    _one_line(err, run.checkpoint, "checkpoint has no 'motions'")
+
+
+def test_the_contract_validates_without_the_engine():
+    """The schemas live in the contract (standard library only): what the add-on could check on its own."""
+    assert C.validate_run_file(C.RUN_CLIP, RECORD.to_dict())["layers"] == 2
+    with pytest.raises(C.RunFileError) as err:
+        C.validate_run_file(C.RUN_METRICS, [1, 2])
+    assert err.value.problem == "metrics is not a JSON object" and err.value.fix == C.RUN_FILE_DAMAGED_FIX
+    assert C.validate_run_file(C.RUN_METRICS, {"schema": 1, **METRICS, "psnr": float("inf")})  # a perfect fit
+    with pytest.raises(C.RunFileError, match="'steps' is not a int"):
+        C.validate_run_file(C.RUN_METRICS, {"schema": 1, **METRICS, "steps": True})
