@@ -307,3 +307,7 @@ def test_the_tools_run_outside_the_product_cli(clip, tmp_path, capsys):
     assert "| draft | fast |" in table and "| paper | paper |" in table
     assert bench_main(["bench", str(clip), "--budget-seconds", "1", "--eval-at", "3min"]) == C.EXIT_BAD_INPUT
     assert "--eval-at" in capsys.readouterr().err
+    scene_args = [str(clip / "frames"), "--mask", str(clip / "masks"), "--steps", "2", "--out", str(tmp_path / "s")]
+    assert bench_main(["scene-speed", *scene_args]) == C.EXIT_OK
+    res = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert res["steps"] == 2 and res["auto"]["background_motion"] in C.BG_MOTIONS and res["speedup"] > 0
