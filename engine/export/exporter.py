@@ -430,7 +430,7 @@ def _manifest(
 ) -> dict[str, Any]:
     clip, cfg, metrics = fitted.clip, fitted.cfg, fitted.metrics or {}
     numbers = list(clip.frame_numbers)
-    rel_edits = os.path.relpath(run_dir / C.EDITS_DIR, final)
+    rel_edits = os.path.relpath(fitted.folder.edits, final)
     layers = [
         layer_record(name, i, fr.size, fr.box, f"{rel_edits}/{name}{C.EDIT_LAYER_EXT}")
         for i, (name, fr) in enumerate(zip(names, frames_by_layer, strict=True))

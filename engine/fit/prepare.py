@@ -24,7 +24,7 @@ from engine.data.scene_analysis import SceneAnalysis, analyse_scene
 from engine.data.scribbles import read_scribbles, scribble_layers
 from engine.errors import InputError
 from engine.fit.progress import Reporter
-from engine.fit.run_folder import ClipRecord
+from engine.fit.run_folder import ClipRecord, RunFolder
 from engine.io.clip import ClipInfo, iter_frames, open_clip, read_frames, read_masks, working_size
 from engine.io.colour import linear_to_srgb
 
@@ -145,7 +145,8 @@ def prepare_clip(
     reporter = reporter or Reporter.null()
     info = open_clip(clip, frame_range)
     size = working_size(info.width, info.height, cfg.long_edge)
-    finder = _AutoMasks(info, Path(run_dir)) if auto_masks else None
+    run = RunFolder(run_dir)
+    finder = _AutoMasks(info, run) if auto_masks else None
     reporter.emit(C.EVENT_STAGE, stage="read", message=f"reading {info.num_frames} frames at {size[0]}x{size[1]}")
     if finder is not None and finder.size not in (None, size):
         raw, analysis_raw = _frames_at(info, [size, finder.size])
@@ -169,8 +170,7 @@ def prepare_clip(
         )
     if len(frames) >= 2:
         reporter.emit(C.EVENT_STAGE, stage="flow", message="optical flow (cached per clip content)")
-    cache = Path(run_dir) / C.FLOW_CACHE_DIR
-    flow = _fit_flow(frames, cfg.flow_preset, cfg.flow_threshold_px, cache)
+    flow = _fit_flow(frames, cfg.flow_preset, cfg.flow_threshold_px, run.flow_cache)
     prepared = PreparedClip(
         info,
         size,
@@ -214,11 +214,11 @@ class _AutoMasks:
     """``fit --auto-masks`` within ``prepare_clip``: the masks of one moving object, found from motion at the
     analysis resolution (``AutoMaskConfig.long_edge``) in the frames already decoded."""
 
-    def __init__(self, info: ClipInfo, run_dir: Path, cfg: AutoMaskConfig | None = None) -> None:
+    def __init__(self, info: ClipInfo, run: RunFolder, cfg: AutoMaskConfig | None = None) -> None:
         self.info = info
         self.cfg = cfg or AutoMaskConfig()
-        self.shown = run_dir / C.AUTO_MASKS_DIR  # the folder as messages name it
-        self.cache = run_dir / C.FLOW_CACHE_DIR
+        self.shown = run.auto_masks  # the folder as messages name it
+        self.cache = run.flow_cache
         #: the analysis size; None: a single frame, nothing to analyse
         self.size = working_size(info.width, info.height, self.cfg.long_edge) if info.num_frames >= 2 else None
         # checked before anything is decoded: a folder that holds masks already is refused at once
