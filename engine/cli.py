@@ -6,6 +6,7 @@ import argparse
 import errno
 import sys
 import traceback
+from collections.abc import Iterable
 from pathlib import Path
 
 from engine import contract as C
@@ -35,7 +36,14 @@ exit codes: 0 done, 1 engine error, 2 bad input (one line names the file and the
 DISK_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
 
 
-def _frame_range(text: str) -> tuple[int, int]:
+def _print_paths(paths: Iterable[Path]) -> int:
+    """A verb's last lines: the files it wrote, one per line (what the add-on and scripts read)."""
+    for path in paths:
+        print(str(path))
+    return C.EXIT_OK
+
+
+def frame_range(text: str) -> tuple[int, int]:
     a, sep, b = text.partition(":")
     try:
         if not sep:
@@ -84,7 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--device", default="auto", help="auto | cpu | cuda | mps (default: auto)")
     f.add_argument(
         "--frames",
-        type=_frame_range,
+        type=frame_range,
         default=None,
         metavar="FIRST:LAST",
         help="inclusive range of positions in the sequence (default: all)",
@@ -122,7 +130,7 @@ def _add_estimate_parser(sub: argparse._SubParsersAction) -> None:
     e.add_argument("clip", help="image-sequence folder or movie file")
     e.add_argument("--mask", action="append", default=[], metavar="FOLDER", help="mask folder per foreground layer")
     e.add_argument("--presets", default=None, help="comma-separated (default: every preset)")
-    e.add_argument("--frames", type=_frame_range, default=None, metavar="FIRST:LAST")
+    e.add_argument("--frames", type=frame_range, default=None, metavar="FIRST:LAST")
     e.add_argument("--calib-seconds", type=float, default=2.0, help="timed seconds per preset and regime")
     e.add_argument("--work", default=None, metavar="RUN_DIR", help="keep the flow cache here (a fit reuses it)")
     e.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
@@ -169,7 +177,7 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
     )
     x.add_argument(
         "--frames",
-        type=_frame_range,
+        type=frame_range,
         default=None,
         metavar="FIRST:LAST",
         help="inclusive positions in the source sequence, as for fit (default: every fitted frame)",
@@ -240,18 +248,13 @@ def _cmd_render(args: argparse.Namespace) -> int:
 def _cmd_project_frame(args: argparse.Namespace) -> int:
     from engine.edit.project_frame import project_frame
 
-    written = project_frame(args.manifest, args.frame, args.edit, args.layer)
-    for path in written.values():
-        print(str(path))
-    return C.EXIT_OK
+    return _print_paths(project_frame(args.manifest, args.frame, args.edit, args.layer).values())
 
 
 def _cmd_preview(args: argparse.Namespace) -> int:
     from engine.edit.preview import write_previews
 
-    for path in write_previews(args.manifest, args.out, movies=not args.no_movies):
-        print(str(path))
-    return C.EXIT_OK
+    return _print_paths(write_previews(args.manifest, args.out, movies=not args.no_movies))
 
 
 def _add_masks_parser(sub: argparse._SubParsersAction) -> None:
@@ -265,7 +268,7 @@ def _add_masks_parser(sub: argparse._SubParsersAction) -> None:
     )
     m.add_argument("clip", help="image-sequence folder or movie file")
     m.add_argument("--out", required=True, metavar="FOLDER", help="folder for the mask PNGs (created)")
-    m.add_argument("--frames", type=_frame_range, default=None, metavar="FIRST:LAST", help="inclusive positions")
+    m.add_argument("--frames", type=frame_range, default=None, metavar="FIRST:LAST", help="inclusive positions")
     m.add_argument("--truth", default=None, metavar="FOLDER", help="also print the IoU against these masks")
 
 

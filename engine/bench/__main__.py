@@ -16,6 +16,7 @@ import traceback
 from pathlib import Path
 
 from engine import contract as C
+from engine.cli import frame_range
 from engine.errors import InputError
 
 BENCH = "bench"
@@ -30,16 +31,6 @@ clips: a folder holding frames/ and masks/ (and tracks_tapvid.npz: then atlas tr
 --set KEY=VALUE applies to every preset, --set PRESET.KEY=VALUE to one (e.g. paper.batch=2000).
 writes OUT/bench.json (curves, machine, versions, command) and OUT/bench.png; see docs/accuracy-vs-time.md.
 """
-
-
-def _frame_range(text: str) -> tuple[int, int]:
-    a, sep, b = text.partition(":")
-    try:
-        if not sep:
-            raise ValueError
-        return int(a), int(b)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"frame range {text!r} must be FIRST:LAST, e.g. 0:49") from None
 
 
 def parse_eval_at(text: str) -> tuple[float, ...]:
@@ -102,7 +93,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ss.add_argument("clip")
     ss.add_argument("--mask", action="append", default=[])
-    ss.add_argument("--frames", type=_frame_range, default=None, metavar="A:B")
+    ss.add_argument("--frames", type=frame_range, default=None, metavar="A:B")
     ss.add_argument("--preset", default="draft")
     ss.add_argument("--steps", type=int, default=300)
     ss.add_argument("--long-edge", type=int, default=384)

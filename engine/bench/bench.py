@@ -223,42 +223,23 @@ class Run:
     eta: list[dict] = field(default_factory=list)
     best_psnr: float = -math.inf
 
-    @property
-    def cfg(self) -> FitConfig:
-        return self.trainer.cfg
-
-    @property
-    def model(self) -> Any:
-        return self.trainer.model
-
-    @property
-    def step(self) -> int:
-        return self.trainer.step
-
-    @property
-    def train_seconds(self) -> float:
-        return self.trainer.train_seconds
-
-    @property
-    def finished_steps(self) -> bool:
-        return self.trainer.finished
-
     def record(self) -> dict:
+        tr = self.trainer
         return {
             "clip": self.clip.spec.name,
-            "preset": self.cfg.preset,
-            "model": self.cfg.model,
-            "batch": self.cfg.batch,
-            "steps_planned": self.cfg.steps,
-            "params": int(sum(p.numel() for p in self.model.parameters())),
-            "steps": self.step,
-            "train_seconds": round(self.train_seconds, 3),
-            "seconds_per_step": round((self.train_seconds - self.loop_start_seconds) / max(self.step, 1), 4),
-            "finished_steps": self.finished_steps,
+            "preset": tr.cfg.preset,
+            "model": tr.cfg.model,
+            "batch": tr.cfg.batch,
+            "steps_planned": tr.cfg.steps,
+            "params": int(sum(p.numel() for p in tr.model.parameters())),
+            "steps": tr.step,
+            "train_seconds": round(tr.train_seconds, 3),
+            "seconds_per_step": round((tr.train_seconds - self.loop_start_seconds) / max(tr.step, 1), 4),
+            "finished_steps": tr.finished,
             "failed": self.failed,
             "curve": self.curve,
             "eta": self.eta,
-            "config": json.loads(self.cfg.to_json())["config"],
+            "config": json.loads(tr.cfg.to_json())["config"],
         }
 
 
@@ -281,24 +262,24 @@ def evaluate(run: Run, device: torch.device, stride: int) -> dict:
     frames = clip.video.frames
     sq, n = 0.0, 0
     for t in clip.eval_frames:
-        rec, _ = render_frame(run.model, t, clip.prepared.size, device)
+        rec, _ = render_frame(run.trainer.model, t, clip.prepared.size, device)
         sq += float(((torch.from_numpy(rec).to(frames.device) - frames[t]) ** 2).sum())
         n += rec.size
     psnr = psnr_from_mse(sq / max(n, 1))
     flow = clip.prepared.flow
-    cons = mapping_consistency(run.model, flow.forward, flow.forward_ok, clip.eval_frames, device, stride)
+    cons = mapping_consistency(run.trainer.model, flow.forward, flow.forward_ok, clip.eval_frames, device, stride)
     tracking = None
     if clip.tracks is not None and len(clip.query_t):
         pred, _ = atlas_tracks(
-            run.model, clip.query_xy, clip.query_t, clip.track_frames, clip.prepared.size, device, stride
+            run.trainer.model, clip.query_xy, clip.query_t, clip.track_frames, clip.prepared.size, device, stride
         )
         tracking = _track_scores(pred * clip.to_native, clip.tracks)
     if math.isfinite(psnr):
         run.best_psnr = max(run.best_psnr, psnr)
     rss, peak = _rss_mb()
     return {
-        "train_seconds": round(run.train_seconds, 3),
-        "step": run.step,
+        "train_seconds": round(run.trainer.train_seconds, 3),
+        "step": run.trainer.step,
         "psnr": round(psnr, 4),
         "best_psnr": round(run.best_psnr, 4) if math.isfinite(run.best_psnr) else None,
         "consistency_texels": None if cons["mean_texels"] is None else round(cons["mean_texels"], 4),
@@ -321,30 +302,30 @@ def _eval_schedule(budget: float, evals: int, extra: tuple[float, ...] = ()) -> 
 
 def _advance(run: Run, until: float, budget: float) -> None:
     """Train ``run`` until its clock reaches ``until`` (or the budget, or its last step)."""
-    marks = {max(1, round(f * run.cfg.steps)): f for f in ETA_FRACTIONS}
     trainer = run.trainer
+    marks = {max(1, round(f * trainer.cfg.steps)): f for f in ETA_FRACTIONS}
     while trainer.train_seconds < min(until, budget) and not trainer.finished:
         loss, _ = trainer.train_step()
-        if run.step in marks:
+        if trainer.step in marks:
             # eta_seconds: what fit reports (engine.fit.eta.StepClock: per cost regime, first step left out);
             # eta_mean_seconds: the plain extrapolation (mean seconds per step so far times the steps left)
-            elapsed = run.train_seconds - run.loop_start_seconds
+            elapsed = trainer.train_seconds - run.loop_start_seconds
             eta = trainer.eta()
             run.eta.append(
                 {
-                    "fraction": marks[run.step],
-                    "step": run.step,
-                    "train_seconds": round(run.train_seconds, 3),
+                    "fraction": marks[trainer.step],
+                    "step": trainer.step,
+                    "train_seconds": round(trainer.train_seconds, 3),
                     "eta_seconds": None if eta is None else round(eta, 3),
-                    "eta_mean_seconds": round(elapsed / run.step * (run.cfg.steps - run.step), 3),
+                    "eta_mean_seconds": round(elapsed / trainer.step * (trainer.cfg.steps - trainer.step), 3),
                 }
             )
-        if run.step % FINITE_CHECK_EVERY == 0 and not torch.isfinite(loss.detach()):
-            run.failed = f"loss became non-finite at step {run.step}"
+        if trainer.step % FINITE_CHECK_EVERY == 0 and not torch.isfinite(loss.detach()):
+            run.failed = f"loss became non-finite at step {trainer.step}"
             return
-    if run.finished_steps:
+    if trainer.finished:
         for e in run.eta:
-            actual = run.train_seconds - e["train_seconds"]
+            actual = trainer.train_seconds - e["train_seconds"]
             e["actual_seconds"] = round(actual, 3)
             for key, err in (("eta_seconds", "error"), ("eta_mean_seconds", "error_mean")):
                 e[err] = round(e[key] / actual - 1.0, 4) if actual > 0 and e[key] is not None else None
@@ -520,18 +501,19 @@ def _run_bench(
     active = list(runs)
     while active:
         for run in active[:1] if sequential else list(active):
-            until = math.inf if sequential else run.train_seconds + slice_seconds
+            until = math.inf if sequential else run.trainer.train_seconds + slice_seconds
             _advance(run, min(until, run.eval_times[0] if run.eval_times else math.inf), budget_seconds)
-            over = run.train_seconds >= budget_seconds or run.finished_steps or run.failed is not None
-            due = bool(run.eval_times) and run.train_seconds >= run.eval_times[0]
+            over = run.trainer.train_seconds >= budget_seconds or run.trainer.finished or run.failed is not None
+            due = bool(run.eval_times) and run.trainer.train_seconds >= run.eval_times[0]
             if due or over:
-                while run.eval_times and run.train_seconds >= run.eval_times[0]:
+                while run.eval_times and run.trainer.train_seconds >= run.eval_times[0]:
                     run.eval_times.pop(0)
                 point = evaluate(run, device, stride)
                 run.curve.append(point)
                 trk = point["tracking"]["delta_avg"] if point["tracking"] else None
                 print(
-                    f"[bench] {run.clip.spec.name} {run.cfg.preset}: {run.train_seconds:.1f} s, step {run.step}, "
+                    f"[bench] {run.clip.spec.name} {run.trainer.cfg.preset}: {run.trainer.train_seconds:.1f} s, "
+                    f"step {run.trainer.step}, "
                     f"PSNR {point['psnr']:.2f} dB, consistency {point['consistency_texels']} texels, "
                     f"delta_avg {trk if trk is None else round(trk, 3)} (eval {point['eval_seconds']:.1f} s)",
                     file=log,

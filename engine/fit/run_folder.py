@@ -23,10 +23,11 @@ from engine.data.scene_analysis import SceneAnalysis, read_scene_file, write_sce
 from engine.errors import InputError
 from engine.fit.checkpoint import load_checkpoint, save_checkpoint
 from engine.io.atomic import atomic_write_text
+from engine.io.clip import NumberedFrames
 
 
 @dataclass(frozen=True)
-class ClipRecord:
+class ClipRecord(NumberedFrames):
     """``clip.json``: what was fitted, and everything a reader of the run needs of the clip without decoding
     it (export: the native and working sizes, the frames and their numbers, the layers)."""
 
@@ -43,10 +44,6 @@ class ClipRecord:
     scribbles: str | None
     layers: int
     fingerprint: str
-
-    @property
-    def num_frames(self) -> int:
-        return len(self.frame_numbers)
 
     def to_dict(self) -> dict[str, Any]:
         data = asdict(self)
@@ -75,52 +72,28 @@ class ClipRecord:
         )
 
 
+def _entry(name: str) -> property:
+    """A path inside the run folder (read-only)."""
+    return property(lambda self: self.path / name)
+
+
 class RunFolder:
     """RUN_DIR: its files' paths, and their reading (validated) and writing (validated, atomic)."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
 
-    # --- layout
-    @property
-    def config(self) -> Path:
-        return self.path / C.RUN_CONFIG
-
-    @property
-    def clip(self) -> Path:
-        return self.path / C.RUN_CLIP
-
-    @property
-    def metrics(self) -> Path:
-        return self.path / C.RUN_METRICS
-
-    @property
-    def scene(self) -> Path:
-        return self.path / C.SCENE_FILE
-
-    @property
-    def checkpoint(self) -> Path:
-        return self.path / C.RUN_CHECKPOINT
-
-    @property
-    def log(self) -> Path:
-        return self.path / C.RUN_LOG
-
-    @property
-    def flow_cache(self) -> Path:
-        return self.path / C.FLOW_CACHE_DIR
-
-    @property
-    def auto_masks(self) -> Path:
-        return self.path / C.AUTO_MASKS_DIR
-
-    @property
-    def exports(self) -> Path:
-        return self.path / C.EXPORTS_DIR
-
-    @property
-    def edits(self) -> Path:
-        return self.path / C.EDITS_DIR
+    # --- layout: each entry's name is the contract's
+    config = _entry(C.RUN_CONFIG)
+    clip = _entry(C.RUN_CLIP)
+    metrics = _entry(C.RUN_METRICS)
+    scene = _entry(C.SCENE_FILE)
+    checkpoint = _entry(C.RUN_CHECKPOINT)
+    log = _entry(C.RUN_LOG)
+    flow_cache = _entry(C.FLOW_CACHE_DIR)
+    auto_masks = _entry(C.AUTO_MASKS_DIR)
+    exports = _entry(C.EXPORTS_DIR)
+    edits = _entry(C.EDITS_DIR)
 
     # --- checks
     def holds_fit(self) -> bool:

@@ -41,8 +41,18 @@ _NUMBER = re.compile(r"\d+")
 _MAX_LISTED = 3  # files named in a message before "and N more"
 
 
+class NumberedFrames:
+    """A selection of frames, each known by its number (the clip as opened, and as a run folder records it)."""
+
+    frame_numbers: tuple[int, ...]
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.frame_numbers)
+
+
 @dataclass(frozen=True)
-class ClipInfo:
+class ClipInfo(NumberedFrames):
     """What was opened: enough to read the frames later and to describe the clip in a run folder."""
 
     source: str
@@ -61,10 +71,6 @@ class ClipInfo:
     """``"sRGB"`` for integer encodings, ``"linear"`` for float ones (EXR, float TIFF)."""
     channels: int
     """Channels in the file (1 grey, 3 RGB, 4 RGBA, ...)."""
-
-    @property
-    def num_frames(self) -> int:
-        return len(self.frame_numbers)
 
 
 # --- public API ---------------------------------------------------------------------------------------

@@ -78,6 +78,11 @@ def _text(path: Path) -> str | None:
         return None
 
 
+def scanned_texts() -> list[tuple[str, str]]:
+    """(path relative to the checkout, text) of every scanned text file."""
+    return [(p.relative_to(ROOT).as_posix(), t) for p in scanned_files() if (t := _text(p)) is not None]
+
+
 def hits(text: str, allowed: set[str] = frozenset()) -> list[tuple[int, str, str]]:
     """(line number, names of the patterns it matches, line) for every line of ``text`` that matches a pattern
     not in ``allowed``."""
@@ -91,11 +96,7 @@ def hits(text: str, allowed: set[str] = frozenset()) -> list[tuple[int, str, str
 
 def test_no_development_history_or_outside_files_in_product_text():
     found = []
-    for path in scanned_files():
-        text = _text(path)
-        if text is None:
-            continue
-        rel = path.relative_to(ROOT).as_posix()
+    for rel, text in scanned_texts():
         found += [f"{rel}:{n}: [{name}] {line[:140]}" for n, name, line in hits(text, ALLOWED.get(rel, set()))]
     assert not found, (
         "product text narrates the development history or cites a file outside the repository "
@@ -186,11 +187,7 @@ def anchors(page: Path) -> set[str]:
 
 def test_every_cited_docs_page_and_anchor_exists():
     bad = []
-    for path in scanned_files():
-        text = _text(path)
-        if text is None:
-            continue
-        rel = path.relative_to(ROOT).as_posix()
+    for rel, text in scanned_texts():
         for n, line in enumerate(text.splitlines(), 1):
             for m in CITATION.finditer(line):
                 page = ROOT / "docs" / m.group(1)
