@@ -74,8 +74,8 @@ HEADLESS_SCRIPT = "addon/headless.py"
 
 #: The presets (``fit --preset``) and their step budgets. engine/config.py builds its presets with these and
 #: the add-on's preset menu and documented fallback estimate read them, so the two sides cannot disagree.
-#: Budgets from measured blackswan runs on a 2-core CPU at 768x432 (docs/accuracy-vs-time.md): draft about
-#: 3 minutes, balanced about 15-20, final about 60-75; paper is the reference's 400k steps (days on a CPU).
+#: Each fast budget is sized to its preset's wall-time target on a CPU (docs/accuracy-vs-time.md has the
+#: measurements); paper is the reference implementation's step count.
 PRESET_STEPS: dict[str, int] = {"draft": 800, "balanced": 6000, "final": 28000, "paper": 400000}
 
 EXIT_OK = 0
