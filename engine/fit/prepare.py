@@ -25,7 +25,7 @@ from engine.data.scribbles import read_scribbles, scribble_layers
 from engine.errors import InputError
 from engine.fit.progress import Reporter
 from engine.fit.run_folder import ClipRecord, RunFolder
-from engine.io.clip import ClipInfo, iter_frames, open_clip, read_frames, read_masks, working_size
+from engine.io.clip import ClipInfo, open_clip, read_frames, read_frames_at, read_masks, working_size
 from engine.io.colour import linear_to_srgb
 
 #: Characters of the frames' SHA-256 kept as the clip's fingerprint.
@@ -104,17 +104,6 @@ def to_fitting_values(frames: np.ndarray, colorspace: str) -> tuple[np.ndarray, 
     return out.astype(np.float32), bad
 
 
-def _frames_at(info: ClipInfo, sizes: list[tuple[int, int]]) -> list[np.ndarray]:
-    """The clip decoded once and shrunk to each of ``sizes`` (none larger than the clip), each exactly what
-    ``read_frames(info, size)`` returns (INTER_AREA: the readers' shrinking filter)."""
-    out = [np.empty((info.num_frames, h, w, 3), dtype=np.float32) for w, h in sizes]
-    for i, rgb in enumerate(iter_frames(info)):
-        for frames, (w, h) in zip(out, sizes, strict=True):
-            same = (rgb.shape[1], rgb.shape[0]) == (w, h)
-            frames[i] = rgb if same else cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA)
-    return out
-
-
 def _fit_flow(frames: np.ndarray, preset: str, threshold_px: float, cache_dir: Path) -> FlowField:
     """Flow of display-encoded ``frames`` (cached per content); a single frame has none (nothing is cached)."""
     if len(frames) < 2:
@@ -149,7 +138,7 @@ def prepare_clip(
     finder = _AutoMasks(info, run) if auto_masks else None
     reporter.emit(C.EVENT_STAGE, stage="read", message=f"reading {info.num_frames} frames at {size[0]}x{size[1]}")
     if finder is not None and finder.size not in (None, size):
-        raw, analysis_raw = _frames_at(info, [size, finder.size])
+        raw, analysis_raw = read_frames_at(info, [size, finder.size])
     else:
         raw = analysis_raw = read_frames(info, size)
     frames, bad = to_fitting_values(raw, info.colorspace)

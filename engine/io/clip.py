@@ -111,11 +111,18 @@ def read_frames(info: ClipInfo, size: tuple[int, int] | None = None) -> np.ndarr
     resizes each frame as it is read (INTER_AREA when shrinking, INTER_LINEAR when enlarging), so the
     full-resolution clip never has to fit in memory at once.
     """
-    out_w, out_h = (info.width, info.height) if size is None else _check_size(size)
-    frames = np.empty((info.num_frames, out_h, out_w, 3), dtype=np.float32)
-    for i, rgb in enumerate(iter_frames(info, (out_w, out_h))):
-        frames[i] = rgb
-    return frames
+    return read_frames_at(info, [(info.width, info.height) if size is None else size])[0]
+
+
+def read_frames_at(info: ClipInfo, sizes: list[tuple[int, int]]) -> list[np.ndarray]:
+    """The selected frames decoded once and resized to each of ``sizes``, each array exactly what
+    ``read_frames(info, size)`` returns (``fit --auto-masks`` needs the clip at two sizes)."""
+    sizes = [_check_size(s) for s in sizes]
+    out = [np.empty((info.num_frames, h, w, 3), dtype=np.float32) for w, h in sizes]
+    for i, rgb in enumerate(iter_frames(info)):
+        for frames, size in zip(out, sizes, strict=True):
+            frames[i] = _resize(rgb, size)
+    return out
 
 
 def working_size(width: int, height: int, long_edge: int = C.DEFAULT_LONG_EDGE) -> tuple[int, int]:

@@ -41,8 +41,7 @@ def test_one_pass_over_the_clip(tmp_path, monkeypatch, long_edge, flows):
     _count(monkeypatch, engine.fit.prepare, "open_clip", calls)
     _count(monkeypatch, engine.fit.prepare, "compute_flow", calls)
     _count(monkeypatch, engine.fit.prepare, "read_masks", calls)
-    for module in (engine.io.clip, engine.fit.prepare):  # a decoding pass over the frames, however reached
-        _count(monkeypatch, module, "iter_frames", calls)
+    _count(monkeypatch, engine.io.clip, "iter_frames", calls)  # every decoding pass over the frames goes through it
     run = tmp_path / "run"
     prepared = prepare_clip(frames_dir, [], cfg, run, None, auto_masks=True)
     assert calls == {"open_clip": 1, "iter_frames": 1, "compute_flow": flows}  # no mask file is read back
