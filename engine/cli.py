@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import argparse
-import errno
+import contextlib
+import signal
 import sys
 import traceback
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
+from typing import Any
 
 from engine import contract as C
-from engine.errors import InputError
+from engine.errors import FitDiverged, InputError
 
 DESCRIPTION = """\
 Neural Atlas engine: fit layered neural atlases (Kasten et al. 2021) to a clip.
@@ -27,13 +29,39 @@ presets (accuracy vs time on a 2-core CPU at 768x432; see docs/accuracy-vs-time.
   paper     the paper's exact architecture (400k steps: days on a CPU; the baseline)
 
 progress: one JSON object per stdout line ({"neural_atlas": 1, "event": ...}); a bar on stderr.
-exit codes: 0 done, 1 engine error, 2 bad input (one line names the file and the fix),
-            3 cancelled by SIGINT/SIGTERM (a checkpoint was written: --resume continues).
+exit codes: 0 done, 1 engine error, 2 bad input, a full disk or a run folder in use (one line names the file
+            and the fix), 3 cancelled by SIGINT/SIGTERM (a checkpoint was written: --resume continues),
+            4 the fit diverged (non-finite values; --resume --set lr=... continues from the last good checkpoint).
+"""
+
+#: Every verb's exit codes, for the other verbs' help.
+EXIT_EPILOG = """\
+exit codes: 0 done, 1 engine error, 2 bad input, a full disk or a run folder in use (one line names the file
+            and the fix), 3 cancelled by SIGINT/SIGTERM (nothing half-written is kept: run the command again).
 """
 
 
-#: OS errors that mean "the disk is full" (no space, quota, file too large): reported in one line.
-DISK_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
+class Cancelled(KeyboardInterrupt):
+    """SIGTERM outside the training loop: unwinds like Ctrl-C, so every writer's cleanup runs."""
+
+
+@contextlib.contextmanager
+def _cancellable() -> Iterator[None]:
+    """SIGTERM raises ``Cancelled`` for the verb's whole run (the training loop installs its own handler, which
+    checkpoints first, and restores this one); the previous handler is back afterwards."""
+
+    def handle(signum: int, _frame: Any) -> None:
+        raise Cancelled(signal.Signals(signum).name)
+
+    try:
+        old = signal.signal(signal.SIGTERM, handle)
+    except ValueError:  # not the main thread: the caller handles signals
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
 
 
 def _print_paths(paths: Iterable[Path]) -> int:
@@ -105,12 +133,20 @@ def build_parser() -> argparse.ArgumentParser:
         help="override any config field (see --help-config)",
     )
     f.add_argument("--resume", action="store_true", help="continue the fit in RUN_DIR from its checkpoint")
+    f.add_argument(
+        "--refit",
+        action="store_true",
+        help="fit again into RUN_DIR although it holds a fit: its config, checkpoint, metrics and scene are "
+        "replaced; its edit layers (edits/) and earlier exports are kept",
+    )
     f.add_argument("--no-bar", action="store_true", help="no progress bar on stderr (JSON lines only)")
     f.add_argument("--help-config", action="store_true", help="list every config field and exit")
     d = sub.add_parser(
         C.VERB_DEMO,
         help="fit the embedded demo clip (README command 1)",
         description="Generate the demo plate, fit it, and write a contact sheet. Idempotent.",
+        epilog=EXIT_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     d.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
     d.add_argument("--preset", default="draft", help="preset (default: draft)")
@@ -126,6 +162,8 @@ def _add_estimate_parser(sub: argparse._SubParsersAction) -> None:
         C.VERB_ESTIMATE,
         help="estimated fit time of each preset on this machine and clip",
         description="Time a few training steps of each preset on the clip and multiply by its step budget.",
+        epilog=EXIT_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     e.add_argument("clip", help="image-sequence folder or movie file")
     e.add_argument("--mask", action="append", default=[], metavar="FOLDER", help="mask folder per foreground layer")
@@ -167,6 +205,8 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
         description="Export a fitted run for compositing into RUN_DIR/exports/vNNN (never overwritten). "
         "Passes are float32 EXR at the plate's native resolution; edit layers (RUN_DIR/edits) are created "
         "once and never overwritten. The last line printed is the manifest's path.",
+        epilog=EXIT_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     x.add_argument("run", metavar="RUN_DIR", help="the --out folder of a fit")
     x.add_argument(
@@ -189,6 +229,8 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
         help="render the edited clip from an export (the paper's edit equations)",
         description="Blend each layer's edit layer (sampled at its UV) over the ORIGINAL plate, layers weighted "
         "by the learned alpha. With every edit layer empty the output is the plate.",
+        epilog=EXIT_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     r.add_argument("manifest", metavar="MANIFEST", help="manifest.json of an export (or its folder)")
     r.add_argument("--edit", action="append", default=[], metavar="LAYER=IMAGE", help="use IMAGE as LAYER's edit")
@@ -203,6 +245,8 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
         description="IMAGE is RGBA paint over plate frame N (transparent where unpainted). The paint goes to the "
         "layers that own each pixel and is composited over their edit layers (the old ones are kept in "
         "edits/history).",
+        epilog=EXIT_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     pf.add_argument("manifest", metavar="MANIFEST")
     pf.add_argument("--frame", type=int, required=True, metavar="N", help="plate frame number the paint was made on")
@@ -213,6 +257,8 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
         help="contact sheets and movies to judge an export: atlases, checkerboard, label propagation",
         description="Writes into MANIFEST's folder/preview (or --out): atlases with coverage, a checkerboard "
         "mapped through each foreground atlas, and stripes painted on the first frame propagated.",
+        epilog=EXIT_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     pv.add_argument("manifest", metavar="MANIFEST")
     pv.add_argument("--out", default=None, metavar="DIR")
@@ -265,6 +311,8 @@ def _add_masks_parser(sub: argparse._SubParsersAction) -> None:
         "flow) and write one 8-bit PNG per frame (0 = background, 255 = foreground), named like the frames, to "
         "check and fix before fitting. Existing files are never overwritten. The last line printed is the folder. "
         "See docs/auto-masks.md.",
+        epilog=EXIT_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     m.add_argument("clip", help="image-sequence folder or movie file")
     m.add_argument("--out", required=True, metavar="FOLDER", help="folder for the mask PNGs (created)")
@@ -310,6 +358,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
             progress_bar=not args.no_bar,
             scribble_dir=args.scribbles,
             auto_masks=args.auto_masks,
+            refit=args.refit,
         )
     except FitCancelled as exc:
         print(f"cancelled: {exc}; continue with: python -m engine fit --resume --out {run_dir}", file=sys.stderr)
@@ -322,12 +371,32 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     return C.EXIT_OK
 
 
+def _cancelled_line(args: argparse.Namespace, exc: KeyboardInterrupt) -> str:
+    """The one line printed when a verb is stopped by SIGINT/SIGTERM outside the training loop."""
+    how = str(exc) or "SIGINT"
+    line = f"cancelled: {args.verb} stopped by {how} before it finished; nothing half-written was kept"
+    if args.verb == C.VERB_FIT:
+        from engine.fit.run_folder import RunFolder
+
+        run = RunFolder(args.out)
+        if run.checkpoint.exists():
+            return f"{line}; continue with: python -m engine fit --resume --out {run.path}"
+    return f"{line}; run the same command again"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.verb is None:
         parser.print_help()
         return C.EXIT_OK
+    with _cancellable():
+        return _run(parser, args)
+
+
+def _run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    from engine.io.atomic import disk_full_error
+
     try:
         handlers = {
             C.VERB_FIT: _cmd_fit,
@@ -347,26 +416,28 @@ def main(argv: list[str] | None = None) -> int:
 
             try:
                 run_demo(Path(args.out), args.preset, parse_set_args(args.set))
-            except FitCancelled:
+            except FitCancelled as exc:
+                print(f"cancelled: {exc}; run the demo again to continue", file=sys.stderr)
                 return C.EXIT_CANCELLED
             return C.EXIT_OK
-    except InputError as exc:
+    except (InputError, C.RunLocked) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return C.EXIT_BAD_INPUT
-    except KeyboardInterrupt:
+    except FitDiverged as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return C.EXIT_DIVERGED
+    except KeyboardInterrupt as exc:
+        print(_cancelled_line(args, exc), file=sys.stderr)
         return C.EXIT_CANCELLED
-    except OSError as exc:
-        if exc.errno not in DISK_ERRNOS:
+    except (OSError, RuntimeError) as exc:
+        # a full disk or a quota is the machine's state, not an engine bug: one line, and what survives
+        filename = getattr(exc, "filename", None)
+        full = disk_full_error(exc, Path(filename).parent if filename else Path.cwd())
+        if full is None:
             traceback.print_exc()
             return C.EXIT_FAILED
-        # a full disk or a quota is the machine's state, not an engine bug: one line, and what survives
-        where = f"{exc.filename}: " if exc.filename else ""
-        print(
-            f"error: {where}{exc.strerror or exc} — free space (or choose another output folder) and run the "
-            "command again; earlier results, checkpoints and edit layers are intact",
-            file=sys.stderr,
-        )
-        return C.EXIT_FAILED
+        print(f"error: {full}", file=sys.stderr)
+        return C.EXIT_BAD_INPUT
     except Exception:
         traceback.print_exc()
         return C.EXIT_FAILED

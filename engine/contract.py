@@ -7,9 +7,11 @@ folder's file names, the JSON progress lines the engine prints, and the pinned r
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
+from collections.abc import Iterator
 from typing import Any
 
 ENGINE_VERSION = "0.1.0"
@@ -81,7 +83,10 @@ PRESET_STEPS: dict[str, int] = {"draft": 800, "balanced": 6000, "final": 28000, 
 EXIT_OK = 0
 EXIT_FAILED = 1  # an engine bug or an unexpected error: the log has the traceback
 EXIT_BAD_INPUT = 2  # the user's input is wrong: one line on stderr names the file and the fix
-EXIT_CANCELLED = 3  # SIGINT/SIGTERM: a checkpoint was written, `fit --resume` continues
+EXIT_CANCELLED = 3  # SIGINT/SIGTERM: one line; nothing half-written is kept; a fit checkpointed: --resume continues
+#: The fit diverged (a non-finite loss, gradient or parameter): one line names the step and the likely cause;
+#: nothing past the last good checkpoint was saved, so `fit --resume --set lr=...` continues from it.
+EXIT_DIVERGED = 4
 
 # --- run folder ------------------------------------------------------------------------------------------
 RUN_CONFIG = "config.json"
@@ -569,7 +574,131 @@ def srgb_to_linear(c: float) -> float:
 
 
 def resolve_manifest_path(manifest_path: str, path: str) -> str:
-    """A path written in a manifest: as it is when absolute, else relative to the manifest's folder (normalised)."""
+    """A path written in a manifest, to READ through: relative to the manifest's folder (normalised); an absolute
+    path (a plate recorded on another machine) is taken as it is: the reader checks it exists."""
     if os.path.isabs(path):
         return path
     return os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(manifest_path)), path))
+
+
+def manifest_run_root(manifest_path: str) -> str:
+    """The run folder a manifest belongs to: RUN_DIR for ``RUN_DIR/exports/vNNN/manifest.json`` (found from where
+    the manifest IS, so a run folder moved or mounted elsewhere keeps working), else the manifest's own folder."""
+    folder = os.path.dirname(os.path.realpath(manifest_path))
+    parent = os.path.dirname(folder)
+    if os.path.basename(parent) == EXPORTS_DIR:
+        return os.path.dirname(parent)
+    return folder
+
+
+def is_within(path: str, root: str) -> bool:
+    """Whether ``path`` is ``root`` or lies below it once every symlink and ``..`` is resolved."""
+    real, base = os.path.realpath(path), os.path.realpath(root)
+    try:
+        return os.path.commonpath([real, base]) == base
+    except ValueError:  # different drives (Windows)
+        return False
+
+
+def resolve_manifest_write_path(manifest_path: str, path: str) -> str:
+    """A path written in a manifest, to WRITE through (edit layers, their history): relative, and inside the
+    manifest's run folder (``manifest_run_root``) after resolving symlinks and ``..``; anything else raises
+    ManifestError (one line). A manifest cannot make the engine or the add-on write anywhere else."""
+    fix = "export the run again (a manifest's edit paths are relative and stay inside its run folder)"
+    if not isinstance(path, str) or not path or os.path.isabs(path):
+        raise ManifestError(f"{manifest_path}: write path {path!r} is not relative to the manifest — {fix}")
+    resolved = resolve_manifest_path(manifest_path, path)
+    if not is_within(resolved, manifest_run_root(manifest_path)):
+        raise ManifestError(f"{manifest_path}: write path {path!r} leaves the run folder — {fix}")
+    return resolved
+
+
+# --- the run folder's lock ---------------------------------------------------------------------------------
+#: Every writer of a run folder (fit, export, project-frame, preview, the add-on's Save Edits) holds an exclusive
+#: lock on RUN_DIR/RUN_LOCK for the whole write; the OS releases it when the process ends, however it ends. The
+#: file holds the holder's {"pid", "host", "what", "since"} so a second writer's one-line refusal can name it.
+RUN_LOCK = ".neural_atlas.lock"
+#: The fix printed when a run folder is locked by another process.
+RUN_LOCKED_FIX = "wait for it to finish (or stop it), then run this again"
+
+
+class RunLocked(Exception):
+    """Another process holds the run folder's lock: the message names the holder (one line)."""
+
+    def __init__(self, folder: str, holder: dict[str, Any]) -> None:
+        self.folder = folder
+        self.holder = holder
+        who = f"{holder.get('what', 'another process')} (pid {holder.get('pid', '?')} on {holder.get('host', '?')}"
+        since = holder.get("since")
+        who += f", since {since})" if since else ")"
+        super().__init__(f"{folder}: this run folder is in use by {who} — {RUN_LOCKED_FIX}")
+
+
+#: Run folders this process holds, and how many times (a verb that calls another verb re-enters its lock).
+_HELD_LOCKS: dict[str, list[Any]] = {}
+
+
+def _try_lock(fd: int) -> bool:
+    if os.name == "nt":  # pragma: no cover - Windows
+        import msvcrt
+
+        try:
+            os.lseek(fd, 0, os.SEEK_SET)
+            msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)  # type: ignore[attr-defined]
+        except OSError:
+            return False
+        return True
+    import fcntl
+
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return False
+    return True
+
+
+def _read_holder(path: str) -> dict[str, Any]:
+    try:
+        with open(path, "rb") as f:
+            f.seek(1)  # byte 0 is the one Windows locks
+            data = json.loads(f.read().decode("utf-8") or "{}")
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+@contextlib.contextmanager
+def run_lock(folder: str | os.PathLike[str], what: str) -> Iterator[None]:
+    """Hold RUN_DIR's exclusive lock for the ``with`` block (creating the folder); raises RunLocked at once when
+    another process holds it. Re-entrant within one process. ``what`` names the holder in others' messages."""
+    import datetime
+    import socket
+
+    folder = os.fspath(folder)
+    os.makedirs(folder, exist_ok=True)
+    key = os.path.realpath(folder)
+    held = _HELD_LOCKS.get(key)
+    if held is not None:
+        held[1] += 1
+        try:
+            yield
+        finally:
+            held[1] -= 1
+        return
+    path = os.path.join(folder, RUN_LOCK)
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        if not _try_lock(fd):
+            raise RunLocked(folder, _read_holder(path))
+        since = datetime.datetime.now().astimezone().isoformat(timespec="seconds")
+        holder = {"pid": os.getpid(), "host": socket.gethostname(), "what": what, "since": since}
+        os.ftruncate(fd, 1)
+        os.lseek(fd, 0, os.SEEK_SET)
+        os.write(fd, b" " + json.dumps(holder).encode("utf-8"))
+        _HELD_LOCKS[key] = [fd, 1]
+        try:
+            yield
+        finally:
+            del _HELD_LOCKS[key]
+    finally:
+        os.close(fd)  # closing the descriptor releases the lock

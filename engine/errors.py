@@ -18,3 +18,28 @@ class InputError(Exception):
         self.fix = fix
         where = f"{self.path}: " if self.path else ""
         super().__init__(f"{where}{problem} — {fix}".replace("\n", " "))
+
+
+#: Bytes in the megabyte of the disk-full message.
+MB = 1024 * 1024
+
+
+class DiskFullError(InputError):
+    """The disk (or the quota) is full: ``disk full: free N MB at PATH``. Not a bug, so one line and exit 2;
+    whatever was being written was removed, and earlier results are intact."""
+
+    def __init__(self, path: str | Path, need_bytes: int) -> None:
+        self.need_mb = max(1, -(-int(need_bytes) // MB))
+        super().__init__(path, "disk full", "free space or choose another output folder, then run the command again")
+        self.args = (
+            f"disk full: free {self.need_mb} MB at {path} — nothing half-written was kept and earlier results are "
+            "intact; run the command again",
+        )
+
+    def __str__(self) -> str:
+        return str(self.args[0])
+
+
+class FitDiverged(Exception):
+    """The fit's loss, gradients or parameters stopped being finite: the message (one line) names the step, the
+    likely cause and how to continue from the last good checkpoint (``contract.EXIT_DIVERGED``)."""

@@ -483,6 +483,7 @@ def fit(
     stream: Any = None,
     scribble_dir: str | Path | None = None,
     auto_masks: bool = False,
+    refit: bool = False,
 ) -> dict[str, Any]:
     """Fit a layered atlas to ``clip``; writes config, clip record, scene analysis, checkpoint and metrics
     into ``run_dir``. ``auto_masks``: no masks given, find them from motion (written to RUN_DIR/auto_masks
@@ -498,7 +499,7 @@ def fit(
         scribble_dir = scribble_dir or record.scribbles
         expect = record.fingerprint
     else:
-        if run.holds_fit():
+        if run.holds_fit() and not refit:
             raise InputError(
                 run.path, "this folder already holds a fit", "pass --resume to continue it, or choose a new --out"
             )

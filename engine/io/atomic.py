@@ -7,10 +7,21 @@ suffix (``.name.XXXX.tmp.exr``): image writers pick their format from it.
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import os
+import shutil
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
+
+from engine.errors import DiskFullError
+
+#: OS errors that mean "the disk is full" (no space, quota, file too large).
+DISK_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
+#: A write that failed for another reason (torch.save and OpenEXR raise RuntimeError, not OSError) counts as a
+#: full disk when what is left free after cleaning up is no more than what the write had reached plus this.
+DISK_FULL_SLACK = 1024 * 1024
 
 
 def _current_umask() -> int:
@@ -19,17 +30,64 @@ def _current_umask() -> int:
     return mask
 
 
-def atomic_write(path: Path, write: Callable[[str], None], fsync: bool = True) -> Path:
+def free_bytes(folder: str | Path) -> int | None:
+    """Bytes free to this user at ``folder`` (or the nearest folder above it that exists); None if unknown."""
+    probe = Path(folder)
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    try:
+        return shutil.disk_usage(probe).free
+    except OSError:
+        return None
+
+
+def disk_full_error(
+    exc: BaseException, folder: str | Path, written: int = 0, need: int | None = None
+) -> DiskFullError | None:
+    """The one-line ``DiskFullError`` that ``exc`` (raised while writing into ``folder``, after ``written`` bytes)
+    stands for, or None when it is not a full disk. ``need``: the bytes the write needs, when known (else what
+    was written plus the slack), so the message can say how much to free."""
+    if isinstance(exc, DiskFullError):
+        return exc
+    free = free_bytes(folder)
+    if isinstance(exc, OSError) and exc.errno in DISK_ERRNOS:
+        full = True
+    elif isinstance(exc, (OSError, RuntimeError)):
+        full = free is not None and free <= written + DISK_FULL_SLACK
+    else:
+        return None
+    if not full:
+        return None
+    need = need if need is not None else written + DISK_FULL_SLACK
+    return DiskFullError(folder, max(need - (free or 0), DISK_FULL_SLACK))
+
+
+@contextlib.contextmanager
+def disk_full_as_one_line(folder: str | Path, need: int | None = None) -> Iterator[None]:
+    """Writes inside the block that fail because ``folder``'s disk is full raise ``DiskFullError`` (one line)."""
+    try:
+        yield
+    except (OSError, RuntimeError) as exc:
+        full = disk_full_error(exc, folder, need=need)
+        if full is None:
+            raise
+        raise full from None
+
+
+def atomic_write(path: Path, write: Callable[[str], None], fsync: bool = True, need: int | None = None) -> Path:
     """Call ``write(tmp_path)``, optionally fsync the result, and rename it to ``path``.
 
     The result gets the permissions a plain ``open(path, "w")`` would (0666 less the umask), not the
     temp file's private 0600: a manifest or pass written on a render node must stay readable by the
-    artist's workstation and the rest of the team.
+    artist's workstation and the rest of the team. A write that fails because the disk is full (whatever the
+    writer raises: torch.save and OpenEXR raise RuntimeError) leaves no temp file and raises ``DiskFullError``;
+    ``need`` (bytes, when the caller knows) sizes its "free N MB".
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
-    os.close(fd)
+    with disk_full_as_one_line(path.parent, need):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
+        os.close(fd)
     try:
         write(tmp)
         os.chmod(tmp, 0o666 & ~_current_umask())
@@ -37,8 +95,12 @@ def atomic_write(path: Path, write: Callable[[str], None], fsync: bool = True) -
             with open(tmp, "rb+") as f:
                 os.fsync(f.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
+        written = Path(tmp).stat().st_size if Path(tmp).exists() else 0
         Path(tmp).unlink(missing_ok=True)
+        full = disk_full_error(exc, path.parent, written, need)
+        if full is not None:
+            raise full from None
         raise
     return path
 
@@ -55,4 +117,12 @@ def atomic_write_text(path: Path, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
 
 
-__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text"]
+__all__ = [
+    "DISK_ERRNOS",
+    "atomic_write",
+    "atomic_write_bytes",
+    "atomic_write_text",
+    "disk_full_as_one_line",
+    "disk_full_error",
+    "free_bytes",
+]
