@@ -1,8 +1,10 @@
-"""Every bad input the fit verb can meet, as cases run through the real CLI (``engine.cli.main``).
+"""Every bad input a verb can meet, as cases run through the real CLI (``engine.cli.main``).
 
 Each case builds its input in a fresh folder and returns the argv. ``run_case`` runs it in-process and
-returns the exit code, the stderr text and what changed on disk. The table of messages in
-docs/robustness.md is generated from these real outputs (and a test checks it stays in sync):
+returns the exit code, the stderr text and what changed on disk. The fit verb's cases are here; the other
+areas' cases live in ``tests/stability/cases_*.py`` (each a ``CASES`` tuple of ``Case``), collected by
+``all_cases``. The table of messages in docs/robustness.md is generated from these real outputs (and a test
+checks it stays in sync):
 
     .venv/bin/python -m tests.stability.bad_inputs      # prints the markdown table
 """
@@ -11,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import importlib
 import io
 import json
 import os
@@ -42,6 +45,13 @@ class Case:
     """Creates the input under the folder and returns the argv after ``fit`` (always with --out <dir>/run)."""
     names: tuple[str, ...]
     """Text the one-line message must contain (the offending file, the fix)."""
+    verb: str = C.VERB_FIT
+    """The verb the argv is given to."""
+    exit: int = C.EXIT_BAD_INPUT
+    """The exit code the case must give."""
+    watch: Callable[[Path], Path] | None = None
+    """The folder that must stay byte-identical (or not be created) given the case's folder; default: the
+    argv's --out."""
 
 
 def _clip(d: Path) -> tuple[Path, Path]:
@@ -215,14 +225,23 @@ CASES: tuple[Case, ...] = (
 )
 
 
+def all_cases() -> tuple[Case, ...]:
+    """The fit verb's cases, then every ``tests/stability/cases_*.py`` module's ``CASES``, by module name."""
+    cases = list(CASES)
+    for path in sorted(Path(__file__).parent.glob("cases_*.py")):
+        cases.extend(importlib.import_module(f"tests.stability.{path.stem}").CASES)
+    return tuple(cases)
+
+
 def _snapshot(folder: Path) -> dict[str, str]:
-    """Hash of every file under ``folder`` (the run folder must be byte-identical after a refusal)."""
+    """Hash of every file under ``folder`` (the run folder must be byte-identical after a refusal; the run
+    folder's lock file is the OS's bookkeeping, not the artist's work)."""
     if not folder.exists():
         return {}
     return {
         str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
         for p in sorted(folder.rglob("*"))
-        if p.is_file()
+        if p.is_file() and p.name != C.RUN_LOCK
     }
 
 
@@ -242,8 +261,8 @@ class Outcome:
 
 def run_case(case: Case, folder: Path) -> Outcome:
     folder.mkdir(parents=True, exist_ok=True)
-    argv = ["fit", *case.build(folder)]
-    run = Path(argv[argv.index("--out") + 1])
+    argv = [case.verb, *case.build(folder)]
+    run = case.watch(folder) if case.watch is not None else Path(argv[argv.index("--out") + 1])
     existed, before = run.exists(), _snapshot(run)
     err = io.StringIO()
     with _native_stderr() as native, contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
@@ -281,7 +300,7 @@ def table_row(case: Case, message: str, code: int) -> str:
 def main() -> None:
     print("| case | input | message (stderr, one line) | exit |")
     print("|---|---|---|---|")
-    for case in CASES:
+    for case in all_cases():
         with tempfile.TemporaryDirectory() as tmp:
             folder = Path(tmp) / case.id
             outcome = run_case(case, folder)

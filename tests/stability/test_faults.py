@@ -142,11 +142,13 @@ def test_sigkill_loses_at_most_the_checkpoint_interval_and_resume_reaches_the_sa
     events = _run_until(
         proc,
         lambda ev: (
-            any(e["event"] == C.EVENT_CHECKPOINT for e in ev)
-            and ev[-1]["event"] == C.EVENT_PROGRESS
-            and ev[-1]["step"] >= [e["step"] for e in ev if e["event"] == C.EVENT_CHECKPOINT][-1] + 2
-        )
-        or ev[-1].get("step", 0) > STEPS // 2,  # no periodic checkpoint by half-way: fail below, do not hang
+            (
+                any(e["event"] == C.EVENT_CHECKPOINT for e in ev)
+                and ev[-1]["event"] == C.EVENT_PROGRESS
+                and ev[-1]["step"] >= [e["step"] for e in ev if e["event"] == C.EVENT_CHECKPOINT][-1] + 2
+            )
+            or ev[-1].get("step", 0) > STEPS // 2
+        ),  # no periodic checkpoint by half-way: fail below, do not hang
     )
     assert events[-1]["step"] <= STEPS // 2, "no periodic checkpoint in the first half of the fit"
     os.kill(proc.pid, signal.SIGKILL)
