@@ -37,3 +37,46 @@ def test_a_failed_write_leaves_neither_the_file_nor_its_temp(tmp_path):
         atomic_write(tmp_path / "keep.json", fail)
     assert (tmp_path / "keep.json").read_text() == "earlier"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.json"]
+
+
+def test_a_runtime_error_on_a_full_disk_is_one_line_disk_full(tmp_path, monkeypatch):
+    """torch.save and OpenEXR raise RuntimeError, not OSError, when the disk fills: with no free space left the
+    write is a DiskFullError naming the folder and how much to free; the earlier file and no temp remain."""
+    import engine.io.atomic as atomic
+    from engine.errors import MB, DiskFullError
+
+    (tmp_path / "checkpoint.pt").write_text("earlier")
+    monkeypatch.setattr(atomic, "free_bytes", lambda folder: 0)
+
+    def fail(tmp: str) -> None:
+        with open(tmp, "wb") as f:
+            f.write(b"x" * 1000)
+        raise RuntimeError("PytorchStreamWriter failed writing file data/0: file write failed")
+
+    with pytest.raises(DiskFullError) as info:
+        atomic_write(tmp_path / "checkpoint.pt", fail, need=5 * MB)
+    assert str(info.value).startswith(f"disk full: free 5 MB at {tmp_path} — ")
+    assert "\n" not in str(info.value)
+    assert (tmp_path / "checkpoint.pt").read_text() == "earlier"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["checkpoint.pt"]
+
+
+def test_a_runtime_error_with_space_left_is_not_called_a_full_disk(tmp_path):
+    def fail(tmp: str) -> None:
+        raise RuntimeError("a real bug")
+
+    with pytest.raises(RuntimeError, match="a real bug"):
+        atomic_write(tmp_path / "x.bin", fail)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_enospc_is_a_full_disk_whatever_the_free_space_says(tmp_path):
+    import errno
+
+    from engine.errors import DiskFullError
+    from engine.io.atomic import disk_full_error
+
+    full = disk_full_error(OSError(errno.ENOSPC, "No space left on device"), tmp_path, written=0, need=3 * 1024**2)
+    assert isinstance(full, DiskFullError) and str(full).startswith("disk full: free ")
+    assert disk_full_error(OSError(errno.EACCES, "Permission denied"), tmp_path) is None
+    assert disk_full_error(KeyboardInterrupt(), tmp_path) is None
