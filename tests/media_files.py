@@ -1,12 +1,18 @@
-"""Test fixtures written to disk exactly as given: images through OpenImageIO, an audio-only movie."""
+"""Test fixtures written to disk exactly as given: images through OpenImageIO, movies through PyAV (whole, cut
+short or garbled in the middle), an audio-only movie, and a PNG that declares a huge image in a few megabytes."""
 
 from __future__ import annotations
 
+import struct
+import zlib
+from collections.abc import Sequence
 from pathlib import Path
 
 import av
 import numpy as np
 import OpenImageIO as oiio
+
+from engine.io.images import native_path
 
 
 def write_image(path: Path, pixels: np.ndarray, fmt: str | None = None) -> Path:
@@ -19,9 +25,9 @@ def write_image(path: Path, pixels: np.ndarray, fmt: str | None = None) -> Path:
     fmt = fmt or {np.uint8: "uint8", np.uint16: "uint16", np.float32: "float"}[pixels.dtype.type]
     spec = oiio.ImageSpec(width, height, channels, fmt)
     spec.attribute("oiio:UnassociatedAlpha", 1)
-    out = oiio.ImageOutput.create(str(path))
+    out = oiio.ImageOutput.create(Path(path).suffix.lstrip("."))  # the plug-in by its extension
     assert out is not None, oiio.geterror()
-    assert out.open(str(path), spec), out.geterror()
+    assert out.open(native_path(path), spec), out.geterror()  # any name, UTF-8 or not
     assert out.write_image(np.ascontiguousarray(pixels)), out.geterror()
     out.close()
     return path
@@ -35,4 +41,78 @@ def write_audio_only_movie(path: Path) -> Path:
         frame.sample_rate = 44100
         container.mux(stream.encode(frame))
         container.mux(stream.encode())
+    return path
+
+
+def movie_codec() -> str:
+    """H.264 when this PyAV has it, else MPEG-4 part 2."""
+    return "libx264" if "libx264" in av.codecs_available else "mpeg4"
+
+
+def write_movie(path: Path, frames: Sequence[np.ndarray], rate: int = 24) -> Path:
+    """uint8 RGB ``frames`` [H, W, 3] as a yuv420p movie; the container comes from the suffix (.mp4, .mkv, .avi)."""
+    height, width = frames[0].shape[:2]
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream(movie_codec(), rate=rate)
+        stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
+        for rgb in frames:
+            container.mux(stream.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb), format="rgb24")))
+        container.mux(stream.encode())
+    return path
+
+
+def textured_frames(count: int, size: tuple[int, int] = (64, 48), seed: int = 0) -> list[np.ndarray]:
+    """``count`` uint8 frames (W, H = ``size``) of noise with a moving bright square: every frame costs real bytes
+    in a movie, so damage to the middle of the file lands on frames in the middle."""
+    rng = np.random.default_rng(seed)
+    width, height = size
+    out = []
+    for i in range(count):
+        img = rng.integers(0, 60, (height, width, 3)).astype(np.uint8)
+        x = (3 * i) % max(1, width - 16)
+        img[height // 4 : height // 4 + 16, x : x + 16] = 255
+        out.append(img)
+    return out
+
+
+def garble_movie(source: Path, target: Path, how: str) -> Path:
+    """A damaged copy of a movie: ``"cut"`` keeps the first half of its bytes (a copy that stopped), ``"zeroed"``
+    overwrites its middle third with zeros (a damaged disk or transfer)."""
+    data = bytearray(source.read_bytes())
+    size = len(data)
+    if how == "cut":
+        data = data[: size // 2]
+    elif how == "zeroed":
+        data[size // 3 : 2 * size // 3] = bytes(2 * size // 3 - size // 3)
+    else:
+        raise ValueError(f"unknown damage {how!r}")
+    target.write_bytes(bytes(data))
+    return target
+
+
+def _png_chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+
+#: Adler-32's modulus (the zlib stream's checksum).
+ADLER_MOD = 65521
+
+
+def write_blank_png(path: Path, width: int, height: int, channels: int = 3) -> Path:
+    """A valid 8-bit PNG of ``width`` x ``height`` black pixels, built without holding or compressing the image:
+    one zero row is deflated after a full flush (which resets the compressor, so every later row compresses to
+    the same bytes) and repeated; the checksum of all-zero data is known in closed form. 30000x30000 RGB gives a
+    3 MB file that a reader would decode into 10.8 GB of float32."""
+    colour_type = {1: 0, 2: 4, 3: 2, 4: 6}[channels]
+    row = bytes(1 + width * channels)  # filter byte 0, then the row's samples
+    deflate = zlib.compressobj(9)
+    first = deflate.compress(row) + deflate.flush(zlib.Z_FULL_FLUSH)
+    again = deflate.compress(row) + deflate.flush(zlib.Z_FULL_FLUSH)
+    assert deflate.compress(row) + deflate.flush(zlib.Z_FULL_FLUSH) == again, "rows do not compress alike"
+    adler = ((len(row) * height) % ADLER_MOD) << 16 | 1  # Adler-32 of all-zero bytes: a stays 1, b counts them
+    end = deflate.flush()[:-4] + struct.pack(">I", adler)
+    idat = first + again * (height - 1) + end
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, colour_type, 0, 0, 0)
+    png = b"\x89PNG\r\n\x1a\n" + _png_chunk(b"IHDR", ihdr) + _png_chunk(b"IDAT", idat) + _png_chunk(b"IEND", b"")
+    path.write_bytes(png)
     return path

@@ -5,7 +5,15 @@ missing frame: ``open_clip`` lists the sequence, checks numbering, sizes and tha
 decodes, and every bad input raises an ``InputError`` whose one-line message names the file and the fix.
 
 Pixel values are returned in the file's own encoding (integers scaled to [0, 1], floats untouched):
-colour management and sanitising are the caller's decision, not the loader's.
+colour management and sanitising are the caller's decision, not the loader's. One clip has one encoding: a
+sequence that mixes float (scene-linear) and integer (display-encoded) frames is refused, naming the first frame
+that differs, since decoding every frame as frame 0's colour space would silently give the others the wrong
+colours in the fit and in the composite.
+
+A movie whose decoder stops early or skips frames is refused, naming the file: a fit of the frames that did
+decode would be the wrong frames, or too few, without a word. An image is decoded only when its header declares a
+size within ``engine.io.images.MAX_DECODED_BYTES``; a path that is not valid UTF-8 reads like any other
+(``engine.io.images.native_path``).
 """
 
 from __future__ import annotations
@@ -26,6 +34,7 @@ import OpenImageIO as oiio
 
 from engine import contract as C
 from engine.errors import InputError
+from engine.io.images import check_declared_size, open_image_input
 
 IMAGE_EXTENSIONS: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".exr", ".dpx", ".tif", ".tiff")
 MOVIE_EXTENSIONS: tuple[str, ...] = (".mp4", ".mov", ".mkv", ".avi", ".webm", ".m4v")
@@ -39,6 +48,10 @@ _MOVIE = "movie"
 _FLOAT_TYPES = (oiio.FLOAT, oiio.HALF, oiio.DOUBLE)
 _NUMBER = re.compile(r"\d+")
 _MAX_LISTED = 3  # files named in a message before "and N more"
+#: A movie whose header stores no frame count (mkv, webm, some avi) is counted by its packets. When they cover
+#: less than this fraction of the frames its duration declares (less one frame, for rounding), frames are
+#: missing: the file is truncated or corrupt.
+MOVIE_DURATION_COVERAGE = 0.95
 
 
 class NumberedFrames:
@@ -321,13 +334,15 @@ def _open_sequence(folder: str, frame_range: tuple[int, int] | None) -> ClipInfo
     # rest, headers are enough to check sizes cheaply.
     head = _read_image(selected[0].path, _FRAME)
     for f in selected[1:]:
-        width, height = _read_header(f.path, _FRAME)
+        width, height, is_float = _read_header(f.path, _FRAME)
         if (width, height) != (head.width, head.height):
             raise InputError(
                 f.path,
                 f"{f.name} is {width}x{height} but {selected[0].name} is {head.width}x{head.height}",
                 _FRAME.size_fix,
             )
+        if is_float != head.is_float:
+            raise _mixed_encoding(f.path, selected[0].name, is_float)
     # Unnumbered files (all or none, see _list_images) are numbered by their position.
     numbers = [f.number for f in selected]
     frame_numbers = tuple(n if n is not None else first + i for i, n in enumerate(numbers))
@@ -341,6 +356,19 @@ def _open_sequence(folder: str, frame_range: tuple[int, int] | None) -> ClipInfo
         fps=None,
         colorspace="linear" if head.is_float else "sRGB",
         channels=head.channels,
+    )
+
+
+def _encoding(is_float: bool) -> str:
+    return "float (scene-linear)" if is_float else "integer (display-encoded)"
+
+
+def _mixed_encoding(path: str, first_name: str, is_float: bool) -> InputError:
+    """A frame stored as float in a clip of integer frames, or the reverse: one colour space cannot hold both."""
+    return InputError(
+        path,
+        f"{os.path.basename(path)} is {_encoding(is_float)} but {first_name} is {_encoding(not is_float)}",
+        "export every frame of the clip in one format and bit depth (all EXR/float, or all 8/16-bit)",
     )
 
 
@@ -370,6 +398,8 @@ def _open_movie(path: str, frame_range: tuple[int, int] | None) -> ClipInfo:
         stream = _video_stream(container, path)
         rate = stream.average_rate or stream.guessed_rate
         count = stream.frames
+        only_stream = len(container.streams) == 1
+        duration = container.duration / av.time_base if container.duration else None
         try:
             frame = next(container.decode(stream), None)
         except av.FFmpegError as exc:
@@ -377,7 +407,7 @@ def _open_movie(path: str, frame_range: tuple[int, int] | None) -> ClipInfo:
     if frame is None:
         raise InputError(path, "the video stream has no frames", _MOVIE_FIX)
     if count <= 0:  # the container has no frame count (mkv, webm, some avi): count the packets instead
-        count = _count_packets(path)
+        count = _count_packets(path, float(rate) if rate else None, duration if only_stream else None)
     first, last = _check_range(path, frame_range, count)
     return ClipInfo(
         source=path,
@@ -398,7 +428,7 @@ _MOVIE_FIX = "re-encode the movie (e.g. with ffmpeg) or export it as an image se
 def _open_container(path: str) -> av.container.InputContainer:
     try:
         return av.open(path)
-    except (av.FFmpegError, OSError, ValueError) as exc:
+    except (av.FFmpegError, OSError, ValueError, UnicodeError) as exc:
         raise InputError(path, f"cannot open the movie ({_one_line(exc)})", _MOVIE_FIX) from exc
 
 
@@ -412,14 +442,64 @@ def _video_stream(container: av.container.InputContainer, path: str) -> av.Video
     return container.streams.video[0]
 
 
-def _count_packets(path: str) -> int:
-    """Frame count by demuxing (cheap: no decoding) for containers whose header does not store it."""
+def _count_packets(path: str, rate: float | None = None, duration: float | None = None) -> int:
+    """Frame count by demuxing (cheap: no decoding) for containers whose header does not store it.
+
+    With the stream's ``rate`` the count is checked against the span of the packets' timestamps and, when given,
+    the container's declared ``duration`` (seconds; pass it only for a file whose one stream is this video): a
+    demuxer that resynchronises past garbage, or a file cut short, yields fewer packets than the movie declares,
+    and a fit of those would be the wrong frames or too few.
+    """
     with _open_container(path) as container:
         stream = _video_stream(container, path)
+        stamps = []
         try:
-            return sum(1 for packet in container.demux(stream) if packet.size)
+            for packet in container.demux(stream):
+                if packet.size and not packet.is_discard:
+                    stamps.append(packet.pts)
         except av.FFmpegError as exc:
             raise InputError(path, f"cannot read the movie ({_one_line(exc)})", _MOVIE_FIX) from exc
+        time_base = float(stream.time_base) if stream.time_base else None
+    count = len(stamps)
+    declared = []
+    timed = [t for t in stamps if t is not None]
+    if rate and time_base and len(timed) > 1:
+        declared.append(("its timestamps span", (max(timed) - min(timed)) * time_base * rate + 1))
+    if rate and duration:
+        declared.append((f"its declared duration ({duration:.2f} s at {rate:g} fps) holds", duration * rate))
+    for what, frames in declared:
+        if count + 1 < MOVIE_DURATION_COVERAGE * frames:
+            raise InputError(
+                path,
+                f"only {count} frames can be read but {what} {round(frames)}: the file is truncated or corrupt",
+                _MOVIE_FIX,
+            )
+    return count
+
+
+def _decoded_frames(
+    container: av.container.InputContainer, stream: av.VideoStream, path: str
+) -> Iterator[av.VideoFrame]:
+    """Every frame of the stream in order, then a check that the decoder gave one frame per packet it was fed.
+
+    A decoder that meets a corrupt packet may drop its frame and carry on: every later frame would then be
+    fitted under the wrong number. The whole stream is decoded (frames after the selection are not converted)
+    so a dropped frame anywhere is a one-line refusal naming the file. (Timestamps cannot tell: some containers,
+    AVI among them, carry none that follow the presentation order.)
+    """
+    fed = decoded = 0
+    for packet in container.demux(stream):
+        if packet.size and not packet.is_discard:
+            fed += 1
+        for frame in packet.decode():
+            decoded += 1
+            yield frame
+    if decoded < fed:
+        raise InputError(
+            path,
+            f"the decoder gave {decoded} frames for the {fed} the file holds: frames are corrupt and were dropped",
+            _MOVIE_FIX,
+        )
 
 
 def _decode_movie(info: ClipInfo) -> Iterator[np.ndarray]:
@@ -430,9 +510,9 @@ def _decode_movie(info: ClipInfo) -> Iterator[np.ndarray]:
         stream = _video_stream(container, info.source)
         stream.thread_type = "AUTO"
         try:
-            for index, frame in enumerate(container.decode(stream)):
-                if index < first:
-                    continue
+            for index, frame in enumerate(_decoded_frames(container, stream, info.source)):
+                if not first <= index <= last:
+                    continue  # decoded to the end all the same: a frame dropped later is refused too
                 if (frame.width, frame.height) != (info.width, info.height):
                     raise InputError(
                         info.source,
@@ -446,8 +526,6 @@ def _decode_movie(info: ClipInfo) -> Iterator[np.ndarray]:
                     rgb = frame.to_ndarray(format="rgb24").astype(np.float32) / 255.0
                 yield rgb
                 produced += 1
-                if index >= last:
-                    break
         except av.FFmpegError as exc:
             raise InputError(
                 info.source, f"cannot decode frame {first + produced} ({_one_line(exc)})", _MOVIE_FIX
@@ -455,7 +533,8 @@ def _decode_movie(info: ClipInfo) -> Iterator[np.ndarray]:
     if produced < info.num_frames:
         raise InputError(
             info.source,
-            f"the movie ended after frame {first + produced - 1} but frames {first}..{last} were selected",
+            f"the decoder stopped after frame {first + produced - 1} but the movie declares frames up to {last} "
+            f"(frames {first}..{last} were selected): the file is truncated or corrupt",
             f"{_MOVIE_FIX}, or choose a frame range that ends earlier",
         )
 
@@ -550,19 +629,25 @@ def _quiet_codec_stderr() -> Iterator[None]:
 
 
 def _open_image(path: str, role: _Role) -> oiio.ImageInput:
-    inp = oiio.ImageInput.open(path, _read_config())
+    """The open image, its header checked: a size beyond ``images.MAX_DECODED_BYTES`` is refused before decoding."""
+    inp = open_image_input(path, _read_config())
     if inp is None:
         raise InputError(path, f"cannot open this {role.noun} image ({_one_line(oiio.geterror())})", role.corrupt_fix)
+    try:
+        check_declared_size(path, inp.spec(), role.noun)
+    except InputError:
+        inp.close()
+        raise
     return inp
 
 
-def _read_header(path: str, role: _Role) -> tuple[int, int]:
-    """(width, height) of the display window, from the header only."""
+def _read_header(path: str, role: _Role) -> tuple[int, int, bool]:
+    """(width, height) of the display window and whether the pixels are floats, from the header only."""
     with _quiet_codec_stderr():
         inp = _open_image(path, role)
     try:
         spec = inp.spec()
-        return spec.full_width or spec.width, spec.full_height or spec.height
+        return spec.full_width or spec.width, spec.full_height or spec.height, spec.format.basetype in _FLOAT_TYPES
     finally:
         inp.close()
 
@@ -677,4 +762,6 @@ def iter_frames(info: ClipInfo, size: tuple[int, int] | None = None) -> Iterator
                 f"frame is {image.width}x{image.height} but the clip is {info.width}x{info.height}",
                 _FRAME.size_fix,
             )
+        if image.is_float != (info.colorspace == "linear"):
+            raise _mixed_encoding(path, os.path.basename(info.frame_files[0]), image.is_float)
         yield _resize(image.rgb(), (out_w, out_h))

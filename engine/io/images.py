@@ -3,10 +3,20 @@
 Every write goes to a hidden temp file in the destination folder and is renamed into place, so a killed
 export or render never leaves a half-written file where a compositor would pick it up. Channel data is
 float32, row 0 at the top (the file convention; Blender flips to bottom-up on load).
+
+Two guards every reader of an image shares (``engine.io.clip`` too):
+
+- an image is decoded only when its header declares no more than ``MAX_DECODED_BYTES`` (``check_declared_size``):
+  a few megabytes of PNG can declare 30000x30000 pixels, which would ask for 10.8 GB before a single pixel is
+  checked; refusing on the header keeps a corrupt or hostile file from exhausting the machine;
+- a path whose bytes are not UTF-8 (a Linux name from another encoding reaches Python as surrogate escapes)
+  is handed to the C libraries as bytes (``native_path``), which they accept, so such a file reads and writes
+  like any other, and shown in messages with its odd bytes as ``\\xNN`` (``display_path``).
 """
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -16,21 +26,78 @@ import OpenImageIO as oiio
 from engine.errors import InputError
 from engine.io.atomic import atomic_write
 
+#: Every image is decoded as float32: the bytes per channel a decode allocates, whatever the file stores.
+DECODED_BYTES_PER_CHANNEL = 4
+#: The largest image the engine decodes: 16k x 16k RGBA as float32 (4 GiB). A real plate is far smaller (an 8K
+#: RGBA float frame is 0.57 GB); a header asking for more is corrupt or hostile, and refused before decoding.
+MAX_DECODED_SIDE = 16384
+MAX_DECODED_BYTES = MAX_DECODED_SIDE * MAX_DECODED_SIDE * 4 * DECODED_BYTES_PER_CHANNEL
+#: Bytes in the gigabyte of the size messages.
+GB = 1e9
+_OVERSIZED_FIX = "re-export it at its real size (a header this large is usually a corrupt or truncated file)"
+
+
+def native_path(path: str | os.PathLike[str]) -> str | bytes:
+    """``path`` as OpenImageIO and OpenEXR take it: the text when it is valid UTF-8, else the file system's bytes
+    (their text conversion refuses the surrogate escapes that stand for a name's undecodable bytes)."""
+    text = os.fspath(path)
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return os.fsencode(text)
+    return text
+
+
+def display_path(path: str | os.PathLike[str]) -> str:
+    """``path`` as text any terminal, log or JSON file takes: bytes that are not UTF-8 shown as ``\\xNN``."""
+    return os.fsencode(os.fspath(path)).decode("utf-8", "backslashreplace")
+
+
+def open_image_input(path: str | os.PathLike[str], config: oiio.ImageSpec | None = None) -> oiio.ImageInput | None:
+    """``oiio.ImageInput.open`` of any path (``native_path``); None when OpenImageIO cannot open it."""
+    name = native_path(path)
+    # the binding takes bytes as well as text (its stubs name only str)
+    if config is None:
+        return oiio.ImageInput.open(name)  # type: ignore[arg-type]
+    return oiio.ImageInput.open(name, config)  # type: ignore[arg-type]
+
+
+def declared_bytes(spec: oiio.ImageSpec) -> int:
+    """What decoding the image of ``spec`` allocates: its data window, or its display window when larger (the
+    pixels are placed into it), times its channels, as float32."""
+    width = max(spec.width, spec.full_width)
+    height = max(spec.height, spec.full_height)
+    return width * height * max(spec.nchannels, 1) * DECODED_BYTES_PER_CHANNEL
+
+
+def check_declared_size(path: str | os.PathLike[str], spec: oiio.ImageSpec, noun: str = "image") -> None:
+    """Refuse, in one line naming the file, its declared size and the cap, an image whose header asks for more
+    than ``MAX_DECODED_BYTES`` decoded: checked before a pixel is read."""
+    need = declared_bytes(spec)
+    if need <= MAX_DECODED_BYTES:
+        return
+    width, height = max(spec.width, spec.full_width), max(spec.height, spec.full_height)
+    raise InputError(
+        display_path(path),
+        f"this {noun} declares {width}x{height} pixels with {spec.nchannels} channels ({need / GB:.1f} GB "
+        f"decoded), more than the {MAX_DECODED_BYTES / GB:.1f} GB limit ({MAX_DECODED_SIDE}x{MAX_DECODED_SIDE} "
+        "RGBA float)",
+        _OVERSIZED_FIX,
+    )
+
 
 def write_exr(path: Path, channels: dict[str, np.ndarray], compression: str = "zip") -> Path:
     """Write float32 ``channels`` (name -> [H, W]) to one scanline EXR part, atomically."""
     shapes = {c.shape for c in channels.values()}
     if len(shapes) != 1 or len(next(iter(shapes))) != 2:
         raise ValueError(f"EXR channels must share one [H, W] shape, got {shapes}")
-    comp = {"zip": OpenEXR.ZIP_COMPRESSION, "piz": OpenEXR.PIZ_COMPRESSION, "none": OpenEXR.NO_COMPRESSION}[
-        compression
-    ]
+    comp = {"zip": OpenEXR.ZIP_COMPRESSION, "piz": OpenEXR.PIZ_COMPRESSION, "none": OpenEXR.NO_COMPRESSION}[compression]
     data = {name: np.ascontiguousarray(c, dtype=np.float32) for name, c in channels.items()}
     header = {"compression": comp, "type": OpenEXR.scanlineimage}
 
     def write(tmp: str) -> None:
         with OpenEXR.File(header, data) as f:
-            f.write(tmp)
+            f.write(native_path(tmp))
 
     return atomic_write(path, write)
 
@@ -44,7 +111,7 @@ def write_rgba_exr(path: Path, rgba: np.ndarray) -> Path:
 def read_exr(path: str | Path) -> dict[str, np.ndarray]:
     """All channels of an EXR as float32 [H, W] arrays by full name; a bad file is a one-line InputError."""
     try:
-        with OpenEXR.File(str(path), separate_channels=True) as f:
+        with OpenEXR.File(native_path(path), separate_channels=True) as f:
             chans = f.channels()
             return {name: np.asarray(ch.pixels, dtype=np.float32) for name, ch in chans.items()}
     except FileNotFoundError:
@@ -67,7 +134,7 @@ def write_png(path: Path, pixels: np.ndarray, bits: int = 8) -> Path:
         spec = oiio.ImageSpec(w, h, c, oiio.UINT8 if bits == 8 else oiio.UINT16)
         if c == 4:
             spec.attribute("oiio:UnassociatedAlpha", 1)  # values are straight alpha: do not premultiply
-        if out is None or not out.open(tmp, spec):
+        if out is None or not out.open(native_path(tmp), spec):  # type: ignore[arg-type]  # bytes taken too
             raise OSError(f"cannot write {path}: {oiio.geterror()}")
         ok = out.write_image(q)
         out.close()
@@ -79,7 +146,7 @@ def write_png(path: Path, pixels: np.ndarray, bits: int = 8) -> Path:
 
 def image_header(path: str | Path) -> tuple[int, int, int]:
     """(width, height, bits per channel) from the file's header, without decoding pixels."""
-    inp = oiio.ImageInput.open(str(path))
+    inp = open_image_input(path)
     if inp is None:
         raise InputError(path, f"cannot open this image ({' '.join(oiio.geterror().split())})", "check the file")
     try:
@@ -94,11 +161,12 @@ def read_image(path: str | Path) -> tuple[np.ndarray, bool]:
     straight), and whether the file stores floats (EXR: linear, premultiplied by convention)."""
     config = oiio.ImageSpec()
     config.attribute("oiio:UnassociatedAlpha", 1)
-    inp = oiio.ImageInput.open(str(path), config)
+    inp = open_image_input(path, config)
     if inp is None:
         raise InputError(path, f"cannot open this image ({' '.join(oiio.geterror().split())})", "check the file")
     try:
         spec = inp.spec()
+        check_declared_size(path, spec)
         pixels = inp.read_image(0, 0, 0, spec.nchannels, "float")
         if pixels is None or inp.geterror():
             raise InputError(path, "cannot read this image (truncated or corrupt)", "save the image again")
@@ -108,4 +176,17 @@ def read_image(path: str | Path) -> tuple[np.ndarray, bool]:
         inp.close()
 
 
-__all__ = ["image_header", "read_exr", "read_image", "write_exr", "write_png", "write_rgba_exr"]
+__all__ = [
+    "MAX_DECODED_BYTES",
+    "check_declared_size",
+    "declared_bytes",
+    "display_path",
+    "image_header",
+    "native_path",
+    "open_image_input",
+    "read_exr",
+    "read_image",
+    "write_exr",
+    "write_png",
+    "write_rgba_exr",
+]

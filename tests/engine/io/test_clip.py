@@ -1,11 +1,15 @@
 """Clip loading: sequences and movies read with the right values, and every bad input is a one-line
-InputError naming the file, so the user can fix it without a traceback."""
+InputError naming the file, so the user can fix it without a traceback. Inputs that were once accepted without a
+word are refused here with real files: a sequence mixing float and integer frames, a movie cut short or garbled
+in the middle, a frame whose header declares a gigantic image; a folder whose name is not UTF-8 reads like any
+other."""
 
 from __future__ import annotations
 
+import os
+import resource
 from pathlib import Path
 
-import av
 import numpy as np
 import pytest
 
@@ -20,7 +24,15 @@ from engine.io.clip import (
     read_masks,
     working_size,
 )
-from tests.media_files import write_audio_only_movie, write_image
+from engine.io.images import MAX_DECODED_BYTES, display_path, read_image, write_png
+from tests.media_files import (
+    garble_movie,
+    textured_frames,
+    write_audio_only_movie,
+    write_blank_png,
+    write_image,
+)
+from tests.media_files import write_movie as write_movie_frames
 from tests.paths import CLIPS
 
 SHARED = CLIPS / "blackswan"
@@ -54,15 +66,7 @@ def make_masks(folder: Path, names: list[str], size=(8, 6)) -> list[np.ndarray]:
 
 
 def write_movie(path: Path, colours: list[tuple[int, int, int]], size=(64, 48), rate: int = 24) -> Path:
-    codec = "libx264" if "libx264" in av.codecs_available else "mpeg4"
-    with av.open(str(path), "w") as container:
-        stream = container.add_stream(codec, rate=rate)
-        stream.width, stream.height, stream.pix_fmt = size[0], size[1], "yuv420p"
-        for colour in colours:
-            frame = av.VideoFrame.from_ndarray(const(size[1], size[0], colour), format="rgb24")
-            container.mux(stream.encode(frame))
-        container.mux(stream.encode())
-    return path
+    return write_movie_frames(path, [const(size[1], size[0], colour) for colour in colours], rate)
 
 
 def assert_one_line(exc: pytest.ExceptionInfo[InputError], *names: str) -> str:
@@ -276,6 +280,156 @@ def test_movie_masks_by_position(tmp_path: Path) -> None:
     expected = make_masks(tmp_path / "masks", [f"m{i}.png" for i in range(4)], size=(16, 12))
     masks = read_masks(tmp_path / "masks", open_clip(path, (1, 2)), (16, 12))
     np.testing.assert_array_equal(masks, expected[1:3])
+
+
+#: A movie long enough that damage to the middle of its bytes lands on frames in the middle.
+DAMAGED_MOVIE_FRAMES = 40
+
+
+@pytest.mark.parametrize("container", ["mp4", "mkv", "avi"])
+def test_whole_movies_of_every_container_read_every_frame(tmp_path: Path, container: str) -> None:
+    """The checks below refuse nothing that is whole: every frame, in every container the tests damage."""
+    path = write_movie_frames(tmp_path / f"clip.{container}", textured_frames(DAMAGED_MOVIE_FRAMES))
+    assert read_frames(open_clip(path)).shape == (DAMAGED_MOVIE_FRAMES, 48, 64, 3)
+    assert read_frames(open_clip(path, (3, 5))).shape == (3, 48, 64, 3)
+
+
+@pytest.mark.parametrize("how", ["cut", "zeroed"])
+@pytest.mark.parametrize("container", ["mp4", "mkv", "avi"])
+def test_damaged_movie_is_refused_naming_the_file(tmp_path: Path, container: str, how: str) -> None:
+    """A movie cut short or zeroed in the middle: once, an mkv whose demuxer resynchronised past the damage
+    fitted 20 of its 40 frames without a word. Now the frames it holds are checked against what it declares
+    (its header's count, or its duration and the span of its timestamps) and against what its decoder gives,
+    and whatever the container, opening or reading it is one line naming the file."""
+    whole = write_movie_frames(tmp_path / f"whole.{container}", textured_frames(DAMAGED_MOVIE_FRAMES))
+    damaged = garble_movie(whole, tmp_path / f"damaged.{container}", how)
+    with pytest.raises(InputError) as exc:
+        read_frames(open_clip(damaged))
+    message = assert_one_line(exc, f"damaged.{container}", "re-encode the movie")
+    assert any(word in message for word in ("truncated", "corrupt", "cannot", "dropped")), message
+
+
+def test_damaged_movie_is_refused_even_for_frames_before_the_damage(tmp_path: Path) -> None:
+    """The decoder may drop a damaged frame and carry on; every frame is decoded (only the selected ones are
+    converted), so frames 0..3 of a movie damaged in the middle are refused too: which frame was dropped cannot be
+    told, and a fit of the wrong frames is worse than none."""
+    whole = write_movie_frames(tmp_path / "whole.avi", textured_frames(DAMAGED_MOVIE_FRAMES))
+    damaged = garble_movie(whole, tmp_path / "damaged.avi", "zeroed")
+    with pytest.raises(InputError) as exc:
+        read_frames(open_clip(damaged, (0, 3)))
+    assert_one_line(exc, "damaged.avi", "dropped")
+
+
+# --- one encoding per clip ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("float_first", [False, True], ids=["integer_then_float", "float_then_integer"])
+def test_sequence_mixing_float_and_integer_frames_is_refused(tmp_path: Path, float_first: bool) -> None:
+    """Frame 0's encoding decides the clip's colour space: a float (scene-linear) TIFF among 8-bit
+    (display-encoded) ones would be decoded with the wrong curve. Refused at open, naming the first frame that
+    differs and both encodings."""
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i in range(4):
+        is_float = (i >= 2) != float_first
+        pixels = const(6, 8, (0.25, 0.5, 0.75), np.float32) if is_float else const(6, 8, (64, 128, 192))
+        write_image(folder / f"{i:05d}.tif", pixels)
+    with pytest.raises(InputError) as exc:
+        open_clip(folder)
+    differs, first = ("integer", "float") if float_first else ("float", "integer")
+    problem = assert_one_line(exc, "00002.tif", "00000.tif", "one format").split("00002.tif: ", 1)[1]
+    assert problem.startswith(f"00002.tif is {differs}") and f"00000.tif is {first}" in problem, problem
+
+
+def test_frame_replaced_by_another_encoding_after_open_is_refused_at_read(tmp_path: Path) -> None:
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i in range(3):
+        write_image(folder / f"{i:05d}.tif", const(6, 8, (64, 128, 192)))
+    info = open_clip(folder)
+    write_image(folder / "00001.tif", const(6, 8, (0.25, 0.5, 0.75), np.float32))
+    with pytest.raises(InputError) as exc:
+        read_frames(info)
+    assert_one_line(exc, "00001.tif", "float")
+
+
+# --- declared size -----------------------------------------------------------------------------------------
+
+#: 30000 x 30000 RGB: 10.8 GB as float32, in a PNG of about 3 MB.
+HUGE_SIDE = 30000
+#: Peak memory growth a refusal may cost (bytes): far below what the header asks for.
+REFUSAL_MEMORY_BOUND = 512 * 1024 * 1024
+
+
+def _peak_rss_bytes() -> int:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # Linux reports kilobytes
+
+
+@pytest.mark.parametrize("position", ["00000.png", "00001.png"], ids=["first_frame", "later_frame"])
+def test_png_declaring_a_huge_image_is_refused_before_decoding(tmp_path: Path, position: str) -> None:
+    """A valid 3 MB PNG that declares 30000x30000 pixels would be decoded into 10.8 GB of float32. The header is
+    checked against ``MAX_DECODED_BYTES`` before any pixel is read: one line naming the file, its declared size
+    and the cap, and the process's peak memory does not grow by more than ``REFUSAL_MEMORY_BOUND``."""
+    folder = make_sequence(tmp_path / "frames", count=2)
+    huge = write_blank_png(folder / position, HUGE_SIDE, HUGE_SIDE)
+    assert huge.stat().st_size < 4_000_000
+    before = _peak_rss_bytes()
+    with pytest.raises(InputError) as exc:
+        open_clip(folder)
+    assert _peak_rss_bytes() - before < REFUSAL_MEMORY_BOUND
+    assert_one_line(exc, position, f"{HUGE_SIDE}x{HUGE_SIDE}", "10.8 GB", f"{MAX_DECODED_BYTES / 1e9:.1f} GB")
+    with pytest.raises(InputError) as exc:  # the export's and the editors' reader: the same cap
+        read_image(huge)
+    assert_one_line(exc, position, "10.8 GB")
+
+
+def test_huge_mask_is_refused_before_decoding(tmp_path: Path) -> None:
+    info = open_clip(make_sequence(tmp_path / "frames", count=1))
+    (tmp_path / "masks").mkdir()
+    write_blank_png(tmp_path / "masks" / "00000.png", HUGE_SIDE, HUGE_SIDE, channels=2)  # grey + alpha
+    with pytest.raises(InputError) as exc:
+        read_masks(tmp_path / "masks", info, (8, 6))
+    assert_one_line(exc, "00000.png", "mask declares", "7.2 GB")
+
+
+def test_blank_png_builder_writes_a_readable_png(tmp_path: Path) -> None:
+    """The huge PNG above is real: the same builder's small image decodes to black."""
+    pixels, is_float = read_image(write_blank_png(tmp_path / "blank.png", 64, 48))
+    assert pixels.shape == (48, 64, 3) and not is_float and pixels.max() == 0.0
+
+
+# --- paths that are not UTF-8 --------------------------------------------------------------------------------
+
+
+def _non_utf8_folder(parent: Path, name: bytes) -> Path:
+    """A folder whose name holds a byte that is not UTF-8 (a Latin-1 name on Linux); skip where the file
+    system refuses such names."""
+    path = Path(os.fsdecode(os.path.join(os.fsencode(parent), name)))
+    try:
+        path.mkdir()
+    except (OSError, UnicodeError) as exc:
+        pytest.skip(f"this file system takes only UTF-8 names ({exc})")
+    return path
+
+
+def test_clip_masks_and_images_in_a_folder_whose_name_is_not_utf8(tmp_path: Path) -> None:
+    """Such a name reaches Python as surrogate escapes, which OpenImageIO's and OpenEXR's text conversion refuse
+    (a traceback, once). The readers and writers hand them the bytes, so it reads like any other; messages show
+    the odd byte as ``\\xe9``."""
+    folder = _non_utf8_folder(tmp_path, b"plate_\xe9t\xe9")
+    frames = make_sequence(folder / "frames", count=3)
+    expected = make_masks(folder / "masks", ["00000.png", "00001.png", "00002.png"])
+    info = open_clip(frames)
+    assert info.source == str(frames) and read_frames(info).shape == (3, 6, 8, 3)
+    np.testing.assert_array_equal(read_masks(folder / "masks", info, (8, 6)), expected)
+    written = write_png(folder / "out.png", np.full((6, 8, 1), 1.0, np.float32))
+    assert read_image(written)[0].min() == 1.0
+    movie = write_movie(folder / "clip.mp4", [(0, 0, 0)] * 3, size=(16, 16))
+    assert read_frames(open_clip(movie)).shape == (3, 16, 16, 3)
+    assert display_path(frames).endswith("plate_\\xe9t\\xe9/frames")
+    with pytest.raises(InputError) as exc:
+        read_masks(folder / "no_masks", info, (8, 6))
+    assert "\n" not in str(exc.value) and "no_masks" in str(exc.value)
 
 
 # --- masks -----------------------------------------------------------------------------------------------
