@@ -161,7 +161,8 @@ def _add_estimate_parser(sub: argparse._SubParsersAction) -> None:
     e = sub.add_parser(
         C.VERB_ESTIMATE,
         help="estimated fit time of each preset on this machine and clip",
-        description="Time a few training steps of each preset on the clip and multiply by its step budget.",
+        description="Time a few training steps of each preset on the clip and multiply by its step budget. Every "
+        "preset asked for gets a row; one that cannot fit this clip (paper: exactly one --mask) says why instead.",
         epilog=EXIT_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -315,22 +316,32 @@ def _add_masks_parser(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     m.add_argument("clip", help="image-sequence folder or movie file")
-    m.add_argument("--out", required=True, metavar="FOLDER", help="folder for the mask PNGs (created)")
+    m.add_argument(
+        "--out",
+        required=True,
+        metavar="FOLDER",
+        help="folder for the mask PNGs (created); the whole set appears at once, or none of it (a full disk or a "
+        "cancel leaves nothing: run again)",
+    )
     m.add_argument("--frames", type=frame_range, default=None, metavar="FIRST:LAST", help="inclusive positions")
     m.add_argument("--truth", default=None, metavar="FOLDER", help="also print the IoU against these masks")
 
 
 def _cmd_masks(args: argparse.Namespace) -> int:
+    """Progress goes to stdout as a JSON stage line, so stderr holds nothing but a failure's one line; the folder
+    is printed as text any terminal takes (``display_path``: a name that is not UTF-8 shows its bytes as \\xNN)."""
     from engine.data.auto_masks import write_auto_masks
+    from engine.io.images import display_path
 
-    report = write_auto_masks(
-        args.clip, args.out, frame_range=args.frames, truth=args.truth, say=lambda m: print(m, file=sys.stderr)
-    )
+    def say(message: str) -> None:
+        print(C.progress_line(C.EVENT_STAGE, stage=C.VERB_MASKS, message=message), flush=True)
+
+    report = write_auto_masks(args.clip, args.out, frame_range=args.frames, truth=args.truth, say=say)
     for line in report.summary():
         print(line)
     print(C.progress_line(C.EVENT_MASKS, found=bool(report.result.found), folder=str(report.folder),
                           message=report.result.message))  # fmt: skip
-    print(report.folder)
+    print(display_path(report.folder))
     return C.EXIT_OK
 
 

@@ -12,9 +12,12 @@ import shlex
 from dataclasses import dataclass
 
 from ...engine import contract as C  # type: ignore[import-not-found]
+from .errors import UserError
 
 #: The fit's own progress bar is for terminals: the add-on reads the JSON progress lines instead.
 NO_BAR_FLAG = "--no-bar"
+#: The panel's field the artist types engine overrides into (named in its messages).
+OVERRIDES_FIELD = "Overrides"
 
 
 def extension_root() -> str:
@@ -63,9 +66,21 @@ def frames_arg(first: int, last: int) -> str:
     return f"{first}:{last}"
 
 
+def split_overrides(overrides: str) -> list[str]:
+    """The artist's space-separated ``KEY=VALUE`` overrides, shell-quoted where a value holds spaces. An
+    unbalanced quote is a UserError (one line in the panel naming the field and the fix), not a traceback."""
+    try:
+        return shlex.split(overrides)
+    except ValueError as exc:  # shlex: "No closing quotation" / "No escaped character"
+        raise UserError(
+            f"{OVERRIDES_FIELD}: cannot read {overrides!r} ({str(exc).lower()}) — close the quote or remove it; the "
+            "field takes space-separated KEY=VALUE pairs, e.g. steps=2000 lr=0.001"
+        ) from None
+
+
 def set_args(long_edge: int, overrides: str = "") -> list[str]:
-    """``--set long_edge=N`` then each of the artist's space-separated ``KEY=VALUE`` overrides."""
-    return [arg for item in [f"long_edge={long_edge}", *shlex.split(overrides)] for arg in ("--set", item)]
+    """``--set long_edge=N`` then each of the artist's space-separated ``KEY=VALUE`` overrides (``split_overrides``)."""
+    return [arg for item in [f"long_edge={long_edge}", *split_overrides(overrides)] for arg in ("--set", item)]
 
 
 def fit_argv(python: str, clip: ClipInputs, run_dir: str, preset: str, sets: list[str]) -> list[str]:

@@ -10,6 +10,7 @@ docs/accuracy-vs-time.md (its data: docs/bench/blackswan-60min.json).
 from __future__ import annotations
 
 import json
+from typing import Any
 
 from ...engine import contract as C  # type: ignore[import-not-found]
 from .progress import format_seconds
@@ -27,6 +28,9 @@ OVERHEAD_SECONDS_PER_FRAME_MPX = (
 )
 #: The preset the estimate falls back to for a name it does not know.
 FALLBACK_PRESET = "balanced"
+#: The engine's estimate, preset -> {"seconds": float | None, "psnr": float | None} and, for a preset that cannot
+#: fit this clip (the engine's row carries ``unavailable``), "unavailable": the engine's one-line reason.
+EngineRows = dict[str, dict[str, Any]]
 
 
 def preset_items() -> list[tuple[str, str, str]]:
@@ -45,8 +49,16 @@ def estimate_seconds(preset: str, frames: int, width: int, height: int, long_edg
     return training + OVERHEAD_SECONDS_PER_FRAME_MPX * frames * (w * h / PIXELS_PER_MEGAPIXEL)
 
 
-def parse_engine_estimate(text: str, tag: str) -> dict[str, dict[str, float | None]]:
-    """``engine estimate --json`` output (the line carrying ``tag``) -> {preset: {seconds, psnr}}."""
+def _engine_row(row: dict[str, Any]) -> dict[str, Any]:
+    """One preset of the engine's JSON as the panel keeps it: its time and PSNR, or why it does not apply."""
+    if row.get("unavailable"):
+        return {"seconds": None, "psnr": None, "unavailable": str(row["unavailable"])}
+    return {"seconds": float(row["total_seconds"]), "psnr": row.get("expected_psnr")}
+
+
+def parse_engine_estimate(text: str, tag: str) -> EngineRows:
+    """``engine estimate --json`` output (the line carrying ``tag``) -> {preset: {seconds, psnr}}, or
+    {preset: {seconds: None, psnr: None, unavailable: why}} for a preset the engine says cannot fit this clip."""
     for line in reversed(text.strip().splitlines()):
         line = line.strip()
         if not line.startswith("{"):
@@ -56,18 +68,18 @@ def parse_engine_estimate(text: str, tag: str) -> dict[str, dict[str, float | No
         except json.JSONDecodeError:
             continue
         if isinstance(data, dict) and tag in data:
-            return {
-                p["preset"]: {"seconds": float(p["total_seconds"]), "psnr": p.get("expected_psnr")}
-                for p in data.get("presets", [])
-            }
+            return {p["preset"]: _engine_row(p) for p in data.get("presets", [])}
     return {}
 
 
-def estimate_text(preset: str, engine: dict[str, dict[str, float | None]], fallback_seconds: float) -> str:
-    """The panel's line: the engine's estimate for this clip when it has one, else the documented estimate."""
+def estimate_text(preset: str, engine: EngineRows, fallback_seconds: float) -> str:
+    """The panel's line: the engine's estimate for this clip when it has one, why the preset cannot fit this clip
+    when the engine says so, else the documented estimate."""
     row = engine.get(preset)
     if row is None:
         return f"about {format_seconds(fallback_seconds)} on a 2-core CPU (documented)"
+    if row.get("unavailable"):
+        return f"{preset} cannot fit this clip: {row['unavailable']}"
     text = f"about {format_seconds(row['seconds'] or 0.0)} here (engine estimate)"
     psnr = row.get("psnr")
     return text + (f", ~{psnr:.1f} dB" if psnr else "")

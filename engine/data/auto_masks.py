@@ -15,13 +15,25 @@ uses the identity, so the foreground is simply what moves. Nothing moving gives 
 gives no masks.
 
 Conventions as in ``engine.data.flow``: pixel ``[y, x]`` is the point ``(x, y)``; masks are bool [T, H, W].
+
+A set of masks is written all or nothing (``write_mask_files``): assembled in a hidden folder beside its
+destination and published at once, so a full disk, a cancel or a crash never leaves a partial set that a later
+run (or ``fit --mask``) would take for a finished one, and running the command again writes the set. Existing
+files are never replaced: an artist may have fixed them.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import contextlib
+import errno
+import os
+import shutil
+import signal
+import tempfile
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -29,9 +41,9 @@ import numpy as np
 from engine import contract as C
 from engine.data.flow import DISFlow, FlowField, compute_flow
 from engine.errors import InputError
+from engine.io.atomic import disk_full_as_one_line, disk_full_error
 from engine.io.clip import ClipInfo, open_clip, read_frames, read_masks, working_size
 from engine.io.colour import linear_to_srgb
-from engine.io.images import write_png
 
 #: Fewer reliable flow vectors than this in a pair: no homography is fitted and the pair casts no vote.
 MIN_POINTS = 50
@@ -469,19 +481,158 @@ def mask_folder(info: ClipInfo, out: str | Path) -> tuple[Path, list[str]]:
     names = mask_file_names(info)
     clash = [n for n in names if (folder / n).exists()]
     if clash:
-        raise InputError(
-            folder,
-            f"already holds {clash[0]}" + (f" and {len(clash) - 1} more of the mask names" if len(clash) > 1 else ""),
-            "masks are never overwritten (an artist may have fixed them): choose a new --out or delete them",
-        )
+        raise _already_holds(folder, clash)
     return folder, names
 
 
+#: The hidden folder a set of masks is assembled in, beside its destination (same file system, so publishing is a
+#: rename): ``.<folder name>.<random>`` plus this suffix. Readers skip hidden entries; a process killed outright
+#: (SIGKILL, power loss) may leave one behind, which nothing reads.
+STAGING_SUFFIX = ".partial"
+#: 0/255 mask values.
+MASK_ON = 255
+#: Signals that cancel a verb; while a set is published they are held back until it is complete.
+CANCEL_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def _encode_mask(mask: np.ndarray, name: str) -> bytes:
+    """One bool mask [H, W] as the bytes of an 8-bit greyscale 0/255 PNG."""
+    ok, data = cv2.imencode(".png", mask.astype(np.uint8) * MASK_ON)
+    if not ok:
+        raise RuntimeError(f"cannot encode the mask {name} as PNG")
+    return data.tobytes()
+
+
+def _write_synced(path: Path, data: bytes) -> None:
+    """``data`` into a new file at ``path``, on the disk before the set is published."""
+    with open(path, "xb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+@contextlib.contextmanager
+def _cancels_deferred() -> Iterator[None]:
+    """SIGINT/SIGTERM arriving inside the block take effect right after it (their handlers run then).
+
+    Publishing a set is a few renames; a cancel in the middle would leave part of the set under the
+    destination. Python runs a signal's handler in the main thread whichever thread received it, so the handlers
+    are swapped for a recorder (blocking the signal in one thread would not hold it back). Outside the main
+    thread handlers cannot be swapped, and the block runs as it is.
+    """
+    caught: list[int] = []
+
+    def record(signum: int, _frame: Any) -> None:
+        caught.append(signum)
+
+    try:
+        previous = {sig: signal.signal(sig, record) for sig in CANCEL_SIGNALS}
+    except ValueError:  # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        for sig in dict.fromkeys(caught):
+            signal.raise_signal(sig)
+
+
+def _already_holds(folder: Path, clash: list[str]) -> InputError:
+    """Masks are never overwritten: the one line for a destination that holds some of the names."""
+    return InputError(
+        folder,
+        f"already holds {clash[0]}" + (f" and {len(clash) - 1} more of the mask names" if len(clash) > 1 else ""),
+        "masks are never overwritten (an artist may have fixed them): choose a new --out or delete them",
+    )
+
+
+def _link_new(source: Path, target: Path) -> None:
+    """Give ``source`` the name ``target``, never replacing a file there (FileExistsError if one is): a hard link
+    where the file system has them (race-free), else a rename after checking."""
+    try:
+        os.link(source, target)
+    except FileExistsError:
+        raise
+    except OSError:  # no hard links here (FAT, some network shares)
+        if target.exists():
+            raise FileExistsError(errno.EEXIST, "exists", str(target)) from None
+        os.rename(source, target)
+
+
+def _publish(staging: Path, folder: Path, names: list[str]) -> None:
+    """Move the finished set from ``staging`` to ``folder``, all at once.
+
+    A missing or empty ``folder`` is replaced by the staging folder in one rename (atomic). A folder that holds
+    other files gets the set file by file, each linked under a name no file holds; a name taken meanwhile undoes
+    the links made and is a one-line refusal. Cancels wait until the set is complete.
+    """
+    with _cancels_deferred():
+        try:
+            os.rename(staging, folder)
+            return
+        except OSError as exc:
+            if exc.errno not in (errno.EEXIST, errno.ENOTEMPTY):
+                raise
+        linked: list[Path] = []
+        try:
+            for name in names:
+                _link_new(staging / name, folder / name)
+                linked.append(folder / name)
+        except FileExistsError:
+            for path in linked:
+                path.unlink(missing_ok=True)
+            raise _already_holds(folder, [n for n in names if (folder / n).exists()]) from None
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def _staging_folder(folder: Path, need: int) -> Path:
+    """A new hidden folder beside ``folder`` (created with its parents); a full disk or a folder that cannot be
+    created there is one line."""
+    try:
+        with disk_full_as_one_line(folder, need):
+            folder.parent.mkdir(parents=True, exist_ok=True)
+            return Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=STAGING_SUFFIX, dir=folder.parent))
+    except (PermissionError, NotADirectoryError, FileExistsError) as exc:
+        raise InputError(
+            folder,
+            f"cannot create the mask folder here ({exc.strerror})",
+            "choose a folder you can write to with --out",
+        ) from None
+
+
 def write_mask_files(folder: Path, names: list[str], masks: np.ndarray) -> list[str]:
-    """Bool masks [T, H, W] (the clip's resolution) as 8-bit 0/255 PNGs ``folder/names[t]``; the paths written."""
-    return [
-        str(write_png(folder / name, m[..., None].astype(np.float32))) for name, m in zip(names, masks, strict=True)
-    ]
+    """Bool masks [T, H, W] (the clip's resolution) as 8-bit 0/255 PNGs ``folder/names[t]``, all or nothing; the
+    paths written.
+
+    The set is encoded, written and synced into a hidden staging folder beside ``folder`` (``STAGING_SUFFIX``),
+    then published (``_publish``). Any failure or cancel (a BaseException: SIGTERM raises one) removes the staging
+    folder, so ``folder`` holds the whole set or nothing of it; a full disk is one line, ``disk full: free N MB
+    at FOLDER`` (``DiskFullError``). Existing files are never replaced.
+    """
+    folder = Path(folder)
+    encoded = [_encode_mask(m, name) for name, m in zip(names, masks, strict=True)]
+    need = sum(len(data) for data in encoded)
+    staging = _staging_folder(folder, need)
+    try:
+        os.chmod(staging, 0o777 & ~_umask())  # the folder the artist gets: a plain mkdir's permissions, not 0700
+        for name, data in zip(names, encoded, strict=True):
+            _write_synced(staging / name, data)
+        _publish(staging, folder, names)
+    except BaseException as exc:
+        shutil.rmtree(staging, ignore_errors=True)
+        full = disk_full_error(exc, folder, need=need)
+        if full is not None:
+            raise full from None
+        raise
+    return [str(folder / name) for name in names]
 
 
 def write_auto_masks(
@@ -493,8 +644,8 @@ def write_auto_masks(
     say: Callable[[str], None] | None = None,
 ) -> MasksReport:
     """Find masks for ``clip`` and write them to ``out`` as 8-bit 0/255 PNGs at the clip's resolution,
-    named like the frames. Never overwrites: a folder already holding one of those names is refused.
-    ``say`` receives a progress line before the slow part."""
+    named like the frames, all or nothing (``write_mask_files``). Never overwrites: a folder already holding one
+    of those names is refused. ``say`` receives a progress line before the slow part."""
     cfg = AutoMaskConfig() if cfg is None else cfg
     info = open_clip(clip, frame_range)
     if info.num_frames < 2:

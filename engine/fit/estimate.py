@@ -5,6 +5,11 @@ two cost regimes of a fit (while the global-rigidity term is on, which costs two
 layer, and after), and multiplies by the preset's step budget; flow and evaluation are timed too. Expected
 PSNR comes from ``BENCHMARK_TABLE``: complete fits of each preset on a reference clip, not this clip
 (``expected_psnr.json`` beside this module; docs/accuracy-vs-time.md says how they were measured).
+
+Every preset asked for gets a row. One that cannot fit this clip (the paper's architecture has exactly one
+foreground layer: a clip given no ``--mask``, or several, cannot be fitted with it) is not timed; its row says why
+in ``unavailable`` (``None`` in the rows of presets that apply), in the text table and in ``--json``, where the
+add-on's reader shows it.
 """
 
 from __future__ import annotations
@@ -19,11 +24,12 @@ from typing import Any
 import torch
 
 from engine import contract as C
-from engine.config import PRESETS, apply_overrides, preset_config
+from engine.config import PRESETS, FitConfig, apply_overrides, preset_config
 from engine.data.video import build_video_tensors, frame_pixels
 from engine.fit.device import select_device, synchronize, torch_threads
 from engine.fit.prepare import prepare_clip
 from engine.fit.trainer import EVAL_CHUNK, Trainer
+from engine.io.images import display_path
 
 #: The measured PSNR of each preset (data, with where it was measured): what ``estimate`` shows as expected.
 EXPECTED_PSNR_FILE = Path(__file__).with_name("expected_psnr.json")
@@ -34,22 +40,60 @@ RENDER_WARMUP_PIXELS = 256
 #: Timed steps per regime: at least this many, and at least ``calib_seconds`` of them (one paper-model
 #: step is already seconds long).
 MIN_TIMED_STEPS = 1
+#: The foreground layers the paper's architecture has (one background, one foreground: ``model.paper_model``).
+PAPER_FOREGROUND_LAYERS = 1
+#: What the text table shows in the columns of a preset that was not timed.
+NOT_TIMED = "–"
 
 
 @dataclass
 class PresetEstimate:
+    """One preset's row; the timings are None when the preset cannot fit this clip (``unavailable`` says why)."""
+
     preset: str
     model: str
     steps: int
     batch: int
-    seconds_per_step_early: float  # while global rigidity is on (the first global_rigidity_steps)
-    seconds_per_step_late: float
-    train_seconds: float
-    eval_seconds: float  # the live PSNR every eval_every steps and the final full-frame evaluation
-    total_seconds: float  # preparation (flow) + train + eval
-    minutes: float
+    seconds_per_step_early: float | None  # while global rigidity is on (the first global_rigidity_steps)
+    seconds_per_step_late: float | None
+    train_seconds: float | None
+    eval_seconds: float | None  # the live PSNR every eval_every steps and the final full-frame evaluation
+    total_seconds: float | None  # preparation (flow) + train + eval
+    minutes: float | None
     expected_psnr: float | None
     expected_psnr_note: str
+    unavailable: str | None = None
+    """Why this preset cannot fit this clip (one line); None when it can."""
+
+
+def preset_unavailable(cfg: FitConfig, foreground_layers: int) -> str | None:
+    """Why ``cfg`` cannot fit a clip of ``foreground_layers`` foreground layers (one line), or None when it can:
+    the paper's architecture has exactly ``PAPER_FOREGROUND_LAYERS``."""
+    if cfg.model == "paper" and foreground_layers != PAPER_FOREGROUND_LAYERS:
+        given = "no --mask" if foreground_layers == 0 else f"{foreground_layers} --mask folders"
+        return (
+            f"the paper model fits exactly {PAPER_FOREGROUND_LAYERS} foreground layer and this clip has "
+            f"{foreground_layers} ({given}): estimate it with exactly one --mask"
+        )
+    return None
+
+
+def _unavailable_row(cfg: FitConfig, why: str) -> PresetEstimate:
+    return PresetEstimate(
+        preset=cfg.preset,
+        model=cfg.model,
+        steps=cfg.steps,
+        batch=cfg.batch,
+        seconds_per_step_early=None,
+        seconds_per_step_late=None,
+        train_seconds=None,
+        eval_seconds=None,
+        total_seconds=None,
+        minutes=None,
+        expected_psnr=None,
+        expected_psnr_note="not estimated",
+        unavailable=why,
+    )
 
 
 def _time_steps(trainer: Trainer, step: int, calib_seconds: float) -> float:
@@ -121,6 +165,10 @@ def _estimate(
     t_count, h, w = video.shape
     rows = []
     for cfg in cfgs:
+        why = preset_unavailable(cfg, prepared.num_foreground)
+        if why is not None:
+            rows.append(_unavailable_row(cfg, why))
+            continue
         # the trainer `fit` would build: the scene analysis decides components (a tripod shot costs less)
         trainer = Trainer(cfg, prepared, prepared.analyse(cfg), device, video=video)
         early_steps = min(cfg.global_rigidity_steps, cfg.steps)
@@ -151,7 +199,7 @@ def _estimate(
         )
     return {
         C.ESTIMATE_TAG: C.SCHEMA_VERSION,
-        "clip": prepared.info.source,
+        "clip": display_path(prepared.info.source),
         "frames": int(t_count),
         "working_size": [w, h],
         "device": device.type,
@@ -181,6 +229,12 @@ def format_estimate(result: dict[str, Any]) -> str:
         "|---|---|---|---|---|---|---|",
     ]
     for r in result["presets"]:
+        if r.get("unavailable"):
+            lines.append(
+                f"| {r['preset']} | {r['model']} | {r['steps']} | {NOT_TIMED} | not available: {r['unavailable']} | "
+                f"{NOT_TIMED} | {NOT_TIMED} |"
+            )
+            continue
         psnr = (
             f"{r['expected_psnr']:.2f} dB ({r['expected_psnr_note']})"
             if r["expected_psnr"]
@@ -193,4 +247,4 @@ def format_estimate(result: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["BENCHMARK_TABLE", "PresetEstimate", "estimate", "format_estimate"]
+__all__ = ["BENCHMARK_TABLE", "PresetEstimate", "estimate", "format_estimate", "preset_unavailable"]

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import pytest
 from neural_atlas.addon.core import engine_commands as EC
+from neural_atlas.addon.core.errors import UserError
 
 from engine import contract as C
 
@@ -38,3 +40,19 @@ def test_resume_export_masks_and_version():
         *("py", "-m", "engine", C.VERB_MASKS, "/clip/plate", "--out", "/run/auto_masks", "--frames", "0:5")
     ]
     assert EC.version_argv("py") == ["py", "-m", "engine", "--version"]
+
+
+@pytest.mark.parametrize("typed", ["steps=60 'eval_every=20", 'lr="0.001', "steps=60 \\"])
+def test_an_unbalanced_quote_in_overrides_is_one_line_naming_the_field(typed):
+    """``shlex.split`` raised ValueError on what the artist typed, a traceback out of the Fit operator; now a
+    UserError the driver shows as the panel's one line: the field, what was typed, how to fix it."""
+    with pytest.raises(UserError) as exc:
+        EC.set_args(512, typed)
+    message = str(exc.value)
+    assert "\n" not in message and message.startswith(f"{EC.OVERRIDES_FIELD}: ")
+    assert repr(typed) in message and "close the quote" in message and "KEY=VALUE" in message
+
+
+def test_quoted_overrides_still_split_like_a_shell():
+    assert EC.split_overrides("steps=60  'note=a b' ") == ["steps=60", "note=a b"]
+    assert EC.set_args(768, "") == ["--set", "long_edge=768"]

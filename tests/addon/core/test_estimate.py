@@ -48,3 +48,21 @@ def test_engine_estimate_parsed_and_preferred():
     assert estimate.estimate_text("draft", rows, 999) == "about 1m01s here (engine estimate), ~25.7 dB"
     assert estimate.estimate_text("final", rows, 204) == "about 3m24s on a 2-core CPU (documented)"
     assert estimate.parse_engine_estimate("not json\n", C.ESTIMATE_TAG) == {}
+
+
+def test_a_preset_the_engine_cannot_fit_is_shown_with_its_reason():
+    """``engine estimate`` gives every preset a row; the paper's on a clip without exactly one mask says why
+    (``unavailable``) instead of timings. The reader keeps the reason and the panel's line shows it."""
+    why = "the paper model fits exactly 1 foreground layer and this clip has 0 (no --mask)"
+    rows = [
+        {"preset": "draft", "total_seconds": 61.0, "expected_psnr": 25.7, "unavailable": None},
+        {"preset": "paper", "total_seconds": None, "expected_psnr": None, "unavailable": why},
+    ]
+    parsed = estimate.parse_engine_estimate(json.dumps({C.ESTIMATE_TAG: 1, "presets": rows}), C.ESTIMATE_TAG)
+    assert parsed == {
+        "draft": {"seconds": 61.0, "psnr": 25.7},
+        "paper": {"seconds": None, "psnr": None, "unavailable": why},
+    }
+    assert estimate.estimate_text("paper", parsed, 999) == f"paper cannot fit this clip: {why}"
+    assert estimate.estimate_text("draft", parsed, 999) == "about 1m01s here (engine estimate), ~25.7 dB"
+    assert estimate.estimate_text("paper", json.loads(json.dumps(parsed)), 999).endswith(why)  # as the scene keeps it

@@ -4,12 +4,20 @@ Typical results (192x108, 12 frames, DIS medium): per-frame IoU 0.951-0.957 with
 0.954-0.959 with a static one (bound 0.85: the flow blurs the sprite's rim by about a pixel). The real-clip
 numbers are in docs/auto-masks.md; ``test_shared_clips_iou`` re-measures them when the real clips
 (``tests.paths.CLIPS``) are present.
+
+What the verb leaves on disk is tested with real faults: a really full file system (a small tmpfs,
+``tests/full_disk.py``), SIGTERM sent to a real ``python -m engine masks`` child (during the analysis, while the
+set is written and while it is published), a name taken by someone else before publication, and folders whose
+names are not UTF-8. In every case the mask folder holds the whole set or nothing of it.
 """
 
 from __future__ import annotations
 
+import os
+import signal
 import subprocess
 import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -19,16 +27,20 @@ from engine import contract as C
 from engine.cli import main
 from engine.data.auto_masks import (
     MIN_POINTS,
+    STAGING_SUFFIX,
     AutoMaskConfig,
     auto_masks,
     clean_mask,
     fill_holes,
     fit_background_homography,
     mask_iou,
+    write_mask_files,
 )
 from engine.data.flow import compute_flow
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
+from engine.errors import InputError
 from engine.io.clip import open_clip, read_masks
+from tests.full_disk import PAGE_BYTES, run_on_full_disk
 from tests.paths import CLIPS, NO_CLIPS, ROOT
 
 DATA = CLIPS
@@ -175,7 +187,10 @@ def test_cli_writes_one_png_per_frame(small_clip, tmp_path, capsys):
     frames_dir, masks_dir = small_clip
     out = tmp_path / "auto"
     assert main([C.VERB_MASKS, str(frames_dir), "--out", str(out), "--truth", str(masks_dir)]) == C.EXIT_OK
-    lines = capsys.readouterr().out.strip().splitlines()
+    captured = capsys.readouterr()
+    assert captured.err == ""  # stderr is for a failure's one line; progress goes to stdout
+    stage, *lines = captured.out.strip().splitlines()
+    assert C.parse_progress_line(stage)["stage"] == C.VERB_MASKS
     assert lines[-1] == str(out.resolve())
     assert lines[0].startswith("auto masks: foreground in 6/6 frames")
     assert "IoU against the given masks: mean 0.9" in lines[1]  # measured 0.95
@@ -277,7 +292,183 @@ SHARED_BOUNDS = {"blackswan": 0.50, "car-roundabout": 0.75, "vtest-static": 0.55
 def test_shared_clips_iou(clip, tmp_path, capsys):
     src = DATA / clip
     assert main([C.VERB_MASKS, str(src / "frames"), "--out", str(tmp_path), "--truth", str(src / "masks")]) == 0
-    lines = capsys.readouterr().out.splitlines()
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if C.parse_progress_line(ln) is None]
     mean = float(lines[1].split("mean ")[1].split(",")[0])
     assert mean >= SHARED_BOUNDS[clip], lines
     assert ("static camera" in lines[0]) == (clip == "vtest-static")
+
+
+# --- faults: a full disk, a cancel, a name taken meanwhile, names that are not UTF-8 -------------------------
+
+#: A clip whose analysis takes more than a second after the verb says it started (1.4 s measured on 2 cores),
+#: so a SIGTERM sent when the stage line appears lands in the middle of it.
+SLOW = SceneSpec(width=384, height=288, frames=24)
+
+
+def _masks_argv(clip: Path, out: Path, *extra: str) -> list[str]:
+    return [sys.executable, "-m", "engine", C.VERB_MASKS, str(clip), "--out", str(out), *extra]
+
+
+def _staging_left(parent: Path) -> list[str]:
+    return [p.name for p in parent.iterdir() if p.name.endswith(STAGING_SUFFIX)] if parent.exists() else []
+
+
+def _cancel_lines(stderr: str) -> list[str]:
+    lines = [ln for ln in stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("cancelled: masks stopped by SIGTERM"), stderr
+    assert "nothing half-written was kept" in lines[0]
+    return lines
+
+
+def test_full_disk_is_one_line_exit_2_and_leaves_nothing(small_clip, tmp_path):
+    """A real full file system (a 12 KB tmpfs: room for two of the six masks, each a 4 KB page there): one line
+    ``disk full: free N MB at FOLDER``, exit 2, and nothing on the disk: no mask, no staging folder. With room
+    (64 KB), the same command writes the whole set."""
+    frames_dir, _ = small_clip
+    disk = tmp_path / "disk"
+    out = disk / "masks"
+    full = run_on_full_disk(_masks_argv(frames_dir, out), disk, size_kb=3 * PAGE_BYTES // 1024, cwd=ROOT)
+    assert full.returncode == C.EXIT_BAD_INPUT, full.stderr
+    assert len(full.stderr_lines) == 1, full.stderr
+    assert full.stderr_lines[0].startswith("error: disk full: free ") and f" MB at {out} — " in full.stderr_lines[0]
+    assert full.left == {}, "a full disk left files behind"
+    roomy = run_on_full_disk(_masks_argv(frames_dir, out), disk, size_kb=16 * PAGE_BYTES // 1024, cwd=ROOT)
+    assert roomy.returncode == C.EXIT_OK, roomy.stderr
+    assert sorted(roomy.left) == ["masks/", *sorted(f"masks/{p.name}" for p in frames_dir.iterdir())]
+
+
+@pytest.fixture(scope="module")
+def slow_clip(tmp_path_factory):
+    return write_scene(make_scene(SLOW), tmp_path_factory.mktemp("slow"))[0]
+
+
+def test_sigterm_during_the_analysis_exits_3_and_a_rerun_writes_the_set(slow_clip, tmp_path):
+    """SIGTERM to a real child once it says it is finding what moves: exit 3 with one line, no mask folder and
+    no staging folder; the same command again writes every mask."""
+    out = tmp_path / "auto"
+    child = subprocess.Popen(
+        _masks_argv(slow_clip, out), cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    assert child.stdout is not None
+    stage = C.parse_progress_line(child.stdout.readline())
+    assert stage is not None and stage["stage"] == C.VERB_MASKS, stage
+    child.send_signal(signal.SIGTERM)
+    _, err = child.communicate(timeout=120)
+    assert child.returncode == C.EXIT_CANCELLED, err
+    _cancel_lines(err)
+    assert not out.exists() and _staging_left(tmp_path) == []
+    again = subprocess.run(_masks_argv(slow_clip, out), cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert again.returncode == C.EXIT_OK, again.stderr
+    assert sorted(p.name for p in out.iterdir()) == sorted(p.name for p in slow_clip.iterdir())
+
+
+#: A real child that sends itself SIGTERM at a chosen point of the writing (argv[1]: "write" after that many
+#: masks are in the staging folder, "publish" after the first mask is published), then runs the CLI on argv[3:].
+_SIGTERM_AT = """
+import os, signal, sys
+import engine.data.auto_masks as A
+from engine.cli import main
+
+when, count = sys.argv[1], int(sys.argv[2])
+calls = []
+
+def hook(real):
+    def wrapped(*args):
+        real(*args)
+        calls.append(args)
+        if len(calls) == count:
+            os.kill(os.getpid(), signal.SIGTERM)
+    return wrapped
+
+if when == "write":
+    A._write_synced = hook(A._write_synced)
+else:
+    A._link_new = hook(A._link_new)
+sys.exit(main(sys.argv[3:]))
+"""
+
+
+def _run_with_sigterm_at(when: str, count: int, clip: Path, out: Path) -> subprocess.CompletedProcess:
+    argv = [sys.executable, "-c", _SIGTERM_AT, when, str(count), C.VERB_MASKS, str(clip), "--out", str(out)]
+    return subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, timeout=300)
+
+
+def test_sigterm_while_the_set_is_written_leaves_nothing_and_a_rerun_writes_it(small_clip, tmp_path):
+    """SIGTERM when two of the six masks are written: they were in the hidden staging folder, which is removed;
+    the mask folder never appears, so nothing can take two masks for a finished set."""
+    frames_dir, _ = small_clip
+    out = tmp_path / "auto"
+    cut = _run_with_sigterm_at("write", 2, frames_dir, out)
+    assert cut.returncode == C.EXIT_CANCELLED, cut.stderr
+    _cancel_lines(cut.stderr)
+    assert not out.exists() and _staging_left(tmp_path) == []
+    again = subprocess.run(_masks_argv(frames_dir, out), cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert again.returncode == C.EXIT_OK, again.stderr
+    assert len(list(out.iterdir())) == SMALL.frames
+
+
+def test_sigterm_during_publication_waits_for_the_whole_set(small_clip, tmp_path):
+    """A folder that already holds other files gets the set file by file; a SIGTERM after the first one is held
+    back until the last is in place: exit 3, and the folder holds all six masks and the artist's file."""
+    frames_dir, _ = small_clip
+    out = tmp_path / "shared_folder"
+    out.mkdir()
+    (out / "notes.txt").write_text("the artist's")
+    cut = _run_with_sigterm_at("publish", 1, frames_dir, out)
+    assert cut.returncode == C.EXIT_CANCELLED, cut.stderr
+    _cancel_lines(cut.stderr)
+    names = sorted(p.name for p in out.iterdir())
+    assert names == sorted(["notes.txt", *(p.name for p in frames_dir.iterdir())])
+    assert (out / "notes.txt").read_text() == "the artist's" and _staging_left(tmp_path) == []
+
+
+def test_a_name_taken_before_publication_is_refused_and_nothing_is_published(tmp_path):
+    """Between the check and the publication someone saved a mask under one of the names: that file is kept as
+    it is, the masks linked before it are taken back, and the refusal is one line naming it."""
+    out = tmp_path / "masks"
+    out.mkdir()
+    (out / "00002.png").write_bytes(b"painted by hand")
+    masks = np.zeros((3, 6, 8), dtype=bool)
+    with pytest.raises(InputError) as exc:
+        write_mask_files(out, ["00000.png", "00001.png", "00002.png"], masks)
+    assert "\n" not in str(exc.value) and "already holds 00002.png" in str(exc.value)
+    assert sorted(p.name for p in out.iterdir()) == ["00002.png"]
+    assert (out / "00002.png").read_bytes() == b"painted by hand" and _staging_left(tmp_path) == []
+
+
+def test_a_published_set_has_a_plain_folders_permissions(tmp_path):
+    """The staging folder is private (0700) while it is written; the folder the artist gets is a plain one."""
+    out = tmp_path / "masks"
+    paths = write_mask_files(out, ["00000.png"], np.ones((1, 6, 8), dtype=bool))
+    umask = os.umask(0o022)
+    os.umask(umask)
+    assert (out.stat().st_mode & 0o777) == 0o777 & ~umask
+    assert cv2.imread(paths[0], cv2.IMREAD_UNCHANGED).min() == 255
+
+
+def _non_utf8(parent: Path, name: bytes) -> Path:
+    path = Path(os.fsdecode(os.path.join(os.fsencode(parent), name)))
+    try:
+        path.mkdir()
+    except (OSError, UnicodeError) as exc:
+        pytest.skip(f"this file system takes only UTF-8 names ({exc})")
+    return path
+
+
+def test_masks_verb_with_folders_whose_names_are_not_utf8(tmp_path):
+    """A plate and a mask folder named in Latin-1 on a UTF-8 system (once a traceback: OpenImageIO refused the
+    name, and printing it to a strict UTF-8 stdout raised). The masks are written, the last line shows the
+    folder with its odd byte as \\xe9, and a missing folder of that kind is one line."""
+    root = _non_utf8(tmp_path, b"shot_\xe9")
+    write_scene(make_scene(SMALL), tmp_path / "clip")  # OpenCV's writer cannot take such a name: moved there
+    os.rename(tmp_path / "clip", root / "clip")
+    frames_dir = root / "clip" / "frames"
+    out = root / "auto"
+    env = {**os.environ, "PYTHONIOENCODING": "utf-8"}  # a strict UTF-8 stdout, as in an en_US.UTF-8 terminal
+    done = subprocess.run(_masks_argv(frames_dir, out), cwd=ROOT, capture_output=True, env=env, timeout=300)
+    assert done.returncode == C.EXIT_OK, done.stderr
+    assert done.stdout.decode("utf-8").splitlines()[-1].endswith("shot_\\xe9/auto")
+    assert len(list(out.iterdir())) == SMALL.frames
+    missing = subprocess.run(_masks_argv(root / "nope", out), cwd=ROOT, capture_output=True, env=env, timeout=300)
+    err = missing.stderr.decode("utf-8").strip().splitlines()
+    assert missing.returncode == C.EXIT_BAD_INPUT and len(err) == 1 and "does not exist" in err[0], err
