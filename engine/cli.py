@@ -31,8 +31,12 @@ presets (accuracy vs time on a 2-core CPU at 768x432; see docs/accuracy-vs-time.
 progress: one JSON object per stdout line ({"neural_atlas": 1, "event": ...}); a bar on stderr.
 exit codes: 0 done, 1 engine error, 2 bad input, a full disk or a run folder in use (one line names the file
             and the fix), 3 cancelled by SIGINT/SIGTERM (a checkpoint was written: --resume continues),
-            4 the fit diverged (non-finite values; --resume --set lr=... continues from the last good checkpoint).
+            4 the fit diverged: its loss, gradients or parameters became NaN/Inf (one line names the step and
+            the likely cause; nothing past the last good checkpoint was kept: --resume --set lr=... continues).
 """
+
+#: The preset of a new fit when --preset is not given.
+DEFAULT_PRESET = "balanced"
 
 #: Every verb's exit codes, for the other verbs' help.
 EXIT_EPILOG = """\
@@ -115,8 +119,18 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"no masks: find moving objects (masks written to RUN_DIR/{C.AUTO_MASKS_DIR} for checking) and fit "
         "them; nothing moving gives a background-only fit. Without --mask or this, the fit is background-only",
     )
-    f.add_argument("--out", required=True, metavar="RUN_DIR", help="run folder (created; never overwritten)")
-    f.add_argument("--preset", default="balanced", help="draft | balanced | final | paper (default: balanced)")
+    f.add_argument(
+        "--out",
+        default=None,
+        metavar="RUN_DIR",
+        help="run folder (created; a folder that holds a fit takes --resume or --refit; one in use by another "
+        "process is refused)",
+    )
+    f.add_argument(
+        "--preset",
+        default=None,
+        help=f"draft | balanced | final | paper (default: {DEFAULT_PRESET}; not with --resume)",
+    )
     f.add_argument("--device", default="auto", help="auto | cpu | cuda | mps (default: auto)")
     f.add_argument(
         "--frames",
@@ -132,12 +146,18 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="KEY=VALUE",
         help="override any config field (see --help-config)",
     )
-    f.add_argument("--resume", action="store_true", help="continue the fit in RUN_DIR from its checkpoint")
+    f.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue the fit in RUN_DIR from its checkpoint, with the clip, masks and config it started with; "
+        "--set may change only the schedule (steps, the learning rates, eval_every, eval_pixels, "
+        "checkpoint_seconds: see --help-config)",
+    )
     f.add_argument(
         "--refit",
         action="store_true",
-        help="fit again into RUN_DIR although it holds a fit: its config, checkpoint, metrics and scene are "
-        "replaced; its edit layers (edits/) and earlier exports are kept",
+        help="fit again into RUN_DIR although it holds a fit: its config, clip record, scene, checkpoint and "
+        "metrics are replaced; its edit layers (edits/) and earlier exports (exports/) are kept as they are",
     )
     f.add_argument("--no-bar", action="store_true", help="no progress bar on stderr (JSON lines only)")
     f.add_argument("--help-config", action="store_true", help="list every config field and exit")
@@ -351,11 +371,26 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     if args.help_config:
         print(config_help())
         return C.EXIT_OK
+    if args.out is None:
+        raise InputError(None, "no run folder given", "pass --out RUN_DIR (a new folder, or a fit's to --resume)")
+    if args.resume and args.refit:
+        raise InputError(
+            None, "--resume and --refit both given", "pass --resume to continue the fit, or --refit to fit again"
+        )
     from engine.fit.run_folder import RunFolder
     from engine.fit.trainer import FitCancelled, fit
 
     run_dir = Path(args.out)
-    cfg = RunFolder(run_dir).read_config() if args.resume else preset_config(args.preset)
+    if args.resume:
+        cfg = RunFolder(run_dir).read_config()
+        if args.preset is not None and args.preset != cfg.preset:
+            raise InputError(
+                run_dir / C.RUN_CONFIG,
+                f"--preset {args.preset} with --resume: this fit started with preset {cfg.preset}",
+                "drop --preset to continue it, or fit with that preset into a new --out (or --refit)",
+            )
+    else:
+        cfg = preset_config(args.preset or DEFAULT_PRESET)
     cfg = apply_overrides(cfg, parse_set_args(args.set))
     try:
         metrics = fit(

@@ -12,11 +12,13 @@ import dataclasses
 import difflib
 import itertools
 import json
+import math
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
 from engine.contract import PRESET_STEPS, SCHEMA_VERSION
+from engine.data.flow import DIS_PRESETS
 from engine.errors import InputError
 
 
@@ -171,15 +173,165 @@ class FitConfig:
 
     @classmethod
     def from_json(cls, text: str, path: str | Path | None = None) -> FitConfig:
-        data = json.loads(text)
+        """A config as ``to_json`` wrote it; anything else (not JSON, not an object, another schema, a field
+        missing, of the wrong type or out of its range) is a one-line ``InputError`` naming ``path``."""
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError:
+            raise InputError(path, "not valid JSON", CONFIG_FILE_FIX) from None
+        if not isinstance(data, dict):
+            raise InputError(path, "config is not a JSON object", CONFIG_FILE_FIX)
         if data.get("schema") != SCHEMA_VERSION:
             raise InputError(
                 path,
                 f"config schema {data.get('schema')!r} is not supported (this engine writes {SCHEMA_VERSION})",
                 "fit into a new run folder or use the engine version that made this run",
             )
-        cfg = cls()
-        return apply_overrides(cfg, data["config"], source=path)
+        values = data.get("config")
+        if not isinstance(values, dict):
+            raise InputError(path, "config has no 'config' object", CONFIG_FILE_FIX)
+        missing = [name for name in _field_doc_names() if name not in values]
+        if missing:
+            raise InputError(path, f"config has no {missing[0]!r}", CONFIG_FILE_FIX)
+        return apply_overrides(cls(), values, source=path)
+
+
+#: The fix for a config.json that is damaged or was edited into something the engine cannot fit with.
+CONFIG_FILE_FIX = "restore it, or fit into a new run folder"
+#: The largest int a field may take: torch sizes and generator seeds are 64-bit, and nothing a fit counts
+#: (steps, pixels, layers) comes near it.
+MAX_INT = 2**31 - 1
+#: The smallest working long edge: below it a frame has too few pixels for the gradient and rigidity terms'
+#: neighbours and for optical flow.
+MIN_LONG_EDGE = 16
+
+
+@dataclass(frozen=True)
+class Valid:
+    """A field's valid values: a number in [``low``, ``high``] (``above``: strictly above ``low``; None: no
+    bound; numbers are always finite and ints at most ``MAX_INT``), or one of ``choices`` (a str field).
+    bool fields take true or false, str fields without choices any one line of text."""
+
+    low: float | None = None
+    high: float | None = None
+    above: bool = False
+    choices: tuple[str, ...] = ()
+
+    def accepts(self, value: Any) -> bool:
+        if isinstance(value, str):
+            return value in self.choices if self.choices else bool(value.strip()) and "\n" not in value
+        if isinstance(value, bool):
+            return True
+        if not math.isfinite(value) or (isinstance(value, int) and abs(value) > MAX_INT):
+            return False
+        if self.low is not None and (value <= self.low if self.above else value < self.low):
+            return False
+        return self.high is None or value <= self.high
+
+    def describe(self, kind: str) -> str:
+        """The valid values in words: ``an int >= 1``, ``a number in 0..1``, ``one of fast, paper``."""
+        if kind == "bool":
+            return "true or false"
+        if kind == "str":
+            return f"one of {', '.join(self.choices)}" if self.choices else "one line of text"
+        noun = "an int" if kind == "int" else "a finite number"
+        low = None if self.low is None else _number(self.low, kind)
+        high = None if self.high is None else _number(self.high, kind)
+        if low is not None and high is not None and not self.above:
+            return f"{noun} in {low}..{high}"
+        bounds = [f"{'>' if self.above else '>='} {low}"] if low is not None else []
+        bounds += [f"<= {high}"] if high is not None else []
+        return f"{noun} {' and '.join(bounds)}" if bounds else noun
+
+
+def _number(value: float, kind: str) -> str:
+    return str(int(value)) if kind == "int" or float(value).is_integer() else repr(value)
+
+
+_POSITIVE = Valid(low=0, above=True)
+_NON_NEGATIVE = Valid(low=0)
+_AT_LEAST_ONE = Valid(low=1)
+_FRACTION = Valid(low=0, high=1)
+_ANY = Valid()
+
+#: Every field's valid values (``--help-config`` shows them; ``check_config`` and ``apply_overrides`` enforce
+#: them, for ``--set`` and for a run's config.json alike, before anything is written).
+VALID: dict[str, Valid] = {
+    "preset": _ANY,
+    "model": Valid(choices=("fast", "paper")),
+    "steps": _AT_LEAST_ONE,
+    "batch": _AT_LEAST_ONE,
+    "object_sample_share": _FRACTION,
+    "seed": _NON_NEGATIVE,
+    "long_edge": Valid(low=MIN_LONG_EDGE),
+    "flow_preset": Valid(choices=DIS_PRESETS),
+    "flow_threshold_px": _POSITIVE,
+    "lr": _POSITIVE,
+    "lr_grid": _POSITIVE,
+    "lr_final_ratio": Valid(low=0, high=1, above=True),
+    "w_rgb": _NON_NEGATIVE,
+    "w_gradient": _NON_NEGATIVE,
+    "w_sparsity": _NON_NEGATIVE,
+    "w_atlas_sparsity": _NON_NEGATIVE,
+    "atlas_sparsity_samples": _AT_LEAST_ONE,
+    "w_flow": _NON_NEGATIVE,
+    "w_alpha_flow": _NON_NEGATIVE,
+    "w_rigidity": _NON_NEGATIVE,
+    "rigidity_delta": _POSITIVE,
+    "w_global_rigidity_fg": _NON_NEGATIVE,
+    "w_global_rigidity_bg": _NON_NEGATIVE,
+    "global_rigidity_delta": _POSITIVE,
+    "global_rigidity_steps": _NON_NEGATIVE,
+    "w_mask": _NON_NEGATIVE,
+    "bootstrap_steps": _NON_NEGATIVE,
+    "w_scribble": _NON_NEGATIVE,
+    "scribble_samples": _AT_LEAST_ONE,
+    "w_mask_prior": _NON_NEGATIVE,
+    "mask_prior_margin_px": _NON_NEGATIVE,
+    "w_anchor": _NON_NEGATIVE,
+    "uv_mapping_scale": Valid(low=0, high=1, above=True),
+    "pretrain_iters": _NON_NEGATIVE,
+    "mapping_hidden": _AT_LEAST_ONE,
+    "mapping_layers": _AT_LEAST_ONE,
+    "atlas_levels": _AT_LEAST_ONE,
+    "atlas_features": _AT_LEAST_ONE,
+    "atlas_density": _POSITIVE,
+    "alpha_levels": _AT_LEAST_ONE,
+    "alpha_features": _AT_LEAST_ONE,
+    "alpha_density": _POSITIVE,
+    "decoder_hidden": _AT_LEAST_ONE,
+    "warp_levels": _NON_NEGATIVE,
+    "warp_foreground": _ANY,
+    "warp_cell_px": _POSITIVE,
+    "lr_warp": _POSITIVE,
+    "init_motion": _ANY,
+    "atlas_margin_fg": _NON_NEGATIVE,
+    "components": Valid(choices=("auto", "all")),
+    "atlas_box_full_mask": _ANY,
+    "eval_every": _AT_LEAST_ONE,
+    "eval_pixels": _AT_LEAST_ONE,
+    "checkpoint_seconds": _NON_NEGATIVE,
+}
+
+#: What ``fit --resume --set`` may change: the schedule (its length and learning rates: a fit that diverged
+#: continues from its last good checkpoint with a lower rate) and the bookkeeping. Anything else decides what
+#: the fit computes, so a resume that changes it would not continue the same fit: it is refused.
+RESUMABLE_FIELDS: tuple[str, ...] = (
+    "steps",
+    "lr",
+    "lr_grid",
+    "lr_warp",
+    "lr_final_ratio",
+    "eval_every",
+    "eval_pixels",
+    "checkpoint_seconds",
+)
+#: Fields that decide only how a new fit starts (the fast model's starting motions and atlas boxes, the paper
+#: model's calibration): a checkpoint carries their result, so a run loaded from its folder never reads them,
+#: and a checkpoint and a config.json that differ only there still belong together.
+START_FIELDS: tuple[str, ...] = ("init_motion", "atlas_margin_fg", "atlas_box_full_mask", "pretrain_iters")
+#: The learning rates (``fit`` names them when a fit diverges).
+LR_FIELDS: tuple[str, ...] = ("lr", "lr_grid", "lr_warp")
 
 
 def loss_weights(cfg: FitConfig, step: int) -> dict[str, float]:
@@ -215,10 +367,14 @@ def _field_doc_names() -> list[str]:
     return [f.name for f in fields(FitConfig)]
 
 
-def _parse_value(kind: Any, raw: Any, key: str) -> Any:
-    if not isinstance(raw, str):
-        return raw
-    kind = kind if isinstance(kind, str) else getattr(kind, "__name__", str(kind))
+def _kind(name: str) -> str:
+    """A field's type as a word: ``int``, ``float``, ``bool`` or ``str``."""
+    kind = FitConfig.__dataclass_fields__[name].type
+    return kind if isinstance(kind, str) else getattr(kind, "__name__", str(kind))
+
+
+def _parse_value(kind: str, raw: str, key: str) -> Any:
+    """A ``--set`` string as a value of ``kind``; a one-line error when it is not one."""
     try:
         if kind == "bool":
             low = raw.lower()
@@ -234,24 +390,81 @@ def _parse_value(kind: Any, raw: Any, key: str) -> Any:
             return int(value)
         if kind == "float":
             return float(raw)
-    except ValueError:
+    except (ValueError, OverflowError):
         article = "an" if kind[:1] in "aeiou" else "a"
         raise InputError(None, f"--set {key}={raw}: not a valid {kind}", f"give {key} {article} {kind} value") from None
     return raw
 
 
+def _typed(kind: str, value: Any) -> Any:
+    """``value`` as ``kind`` when it is one (an int counts as a float, a whole float as an int); else None."""
+    if isinstance(value, bool):
+        return value if kind == "bool" else None
+    if kind == "int":
+        if isinstance(value, float) and math.isfinite(value) and value.is_integer():
+            return int(value)
+        return value if isinstance(value, int) else None
+    if kind == "float":
+        return float(value) if isinstance(value, (int, float)) else None
+    return value if kind == "str" and isinstance(value, str) else None
+
+
+#: Where a value being checked came from: ``--set`` on the command line (its messages quote the argument).
+FROM_SET = "--set"
+
+
+def check_value(key: str, value: Any, source: str | Path | None = None, raw: Any = None) -> Any:
+    """``value`` of field ``key`` checked against its type and ``VALID`` range (returned as its type), or a
+    one-line ``InputError``: quoting ``--set key=raw`` when ``source`` is ``FROM_SET``, naming the file when it is
+    a path (a run's config.json), and the field alone when None (a config built in code)."""
+    kind = _kind(key)
+    valid = VALID[key]
+    typed = _typed(kind, value)
+    if typed is not None and valid.accepts(typed):
+        return typed
+    want = valid.describe(kind)
+    if isinstance(typed, int) and not isinstance(typed, bool) and abs(typed) > MAX_INT:
+        want += f" (at most {MAX_INT})"
+    fix = "`python -m engine fit --help-config` lists every field's range"
+    if source == FROM_SET:
+        shown = value if raw is None else raw
+        raise InputError(None, f"--set {key}={shown}: {key} must be {want}", fix)
+    if source is None:
+        raise InputError(None, f"config {key!r} must be {want}, not {value!r}", fix)
+    raise InputError(source, f"config {key!r} must be {want}, not {value!r}", CONFIG_FILE_FIX)
+
+
+def check_config(cfg: FitConfig, source: str | Path | None = None) -> FitConfig:
+    """Every field of ``cfg`` within its type and range (``VALID``), or a one-line ``InputError`` (``source``: the
+    file it came from, if any): the one check a config passes before a fit writes anything."""
+    for f in fields(FitConfig):
+        check_value(f.name, getattr(cfg, f.name), source)
+    return cfg
+
+
 def apply_overrides(cfg: FitConfig, overrides: dict[str, Any], source: str | Path | None = None) -> FitConfig:
-    """Return a copy of ``cfg`` with ``overrides`` applied; unknown keys suggest the nearest field."""
+    """Return a copy of ``cfg`` with ``overrides`` applied; unknown keys suggest the nearest field, and every
+    value is checked against its type and range (``check_value``). ``source``: the file the overrides come from;
+    None: ``--set`` strings (``"1e3"``, ``"true"``) or values given in code."""
     names = _field_doc_names()
-    kinds = {f.name: f.type for f in fields(FitConfig)}
     values: dict[str, Any] = {}
     for key, raw in overrides.items():
-        if key not in kinds:
-            near = difflib.get_close_matches(key, names, n=1)
+        if key not in VALID:
+            near = difflib.get_close_matches(str(key), names, n=1)
             hint = f"did you mean {near[0]!r}?" if near else "see `python -m engine fit --help-config`"
             raise InputError(source, f"unknown config key {key!r}", hint)
-        values[key] = _parse_value(kinds[key], raw, key)
+        if source is None and isinstance(raw, str):
+            values[key] = check_value(key, _parse_value(_kind(key), raw, key), FROM_SET, raw)
+        else:
+            values[key] = check_value(key, raw, source)
     return dataclasses.replace(cfg, **values)
+
+
+def resume_changes(saved: FitConfig, new: FitConfig) -> tuple[list[str], list[str]]:
+    """The fields ``new`` changes from ``saved``: (those a resume may change, those it may not)."""
+    changed = [f.name for f in fields(FitConfig) if getattr(saved, f.name) != getattr(new, f.name)]
+    allowed = [name for name in changed if name in RESUMABLE_FIELDS]
+    return allowed, [name for name in changed if name not in RESUMABLE_FIELDS]
 
 
 def parse_set_args(items: list[str]) -> dict[str, str]:
@@ -333,17 +546,34 @@ def config_help() -> str:
     default = FitConfig()
     lines = []
     for f in fields(FitConfig):
-        lines.append(f"  {f.name} ({f.type}, default {getattr(default, f.name)!r}): {docs.get(f.name, '')}")
-    return "\n".join(lines)
+        kind = _kind(f.name)
+        valid = VALID[f.name].describe(kind)
+        resumable = ", resumable" if f.name in RESUMABLE_FIELDS else ""
+        lines.append(
+            f"  {f.name} ({kind}, default {getattr(default, f.name)!r}, {valid}{resumable}): {docs.get(f.name, '')}"
+        )
+    resumable_note = (
+        f"resumable: `fit --resume --set` may change only {', '.join(RESUMABLE_FIELDS)}; "
+        "any other field starts a new fit (a new --out, or --refit)"
+    )
+    return "\n".join([*lines, "", resumable_note])
 
 
 __all__ = [
+    "LR_FIELDS",
     "PRESETS",
+    "RESUMABLE_FIELDS",
+    "START_FIELDS",
+    "VALID",
     "FitConfig",
+    "Valid",
     "apply_overrides",
+    "check_config",
+    "check_value",
     "config_help",
     "loss_weights",
     "parse_set_args",
     "preset_config",
+    "resume_changes",
     "weight_ever_on",
 ]

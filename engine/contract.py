@@ -140,13 +140,17 @@ AUTO_MASKS_DIR = "auto_masks"
 #   RUN_METRICS  {"schema": 1, "psnr": float, "mse": float, "alpha_iou": [float] (one per mask), "steps": int,
 #                 "train_seconds": float, "seconds_per_step": float, "preset": str, "model": str, "device": str,
 #                 "working_size": [W, H], "frames": int, "engine_version": str, "torch_version": str}
-#   SCENE_FILE   see above (``validate_scene``)
+#   SCENE_FILE   {"schema": 1, the fields of RUN_FILE_FIELDS[SCENE_FILE]} (shape above; ``validate_scene`` checks
+#                 the copy in a manifest)
 #   RUN_CHECKPOINT (torch, loaded with weights_only) {RUN_CHECKPOINT_KEYS}: "schema": RUN_CHECKPOINT_SCHEMA,
-#                 "motions": each layer's starting motion and atlas box (fast model; null for the paper model)
+#                 "motions": each layer's starting motion and atlas box (fast model; null for the paper model),
+#                 "fingerprint": the clip record's, "config": the config's fields as saved (a checkpoint is
+#                 compared with clip.json and config.json when loaded: one from another run is refused)
 RUN_CONFIG_SCHEMA = SCHEMA_VERSION
 RUN_CLIP_SCHEMA = 2
 RUN_METRICS_SCHEMA = SCHEMA_VERSION
-RUN_CHECKPOINT_SCHEMA = SCHEMA_VERSION
+RUN_SCENE_SCHEMA = SCHEMA_VERSION
+RUN_CHECKPOINT_SCHEMA = 2
 RUN_CHECKPOINT_KEYS: tuple[str, ...] = (
     "schema",
     "model",
@@ -156,6 +160,7 @@ RUN_CHECKPOINT_KEYS: tuple[str, ...] = (
     "step",
     "train_seconds",
     "fingerprint",
+    "config",
     "motions",
 )
 #: Field types, in words: "str", "int", "number" (int or float), "bool", "dict", "<type> list", "<type> pair"
@@ -192,14 +197,36 @@ RUN_FILE_FIELDS: dict[str, dict[str, str]] = {
         "engine_version": "str",
         "torch_version": "str",
     },
+    SCENE_FILE: {
+        "components": "str",
+        "num_layers": "int",
+        "layers_source": "str",
+        "background_motion": "str",
+        "flow": "bool",
+        "scribbles": "int",
+        "alpha_network": "bool",
+        "active_terms": "str list",
+        "reasons": "dict",
+        "measured": "dict",
+        "overrides": "str list",
+    },
 }
 RUN_FILE_SCHEMAS: dict[str, int] = {
     RUN_CONFIG: RUN_CONFIG_SCHEMA,
     RUN_CLIP: RUN_CLIP_SCHEMA,
     RUN_METRICS: RUN_METRICS_SCHEMA,
+    SCENE_FILE: RUN_SCENE_SCHEMA,
 }
 #: How each file is named in messages.
-RUN_FILE_WHAT: dict[str, str] = {RUN_CONFIG: "config", RUN_CLIP: "clip record", RUN_METRICS: "metrics"}
+RUN_FILE_WHAT: dict[str, str] = {
+    RUN_CONFIG: "config",
+    RUN_CLIP: "clip record",
+    RUN_METRICS: "metrics",
+    SCENE_FILE: "scene analysis",
+}
+#: The scene analysis's ``components`` values (engine/config.py's ``components`` field).
+RUN_SCENE_COMPONENTS: tuple[str, ...] = ("auto", "all")
+RUN_SCENE_LAYERS_SOURCES: tuple[str, ...] = (SCENE_LAYERS_GIVEN, SCENE_LAYERS_AUTO, SCENE_LAYERS_NONE)
 #: The fix for a run file of another engine version (a refused schema).
 RUN_FILE_OTHER_VERSION_FIX = "fit into a new run folder or use the engine version that made this run"
 #: The fix for a run file that is damaged (not JSON, a key missing or of the wrong type).
@@ -233,8 +260,8 @@ def _is_type(value: Any, kind: str) -> bool:
 
 
 def validate_run_file(name: str, data: Any) -> dict[str, Any]:
-    """Check a decoded run-folder file (``RUN_CONFIG``, ``RUN_CLIP`` or ``RUN_METRICS``) against its schema above;
-    returns it, or raises RunFileError."""
+    """Check a decoded run-folder file (``RUN_CONFIG``, ``RUN_CLIP``, ``RUN_METRICS`` or ``SCENE_FILE``) against its
+    schema above; returns it, or raises RunFileError."""
     what = RUN_FILE_WHAT[name]
     if not isinstance(data, dict):
         raise RunFileError(f"{what} is not a JSON object", RUN_FILE_DAMAGED_FIX)
@@ -249,6 +276,8 @@ def validate_run_file(name: str, data: Any) -> dict[str, Any]:
             raise RunFileError(f"{what} {key!r} is not a {kind}: {data[key]!r}", RUN_FILE_DAMAGED_FIX)
     if name == RUN_CLIP:
         _check_clip_record(data)
+    elif name == SCENE_FILE:
+        _check_scene_record(data)
     return data
 
 
@@ -265,6 +294,26 @@ def _check_clip_record(data: dict[str, Any]) -> None:
         problem = f"clip record: unknown kind or colour space {data['kind']!r}, {data['colorspace']!r}"
     elif data["layers"] < 1 or min(data["native_size"] + data["working_size"]) < 1:
         problem = "clip record: layers and sizes must be positive"
+    if problem is not None:
+        raise RunFileError(problem, RUN_FILE_DAMAGED_FIX)
+
+
+def _check_scene_record(data: dict[str, Any]) -> None:
+    """What the scene analysis's values must be (their types are checked already): known choices, counts that
+    can be, and one line of text or a number per reason and measurement."""
+    problem = None
+    if data["components"] not in RUN_SCENE_COMPONENTS:
+        problem = f"scene analysis: unknown components {data['components']!r}"
+    elif data["background_motion"] not in BG_MOTIONS:
+        problem = f"scene analysis: unknown background_motion {data['background_motion']!r}"
+    elif data["layers_source"] not in RUN_SCENE_LAYERS_SOURCES:
+        problem = f"scene analysis: unknown layers_source {data['layers_source']!r}"
+    elif data["num_layers"] < 1 or data["scribbles"] < 0:
+        problem = "scene analysis: num_layers must be positive and scribbles not negative"
+    elif not all(isinstance(v, str) for v in data["reasons"].values()):
+        problem = "scene analysis: a reason is not text"
+    elif not all(v is None or _is_type(v, "number") for v in data["measured"].values()):
+        problem = "scene analysis: a measurement is not a number or null"
     if problem is not None:
         raise RunFileError(problem, RUN_FILE_DAMAGED_FIX)
 

@@ -199,7 +199,7 @@ def run_demo(out: Path, preset: str = "draft", overrides: dict[str, str] | None 
     if folder.metrics.exists():
         _say(f"1/6 fit already done in {run} (delete it to refit)")
     else:
-        resume = folder.holds_fit()
+        resume = folder.checkpoint.exists()  # a demo fit that was stopped continues where it was
         _say(f"1/6 {'resuming' if resume else 'fitting'} ({preset}) -> {run}")
         try:
             # the bar on stderr is for people; the JSON progress lines go to the run's fit.log only

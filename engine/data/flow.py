@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import hashlib
 import logging
-import os
-import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +21,9 @@ from typing import Protocol, runtime_checkable
 
 import cv2
 import numpy as np
+
+from engine.errors import InputError
+from engine.io.atomic import atomic_write
 
 log = logging.getLogger(__name__)
 
@@ -235,13 +236,13 @@ def _load_cache(path: Path, t: int, h: int, w: int, backend: str, threshold_px: 
 
 
 def _save_cache(path: Path, field: FlowField) -> None:
-    """Atomic write (temp file in the same folder + os.replace): a crash never leaves a half file behind.
-    The cache is only an optimisation, so a failed write is logged, not raised."""
-    tmp: str | None = None
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem[:16]}-", suffix=".npz.tmp", dir=path.parent)
-        with os.fdopen(fd, "wb") as f:
+    """Atomic write (``io.atomic``: a temp file in the same folder, then a rename): a kill, a cancel or a full disk
+    never leaves a half file under the cache's name, and the temp file is removed whatever stopped the write.
+    The cache is only an optimisation, so a write that fails (a full disk included) is logged, not raised; a
+    cancel (KeyboardInterrupt) still stops the command."""
+
+    def write(tmp: str) -> None:
+        with open(tmp, "wb") as f:
             np.savez(
                 f,
                 forward=field.forward,
@@ -252,15 +253,11 @@ def _save_cache(path: Path, field: FlowField) -> None:
                 threshold_px=np.array(field.threshold_px, dtype=np.float64),
                 version=np.array(FLOW_CACHE_VERSION),
             )
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-        tmp = None
-    except OSError as exc:
+
+    try:
+        atomic_write(path, write)
+    except (OSError, InputError) as exc:  # DiskFullError is an InputError
         log.warning("could not write flow cache %s (%s); continuing without it", path, exc)
-    finally:
-        if tmp is not None:
-            Path(tmp).unlink(missing_ok=True)
 
 
 def _checked_flow(flow: np.ndarray, h: int, w: int, backend: FlowBackend) -> np.ndarray:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -95,13 +96,49 @@ class PreparedClip:
         )
 
 
-def to_fitting_values(frames: np.ndarray, colorspace: str) -> tuple[np.ndarray, list[int]]:
-    """Frames as the values the model fits: display-encoded, finite. Returns the frames with NaN/Inf."""
-    bad = [int(i) for i in np.nonzero(~np.isfinite(frames).reshape(len(frames), -1).all(1))[0]]
+#: The largest plate value taken as it is: the largest finite half float, the format of most HDR plates. Suns and
+#: speculars of thousands are legitimate HDR values and pass unchanged; a value beyond this cannot come from a
+#: half-float EXR and is an artefact (a firefly of a renderer, a broken conversion, 1e30 in a float EXR). Such
+#: values are clamped to +-PLATE_VALUE_LIMIT (and reported): the objective compares with its ``TARGET_RANGE``
+#: anyway, so only what the flow and the PSNR see changes, and one absurd pixel no longer decides them.
+PLATE_VALUE_LIMIT = 65504.0
+
+
+@dataclass
+class PlateFaults:
+    """What ``to_fitting_values`` repaired, by frame (positions in the decoded clip)."""
+
+    nonfinite: list[int]
+    """Frames with NaN/Inf pixels (NaN and -Inf became 0, +Inf 1)."""
+    absurd: list[int]
+    """Frames with finite values beyond +-PLATE_VALUE_LIMIT (clamped to it)."""
+
+
+def to_fitting_values(frames: np.ndarray, colorspace: str, source: str = "") -> tuple[np.ndarray, PlateFaults]:
+    """Frames as the values the model fits: display-encoded, finite, within +-PLATE_VALUE_LIMIT before encoding,
+    and what was repaired. Values within the limit (every 8/16-bit plate, every half-float one) are unchanged bit
+    for bit; the clamp runs in place on the one copy this makes anyway. A clip without a single finite value is
+    a one-line ``InputError`` naming ``source``: there is nothing to fit."""
+    per_frame = len(frames), -1
+    finite = np.isfinite(frames).reshape(per_frame)
+    if frames.size and not finite.any():
+        raise InputError(
+            source,
+            "every pixel of the clip is NaN or Inf (no value to fit)",
+            "re-export the plate: its frames hold no numbers",
+        )
+    bad = [int(i) for i in np.nonzero(~finite.all(1))[0]]
+    del finite
     out = np.nan_to_num(frames, nan=0.0, posinf=1.0, neginf=0.0)
+    absurd: list[int] = []
+    if out.size and (float(out.max()) > PLATE_VALUE_LIMIT or float(out.min()) < -PLATE_VALUE_LIMIT):
+        flat = out.reshape(per_frame)
+        beyond = (flat.max(1) > PLATE_VALUE_LIMIT) | (flat.min(1) < -PLATE_VALUE_LIMIT)
+        absurd = [int(i) for i in np.nonzero(beyond)[0]]
+        np.clip(out, -PLATE_VALUE_LIMIT, PLATE_VALUE_LIMIT, out=out)
     if colorspace == "linear":
         out = linear_to_srgb(np.clip(out, 0.0, None))
-    return out.astype(np.float32), bad
+    return out.astype(np.float32), PlateFaults(bad, absurd)
 
 
 def _fit_flow(frames: np.ndarray, preset: str, threshold_px: float, cache_dir: Path) -> FlowField:
@@ -124,12 +161,15 @@ def prepare_clip(
     expect_fingerprint: str | None = None,
     scribble_dir: str | Path | None = None,
     auto_masks: bool = False,
+    before_writing: Callable[[], None] | None = None,
 ) -> PreparedClip:
     """Read, validate and sanitise the clip and masks, and compute (or load from RUN_DIR/flow_cache) its flow.
 
     ``expect_fingerprint`` (a resume): a clip whose frames changed is refused before its flow is computed,
     so the refusal is quick and writes nothing into the run folder. ``auto_masks``: no masks are given; find
     them from motion (written to RUN_DIR/auto_masks) and fit with them; nothing found: background only.
+    ``before_writing``: called once everything is read and checked, before the first write into the run folder
+    (the flow cache, the auto masks): ``fit`` takes the run folder's lock there, so bad input creates no folder.
     """
     reporter = reporter or Reporter.null()
     info = open_clip(clip, frame_range)
@@ -141,9 +181,14 @@ def prepare_clip(
         raw, analysis_raw = read_frames_at(info, [size, finder.size])
     else:
         raw = analysis_raw = read_frames(info, size)
-    frames, bad = to_fitting_values(raw, info.colorspace)
-    if bad:
-        print(f"warning: NaN/Inf pixels replaced in frames {bad} of {info.source}", file=sys.stderr)
+    frames, faults = to_fitting_values(raw, info.colorspace, info.source)
+    if faults.nonfinite:
+        print(f"warning: NaN/Inf pixels replaced in frames {faults.nonfinite} of {info.source}", file=sys.stderr)
+    if faults.absurd:
+        print(
+            f"warning: values beyond +-{PLATE_VALUE_LIMIT:g} clamped in frames {faults.absurd} of {info.source}",
+            file=sys.stderr,
+        )
     masks = (
         np.stack([read_masks(m, info, size) for m in mask_dirs])
         if mask_dirs
@@ -157,6 +202,8 @@ def prepare_clip(
         raise InputError(
             info.source, "the clip changed since this run started", "fit it into a new --out instead of --resume"
         )
+    if before_writing is not None:
+        before_writing()
     if len(frames) >= 2:
         reporter.emit(C.EVENT_STAGE, stage="flow", message="optical flow (cached per clip content)")
     flow = _fit_flow(frames, cfg.flow_preset, cfg.flow_threshold_px, run.flow_cache)
@@ -226,7 +273,7 @@ class _AutoMasks:
             frames = prepared.frames
             shared = (fit_cfg.flow_preset, fit_cfg.flow_threshold_px) == (cfg.flow_preset, cfg.flow_threshold_px)
         else:
-            frames, shared = to_fitting_values(raw, self.info.colorspace)[0], False
+            frames, shared = to_fitting_values(raw, self.info.colorspace, self.info.source)[0], False
         flow = prepared.flow if shared else _fit_flow(frames, cfg.flow_preset, cfg.flow_threshold_px, self.cache)
         result = auto_masks(frames, cfg, flow=flow)
         native = resize_masks(result.masks, (self.info.width, self.info.height))
@@ -244,4 +291,4 @@ class _AutoMasks:
             prepared.mask_dirs = [str(self.folder)]
 
 
-__all__ = ["PreparedClip", "prepare_clip", "to_fitting_values"]
+__all__ = ["PLATE_VALUE_LIMIT", "PlateFaults", "PreparedClip", "prepare_clip", "to_fitting_values"]

@@ -9,8 +9,11 @@ does not follow it is a one-line ``InputError`` naming the file and the fix.
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import json
 import os
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -18,12 +21,15 @@ from typing import Any
 import torch
 
 from engine import contract as C
-from engine.config import FitConfig
-from engine.data.scene_analysis import SceneAnalysis, read_scene_file, write_scene_file
+from engine.config import RESUMABLE_FIELDS, START_FIELDS, FitConfig
+from engine.data.scene_analysis import SceneAnalysis
 from engine.errors import InputError
-from engine.fit.checkpoint import load_checkpoint, save_checkpoint
+from engine.fit.checkpoint import CHECKPOINT_DAMAGED_FIX, load_checkpoint, nonfinite_entries, save_checkpoint
 from engine.io.atomic import atomic_write_text
 from engine.io.clip import NumberedFrames
+
+#: The fix for a checkpoint that does not belong with the run folder's other files.
+FOREIGN_CHECKPOINT_FIX = "copy back this run's own checkpoint, or fit again with --refit (edits and exports are kept)"
 
 
 @dataclass(frozen=True)
@@ -95,10 +101,44 @@ class RunFolder:
     exports = _entry(C.EXPORTS_DIR)
     edits = _entry(C.EDITS_DIR)
 
+    # --- the lock
+    @contextlib.contextmanager
+    def lock(self, what: str) -> Iterator[None]:
+        """Hold this folder's exclusive lock (``contract.run_lock``) for the ``with`` block, creating the folder:
+        every writer of a run folder (fit, export, project-frame, preview) holds it for its whole write, and a
+        second one is refused at once with one line (``contract.RunLocked``) naming the holder ``what``."""
+        with C.run_lock(self.path, what):
+            yield
+
     # --- checks
+    def fit_contents(self) -> list[str]:
+        """What of a fit this folder holds, by name: its checkpoint, its metrics, and its edits/ and exports/
+        folders when they hold anything (the artist's paint and the exports made from the fit). A folder with
+        only config, clip record, scene analysis and flow cache (a fit stopped before its first checkpoint)
+        holds none: a plain ``fit`` may start it over."""
+        held = [p.name for p in (self.checkpoint, self.metrics) if p.exists()]
+        return held + [f"{p.name}/" for p in (self.edits, self.exports) if _has_entries(p)]
+
     def holds_fit(self) -> bool:
-        """A fit has checkpointed here (finished or not)."""
-        return self.checkpoint.exists()
+        """A fit (or what the artist made of one) is here: ``fit`` into it needs --resume or --refit."""
+        return bool(self.fit_contents())
+
+    def refuse_plain_fit(self) -> None:
+        """One line when this folder holds a fit (``fit_contents``): it names what, and the ways out."""
+        held = self.fit_contents()
+        if held:
+            raise InputError(
+                self.path,
+                f"this folder already holds a fit ({', '.join(held)})",
+                "pass --resume to continue it, --refit to fit it again (edits/ and exports/ are kept), "
+                "or choose a new --out",
+            )
+
+    def clear_fit(self) -> None:
+        """Before a --refit writes its own files: the earlier fit's metrics and checkpoint go (first the metrics,
+        so no moment shows a finished fit without its checkpoint); edits/ and exports/ stay as they are."""
+        for path in (self.metrics, self.checkpoint):
+            path.unlink(missing_ok=True)
 
     def require_fit(self) -> None:
         """One-line error unless this is the folder of a fit that checkpointed (what export reads)."""
@@ -116,6 +156,7 @@ class RunFolder:
 
     # --- config.json
     def read_config(self) -> FitConfig:
+        """The run's config: its schema, every field's type and range checked (``FitConfig.from_json``)."""
         text = self._read_text(self.config, "no fit to resume here", "run `fit` without --resume first")
         self._validated(self.config, text)
         return FitConfig.from_json(text, self.config)
@@ -146,14 +187,23 @@ class RunFolder:
         self._write_json(self.metrics, {"schema": C.RUN_METRICS_SCHEMA, **metrics})
 
     # --- scene.json
-    def read_scene(self) -> SceneAnalysis:
-        return read_scene_file(self.path)
+    def read_scene(self, record: ClipRecord | None = None) -> SceneAnalysis:
+        """The run's scene analysis (every fit writes it before its first step), checked against its schema and,
+        given the run's clip ``record``, against its layer count (both files must be of the same fit)."""
+        text = self._read_text(self.scene, "the run has no scene analysis", "restore it or fit into a new --out")
+        scene = SceneAnalysis.from_dict(self._validated(self.scene, text))
+        if record is not None and scene.num_layers != record.layers:
+            problem = f"scene analysis has {scene.num_layers} layers but {C.RUN_CLIP} records {record.layers}"
+            raise InputError(self.scene, problem, C.RUN_FILE_DAMAGED_FIX)
+        return scene
 
     def write_scene(self, scene: SceneAnalysis) -> None:
-        write_scene_file(self.path, scene)
+        self._write_json(self.scene, scene.to_dict())
 
     # --- checkpoint.pt
     def load_checkpoint(self, device: torch.device) -> dict[str, Any]:
+        """The checkpoint, loaded safely (weights only), with every key of its schema and the types a resume and
+        an export read from it; a checkpoint of another engine version or a damaged one is one line."""
         state = load_checkpoint(self.checkpoint, device)
         missing = [k for k in C.RUN_CHECKPOINT_KEYS if k not in state] if isinstance(state, dict) else ["schema"]
         if missing:
@@ -163,10 +213,42 @@ class RunFolder:
                 f"checkpoint schema {state['schema']!r} is not supported (this engine writes {C.RUN_CHECKPOINT_SCHEMA})"
             )
             raise InputError(self.checkpoint, problem, C.RUN_FILE_OTHER_VERSION_FIX)
+        kinds = {"model": dict, "optim": dict, "sched": dict, "gen": torch.Tensor, "fingerprint": str, "config": dict}
+        kinds |= {"step": int, "train_seconds": (int, float), "motions": (list, type(None))}
+        for key, kind in kinds.items():
+            if not isinstance(state[key], kind) or isinstance(state[key], bool):
+                raise InputError(self.checkpoint, f"checkpoint {key!r} is damaged", CHECKPOINT_DAMAGED_FIX)
+        bad = nonfinite_entries(state)
+        if bad:
+            raise InputError(self.checkpoint, f"checkpoint holds NaN/Inf values ({bad[0]})", CHECKPOINT_DAMAGED_FIX)
         return state
 
     def save_checkpoint(self, state: dict[str, Any]) -> None:
         save_checkpoint(self.checkpoint, {"schema": C.RUN_CHECKPOINT_SCHEMA, **state})
+
+    def check_checkpoint_belongs(self, state: dict[str, Any], cfg: FitConfig, record: ClipRecord) -> None:
+        """One line unless the checkpoint ``state`` was saved by this folder's fit: the clip it fitted (its
+        fingerprint in clip.json) and every field of config.json that decides what the loaded model computes
+        (``RESUMABLE_FIELDS`` may differ: a resume records its new schedule in config.json before the next
+        checkpoint; ``START_FIELDS`` too: the checkpoint carries what they decided)."""
+        if state["fingerprint"] != record.fingerprint:
+            raise InputError(
+                self.checkpoint,
+                f"checkpoint is of another clip than {C.RUN_CLIP} records (fingerprint {state['fingerprint']!r}, "
+                f"not {record.fingerprint!r})",
+                FOREIGN_CHECKPOINT_FIX,
+            )
+        saved = state["config"]
+        ours = dataclasses.asdict(cfg)
+        free = (*RESUMABLE_FIELDS, *START_FIELDS)
+        differ = [k for k in ours if k not in free and (k not in saved or saved[k] != ours[k])]
+        if differ:
+            raise InputError(
+                self.checkpoint,
+                f"checkpoint was saved with another config than {C.RUN_CONFIG} ({differ[0]} "
+                f"{saved.get(differ[0])!r}, not {ours[differ[0]]!r})",
+                FOREIGN_CHECKPOINT_FIX,
+            )
 
     # --- helpers
     @staticmethod
@@ -175,12 +257,16 @@ class RunFolder:
             return path.read_text(encoding="utf-8")
         except FileNotFoundError:
             raise InputError(path, missing_problem, missing_fix) from None
+        except UnicodeDecodeError:
+            raise InputError(path, "not a text file", C.RUN_FILE_DAMAGED_FIX) from None
+        except OSError as exc:
+            raise InputError(path, f"cannot be read ({exc.strerror or type(exc).__name__})", "check it") from None
 
     @staticmethod
     def _validated(path: Path, text: str) -> dict[str, Any]:
         try:
             return C.validate_run_file(path.name, json.loads(text))
-        except json.JSONDecodeError:
+        except (json.JSONDecodeError, RecursionError):
             raise InputError(path, "not valid JSON", C.RUN_FILE_DAMAGED_FIX) from None
         except C.RunFileError as exc:
             raise InputError(path, exc.problem, exc.fix) from None
@@ -190,6 +276,14 @@ class RunFolder:
         text = json.dumps(data, indent=2)
         RunFolder._validated(path, text)
         atomic_write_text(path, text)
+
+
+def _has_entries(folder: Path) -> bool:
+    """Whether ``folder`` holds anything but hidden bookkeeping (a dead export's ``.vNNN.partial``)."""
+    try:
+        return any(not entry.name.startswith(".") for entry in folder.iterdir())
+    except (FileNotFoundError, NotADirectoryError):
+        return False
 
 
 __all__ = ["ClipRecord", "RunFolder"]

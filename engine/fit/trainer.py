@@ -8,9 +8,12 @@ Progress goes to stdout as JSON lines (``contract.progress_line``) and to stderr
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import os
 import signal
 import sys
 import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -20,20 +23,21 @@ import torch
 from tqdm import tqdm
 
 from engine import contract as C
-from engine.config import FitConfig
+from engine.config import LR_FIELDS, PRESETS, RESUMABLE_FIELDS, FitConfig, check_config, resume_changes
 from engine.data.scene_analysis import SceneAnalysis
 from engine.data.scribbles import propagate_labels
 from engine.data.video import VideoTensors, build_video_tensors, frame_pixels, sample_batch, sample_pixels
-from engine.errors import InputError
+from engine.errors import FitDiverged, InputError
+from engine.fit.checkpoint import nonfinite_entries
 from engine.fit.device import select_device, synchronize
 from engine.fit.eta import StepClock
 from engine.fit.prepare import PreparedClip, prepare_clip
 from engine.fit.progress import Reporter
-from engine.fit.run_folder import ClipRecord, RunFolder
+from engine.fit.run_folder import FOREIGN_CHECKPOINT_FIX, ClipRecord, RunFolder
 from engine.model.atlas_model import AtlasModel, FastModel, motion_regions
 from engine.model.losses import psnr_from_mse
 from engine.model.motion_init import LayerMotion, estimate_layer_motion
-from engine.model.objective import compute_losses
+from engine.model.objective import TARGET_RANGE, compute_losses
 from engine.model.paper_model import PaperModel
 
 #: Pixels per forward chunk when evaluating whole frames (bounds memory of the evaluation).
@@ -46,6 +50,11 @@ PROBE_SEED_OFFSET = 104_729
 ALPHA_IOU_THRESHOLD = 0.5
 #: The learning rate's decay never goes below this fraction (a zero ratio would stop the decay's logarithm).
 MIN_LR_RATIO = 1e-6
+#: A diverged fit's message suggests the preset's rate, or this fraction of the rate it diverged with when that
+#: was no higher than the preset's.
+LR_RETRY_FACTOR = 0.1
+#: Characters of a torch error kept in the one-line message of a checkpoint that does not fit the model.
+ERROR_DETAIL_CHARS = 160
 
 
 # --- the model a clip calls for -----------------------------------------------------------------------------
@@ -142,13 +151,17 @@ def rebuild_model(
 def evaluate_pixels(
     model: AtlasModel, video: VideoTensors, ix: torch.Tensor, iy: torch.Tensor, t: torch.Tensor
 ) -> float:
-    """Mean squared error of the reconstruction at the given pixels."""
+    """Mean squared error of the reconstruction at the given pixels, against the plate in the objective's
+    ``TARGET_RANGE`` (what a reconstruction can reach: an HDR highlight, or an absurd value clamped to
+    ``prepare.PLATE_VALUE_LIMIT``, counts as the range's top, so one pixel cannot decide the PSNR; a no-op for
+    8/16-bit plates)."""
+    lo, hi = TARGET_RANGE
     total, count = 0.0, 0
     for s in range(0, ix.shape[0], EVAL_CHUNK):
         sl = slice(s, s + EVAL_CHUNK)
         xy = torch.stack((ix[sl], iy[sl]), -1).float() + 0.5
         rec, _ = model.reconstruct(xy, t[sl])
-        total += float(((rec - video.frames[t[sl], iy[sl], ix[sl]]) ** 2).sum())
+        total += float(((rec - video.frames[t[sl], iy[sl], ix[sl]].clamp(lo, hi)) ** 2).sum())
         count += rec.shape[0] * 3
     return total / max(count, 1)
 
@@ -170,16 +183,18 @@ def render_frame(
 
 @torch.no_grad()
 def evaluate_full(model: AtlasModel, video: VideoTensors, size: tuple[int, int], device: torch.device) -> dict:
-    """Full-frame PSNR over every pixel of every frame, and per-layer alpha IoU against the masks."""
+    """Full-frame PSNR over every pixel of every frame (against the plate in ``TARGET_RANGE``, as
+    ``evaluate_pixels``), and per-layer alpha IoU against the masks."""
     t_count = video.shape[0]
     sq, n = 0.0, 0
     inter = np.zeros(video.masks.shape[0])
     union = np.zeros(video.masks.shape[0])
     frames_np = video.frames.cpu().numpy()
     masks_np = video.masks.cpu().numpy()
+    lo, hi = TARGET_RANGE
     for t in range(t_count):
         rec, wts = render_frame(model, t, size, device)
-        sq += float(((rec - frames_np[t]) ** 2).sum())
+        sq += float(((rec - np.clip(frames_np[t], lo, hi)) ** 2).sum())
         n += rec.size
         for f in range(masks_np.shape[0]):
             group = video.mask_layers[f] if video.mask_layers is not None else (f + 1,)
@@ -229,7 +244,8 @@ def regime_cost_ratio(
     def timed(step: int) -> float:
         ix, iy, tt = sample_batch(video, cfg.batch, cfg.object_sample_share, gen, device)
         t0 = time.perf_counter()
-        loss, _ = compute_losses(model, video, cfg, step, ix, iy, tt)
+        loss, terms = compute_losses(model, video, cfg, step, ix, iy, tt)
+        require_finite(torch.isfinite(loss), step + 1, "loss", lambda: nonfinite_terms(terms))
         loss.backward()
         synchronize(device)
         seconds = time.perf_counter() - t0
@@ -274,6 +290,91 @@ class FitCancelled(Exception):
     """The fit was interrupted by a signal after writing a checkpoint."""
 
 
+# --- divergence: every step's loss, gradients and parameters are finite ------------------------------------
+
+
+class NonFinite(FitDiverged):
+    """A step's loss, gradients or parameters (or a checkpoint about to be written) hold NaN or Inf. ``train``
+    turns it into the fit's one-line ``FitDiverged`` (the learning rates, how to continue)."""
+
+    def __init__(self, step: int, quantity: str, where: list[str]) -> None:
+        self.step, self.quantity, self.where = step, quantity, where
+        inside = f" ({', '.join(where[:4])}{', ...' if len(where) > 4 else ''})" if where else ""
+        super().__init__(f"step {step}: the {quantity}{inside} became NaN/Inf")
+
+
+def all_finite(tensors: list[torch.Tensor]) -> torch.Tensor:
+    """0-d bool tensor: every value of every tensor is finite, without a synchronisation (the caller reads it
+    once). One fused pass: ``torch._foreach_norm``'s 2-norm of each tensor, which NaN and Inf propagate into (the
+    vectorised norm: the infinity norm, exact for any finite value, costs about 16 times as much on a CPU). A
+    magnitude beyond about 1.8e19 overflows the float32 norm and counts as non-finite too: a fit's values and
+    gradients are far below it unless it is diverging."""
+    tensors = [t for t in tensors if t.numel()]
+    if not tensors:
+        return torch.tensor(True)
+    return torch.isfinite(torch.stack(torch._foreach_norm(tensors))).all()
+
+
+def require_finite(ok: torch.Tensor, step: int, quantity: str, where: Callable[[], list[str]]) -> None:
+    """Raise ``NonFinite`` unless ``ok`` (the step's one synchronisation for this check); ``where`` names the
+    culprits, computed only then."""
+    if not bool(ok):
+        raise NonFinite(step, quantity, where())
+
+
+def nonfinite_terms(terms: dict[str, torch.Tensor]) -> list[str]:
+    return [name for name, value in terms.items() if not bool(torch.isfinite(value.detach()).all())]
+
+
+def nonfinite_groups(optim: torch.optim.Optimizer, grads: bool) -> list[str]:
+    """The parameter groups (``grids``, ``mappings``, ...) whose gradients (or values) are not all finite."""
+    names = []
+    for i, group in enumerate(optim.param_groups):
+        tensors = [p.grad if grads else p for p in group["params"]]
+        if not bool(all_finite([t for t in tensors if t is not None])):
+            names.append(str(group.get("name", i)))
+    return names
+
+
+def diverged_message(error: NonFinite, cfg: FitConfig, run: RunFolder, checkpoint_step: int | None) -> str:
+    """The one line of a diverged fit: the step, what went non-finite, the likely cause (its learning rates, or
+    the plate's values) and the command that continues from the last good checkpoint with lower rates."""
+    preset = PRESETS.get(cfg.preset, FitConfig())
+    high = [k for k in LR_FIELDS if getattr(cfg, k) > getattr(preset, k)]
+    lower = {k: getattr(preset, k) for k in high} or {k: getattr(cfg, k) * LR_RETRY_FACTOR for k in LR_FIELDS}
+    rates = ", ".join(f"{k}={getattr(cfg, k):g}" for k in (high or LR_FIELDS))
+    cause = f"a learning rate too high ({rates}) or extreme values in the plate"
+    if checkpoint_step is None:
+        return f"{run.path}: the fit diverged at {error} — likely cause: {cause}; lower the rate and fit again"
+    sets = " ".join(f"--set {k}={v:g}" for k, v in lower.items())
+    return (
+        f"{run.path}: the fit diverged at {error} — likely cause: {cause}; the checkpoint keeps step "
+        f"{checkpoint_step}, the last good one: continue from it with a lower rate: "
+        f"python -m engine fit --resume --out {run.path} {sets}"
+    )
+
+
+def _one_line(exc: BaseException) -> str:
+    """A torch error (often several lines) as a short clause for a one-line message."""
+    text = " ".join(part.strip() for part in str(exc).splitlines() if part.strip()) or type(exc).__name__
+    return text if len(text) <= ERROR_DETAIL_CHARS else text[: ERROR_DETAIL_CHARS - 3] + "..."
+
+
+@contextlib.contextmanager
+def checkpoint_fits(path: Path | None) -> Iterator[None]:
+    """A checkpoint loaded into a model it was not saved from (another run's, a damaged one: missing weights,
+    wrong shapes, a broken optimiser or sampler state) is one line naming ``path``, not torch's traceback."""
+    try:
+        yield
+    except InputError as exc:
+        if exc.path is not None:
+            raise
+        raise InputError(path, exc.problem, exc.fix) from None
+    except (RuntimeError, ValueError, TypeError, KeyError, IndexError, AttributeError) as exc:
+        problem = f"checkpoint does not fit this run's model ({_one_line(exc)})"
+        raise InputError(path, problem, FOREIGN_CHECKPOINT_FIX) from None
+
+
 def model_motions(model: AtlasModel) -> list[dict[str, Any]] | None:
     """The fast model's per-layer starting motion and atlas box, for the checkpoint (None: other models)."""
     motions = getattr(model, "layer_motions", None)
@@ -291,6 +392,7 @@ def model_motions(model: AtlasModel) -> list[dict[str, Any]] | None:
 
 
 def motion_from_state(rec: dict[str, Any]) -> LayerMotion:
+    """A layer's starting motion as ``model_motions`` saved it (a malformed one raises: ``checkpoint_fits``)."""
     return LayerMotion(
         to_ref=rec["to_ref"].cpu().numpy().astype(np.float64),
         center=rec["center"].cpu().numpy().astype(np.float64),
@@ -307,11 +409,12 @@ class Trainer:
     step count and training clock.
 
     ``Trainer(cfg, clip, scene, device)`` sets a new fit up (the same seed gives the same model); with ``state``
-    (a checkpoint) it continues one. ``calibrate`` runs the model's own set-up, ``train_step`` trains the next
-    step, ``optimise`` one step at a given step's loss weights (the timed steps of ``estimate`` and the speed
-    table), ``evaluate_sample``/``evaluate_full`` measure, ``save``/``state_dict``/``restore`` are the
-    checkpoint, and ``train`` is the loop of ``fit``. ``video``: pixel tensors shared by several trainers of the
-    same clip (the bench and the estimate try several presets on one clip).
+    (a checkpoint, read from ``state_source``) it continues one, with ``cfg``'s schedule. ``calibrate`` runs the
+    model's own set-up, ``train_step`` trains the next step, ``optimise`` one step at a given step's loss weights
+    (the timed steps of ``estimate`` and the speed table), ``evaluate_sample``/``evaluate_full`` measure,
+    ``save``/``state_dict``/``restore`` are the checkpoint, and ``train`` is the loop of ``fit``. ``video``: pixel
+    tensors shared by several trainers of the same clip (the bench and the estimate try several presets on one
+    clip). Every step checks that its loss, gradients and parameters are finite (``NonFinite``).
     """
 
     def __init__(
@@ -322,14 +425,16 @@ class Trainer:
         device: torch.device,
         video: VideoTensors | None = None,
         state: dict[str, Any] | None = None,
+        state_source: Path | None = None,
     ) -> None:
         self.cfg, self.clip, self.scene, self.device = cfg, clip, scene, device
         torch.manual_seed(cfg.seed)  # the model's initial weights
         if state is None:
             model = build_model(cfg, clip, scene)
         else:
-            motions = None if state["motions"] is None else [motion_from_state(m) for m in state["motions"]]
-            model = assemble_model(cfg, clip.size, clip.frames.shape[0], 1 + clip.num_foreground, scene, motions)
+            with checkpoint_fits(state_source):
+                motions = None if state["motions"] is None else [motion_from_state(m) for m in state["motions"]]
+                model = assemble_model(cfg, clip.size, clip.frames.shape[0], 1 + clip.num_foreground, scene, motions)
         self.model = model.to(device)
         if video is None:
             video = build_video_tensors(
@@ -339,13 +444,18 @@ class Trainer:
         self.optim = make_optimizer(self.model, cfg, device)
         self.sched = make_scheduler(self.optim, cfg)
         self.gen = torch.Generator().manual_seed(cfg.seed)
+        #: every parameter the optimiser steps, in its groups' order (the per-step finite checks)
+        self.params = [p for group in self.optim.param_groups for p in group["params"]]
         self.step = 0  # steps done: the next step's index
         self.train_seconds = 0.0  # optimisation steps and the model's calibration, nothing else
+        #: the step of the last checkpoint written or restored (None: none yet): where a diverged fit continues
+        self.saved_step: int | None = None
         #: seconds per step since this start or resume, per cost regime: the ETA (set up at the first ``train_step``)
         self.clock: StepClock | None = None
         self._sample: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
         if state is not None:
-            self.restore(state)
+            with checkpoint_fits(state_source):
+                self.restore(state)
 
     def calibrate(self) -> None:
         """The model's own set-up before its first step (the paper model pre-trains its mappings), counted as
@@ -356,14 +466,22 @@ class Trainer:
 
     def optimise(self, at: int) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """One optimisation step with the loss weights in force at step ``at``; the step count and the clock are
-        left as they are."""
+        left as they are. Raises ``NonFinite`` on a non-finite loss before its backward pass (NaN/Inf coordinates
+        crash grid_sample's CPU backward), on non-finite gradients before the optimiser steps (the parameters stay
+        as they were), and on non-finite parameters after it: one synchronising read per check, the maths
+        untouched."""
         cfg, video = self.cfg, self.video
+        step = at + 1  # as the progress lines count
         ix, iy, tt = sample_batch(video, cfg.batch, cfg.object_sample_share, self.gen, self.device)
         loss, terms = compute_losses(self.model, video, cfg, at, ix, iy, tt)
+        require_finite(torch.isfinite(loss), step, "loss", lambda: nonfinite_terms(terms))
         self.optim.zero_grad(set_to_none=True)
         loss.backward()
+        grads = [p.grad for p in self.params if p.grad is not None]
+        require_finite(all_finite(grads), step, "gradients", lambda: nonfinite_groups(self.optim, grads=True))
         self.optim.step()
         self.sched.step()
+        require_finite(all_finite(self.params), step, "parameters", lambda: nonfinite_groups(self.optim, grads=False))
         return loss, terms
 
     def train_step(self) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
@@ -411,24 +529,51 @@ class Trainer:
             "step": self.step,
             "train_seconds": self.train_seconds,
             "fingerprint": self.clip.fingerprint,
+            "config": dataclasses.asdict(self.cfg),
             "motions": model_motions(self.model),
         }
 
     def restore(self, state: dict[str, Any]) -> None:
+        """Continue from ``state`` (a checkpoint of this fit) with this trainer's config: its learning rates and
+        schedule replace the checkpoint's (``fit --resume --set lr=...`` after a divergence); with the same config
+        the rates are the ones the checkpoint holds, bit for bit."""
         self.model.load_state_dict(state["model"])
         self.optim.load_state_dict(state["optim"])
         self.sched.load_state_dict(state["sched"])
         self.gen.set_state(state["gen"].cpu())
         self.step, self.train_seconds = int(state["step"]), float(state["train_seconds"])
+        self.saved_step = self.step
+        base = [group["lr"] for group in self.model.param_groups(self.cfg)]
+        self.sched.base_lrs = base
+        for group, lr, decay in zip(self.optim.param_groups, base, self.sched.lr_lambdas, strict=True):
+            group["initial_lr"] = lr
+            group["lr"] = lr * decay(self.sched.last_epoch)  # what LambdaLR computes at this step
 
     def save(self, run: RunFolder, reporter: Reporter) -> None:
-        run.save_checkpoint(self.state_dict())
+        """Write the checkpoint (atomically), unless it would hold NaN/Inf: then ``NonFinite``, and the checkpoint
+        on disk stays the last good one."""
+        state = self.state_dict()
+        bad = nonfinite_entries(state)
+        if bad:
+            raise NonFinite(self.step, "checkpoint's values", bad)
+        run.save_checkpoint(state)
+        self.saved_step = self.step
         reporter.emit(C.EVENT_CHECKPOINT, step=self.step, path=str(run.checkpoint))
 
     def train(self, run: RunFolder, reporter: Reporter, progress_bar: bool = True) -> None:
         """The fit's loop up to ``cfg.steps``: a progress line (live PSNR, ETA, loss terms) at the first step,
         every ``eval_every`` steps and the last; a checkpoint every ``checkpoint_seconds``, at the end, and at
-        SIGINT/SIGTERM, which then raise ``FitCancelled``."""
+        SIGINT/SIGTERM, which then raise ``FitCancelled``. A step whose loss, gradients or parameters are not
+        finite stops the fit with ``FitDiverged`` (one line; an ``error`` progress event), nothing written past
+        the last good checkpoint."""
+        try:
+            self._train(run, reporter, progress_bar)
+        except NonFinite as exc:
+            message = diverged_message(exc, self.cfg, run, self.saved_step)
+            reporter.emit(C.EVENT_ERROR, message=message, log=str(run.log))
+            raise FitDiverged(message) from None
+
+    def _train(self, run: RunFolder, reporter: Reporter, progress_bar: bool) -> None:
         cfg = self.cfg
         reporter.emit(C.EVENT_STAGE, stage="train", message=f"{cfg.steps} steps, preset {cfg.preset}")
         bar = tqdm(
@@ -440,9 +585,9 @@ class Trainer:
             dynamic_ncols=True,
         )
         last_ckpt = time.monotonic()
-        with _Stop() as stop:
+        with _Stop() as stop, contextlib.closing(bar):
             while not self.finished:
-                loss, terms = self.train_step()
+                _, terms = self.train_step()
                 bar.update(1)
                 if self.step % cfg.eval_every == 0 or self.step == cfg.steps or self.step == 1:
                     psnr = self.evaluate_sample()
@@ -457,8 +602,6 @@ class Trainer:
                         losses={k: round(float(v.detach()), 6) for k, v in terms.items()},
                     )
                     bar.set_postfix(psnr=f"{psnr:.2f}")
-                    if not np.isfinite(float(loss.detach())):
-                        raise RuntimeError(f"loss became non-finite at step {self.step}: {terms}")
                 if stop.signum is not None:
                     self.save(run, reporter)
                     bar.close()
@@ -488,50 +631,101 @@ def fit(
     """Fit a layered atlas to ``clip``; writes config, clip record, scene analysis, checkpoint and metrics
     into ``run_dir``. ``auto_masks``: no masks given, find them from motion (written to RUN_DIR/auto_masks
     for the artist to check) and fit with them; nothing moving gives a background-only fit. ``scribble_dir``:
-    red/green/... strokes that split the one mask's object into several foreground layers (paper Sec. 4.4)."""
+    red/green/... strokes that split the one mask's object into several foreground layers (paper Sec. 4.4).
+
+    The run folder is written under its lock (``RunFolder.lock``), taken once the input is read and checked (at
+    once when the folder exists): a second ``fit`` into it is refused with one line. A folder that holds a fit
+    (``RunFolder.fit_contents``) takes ``resume`` (continue it: the same clip, masks and config, but for the
+    schedule's ``RESUMABLE_FIELDS``) or ``refit`` (fit again: edits/ and exports/ are kept)."""
+    check_config(cfg)
+    if resume and refit:
+        raise InputError(
+            None, "--resume and --refit both given", "pass --resume to continue the fit, or --refit to fit again"
+        )
     run = RunFolder(run_dir)
-    expect = None
-    if resume:
-        record = run.read_clip()
-        clip = clip or record.source
-        mask_dirs = mask_dirs or list(record.masks)
-        frame_range = frame_range or record.frame_range
-        scribble_dir = scribble_dir or record.scribbles
-        expect = record.fingerprint
-    else:
-        if run.holds_fit() and not refit:
-            raise InputError(
-                run.path, "this folder already holds a fit", "pass --resume to continue it, or choose a new --out"
-            )
-        if clip is None:
-            raise InputError(None, "no clip given", "pass a frame folder or movie file")
-    run.check_writable()
-    device = select_device(device_name)
-    # the input is read and validated before anything is written: bad input leaves no run folder behind
-    reporter = Reporter(stream=stream)
+    if not resume and clip is None:
+        raise InputError(None, "no clip given", "pass a frame folder or movie file")
     find_masks = auto_masks and not resume
     if find_masks and mask_dirs:
         raise InputError(None, f"{C.FIT_AUTO_MASKS_FLAG} and --mask both given", "pass one of them")
-    prepared = prepare_clip(
-        clip, mask_dirs, cfg, run.path, frame_range, reporter, expect, scribble_dir, auto_masks=find_masks
-    )
-    run.path.mkdir(parents=True, exist_ok=True)
-    reporter.log_path = run.log
-    state = None
-    if resume:
-        state = run.load_checkpoint(device)
-        scene = run.read_scene()
-    else:
-        scene = prepared.analyse(cfg)
-        run.write_config(cfg)
-        run.write_clip(prepared.record())
-        run.write_scene(scene)
-    reporter.emit(C.EVENT_STAGE, stage="scene", message=scene.summary(), scene=scene.to_dict())
+    run.check_writable()
+    device = select_device(device_name)
+    reporter = Reporter(stream=stream)
+    with contextlib.ExitStack() as stack:
+        lock = _WriteLock(run, stack, plain=not (resume or refit))
+        if run.path.is_dir():
+            lock()  # a folder that exists: another process writing it is refused before the clip is read
+        state = scene = saved = None
+        expect = None
+        if resume:
+            saved, record = run.read_config(), run.read_clip()
+            scene = run.read_scene(record)
+            _check_resume_inputs(run, record, clip, mask_dirs, frame_range, scribble_dir)
+            _check_resume_config(run, saved, cfg)
+            state = run.load_checkpoint(device)
+            run.check_checkpoint_belongs(state, saved, record)
+            clip, mask_dirs, frame_range = record.source, list(record.masks), record.frame_range
+            scribble_dir, expect = record.scribbles, record.fingerprint
+        # the input is read and validated before anything is written: bad input leaves no run folder behind
+        prepared = prepare_clip(
+            clip,  # type: ignore[arg-type]  # a resume's clip is the recorded one; a new fit's was checked above
+            mask_dirs,
+            cfg,
+            run.path,
+            frame_range,
+            reporter,
+            expect,
+            scribble_dir,
+            auto_masks=find_masks,
+            before_writing=lock,  # the lock from the first write (the flow cache) on
+        )
+        reporter.log_path = run.log
+        if saved is None or scene is None:
+            scene = prepared.analyse(cfg)
+            if refit:
+                run.clear_fit()
+            run.write_config(cfg)
+            run.write_clip(prepared.record())
+            run.write_scene(scene)
+        elif cfg != saved:
+            run.write_config(cfg)  # the resume's new schedule, before its next checkpoint
+        return _fit_locked(run, prepared, cfg, scene, device, state, reporter, progress_bar)
 
+
+class _WriteLock:
+    """``fit``'s hold on the run folder: taken once (at once for a folder that exists, else when the input has been
+    read and checked, so bad input creates no folder) and kept to the end of the fit; under it, a plain fit checks
+    again that the folder holds no fit (another process may have fitted into it meanwhile)."""
+
+    def __init__(self, run: RunFolder, stack: contextlib.ExitStack, plain: bool) -> None:
+        self.run, self.stack, self.plain, self.held = run, stack, plain, False
+
+    def __call__(self) -> None:
+        if self.held:
+            return
+        self.stack.enter_context(self.run.lock(C.VERB_FIT))
+        self.held = True
+        if self.plain:
+            self.run.refuse_plain_fit()
+
+
+def _fit_locked(
+    run: RunFolder,
+    prepared: PreparedClip,
+    cfg: FitConfig,
+    scene: SceneAnalysis,
+    device: torch.device,
+    state: dict[str, Any] | None,
+    reporter: Reporter,
+    progress_bar: bool,
+) -> dict[str, Any]:
+    """``fit``'s training, evaluation and metrics, under the run folder's lock, the folder's records written."""
+    reporter.emit(C.EVENT_STAGE, stage="scene", message=scene.summary(), scene=scene.to_dict())
     reporter.emit(C.EVENT_STAGE, stage="init", message=f"building the {cfg.model} model on {device.type}")
-    trainer = Trainer(cfg, prepared, scene, device, state=state)
+    trainer = Trainer(cfg, prepared, scene, device, state=state, state_source=run.checkpoint)
     if state is None:
         trainer.calibrate()
+        trainer.save(run, reporter)  # step 0: the last good checkpoint even of a fit that diverges at once
     trainer.train(run, reporter, progress_bar)
     reporter.emit(C.EVENT_STAGE, stage="evaluate", message="full-frame PSNR over every pixel")
     ev = trainer.evaluate_full()
@@ -556,6 +750,55 @@ def fit(
     return metrics
 
 
+def _same_path(given: str | Path, recorded: str) -> bool:
+    """Whether a path given on the command line names what the run recorded (symlinks and ``~`` resolved)."""
+    return os.path.realpath(os.path.expanduser(os.fspath(given))) == os.path.realpath(recorded)
+
+
+def _check_resume_inputs(
+    run: RunFolder,
+    record: ClipRecord,
+    clip: str | Path | None,
+    mask_dirs: list[str | Path],
+    frame_range: tuple[int, int] | None,
+    scribble_dir: str | Path | None,
+) -> None:
+    """``--resume`` continues the fit of the clip, masks, scribbles and frames clip.json records: any of them given
+    again must be the recorded one (a different mask folder would otherwise be fitted while clip.json keeps the
+    old one). One line naming the first difference."""
+    changed: tuple[str, str, str] | None = None
+    if clip is not None and not _same_path(clip, record.source):
+        changed = ("the clip", str(clip), record.source)
+    elif mask_dirs and not (len(mask_dirs) == len(record.masks) and all(map(_same_path, mask_dirs, record.masks))):
+        changed = ("--mask", ", ".join(map(str, mask_dirs)), ", ".join(record.masks) or "no masks")
+    elif scribble_dir is not None and (record.scribbles is None or not _same_path(scribble_dir, record.scribbles)):
+        changed = ("--scribbles", str(scribble_dir), record.scribbles or "no scribbles")
+    elif frame_range is not None and tuple(frame_range) != tuple(record.frame_range):
+        first, last = record.frame_range
+        changed = ("--frames", f"{frame_range[0]}:{frame_range[1]}", f"{first}:{last}")
+    if changed is not None:
+        what, given, recorded = changed
+        raise InputError(
+            run.clip,
+            f"--resume with {what} {given}, but this run fitted {recorded}",
+            "drop it to continue the fit as it started, or fit with it into a new --out (or --refit)",
+        )
+
+
+def _check_resume_config(run: RunFolder, saved: FitConfig, cfg: FitConfig) -> None:
+    """A resume may change the schedule (``config.RESUMABLE_FIELDS``) and nothing else: one line naming the
+    first other field that differs from config.json."""
+    _, refused = resume_changes(saved, cfg)
+    if refused:
+        key = refused[0]
+        raise InputError(
+            run.config,
+            f"--resume cannot change {key} ({getattr(saved, key)!r} -> {getattr(cfg, key)!r}); "
+            f"a resume changes only {', '.join(RESUMABLE_FIELDS)}",
+            "drop that --set to continue the fit, or fit with it into a new --out (or --refit)",
+        )
+
+
 # --- a fitted run, loaded back ------------------------------------------------------------------------------
 
 
@@ -577,11 +820,13 @@ def load_fitted(run_dir: str | Path, device_name: str = "cpu") -> FittedRun:
     run = RunFolder(run_dir)
     cfg = run.read_config()
     record = run.read_clip()
-    scene = run.read_scene()
+    scene = run.read_scene(record)
     device = select_device(device_name)
     state = run.load_checkpoint(device)
-    model = rebuild_model(cfg, record, scene, state["motions"]).to(device)
-    model.load_state_dict(state["model"])
+    run.check_checkpoint_belongs(state, cfg, record)
+    with checkpoint_fits(run.checkpoint):
+        model = rebuild_model(cfg, record, scene, state["motions"]).to(device)
+        model.load_state_dict(state["model"])
     return FittedRun(run, cfg, record, scene, model.eval(), run.read_metrics())
 
 
@@ -605,6 +850,7 @@ __all__ = [
     "EVAL_CHUNK",
     "FitCancelled",
     "FittedRun",
+    "NonFinite",
     "PreparedClip",
     "Reporter",
     "Trainer",

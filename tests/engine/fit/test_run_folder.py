@@ -137,10 +137,25 @@ def test_an_engine_bug_never_writes_a_file_off_its_schema(tmp_path):
     assert not run.metrics.exists()
 
 
+#: A checkpoint with every key of its schema, of the types the readers check (no model behind it).
+CHECKPOINT = {
+    "model": {"w": torch.zeros(2)},
+    "optim": {},
+    "sched": {},
+    "gen": torch.Generator().get_state(),
+    "step": 0,
+    "train_seconds": 0.0,
+    "fingerprint": RECORD.fingerprint,
+    "config": {},
+    "motions": None,
+}
+
+
 def test_checkpoint_keys_and_version_are_checked(tmp_path):
     run = RunFolder(tmp_path)
     cpu = torch.device("cpu")
-    state = {k: 0 for k in C.RUN_CHECKPOINT_KEYS if k != "schema"}
+    assert set(CHECKPOINT) | {"schema"} == set(C.RUN_CHECKPOINT_KEYS)
+    state = dict(CHECKPOINT)
     run.save_checkpoint(state)
     assert run.load_checkpoint(cpu)["schema"] == C.RUN_CHECKPOINT_SCHEMA
     run.save_checkpoint({**state, "schema": 99})
@@ -163,3 +178,21 @@ def test_the_contract_validates_without_the_engine():
     assert C.validate_run_file(C.RUN_METRICS, {"schema": 1, **METRICS, "psnr": float("inf")})  # a perfect fit
     with pytest.raises(C.RunFileError, match="'steps' is not a int"):
         C.validate_run_file(C.RUN_METRICS, {"schema": 1, **METRICS, "steps": True})
+
+
+@pytest.mark.parametrize(
+    ("edit", "needles"),
+    [
+        (lambda s: s.update(step="12"), ("checkpoint 'step' is damaged", "--refit")),
+        (lambda s: s.update(gen=[1, 2]), ("checkpoint 'gen' is damaged",)),
+        (lambda s: s.update(model={"w": torch.tensor([1.0, float("nan")])}), ("NaN/Inf values (model/w)",)),
+    ],
+)
+def test_a_damaged_checkpoint_is_one_line(tmp_path, edit, needles):
+    run = RunFolder(tmp_path)
+    state = dict(CHECKPOINT)
+    edit(state)
+    run.save_checkpoint(state)
+    with pytest.raises(InputError) as err:
+        run.load_checkpoint(torch.device("cpu"))
+    _one_line(err, run.checkpoint, *needles)
