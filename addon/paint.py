@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import array
 import os
+from contextlib import nullcontext
 from typing import Any
 
 import bpy
 
 from ..engine import contract as C
 from . import compat
-from .core import float_edit
+from .core import float_edit, run_files
 from .core import tree_plan as P
 
 
@@ -94,40 +95,47 @@ def _is_exr(path: str) -> bool:
     return path.lower().endswith(C.EDIT_LAYER_FLOAT_EXT)
 
 
-def save_edits() -> list[str]:
+def save_edits(manifest_path: str | None = None) -> list[str]:
     """Write every painted edit layer back to its file, keeping the format it has; returns the paths.
 
     A PNG stays 8-bit sRGB with straight alpha; an EXR stays a full-float, scene-linear, premultiplied EXR
-    (Non-Color since the import, so Blender writes the raw values: a Linear one would be saved encoded)."""
+    (Non-Color since the import, so Blender writes the raw values: a Linear one would be saved encoded). Holds the
+    run folder's lock of ``manifest_path`` (default: the imported atlas's) while writing: ``contract.RunLocked``
+    (one line naming the export or project-frame that holds it) leaves every file as it was."""
+    dirty = [img for img in bpy.data.images if img.name.startswith(P.PREFIX + "Edit_") and img.is_dirty]
+    if not dirty:
+        return []
+    manifest_path = manifest_path or bpy.context.scene.neural_atlas.manifest
+    lock = run_files.edits_lock(manifest_path, run_files.SAVE_EDITS_HOLDER) if manifest_path else nullcontext()
     saved = []
-    for img in bpy.data.images:
-        if not img.name.startswith(P.PREFIX + "Edit_") or not img.is_dirty:
-            continue
-        path = bpy.path.abspath(img.filepath)
-        os.makedirs(os.path.dirname(path), exist_ok=True)
-        img.filepath_raw = path
-        if _is_exr(path):
-            # the import made it Non-Color (raw values on save); setting the colourspace here, even to the same
-            # name, would reload the image from disk and silently drop the unsaved paint (docs/blender-compat.md)
-            compat.set_float_exr(img)
-        else:
-            img.file_format = "PNG"
-        img.save()
-        saved.append(path)
+    with lock:
+        for img in dirty:
+            path = bpy.path.abspath(img.filepath)
+            os.makedirs(os.path.dirname(path), exist_ok=True)
+            img.filepath_raw = path
+            if _is_exr(path):
+                # the import made it Non-Color (raw values on save); setting the colourspace here, even to the same
+                # name, would reload the image from disk and silently drop the unsaved paint (docs/blender-compat.md)
+                compat.set_float_exr(img)
+            else:
+                img.file_format = "PNG"
+            img.save()
+            saved.append(path)
     return saved
 
 
-def make_float_edit(layer: str) -> str:
+def make_float_edit(layer: str, dst: str | None = None) -> str:
     """Write ``<Layer>.exr`` (linear, premultiplied) next to the layer's PNG edit, from its current pixels
     (unsaved paint included); returns the path. Refuses to replace an existing EXR: that is the artist's paint.
-    The PNG is left as it was; from now on the EXR is the layer's edit (``contract.edit_layer_file``)."""
+    The PNG is left as it was; from now on the EXR is the layer's edit (``contract.edit_layer_file``). ``dst``: where
+    to write it, as ``tree_plan.float_edit_path`` checked it (default: beside the image's file)."""
     img = bpy.data.images.get(P.edit_image_name(layer))
     if img is None:
         raise ValueError(f"no edit layer {layer!r}: import the atlas first")
     src = bpy.path.abspath(img.filepath)
     if _is_exr(src):
         raise ValueError(f"{src} is already a float edit layer")
-    dst = C.float_edit_layer(src)
+    dst = dst or C.float_edit_layer(src)
     if os.path.exists(dst):
         raise ValueError(f"{dst} exists (it is used instead of the PNG): import the atlas again to paint in it")
     w, h = img.size

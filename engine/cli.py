@@ -223,9 +223,10 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
     x = sub.add_parser(
         C.VERB_EXPORT,
         help="write UV + alpha EXR passes, atlas textures, edit layers and a manifest",
-        description="Export a fitted run for compositing into RUN_DIR/exports/vNNN (never overwritten). "
-        "Passes are float32 EXR at the plate's native resolution; edit layers (RUN_DIR/edits) are created "
-        "once and never overwritten. The last line printed is the manifest's path.",
+        description="Export a fitted run for compositing into RUN_DIR/exports/vNNN (never overwritten), holding "
+        "the run folder's lock. Passes are float32 EXR at the plate's native resolution; edit layers (RUN_DIR/edits) "
+        "are created once and never overwritten. The manifest's paths are relative to it, so the run folder can move "
+        "with its plate. The last line printed is the manifest's path.",
         epilog=EXIT_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -249,13 +250,17 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
         C.VERB_RENDER,
         help="render the edited clip from an export (the paper's edit equations)",
         description="Blend each layer's edit layer (sampled at its UV) over the ORIGINAL plate, layers weighted "
-        "by the learned alpha. With every edit layer empty the output is the plate.",
+        "by the learned alpha. With every edit layer empty the output is the plate. The frames (and the movie) "
+        "appear together once all are written, or none does; --out and --movie may not be the plate's folder, a "
+        "mask folder or inside the run folder.",
         epilog=EXIT_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     r.add_argument("manifest", metavar="MANIFEST", help="manifest.json of an export (or its folder)")
     r.add_argument("--edit", action="append", default=[], metavar="LAYER=IMAGE", help="use IMAGE as LAYER's edit")
-    r.add_argument("--out", required=True, metavar="DIR", help="folder for the frames (edit.00012.exr ...)")
+    r.add_argument(
+        "--out", required=True, metavar="DIR", help="folder for the frames (edit.00012.exr ...), outside the run folder"
+    )
     r.add_argument("--format", default="exr", choices=["exr", "png"], help="exr (linear float, default) or png")
     r.add_argument("--filter", default="bilinear", choices=["bilinear", "nearest"], help="texture filter")
     r.add_argument("--movie", default=None, metavar="FILE.mp4", help="also write an H.264 movie")
@@ -265,7 +270,7 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
         help="land paint made on one frame on the atlases' edit layers",
         description="IMAGE is RGBA paint over plate frame N (transparent where unpainted). The paint goes to the "
         "layers that own each pixel and is composited over their edit layers (the old ones are kept in "
-        "edits/history).",
+        "edits/history), all together, holding the run folder's lock.",
         epilog=EXIT_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -276,8 +281,9 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
     pv = sub.add_parser(
         C.VERB_PREVIEW,
         help="contact sheets and movies to judge an export: atlases, checkerboard, label propagation",
-        description="Writes into MANIFEST's folder/preview (or --out): atlases with coverage, a checkerboard "
-        "mapped through each foreground atlas, and stripes painted on the first frame propagated.",
+        description="Writes into MANIFEST's folder/preview (or --out, outside the run folder): atlases with "
+        "coverage, a checkerboard mapped through each foreground atlas, and stripes painted on the first frame "
+        "propagated; all files appear together once written, or none does.",
         epilog=EXIT_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

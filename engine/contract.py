@@ -467,91 +467,231 @@ def pass_file_name(frame_number: int) -> str:
     return f"{PASS_FILE_PREFIX}{frame_number:0{PASS_FILE_DIGITS}d}{PASS_FILE_EXT}"
 
 
-#: Keys every manifest has (validated by ``validate_manifest``); paths inside are relative to the manifest's
-#: folder unless absolute. Shape:
-#: {"neural_atlas_manifest": 1, "engine_version": str, "run_dir": str, "created": ISO-8601 str,
-#:  "clip": {"source": str, "kind": "sequence"|"movie", "frame_files": [str], "frame_numbers": [int],
-#:           "first_frame": int, "last_frame": int, "fps": float|None, "resolution": [W, H],
-#:           "working_resolution": [W, H], "colorspace": "sRGB"|"linear"},
+#: Keys every manifest has (validated by ``validate_manifest``, types included). Paths inside are relative to the
+#: manifest's folder, so a run folder moved or mounted elsewhere keeps working (the plate's paths are absolute only
+#: where no relative path exists, e.g. on another Windows drive); edit layers must stay inside the run folder
+#: (``resolve_manifest_write_path``). Shape:
+#: {"neural_atlas_manifest": 1, "engine_version": str, "run_dir": str (the run folder, relative), "created":
+#:  ISO-8601 str,
+#:  "clip": {"source": str, "kind": "sequence"|"movie", "frame_files": [str] ([] for a movie), "frame_numbers":
+#:           [int] (ascending), "first_frame": int, "last_frame": int, "fps": float|None, "resolution": [W, H],
+#:           "working_resolution": [W, H], "colorspace": "sRGB"|"linear", "masks": [str] (the fit's mask folders;
+#:           optional)},
 #:  "passes": {"dir": str, "pattern": "atlas.{frame:05d}.exr", "blender_pattern": "atlas.#####.exr",
-#:             "frames": [int] (plate frame numbers exported), "exr_layer": "Atlas", "resolution": [W, H]},
-#:  "layers": [{"name": str, "index": int, "role": "background"|"foreground",
-#:              "uv_pass": str, "alpha_pass": str, "uv_channels": [str], "alpha_channels": [str],
-#:              "atlas_exr": str, "atlas_png": str, "atlas_size": [W, H], "edit_layer": str,
+#:             "frames": [int] (plate frame numbers exported, each one of the clip's), "exr_layer": "Atlas",
+#:             "resolution": [W, H] (the clip's)},
+#:  "layers": [{"name": str (unique), "index": int (its position; 0 is the background), "role":
+#:              "background"|"foreground", "uv_pass": str, "alpha_pass": str, "uv_channels": [3 str],
+#:              "alpha_channels": [str], "atlas_exr": str, "atlas_png": str, "atlas_size": [W, H], "edit_layer": str,
 #:              "atlas_box": [u0, v0, u1, v1],
 #:              "channels": [full EXR channel names, e.g. "Atlas.UVForeground.X"] (optional: derivable)}],
 #:  "fit": {"preset": str, "model": str, "steps": int, "train_seconds": float, "psnr": float|None,
-#:          "alpha_iou": [float]|None},
+#:          "alpha_iou": [float]|None (optional)},
 #:  "scene": the run's SCENE_FILE (every export writes it; checked by ``validate_scene`` when present)}
-MANIFEST_KEYS: tuple[str, ...] = ("engine_version", "run_dir", "created", "clip", "passes", "layers", "fit")
-MANIFEST_CLIP_KEYS: tuple[str, ...] = (
-    "source",
-    "kind",
-    "frame_files",
-    "frame_numbers",
-    "first_frame",
-    "last_frame",
-    "fps",
-    "resolution",
-    "colorspace",
-)
-MANIFEST_PASSES_KEYS: tuple[str, ...] = ("dir", "pattern", "blender_pattern", "frames", "exr_layer", "resolution")
-MANIFEST_LAYER_KEYS: tuple[str, ...] = (
-    "name",
-    "index",
-    "role",
-    "uv_pass",
-    "alpha_pass",
-    "uv_channels",
-    "alpha_channels",
-    "atlas_exr",
-    "atlas_png",
-    "atlas_size",
-    "edit_layer",
-    "atlas_box",
-)
-MANIFEST_FIT_KEYS: tuple[str, ...] = ("preset", "model", "steps", "train_seconds", "psnr")
+#: Field types, in the words of RUN_FILE_FIELDS, per section ("" is the top level).
+MANIFEST_FIELDS: dict[str, dict[str, str]] = {
+    "": {"engine_version": "str", "run_dir": "str", "created": "str"},
+    "clip": {
+        "source": "str",
+        "kind": "str",
+        "frame_files": "str list",
+        "frame_numbers": "int list",
+        "first_frame": "int",
+        "last_frame": "int",
+        "fps": "number or null",
+        "resolution": "int pair",
+        "colorspace": "str",
+    },
+    "passes": {
+        "dir": "str",
+        "pattern": "str",
+        "blender_pattern": "str",
+        "frames": "int list",
+        "exr_layer": "str",
+        "resolution": "int pair",
+    },
+    "fit": {"preset": "str", "model": "str", "steps": "int", "train_seconds": "number", "psnr": "number or null"},
+}
+#: Fields a manifest may leave out, checked when present.
+MANIFEST_OPTIONAL_FIELDS: dict[str, dict[str, str]] = {
+    "clip": {"working_resolution": "int pair", "masks": "str list"},
+    "fit": {"alpha_iou": "number list or null"},
+}
+MANIFEST_LAYER_FIELDS: dict[str, str] = {
+    "name": "str",
+    "index": "int",
+    "role": "str",
+    "uv_pass": "str",
+    "alpha_pass": "str",
+    "uv_channels": "str list",
+    "alpha_channels": "str list",
+    "atlas_exr": "str",
+    "atlas_png": "str",
+    "atlas_size": "int pair",
+    "edit_layer": "str",
+    "atlas_box": "number list",
+}
+MANIFEST_OPTIONAL_LAYER_FIELDS: dict[str, str] = {"channels": "str list"}
+MANIFEST_KEYS: tuple[str, ...] = (*MANIFEST_FIELDS[""], "clip", "passes", "layers", "fit")
+MANIFEST_CLIP_KEYS: tuple[str, ...] = tuple(MANIFEST_FIELDS["clip"])
+MANIFEST_PASSES_KEYS: tuple[str, ...] = tuple(MANIFEST_FIELDS["passes"])
+MANIFEST_LAYER_KEYS: tuple[str, ...] = tuple(MANIFEST_LAYER_FIELDS)
+MANIFEST_FIT_KEYS: tuple[str, ...] = tuple(MANIFEST_FIELDS["fit"])
+#: The largest image side a manifest may give (plate, passes, atlases): it bounds what a reader allocates.
+MANIFEST_MAX_SIDE = 1 << 16
+#: A value quoted in a manifest error is cut to this many characters (the message stays one short line); a path
+#: written through gets more, so the file it names shows.
+MANIFEST_QUOTE_CHARS = 40
+MANIFEST_QUOTE_PATH_CHARS = 120
+#: Channels of a UV pass (u, v, and Z: the layer's alpha where its atlas covers the pixel).
+MANIFEST_UV_CHANNEL_COUNT = len(UV_CHANNELS)
+#: An atlas box is four numbers: u0, v0, u1, v1.
+MANIFEST_BOX_NUMBERS = 4
 
 
 class ManifestError(ValueError):
     """A manifest that does not follow this contract (message names what is wrong)."""
 
 
+def _quote(value: Any, limit: int = MANIFEST_QUOTE_CHARS) -> str:
+    """``value`` as a message quotes it: repr, cut to ``limit`` characters (a path keeps its end, the file)."""
+    text = repr(value)
+    if len(text) <= limit:
+        return text
+    return "..." + text[3 - limit :] if isinstance(value, str) else text[: limit - 3] + "..."
+
+
+def _a(kind: str) -> str:
+    return f"an {kind}" if kind[0] in "aeiou" else f"a {kind}"
+
+
+def _check_fields(where: str, record: Any, fields: dict[str, str], optional: dict[str, str]) -> dict[str, Any]:
+    """``record`` (the manifest's part ``where``: "clip", "layer 0", "" for the top) is an object holding every key
+    of ``fields`` (and maybe those of ``optional``) with its type."""
+    name = f"manifest {where}".rstrip()
+    if not isinstance(record, dict):
+        raise ManifestError(f"{name} is not an object")
+    for key, kind in (*fields.items(), *optional.items()):
+        if key not in record:
+            if key in fields:
+                raise ManifestError(f"{name} has no {key!r}")
+            continue
+        if not _is_type(record[key], kind):
+            raise ManifestError(f"{name} field {key!r} is not {_a(kind)}: {_quote(record[key])}")
+    return record
+
+
+def _check_size(where: str, size: list[int], limit: int = MANIFEST_MAX_SIDE) -> None:
+    if not all(1 <= side <= limit for side in size):
+        raise ManifestError(f"manifest {where} {_quote(size)} is not two sides in 1..{limit}")
+
+
+def _check_clip(clip: dict[str, Any]) -> None:
+    """The clip's fields agree with each other: known kind and colour space, frames ascending, one file each."""
+    numbers = clip["frame_numbers"]
+    if clip["kind"] not in CLIP_KINDS or clip["colorspace"] not in COLORSPACES:
+        raise ManifestError(
+            f"manifest 'clip' has unknown kind or colour space {_quote([clip['kind'], clip['colorspace']])}"
+        )
+    if not numbers or numbers[0] < 0 or numbers != sorted(set(numbers)):
+        raise ManifestError("manifest 'clip' frame_numbers are not ascending frame numbers >= 0")
+    if (clip["first_frame"], clip["last_frame"]) != (numbers[0], numbers[-1]):
+        raise ManifestError("manifest 'clip' first_frame and last_frame are not its first and last frame numbers")
+    if clip["kind"] == CLIP_KINDS[0] and len(clip["frame_files"]) != len(numbers):
+        raise ManifestError(f"manifest 'clip' lists {len(clip['frame_files'])} frame files for {len(numbers)} frames")
+    if not clip["source"] or not all(clip["frame_files"]):
+        raise ManifestError("manifest 'clip' has an empty path")
+    fps = clip["fps"]
+    if fps is not None and not (math.isfinite(fps) and fps > 0):
+        raise ManifestError(f"manifest 'clip' fps {_quote(fps)} is not a positive number")
+    _check_size("'clip' resolution", clip["resolution"])
+    if "working_resolution" in clip:
+        _check_size("'clip' working_resolution", clip["working_resolution"])
+
+
+def _check_passes(passes: dict[str, Any], clip: dict[str, Any]) -> None:
+    """Every exported frame is one of the clip's, the passes are the clip's size, and the pattern names a file."""
+    frames = passes["frames"]
+    if not frames:
+        raise ManifestError("manifest 'passes' lists no frames")
+    known = set(clip["frame_numbers"])
+    unknown = [f for f in frames if f not in known]
+    if unknown or len(set(frames)) != len(frames):
+        raise ManifestError(f"manifest 'passes' frames {_quote(unknown or frames)} are not distinct frames of the clip")
+    if passes["resolution"] != clip["resolution"]:
+        raise ManifestError("manifest 'passes' resolution is not the clip's")
+    try:
+        name = passes["pattern"].format(frame=frames[0])
+    except (KeyError, IndexError, ValueError, AttributeError, TypeError):
+        name = ""
+    if not name or os.path.basename(name) != name or name in (os.curdir, os.pardir) or "\\" in name:
+        raise ManifestError(f"manifest 'passes' pattern {_quote(passes['pattern'])} does not name a pass file")
+    if not passes["dir"] or not passes["exr_layer"]:
+        raise ManifestError("manifest 'passes' has an empty dir or exr_layer")
+
+
+def _check_layer(i: int, layer: Any) -> dict[str, Any]:
+    where = f"layer {i}"
+    _check_fields(where, layer, MANIFEST_LAYER_FIELDS, MANIFEST_OPTIONAL_LAYER_FIELDS)
+    if layer["role"] not in (ROLE_BACKGROUND, ROLE_FOREGROUND):
+        raise ManifestError(f"manifest {where} has unknown role {_quote(layer['role'])}")
+    if layer["index"] != i:
+        raise ManifestError(f"manifest {where} has index {_quote(layer['index'])}")
+    if (layer["role"] == ROLE_BACKGROUND) != (i == 0):
+        raise ManifestError(f"manifest {where} is a {layer['role']} layer (layer 0 is the background, only it)")
+    texts = [layer[k] for k in ("name", "uv_pass", "alpha_pass", "atlas_exr", "atlas_png", "edit_layer")]
+    if not all(texts) or not all(layer["uv_channels"] + layer["alpha_channels"]):
+        raise ManifestError(f"manifest {where} has an empty name, pass, channel or path")
+    if len(layer["uv_channels"]) != MANIFEST_UV_CHANNEL_COUNT or not layer["alpha_channels"]:
+        raise ManifestError(f"manifest {where} does not name {MANIFEST_UV_CHANNEL_COUNT} UV channels and an alpha one")
+    _check_size(f"{where} atlas_size", layer["atlas_size"])
+    box = layer["atlas_box"]
+    if len(box) != MANIFEST_BOX_NUMBERS or not all(math.isfinite(b) for b in box):
+        raise ManifestError(f"manifest {where} atlas_box {_quote(box)} is not four finite numbers")
+    return layer
+
+
 def validate_manifest(data: Any) -> dict[str, Any]:
-    """Check a decoded manifest against the schema above; returns it, or raises ManifestError (one line)."""
+    """Check a decoded manifest against the schema above, the type of every field included; returns it, or raises
+    ManifestError (one line). What passes is safe for the engine and the add-on to read without further checks."""
     if not isinstance(data, dict):
         raise ManifestError("manifest is not a JSON object")
     version = data.get(MANIFEST_TAG)
-    if version != MANIFEST_VERSION:
-        raise ManifestError(f"manifest version {version!r} is not supported (this engine reads {MANIFEST_VERSION})")
+    if version != MANIFEST_VERSION or isinstance(version, bool):
+        raise ManifestError(
+            f"manifest version {_quote(version)} is not supported (this engine reads {MANIFEST_VERSION})"
+        )
+    _check_fields("", data, MANIFEST_FIELDS[""], {})
     for key in MANIFEST_KEYS:
         if key not in data:
             raise ManifestError(f"manifest has no {key!r}")
-    for section, keys in (("clip", MANIFEST_CLIP_KEYS), ("passes", MANIFEST_PASSES_KEYS), ("fit", MANIFEST_FIT_KEYS)):
-        if not isinstance(data[section], dict):
-            raise ManifestError(f"manifest {section!r} is not an object")
-        for key in keys:
-            if key not in data[section]:
-                raise ManifestError(f"manifest {section!r} has no {key!r}")
+    for section in ("clip", "passes", "fit"):
+        _check_fields(repr(section), data[section], MANIFEST_FIELDS[section], MANIFEST_OPTIONAL_FIELDS.get(section, {}))
+    _check_clip(data["clip"])
+    _check_passes(data["passes"], data["clip"])
     layers = data["layers"]
     if not isinstance(layers, list) or not layers:
         raise ManifestError("manifest has no layers")
-    for i, layer in enumerate(layers):
-        if not isinstance(layer, dict):
-            raise ManifestError(f"manifest layer {i} is not an object")
-        for key in MANIFEST_LAYER_KEYS:
-            if key not in layer:
-                raise ManifestError(f"manifest layer {i} has no {key!r}")
-        if layer["role"] not in (ROLE_BACKGROUND, ROLE_FOREGROUND):
-            raise ManifestError(f"manifest layer {i} has unknown role {layer['role']!r}")
-        if layer["index"] != i:
-            raise ManifestError(f"manifest layer {i} has index {layer['index']!r}")
-    frames = data["passes"]["frames"]
-    if not isinstance(frames, list) or not frames or not all(isinstance(f, int) for f in frames):
-        raise ManifestError("manifest 'passes' lists no frames")
+    names = [_check_layer(i, layer)["name"] for i, layer in enumerate(layers)]
+    if len(set(names)) != len(names):
+        raise ManifestError(f"manifest layer names {_quote(names)} are not unique")
+    if data["fit"]["steps"] < 0:
+        raise ManifestError("manifest 'fit' steps is negative")
     if "scene" in data:
         validate_scene(data["scene"], len(layers))
     return data
+
+
+#: Types of a scene record's fields (SCENE_FILE and a manifest's "scene").
+SCENE_FIELDS: dict[str, str] = {
+    "components": "str",
+    "num_layers": "int",
+    "layers_source": "str",
+    "background_motion": "str",
+    "flow": "bool",
+    "active_terms": "str list",
+    "reasons": "dict",
+}
 
 
 def validate_scene(scene: Any, num_layers: int | None = None) -> dict[str, Any]:
@@ -562,11 +702,16 @@ def validate_scene(scene: Any, num_layers: int | None = None) -> dict[str, Any]:
         if key not in scene:
             raise ManifestError(f"manifest 'scene' has no {key!r}")
     if scene["background_motion"] not in BG_MOTIONS:
-        raise ManifestError(f"manifest 'scene' has unknown background_motion {scene['background_motion']!r}")
+        raise ManifestError(f"manifest 'scene' has unknown background_motion {_quote(scene['background_motion'])}")
     if num_layers is not None and scene["num_layers"] != num_layers:
-        raise ManifestError(f"manifest 'scene' says {scene['num_layers']!r} layers but the manifest has {num_layers}")
+        raise ManifestError(
+            f"manifest 'scene' says {_quote(scene['num_layers'])} layers but the manifest has {num_layers}"
+        )
     if not isinstance(scene["active_terms"], list) or not isinstance(scene["reasons"], dict):
         raise ManifestError("manifest 'scene' active_terms is not a list or reasons is not an object")
+    for key, kind in SCENE_FIELDS.items():
+        if not _is_type(scene[key], kind):
+            raise ManifestError(f"manifest 'scene' field {key!r} is not {_a(kind)}: {_quote(scene[key])}")
     return scene
 
 
@@ -577,7 +722,7 @@ def load_manifest(path: str) -> dict[str, Any]:
             data = json.load(f)
     except FileNotFoundError:
         raise ManifestError(f"{path}: no manifest here — run `python -m engine export RUN_DIR` first") from None
-    except (OSError, json.JSONDecodeError) as exc:
+    except (OSError, ValueError, RecursionError) as exc:  # not JSON, not UTF-8, nested beyond the parser
         raise ManifestError(f"{path}: cannot be read ({type(exc).__name__}) — export the run again") from None
     try:
         return validate_manifest(data)
@@ -623,11 +768,13 @@ def srgb_to_linear(c: float) -> float:
 
 
 def resolve_manifest_path(manifest_path: str, path: str) -> str:
-    """A path written in a manifest, to READ through: relative to the manifest's folder (normalised); an absolute
-    path (a plate recorded on another machine) is taken as it is: the reader checks it exists."""
+    """A path written in a manifest, to READ through: relative to the manifest's folder with its symlinks resolved
+    (the export computes them from there, so a run folder moved, mounted or linked elsewhere keeps working), then
+    normalised; an absolute path (a plate on another drive) is taken as it is: the reader checks it exists."""
     if os.path.isabs(path):
         return path
-    return os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(manifest_path)), path))
+    folder = os.path.realpath(os.path.dirname(os.path.abspath(manifest_path)))
+    return os.path.normpath(os.path.join(folder, path))
 
 
 def manifest_run_root(manifest_path: str) -> str:
@@ -649,16 +796,31 @@ def is_within(path: str, root: str) -> bool:
         return False
 
 
+def manifest_write_roots(manifest_path: str) -> tuple[str, ...]:
+    """The folders a manifest's paths may be written into: the run folder's ``edits/`` (the edit layers and their
+    history) and the export's own folder (its previews); for a manifest outside ``RUN_DIR/exports`` its own
+    folder. Never the run's records, its checkpoint or another export."""
+    root, own = manifest_run_root(manifest_path), os.path.dirname(os.path.realpath(manifest_path))
+    return (own,) if root == own else (os.path.join(root, EDITS_DIR), own)
+
+
 def resolve_manifest_write_path(manifest_path: str, path: str) -> str:
-    """A path written in a manifest, to WRITE through (edit layers, their history): relative, and inside the
-    manifest's run folder (``manifest_run_root``) after resolving symlinks and ``..``; anything else raises
-    ManifestError (one line). A manifest cannot make the engine or the add-on write anywhere else."""
+    """A path written in a manifest, to WRITE through (edit layers, their history, previews): relative to the
+    manifest, inside ``manifest_write_roots`` once symlinks and ``..`` are resolved; anything else raises
+    ManifestError (one line). A manifest cannot make the engine or the add-on write anywhere else. (An absolute path
+    is taken only where it lies there too: manifests written by hand or by older tools.)"""
     fix = "export the run again (a manifest's edit paths are relative and stay inside its run folder)"
-    if not isinstance(path, str) or not path or os.path.isabs(path):
-        raise ManifestError(f"{manifest_path}: write path {path!r} is not relative to the manifest — {fix}")
+    if not isinstance(path, str) or not path:
+        raise ManifestError(
+            f"{manifest_path}: write path {_quote(path, MANIFEST_QUOTE_PATH_CHARS)} is not a path — {fix}"
+        )
     resolved = resolve_manifest_path(manifest_path, path)
-    if not is_within(resolved, manifest_run_root(manifest_path)):
-        raise ManifestError(f"{manifest_path}: write path {path!r} leaves the run folder — {fix}")
+    if not any(is_within(resolved, root) for root in manifest_write_roots(manifest_path)):
+        where = "is absolute and outside" if os.path.isabs(path) else "leaves"
+        quoted = _quote(path, MANIFEST_QUOTE_PATH_CHARS)
+        raise ManifestError(
+            f"{manifest_path}: write path {quoted} {where} the run folder's edits/ and this export — {fix}"
+        )
     return resolved
 
 

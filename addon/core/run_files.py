@@ -1,7 +1,8 @@
 """The files the add-on writes beside a Run Folder. No bpy here.
 
-The engine owns the Run Folder RUN itself (``engine.contract``: checkpoint, exports, edits, auto_masks). Beside
-it the add-on keeps what it made for the engine and what it logged:
+The engine owns the Run Folder RUN itself (``engine.contract``: checkpoint, exports, edits, auto_masks); the add-on
+writes only its edit layers, holding the run folder's lock (``edits_lock``). Beside it the add-on keeps what it made
+for the engine and what it logged:
 
     RUN.masks/layer<N>/   each Mask layer rasterised (one image per frame)
     RUN.scribbles/        the clip's annotation strokes rasterised (one image per scribbled frame)
@@ -13,8 +14,13 @@ it the add-on keeps what it made for the engine and what it logged:
 from __future__ import annotations
 
 import os
+from contextlib import AbstractContextManager
 
 from ...engine import contract as C  # type: ignore[import-not-found]
+
+#: How the add-on's writers of a run folder's edit layers are named to another process that finds it locked.
+SAVE_EDITS_HOLDER = "Blender Save Edits"
+FLOAT_EDITS_HOLDER = "Blender Float Edit Layers"
 
 
 class RunFiles:
@@ -63,3 +69,10 @@ def clear_numbered_pngs(folder: str) -> None:
     for path in png_files(folder):
         if os.path.splitext(os.path.basename(path))[0].isdigit():
             os.remove(path)
+
+
+def edits_lock(manifest_path: str, what: str) -> AbstractContextManager[None]:
+    """The lock of the run folder the export ``manifest_path`` belongs to (``contract.run_lock``), held while the
+    add-on writes into its ``edits/``: an export or project-frame running meanwhile is refused, and when one of
+    them holds it this raises ``contract.RunLocked`` (one line naming it) before anything is written."""
+    return C.run_lock(C.manifest_run_root(manifest_path), what)

@@ -41,6 +41,10 @@ PLATE_CLIP = f"{PREFIX}Plate"
 PASSES_IMAGE = f"{PREFIX}Passes"
 
 
+#: The fix of a plate that is not where the manifest says.
+PLATE_FIX = "put the plate back where the export was made from (its path is relative to the manifest), or export again"
+
+
 class PlanError(ValueError):
     """The manifest cannot be turned into a tree (message says why and what to do)."""
 
@@ -126,10 +130,11 @@ def plan_tree(
         files = list(clip["frame_files"])
         if first not in numbers:
             raise PlanError(f"plate has no frame {first}; export frames that exist in the clip")
-        plate_file = at(files[numbers.index(first)])
+        plate_file = plate_path(manifest_path, files[numbers.index(first)], "plate frame")
         plate = ImageSpec(PLATE_CLIP, plate_file, _plate_colorspace(clip), True, first, count)
     else:
-        plate = ImageSpec(PLATE_CLIP, at(clip["source"]), _plate_colorspace(clip), False, 0, count)
+        plate = ImageSpec(PLATE_CLIP, plate_path(manifest_path, clip["source"], "plate movie"), _plate_colorspace(clip),
+                          False, 0, count)  # fmt: skip
 
     images = [ImageSpec(PASSES_IMAGE, pass_first, "Non-Color", True, first, count)]
     layers = [layer["name"] for layer in manifest["layers"]]
@@ -139,7 +144,7 @@ def plan_tree(
     for layer in manifest["layers"]:
         name = layer["name"]
         # the float edit layer <Layer>.exr wins over the export's PNG when both exist (the same rule as the engine)
-        edit = edits.get(name) or C.edit_layer_file(at(layer["edit_layer"]))
+        edit = edits.get(name) or edit_layer_path(manifest_path, layer)
         images.append(ImageSpec(edit_image_name(name), edit, edit_colorspace(edit)))
         images.append(ImageSpec(atlas_image_name(name), at(layer["atlas_png"]), "sRGB"))
 
@@ -192,6 +197,31 @@ def plan_tree(
     links.append(LinkSpec(n_over, "image", n_out, "image"))
     res = passes["resolution"]
     return TreePlan(nodes, links, images, plate, first, last, (int(res[0]), int(res[1])), layers)
+
+
+def edit_layer_path(manifest_path: str, layer: dict[str, Any]) -> str:
+    """The layer's edit layer file in use (its float twin ``<Layer>.exr`` when that exists, else the PNG), where
+    Save Edits writes: checked by the contract's write-path rule (relative, inside the run folder once symlinks are
+    resolved), so a manifest cannot make the add-on write anywhere else (``ManifestError``, one line)."""
+    png = C.resolve_manifest_write_path(manifest_path, layer["edit_layer"])
+    if C.edit_layer_file(png) != png:
+        return float_edit_path(manifest_path, layer)
+    return png
+
+
+def float_edit_path(manifest_path: str, layer: dict[str, Any]) -> str:
+    """Where the layer's float edit layer is (or would be) written: the PNG's twin, checked like it."""
+    return C.resolve_manifest_write_path(manifest_path, C.float_edit_layer(layer["edit_layer"]))
+
+
+def plate_path(manifest_path: str, path: str, what: str) -> str:
+    """A plate file the manifest names (relative to it first, like every manifest path), checked to be a file: one
+    line naming it and the fix, instead of Blender's silent placeholder."""
+    full = C.resolve_manifest_path(manifest_path, path)
+    if not os.path.isfile(full):
+        problem = f"{what} does not exist" if not os.path.exists(full) else f"{what} is not a file"
+        raise PlanError(f"{full}: {problem} — {PLATE_FIX}")
+    return full
 
 
 def _separate(nodes: list[NodeSpec], links: list[LinkSpec], n_map: str) -> tuple[str, str]:

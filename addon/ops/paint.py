@@ -8,6 +8,7 @@ import bpy
 
 from ...engine import contract as C
 from .. import paint
+from ..core import run_files
 from ..core import tree_plan as P
 from .import_run import import_manifest
 from .scene_inputs import abspath
@@ -30,18 +31,19 @@ class NEURALATLAS_OT_float_edits(bpy.types.Operator):
         made, skipped = [], []
         try:
             manifest = C.load_manifest(props.manifest)
-            for layer in manifest["layers"]:
-                img = bpy.data.images.get(P.edit_image_name(layer["name"]))
-                if img is None or abspath(img.filepath).lower().endswith(C.EDIT_LAYER_FLOAT_EXT):
-                    continue  # not imported, or already float
-                run_edit = os.path.normpath(C.resolve_manifest_path(props.manifest, layer["edit_layer"]))
-                if abspath(img.filepath) != run_edit:
-                    skipped.append(layer["name"])  # another image was given for this layer: not the run's edit
-                    continue
-                made.append(paint.make_float_edit(layer["name"]))
+            with run_files.edits_lock(props.manifest, run_files.FLOAT_EDITS_HOLDER):
+                for layer in manifest["layers"]:
+                    img = bpy.data.images.get(P.edit_image_name(layer["name"]))
+                    if img is None or abspath(img.filepath).lower().endswith(C.EDIT_LAYER_FLOAT_EXT):
+                        continue  # not imported, or already float
+                    run_edit = os.path.normpath(C.resolve_manifest_write_path(props.manifest, layer["edit_layer"]))
+                    if abspath(img.filepath) != run_edit:
+                        skipped.append(layer["name"])  # another image was given for this layer: not the run's edit
+                        continue
+                    made.append(paint.make_float_edit(layer["name"], P.float_edit_path(props.manifest, layer)))
             keep = {name: abspath(bpy.data.images[P.edit_image_name(name)].filepath) for name in skipped}
             import_manifest(context, props.manifest, True, keep)  # the tree and canvases now use the EXRs
-        except (ValueError, OSError) as exc:  # ManifestError, PlanError, an existing EXR, a full disk
+        except (ValueError, OSError, C.RunLocked) as exc:  # ManifestError, PlanError, an existing EXR, a full disk
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         msg = f"{len(made)} float edit layer(s): " + (", ".join(os.path.basename(p) for p in made) or "none")
@@ -58,7 +60,11 @@ class NEURALATLAS_OT_save_edits(bpy.types.Operator):
     bl_label = "Save Edits"
 
     def execute(self, context):
-        saved = paint.save_edits()
+        try:
+            saved = paint.save_edits()
+        except (ValueError, OSError, C.RunLocked) as exc:  # a run folder in use (one line naming it), a full disk
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
         self.report({"INFO"}, f"saved {len(saved)} edit layer(s)")
         return {"FINISHED"}
 

@@ -9,23 +9,36 @@
   stripes on the background with the background.
 
 Everything goes through the same code as ``render`` and ``project-frame``, so what the preview shows is
-what the artist gets. Nothing here touches the run's edit layers.
+what the artist gets. Nothing here touches the run's edit layers. The sheets and movies appear together once
+all are written, or none does.
 """
 
 from __future__ import annotations
 
+import contextlib
 import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from engine import contract as C
 from engine.edit.equations import edit_to_premultiplied
 from engine.edit.project_frame import project_to_textures
-from engine.edit.render import MovieWriter, plate_frames, render_frames, to_display_u8
-from engine.export.manifest import Manifest
+from engine.edit.render import (
+    MovieWriter,
+    StagedFolder,
+    check_output,
+    plate_frames,
+    render_frames,
+    to_display_u8,
+)
+from engine.export.manifest import Manifest, as_disk_full
+from engine.io.atomic import atomic_write
 from engine.io.images import read_image
 
+#: The export's own preview folder (``preview`` beside the manifest), the default output.
+PREVIEW_DIR = "preview"
 #: Width of one frame tile in the contact sheets, and of one atlas in the atlas sheet.
 TILE_W = 320
 ATLAS_TILE_W = 384
@@ -57,10 +70,13 @@ def label(img: np.ndarray, text: str) -> np.ndarray:
 
 
 def write_png_u8(path: Path, rgb_u8: np.ndarray) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(path), cv2.cvtColor(rgb_u8, cv2.COLOR_RGB2BGR)):
-        raise OSError(f"could not write {path}")
-    return path
+    """An 8-bit RGB PNG, atomically (a full disk is one line and leaves no partial file)."""
+
+    def write(tmp: str) -> None:
+        if not cv2.imwrite(tmp, cv2.cvtColor(rgb_u8, cv2.COLOR_RGB2BGR)):
+            raise OSError(f"could not write {path}")
+
+    return atomic_write(path, write)
 
 
 def grid(rows: list[list[np.ndarray]]) -> np.ndarray:
@@ -128,11 +144,34 @@ def _sheet_frames(frames: list[int]) -> list[int]:
 
 
 def write_previews(manifest_path: str | Path, out_dir: str | Path | None = None, movies: bool = True) -> list[Path]:
-    """Write the preview sheets (and movies) of an export; returns the paths written."""
+    """Write the preview sheets (and movies) of an export; returns the paths written. They appear together once all
+    are written, or none does (``StagedFolder``). The default folder is the export's ``preview/``, written under the
+    run folder's lock; another ``--out`` must not be the plate's, a mask folder or inside the run folder."""
     manifest = Manifest(manifest_path)
-    out = Path(out_dir) if out_dir else manifest.folder / "preview"
-    written = [write_png_u8(out / "atlases.png", atlas_sheet(manifest))]
+    out = Path(out_dir) if out_dir else manifest.resolve_write(PREVIEW_DIR)
+    check_output(manifest, out, "--out", allow=manifest.resolve(PREVIEW_DIR))
+    in_run = C.is_within(str(out), str(manifest.run_root))
+    lock = C.run_lock(manifest.run_root, C.VERB_PREVIEW) if in_run else contextlib.nullcontext()
+    staged = StagedFolder(out, PREVIEW_DIR, "--out")
+    try:
+        with lock, staged:
+            _write_previews_into(manifest, staged, movies)
+            written = staged.commit()
+    except (OSError, RuntimeError) as exc:
+        path = getattr(exc, "path", None) or getattr(exc, "filename", None)
+        where = staged.out if path is None or staged.names_output(path) else Path(path)
+        full = as_disk_full(exc, where, staged.discarded_bytes or None)
+        if full is None:
+            raise
+        raise full from None
+    for p in written:
+        print(f"preview: {p}", file=sys.stderr)
+    return written
 
+
+def _write_previews_into(manifest: Manifest, staged: StagedFolder, movies: bool) -> None:
+    """The atlas sheet, the checkerboard and propagation movies and the frame sheet, into the staging folder."""
+    write_png_u8(staged.path("atlases.png"), atlas_sheet(manifest))
     checker = checker_edits(manifest)
     first = manifest.frames[0]
     stripes = project_to_textures(manifest, manifest.read_passes(first), stripes_frame_edit(manifest.resolution))
@@ -141,22 +180,23 @@ def write_previews(manifest_path: str | Path, out_dir: str | Path | None = None,
     fps = float(manifest.clip.get("fps") or PREVIEW_FPS)
     rows: dict[str, list[np.ndarray]] = {"original": [], "checkerboard": [], "propagation": []}
     for name, edits in (("checkerboard", checker), ("propagation", stripes)):
-        writer = MovieWriter(out / f"{name}.mp4", fps, manifest.resolution) if movies else None
-        for number, frame in render_frames(manifest, edits):
-            u8 = to_display_u8(frame)
+        writer = MovieWriter(staged.path(f"{name}.mp4"), fps, manifest.resolution) if movies else None
+        try:
+            for number, frame in render_frames(manifest, edits):
+                u8 = to_display_u8(frame)
+                if writer is not None:
+                    writer.write(u8)
+                if number in picks:
+                    rows[name].append(label(tile(u8), f"{name} {number}"))
             if writer is not None:
-                writer.write(u8)
-            if number in picks:
-                rows[name].append(label(tile(u8), f"{name} {number}"))
-        if writer is not None:
-            written.append(writer.close())
+                writer.close()
+        except BaseException:
+            if writer is not None:
+                writer.abort()
+            raise
     for number, plate in plate_frames(manifest, sorted(picks)):
         rows["original"].append(label(tile(to_display_u8(plate)), f"original {number}"))
-    sheet = grid([rows["original"], rows["checkerboard"], rows["propagation"]])
-    written.append(write_png_u8(out / "frames.png", sheet))
-    for p in written:
-        print(f"preview: {p}", file=sys.stderr)
-    return written
+    write_png_u8(staged.path("frames.png"), grid([rows["original"], rows["checkerboard"], rows["propagation"]]))
 
 
 __all__ = [

@@ -13,8 +13,11 @@ and composited OVER the layer's existing edit layer. The previous edit layer is 
 from __future__ import annotations
 
 import datetime
+import os
+import posixpath
 import shutil
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -22,8 +25,10 @@ import numpy as np
 
 from engine import contract as C
 from engine.edit.equations import edit_to_premultiplied, load_edit
-from engine.errors import InputError
-from engine.export.manifest import LayerPasses, Manifest
+from engine.edit.render import STAGING_SUFFIX
+from engine.errors import DiskFullError, InputError
+from engine.export.manifest import LayerPasses, Manifest, as_disk_full, move_into_place, signals_held
+from engine.io.atomic import atomic_write
 from engine.io.clip import same_aspect
 from engine.io.colour import linear_to_srgb
 from engine.io.images import image_header, read_image, write_png, write_rgba_exr
@@ -130,59 +135,128 @@ def over(top: np.ndarray, bottom: np.ndarray) -> np.ndarray:
     return top + bottom * (1.0 - top[..., 3:4])
 
 
-def save_edit_like(path: Path, edit: np.ndarray) -> None:
-    """Write a premultiplied linear RGBA edit in the file's own format: EXR as is, PNG as sRGB straight."""
-    if path.suffix.lower() == ".exr":
+def save_edit_like(path: Path, edit: np.ndarray, like: Path | None = None) -> None:
+    """Write a premultiplied linear RGBA edit in the format of ``like`` (default: ``path`` itself): EXR as is, PNG
+    as sRGB straight, at the bit depth the existing PNG has."""
+    like = path if like is None else like
+    if like.suffix.lower() == ".exr":
         write_rgba_exr(path, edit)
         return
-    bits = 16 if path.exists() and image_header(path)[2] == 16 else 8
+    bits = 16 if like.exists() and image_header(like)[2] == 16 else 8
     a = edit[..., 3:4]
     with np.errstate(invalid="ignore", divide="ignore"):
         straight = np.where(a > 0.0, edit[..., :3] / np.maximum(a, 1e-12), 0.0)
     write_png(path, np.concatenate((np.clip(linear_to_srgb(straight), 0.0, 1.0), a), -1), bits)
 
 
-def _edit_file(manifest: Manifest, layer: dict) -> Path:
-    """The edit layer file in use (a float EXR twin wins over the PNG), so projected paint lands where it shows."""
-    return Path(C.edit_layer_file(str(manifest.edit_path(layer))))
+def _stamp() -> str:
+    return datetime.datetime.now().strftime("%Y%m%d-%H%M%S-%f")
 
 
-def backup(path: Path) -> Path | None:
-    """Copy an edit layer into ``history/`` beside it, with a timestamp, before it is changed."""
+def backup(path: Path, dest: Path | None = None) -> Path | None:
+    """Copy an edit layer into ``dest`` (default: ``history/`` beside it, with a timestamp), atomically, before it
+    is changed; None when there is nothing to keep."""
     if not path.exists():
         return None
-    hist = path.parent / HISTORY_DIR
-    hist.mkdir(parents=True, exist_ok=True)
-    stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S-%f")
-    dest = hist / f"{path.stem}.{stamp}{path.suffix}"
-    shutil.copy2(path, dest)
-    return dest
+    if dest is None:
+        dest = path.parent / HISTORY_DIR / f"{path.stem}.{_stamp()}{path.suffix}"
+
+    def copy(tmp: str) -> None:
+        shutil.copyfile(path, tmp)
+
+    return atomic_write(dest, copy)
+
+
+def _history_path(manifest: Manifest, layer: dict, path: Path, stamp: str) -> Path:
+    """Where the edit layer ``path`` is kept before it changes: ``history/`` beside it, checked like every path
+    written through a manifest (a ``history`` linked out of the run folder is refused)."""
+    folder = manifest.resolve_write(posixpath.join(posixpath.dirname(layer["edit_layer"]), HISTORY_DIR))
+    return folder / f"{path.stem}.{stamp}{path.suffix}"
+
+
+@dataclass
+class _Change:
+    """One edit layer about to change: its file, its new pixels, and (once staged) the new file and its backup."""
+
+    layer: dict
+    path: Path
+    edit: np.ndarray
+    staged: Path | None = None
+    kept: Path | None = None
 
 
 def project_frame(
     manifest_path: str | Path, frame: int, edit_path: str | Path, layers: list[str] | None = None
 ) -> dict[str, Path]:
-    """Land the paint of ``edit_path`` (drawn on plate frame ``frame``) on the export's edit layers."""
+    """Land the paint of ``edit_path`` (drawn on plate frame ``frame``) on the export's edit layers, holding the
+    run folder's lock. Every changed layer is kept in ``history/`` first, and the new layers replace the old ones
+    together once all are written: a failure, a full disk or a cancel leaves every edit layer as it was."""
     manifest = Manifest(manifest_path)
+    manifest.check_layers(layers)
     manifest.check_frame(frame)
     frame_edit = read_frame_edit(edit_path, manifest.resolution)
-    passes = manifest.read_passes(frame)
-    splats = project_to_textures(manifest, passes, frame_edit, layers)
-    written: dict[str, Path] = {}
-    for layer, splat in zip(manifest.layers, splats, strict=True):
-        if splat is None:
-            continue
-        path = _edit_file(manifest, layer)
-        old = load_edit(path) if path.exists() else np.zeros_like(splat)
-        if old.shape != splat.shape:
-            splat = cv2.resize(splat, (old.shape[1], old.shape[0]), interpolation=cv2.INTER_LINEAR)
-        backup(path)
-        save_edit_like(path, over(splat, old))
-        written[layer["name"]] = path
-        print(f"{layer['name']}: paint landed in {path}", file=sys.stderr)
+    with C.run_lock(manifest.run_root, C.VERB_PROJECT_FRAME):
+        passes = manifest.read_passes(frame)
+        splats = project_to_textures(manifest, passes, frame_edit, layers)
+        changes = []
+        for layer, splat in zip(manifest.layers, splats, strict=True):
+            if splat is None:
+                continue
+            path = manifest.edit_file(layer)
+            old = load_edit(path) if path.exists() else np.zeros_like(splat)
+            if old.shape != splat.shape:
+                splat = cv2.resize(splat, (old.shape[1], old.shape[0]), interpolation=cv2.INTER_LINEAR)
+            changes.append(_Change(layer, path, over(splat, old)))
+        _replace_edit_layers(manifest, changes)
+    written = {c.layer["name"]: c.path for c in changes}
+    for name, path in written.items():
+        print(f"{name}: paint landed in {path}", file=sys.stderr)
     if not written:
         print(f"warning: {edit_path} has no paint on any layer of frame {frame}", file=sys.stderr)
     return written
+
+
+def _replace_edit_layers(manifest: Manifest, changes: list[_Change]) -> None:
+    """Back up every changed layer into ``history/`` and write its new pixels into a hidden staging folder of the
+    run folder, then move them all into place (signals held). On any failure the staging goes, and so do the
+    backups of the layers that were not replaced: the edit layers and their history are as they were."""
+    stamp = _stamp()
+    prefix = f".{C.VERB_PROJECT_FRAME}{STAGING_SUFFIX}"
+    for leftover in manifest.run_root.glob(f"{prefix}*"):  # under the lock: a killed project-frame's staging
+        shutil.rmtree(leftover, ignore_errors=True)
+    staging = manifest.run_root / f"{prefix}{os.getpid()}"
+    replaced: set[int] = set()
+    try:
+        staging.mkdir()
+        for i, c in enumerate(changes):
+            c.kept = backup(c.path, _history_path(manifest, c.layer, c.path, stamp))
+            c.staged = staging / f"{i}{c.path.suffix}"
+            save_edit_like(c.staged, c.edit, like=c.path)
+        with signals_held():
+            for i, c in enumerate(changes):
+                move_into_place(staging / f"{i}{c.path.suffix}", c.path)
+                replaced.add(i)
+    except BaseException as exc:
+        for i, c in enumerate(changes):
+            if c.kept is not None and i not in replaced:
+                c.kept.unlink(missing_ok=True)
+        shutil.rmtree(staging, ignore_errors=True)
+        full = _disk_full_for(changes, exc) if isinstance(exc, (OSError, RuntimeError)) else None
+        if full is not None:
+            raise full from None
+        raise
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def _disk_full_for(changes: list[_Change], exc: BaseException) -> DiskFullError | None:
+    """The disk-full line with what the change needs: a history copy of each layer and its new file (about the
+    size of the old one; a new layer's uncompressed size). None when ``exc`` is not a full disk."""
+    need = 0
+    for c in changes:
+        old = c.path.stat().st_size if c.path.exists() else 0
+        need += old + max(old, c.edit.shape[0] * c.edit.shape[1] * c.edit.shape[2])
+    return as_disk_full(exc, changes[0].path.parent, need)
 
 
 def project_to_textures(
@@ -195,7 +269,7 @@ def project_to_textures(
         if layers is not None and layer["name"] not in layers:
             out.append(None)
             continue
-        path = _edit_file(manifest, layer)
+        path = manifest.edit_file(layer)
         size = image_header(path)[:2] if path.exists() else tuple(layer["atlas_size"])
         out.append(splat_layer(frame_edit, passes[i], own[i], size))
     return out

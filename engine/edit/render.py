@@ -3,21 +3,33 @@
 Reads only the export (manifest, passes, edit layers) and the original plate, so its output is exactly
 what the Blender compositor tree built from the same manifest must produce. Frames are written as float
 EXR (scene-linear, what Blender writes) or PNG (sRGB); optionally an H.264 movie through PyAV.
+
+What it writes can never destroy what it reads: an output folder that is (or directly holds) the plate's frames
+or a mask folder, or lies inside the run folder, is refused before anything is written (``check_output``). The
+frames are rendered into a hidden staging folder inside ``--out`` and moved into place together once every one is
+written (``StagedFolder``); a failure, a full disk or a cancel removes the staging (and ``--out`` when the render
+created it), so no partial frame set is ever left and earlier files in ``--out`` are untouched.
 """
 
 from __future__ import annotations
 
+import contextlib
+import os
+import shutil
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from types import TracebackType
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
 
 from engine import contract as C
-from engine.edit.equations import composite_edits, edit_is_empty, load_edit
-from engine.errors import InputError
-from engine.export.manifest import Manifest
+from engine.edit.equations import FILTERS, composite_edits, edit_is_empty, load_edit
+from engine.errors import DiskFullError, InputError
+from engine.export.manifest import Manifest, as_disk_full, signals_held
+from engine.io.atomic import disk_full_as_one_line, disk_full_error
 from engine.io.clip import iter_frames, open_clip
 from engine.io.colour import linear_to_srgb, to_linear
 from engine.io.images import write_png, write_rgba_exr
@@ -28,6 +40,12 @@ OUTPUT_PREFIX = "edit."
 DEFAULT_FPS = 25.0
 #: H.264 constant rate factor of the movies: visually lossless, so the movie judges the edit, not the codec.
 MOVIE_CRF = 18
+#: Hidden staging folders inside an output folder, one per writing process (``.edit.partial-1234``).
+STAGING_PREFIX = "."
+STAGING_SUFFIX = ".partial-"
+#: Bytes per pixel of a rendered frame before compression (the disk-full estimate before any frame is written):
+#: float32 RGBA for EXR, 8-bit RGB for PNG.
+FRAME_BYTES_PER_PIXEL = {"exr": 16, "png": 3}
 
 
 def parse_edit_args(items: list[str]) -> dict[str, str]:
@@ -44,14 +62,11 @@ def parse_edit_args(items: list[str]) -> dict[str, str]:
 def load_edits(manifest: Manifest, overrides: dict[str, str] | None = None) -> list[np.ndarray | None]:
     """Each layer's edit as premultiplied linear RGBA; the export's edit layer unless overridden."""
     overrides = dict(overrides or {})
-    for name in overrides:
-        manifest.layer(name)  # unknown names are a one-line error listing the layers
+    manifest.check_layers(list(overrides))  # unknown names are a one-line error listing the layers
     edits: list[np.ndarray | None] = []
     for layer in manifest.layers:
-        if layer["name"] in overrides:
-            path = Path(overrides[layer["name"]])
-        else:  # the float edit layer <Layer>.exr wins over the export's PNG when both exist (contract)
-            path = Path(C.edit_layer_file(str(manifest.edit_path(layer))))
+        # the float edit layer <Layer>.exr wins over the export's PNG when both exist (contract)
+        path = Path(overrides[layer["name"]]) if layer["name"] in overrides else manifest.edit_file(layer)
         if not path.exists():
             if layer["name"] in overrides:
                 raise InputError(path, "edit image does not exist", "check the path given to --edit")
@@ -69,10 +84,10 @@ def plate_frames(manifest: Manifest, frames: list[int]) -> Iterator[tuple[int, n
     positions = [numbers.index(f) for f in frames]
     first_pos = _source_position(manifest)
     lo, hi = min(positions), max(positions)
-    info = open_clip(clip["source"], (first_pos + lo, first_pos + hi))
-    if (info.width, info.height) != tuple(clip["resolution"]):
+    info = open_clip(manifest.plate_source(), (first_pos + lo, first_pos + hi))
+    if [info.width, info.height] != list(clip["resolution"]):
         raise InputError(
-            clip["source"],
+            info.source,
             f"plate is now {info.width}x{info.height}, the export was made from {clip['resolution']}",
             "render from an export of this plate (export the run again)",
         )
@@ -91,15 +106,14 @@ def plate_frames(manifest: Manifest, frames: list[int]) -> Iterator[tuple[int, n
 def _source_position(manifest: Manifest) -> int:
     """Position of the manifest's first clip frame in its source (what `open_clip` ranges count)."""
     clip = manifest.clip
-    if clip["kind"] != "sequence":
+    if clip["kind"] != C.CLIP_KINDS[0]:
         return int(clip["frame_numbers"][0])
-    info = open_clip(clip["source"])
-    try:
-        return list(info.frame_files).index(clip["frame_files"][0])
-    except ValueError:
-        raise InputError(
-            clip["source"], "the plate's frames changed since the export", "export the run again"
-        ) from None
+    info = open_clip(manifest.plate_source())
+    first = os.path.realpath(manifest.plate_frame_file(0))
+    for position, path in enumerate(info.frame_files):
+        if os.path.realpath(path) == first:
+            return position
+    raise InputError(info.source, "the plate's frames changed since the export", "export the run again")
 
 
 def render_frames(
@@ -118,22 +132,196 @@ def to_display_u8(frame_linear: np.ndarray) -> np.ndarray:
     return np.rint(np.clip(linear_to_srgb(frame_linear), 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
+# --- what an output may not be ---------------------------------------------------------------------------------
+
+
+def _same(a: str | Path, b: str | Path) -> bool:
+    return os.path.normcase(os.path.realpath(a)) == os.path.normcase(os.path.realpath(b))
+
+
+def protected_folders(manifest: Manifest) -> list[tuple[Path, str, str]]:
+    """Folders outside the run that an output must never be: (folder, what it is, what it holds). The folders of
+    the plate's frames and the fit's mask folders (the manifest records both)."""
+    clip = manifest.clip
+    found: list[tuple[Path, str, str]] = []
+    if clip["kind"] == C.CLIP_KINDS[0]:
+        plate = [manifest.resolve(clip["source"]), *(manifest.resolve(f).parent for f in clip["frame_files"])]
+        found += [(folder, "the folder of the plate's frames", "the plate") for folder in plate]
+    found += [(manifest.resolve(m), "a mask folder of the fit", "the masks") for m in clip.get("masks", [])]
+    return found
+
+
+def check_output(manifest: Manifest, out: Path, option: str, allow: Path | None = None) -> None:
+    """One line, before anything is written, when the folder ``out`` (frames are written straight into it) is or
+    directly holds the plate's frames or a mask folder, or lies inside the run folder (RUN_DIR itself, its exports,
+    edits, records); ``allow`` is the one folder inside the run folder this writer may use."""
+    if allow is not None and _same(out, allow):
+        return
+    root = manifest.run_root
+    if C.is_within(str(out), str(root)):
+        raise InputError(
+            out,
+            f"is inside the run folder {root} (its fit, exports and edit layers)",
+            f"choose a {option} outside the run folder",
+        )
+    for folder, what, holds in protected_folders(manifest):
+        if _same(out, folder):
+            raise InputError(out, f"is {what}", f"choose another {option}: nothing is written over {holds}")
+
+
+def check_movie(manifest: Manifest, movie: Path) -> None:
+    """One line, before anything is written, when ``--movie`` is the plate movie, a folder, or a file in a folder
+    an output may not be (``check_output``)."""
+    if movie.is_dir():
+        raise InputError(movie, "is a folder", "give --movie a file name, e.g. edited.mp4")
+    if manifest.clip["kind"] != C.CLIP_KINDS[0] and _same(movie, manifest.resolve(manifest.clip["source"])):
+        raise InputError(movie, "is the plate movie", "choose another --movie: nothing is written over the plate")
+    check_output(manifest, movie.parent, "--movie folder")
+
+
+def _in_the_way(folder: Path) -> Path | None:
+    """The file (not a folder) that stands where ``folder`` or one of its parents should be, if any."""
+    for probe in (folder, *folder.parents):
+        if probe.exists():
+            return None if probe.is_dir() else probe
+    return None
+
+
+# --- writing all or nothing ------------------------------------------------------------------------------------
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError):
+        return True
+    return True
+
+
+def _first_missing(folder: Path) -> Path | None:
+    """The outermost folder of ``folder``'s path that does not exist yet (what creating it creates), or None."""
+    missing = None
+    probe = folder.absolute()
+    while not probe.exists():
+        missing = probe
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    return missing
+
+
+class StagedFolder:
+    """Files written into a hidden staging folder inside ``out`` and moved into ``out`` together once all of them
+    are written (``commit``). Leaving the block without a commit (any failure, a full disk, a cancel) removes the
+    staging, and ``out`` itself when this created it: nothing partial is left and earlier files are untouched."""
+
+    def __init__(self, out: str | Path, what: str, option: str) -> None:
+        self.out = Path(out)
+        self.what = what
+        self.option = option
+        self.staging = self.out / f"{STAGING_PREFIX}{what}{STAGING_SUFFIX}{os.getpid()}"
+        self.created: Path | None = None
+        self.names: list[str] = []
+        self.committed = False
+        self.discarded_bytes = 0
+
+    def __enter__(self) -> StagedFolder:
+        if self.out.exists() and not self.out.is_dir():
+            raise InputError(self.out, "is a file, not a folder", f"give {self.option} a folder (created when missing)")
+        self.created = _first_missing(self.out)
+        try:
+            self.out.mkdir(parents=True, exist_ok=True)
+            self._clear_stale()
+            self.staging.mkdir()
+        except OSError as exc:
+            self.discard()
+            full = disk_full_error(exc, self.out)
+            if full is not None:
+                raise full from None
+            problem = f"cannot create the output folder ({exc.strerror or type(exc).__name__})"
+            raise InputError(self.out, problem, f"choose a writable {self.option}") from None
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        if not self.committed:
+            self.discard()
+
+    def _clear_stale(self) -> None:
+        """Remove the staging folders that killed writers left here (their process is gone)."""
+        prefix = f"{STAGING_PREFIX}{self.what}{STAGING_SUFFIX}"
+        for entry in self.out.iterdir():
+            pid = entry.name.removeprefix(prefix)
+            if entry.name.startswith(prefix) and entry.is_dir() and pid.isdigit() and not _pid_alive(int(pid)):
+                shutil.rmtree(entry, ignore_errors=True)
+
+    def path(self, name: str) -> Path:
+        """Where to write the output file ``name`` (in the staging folder until ``commit``)."""
+        self.names.append(name)
+        return self.staging / name
+
+    def staged_bytes(self) -> int:
+        """Bytes written into the staging folder so far."""
+        return sum(p.stat().st_size for p in self.staging.iterdir() if p.is_file()) if self.staging.is_dir() else 0
+
+    def commit(self) -> list[Path]:
+        """Move every staged file into ``out`` (signals held: all or none); returns their final paths."""
+        with signals_held():
+            for name in self.names:
+                os.replace(self.staging / name, self.out / name)
+            shutil.rmtree(self.staging, ignore_errors=True)
+            self.committed = True
+        return [self.out / name for name in self.names]
+
+    def discard(self) -> None:
+        """Remove the staging (remembering how much it held) and ``out`` when this created it."""
+        self.discarded_bytes = self.staged_bytes()
+        shutil.rmtree(self.staging, ignore_errors=True)
+        if self.created is not None:
+            shutil.rmtree(self.created, ignore_errors=True)
+
+    def names_output(self, path: str | Path) -> bool:
+        """Whether ``path`` (where a write failed) is this output's: the staging folder, or ``out``."""
+        return C.is_within(str(path), str(self.out))
+
+
 class MovieWriter:
-    """H.264 (yuv420p) through PyAV; odd sizes are padded by one pixel (the codec needs even sides)."""
+    """H.264 (yuv420p) through PyAV; odd sizes are padded by one pixel (the codec needs even sides). Written to a
+    hidden temporary file beside the movie and renamed into place by ``publish`` (``close`` = finish + publish);
+    ``abort`` removes everything it made. A folder it cannot write is one line; so is a full disk."""
 
     def __init__(self, path: Path, fps: float, size: tuple[int, int]) -> None:
         import av
 
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self.path = path
-        self.tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-        self.container = av.open(str(self.tmp), mode="w")
-        self.stream = self.container.add_stream("libx264", rate=round(fps or DEFAULT_FPS))
+        self.path = Path(path)
+        self.tmp = self.path.with_name(f".{self.path.stem}{STAGING_SUFFIX}{os.getpid()}{self.path.suffix}")
+        self.created = _first_missing(self.path.parent)
+        self.container: Any = None
+        fix = "choose a --movie path in a folder you can write to"
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            with disk_full_as_one_line(self.path.parent):
+                self.container = av.open(str(self.tmp), mode="w")
+        except DiskFullError:
+            self.abort()
+            raise
+        except (OSError, ValueError) as exc:  # PyAV's errors are OSError / ValueError subclasses
+            self.abort()
+            blocker = _in_the_way(self.path.parent)
+            reason = f"{blocker} is a file" if blocker else getattr(exc, "strerror", None) or type(exc).__name__
+            raise InputError(self.path, f"cannot write the movie here ({reason})", fix) from None
+        self.stream = self.container.add_stream("libx264", rate=max(1, round(fps or DEFAULT_FPS)))
         w, h = size
         self.size = (w + w % 2, h + h % 2)
         self.stream.width, self.stream.height = self.size
         self.stream.pix_fmt = "yuv420p"
         self.stream.options = {"crf": str(MOVIE_CRF)}
+        self.frames = 0
 
     def write(self, rgb_u8: np.ndarray) -> None:
         import av
@@ -142,15 +330,68 @@ class MovieWriter:
         if (w, h) != self.size:
             rgb_u8 = np.pad(rgb_u8, ((0, self.size[1] - h), (0, self.size[0] - w), (0, 0)), mode="edge")
         frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb_u8), format="rgb24")
-        for packet in self.stream.encode(frame):
-            self.container.mux(packet)
+        with disk_full_as_one_line(self.path.parent):
+            for packet in self.stream.encode(frame):
+                self.container.mux(packet)
+        self.frames += 1
 
-    def close(self) -> Path:
-        for packet in self.stream.encode():
-            self.container.mux(packet)
-        self.container.close()
+    def written_bytes(self) -> int:
+        return self.tmp.stat().st_size if self.tmp.exists() else 0
+
+    def finish(self) -> None:
+        """Encode what the codec holds back and close the file (still under its temporary name)."""
+        with disk_full_as_one_line(self.path.parent):
+            for packet in self.stream.encode():
+                self.container.mux(packet)
+            self.container.close()
+        self.container = None
+
+    def publish(self) -> Path:
         self.tmp.replace(self.path)
         return self.path
+
+    def close(self) -> Path:
+        self.finish()
+        return self.publish()
+
+    def abort(self) -> None:
+        """Close (best effort) and remove the temporary file, and the folders this writer created."""
+        if self.container is not None:
+            with contextlib.suppress(Exception):
+                self.container.close()
+            self.container = None
+        with contextlib.suppress(OSError):  # its folder may be no folder at all (the refusal being reported)
+            self.tmp.unlink(missing_ok=True)
+        if self.created is not None:
+            shutil.rmtree(self.created, ignore_errors=True)
+
+
+class _Sizes:
+    """What an output has written so far, to say how much space the whole of it needs when the disk fills up."""
+
+    def __init__(self, total: int, bytes_per_frame: int) -> None:
+        self.total = total
+        self.estimate = bytes_per_frame
+        self.frames = 0
+        self.frame_bytes = 0
+        self.movie_bytes = 0
+
+    def need(self) -> int:
+        """Bytes the whole output needs: the frames written so far scaled to every frame (the uncompressed size
+        before any is written), plus the movie likewise."""
+        per_frame = self.frame_bytes // self.frames if self.frames else self.estimate
+        movie = self.movie_bytes * self.total // self.frames if self.frames else 0
+        return per_frame * self.total + movie
+
+
+def _disk_full_needing(exc: BaseException, staged: StagedFolder, need: int) -> DiskFullError | None:
+    """The disk-full line once the staging is gone: naming ``--out`` (not the hidden staging folder) and what the
+    whole output needs; None when ``exc`` is not a full disk."""
+    if not isinstance(exc, (OSError, RuntimeError)):
+        return None
+    path = getattr(exc, "path", None) or getattr(exc, "filename", None)
+    where = staged.out if path is None or staged.names_output(path) else Path(path)
+    return as_disk_full(exc, where, need)
 
 
 def render_manifest(
@@ -162,35 +403,85 @@ def render_manifest(
     movie: str | Path | None = None,
     progress_bar: bool = True,
 ) -> Path:
-    """Render every exported frame with the edits into ``out_dir``; returns the folder (or the movie)."""
+    """Render every exported frame with the edits into ``out_dir``; returns the folder (or the movie). All frames
+    (and the movie) appear together, or none does."""
     if fmt not in FORMATS:
         raise InputError(None, f"unknown --format {fmt!r}", f"use one of {', '.join(FORMATS)}")
+    if filter not in FILTERS:
+        raise InputError(None, f"unknown --filter {filter!r}", f"use one of {', '.join(FILTERS)}")
     manifest = Manifest(manifest_path)
     out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(out, f"cannot create the output folder ({exc.strerror})", "choose a writable --out") from None
+    check_output(manifest, out, "--out")
+    movie_path = None if movie is None else Path(movie)
+    if movie_path is not None:
+        check_movie(manifest, movie_path)
     edits = load_edits(manifest, edit_overrides)
+    w, h = manifest.resolution
+    sizes = _Sizes(len(manifest.frames), w * h * FRAME_BYTES_PER_PIXEL[fmt])
+    staged = StagedFolder(out, OUTPUT_PREFIX.rstrip("."), "--out")
+    try:
+        with staged:
+            _render_into(manifest, staged, edits, fmt, filter, movie_path, progress_bar, sizes)
+    except (OSError, RuntimeError) as exc:
+        full = _disk_full_needing(exc, staged, sizes.need())
+        if full is None:
+            raise
+        raise full from None
+    return movie_path if movie_path is not None else out
+
+
+def _render_into(
+    manifest: Manifest,
+    staged: StagedFolder,
+    edits: list[np.ndarray | None],
+    fmt: str,
+    filter: str,
+    movie: Path | None,
+    progress_bar: bool,
+    sizes: _Sizes,
+) -> None:
+    """Every frame into the staging folder (and the movie into its temporary file), then both into place."""
     writer = None
-    if movie is not None:
-        fps = manifest.clip.get("fps") or DEFAULT_FPS
-        writer = MovieWriter(Path(movie), float(fps), manifest.resolution)
-    bar = tqdm(total=len(manifest.frames), disable=not progress_bar, file=sys.stderr, unit="frame")
-    for number, frame in render_frames(manifest, edits, filter=filter):
-        name = f"{OUTPUT_PREFIX}{number:05d}.{fmt}"
-        if fmt == "exr":
-            rgba = np.concatenate((frame, np.ones((*frame.shape[:2], 1), np.float32)), -1)
-            write_rgba_exr(out / name, rgba)
-        else:
-            write_png(out / name, np.clip(linear_to_srgb(frame), 0.0, 1.0), 8)
+    try:
+        if movie is not None:
+            writer = MovieWriter(movie, float(manifest.clip.get("fps") or DEFAULT_FPS), manifest.resolution)
+        bar = tqdm(total=len(manifest.frames), disable=not progress_bar, file=sys.stderr, unit="frame")
+        for number, frame in render_frames(manifest, edits, filter=filter):
+            path = staged.path(f"{OUTPUT_PREFIX}{number:05d}.{fmt}")
+            if fmt == "exr":
+                write_rgba_exr(path, np.concatenate((frame, np.ones((*frame.shape[:2], 1), np.float32)), -1))
+            else:
+                write_png(path, np.clip(linear_to_srgb(frame), 0.0, 1.0), 8)
+            sizes.frames += 1
+            sizes.frame_bytes += path.stat().st_size
+            if writer is not None:
+                writer.write(to_display_u8(frame))
+                sizes.movie_bytes = writer.written_bytes()
+            bar.update(1)
+        bar.close()
         if writer is not None:
-            writer.write(to_display_u8(frame))
-        bar.update(1)
-    bar.close()
-    if writer is not None:
-        return writer.close()
-    return out
+            writer.finish()
+        with signals_held():
+            staged.commit()
+            if writer is not None:
+                writer.publish()
+    except BaseException:
+        if writer is not None:
+            writer.abort()
+        raise
 
 
-__all__ = ["FORMATS", "load_edits", "parse_edit_args", "render_frames", "render_manifest", "to_display_u8"]
+__all__ = [
+    "FORMATS",
+    "MovieWriter",
+    "StagedFolder",
+    "check_movie",
+    "check_output",
+    "load_edits",
+    "parse_edit_args",
+    "protected_folders",
+    "render_frames",
+    "render_manifest",
+    "signals_held",
+    "to_display_u8",
+]

@@ -3,8 +3,10 @@ resolution, an atlas texture per layer, empty edit layers (never overwritten) an
 
 The networks are continuous, so passes are evaluated at every native pixel centre whatever the working
 resolution of the fit. Each export goes to a new versioned folder (``exports/v001``, ``v002``, ...),
-assembled under a hidden name and renamed into place when complete, so an earlier export is never
-touched and a killed export leaves nothing a compositor could mistake for a result.
+assembled under a hidden name and renamed into place when complete (new edit layers with it), holding the run
+folder's lock, so an earlier export is never touched and a killed export leaves nothing a compositor could mistake
+for a result. The manifest records every path relative to itself (``relative_path``): a run folder moved or
+mounted elsewhere with its plate keeps working.
 
 Atlas frame: each layer's texture covers the bounding box of the atlas cells the layer covers (aggregated
 alpha > ``BOX_COVERAGE``: median over frames for foregrounds, maximum for the background), plus a margin.
@@ -14,6 +16,7 @@ every later export, so paint never shifts against the object.
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import json
 import math
@@ -31,6 +34,7 @@ from tqdm import tqdm
 
 from engine import contract as C
 from engine.errors import InputError
+from engine.export.manifest import as_disk_full, move_into_place, signals_held
 from engine.fit.progress import Reporter
 from engine.fit.run_folder import ClipRecord, RunFolder
 from engine.fit.trainer import EVAL_CHUNK, FittedRun, load_fitted
@@ -56,6 +60,14 @@ COVERAGE_MAX_CELLS = 2048
 #: Smallest atlas box extent in model units (a layer that never shows gets this instead of a point).
 MIN_BOX_EXTENT = 1e-3
 DEFAULT_ATLAS_SIZE = C.ATLAS_SIZE_DEFAULT
+#: An export is staged in ``exports/.vNNN.partial`` until it is renamed into place; the new files of ``edits/`` (a
+#: new edit layer, the layout) wait in its ``.edits`` folder.
+STAGING_SUFFIX = ".partial"
+STAGED_EDITS = ".edits"
+#: A layer's pass channels (UV X, Y, Z and alpha) and their bytes uncompressed: the disk-full estimate of a frame
+#: of passes before any is written.
+PASS_CHANNELS_PER_LAYER = len(C.UV_CHANNELS) + len(C.ALPHA_CHANNELS)
+PASS_BYTES_PER_CHANNEL = 4
 
 
 @dataclass
@@ -240,36 +252,18 @@ def _read_layout(edits_dir: Path) -> dict[str, Any]:
 
 
 def _next_version(exports: Path) -> tuple[Path, Path]:
+    """The next free ``vNNN`` and its hidden staging folder (created). Called under the run folder's lock, so any
+    staging folder already there is a killed export's leftover: it is removed first."""
     exports.mkdir(parents=True, exist_ok=True)
+    for leftover in exports.glob(f".*{STAGING_SUFFIX}"):
+        shutil.rmtree(leftover, ignore_errors=True)
     n = 1
-    while True:
-        final = exports / C.EXPORT_VERSION_FORMAT.format(n)
-        staging = exports / f".{final.name}.partial"
-        if not final.exists():
-            try:
-                staging.mkdir()
-            except FileExistsError:  # a killed export's leftovers (or a concurrent export): clear and reuse
-                if (staging / ".pid").exists() and _pid_alive((staging / ".pid").read_text().strip()):
-                    n += 1
-                    continue
-                shutil.rmtree(staging)
-                staging.mkdir()
-            (staging / ".pid").write_text(str(os.getpid()))
-            return final, staging
+    while (exports / C.EXPORT_VERSION_FORMAT.format(n)).exists():
         n += 1
-
-
-def _pid_alive(text: str) -> bool:
-    try:
-        pid = int(text)
-        if pid == os.getpid():
-            return False
-        os.kill(pid, 0)
-    except (ValueError, ProcessLookupError):
-        return False
-    except PermissionError:
-        return True
-    return True
+    final = exports / C.EXPORT_VERSION_FORMAT.format(n)
+    staging = exports / f".{final.name}{STAGING_SUFFIX}"
+    staging.mkdir()
+    return final, staging
 
 
 def _selected(clip: ClipRecord, frames: tuple[int, int] | None) -> list[int]:
@@ -296,12 +290,26 @@ def export_run(
     stream: Any = None,
 ) -> Path:
     """Export ``run_dir``; returns the path of the manifest.json written. Reads the run folder only (its
-    ``clip.json`` says what export needs of the clip): the plate is not decoded."""
+    ``clip.json`` says what export needs of the clip): the plate is not decoded. Holds the run folder's lock for
+    the whole write; the export and any new edit layers appear together, or (a failure, a full disk, a cancel)
+    nothing does and the edit layers and earlier exports are as they were."""
     run_dir = Path(run_dir).resolve()
     low, high = C.ATLAS_SIZE_RANGE
     if not low <= atlas_size <= high:
         raise InputError(None, f"--atlas-size {atlas_size} is out of range", f"use {low}..{high} (paper: 1000)")
     RunFolder(run_dir).require_fit()
+    with C.run_lock(run_dir, C.VERB_EXPORT):
+        return _export_locked(run_dir, atlas_size, frames, device_name, progress_bar, stream)
+
+
+def _export_locked(
+    run_dir: Path,
+    atlas_size: int,
+    frames: tuple[int, int] | None,
+    device_name: str,
+    progress_bar: bool,
+    stream: Any,
+) -> Path:
     reporter = Reporter(stream=stream)
     reporter.emit(C.EVENT_STAGE, stage="load", message=f"loading the fit in {run_dir}")
     fitted = load_fitted(run_dir, device_name)
@@ -336,8 +344,9 @@ def export_run(
         else:
             frames_by_layer.append(layer_frame_for(cov[i].box(), atlas_size))
 
-    final, staging = _next_version(fitted.folder.exports)
+    out = _Output(fitted.folder, clip.native_size, len(names), len(selected))
     try:
+        final, staging = out.begin()
         # 3. atlas textures: colours from the atlas network, coverage from the alpha network
         for i, name in enumerate(names):
             fr = frames_by_layer[i]
@@ -367,35 +376,101 @@ def export_run(
                 chans[C.channel_name(uv_pass, "Y")] = tex_uv[:, 1].reshape(nh, nw)
                 chans[C.channel_name(uv_pass, "Z")] = (a * inside).reshape(nh, nw)
                 chans[C.channel_name(alpha_pass, C.ALPHA_CHANNELS[0])] = a.reshape(nh, nw)
-            write_exr(staging / C.PASSES_DIR / C.pass_file_name(frame_numbers[t]), chans)
+            out.pass_written(write_exr(staging / C.PASSES_DIR / C.pass_file_name(frame_numbers[t]), chans))
             bar.update(1)
             reporter.emit(C.EVENT_PROGRESS, step=k + 1, total=len(selected), psnr=None, elapsed=None, eta=None)
         bar.close()
 
         # 5. edit layers: created once, never overwritten; their atlas frame recorded for later exports
+        recorded = json.dumps(layout, indent=2)
         for i, name in enumerate(names):
             path = edits_dir / f"{name}{C.EDIT_LAYER_EXT}"
             fr = frames_by_layer[i]
             if not path.exists():  # a new (or deleted) edit layer: it is painted in this export's frame
                 w, h = fr.size
-                write_png(path, np.zeros((h, w, 4), np.float32), 8)
+                write_png(out.stage_edit(path), np.zeros((h, w, 4), np.float32), 8)
                 layout["layers"][name] = {"atlas_box": list(fr.box), "atlas_size": list(fr.size)}
             elif name not in layout["layers"]:  # the artist's own image: record the frame it now lives in
                 layout["layers"][name] = {"atlas_box": list(fr.box), "atlas_size": list(fr.size)}
-        atomic_write_text(edits_dir / C.EDITS_LAYOUT, json.dumps(layout, indent=2))
+        if json.dumps(layout, indent=2) != recorded or not (edits_dir / C.EDITS_LAYOUT).exists():
+            atomic_write_text(out.stage_edit(edits_dir / C.EDITS_LAYOUT), json.dumps(layout, indent=2))
 
         manifest = _manifest(run_dir, final, fitted, names, frames_by_layer, selected)
         C.validate_manifest(manifest)
         atomic_write_text(staging / C.MANIFEST_NAME, json.dumps(manifest, indent=2))
-        (staging / ".pid").unlink()
-        os.replace(staging, final)
-    except BaseException:
-        if staging.exists():
-            shutil.rmtree(staging)
+        out.publish()
+    except BaseException as exc:
+        need = out.need()
+        out.discard()
+        full = as_disk_full(exc, fitted.folder.path, need) if isinstance(exc, (OSError, RuntimeError)) else None
+        if full is not None:
+            raise full from None
         raise
     manifest_path = final / C.MANIFEST_NAME
     reporter.emit(C.EVENT_EXPORTED, manifest=str(manifest_path))
     return manifest_path
+
+
+class _Output:
+    """What one export writes: its hidden staging folder under ``exports/``, holding the new edit layer files and
+    layout too. ``publish`` moves them all into place (signals held); ``discard`` removes whatever was made (and the
+    ``exports``/``edits`` folders when this export created them)."""
+
+    def __init__(self, run: RunFolder, native_size: tuple[int, int], layers: int, frames: int) -> None:
+        self.run = run
+        self.made_exports = not run.exports.exists()
+        self.made_edits = not run.edits.exists()
+        self.staging: Path | None = None
+        self.final: Path | None = None
+        self.edits: list[tuple[Path, Path]] = []  # (staged file, final name)
+        self.frames = frames
+        self.pass_bytes: list[int] = []
+        w, h = native_size
+        self.pass_estimate = w * h * layers * PASS_CHANNELS_PER_LAYER * PASS_BYTES_PER_CHANNEL
+
+    def begin(self) -> tuple[Path, Path]:
+        self.final, self.staging = _next_version(self.run.exports)
+        return self.final, self.staging
+
+    def stage_edit(self, path: Path) -> Path:
+        """Where to write the new file ``path`` of ``edits/`` (in the staging folder) until ``publish`` moves it
+        into place: nothing appears in ``edits/`` before the export is complete."""
+        assert self.staging is not None
+        staged = self.staging / STAGED_EDITS / path.name
+        staged.parent.mkdir(exist_ok=True)
+        self.edits.append((staged, path))
+        return staged
+
+    def pass_written(self, path: Path) -> None:
+        self.pass_bytes.append(path.stat().st_size)
+
+    def need(self) -> int:
+        """Bytes the whole export needs: what it has staged, plus the passes still to write at the average size of
+        those written (their uncompressed size before any is)."""
+        staged = 0
+        if self.staging is not None and self.staging.exists():
+            staged = sum(p.stat().st_size for p in self.staging.rglob("*") if p.is_file())
+        per_pass = sum(self.pass_bytes) // len(self.pass_bytes) if self.pass_bytes else self.pass_estimate
+        return staged + per_pass * (self.frames - len(self.pass_bytes))
+
+    def publish(self) -> None:
+        assert self.staging is not None and self.final is not None
+        with signals_held():
+            if self.edits:
+                self.run.edits.mkdir(exist_ok=True)
+            for staged, path in self.edits:
+                move_into_place(staged, path)
+            shutil.rmtree(self.staging / STAGED_EDITS, ignore_errors=True)
+            os.replace(self.staging, self.final)
+            self.edits, self.staging = [], None
+
+    def discard(self) -> None:
+        if self.staging is not None:
+            shutil.rmtree(self.staging, ignore_errors=True)
+        for folder, made in ((self.run.exports, self.made_exports), (self.run.edits, self.made_edits)):
+            if made:
+                with contextlib.suppress(OSError):
+                    folder.rmdir()  # only when empty: nothing of the artist's is ever removed
 
 
 def layer_record(
@@ -420,6 +495,17 @@ def layer_record(
     }
 
 
+def relative_path(path: str | Path, start: Path) -> str:
+    """``path`` relative to the folder ``start`` ("/" separated), both with their symlinks resolved: what a manifest
+    records, so a run folder moved or mounted elsewhere with its plate keeps working. The absolute path where no
+    relative one exists (another Windows drive)."""
+    real = os.path.realpath(path)
+    try:
+        return os.path.relpath(real, os.path.realpath(start)).replace(os.sep, "/")
+    except ValueError:
+        return real
+
+
 def _manifest(
     run_dir: Path,
     final: Path,
@@ -430,7 +516,7 @@ def _manifest(
 ) -> dict[str, Any]:
     clip, cfg, metrics = fitted.clip, fitted.cfg, fitted.metrics or {}
     numbers = list(clip.frame_numbers)
-    rel_edits = os.path.relpath(fitted.folder.edits, final)
+    rel_edits = relative_path(fitted.folder.edits, final)
     layers = [
         layer_record(name, i, fr.size, fr.box, f"{rel_edits}/{name}{C.EDIT_LAYER_EXT}")
         for i, (name, fr) in enumerate(zip(names, frames_by_layer, strict=True))
@@ -439,12 +525,12 @@ def _manifest(
     return {
         C.MANIFEST_TAG: C.MANIFEST_VERSION,
         "engine_version": C.ENGINE_VERSION,
-        "run_dir": str(run_dir),
+        "run_dir": relative_path(run_dir, final),
         "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "clip": {
-            "source": clip.source,
+            "source": relative_path(clip.source, final),
             "kind": clip.kind,
-            "frame_files": list(clip.frame_files),
+            "frame_files": [relative_path(f, final) for f in clip.frame_files],
             "frame_numbers": numbers,
             "first_frame": numbers[0],
             "last_frame": numbers[-1],
@@ -452,6 +538,7 @@ def _manifest(
             "resolution": list(clip.native_size),
             "working_resolution": list(clip.working_size),
             "colorspace": clip.colorspace,
+            "masks": [relative_path(m, final) for m in clip.masks],
         },
         "passes": {
             "dir": C.PASSES_DIR,
@@ -474,4 +561,4 @@ def _manifest(
     }
 
 
-__all__ = ["DEFAULT_ATLAS_SIZE", "LayerFrame", "export_run", "layer_frame_for", "layer_record"]
+__all__ = ["DEFAULT_ATLAS_SIZE", "LayerFrame", "export_run", "layer_frame_for", "layer_record", "relative_path"]

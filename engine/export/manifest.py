@@ -1,11 +1,22 @@
 """An export as the engine reads it back: manifest.json resolved to paths, and per-frame passes.
 
 Torch-free (render, project-frame and preview work from the files alone, exactly what Blender sees).
-The schema itself lives in ``engine.contract``; this module only resolves paths and reads passes.
+The schema itself lives in ``engine.contract``; this module only resolves paths and reads passes. Paths are
+resolved relative to the manifest first (``contract.resolve_manifest_path``), so a run folder moved or mounted
+elsewhere keeps working; every path written through (edit layers, their history, previews) must stay inside the
+run folder (``contract.resolve_manifest_write_path``): a manifest cannot make the engine write anywhere else.
+``signals_held`` and ``move_into_place`` publish a finished export, render or edit: all of it or none.
 """
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import os
+import shutil
+import signal
+import threading
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -13,8 +24,18 @@ from typing import Any
 import numpy as np
 
 from engine import contract as C
-from engine.errors import InputError
+from engine.errors import DiskFullError, InputError
+from engine.io.atomic import atomic_write, disk_full_error
 from engine.io.images import read_exr
+
+#: The signals a publishing step (the renames that put a finished export, render or edit in place) lets finish first.
+HELD_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+#: The fix of a manifest that cannot be used as it is.
+EXPORT_AGAIN = "run `python -m engine export RUN_DIR` again"
+#: The fix of a plate that is not where the manifest says.
+PLATE_FIX = (
+    "put the plate back where the export was made from (its path is relative to the manifest), or export the run again"
+)
 
 
 @dataclass
@@ -36,12 +57,27 @@ class Manifest:
         try:
             self.data: dict[str, Any] = C.load_manifest(str(self.path))
         except C.ManifestError as exc:
-            raise InputError(None, str(exc).split(" — ")[0], "run `python -m engine export RUN_DIR` again") from None
+            raise InputError(None, str(exc).split(" — ")[0], EXPORT_AGAIN) from None
         self.folder = self.path.parent
 
     def resolve(self, rel: str) -> Path:
-        """A path from the manifest (``contract.resolve_manifest_path``: the add-on resolves them the same way)."""
+        """A path from the manifest, to READ (``contract.resolve_manifest_path``: the add-on resolves them the same
+        way): relative to the manifest's folder; an absolute one as it is."""
         return Path(C.resolve_manifest_path(str(self.path), rel))
+
+    def resolve_write(self, rel: str) -> Path:
+        """A path from the manifest, to WRITE: relative and inside the run folder once symlinks and ``..`` are
+        resolved (``contract.resolve_manifest_write_path``); anything else is a one-line InputError."""
+        try:
+            return Path(C.resolve_manifest_write_path(str(self.path), rel))
+        except C.ManifestError as exc:
+            raise InputError(None, str(exc).split(" — ")[0], EXPORT_AGAIN) from None
+
+    @property
+    def run_root(self) -> Path:
+        """The run folder this export belongs to (``contract.manifest_run_root``: found from where the manifest
+        is, so a moved run folder keeps working)."""
+        return Path(C.manifest_run_root(str(self.path)))
 
     @property
     def layers(self) -> list[dict[str, Any]]:
@@ -65,11 +101,29 @@ class Manifest:
         for layer in self.layers:
             if layer["name"] == name:
                 return layer
-        names = ", ".join(layer["name"] for layer in self.layers)
-        raise InputError(self.path, f"no layer called {name!r}", f"use one of {names}")
+        raise InputError(self.path, f"no layer called {name!r}", f"use one of {self.layer_names()}")
+
+    def layer_names(self) -> str:
+        """The layers' names, for messages."""
+        return ", ".join(layer["name"] for layer in self.layers)
+
+    def check_layers(self, names: list[str] | None) -> None:
+        """Every name in ``names`` is a layer of this export (one line listing the layers otherwise)."""
+        for name in names or []:
+            self.layer(name)
 
     def edit_path(self, layer: dict[str, Any]) -> Path:
-        return self.resolve(layer["edit_layer"])
+        """The layer's edit layer as the export made it (``<Layer>.png``): a write path, inside the run folder."""
+        return self.resolve_write(layer["edit_layer"])
+
+    def edit_file(self, layer: dict[str, Any]) -> Path:
+        """The edit layer file in use: its float twin ``<Layer>.exr`` when that exists (``contract.edit_layer_file``),
+        else the PNG; both checked as write paths, so paint never lands outside the run folder."""
+        png = self.edit_path(layer)
+        twin = C.float_edit_layer(layer["edit_layer"])
+        if C.edit_layer_file(str(png)) != str(png):
+            return self.resolve_write(twin)
+        return png
 
     def pass_path(self, frame: int) -> Path:
         return self.resolve(self.data["passes"]["dir"]) / C.pass_file_name(frame)
@@ -83,10 +137,30 @@ class Manifest:
                 "pick a frame inside the exported range or export it with --frames",
             )
 
+    def plate_source(self) -> Path:
+        """The plate (a folder of frames or a movie file), checked to exist as what the manifest says it is."""
+        path = self.resolve(self.clip["source"])
+        is_sequence = self.clip["kind"] == C.CLIP_KINDS[0]
+        if not (path.is_dir() if is_sequence else path.is_file()):
+            what = "plate folder" if is_sequence else "plate movie"
+            problem = f"{what} does not exist" if not path.exists() else f"is not the {what} the export was made from"
+            raise InputError(path, problem, PLATE_FIX)
+        return path
+
+    def plate_frame_file(self, position: int) -> Path:
+        """The plate's frame file at ``position`` in the manifest's frame list, checked to be a file."""
+        path = self.resolve(self.clip["frame_files"][position])
+        if not path.is_file():
+            problem = "plate frame does not exist" if not path.exists() else "plate frame is not a file"
+            raise InputError(path, problem, PLATE_FIX)
+        return path
+
     def read_passes(self, frame: int) -> list[LayerPasses]:
         """Every layer's passes of plate frame ``frame``."""
         self.check_frame(frame)
         path = self.pass_path(frame)
+        if not os.path.isfile(path):  # checked first: the EXR library would print its own line too
+            raise InputError(path, "pass file does not exist", "export the run again")
         chans = read_exr(path)
         out = []
         for layer in self.layers:
@@ -95,14 +169,61 @@ class Manifest:
             missing = [n for n in [*names, alpha_name] if n not in chans]
             if missing:
                 raise InputError(path, f"pass file lacks channels {missing}", "export the run again")
-            out.append(
-                LayerPasses(
-                    uv=np.stack((chans[names[0]], chans[names[1]]), -1),
-                    z=chans[names[2]],
-                    alpha=chans[alpha_name],
-                )
-            )
+            passes = LayerPasses(uv=np.stack((chans[names[0]], chans[names[1]]), -1), z=chans[names[2]],
+                                 alpha=chans[alpha_name])  # fmt: skip
+            if passes.z.shape != self.resolution[::-1]:
+                size = f"{passes.z.shape[1]}x{passes.z.shape[0]}"
+                raise InputError(path, f"pass file is {size}, the manifest says {self.resolution}", "export again")
+            out.append(passes)
         return out
 
 
-__all__ = ["LayerPasses", "Manifest"]
+@contextlib.contextmanager
+def signals_held() -> Iterator[None]:
+    """SIGINT and SIGTERM that arrive inside the block take effect right after it, so the renames that publish a
+    finished export, render or edit happen all or none. Python-level (the handlers are swapped, not the OS mask), so
+    it holds whichever of the process's threads the OS delivers the signal to."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+
+    def hold(signum: int, _frame: Any) -> None:
+        caught.append(signum)
+
+    old = {signum: signal.signal(signum, hold) for signum in HELD_SIGNALS}
+    try:
+        yield
+    finally:
+        for signum, handler in old.items():
+            signal.signal(signum, handler)
+        for pending in dict.fromkeys(caught):
+            signal.raise_signal(pending)
+
+
+def as_disk_full(exc: BaseException, folder: Path, need: int | None = None) -> DiskFullError | None:
+    """``exc``, raised while writing an output whose partial files are removed by now, as the one-line "disk full:
+    free N MB at ``folder``", where ``need`` is what the whole output takes (so N is what to free); None when it
+    is not a full disk."""
+    if isinstance(exc, DiskFullError):
+        exc = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    return disk_full_error(exc, folder, need=need)
+
+
+def move_into_place(staged: Path, path: Path) -> None:
+    """Rename a staged file onto its final name; across file systems (a folder linked elsewhere) it is copied to a
+    temporary file beside ``path`` and renamed, so ``path`` is never seen half-written either way."""
+    try:
+        os.replace(staged, path)
+    except OSError as exc:
+        if exc.errno != errno.EXDEV:
+            raise
+
+        def copy(tmp: str) -> None:
+            shutil.copyfile(staged, tmp)
+
+        atomic_write(path, copy)
+        staged.unlink()
+
+
+__all__ = ["EXPORT_AGAIN", "PLATE_FIX", "LayerPasses", "Manifest", "as_disk_full", "move_into_place", "signals_held"]
