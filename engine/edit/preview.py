@@ -33,7 +33,7 @@ from engine.edit.render import (
     render_frames,
     to_display_u8,
 )
-from engine.export.manifest import Manifest, as_disk_full
+from engine.export.manifest import DISK_ERRORS, Manifest, as_disk_full
 from engine.io.atomic import atomic_write
 from engine.io.images import read_image
 
@@ -157,7 +157,7 @@ def write_previews(manifest_path: str | Path, out_dir: str | Path | None = None,
         with lock, staged:
             _write_previews_into(manifest, staged, movies)
             written = staged.commit()
-    except (OSError, RuntimeError) as exc:
+    except DISK_ERRORS as exc:
         path = getattr(exc, "path", None) or getattr(exc, "filename", None)
         where = staged.out if path is None or staged.names_output(path) else Path(path)
         full = as_disk_full(exc, where, staged.discarded_bytes or None)

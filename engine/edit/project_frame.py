@@ -27,7 +27,7 @@ from engine import contract as C
 from engine.edit.equations import edit_to_premultiplied, load_edit
 from engine.edit.render import STAGING_SUFFIX
 from engine.errors import DiskFullError, InputError
-from engine.export.manifest import LayerPasses, Manifest, as_disk_full, move_into_place, signals_held
+from engine.export.manifest import DISK_ERRORS, LayerPasses, Manifest, as_disk_full, move_into_place, signals_held
 from engine.io.atomic import atomic_write
 from engine.io.clip import same_aspect
 from engine.io.colour import linear_to_srgb
@@ -241,7 +241,7 @@ def _replace_edit_layers(manifest: Manifest, changes: list[_Change]) -> None:
             if c.kept is not None and i not in replaced:
                 c.kept.unlink(missing_ok=True)
         shutil.rmtree(staging, ignore_errors=True)
-        full = _disk_full_for(changes, exc) if isinstance(exc, (OSError, RuntimeError)) else None
+        full = _disk_full_for(changes, exc) if isinstance(exc, DISK_ERRORS) else None
         if full is not None:
             raise full from None
         raise

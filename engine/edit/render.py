@@ -28,7 +28,7 @@ from tqdm import tqdm
 from engine import contract as C
 from engine.edit.equations import FILTERS, composite_edits, edit_is_empty, load_edit
 from engine.errors import DiskFullError, InputError
-from engine.export.manifest import Manifest, as_disk_full, signals_held
+from engine.export.manifest import DISK_ERRORS, Manifest, as_disk_full, signals_held
 from engine.io.atomic import disk_full_as_one_line, disk_full_error
 from engine.io.clip import iter_frames, open_clip
 from engine.io.colour import linear_to_srgb, to_linear
@@ -387,7 +387,7 @@ class _Sizes:
 def _disk_full_needing(exc: BaseException, staged: StagedFolder, need: int) -> DiskFullError | None:
     """The disk-full line once the staging is gone: naming ``--out`` (not the hidden staging folder) and what the
     whole output needs; None when ``exc`` is not a full disk."""
-    if not isinstance(exc, (OSError, RuntimeError)):
+    if not isinstance(exc, DISK_ERRORS):
         return None
     path = getattr(exc, "path", None) or getattr(exc, "filename", None)
     where = staged.out if path is None or staged.names_output(path) else Path(path)
@@ -422,7 +422,7 @@ def render_manifest(
     try:
         with staged:
             _render_into(manifest, staged, edits, fmt, filter, movie_path, progress_bar, sizes)
-    except (OSError, RuntimeError) as exc:
+    except DISK_ERRORS as exc:
         full = _disk_full_needing(exc, staged, sizes.need())
         if full is None:
             raise

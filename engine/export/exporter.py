@@ -34,7 +34,7 @@ from tqdm import tqdm
 
 from engine import contract as C
 from engine.errors import InputError
-from engine.export.manifest import as_disk_full, move_into_place, signals_held
+from engine.export.manifest import DISK_ERRORS, as_disk_full, move_into_place, signals_held
 from engine.fit.progress import Reporter
 from engine.fit.run_folder import ClipRecord, RunFolder
 from engine.fit.trainer import EVAL_CHUNK, FittedRun, load_fitted
@@ -402,7 +402,7 @@ def _export_locked(
     except BaseException as exc:
         need = out.need()
         out.discard()
-        full = as_disk_full(exc, fitted.folder.path, need) if isinstance(exc, (OSError, RuntimeError)) else None
+        full = as_disk_full(exc, fitted.folder.path, need) if isinstance(exc, DISK_ERRORS) else None
         if full is not None:
             raise full from None
         raise

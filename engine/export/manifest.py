@@ -30,6 +30,9 @@ from engine.io.images import read_exr
 
 #: The signals a publishing step (the renames that put a finished export, render or edit in place) lets finish first.
 HELD_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+#: What a write that ran out of disk raises: the OS's error, a library's RuntimeError (OpenEXR, torch), or the
+#: one-line DiskFullError an atomic write already made of it.
+DISK_ERRORS = (OSError, RuntimeError, DiskFullError)
 #: The fix of a manifest that cannot be used as it is.
 EXPORT_AGAIN = "run `python -m engine export RUN_DIR` again"
 #: The fix of a plate that is not where the manifest says.
@@ -226,4 +229,13 @@ def move_into_place(staged: Path, path: Path) -> None:
         staged.unlink()
 
 
-__all__ = ["EXPORT_AGAIN", "PLATE_FIX", "LayerPasses", "Manifest", "as_disk_full", "move_into_place", "signals_held"]
+__all__ = [
+    "DISK_ERRORS",
+    "EXPORT_AGAIN",
+    "PLATE_FIX",
+    "LayerPasses",
+    "Manifest",
+    "as_disk_full",
+    "move_into_place",
+    "signals_held",
+]
