@@ -367,7 +367,7 @@ def _field_doc_names() -> list[str]:
     return [f.name for f in fields(FitConfig)]
 
 
-def _kind(name: str) -> str:
+def field_kind(name: str) -> str:
     """A field's type as a word: ``int``, ``float``, ``bool`` or ``str``."""
     kind = FitConfig.__dataclass_fields__[name].type
     return kind if isinstance(kind, str) else getattr(kind, "__name__", str(kind))
@@ -417,7 +417,7 @@ def check_value(key: str, value: Any, source: str | Path | None = None, raw: Any
     """``value`` of field ``key`` checked against its type and ``VALID`` range (returned as its type), or a
     one-line ``InputError``: quoting ``--set key=raw`` when ``source`` is ``FROM_SET``, naming the file when it is
     a path (a run's config.json), and the field alone when None (a config built in code)."""
-    kind = _kind(key)
+    kind = field_kind(key)
     valid = VALID[key]
     typed = _typed(kind, value)
     if typed is not None and valid.accepts(typed):
@@ -454,7 +454,7 @@ def apply_overrides(cfg: FitConfig, overrides: dict[str, Any], source: str | Pat
             hint = f"did you mean {near[0]!r}?" if near else "see `python -m engine fit --help-config`"
             raise InputError(source, f"unknown config key {key!r}", hint)
         if source is None and isinstance(raw, str):
-            values[key] = check_value(key, _parse_value(_kind(key), raw, key), FROM_SET, raw)
+            values[key] = check_value(key, _parse_value(field_kind(key), raw, key), FROM_SET, raw)
         else:
             values[key] = check_value(key, raw, source)
     return dataclasses.replace(cfg, **values)
@@ -546,7 +546,7 @@ def config_help() -> str:
     default = FitConfig()
     lines = []
     for f in fields(FitConfig):
-        kind = _kind(f.name)
+        kind = field_kind(f.name)
         valid = VALID[f.name].describe(kind)
         resumable = ", resumable" if f.name in RESUMABLE_FIELDS else ""
         lines.append(
@@ -571,6 +571,7 @@ __all__ = [
     "check_config",
     "check_value",
     "config_help",
+    "field_kind",
     "loss_weights",
     "parse_set_args",
     "preset_config",

@@ -679,9 +679,13 @@ def fit(
             auto_masks=find_masks,
             before_writing=lock,  # the lock from the first write (the flow cache) on
         )
-        reporter.log_path = run.log
-        if saved is None or scene is None:
+        new_fit = saved is None or scene is None
+        if new_fit:
             scene = prepared.analyse(cfg)
+        # built (a resume: its checkpoint restored and checked) before anything is written
+        trainer = Trainer(cfg, prepared, scene, device, state=state, state_source=run.checkpoint)
+        reporter.log_path = run.log
+        if new_fit:
             if refit:
                 run.clear_fit()
             run.write_config(cfg)
@@ -689,7 +693,7 @@ def fit(
             run.write_scene(scene)
         elif cfg != saved:
             run.write_config(cfg)  # the resume's new schedule, before its next checkpoint
-        return _fit_locked(run, prepared, cfg, scene, device, state, reporter, progress_bar)
+        return _fit_locked(run, trainer, reporter, progress_bar)
 
 
 class _WriteLock:
@@ -709,21 +713,13 @@ class _WriteLock:
             self.run.refuse_plain_fit()
 
 
-def _fit_locked(
-    run: RunFolder,
-    prepared: PreparedClip,
-    cfg: FitConfig,
-    scene: SceneAnalysis,
-    device: torch.device,
-    state: dict[str, Any] | None,
-    reporter: Reporter,
-    progress_bar: bool,
-) -> dict[str, Any]:
+def _fit_locked(run: RunFolder, trainer: Trainer, reporter: Reporter, progress_bar: bool) -> dict[str, Any]:
     """``fit``'s training, evaluation and metrics, under the run folder's lock, the folder's records written."""
+    cfg, scene, device = trainer.cfg, trainer.scene, trainer.device
+    assert scene is not None  # a fit always has its scene analysis
     reporter.emit(C.EVENT_STAGE, stage="scene", message=scene.summary(), scene=scene.to_dict())
-    reporter.emit(C.EVENT_STAGE, stage="init", message=f"building the {cfg.model} model on {device.type}")
-    trainer = Trainer(cfg, prepared, scene, device, state=state, state_source=run.checkpoint)
-    if state is None:
+    reporter.emit(C.EVENT_STAGE, stage="init", message=f"the {cfg.model} model on {device.type}")
+    if trainer.saved_step is None:
         trainer.calibrate()
         trainer.save(run, reporter)  # step 0: the last good checkpoint even of a fit that diverges at once
     trainer.train(run, reporter, progress_bar)
@@ -740,7 +736,7 @@ def _fit_locked(
         "preset": cfg.preset,
         "model": cfg.model,
         "device": device.type,
-        "working_size": list(prepared.size),
+        "working_size": list(trainer.clip.size),
         "frames": int(trainer.video.shape[0]),
         "engine_version": C.ENGINE_VERSION,
         "torch_version": torch.__version__,

@@ -1,23 +1,37 @@
-"""Configs: presets, overrides with suggestions, versioned JSON round trip."""
+"""Configs: presets, overrides with suggestions, versioned JSON round trip, and every field's declared range
+(checked for ``--set`` and for a run's config.json alike, one line, nothing written)."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
+from dataclasses import fields
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from engine import cli
+from engine import contract as C
 from engine.config import (
     PRESETS,
+    RESUMABLE_FIELDS,
+    VALID,
     FitConfig,
     apply_overrides,
+    check_config,
     config_help,
+    field_kind,
     loss_weights,
     parse_set_args,
     preset_config,
+    resume_changes,
     weight_ever_on,
 )
 from engine.contract import SCHEMA_VERSION
 from engine.errors import InputError
+from engine.fit.run_folder import RunFolder
 
 
 def test_presets_are_named_configs_with_their_own_budgets():
@@ -104,3 +118,112 @@ def test_weight_ever_on_is_any_step_of_the_fit(steps, bootstrap, rigid):
     )
     for term in loss_weights(cfg, 0):
         assert weight_ever_on(cfg, term) == any(loss_weights(cfg, s)[term] != 0.0 for s in range(steps)), term
+
+
+# --- every field's valid range ------------------------------------------------------------------------------
+
+
+def out_of_range(name: str) -> str:
+    """A ``--set`` value just outside field ``name``'s declared range (or not one of its choices)."""
+    kind = field_kind(name)
+    valid = VALID[name]
+    if kind == "bool":
+        return "maybe"
+    if kind == "str":
+        return "no-such-choice" if valid.choices else ""
+    if valid.low is None:
+        return "nan"
+    if valid.above:
+        return repr(valid.low) if kind == "float" else str(int(valid.low))
+    below = valid.low - (1 if kind == "int" else 1e-3)
+    return str(int(below)) if kind == "int" else repr(below)
+
+
+FIELDS = [f.name for f in fields(FitConfig)]
+
+
+def test_every_field_declares_its_range_and_help_shows_it():
+    assert set(VALID) == set(FIELDS)
+    text = config_help()
+    for name in FIELDS:
+        line = next(ln for ln in text.splitlines() if ln.strip().startswith(name + " "))
+        assert VALID[name].describe(field_kind(name)) in line, line
+    for preset in PRESETS.values():  # every preset is within the ranges
+        assert check_config(preset) is preset
+
+
+@pytest.mark.parametrize("name", FIELDS)
+def test_an_out_of_range_value_is_one_line_and_writes_nothing(tmp_path, name):
+    """``fit --set NAME=<just outside its range>`` through the real CLI: exit 2, one stderr line naming the
+    field, and no run folder."""
+    value = out_of_range(name)
+    run = tmp_path / "run"
+    err = io.StringIO()
+    argv = ["fit", str(tmp_path / "clip"), "--out", str(run), "--preset", "draft", "--set", f"{name}={value}"]
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+        code = cli.main(argv)
+    lines = err.getvalue().splitlines()
+    assert code == C.EXIT_BAD_INPUT and len(lines) == 1, err.getvalue()
+    assert lines[0].startswith(f"error: --set {name}=") and name in lines[0], lines[0]
+    assert not run.exists()
+
+
+@pytest.mark.parametrize("name", FIELDS)
+def test_an_out_of_range_value_in_config_json_is_one_line_naming_the_file(tmp_path, name):
+    """The same ranges when a run's config.json is loaded (edited by hand): one line naming config.json."""
+    run = RunFolder(tmp_path)
+    run.write_config(preset_config("draft"))
+    data = json.loads(run.config.read_text())
+    raw = out_of_range(name)
+    data["config"][name] = (
+        {"maybe": "maybe", "": ""}.get(raw, raw) if field_kind(name) in ("bool", "str") else float(raw)
+    )
+    run.config.write_text(json.dumps(data))
+    with pytest.raises(InputError) as err:
+        run.read_config()
+    text = str(err.value)
+    assert text.startswith(f"{run.config}: config {name!r} must be") and "\n" not in text, text
+
+
+@pytest.mark.parametrize(
+    ("value", "needle"),
+    [("12", "must be true or false"), (3.5, "must be an int"), (True, "must be an int"), ([1], "must be an int")],
+)
+def test_config_json_types_are_checked(tmp_path, value, needle):
+    run = RunFolder(tmp_path)
+    run.write_config(preset_config("draft"))
+    data = json.loads(run.config.read_text())
+    data["config"]["init_motion" if needle.endswith("false") else "steps"] = value
+    run.config.write_text(json.dumps(data))
+    with pytest.raises(InputError, match=needle):
+        run.read_config()
+
+
+def test_config_json_must_hold_every_field(tmp_path):
+    run = RunFolder(tmp_path)
+    run.write_config(preset_config("draft"))
+    data = json.loads(run.config.read_text())
+    del data["config"]["lr"]
+    run.config.write_text(json.dumps(data))
+    with pytest.raises(InputError, match="config has no 'lr' — restore it"):
+        run.read_config()
+
+
+@settings(max_examples=200, deadline=None)
+@given(name=st.sampled_from(FIELDS), value=st.one_of(st.integers(), st.floats(), st.booleans(), st.text()))
+def test_property_any_value_is_accepted_in_range_or_refused_in_one_line(name, value):
+    """Any value of any type for any field: taken (and then within the field's declared range) or a one-line
+    ``InputError``, never another exception."""
+    try:
+        cfg = apply_overrides(FitConfig(), {name: value}, source="run/config.json")
+    except InputError as exc:
+        assert "\n" not in str(exc) and name in str(exc)
+        return
+    assert VALID[name].accepts(getattr(cfg, name)) and check_config(cfg) is cfg
+
+
+def test_resume_may_change_the_schedule_only():
+    saved = preset_config("draft")
+    allowed, refused = resume_changes(saved, apply_overrides(saved, {"lr": "1e-4", "steps": "900", "seed": "3"}))
+    assert allowed == ["steps", "lr"] and refused == ["seed"]
+    assert set(RESUMABLE_FIELDS) <= set(FIELDS) and "model" not in RESUMABLE_FIELDS

@@ -3,7 +3,10 @@
 - SIGTERM: the fit writes a checkpoint at the step it stopped, exits with code 3, and ``fit --resume``
   continues from exactly that step (nothing lost);
 - SIGKILL (no chance to clean up): the last checkpoint on disk is intact and is the newest one announced
-  (at most the ``checkpoint_seconds`` interval of work is lost), and ``fit --resume`` continues from it.
+  (at most the ``checkpoint_seconds`` interval of work is lost), and ``fit --resume`` continues from it;
+- SIGTERM outside the training loop, while the optical flow is computed or the finished fit is evaluated: exit
+  3 and one line, no partial file (the flow cache and every run file are written atomically), and the same
+  command (or ``--resume``) then finishes.
 
 In both cases the resumed fit ends where an uninterrupted fit of the same config ends: the checkpoint holds
 the model, the optimiser, the schedule and the sampler's random state, so the bound asserted is a
@@ -18,6 +21,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -26,6 +30,7 @@ import torch
 from engine import contract as C
 from engine.config import apply_overrides, parse_set_args, preset_config
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
+from engine.fit.run_folder import RunFolder
 from engine.fit.trainer import fit
 from tests.paths import ROOT
 
@@ -171,3 +176,74 @@ def test_sigkill_loses_at_most_the_checkpoint_interval_and_resume_reaches_the_sa
     assert _first_step(resumed) == on_disk + 1
     assert metrics["steps"] == STEPS
     assert abs(metrics["psnr"] - uninterrupted["psnr"]) <= SAME_QUALITY_DB, (metrics["psnr"], uninterrupted["psnr"])
+
+
+#: A clip whose optical flow takes a few seconds (DIS at 640x360, 23 pairs both ways: about 2.5 s on a 2-core
+#: CPU), so a SIGTERM lands while it is computed.
+FLOW_SPEC = SceneSpec(width=640, height=360, frames=24, fg_size=(120, 90), fg_start=(100.0, 80.0))
+#: A clip whose full-frame evaluation takes a few seconds after a 2-step fit.
+EVAL_SPEC = SceneSpec(width=256, height=144, frames=24, fg_size=(48, 36), fg_start=(40.0, 30.0))
+QUICK_SETS = ["steps=2", "batch=256", "eval_pixels=500"]
+#: How long after the flow stage starts the signal is sent (well inside the flow's seconds).
+FLOW_SIGNAL_DELAY_S = 0.5
+
+
+def _quick_args(frames: Path, masks: Path, run: Path) -> list[str]:
+    sets = [a for s in QUICK_SETS for a in ("--set", s)]
+    return ["fit", str(frames), "--mask", str(masks), "--out", str(run), "--preset", "draft", "--no-bar", *sets]
+
+
+def _sigterm_at(args: list[str], stage: str, delay_s: float = 0.0) -> tuple[subprocess.CompletedProcess, list[dict]]:
+    """Run ``python -m engine ARGS``, send SIGTERM ``delay_s`` after its ``stage`` event; the exit, its events."""
+    proc = _start(args)
+    events = _run_until(proc, lambda ev: ev[-1]["event"] == C.EVENT_STAGE and ev[-1]["stage"] == stage)
+    time.sleep(delay_s)
+    proc.send_signal(signal.SIGTERM)
+    rest, err = proc.communicate(timeout=300)
+    events += [m for m in map(C.parse_progress_line, rest.splitlines()) if m]
+    return subprocess.CompletedProcess(args, proc.returncode, rest, err), events
+
+
+def _no_partial_files(run: Path) -> None:
+    leftovers = [p for p in run.rglob("*") if ".tmp" in p.name]
+    assert not leftovers, leftovers
+
+
+def _cancelled_line(out: subprocess.CompletedProcess) -> str:
+    lines = [ln for ln in out.stderr.splitlines() if ln.strip()]
+    assert out.returncode == C.EXIT_CANCELLED and len(lines) == 1, (out.returncode, out.stderr)
+    assert lines[0].startswith("cancelled: fit stopped by SIGTERM before it finished; nothing half-written"), lines
+    return lines[0]
+
+
+@pytest.mark.slow
+def test_sigterm_while_the_flow_is_computed_leaves_nothing_partial_and_the_fit_runs_again(tmp_path):
+    frames, masks = write_scene(make_scene(FLOW_SPEC), tmp_path / "clip")
+    run = tmp_path / "run"
+    args = _quick_args(frames, masks, run)
+    out, events = _sigterm_at(args, "flow", FLOW_SIGNAL_DELAY_S)
+    assert "run the same command again" in _cancelled_line(out)
+    assert not any(e["event"] == C.EVENT_STAGE and e["stage"] == "scene" for e in events), "flow had finished"
+    _no_partial_files(run)
+    assert not list(run.rglob("*.npz")), "a flow cache file was written before the flow was computed"
+    assert RunFolder(run).fit_contents() == []  # nothing of a fit: the same command may start it
+
+    again = subprocess.run([sys.executable, "-m", "engine", *args], cwd=ROOT, capture_output=True, text=True)
+    assert again.returncode == C.EXIT_OK, again.stderr
+    assert RunFolder(run).read_metrics()["steps"] == 2
+
+
+@pytest.mark.slow
+def test_sigterm_during_the_final_evaluation_keeps_the_checkpoint_and_resume_finishes(tmp_path):
+    frames, masks = write_scene(make_scene(EVAL_SPEC), tmp_path / "clip")
+    run = tmp_path / "run"
+    out, events = _sigterm_at(_quick_args(frames, masks, run), "evaluate")
+    assert f"continue with: python -m engine fit --resume --out {run}" in _cancelled_line(out)
+    assert not any(e["event"] == C.EVENT_DONE for e in events), "the evaluation had finished"
+    _no_partial_files(run)
+    folder = RunFolder(run)  # the folder loads: every record, the finished checkpoint, no metrics yet
+    assert folder.read_config().steps == 2 and folder.read_scene(folder.read_clip()).num_layers == 2
+    assert folder.load_checkpoint(torch.device("cpu"))["step"] == 2 and folder.read_metrics() is None
+
+    _, metrics, resumed = _resume(run)
+    assert metrics["steps"] == 2 and not any(e["event"] == C.EVENT_PROGRESS for e in resumed)
