@@ -4,13 +4,13 @@
                               mount=disk, size_kb=12, cwd=ROOT)
     assert result.returncode == 2 and result.left == {}
 
-``unshare --user --map-root-user --mount`` gives the command a private mount table (a user namespace, so no
-privileges are needed where user namespaces are allowed; as root it works too). There a tmpfs of ``size_kb``
-kilobytes is mounted on ``mount`` (an existing folder, normally empty), so every write below ``mount`` fails with
-ENOSPC once that much is used: a real full disk, not a patched writer. Everything else (the clip, the
-checkout) is the ordinary file system. When the command exits the namespace and its mount are gone, so the
-helper lists what the command left on the full disk (path relative to ``mount`` -> size in bytes, hidden files
-and folders included) before that, and returns it with the exit code and the output.
+``unshare --user --map-root-user --mount`` gives the command a private mount table (a user namespace, so no privileges
+are needed where user namespaces are allowed; as root it works too). There a tmpfs of ``size_kb`` kilobytes is mounted
+on ``mount`` (an existing folder, normally empty), so every write below ``mount`` fails with ENOSPC once that much is
+used: a real full disk, not a patched writer. Everything else (the clip, the checkout) is the ordinary file system. When
+the command exits the namespace and its mount are gone, so ``run_on_full_disk`` lists what the command left on the full
+disk (path relative to ``mount`` -> size in bytes, hidden files and folders included) before that, and returns it with
+the exit code and the output.
 
 Where user namespaces or mounts are not permitted (some containers, macOS) the calling test is skipped with the
 reason (``full_disk_unavailable``).

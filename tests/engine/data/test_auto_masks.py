@@ -456,8 +456,8 @@ def _non_utf8(parent: Path, name: bytes) -> Path:
 
 
 def test_masks_verb_with_folders_whose_names_are_not_utf8(tmp_path):
-    """A plate and a mask folder named in Latin-1 on a UTF-8 system (once a traceback: OpenImageIO refused the
-    name, and printing it to a strict UTF-8 stdout raised). The masks are written, the last line shows the
+    """A plate and a mask folder named in Latin-1 on a UTF-8 system (OpenImageIO refuses such a name as text,
+    and printing it to a strict UTF-8 stdout raises). The masks are written, the last line shows the
     folder with its odd byte as \\xe9, and a missing folder of that kind is one line."""
     root = _non_utf8(tmp_path, b"shot_\xe9")
     write_scene(make_scene(SMALL), tmp_path / "clip")  # OpenCV's writer cannot take such a name: moved there

@@ -1,6 +1,6 @@
 """Clip loading: sequences and movies read with the right values, and every bad input is a one-line
-InputError naming the file, so the user can fix it without a traceback. Inputs that were once accepted without a
-word are refused here with real files: a sequence mixing float and integer frames, a movie cut short or garbled
+InputError naming the file, so the user can fix it without a traceback. Inputs a loader could take without a word
+are refused here with real files: a sequence mixing float and integer frames, a movie cut short or garbled
 in the middle, a frame whose header declares a gigantic image; a folder whose name is not UTF-8 reads like any
 other."""
 
@@ -297,8 +297,8 @@ def test_whole_movies_of_every_container_read_every_frame(tmp_path: Path, contai
 @pytest.mark.parametrize("how", ["cut", "zeroed"])
 @pytest.mark.parametrize("container", ["mp4", "mkv", "avi"])
 def test_damaged_movie_is_refused_naming_the_file(tmp_path: Path, container: str, how: str) -> None:
-    """A movie cut short or zeroed in the middle: once, an mkv whose demuxer resynchronised past the damage
-    fitted 20 of its 40 frames without a word. Now the frames it holds are checked against what it declares
+    """A movie cut short or zeroed in the middle: an mkv's demuxer resynchronises past the damage and
+    yields 20 of its 40 frames without an error. Now the frames it holds are checked against what it declares
     (its header's count, or its duration and the span of its timestamps) and against what its decoder gives,
     and whatever the container, opening or reading it is one line naming the file."""
     whole = write_movie_frames(tmp_path / f"whole.{container}", textured_frames(DAMAGED_MOVIE_FRAMES))
@@ -414,7 +414,7 @@ def _non_utf8_folder(parent: Path, name: bytes) -> Path:
 
 def test_clip_masks_and_images_in_a_folder_whose_name_is_not_utf8(tmp_path: Path) -> None:
     """Such a name reaches Python as surrogate escapes, which OpenImageIO's and OpenEXR's text conversion refuse
-    (a traceback, once). The readers and writers hand them the bytes, so it reads like any other; messages show
+    (a TypeError). The readers and writers hand them the bytes, so it reads like any other; messages show
     the odd byte as ``\\xe9``."""
     folder = _non_utf8_folder(tmp_path, b"plate_\xe9t\xe9")
     frames = make_sequence(folder / "frames", count=3)
