@@ -119,9 +119,44 @@ def save_edits(manifest_path: str | None = None) -> list[str]:
                 compat.set_float_exr(img)
             else:
                 img.file_format = "PNG"
-            img.save()
+            save_atomically(img, path)
             saved.append(path)
     return saved
+
+
+def save_atomically(img: Any, path: str) -> None:
+    """Save ``img`` (its format already set) under a hidden name beside ``path``, check that a whole image was
+    written, and rename it onto ``path``: a full disk or a crash mid-save leaves the edit layer as it was. Blender
+    reports a failed save without raising (and marks the image saved), so the file is read back; when it is not
+    whole the paint is marked unsaved again (it is still in Blender) and this raises OSError (one line)."""
+    tmp = run_files.saving_path(path)
+    try:
+        img.save(filepath=tmp)
+        if not _whole_image(tmp, tuple(img.size)):
+            _mark_unsaved(img)
+            raise OSError(f"{path}: could not be saved (is the disk full?) — free space, then Save Edits again")
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def _whole_image(path: str, size: tuple[int, int]) -> bool:
+    """Whether ``path`` holds a readable image of ``size``."""
+    if not os.path.isfile(path) or os.path.getsize(path) == 0:
+        return False
+    probe = bpy.data.images.load(path, check_existing=False)
+    try:
+        return tuple(probe.size) == size
+    finally:
+        bpy.data.images.remove(probe)
+
+
+def _mark_unsaved(img: Any) -> None:
+    """Give Blender's image its own pixels back, which marks it unsaved (so Save Edits and quitting still see it)."""
+    px = array.array("f", [0.0]) * (img.size[0] * img.size[1] * img.channels)
+    img.pixels.foreach_get(px)
+    img.pixels.foreach_set(px)
 
 
 def make_float_edit(layer: str, dst: str | None = None) -> str:
@@ -150,7 +185,7 @@ def make_float_edit(layer: str, dst: str | None = None) -> str:
         tmp.filepath_raw = dst
         compat.set_float_exr(tmp)
         os.makedirs(os.path.dirname(dst), exist_ok=True)
-        tmp.save()
+        save_atomically(tmp, dst)  # a half-written EXR would win over the PNG: all of it or nothing
     finally:
         bpy.data.images.remove(tmp)
     return dst

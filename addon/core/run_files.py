@@ -18,6 +18,8 @@ from contextlib import AbstractContextManager
 
 from ...engine import contract as C  # type: ignore[import-not-found]
 
+#: An edit layer being saved is written under a hidden name beside it first (``.Foreground.saving-1234.png``).
+SAVING_MARK = ".saving-"
 #: How the add-on's writers of a run folder's edit layers are named to another process that finds it locked.
 SAVE_EDITS_HOLDER = "Blender Save Edits"
 FLOAT_EDITS_HOLDER = "Blender Float Edit Layers"
@@ -76,3 +78,11 @@ def edits_lock(manifest_path: str, what: str) -> AbstractContextManager[None]:
     add-on writes into its ``edits/``: an export or project-frame running meanwhile is refused, and when one of
     them holds it this raises ``contract.RunLocked`` (one line naming it) before anything is written."""
     return C.run_lock(C.manifest_run_root(manifest_path), what)
+
+
+def saving_path(path: str) -> str:
+    """The hidden temporary name an edit layer is saved under before it is renamed onto ``path`` (same folder, so
+    the rename is atomic; same extension, so the format is kept)."""
+    folder, name = os.path.split(path)
+    stem, ext = os.path.splitext(name)
+    return os.path.join(folder, f".{stem}{SAVING_MARK}{os.getpid()}{ext}")

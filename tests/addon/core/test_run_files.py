@@ -2,7 +2,16 @@
 
 from __future__ import annotations
 
-from neural_atlas.addon.core.run_files import RunFiles, clear_numbered_pngs, fresh_dir, png_files
+import pytest
+from fake_export import make_export
+from neural_atlas.addon.core.run_files import (
+    SAVE_EDITS_HOLDER,
+    RunFiles,
+    clear_numbered_pngs,
+    edits_lock,
+    fresh_dir,
+    png_files,
+)
 
 from engine import contract as C
 
@@ -37,3 +46,36 @@ def test_clear_numbered_pngs_touches_only_those(tmp_path):
     assert png_files(str(tmp_path)) == [str(tmp_path / "notes.png")]
     assert png_files(str(tmp_path / "missing")) == []
     clear_numbered_pngs(str(tmp_path / "missing"))
+
+
+def test_the_addon_writes_edit_layers_only_under_the_run_folder_lock(tmp_path):
+    """``edits_lock`` is the run folder's lock of the export a manifest belongs to: while a real engine process
+    holds it (a fit), the add-on's Save Edits is refused with one line naming that process; once it is gone, the
+    add-on holds it and a preview into the export run meanwhile is refused naming Blender."""
+    import subprocess
+    import sys
+
+    from tests.engine.export.tiny_run import hold_lock
+    from tests.paths import ROOT
+
+    manifest = make_export(tmp_path)
+    run = tmp_path / "run"
+    holder = hold_lock(run)
+    try:
+        with pytest.raises(Exception) as refused, edits_lock(str(manifest), SAVE_EDITS_HOLDER):
+            pass
+        assert type(refused.value).__name__ == "RunLocked"
+        assert f"in use by fit (pid {holder.pid} on " in str(refused.value) and "\n" not in str(refused.value)
+    finally:
+        holder.kill()
+        holder.wait()
+    with edits_lock(str(manifest), SAVE_EDITS_HOLDER):
+        out = subprocess.run(
+            [sys.executable, "-m", "engine", "preview", str(manifest), "--no-movies"],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+    lines = [line for line in out.stderr.splitlines() if line.strip()]
+    assert out.returncode == C.EXIT_BAD_INPUT and len(lines) == 1 and "Blender Save Edits" in lines[0], out.stderr

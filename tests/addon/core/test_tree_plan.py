@@ -4,6 +4,7 @@ manifest paths."""
 from __future__ import annotations
 
 import json
+import os
 from collections import Counter
 from pathlib import Path
 
@@ -176,3 +177,74 @@ def test_manifest_whose_scene_disagrees_with_its_layers_is_refused(tmp_path):
     with pytest.raises(C.ManifestError, match="2 layers") as err:
         C.load_manifest(str(path))
     assert str(path) in str(err.value)
+
+
+# --- what a manifest may make the add-on write, and read ----------------------------------------------------------
+def _with_edit_layer(tmp_path: Path, edit_layer: str) -> Path:
+    path = make_export(tmp_path)
+    data = json.loads(path.read_text())
+    data["layers"][1]["edit_layer"] = edit_layer
+    path.write_text(json.dumps(data))
+    return path
+
+
+@pytest.mark.parametrize(
+    "edit_layer",
+    ["{tmp}/elsewhere/evil.png", "../../../elsewhere/evil.png", "../../checkpoint.pt", "../../exports/v000/x.png"],
+    ids=["absolute_outside", "climbs_out", "onto_the_checkpoint", "into_another_export"],
+)
+def test_a_manifest_cannot_make_the_addon_write_outside_the_edits(tmp_path, edit_layer):
+    """plan_tree refuses an edit layer outside the run folder's edits/ (and this export) in one line, naming the
+    path; the float edit layer's path (Float Edit Layers' target) is refused the same way; nothing is created.
+    (The add-on raises its own copy of the contract's ManifestError: the extension package's.)"""
+    path = _with_edit_layer(tmp_path, edit_layer.format(tmp=tmp_path))
+    manifest = C.load_manifest(str(path))
+    with pytest.raises(P.C.ManifestError) as err:
+        P.plan_tree(manifest, str(path))
+    message = str(err.value)
+    assert "\n" not in message and Path(edit_layer).name in message and message.startswith(str(path)), message
+    with pytest.raises(P.C.ManifestError):
+        P.float_edit_path(str(path), manifest["layers"][1])
+    assert not (tmp_path / "elsewhere").exists() and not (tmp_path / "run" / "exports" / "v000").exists()
+
+
+def test_a_float_edit_layer_linked_out_of_the_run_is_refused(tmp_path):
+    """<Layer>.exr beside the PNG is a symlink to a file outside the run: the plan (what Save Edits writes) refuses
+    it rather than write through the link."""
+    path = make_export(tmp_path)
+    outside = tmp_path / "elsewhere.exr"
+    outside.write_bytes(b"the artist's other file")
+    (tmp_path / "run" / "edits" / "Foreground.exr").symlink_to(outside)
+    with pytest.raises(P.C.ManifestError, match=r"Foreground\.exr"):
+        P.plan_tree(C.load_manifest(str(path)), str(path))
+    assert outside.read_bytes() == b"the artist's other file"
+
+
+def test_a_missing_plate_frame_is_one_line_naming_it(tmp_path):
+    path = make_export(tmp_path)
+    first = tmp_path / "plate" / f"{FRAMES[0]:05d}.png"
+    first.unlink()
+    with pytest.raises(P.PlanError) as err:
+        P.plan_tree(C.load_manifest(str(path)), str(path))
+    assert str(err.value).startswith(f"{first}: plate frame does not exist — ") and "\n" not in str(err.value)
+
+
+def test_relative_plate_paths_resolve_from_the_manifest_wherever_the_run_is(tmp_path):
+    """A manifest whose plate paths are relative (as export writes them) plans the same tree after the run folder
+    and its plate moved together."""
+    path = make_export(tmp_path / "a")
+    data = json.loads(path.read_text())
+    folder = path.parent
+    data["clip"]["source"] = os.path.relpath(data["clip"]["source"], folder)
+    data["clip"]["frame_files"] = [os.path.relpath(f, folder) for f in data["clip"]["frame_files"]]
+    for layer in data["layers"]:
+        layer["edit_layer"] = os.path.relpath(layer["edit_layer"], folder)
+    path.write_text(json.dumps(data))
+    before = P.plan_tree(C.load_manifest(str(path)), str(path))
+    (tmp_path / "a").rename(tmp_path / "b")
+    moved = tmp_path / "b" / path.relative_to(tmp_path / "a")
+    after = P.plan_tree(C.load_manifest(str(moved)), str(moved))
+    assert after.plate.filepath == before.plate.filepath.replace(str(tmp_path / "a"), str(tmp_path / "b"))
+    assert [i.filepath for i in after.images] == [
+        i.filepath.replace(str(tmp_path / "a"), str(tmp_path / "b")) for i in before.images
+    ]
