@@ -68,7 +68,9 @@ def frames_arg(first: int, last: int) -> str:
 
 def split_overrides(overrides: str) -> list[str]:
     """The artist's space-separated ``KEY=VALUE`` overrides, shell-quoted where a value holds spaces. An
-    unbalanced quote is a UserError (one line in the panel naming the field and the fix), not a traceback."""
+    unbalanced quote is refused as a UserError (one line in the panel naming the field and the fix), not a
+    traceback and not a guess: wherever the quote was meant to end, a guess could fit with other settings than
+    the artist typed, and a fit takes hours."""
     try:
         return shlex.split(overrides)
     except ValueError as exc:  # shlex: "No closing quotation" / "No escaped character"

@@ -655,3 +655,25 @@ def test_estimate_without_masks_gives_every_preset_a_row(scratch: Scratch):
     assert two.returncode == 0, two.stderr
     paper = json.loads(two.stdout.strip().splitlines()[-1])["presets"][0]
     assert "2 --mask folders" in paper["unavailable"]
+
+
+@pytest.mark.slow
+def test_estimate_of_a_clip_whose_folder_name_is_not_utf8(scratch: Scratch, tmp_path: Path):
+    """A plate in a folder named in Latin-1, on a strict UTF-8 stdout: the table's first line and the JSON's
+    ``clip`` show the odd byte as ``\\xe9``; nothing raises."""
+    odd = Path(os.fsdecode(os.path.join(os.fsencode(tmp_path), b"plate_\xe9")))
+    try:
+        shutil.copytree(scratch.places.frames, odd)
+    except (OSError, UnicodeError) as exc:
+        pytest.skip(f"this file system takes only UTF-8 names ({exc})")
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "PYTHONIOENCODING": "utf-8"}
+    for extra in ([], ["--json"]):
+        argv = [C.VERB_ESTIMATE, str(odd), "--presets", "draft", *extra, *CAPS[C.VERB_ESTIMATE]]
+        proc = subprocess.run(
+            [sys.executable, "-m", "engine", *argv], cwd=scratch.folder, env=env, capture_output=True,
+            timeout=RUN_TIMEOUT_S,
+        )  # fmt: skip
+        assert proc.returncode == 0, proc.stderr.decode("utf-8", "replace")[-2000:]
+        out = proc.stdout.decode("utf-8")
+        clip = json.loads(out.splitlines()[-1])["clip"] if extra else out.splitlines()[0].split(":")[0]
+        assert clip.endswith("plate_\\xe9"), out
