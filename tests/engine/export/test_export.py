@@ -24,6 +24,7 @@ from engine import contract as C
 from engine.edit.equations import load_edit, sample_texture
 from engine.edit.project_frame import project_frame
 from engine.edit.render import render_frames, render_manifest
+from engine.errors import DiskFullError
 from engine.export.exporter import BOX_ALPHA, export_run
 from engine.export.manifest import Manifest
 from engine.io.colour import srgb_to_linear
@@ -363,7 +364,7 @@ def test_killed_export_leaves_nothing_behind(exported, monkeypatch):
     before = sorted(p.name for p in (run / "exports").iterdir())
     edits = _hash_tree(run / "edits")
     _fill_disk_after(monkeypatch, 3)
-    with pytest.raises(OSError):
+    with pytest.raises(DiskFullError):  # the writer's ENOSPC, as the one-line error export_run raises for it
         export_run(run, atlas_size=64, progress_bar=False)
     assert sorted(p.name for p in (run / "exports").iterdir()) == before
     assert _hash_tree(run / "edits") == edits
