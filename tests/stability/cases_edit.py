@@ -115,6 +115,13 @@ def _missing_pass(d: Path) -> list[str]:
     return [str(manifest), "--out", str(d / "edited"), "--no-bar"]
 
 
+def _plate_gone(d: Path) -> list[str]:
+    """The plate was moved away after the export (the manifest's relative path finds nothing)."""
+    manifest = _export(d)
+    (d / "clip").rename(d / "clip_moved")
+    return [str(manifest), "--out", str(d / "edited"), "--no-bar"]
+
+
 def _manifest_changed(
     change: Callable[[dict[str, Any]], None], verb_args: Callable[[Path, Path], list[str]] | None = None
 ) -> Callable[[Path], list[str]]:
@@ -189,8 +196,8 @@ def _elsewhere(d: Path) -> Path:
 
 CASES: tuple[Case, ...] = (
     Case("render_out_is_the_plate_folder", "render --out the plate's folder (frames named edit.00000.exr ...)",
-         _render(_plate_folder, _plate_named_like_the_render), ("plate", "folder of the plate's frames", "another --out"),
-         verb=C.VERB_RENDER, watch=_plate_folder),
+         _render(_plate_folder, _plate_named_like_the_render),
+         ("plate", "folder of the plate's frames", "another --out"), verb=C.VERB_RENDER, watch=_plate_folder),
     Case("render_out_is_the_run_folder", "render --out RUN_DIR", _render(_run), ("run", "inside the run folder"),
          verb=C.VERB_RENDER, watch=_run),
     Case("render_out_inside_an_export", "render --out RUN_DIR/exports/v001/passes",
@@ -204,13 +211,15 @@ CASES: tuple[Case, ...] = (
          "plate.mp4", _movie_plate), ("plate.mp4", "is the plate movie"), verb=C.VERB_RENDER,
          watch=lambda d: d / "footage"),
     Case("render_movie_in_the_plate_folder", "render --movie a file among the plate's frames",
-         _render_movie(lambda d: d / "clip" / "edited.mp4"), ("clip", "folder of the plate's frames"), verb=C.VERB_RENDER,
-         watch=_clip),
+         _render_movie(lambda d: d / "clip" / "edited.mp4"), ("clip", "folder of the plate's frames"),
+         verb=C.VERB_RENDER, watch=_clip),
     Case("render_movie_not_writable", "render --movie below a regular file",
          _render_movie(lambda d: _a_file(d) / "edited.mp4"), ("edited.mp4", "cannot write the movie here"),
          verb=C.VERB_RENDER, watch=lambda d: d / "edited"),
     Case("render_missing_pass_file", "a pass file of the export is gone", _missing_pass,
          ("atlas.00001.exr", "does not exist", "export the run again"), verb=C.VERB_RENDER),
+    Case("render_plate_moved_away", "the plate is no longer where the manifest says", _plate_gone,
+         ("clip", "plate folder does not exist", "put the plate back"), verb=C.VERB_RENDER),
     Case("render_manifest_frames_not_ints", "manifest passes.frames are strings",
          _manifest_changed(lambda m: m["passes"].update(frames=["0", "1"])), ("'frames'", "int list"),
          verb=C.VERB_RENDER),
