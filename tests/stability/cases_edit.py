@@ -178,6 +178,11 @@ def _a_file(d: Path) -> Path:
     return d / "a_file"
 
 
+def _everything(d: Path) -> Path:
+    """The case's whole folder: plate, run folder and where the refused output would have gone."""
+    return d
+
+
 def _clip(d: Path) -> Path:
     return d / "clip"
 
@@ -206,7 +211,7 @@ CASES: tuple[Case, ...] = (
     Case("render_out_is_a_mask_folder", "render --out one of the fit's mask folders", _render(lambda d: d / "masks",
          _with_masks), ("masks", "mask folder"), verb=C.VERB_RENDER, watch=lambda d: d / "masks"),
     Case("render_out_is_a_file", "render --out a regular file", _render(_a_file), ("a_file", "is a file"),
-         verb=C.VERB_RENDER),
+         verb=C.VERB_RENDER, watch=_everything),
     Case("render_movie_is_the_plate_movie", "render --movie the plate movie", _render_movie(lambda d: d / "footage" /
          "plate.mp4", _movie_plate), ("plate.mp4", "is the plate movie"), verb=C.VERB_RENDER,
          watch=lambda d: d / "footage"),
@@ -217,21 +222,21 @@ CASES: tuple[Case, ...] = (
          _render_movie(lambda d: _a_file(d) / "edited.mp4"), ("edited.mp4", "cannot write the movie here"),
          verb=C.VERB_RENDER, watch=lambda d: d / "edited"),
     Case("render_missing_pass_file", "a pass file of the export is gone", _missing_pass,
-         ("atlas.00001.exr", "does not exist", "export the run again"), verb=C.VERB_RENDER),
+         ("atlas.00001.exr", "does not exist", "export the run again"), verb=C.VERB_RENDER, watch=_everything),
     Case("render_plate_moved_away", "the plate is no longer where the manifest says", _plate_gone,
-         ("clip", "plate folder does not exist", "put the plate back"), verb=C.VERB_RENDER),
+         ("clip", "plate folder does not exist", "put the plate back"), verb=C.VERB_RENDER, watch=_everything),
     Case("render_manifest_frames_not_ints", "manifest passes.frames are strings",
          _manifest_changed(lambda m: m["passes"].update(frames=["0", "1"])), ("'frames'", "int list"),
-         verb=C.VERB_RENDER),
+         verb=C.VERB_RENDER, watch=_everything),
     Case("render_manifest_unknown_frames", "manifest passes.frames names frames the clip does not have",
          _manifest_changed(lambda m: m["passes"].update(frames=[0, 1, 7])), ("[7]", "not distinct frames of the clip"),
-         verb=C.VERB_RENDER),
+         verb=C.VERB_RENDER, watch=_everything),
     Case("render_manifest_bad_resolution", "manifest clip.resolution is not two positive ints",
          _manifest_changed(lambda m: m["clip"].update(resolution=[W, -H])), ("resolution", "two sides"),
-         verb=C.VERB_RENDER),
+         verb=C.VERB_RENDER, watch=_everything),
     Case("render_manifest_duplicate_layer_names", "two layers with one name",
          _manifest_changed(lambda m: m["layers"].append({**m["layers"][0], "index": 1, "role": "foreground"})),
-         ("layer names", "not unique"), verb=C.VERB_RENDER),
+         ("layer names", "not unique"), verb=C.VERB_RENDER, watch=_everything),
     Case("project_frame_unknown_layer", "project-frame --layer Nope", _project("--layer", "Nope"),
          ("no layer called 'Nope'", "Background"), verb=C.VERB_PROJECT_FRAME, watch=_run),
     Case("project_frame_absolute_edit_path", "a manifest whose edit layer is an absolute path outside the run",
@@ -246,7 +251,7 @@ CASES: tuple[Case, ...] = (
     Case("project_frame_history_linked_out", "edits/history is a link out of the run folder", _history_linked_out,
          ("history", "leaves the run folder"), verb=C.VERB_PROJECT_FRAME, watch=_elsewhere),
     Case("preview_out_is_a_file", "preview --out a regular file", _preview(_a_file), ("a_file", "is a file"),
-         verb=C.VERB_PREVIEW),
+         verb=C.VERB_PREVIEW, watch=_everything),
     Case("preview_out_is_the_plate_folder", "preview --out the plate's folder", _preview(_clip),
          ("clip", "folder of the plate's frames"), verb=C.VERB_PREVIEW, watch=_clip),
     Case("preview_out_inside_the_run", "preview --out RUN_DIR/edits", _preview(lambda d: d / "run" / C.EDITS_DIR),
