@@ -12,17 +12,19 @@ in ``b``.
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import logging
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol, runtime_checkable
+from typing import BinaryIO, Protocol, runtime_checkable
 
 import cv2
 import numpy as np
 
-from engine.errors import InputError
+from engine.errors import DiskFullError, InputError
 from engine.io.atomic import atomic_write
 
 log = logging.getLogger(__name__)
@@ -235,28 +237,54 @@ def _load_cache(path: Path, t: int, h: int, w: int, backend: str, threshold_px: 
     return field
 
 
+#: Bytes of an npz file beyond its arrays' data, per array (zip headers, zip64 extras, the .npy header): the cache
+#: file's space is reserved with this margin before it is written.
+NPZ_OVERHEAD_PER_ARRAY = 4096
+#: fallocate errors that mean "this file system cannot reserve space", not "the disk is full".
+_NO_FALLOCATE = frozenset({errno.EOPNOTSUPP, errno.EINVAL, errno.ENOSYS})
+
+
+def _reserve(f: BinaryIO, size: int) -> None:
+    """Reserve ``size`` bytes for ``f`` where the OS can (``posix_fallocate``), so a disk without room fails here
+    with ENOSPC, before a zip file is half-written (a zip writer that fails half-way cannot close cleanly)."""
+    fallocate = getattr(os, "posix_fallocate", None)
+    if fallocate is None:
+        return
+    try:
+        fallocate(f.fileno(), 0, size)
+    except OSError as exc:
+        if exc.errno not in _NO_FALLOCATE:
+            raise
+
+
 def _save_cache(path: Path, field: FlowField) -> None:
     """Atomic write (``io.atomic``: a temp file in the same folder, then a rename): a kill, a cancel or a full disk
     never leaves a half file under the cache's name, and the temp file is removed whatever stopped the write.
-    The cache is only an optimisation, so a write that fails (a full disk included) is logged, not raised; a
-    cancel (KeyboardInterrupt) still stops the command."""
+    The cache is only an optimisation: a disk without room for it skips it (logged at INFO: the fit goes on, and
+    a disk too full for the fit's own files says so in one line then), any other failure is logged as a warning;
+    a cancel (KeyboardInterrupt) still stops the command."""
+    arrays = {
+        "forward": field.forward,
+        "backward": field.backward,
+        "forward_ok": field.forward_ok,
+        "backward_ok": field.backward_ok,
+        "backend": np.array(field.backend),
+        "threshold_px": np.array(field.threshold_px, dtype=np.float64),
+        "version": np.array(FLOW_CACHE_VERSION),
+    }
+    need = sum(a.nbytes for a in arrays.values()) + NPZ_OVERHEAD_PER_ARRAY * len(arrays)
 
     def write(tmp: str) -> None:
         with open(tmp, "wb") as f:
-            np.savez(
-                f,
-                forward=field.forward,
-                backward=field.backward,
-                forward_ok=field.forward_ok,
-                backward_ok=field.backward_ok,
-                backend=np.array(field.backend),
-                threshold_px=np.array(field.threshold_px, dtype=np.float64),
-                version=np.array(FLOW_CACHE_VERSION),
-            )
+            _reserve(f, need)
+            np.savez(f, **arrays)
+            f.truncate()  # to what was written: the reservation's margin is not part of the file
 
     try:
-        atomic_write(path, write)
-    except (OSError, InputError) as exc:  # DiskFullError is an InputError
+        atomic_write(path, write, need=need)
+    except DiskFullError as exc:
+        log.info("no room for the flow cache %s (%s); continuing without it", path, exc)
+    except (OSError, InputError) as exc:
         log.warning("could not write flow cache %s (%s); continuing without it", path, exc)
 
 

@@ -4,7 +4,9 @@ A fit writes ``config.json`` (the config), ``clip.json`` (what was fitted: ``Cli
 scene analysis), ``checkpoint.pt``, ``metrics.json`` and ``fit.log`` into RUN_DIR; ``fit --resume``, ``export``,
 the demo and the bench read them back through ``RunFolder``. Every JSON file is checked against its versioned
 schema in the contract (``contract.validate_run_file``) when it is read and before it is written; a file that
-does not follow it is a one-line ``InputError`` naming the file and the fix.
+does not follow it is a one-line ``InputError`` naming the file and the fix. Every file is written atomically
+(temp file + rename); the checkpoint is checked against the clip record and the config it was saved with.
+A writer holds the folder's lock (``RunFolder.lock``) for its whole write.
 """
 
 from __future__ import annotations
@@ -118,10 +120,6 @@ class RunFolder:
         holds none: a plain ``fit`` may start it over."""
         held = [p.name for p in (self.checkpoint, self.metrics) if p.exists()]
         return held + [f"{p.name}/" for p in (self.edits, self.exports) if _has_entries(p)]
-
-    def holds_fit(self) -> bool:
-        """A fit (or what the artist made of one) is here: ``fit`` into it needs --resume or --refit."""
-        return bool(self.fit_contents())
 
     def refuse_plain_fit(self) -> None:
         """One line when this folder holds a fit (``fit_contents``): it names what, and the ways out."""

@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import os
+import shlex
 import signal
 import sys
 import time
@@ -350,7 +351,7 @@ def diverged_message(error: NonFinite, cfg: FitConfig, run: RunFolder, checkpoin
     return (
         f"{run.path}: the fit diverged at {error} — likely cause: {cause}; the checkpoint keeps step "
         f"{checkpoint_step}, the last good one: continue from it with a lower rate: "
-        f"python -m engine fit --resume --out {run.path} {sets}"
+        f"python -m engine fit --resume --out {shlex.quote(str(run.path))} {sets}"
     )
 
 
