@@ -70,8 +70,10 @@ def _cancellable() -> Iterator[None]:
 
 def _print_paths(paths: Iterable[Path]) -> int:
     """A verb's last lines: the files it wrote, one per line (what the add-on and scripts read)."""
+    from engine.io.images import display_path  # a name that is not UTF-8 would stop a strict stdout
+
     for path in paths:
-        print(str(path))
+        print(display_path(path))
     return C.EXIT_OK
 
 
@@ -298,8 +300,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
     path = export_run(
         args.run, atlas_size=args.atlas_size, frames=args.frames, device_name=args.device, progress_bar=not args.no_bar
     )
-    print(str(path))
-    return C.EXIT_OK
+    return _print_paths([path])
 
 
 def _cmd_render(args: argparse.Namespace) -> int:
@@ -314,8 +315,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
         movie=args.movie,
         progress_bar=not args.no_bar,
     )
-    print(str(Path(out).resolve()))
-    return C.EXIT_OK
+    return _print_paths([Path(out).resolve()])
 
 
 def _cmd_project_frame(args: argparse.Namespace) -> int:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import bpy
 from bpy.props import EnumProperty, StringProperty
 
+from ...engine import contract as C
 from .. import compositor, paint
 from .paint import NO_ATLAS
 from .scene_inputs import abspath
@@ -30,10 +31,12 @@ class NEURALATLAS_OT_render(bpy.types.Operator):
         if not props.manifest:
             self.report({"ERROR"}, NO_ATLAS)
             return {"CANCELLED"}
-        paint.save_edits()
         try:
+            # the paint is saved first, so the render is of what the artist sees; a run folder in use or a full
+            # disk stops the render with the one line that says so (the paint stays unsaved in Blender)
+            paint.save_edits()
             files = compositor.render(context.scene, out, fmt)
-        except RuntimeError as exc:
+        except (RuntimeError, ValueError, OSError, C.RunLocked) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         self.report({"INFO"}, f"rendered {len(files)} file(s) to {out}")

@@ -17,6 +17,7 @@ from engine import contract as C
 from engine.data.flow import FlowField
 from engine.errors import InputError
 from engine.io.clip import ClipInfo, same_aspect
+from engine.io.images import cv2_read
 
 #: No scribble at this pixel.
 NO_LABEL = -1
@@ -77,7 +78,7 @@ def read_scribbles(folder: str | Path, info: ClipInfo, size: tuple[int, int]) ->
         file = by_number.get(number)
         if file is None:
             continue
-        image = cv2.imread(file, cv2.IMREAD_UNCHANGED)
+        image = cv2_read(file)
         if image is None or image.ndim != 3 or image.dtype != np.uint8:
             raise InputError(file, "not an 8-bit RGB(A) image", "save scribbles as 8-bit RGB or RGBA PNG")
         image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGBA if image.shape[-1] == 4 else cv2.COLOR_BGR2RGB)

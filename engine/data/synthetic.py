@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from engine import contract as C
+from engine.io.images import cv2_write
 
 #: Bump when the textures or the file layout change: write_scene then rewrites existing demo folders.
 SYNTHETIC_VERSION = 1
@@ -335,19 +336,14 @@ def _already_written(folder: Path, meta: dict[str, Any], frames_dir: Path, masks
     return all((frames_dir / n).is_file() and (masks_dir / n).is_file() for n in names)
 
 
-def _imwrite(path: Path, img: np.ndarray) -> None:
-    if not cv2.imwrite(str(path), img):
-        raise OSError(f"could not write {path}")
-
-
 def write_pngs(frames: np.ndarray, frames_dir: Path, masks: dict[Path, np.ndarray]) -> None:
     """``frames`` [T, H, W, 3] as 8-bit sRGB ``frames_dir/00000.png ...``, and each folder's bool masks [T, H, W]
     as 0/255 PNGs with the same names (the folders must exist)."""
     rgb8 = np.clip(np.rint(frames * 255.0), 0, 255).astype(np.uint8)
     for t in range(frames.shape[0]):
-        _imwrite(frames_dir / f"{t:05d}.png", cv2.cvtColor(rgb8[t], cv2.COLOR_RGB2BGR))
+        cv2_write(frames_dir / f"{t:05d}.png", cv2.cvtColor(rgb8[t], cv2.COLOR_RGB2BGR))
         for folder, m in masks.items():
-            _imwrite(folder / f"{t:05d}.png", np.where(m[t], 255, 0).astype(np.uint8))
+            cv2_write(folder / f"{t:05d}.png", np.where(m[t], 255, 0).astype(np.uint8))
 
 
 def write_scene(scene: SyntheticScene, folder: Path) -> tuple[Path, Path]:

@@ -35,7 +35,7 @@ from engine.edit.render import (
 )
 from engine.export.manifest import DISK_ERRORS, Manifest, as_disk_full
 from engine.io.atomic import atomic_write
-from engine.io.images import read_image
+from engine.io.images import cv2_write, read_image
 
 #: The export's own preview folder (``preview`` beside the manifest), the default output.
 PREVIEW_DIR = "preview"
@@ -73,8 +73,7 @@ def write_png_u8(path: Path, rgb_u8: np.ndarray) -> Path:
     """An 8-bit RGB PNG, atomically (a full disk is one line and leaves no partial file)."""
 
     def write(tmp: str) -> None:
-        if not cv2.imwrite(tmp, cv2.cvtColor(rgb_u8, cv2.COLOR_RGB2BGR)):
-            raise OSError(f"could not write {path}")
+        cv2_write(tmp, cv2.cvtColor(rgb_u8, cv2.COLOR_RGB2BGR))
 
     return atomic_write(path, write)
 

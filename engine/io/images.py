@@ -19,6 +19,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import cv2
 import numpy as np
 import OpenEXR
 import OpenImageIO as oiio
@@ -51,6 +52,22 @@ def native_path(path: str | os.PathLike[str]) -> str | bytes:
 def display_path(path: str | os.PathLike[str]) -> str:
     """``path`` as text any terminal, log or JSON file takes: bytes that are not UTF-8 shown as ``\\xNN``."""
     return os.fsencode(os.fspath(path)).decode("utf-8", "backslashreplace")
+
+
+def cv2_write(path: str | os.PathLike[str], image: np.ndarray) -> None:
+    """Write ``image`` (OpenCV's BGR order) in the format of ``path``'s suffix. Encoded in memory and written by
+    Python: OpenCV's own file functions take a path only as UTF-8 text and crash on any other name."""
+    ok, encoded = cv2.imencode(Path(path).suffix or ".png", image)
+    if not ok:
+        raise OSError(f"could not encode {display_path(path)}")
+    with open(path, "wb") as f:
+        f.write(encoded.tobytes())
+
+
+def cv2_read(path: str | os.PathLike[str], flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarray | None:
+    """An image as OpenCV decodes it (BGR order), read by Python (any path); None when it cannot be decoded."""
+    data = np.fromfile(path, np.uint8)
+    return cv2.imdecode(data, flags) if data.size else None
 
 
 def open_image_input(path: str | os.PathLike[str], config: oiio.ImageSpec | None = None) -> oiio.ImageInput | None:

@@ -411,11 +411,7 @@ def _verbs_exist(cmd: Documented) -> str | None:
 
 #: Documented commands that are wrong in pages this test's owners do not edit, with the exact fix; each must
 #: still be wrong (so the entry goes once the page is fixed).
-KNOWN_WRONG: dict[str, str] = {
-    "architecture.md:139": "`python -m engine.bench expected-psnr PRESET RUN_DIR --clip NAME --note TEXT`: both "
-    "options are required",
-    "auto-masks.md:28": "`[--preset draft|balanced|final|paper]` instead of `[--preset ...]` (--preset takes a name)",
-}
+KNOWN_WRONG: dict[str, str] = {}
 
 
 ALL = documented_commands()
