@@ -173,8 +173,10 @@ class FitConfig:
 
     @classmethod
     def from_json(cls, text: str, path: str | Path | None = None) -> FitConfig:
-        """A config as ``to_json`` wrote it; anything else (not JSON, not an object, another schema, a field
-        missing, of the wrong type or out of its range) is a one-line ``InputError`` naming ``path``."""
+        """A config as ``to_json`` wrote it; anything else (not JSON, not an object, another schema, an unknown
+        field, a field of the wrong type or out of its range) is a one-line ``InputError`` naming ``path``. A field
+        missing takes its default (a config.json of an earlier engine holds no later field); a run's checkpoint
+        records the config it was fitted with, so a default that differs from it is refused when the run loads."""
         try:
             data = json.loads(text)
         except json.JSONDecodeError:
@@ -190,9 +192,6 @@ class FitConfig:
         values = data.get("config")
         if not isinstance(values, dict):
             raise InputError(path, "config has no 'config' object", CONFIG_FILE_FIX)
-        missing = [name for name in _field_doc_names() if name not in values]
-        if missing:
-            raise InputError(path, f"config has no {missing[0]!r}", CONFIG_FILE_FIX)
         return apply_overrides(cls(), values, source=path)
 
 

@@ -225,3 +225,13 @@ def test_an_incomplete_checkpoint_is_one_line(run, edit, needle):
     torch.save(state, path)
     line = _refused(run, "--resume", "--out", str(run), needles=("checkpoint.pt", needle, "--refit"))
     assert "Traceback" not in line
+
+
+def test_a_field_missing_from_config_json_is_refused_when_its_default_is_not_what_was_fitted(run):
+    """config.json without ``w_mask_prior`` reads with the default (0), but the fit used the draft preset's 20: the
+    checkpoint's own config says so, and the resume is one line instead of a fit with another objective."""
+    path = run / C.RUN_CONFIG
+    data = json.loads(path.read_text())
+    del data["config"]["w_mask_prior"]
+    path.write_text(json.dumps(data))
+    _refused(run, "--resume", "--out", str(run), needles=("another config", "w_mask_prior 20.0, not 0.0"))
