@@ -649,6 +649,8 @@ def fit(
     find_masks = auto_masks and not resume
     if find_masks and mask_dirs:
         raise InputError(None, f"{C.FIT_AUTO_MASKS_FLAG} and --mask both given", "pass one of them")
+    if cfg.model == "paper" and not resume:
+        _check_paper_layers(mask_dirs, find_masks, scribble_dir)
     run.check_writable()
     device = select_device(device_name)
     reporter = Reporter(stream=stream)
@@ -695,6 +697,24 @@ def fit(
         elif cfg != saved:
             run.write_config(cfg)  # the resume's new schedule, before its next checkpoint
         return _fit_locked(run, trainer, reporter, progress_bar)
+
+
+def _check_paper_layers(mask_dirs: list[str | Path], auto_masks: bool, scribble_dir: str | Path | None) -> None:
+    """The paper's architecture has one background and one foreground layer: exactly one --mask (masks found by
+    motion may be none, and scribbles split the object into several), checked before anything is read."""
+    given = None
+    if auto_masks:
+        given = f"{C.FIT_AUTO_MASKS_FLAG} was given"
+    elif scribble_dir is not None:
+        given = f"{C.SCRIBBLE_ARG} split the object into layers"
+    elif len(mask_dirs) != 1:
+        given = f"{len(mask_dirs)} --mask folders were given"
+    if given is not None:
+        raise InputError(
+            None,
+            f"the paper model fits one background and one foreground layer, but {given}",
+            "pass exactly one --mask, or use a fast preset (draft, balanced or final)",
+        )
 
 
 class _WriteLock:

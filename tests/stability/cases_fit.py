@@ -123,6 +123,11 @@ def _all_nan_clip(d: Path) -> list[str]:
     return _fit_args(frames, None, d)
 
 
+def _paper_without_mask(d: Path) -> list[str]:
+    frames, _ = _clip(d)
+    return [str(frames), "--out", str(d / "run"), *TINY_FIT, "--preset", "paper"]
+
+
 def _no_out(d: Path) -> list[str]:
     frames, masks = _clip(d)
     return [str(frames), "--mask", str(masks), *TINY_FIT]
@@ -138,6 +143,12 @@ CASES: tuple[Case, ...] = (
     Case("set_unknown_components", "--set components=some", _set("components=some"), ("some", "auto, all")),
     Case("set_nan_learning_rate", "--set lr=nan", _set("lr=nan"), ("lr=nan", "finite")),
     Case("no_run_folder", "fit without --out", _no_out, ("no run folder", "--out"), watch=lambda d: d / "run"),
+    Case(
+        "paper_model_without_one_mask",
+        "--preset paper with no --mask",
+        _paper_without_mask,
+        ("paper model", "0 --mask folders", "exactly one --mask"),
+    ),
     Case("all_nan_clip", "float EXR frames holding only NaN", _all_nan_clip, ("nan_exr", "NaN or Inf", "re-export")),
     Case(
         "refit_with_resume",
