@@ -427,7 +427,7 @@ def _cancelled_line(args: argparse.Namespace, exc: KeyboardInterrupt) -> str:
     """The one line printed when a verb is stopped by SIGINT/SIGTERM outside the training loop."""
     how = str(exc) or "SIGINT"
     line = f"cancelled: {args.verb} stopped by {how} before it finished; nothing half-written was kept"
-    if args.verb == C.VERB_FIT:
+    if args.verb == C.VERB_FIT and args.out is not None:
         from engine.fit.run_folder import RunFolder
 
         run = RunFolder(args.out)

@@ -197,8 +197,8 @@ class EstimateJob(Job):
     def __init__(self, python: str, run_dir: str, clip: EC.ClipInputs, sets: list[str]):
         argv = EC.estimate_argv(python, clip, sets)
         super().__init__([Command("estimate", argv)], RunFiles(run_dir).estimate_log, EC.engine_env())
-        #: preset -> {"seconds", "psnr"}: the engine's estimate
-        self.rows: dict[str, dict[str, float | None]] = {}
+        #: preset -> {"seconds", "psnr", "unavailable"}: the engine's estimate
+        self.rows: estimate.EngineRows = {}
 
     def finish(self, result: EP.JobResult) -> EP.JobResult:
         self.rows = estimate.parse_engine_estimate(progress.read_log(self.log_path), C.ESTIMATE_TAG)

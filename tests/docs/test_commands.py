@@ -566,14 +566,6 @@ def expected_refusal(argv: list[str]) -> str | None:
     return None
 
 
-#: Documented variants the engine does not yet answer as it should, with what it does instead. Strict: once the
-#: engine answers correctly the mark must go.
-ENGINE_GAPS: dict[str, str] = {
-    "fit --preset paper": "engine/fit/trainer.py: `fit PLATE --preset paper` without exactly one --mask raises "
-    "ValueError from the paper model (a traceback, exit 1) instead of a one-line InputError (exit 2)",
-}
-
-
 def _runnable() -> list[Any]:
     out = []
     for cmd in ALL:
@@ -582,10 +574,7 @@ def _runnable() -> list[Any]:
         for n, variant in enumerate(variants(cmd)):
             if parse_only_reason(cmd, variant) is not None:
                 continue
-            marks = []
-            if variant[:1] == [C.VERB_FIT] and expected_refusal(substitute(variant, Places())[0]) == "paper":
-                marks.append(pytest.mark.xfail(strict=True, reason=ENGINE_GAPS["fit --preset paper"]))
-            out.append(pytest.param(f"{cmd.where}#{n}", cmd, variant, id=f"{cmd.where}#{n}", marks=marks))
+            out.append(pytest.param(f"{cmd.where}#{n}", cmd, variant, id=f"{cmd.where}#{n}"))
     return out
 
 
