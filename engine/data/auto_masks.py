@@ -24,16 +24,13 @@ files are never replaced: an artist may have fixed them.
 
 from __future__ import annotations
 
-import contextlib
 import errno
 import os
 import shutil
-import signal
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
@@ -41,7 +38,7 @@ import numpy as np
 from engine import contract as C
 from engine.data.flow import DISFlow, FlowField, compute_flow
 from engine.errors import InputError
-from engine.io.atomic import disk_full_as_one_line, disk_full_error
+from engine.io.atomic import disk_full_as_one_line, disk_full_error, signals_held
 from engine.io.clip import ClipInfo, open_clip, read_frames, read_masks, working_size
 from engine.io.colour import linear_to_srgb
 
@@ -491,8 +488,6 @@ def mask_folder(info: ClipInfo, out: str | Path) -> tuple[Path, list[str]]:
 STAGING_SUFFIX = ".partial"
 #: 0/255 mask values.
 MASK_ON = 255
-#: Signals that cancel a verb; while a set is published they are held back until it is complete.
-CANCEL_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 def _encode_mask(mask: np.ndarray, name: str) -> bytes:
@@ -515,34 +510,6 @@ def _umask() -> int:
     mask = os.umask(0o022)
     os.umask(mask)
     return mask
-
-
-@contextlib.contextmanager
-def _cancels_deferred() -> Iterator[None]:
-    """SIGINT/SIGTERM arriving inside the block take effect right after it (their handlers run then).
-
-    Publishing a set is a few renames; a cancel in the middle would leave part of the set under the
-    destination. Python runs a signal's handler in the main thread whichever thread received it, so the handlers
-    are swapped for a recorder (blocking the signal in one thread would not hold it back). Outside the main
-    thread handlers cannot be swapped, and the block runs as it is.
-    """
-    caught: list[int] = []
-
-    def record(signum: int, _frame: Any) -> None:
-        caught.append(signum)
-
-    try:
-        previous = {sig: signal.signal(sig, record) for sig in CANCEL_SIGNALS}
-    except ValueError:  # not the main thread
-        yield
-        return
-    try:
-        yield
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-        for sig in dict.fromkeys(caught):
-            signal.raise_signal(sig)
 
 
 def _already_holds(folder: Path, clash: list[str]) -> InputError:
@@ -574,7 +541,7 @@ def _publish(staging: Path, folder: Path, names: list[str]) -> None:
     other files gets the set file by file, each linked under a name no file holds; a name taken meanwhile undoes
     the links made and is a one-line refusal. Cancels wait until the set is complete.
     """
-    with _cancels_deferred():
+    with signals_held():
         try:
             os.rename(staging, folder)
             return

@@ -5,18 +5,15 @@ The schema itself lives in ``engine.contract``; this module only resolves paths 
 resolved relative to the manifest first (``contract.resolve_manifest_path``), so a run folder moved or mounted
 elsewhere keeps working; every path written through (edit layers, their history, previews) must stay inside the
 run folder (``contract.resolve_manifest_write_path``): a manifest cannot make the engine write anywhere else.
-``signals_held`` and ``move_into_place`` publish a finished export, render or edit: all of it or none.
+``move_into_place`` (with ``engine.io.atomic.signals_held``) publishes a finished export, render or edit: all of
+it or none.
 """
 
 from __future__ import annotations
 
-import contextlib
 import errno
 import os
 import shutil
-import signal
-import threading
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,8 +25,6 @@ from engine.errors import DiskFullError, InputError
 from engine.io.atomic import atomic_write, disk_full_error
 from engine.io.images import read_exr
 
-#: The signals a publishing step (the renames that put a finished export, render or edit in place) lets finish first.
-HELD_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 #: What a write that ran out of disk raises: the OS's error, a library's RuntimeError (OpenEXR, torch), or the
 #: one-line DiskFullError an atomic write already made of it.
 DISK_ERRORS = (OSError, RuntimeError, DiskFullError)
@@ -181,29 +176,6 @@ class Manifest:
         return out
 
 
-@contextlib.contextmanager
-def signals_held() -> Iterator[None]:
-    """SIGINT and SIGTERM that arrive inside the block take effect right after it, so the renames that publish a
-    finished export, render or edit happen all or none. Python-level (the handlers are swapped, not the OS mask), so
-    it holds whichever of the process's threads the OS delivers the signal to."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    caught: list[int] = []
-
-    def hold(signum: int, _frame: Any) -> None:
-        caught.append(signum)
-
-    old = {signum: signal.signal(signum, hold) for signum in HELD_SIGNALS}
-    try:
-        yield
-    finally:
-        for signum, handler in old.items():
-            signal.signal(signum, handler)
-        for pending in dict.fromkeys(caught):
-            signal.raise_signal(pending)
-
-
 def as_disk_full(exc: BaseException, folder: Path, need: int | None = None) -> DiskFullError | None:
     """``exc``, raised while writing an output whose partial files are removed by now, as the one-line "disk full:
     free N MB at ``folder``", where ``need`` is what the whole output takes (so N is what to free); None when it
@@ -237,5 +209,4 @@ __all__ = [
     "Manifest",
     "as_disk_full",
     "move_into_place",
-    "signals_held",
 ]

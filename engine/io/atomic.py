@@ -11,9 +11,12 @@ import contextlib
 import errno
 import os
 import shutil
+import signal
 import tempfile
+import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 from engine.errors import DiskFullError
 
@@ -105,6 +108,34 @@ def atomic_write(path: Path, write: Callable[[str], None], fsync: bool = True, n
     return path
 
 
+#: The signals that cancel a verb (``engine.cli``), held back while a finished set of files is published.
+HELD_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+@contextlib.contextmanager
+def signals_held() -> Iterator[None]:
+    """SIGINT and SIGTERM that arrive inside the block take effect right after it, so the renames that publish a
+    finished export, render, mask set or edit happen all or none. Python-level (the handlers are swapped for a
+    recorder, not the OS mask): Python runs a handler in the main thread whichever thread the OS delivers the
+    signal to. Outside the main thread handlers cannot be swapped, and the block runs as it is."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+
+    def hold(signum: int, _frame: Any) -> None:
+        caught.append(signum)
+
+    old = {signum: signal.signal(signum, hold) for signum in HELD_SIGNALS}
+    try:
+        yield
+    finally:
+        for signum, handler in old.items():
+            signal.signal(signum, handler)
+        for pending in dict.fromkeys(caught):
+            signal.raise_signal(pending)
+
+
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     def write(tmp: str) -> None:
         with open(tmp, "wb") as f:
@@ -125,4 +156,5 @@ __all__ = [
     "disk_full_as_one_line",
     "disk_full_error",
     "free_bytes",
+    "signals_held",
 ]

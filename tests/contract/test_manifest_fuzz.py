@@ -29,18 +29,10 @@ from engine.edit.render import load_edits, render_frames
 from engine.errors import InputError
 from engine.export.manifest import Manifest
 from tests.engine.export.tiny_run import export, make_run
+from tests.folders import JSON_VALUES
 from tests.paths import ROOT
 
-#: A JSON value of any shape.
-JSON = st.recursive(
-    st.none()
-    | st.booleans()
-    | st.integers(min_value=-(2**70), max_value=2**70)
-    | st.floats(allow_nan=True, allow_infinity=True)
-    | st.text(max_size=12),
-    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=12), inner, max_size=4),
-    max_leaves=12,
-)
+JSON = JSON_VALUES
 #: Values a reader meets in a manifest, so mutations get past the type checks and reach the code behind them.
 PLAUSIBLE = st.one_of(
     st.integers(min_value=-3, max_value=70000),

@@ -12,7 +12,6 @@ checks it stays in sync):
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import importlib
 import io
 import json
@@ -28,6 +27,7 @@ import numpy as np
 from engine import cli
 from engine import contract as C
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
+from tests.folders import tree_digest
 from tests.media_files import write_audio_only_movie, write_image
 from tests.stability.fitcheck import write_masks, write_sequence
 
@@ -233,18 +233,6 @@ def all_cases() -> tuple[Case, ...]:
     return tuple(cases)
 
 
-def _snapshot(folder: Path) -> dict[str, str]:
-    """Hash of every file under ``folder`` (the run folder must be byte-identical after a refusal; the run
-    folder's lock file is the OS's bookkeeping, not the artist's work)."""
-    if not folder.exists():
-        return {}
-    return {
-        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-        for p in sorted(folder.rglob("*"))
-        if p.is_file() and p.name != C.RUN_LOCK
-    }
-
-
 @dataclass
 class Outcome:
     code: int
@@ -263,11 +251,11 @@ def run_case(case: Case, folder: Path) -> Outcome:
     folder.mkdir(parents=True, exist_ok=True)
     argv = [case.verb, *case.build(folder)]
     run = case.watch(folder) if case.watch is not None else Path(argv[argv.index("--out") + 1])
-    existed, before = run.exists(), _snapshot(run)
+    existed, before = run.exists(), tree_digest(run)
     err = io.StringIO()
     with _native_stderr() as native, contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
         code = cli.main(argv)
-    return Outcome(code, err.getvalue() + native[0], existed, before, _snapshot(run), run.exists())
+    return Outcome(code, err.getvalue() + native[0], existed, before, tree_digest(run), run.exists())
 
 
 @contextlib.contextmanager

@@ -16,7 +16,6 @@ command; docs/robustness.md gives the figures of a larger run.
 
 from __future__ import annotations
 
-import hashlib
 import os
 import random
 import shutil
@@ -35,6 +34,7 @@ from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.export.manifest import Manifest
 from engine.fit.run_folder import RunFolder
 from engine.io.images import read_exr, read_image, write_png
+from tests.folders import tree_digest
 from tests.paths import ROOT
 
 SPEC = SceneSpec(width=48, height=32, frames=4, fg_size=(16, 12), fg_start=(10.0, 8.0))
@@ -56,17 +56,6 @@ PAINT_BOX = (slice(8, 20), slice(12, 28))
 
 def _sets(extra: list[str] | None = None) -> list[str]:
     return [a for s in [*FIT_SETS, *(extra or [])] for a in ("--set", s)]
-
-
-def _tree(folder: Path) -> dict[str, str]:
-    """SHA-256 of every file below ``folder`` (the lock file is the OS's bookkeeping, not the artist's work)."""
-    if not folder.exists():
-        return {}
-    return {
-        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-        for p in sorted(folder.rglob("*"))
-        if p.is_file() and p.name != C.RUN_LOCK
-    }
 
 
 def _engine(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
@@ -210,13 +199,13 @@ def test_sigkill_while_continuing_a_painted_run_keeps_exports_and_edits(base, tm
     duration = _timed(["fit", "--resume", "--out", str(probe), "--no-bar", *longer])
     for i, delay in enumerate(_delays("resume", duration)):
         run = _copy_run(base, tmp_path / f"run{i}")
-        exports, edits = _tree(run / C.EXPORTS_DIR), _tree(run / C.EDITS_DIR)
+        exports, edits = tree_digest(run / C.EXPORTS_DIR), tree_digest(run / C.EDITS_DIR)
         _kill_after(["fit", "--resume", "--out", str(run), "--no-bar", *longer], delay)
         _assert_run_loads(run)
-        assert _tree(run / C.EXPORTS_DIR) == exports and _tree(run / C.EDITS_DIR) == edits, delay
+        assert tree_digest(run / C.EXPORTS_DIR) == exports and tree_digest(run / C.EDITS_DIR) == edits, delay
         out = _engine("fit", "--resume", "--out", str(run), "--no-bar", *longer)
         assert out.returncode == C.EXIT_OK, (delay, out.stderr)
-        assert _tree(run / C.EXPORTS_DIR) == exports and _tree(run / C.EDITS_DIR) == edits, delay
+        assert tree_digest(run / C.EXPORTS_DIR) == exports and tree_digest(run / C.EDITS_DIR) == edits, delay
 
 
 def test_sigkill_during_an_export_keeps_earlier_exports_and_edits(base, tmp_path):
@@ -224,15 +213,15 @@ def test_sigkill_during_an_export_keeps_earlier_exports_and_edits(base, tmp_path
     duration = _timed(["export", str(probe), "--atlas-size", "64", "--no-bar"])
     for i, delay in enumerate(_delays("export", duration)):
         run = _copy_run(base, tmp_path / f"run{i}")
-        exports, edits = _tree(run / C.EXPORTS_DIR / "v001"), _tree(run / C.EDITS_DIR)
+        exports, edits = tree_digest(run / C.EXPORTS_DIR / "v001"), tree_digest(run / C.EDITS_DIR)
         _kill_after(["export", str(run), "--atlas-size", "64", "--no-bar"], delay)
         _assert_run_loads(run)
         _assert_exports_complete(run)
-        assert _tree(run / C.EXPORTS_DIR / "v001") == exports and _tree(run / C.EDITS_DIR) == edits, delay
+        assert tree_digest(run / C.EXPORTS_DIR / "v001") == exports and tree_digest(run / C.EDITS_DIR) == edits, delay
         out = _engine("export", str(run), "--atlas-size", "64", "--no-bar")
         assert out.returncode == C.EXIT_OK, (delay, out.stderr)
         _assert_exports_complete(run)
-        assert _tree(run / C.EXPORTS_DIR / "v001") == exports and _tree(run / C.EDITS_DIR) == edits, delay
+        assert tree_digest(run / C.EXPORTS_DIR / "v001") == exports and tree_digest(run / C.EDITS_DIR) == edits, delay
 
 
 def test_sigkill_during_a_render_leaves_whole_frames_and_a_rerun_matches(base, tmp_path):
@@ -240,14 +229,14 @@ def test_sigkill_during_a_render_leaves_whole_frames_and_a_rerun_matches(base, t
     duration = _timed(["render", str(base.manifest), "--out", str(reference), "--no-bar"])
     expected = {p.name: read_exr(p) for p in sorted(reference.glob("*.exr"))}
     assert expected
-    run_before = _tree(base.run)
+    run_before = tree_digest(base.run)
     for i, delay in enumerate(_delays("render", duration)):
         out_dir = tmp_path / f"render{i}"
         _kill_after(["render", str(base.manifest), "--out", str(out_dir), "--no-bar"], delay)
         for frame in out_dir.glob("[!.]*.exr") if out_dir.exists() else []:
             got = read_exr(frame)  # a visible frame is whole (temp files are hidden: .name.XXXX.tmp.exr)
             assert all(np.array_equal(got[c], expected[frame.name][c]) for c in got), (delay, frame)
-        assert _tree(base.run) == run_before, delay
+        assert tree_digest(base.run) == run_before, delay
         out = _engine("render", str(base.manifest), "--out", str(out_dir), "--no-bar")
         assert out.returncode == C.EXIT_OK, (delay, out.stderr)
         # the re-run clears what the killed render left (hidden temp files, its staging): only the frames remain
@@ -261,19 +250,21 @@ def test_sigkill_during_project_frame_keeps_every_edit_layer_whole(base, tmp_pat
     probe = _copy_run(base, tmp_path / "timed")
     args = ["--frame", "1", "--edit", str(base.paint)]
     duration = _timed(["project-frame", str(_manifest_of(probe)), *args])
-    painted = {name: digest for name, digest in _tree(probe / C.EDITS_DIR).items() if not name.startswith("history")}
+    painted = {
+        name: digest for name, digest in tree_digest(probe / C.EDITS_DIR).items() if not name.startswith("history")
+    }
     for i, delay in enumerate(_delays("project-frame", duration)):
         run = _copy_run(base, tmp_path / f"run{i}")
-        before = {n: d for n, d in _tree(run / C.EDITS_DIR).items() if not n.startswith("history")}
-        exports = _tree(run / C.EXPORTS_DIR)
+        before = {n: d for n, d in tree_digest(run / C.EDITS_DIR).items() if not n.startswith("history")}
+        exports = tree_digest(run / C.EXPORTS_DIR)
         _kill_after(["project-frame", str(_manifest_of(run)), *args], delay)
-        now = {n: d for n, d in _tree(run / C.EDITS_DIR).items() if not n.startswith("history")}
+        now = {n: d for n, d in tree_digest(run / C.EDITS_DIR).items() if not n.startswith("history")}
         for name, digest in now.items():  # each edit layer is the old one or the new one, never a torn file
             assert digest in (before.get(name), painted.get(name)), (delay, name)
-        assert _tree(run / C.EXPORTS_DIR) == exports, delay
+        assert tree_digest(run / C.EXPORTS_DIR) == exports, delay
         out = _engine("project-frame", str(_manifest_of(run)), *args)
         assert out.returncode == C.EXIT_OK, (delay, out.stderr)
-        after = _tree(run / C.EDITS_DIR)
+        after = tree_digest(run / C.EDITS_DIR)
         if now == before:  # killed before it changed a layer: the re-run is the uninterrupted result
             assert {n: d for n, d in after.items() if not n.startswith("history")} == painted, delay
         history = {d for n, d in after.items() if n.startswith("history")}

@@ -40,6 +40,7 @@ from engine.data.flow import compute_flow
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.errors import InputError
 from engine.io.clip import open_clip, read_masks
+from tests.folders import non_utf8_folder
 from tests.full_disk import PAGE_BYTES, run_on_full_disk
 from tests.paths import CLIPS, NO_CLIPS, ROOT
 
@@ -446,20 +447,11 @@ def test_a_published_set_has_a_plain_folders_permissions(tmp_path):
     assert cv2.imread(paths[0], cv2.IMREAD_UNCHANGED).min() == 255
 
 
-def _non_utf8(parent: Path, name: bytes) -> Path:
-    path = Path(os.fsdecode(os.path.join(os.fsencode(parent), name)))
-    try:
-        path.mkdir()
-    except (OSError, UnicodeError) as exc:
-        pytest.skip(f"this file system takes only UTF-8 names ({exc})")
-    return path
-
-
 def test_masks_verb_with_folders_whose_names_are_not_utf8(tmp_path):
     """A plate and a mask folder named in Latin-1 on a UTF-8 system (OpenImageIO refuses such a name as text,
     and printing it to a strict UTF-8 stdout raises). The masks are written, the last line shows the
     folder with its odd byte as \\xe9, and a missing folder of that kind is one line."""
-    root = _non_utf8(tmp_path, b"shot_\xe9")
+    root = non_utf8_folder(tmp_path, b"shot_\xe9")
     write_scene(make_scene(SMALL), tmp_path / "clip")  # OpenCV's writer cannot take such a name: moved there
     os.rename(tmp_path / "clip", root / "clip")
     frames_dir = root / "clip" / "frames"

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import hashlib
 import io
 import math
 import signal
@@ -25,19 +24,9 @@ from engine.errors import MB
 from engine.io.images import write_png
 from tests.engine.export.tiny_run import hold_lock
 from tests.engine.fake_export import make_fake_export
+from tests.folders import tree_digest
 from tests.full_disk import run_on_full_disk
 from tests.paths import ROOT
-
-
-def _tree(folder: Path) -> dict[str, str]:
-    """SHA-256 of every file below ``folder``, hidden ones included (the lock file is bookkeeping)."""
-    if not folder.exists():
-        return {}
-    return {
-        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-        for p in sorted(folder.rglob("*"))
-        if p.is_file() and p.name != C.RUN_LOCK
-    }
 
 
 def _cli(*args: str) -> tuple[int, list[str]]:
@@ -62,7 +51,7 @@ def _earlier_render(manifest: Path, out: Path) -> dict[str, str]:
     """A finished render in ``out`` plus a file of the artist's there; their hashes."""
     assert _cli("render", manifest, "--out", out, "--no-bar")[0] == C.EXIT_OK
     (out / "notes.txt").write_text("the artist's")
-    return _tree(out)
+    return tree_digest(out)
 
 
 def test_a_failing_render_leaves_no_partial_frames(tmp_path):
@@ -74,7 +63,7 @@ def test_a_failing_render_leaves_no_partial_frames(tmp_path):
     for out in (tmp_path / "earlier", tmp_path / "new" / "frames"):
         code, lines = _cli("render", manifest, "--out", out, "--no-bar", "--movie", out.parent / "edit.mp4")
         assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and "atlas.00002.exr" in lines[0], lines
-    assert _tree(tmp_path / "earlier") == earlier
+    assert tree_digest(tmp_path / "earlier") == earlier
     assert not (tmp_path / "new").exists() and not (tmp_path / "edit.mp4").exists()
 
 
@@ -114,7 +103,7 @@ def test_disk_full_during_a_render_is_one_line_naming_what_it_needs(tmp_path, mo
     free_mb = int(lines[0].split("free ")[1].split(" MB")[0])
     print(f"\nrender needs {size / MB:.2f} MB; the message says free {free_mb} MB")
     assert math.ceil(size / 2 / MB) <= free_mb <= math.ceil(2 * size / MB), (size, free_mb)
-    assert _tree(tmp_path / "out") == earlier
+    assert tree_digest(tmp_path / "out") == earlier
 
 
 def test_disk_full_in_the_movie_is_one_line_and_leaves_nothing(tmp_path, monkeypatch):
@@ -160,7 +149,7 @@ def test_sigterm_during_a_render_exits_3_and_leaves_the_output_as_it_was(tmp_pat
     lines = [line for line in err.splitlines() if line.strip()]
     assert proc.returncode == C.EXIT_CANCELLED and len(lines) == 1, err
     assert lines[0].startswith("cancelled: render stopped by SIGTERM"), lines
-    assert _tree(out) == earlier
+    assert tree_digest(out) == earlier
     again = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert again.returncode == C.EXIT_OK, again.stderr
     assert len(list(out.glob("edit.*.png"))) == 120 and not list(out.glob(".*"))
@@ -173,11 +162,11 @@ def test_preview_failing_at_its_last_file_leaves_no_preview(tmp_path, monkeypatc
 
     manifest = _export(tmp_path)
     run = tmp_path / "run"
-    before = _tree(run)
+    before = tree_digest(run)
     _enospc_after(monkeypatch, preview, "write_png_u8", 1)
     code, lines = _cli("preview", manifest)
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and "disk full" in lines[0], lines
-    assert not (manifest.parent / "preview").exists() and _tree(run) == before
+    assert not (manifest.parent / "preview").exists() and tree_digest(run) == before
     monkeypatch.undo()
     assert _cli("preview", manifest)[0] == C.EXIT_OK
     names = sorted(p.name for p in (manifest.parent / "preview").iterdir())
@@ -198,14 +187,14 @@ def test_project_frame_on_a_full_disk_keeps_every_edit_layer(tmp_path, monkeypat
 
     manifest = _export(tmp_path, layers=2)
     edits = tmp_path / "run" / C.EDITS_DIR
-    before = _tree(edits)
+    before = tree_digest(edits)
     _enospc_after(monkeypatch, pf, "write_png", 1)
     code, lines = _cli("project-frame", manifest, "--frame", "1", "--edit", _paint(tmp_path))
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and "disk full" in lines[0], lines
-    assert _tree(edits) == before and not list((tmp_path / "run").glob(".*partial*"))
+    assert tree_digest(edits) == before and not list((tmp_path / "run").glob(".*partial*"))
     monkeypatch.undo()
     assert _cli("project-frame", manifest, "--frame", "1", "--edit", _paint(tmp_path))[0] == C.EXIT_OK
-    after = _tree(edits)
+    after = tree_digest(edits)
     assert {n for n in after if not n.startswith("history")} == set(before)
     assert all(after[n] != d for n, d in before.items()), "both layers got the paint"
     assert sorted(n.split("/")[1].split(".")[0] for n in after if n.startswith("history")) == [
@@ -219,7 +208,7 @@ def test_project_frame_and_preview_refuse_a_run_folder_another_process_holds(tmp
     exit 2, and the run folder is unchanged."""
     manifest = _export(tmp_path)
     run = tmp_path / "run"
-    before = _tree(run)
+    before = tree_digest(run)
     holder = hold_lock(run)
     try:
         for argv in (("project-frame", manifest, "--frame", "1", "--edit", _paint(tmp_path)), ("preview", manifest)):
@@ -229,4 +218,4 @@ def test_project_frame_and_preview_refuse_a_run_folder_another_process_holds(tmp
     finally:
         holder.kill()
         holder.wait()
-    assert _tree(run) == before
+    assert tree_digest(run) == before

@@ -10,7 +10,6 @@ inside the sprite); an empty edit renders the plate to < 1e-6. Bounds leave room
 
 from __future__ import annotations
 
-import hashlib
 import json
 from pathlib import Path
 
@@ -30,6 +29,7 @@ from engine.export.manifest import Manifest
 from engine.io.colour import srgb_to_linear
 from engine.io.images import read_exr, read_image, write_png
 from tests.engine.fit_helpers import fit_scene, load_model
+from tests.folders import tree_digest
 from tests.paths import ROOT
 
 pytestmark = pytest.mark.slow
@@ -46,14 +46,6 @@ def exported(tmp_path_factory):
     scene, run, _ = fit_scene(tmp, components="all")
     manifest_path = export_run(run, atlas_size=256, progress_bar=False)
     return scene, run, manifest_path
-
-
-def _hash_tree(folder: Path) -> dict[str, str]:
-    return {
-        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-        for p in sorted(folder.rglob("*"))
-        if p.is_file()
-    }
 
 
 def _dot_edit(size: tuple[int, int], uv: np.ndarray, radius_tex: float, rgb=(1.0, 0.0, 1.0)) -> np.ndarray:
@@ -255,7 +247,7 @@ def test_project_frame_reproduces_the_edit_and_carries_it(exported, tmp_path):
     scene, run, manifest_path = exported
     m = Manifest(manifest_path)
     h, w = scene.frames.shape[1:3]
-    edits_before = _hash_tree(run / "edits")
+    edits_before = tree_digest(run / "edits")
     # paint a disc on the sprite and one on the background, on frame 3
     f0 = 3
     fg_centre = scene.fg_point_in_frame(np.array(scene.spec.fg_size) / 2.0, f0)
@@ -310,7 +302,7 @@ def test_project_frame_reproduces_the_edit_and_carries_it(exported, tmp_path):
     for layer in m.layers:
         hist = sorted((run / "edits" / "history").glob(f"{layer['name']}.*"))[0]
         m.edit_path(layer).write_bytes(hist.read_bytes())
-    assert _hash_tree(run / "edits") == {**edits_before, **{k: v for k, v in _hash_tree(run / "edits").items()
+    assert tree_digest(run / "edits") == {**edits_before, **{k: v for k, v in tree_digest(run / "edits").items()
                                                              if k.startswith("history")}}  # fmt: skip
 
 
@@ -324,12 +316,12 @@ def test_reexport_never_touches_paint_or_earlier_exports(exported, tmp_path):
     original = m.edit_path(fg).read_bytes()
     write_png(m.edit_path(fg), paint, 8)
     try:
-        edits_hash = _hash_tree(run / "edits")
-        v1_hash = _hash_tree(Path(manifest_path).parent)
+        edits_hash = tree_digest(run / "edits")
+        v1_hash = tree_digest(Path(manifest_path).parent)
         second = export_run(run, atlas_size=128, frames=(2, 4), progress_bar=False)
         assert second.parent.name == "v002"
-        assert _hash_tree(run / "edits") == edits_hash
-        assert _hash_tree(Path(manifest_path).parent) == v1_hash
+        assert tree_digest(run / "edits") == edits_hash
+        assert tree_digest(Path(manifest_path).parent) == v1_hash
         m2 = Manifest(second)
         assert m2.frames == [2, 3, 4]
         # the painted layer keeps its atlas frame, so the paint stays where it was painted
@@ -362,12 +354,12 @@ def _fill_disk_after(monkeypatch, files: int) -> None:
 def test_killed_export_leaves_nothing_behind(exported, monkeypatch):
     _, run, _ = exported
     before = sorted(p.name for p in (run / "exports").iterdir())
-    edits = _hash_tree(run / "edits")
+    edits = tree_digest(run / "edits")
     _fill_disk_after(monkeypatch, 3)
     with pytest.raises(DiskFullError):  # the writer's ENOSPC, as the one-line error export_run raises for it
         export_run(run, atlas_size=64, progress_bar=False)
     assert sorted(p.name for p in (run / "exports").iterdir()) == before
-    assert _hash_tree(run / "edits") == edits
+    assert tree_digest(run / "edits") == edits
 
 
 def test_cli_export_prints_the_manifest_last(exported, capsys):
@@ -400,14 +392,14 @@ def test_bad_input_is_one_line(exported, tmp_path, capsys, argv, needle):
 
 def test_disk_full_during_export_is_one_line_and_loses_nothing(exported, monkeypatch, capsys):
     _, run, _ = exported
-    before = _hash_tree(run / "exports")
-    edits = _hash_tree(run / "edits")
+    before = tree_digest(run / "exports")
+    edits = tree_digest(run / "edits")
     _fill_disk_after(monkeypatch, 2)
     assert cli.main(["export", str(run), "--atlas-size", "64", "--no-bar"]) == C.EXIT_BAD_INPUT
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
     assert len(err) == 1 and err[0].startswith("error: disk full: free ") and "intact" in err[0], err
-    assert _hash_tree(run / "exports") == before
-    assert _hash_tree(run / "edits") == edits
+    assert tree_digest(run / "exports") == before
+    assert tree_digest(run / "edits") == edits
 
 
 def test_sigkill_during_export_leaves_no_partial_result(exported):
@@ -443,10 +435,10 @@ def test_sigkill_during_export_leaves_no_partial_result(exported):
 def test_refit_into_an_exported_run_never_touches_paint_or_exports(exported, capsys):
     _, run, _ = exported
     rec = json.loads((run / "clip.json").read_text())
-    protected = {**_hash_tree(run / "edits"), **{f"x/{k}": v for k, v in _hash_tree(run / "exports").items()}}
+    protected = {**tree_digest(run / "edits"), **{f"x/{k}": v for k, v in tree_digest(run / "exports").items()}}
     argv = ["fit", rec["source"], "--mask", rec["masks"][0], "--out", str(run), "--no-bar"]
     assert cli.main(argv) == C.EXIT_BAD_INPUT  # a fit is never overwritten
     assert "already holds a fit" in capsys.readouterr().err
     assert cli.main(["fit", "--resume", "--out", str(run), "--no-bar"]) == C.EXIT_OK  # finished: nothing to do
-    after = {**_hash_tree(run / "edits"), **{f"x/{k}": v for k, v in _hash_tree(run / "exports").items()}}
+    after = {**tree_digest(run / "edits"), **{f"x/{k}": v for k, v in tree_digest(run / "exports").items()}}
     assert after == protected

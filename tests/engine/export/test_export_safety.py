@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import hashlib
 import io
 import json
 import math
@@ -26,6 +25,7 @@ from engine import contract as C
 from engine.errors import MB
 from engine.io.images import write_png
 from tests.engine.export.tiny_run import copy_root, export, hold_lock, make_run
+from tests.folders import tree_digest
 from tests.paths import ROOT
 
 #: An atlas this large makes the export spend seconds on its atlases (a window to cancel it in) and write
@@ -46,17 +46,6 @@ def base(tmp_path_factory):
 def root(base, tmp_path):
     """A private copy of the base root (the tests change it)."""
     return copy_root(base, tmp_path / "root")
-
-
-def _tree(folder: Path) -> dict[str, str]:
-    """SHA-256 of every file below ``folder``, hidden ones included (the lock file is bookkeeping)."""
-    if not folder.exists():
-        return {}
-    return {
-        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-        for p in sorted(folder.rglob("*"))
-        if p.is_file() and p.name != C.RUN_LOCK
-    }
 
 
 def _engine(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
@@ -91,7 +80,7 @@ def test_writers_refuse_a_run_folder_another_process_holds(root):
     project-frame and preview into the export are refused in one line naming the holder, exit 2, and change
     nothing; once the holder is gone they work."""
     run = root / "run"
-    before = _tree(run)
+    before = tree_digest(run)
     holder = hold_lock(run)
     try:
         out = _engine("export", str(run), "--atlas-size", "32", "--no-bar")
@@ -104,7 +93,7 @@ def test_writers_refuse_a_run_folder_another_process_holds(root):
         ):
             code, lines = _cli(*argv)
             assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and f"pid {holder.pid}" in lines[0], (argv, lines)
-        assert _tree(run) == before
+        assert tree_digest(run) == before
     finally:
         holder.kill()
         holder.wait()
@@ -126,7 +115,7 @@ def test_a_run_folder_moved_with_its_plate_renders_identically(root, tmp_path):
     shutil.move(root, moved)
     out = _engine("render", str(_manifest(moved)), "--out", str(tmp_path / "after"), "--no-bar")
     assert out.returncode == C.EXIT_OK, out.stderr
-    assert _tree(tmp_path / "after") == _tree(tmp_path / "before") != {}
+    assert tree_digest(tmp_path / "after") == tree_digest(tmp_path / "before") != {}
     code, lines = _cli("project-frame", str(_manifest(moved)), "--frame", "1", "--edit", str(_paint(moved)))
     assert code == C.EXIT_OK and all(str(moved / "run" / C.EDITS_DIR) in line for line in lines[:1]), lines
 
@@ -136,7 +125,7 @@ def test_sigterm_during_export_exits_3_and_leaves_nothing(root):
     edit layers byte-identical; the same command again finishes."""
     run = root / "run"
     exports, edits = run / C.EXPORTS_DIR, run / C.EDITS_DIR
-    before = (_tree(exports), _tree(edits))
+    before = (tree_digest(exports), tree_digest(edits))
     argv = [sys.executable, "-m", "engine", "export", str(run), "--atlas-size", str(BIG_ATLAS), "--no-bar"]
     proc = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 300
@@ -149,7 +138,7 @@ def test_sigterm_during_export_exits_3_and_leaves_nothing(root):
     lines = _lines(err)
     assert len(lines) == 1 and lines[0].startswith("cancelled: export stopped by SIGTERM"), err
     assert sorted(p.name for p in exports.iterdir()) == ["v001"]
-    assert (_tree(exports), _tree(edits)) == before
+    assert (tree_digest(exports), tree_digest(edits)) == before
     again = _engine("export", str(run), "--atlas-size", "32", "--no-bar")
     assert again.returncode == C.EXIT_OK and (exports / "v002" / C.MANIFEST_NAME).exists(), again.stderr
 
@@ -181,7 +170,7 @@ def test_disk_full_during_export_is_one_line_naming_what_it_needs(root, monkeypa
     whole = export(run, atlas_size=BIG_ATLAS).parent
     size = sum(p.stat().st_size for p in whole.rglob("*") if p.is_file())
     shutil.rmtree(whole)
-    before = (_tree(run / C.EXPORTS_DIR), _tree(run / C.EDITS_DIR))
+    before = (tree_digest(run / C.EXPORTS_DIR), tree_digest(run / C.EDITS_DIR))
     _fill_disk_after(monkeypatch, 3)
     code, lines = _cli("export", str(run), "--atlas-size", str(BIG_ATLAS), "--no-bar")
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1, lines
@@ -189,7 +178,7 @@ def test_disk_full_during_export_is_one_line_naming_what_it_needs(root, monkeypa
     free_mb = int(lines[0].split("free ")[1].split(" MB")[0])
     print(f"\nexport needs {size / MB:.2f} MB; the message says free {free_mb} MB")
     assert math.ceil(size / 2 / MB) <= free_mb <= math.ceil(2 * size / MB), (size, free_mb)
-    assert (_tree(run / C.EXPORTS_DIR), _tree(run / C.EDITS_DIR)) == before
+    assert (tree_digest(run / C.EXPORTS_DIR), tree_digest(run / C.EDITS_DIR)) == before
     assert not [p for p in (run / C.EXPORTS_DIR).iterdir() if p.name.startswith(".")]
 
 

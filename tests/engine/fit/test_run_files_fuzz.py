@@ -25,19 +25,11 @@ from engine import contract as C
 from engine.config import check_config
 from engine.errors import InputError
 from engine.fit.run_folder import ClipRecord, RunFolder
+from tests.folders import JSON_VALUES
 from tests.stability.bad_inputs import SPEC, TINY_FIT
 from tests.stability.fitcheck import write_masks, write_sequence
 
-#: A JSON value of any shape: what a file of the run folder may hold after a hand edit.
-JSON = st.recursive(
-    st.none()
-    | st.booleans()
-    | st.integers(min_value=-(2**70), max_value=2**70)
-    | st.floats(allow_nan=True, allow_infinity=True)
-    | st.text(max_size=12),
-    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=12), inner, max_size=4),
-    max_leaves=12,
-)
+JSON = JSON_VALUES
 
 #: Each run file, with the loader that reads it and what a valid result must let its readers do.
 LOADERS: dict[str, tuple[Callable[[RunFolder], Any], Callable[[Any], None]]] = {

@@ -6,7 +6,6 @@ other."""
 
 from __future__ import annotations
 
-import os
 import resource
 from pathlib import Path
 
@@ -25,6 +24,7 @@ from engine.io.clip import (
     working_size,
 )
 from engine.io.images import MAX_DECODED_BYTES, display_path, read_image, write_png
+from tests.folders import non_utf8_folder
 from tests.media_files import (
     garble_movie,
     textured_frames,
@@ -401,22 +401,11 @@ def test_blank_png_builder_writes_a_readable_png(tmp_path: Path) -> None:
 # --- paths that are not UTF-8 --------------------------------------------------------------------------------
 
 
-def _non_utf8_folder(parent: Path, name: bytes) -> Path:
-    """A folder whose name holds a byte that is not UTF-8 (a Latin-1 name on Linux); skip where the file
-    system refuses such names."""
-    path = Path(os.fsdecode(os.path.join(os.fsencode(parent), name)))
-    try:
-        path.mkdir()
-    except (OSError, UnicodeError) as exc:
-        pytest.skip(f"this file system takes only UTF-8 names ({exc})")
-    return path
-
-
 def test_clip_masks_and_images_in_a_folder_whose_name_is_not_utf8(tmp_path: Path) -> None:
     """Such a name reaches Python as surrogate escapes, which OpenImageIO's and OpenEXR's text conversion refuse
     (a TypeError). The readers and writers hand them the bytes, so it reads like any other; messages show
     the odd byte as ``\\xe9``."""
-    folder = _non_utf8_folder(tmp_path, b"plate_\xe9t\xe9")
+    folder = non_utf8_folder(tmp_path, b"plate_\xe9t\xe9")
     frames = make_sequence(folder / "frames", count=3)
     expected = make_masks(folder / "masks", ["00000.png", "00001.png", "00002.png"])
     info = open_clip(frames)

@@ -22,6 +22,7 @@ from engine.io.images import (
     write_exr,
     write_png,
 )
+from tests.folders import non_utf8_folder
 from tests.media_files import write_image
 
 #: The display window of the hostile EXR: 30000 x 30000 RGB floats, 10.8 GB once placed into it.
@@ -69,12 +70,7 @@ def test_an_exr_with_a_real_crop_window_still_reads(tmp_path: Path) -> None:
 @pytest.fixture
 def latin1_folder(tmp_path: Path) -> Path:
     """A folder named with a Latin-1 byte (not UTF-8): Python holds it as a surrogate escape."""
-    folder = Path(os.fsdecode(os.path.join(os.fsencode(tmp_path), b"d\xe9j\xe0_vu")))
-    try:
-        folder.mkdir()
-    except (OSError, UnicodeError) as exc:
-        pytest.skip(f"this file system takes only UTF-8 names ({exc})")
-    return folder
+    return non_utf8_folder(tmp_path, b"d\xe9j\xe0_vu")
 
 
 def test_exr_and_png_read_and_write_in_a_folder_whose_name_is_not_utf8(latin1_folder: Path) -> None:
