@@ -27,7 +27,8 @@ from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.errors import InputError
 from engine.fit.run_folder import RunFolder
 from engine.fit.trainer import load_fitted
-from tests.stability.bad_inputs import TINY_FIT, _snapshot
+from tests.folders import tree_digest
+from tests.stability.bad_inputs import TINY_FIT
 
 SPEC = SceneSpec(width=32, height=24, frames=3, fg_size=(12, 10), fg_start=(8.0, 6.0))
 
@@ -59,12 +60,12 @@ def run(fitted, tmp_path) -> Path:
 
 def _refused(run: Path, *argv: str, needles: tuple[str, ...]) -> str:
     """``fit ARGV`` is refused: exit 2, one line holding ``needles``, the run folder byte-identical."""
-    before = _snapshot(run)
+    before = tree_digest(run)
     code, lines = _cli("fit", *argv)
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and lines[0].startswith("error: "), lines
     for needle in needles:
         assert needle in lines[0], (needle, lines[0])
-    assert _snapshot(run) == before, "a refused fit changed the run folder"
+    assert tree_digest(run) == before, "a refused fit changed the run folder"
     return lines[0]
 
 

@@ -24,8 +24,8 @@ from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.errors import InputError
 from engine.fit import trainer
 from engine.fit.run_folder import RunFolder
+from tests.folders import tree_digest
 from tests.paths import ROOT
-from tests.stability.bad_inputs import _snapshot
 
 SPEC = SceneSpec(width=48, height=32, frames=4, fg_size=(16, 12), fg_start=(10.0, 8.0))
 #: Long enough that the first fit is still training when it is paused (it is paused at step PAUSE_AT).
@@ -80,14 +80,14 @@ def test_a_second_fit_into_a_folder_in_use_is_refused_and_the_first_finishes(tmp
     run = tmp_path / "run"
     first = _start_and_pause(_fit_argv(clip, run))
     try:
-        before = _snapshot(run)
+        before = tree_digest(run)
         for extra in ([], ["--refit"]):
             line = _one_line(refused := _engine(*_fit_argv(clip, run, *extra)))
             assert refused.returncode == C.EXIT_BAD_INPUT
             assert f"in use by fit (pid {first.pid} on " in line and "wait for it to finish" in line, line
         resumed = _engine("fit", "--resume", "--out", str(run), "--no-bar")
         assert resumed.returncode == C.EXIT_BAD_INPUT and f"pid {first.pid}" in _one_line(resumed)
-        assert _snapshot(run) == before, "a refused fit changed the folder in use"
+        assert tree_digest(run) == before, "a refused fit changed the folder in use"
     finally:
         os.kill(first.pid, signal.SIGCONT)
     _, err = first.communicate(timeout=TIMEOUT_S)
@@ -114,7 +114,7 @@ def test_a_fit_is_refused_while_another_verb_holds_the_folder(tmp_path, clip):
         out = _engine(*_fit_argv(clip, run))
         assert out.returncode == C.EXIT_BAD_INPUT
         assert f"in use by export (pid {holder.pid} on " in _one_line(out)
-        assert _snapshot(run) == {}
+        assert tree_digest(run) == {}
     finally:
         holder.kill()
         holder.wait(timeout=TIMEOUT_S)
