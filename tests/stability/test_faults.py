@@ -193,12 +193,14 @@ def _quick_args(frames: Path, masks: Path, run: Path) -> list[str]:
     return ["fit", str(frames), "--mask", str(masks), "--out", str(run), "--preset", "draft", "--no-bar", *sets]
 
 
-def _sigterm_at(args: list[str], stage: str, delay_s: float = 0.0) -> tuple[subprocess.CompletedProcess, list[dict]]:
-    """Run ``python -m engine ARGS``, send SIGTERM ``delay_s`` after its ``stage`` event; the exit, its events."""
+def _sigterm_at(
+    args: list[str], stage: str, delay_s: float = 0.0, sig: signal.Signals = signal.SIGTERM
+) -> tuple[subprocess.CompletedProcess, list[dict]]:
+    """Run ``python -m engine ARGS``, send ``sig`` ``delay_s`` after its ``stage`` event; the exit, its events."""
     proc = _start(args)
     events = _run_until(proc, lambda ev: ev[-1]["event"] == C.EVENT_STAGE and ev[-1]["stage"] == stage)
     time.sleep(delay_s)
-    proc.send_signal(signal.SIGTERM)
+    proc.send_signal(sig)
     rest, err = proc.communicate(timeout=300)
     events += [m for m in map(C.parse_progress_line, rest.splitlines()) if m]
     return subprocess.CompletedProcess(args, proc.returncode, rest, err), events
@@ -209,20 +211,22 @@ def _no_partial_files(run: Path) -> None:
     assert not leftovers, leftovers
 
 
-def _cancelled_line(out: subprocess.CompletedProcess) -> str:
+def _cancelled_line(out: subprocess.CompletedProcess, sig: signal.Signals = signal.SIGTERM) -> str:
     lines = [ln for ln in out.stderr.splitlines() if ln.strip()]
     assert out.returncode == C.EXIT_CANCELLED and len(lines) == 1, (out.returncode, out.stderr)
-    assert lines[0].startswith("cancelled: fit stopped by SIGTERM before it finished; nothing half-written"), lines
+    assert lines[0].startswith(f"cancelled: fit stopped by {sig.name} before it finished; nothing half-written"), lines
     return lines[0]
 
 
 @pytest.mark.slow
-def test_sigterm_while_the_flow_is_computed_leaves_nothing_partial_and_the_fit_runs_again(tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_sigterm_while_the_flow_is_computed_leaves_nothing_partial_and_the_fit_runs_again(tmp_path, sig):
+    """SIGTERM and SIGINT (Ctrl-C) alike: exit 3 and the one line, outside the training loop too."""
     frames, masks = write_scene(make_scene(FLOW_SPEC), tmp_path / "clip")
     run = tmp_path / "run"
     args = _quick_args(frames, masks, run)
-    out, events = _sigterm_at(args, "flow", FLOW_SIGNAL_DELAY_S)
-    assert "run the same command again" in _cancelled_line(out)
+    out, events = _sigterm_at(args, "flow", FLOW_SIGNAL_DELAY_S, sig)
+    assert "run the same command again" in _cancelled_line(out, sig)
     assert not any(e["event"] == C.EVENT_STAGE and e["stage"] == "scene" for e in events), "flow had finished"
     _no_partial_files(run)
     assert not list(run.rglob("*.npz")), "a flow cache file was written before the flow was computed"

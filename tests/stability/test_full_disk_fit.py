@@ -85,3 +85,37 @@ def test_a_fit_on_a_disk_with_no_room_is_one_line_and_leaves_no_temp_file(fitted
     assert result.returncode == C.EXIT_BAD_INPUT, result.stderr
     assert len(lines) == 1 and lines[0].startswith("error: disk full: free "), lines
     assert not [p for p in result.left if _is_temp(p)], result.left
+
+
+def test_an_export_on_a_full_disk_is_one_line_and_keeps_earlier_exports_and_edits(fitted, tmp_path):
+    """A run exported once, then exported again on a disk with room for half of it: exit 2, one line, and the
+    first export and the edit layers unchanged byte for byte; nothing of the second one is left."""
+    _, _, run = fitted
+    exported = tmp_path / "exported"
+    shutil.copytree(run, exported)
+    assert _quiet_cli("export", str(exported), "--atlas-size", "64", "--no-bar") == C.EXIT_OK
+    export = exported / C.EXPORTS_DIR / "v001"
+    before = [
+        hashlib.sha256(path.read_bytes()).hexdigest()
+        for folder in (exported / C.EDITS_DIR, export)
+        for path in folder.rglob("*")
+        if path.is_file()
+    ]
+    disk = tmp_path / "disk"
+    size_kb = (_pages(exported) + _pages(export) // 2) // 1024
+    sums = f'cd "{disk}/run" && find {C.EDITS_DIR} {C.EXPORTS_DIR}/v001 -type f | sort | xargs sha256sum'
+    script = (
+        f'cp -a "{exported}" "{disk}/run" && "{sys.executable}" -m engine export "{disk}/run" --atlas-size 64 '
+        f'--no-bar; echo "exit=$?"; {sums}'
+    )
+    result = run_on_full_disk(["sh", "-c", script], mount=disk, size_kb=size_kb, cwd=ROOT)
+    lines = result.stderr_lines
+    assert f"exit={C.EXIT_BAD_INPUT}" in result.stdout, result.stderr
+    assert len(lines) == 1 and lines[0].startswith("error: disk full: free "), lines
+    after = sorted(line.split()[0] for line in result.stdout.splitlines() if len(line.split()) == 2)
+    assert after == sorted(before), "the first export or an edit layer changed"
+    prefix = f"run/{C.EXPORTS_DIR}/"
+    exports = sorted(
+        p for p in result.left if p.startswith(prefix) and p != prefix and "/" not in p[len(prefix) :].rstrip("/")
+    )
+    assert exports == [f"run/{C.EXPORTS_DIR}/v001/"], exports  # no second export, finished or not
