@@ -18,8 +18,11 @@ from pathlib import Path
 from typing import Any
 
 from engine.contract import PRESET_STEPS, SCHEMA_VERSION
-from engine.data.flow import DIS_PRESETS
 from engine.errors import InputError
+
+#: OpenCV DIS optical-flow presets (``flow_preset``), fastest first; engine/data/flow.py maps each to OpenCV's.
+#: Named here so the config (and the add-on's tests on a Blender without OpenCV) need no cv2.
+FLOW_PRESETS: tuple[str, ...] = ("ultrafast", "fast", "medium")
 
 
 @dataclass
@@ -263,7 +266,7 @@ VALID: dict[str, Valid] = {
     "object_sample_share": _FRACTION,
     "seed": _NON_NEGATIVE,
     "long_edge": Valid(low=MIN_LONG_EDGE),
-    "flow_preset": Valid(choices=DIS_PRESETS),
+    "flow_preset": Valid(choices=FLOW_PRESETS),
     "flow_threshold_px": _POSITIVE,
     "lr": _POSITIVE,
     "lr_grid": _POSITIVE,

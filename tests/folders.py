@@ -1,16 +1,38 @@
 """Folders as the robustness tests compare and make them: a digest of every file below a folder (what must stay
-byte-identical), a folder whose name is not UTF-8, and JSON values of any shape for the loaders' fuzz tests."""
+byte-identical), a folder whose name is not UTF-8, and a real process holding a run folder's lock."""
 
 from __future__ import annotations
 
 import hashlib
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
-from hypothesis import strategies as st
 
 from engine import contract as C
+from tests.paths import ROOT
+
+#: A process that holds a run folder's lock (``contract.run_lock``, standard library only: any interpreter of the
+#: checkout runs it, a Blender's included) until it is killed or its time is up.
+HOLD_LOCK = """\
+import sys, time
+from engine import contract as C
+with C.run_lock(sys.argv[1], sys.argv[2]):
+    print("held", flush=True)
+    time.sleep(float(sys.argv[3]))
+"""
+
+
+def hold_lock(run: Path, what: str = "fit", seconds: float = 120.0) -> subprocess.Popen:
+    """Start a real child process that holds ``run``'s lock as ``what``; returns once it holds it (the caller
+    kills it)."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", HOLD_LOCK, str(run), what, str(seconds)], cwd=ROOT, stdout=subprocess.PIPE, text=True
+    )
+    assert proc.stdout is not None and proc.stdout.readline().strip() == "held"
+    return proc
 
 
 def tree_digest(folder: Path) -> dict[str, str]:
@@ -34,15 +56,3 @@ def non_utf8_folder(parent: Path, name: bytes) -> Path:
     except (OSError, UnicodeError) as exc:
         pytest.skip(f"this file system takes only UTF-8 names ({exc})")
     return path
-
-
-#: A JSON value of any shape: what a hand-edited or foreign file may hold.
-JSON_VALUES = st.recursive(
-    st.none()
-    | st.booleans()
-    | st.integers(min_value=-(2**70), max_value=2**70)
-    | st.floats(allow_nan=True, allow_infinity=True)
-    | st.text(max_size=12),
-    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=12), inner, max_size=4),
-    max_leaves=12,
-)

@@ -4,6 +4,9 @@ short or garbled in the middle), an audio-only movie, and a PNG that declares a 
 from __future__ import annotations
 
 import struct
+import subprocess
+import sys
+import tempfile
 import zlib
 from collections.abc import Sequence
 from pathlib import Path
@@ -44,21 +47,36 @@ def write_audio_only_movie(path: Path) -> Path:
     return path
 
 
-def movie_codec() -> str:
-    """H.264 when this PyAV has it, else MPEG-4 part 2."""
-    return "libx264" if "libx264" in av.codecs_available else "mpeg4"
-
-
 def write_movie(path: Path, frames: Sequence[np.ndarray], rate: int = 24) -> Path:
-    """uint8 RGB ``frames`` [H, W, 3] as a yuv420p movie; the container comes from the suffix (.mp4, .mkv, .avi)."""
-    height, width = frames[0].shape[:2]
-    with av.open(str(path), "w") as container:
-        stream = container.add_stream(movie_codec(), rate=rate)
-        stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
-        for rgb in frames:
-            container.mux(stream.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb), format="rgb24")))
-        container.mux(stream.encode())
+    """uint8 RGB ``frames`` [H, W, 3] as a yuv420p movie; the container comes from the suffix (.mp4, .mkv, .avi).
+
+    Encoded in a fresh interpreter: in a process that has loaded torch, libx264 gives different bytes from run to
+    run, and the damaged copies' messages count the packets the encoder made; a fresh process gives the same bytes
+    every time."""
+    with tempfile.TemporaryDirectory() as tmp:
+        source = Path(tmp) / "frames.npy"
+        np.save(source, np.stack([np.ascontiguousarray(f) for f in frames]))
+        subprocess.run(
+            [sys.executable, "-c", _ENCODE, str(source), str(path), str(rate)],
+            cwd=Path(__file__).resolve().parents[1],
+            check=True,
+        )
     return path
+
+
+#: The encoder ``write_movie`` runs in a fresh interpreter (PyAV and numpy only).
+_ENCODE = """\
+import sys
+import av, numpy as np
+frames, path, rate = np.load(sys.argv[1]), sys.argv[2], int(sys.argv[3])
+codec = "libx264" if "libx264" in av.codecs_available else "mpeg4"
+with av.open(path, "w") as container:
+    stream = container.add_stream(codec, rate=rate)
+    stream.width, stream.height, stream.pix_fmt = frames.shape[2], frames.shape[1], "yuv420p"
+    for rgb in frames:
+        container.mux(stream.encode(av.VideoFrame.from_ndarray(rgb, format="rgb24")))
+    container.mux(stream.encode())
+"""
 
 
 def textured_frames(count: int, size: tuple[int, int] = (64, 48), seed: int = 0) -> list[np.ndarray]:

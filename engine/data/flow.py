@@ -24,6 +24,7 @@ from typing import BinaryIO, Protocol, runtime_checkable
 import cv2
 import numpy as np
 
+from engine.config import FLOW_PRESETS
 from engine.errors import DiskFullError, InputError
 from engine.io.atomic import atomic_write
 
@@ -32,11 +33,14 @@ log = logging.getLogger(__name__)
 #: Bump when the flow computation or the cache layout changes: old cache files then miss instead of lying.
 FLOW_CACHE_VERSION = 1
 
-_DIS_PRESETS = {
-    "ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
-    "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
-    "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM,
-}
+#: The config's preset names (``FLOW_PRESETS``, fastest first) to OpenCV's.
+_DIS_PRESETS = dict(
+    zip(
+        FLOW_PRESETS,
+        (cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, cv2.DISOPTICAL_FLOW_PRESET_FAST, cv2.DISOPTICAL_FLOW_PRESET_MEDIUM),
+        strict=True,
+    )
+)
 DIS_PRESETS: tuple[str, ...] = tuple(_DIS_PRESETS)
 
 

@@ -29,7 +29,7 @@ from engine.edit.render import load_edits, render_frames
 from engine.errors import InputError
 from engine.export.manifest import Manifest
 from tests.engine.export.tiny_run import export, make_run
-from tests.folders import JSON_VALUES
+from tests.json_values import JSON_VALUES
 from tests.paths import ROOT
 
 JSON = JSON_VALUES

@@ -16,24 +16,16 @@ import sys
 import pytest
 
 from engine import contract as C
+from tests.folders import hold_lock
 from tests.paths import ROOT
-
-HOLD = """
-import sys, time
-from engine import contract as C
-with C.run_lock(sys.argv[1], "fit"):
-    print("held", flush=True)
-    time.sleep(120)
-"""
 
 
 @pytest.fixture
 def holder(tmp_path):
     """A real child process holding ``tmp_path/run``'s lock."""
     run = tmp_path / "run"
-    child = subprocess.Popen([sys.executable, "-c", HOLD, str(run)], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    child = hold_lock(run)
     try:
-        assert child.stdout is not None and child.stdout.readline().strip() == "held"
         yield run, child
     finally:
         child.kill()

@@ -53,10 +53,12 @@ def test_the_addon_writes_edit_layers_only_under_the_run_folder_lock(tmp_path):
     holds it (a fit), the add-on's Save Edits is refused with one line naming that process; once it is gone, the
     add-on holds it and a preview into the export run meanwhile is refused naming Blender."""
     import subprocess
-    import sys
 
-    from tests.engine.export.tiny_run import hold_lock
+    from tests.addon.helpers import engine_python
+    from tests.folders import hold_lock
     from tests.paths import ROOT
+
+    python = engine_python("preview", "numpy")
 
     manifest = make_export(tmp_path)
     run = tmp_path / "run"
@@ -71,7 +73,7 @@ def test_the_addon_writes_edit_layers_only_under_the_run_folder_lock(tmp_path):
         holder.wait()
     with edits_lock(str(manifest), SAVE_EDITS_HOLDER):
         out = subprocess.run(
-            [sys.executable, "-m", "engine", "preview", str(manifest), "--no-movies"],
+            [python, "-m", "engine", "preview", str(manifest), "--no-movies"],
             cwd=ROOT,
             capture_output=True,
             text=True,

@@ -22,9 +22,8 @@ from engine import cli
 from engine import contract as C
 from engine.errors import MB
 from engine.io.images import write_png
-from tests.engine.export.tiny_run import hold_lock
 from tests.engine.fake_export import make_fake_export
-from tests.folders import tree_digest
+from tests.folders import hold_lock, tree_digest
 from tests.full_disk import run_on_full_disk
 from tests.paths import ROOT
 

@@ -13,7 +13,7 @@ import sys
 
 import pytest
 
-from tests.engine.export.tiny_run import hold_lock
+from tests.folders import hold_lock
 from tests.full_disk import run_on_full_disk
 from tests.paths import ROOT
 

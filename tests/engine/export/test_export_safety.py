@@ -24,8 +24,8 @@ from engine import cli
 from engine import contract as C
 from engine.errors import MB
 from engine.io.images import write_png
-from tests.engine.export.tiny_run import copy_root, export, hold_lock, make_run
-from tests.folders import tree_digest
+from tests.engine.export.tiny_run import copy_root, export, make_run
+from tests.folders import hold_lock, tree_digest
 from tests.paths import ROOT
 
 #: An atlas this large makes the export spend seconds on its atlases (a window to cancel it in) and write

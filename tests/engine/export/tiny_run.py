@@ -5,31 +5,20 @@ from __future__ import annotations
 
 import io
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 from engine.config import apply_overrides, preset_config
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.export.exporter import export_run
 from engine.fit.trainer import fit
-from tests.paths import ROOT
 
 SPEC = SceneSpec(width=48, height=32, frames=4, fg_size=(16, 12), fg_start=(10.0, 8.0))
 TINY = {"steps": "12", "batch": "256", "eval_every": "12", "eval_pixels": "500", "bootstrap_steps": "6",
         "global_rigidity_steps": "3"}  # fmt: skip
 ATLAS_SIZE = 32
 
+
 #: A child process that holds a run folder's lock (``contract.run_lock``) as ``fit``, says so, and waits.
-HOLD_LOCK = """\
-import sys, time
-from engine import contract as C
-with C.run_lock(sys.argv[1], "fit"):
-    print("held", flush=True)
-    time.sleep(float(sys.argv[2]))
-"""
-
-
 def make_run(root: Path) -> tuple[Path, Path, Path]:
     """The clip (frames, masks) under ``root/clip`` and its tiny fit in ``root/run``."""
     frames, masks = write_scene(make_scene(SPEC), root / "clip")
@@ -48,12 +37,3 @@ def copy_root(src: Path, dest: Path) -> Path:
     """A copy of a test root (clip and run side by side), as a run folder moved with its plate would be."""
     shutil.copytree(src, dest, symlinks=True)
     return dest
-
-
-def hold_lock(run: Path, seconds: float = 120.0) -> subprocess.Popen:
-    """Start a real child process that holds ``run``'s lock; returns once it holds it."""
-    proc = subprocess.Popen(
-        [sys.executable, "-c", HOLD_LOCK, str(run), str(seconds)], cwd=ROOT, stdout=subprocess.PIPE, text=True
-    )
-    assert proc.stdout is not None and proc.stdout.readline().strip() == "held"
-    return proc

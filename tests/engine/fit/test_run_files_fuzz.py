@@ -25,7 +25,7 @@ from engine import contract as C
 from engine.config import check_config
 from engine.errors import InputError
 from engine.fit.run_folder import ClipRecord, RunFolder
-from tests.folders import JSON_VALUES
+from tests.json_values import JSON_VALUES
 from tests.stability.bad_inputs import SPEC, TINY_FIT
 from tests.stability.fitcheck import write_masks, write_sequence
 
