@@ -151,6 +151,9 @@ RUN_CLIP_SCHEMA = 2
 RUN_METRICS_SCHEMA = SCHEMA_VERSION
 RUN_SCENE_SCHEMA = SCHEMA_VERSION
 RUN_CHECKPOINT_SCHEMA = 2
+#: The checkpoint schema before "config" was recorded: still read (a fit made with it resumes and exports), its
+#: config taken to be its run's config.json; saved again, it is written as RUN_CHECKPOINT_SCHEMA.
+RUN_CHECKPOINT_SCHEMA_WITHOUT_CONFIG = 1
 RUN_CHECKPOINT_KEYS: tuple[str, ...] = (
     "schema",
     "model",

@@ -203,6 +203,10 @@ class RunFolder:
         """The checkpoint, loaded safely (weights only), with every key of its schema and the types a resume and
         an export read from it; a checkpoint of another engine version or a damaged one is one line."""
         state = load_checkpoint(self.checkpoint, device)
+        old = isinstance(state, dict) and state.get("schema") == C.RUN_CHECKPOINT_SCHEMA_WITHOUT_CONFIG
+        if old and "config" not in state:
+            # a fit from before checkpoints recorded their config: the fingerprint still ties it to its clip
+            state = {**state, "schema": C.RUN_CHECKPOINT_SCHEMA, "config": None}
         missing = [k for k in C.RUN_CHECKPOINT_KEYS if k not in state] if isinstance(state, dict) else ["schema"]
         if missing:
             raise InputError(self.checkpoint, f"checkpoint has no {missing[0]!r}", C.RUN_FILE_OTHER_VERSION_FIX)
@@ -211,7 +215,8 @@ class RunFolder:
                 f"checkpoint schema {state['schema']!r} is not supported (this engine writes {C.RUN_CHECKPOINT_SCHEMA})"
             )
             raise InputError(self.checkpoint, problem, C.RUN_FILE_OTHER_VERSION_FIX)
-        kinds = {"model": dict, "optim": dict, "sched": dict, "gen": torch.Tensor, "fingerprint": str, "config": dict}
+        kinds = {"model": dict, "optim": dict, "sched": dict, "gen": torch.Tensor, "fingerprint": str}
+        kinds["config"] = (dict, type(None))  # None: a checkpoint of the schema without it
         kinds |= {"step": int, "train_seconds": (int, float), "motions": (list, type(None))}
         for key, kind in kinds.items():
             if not isinstance(state[key], kind) or isinstance(state[key], bool):
@@ -237,6 +242,8 @@ class RunFolder:
                 FOREIGN_CHECKPOINT_FIX,
             )
         saved = state["config"]
+        if saved is None:  # a checkpoint of the schema that did not record its config: config.json is its config
+            return
         ours = dataclasses.asdict(cfg)
         free = (*RESUMABLE_FIELDS, *START_FIELDS)
         differ = [k for k in ours if k not in free and (k not in saved or saved[k] != ours[k])]

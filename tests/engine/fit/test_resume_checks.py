@@ -236,3 +236,21 @@ def test_a_field_missing_from_config_json_is_refused_when_its_default_is_not_wha
     del data["config"]["w_mask_prior"]
     path.write_text(json.dumps(data))
     _refused(run, "--resume", "--out", str(run), needles=("another config", "w_mask_prior 20.0, not 0.0"))
+
+
+def test_a_checkpoint_from_before_configs_were_recorded_still_exports_and_resumes(run):
+    """A fit made when checkpoints did not record their config (schema 1) is not lost: it exports, and it
+    resumes (the checkpoint it then saves records the config)."""
+    import torch
+
+    path = run / C.RUN_CHECKPOINT
+    state = torch.load(path, map_location="cpu", weights_only=True)
+    del state["config"]
+    state["schema"] = C.RUN_CHECKPOINT_SCHEMA_WITHOUT_CONFIG
+    torch.save(state, path)
+    code, lines = _cli("export", str(run), "--atlas-size", "32", "--no-bar")
+    assert code == C.EXIT_OK, lines
+    code, lines = _cli("fit", "--resume", "--out", str(run), "--no-bar", "--set", "steps=4")
+    assert code == C.EXIT_OK, lines
+    saved = torch.load(path, map_location="cpu", weights_only=True)
+    assert saved["schema"] == C.RUN_CHECKPOINT_SCHEMA and isinstance(saved["config"], dict)
