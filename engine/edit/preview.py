@@ -33,8 +33,8 @@ from engine.edit.render import (
     render_frames,
     to_display_u8,
 )
-from engine.export.manifest import DISK_ERRORS, Manifest, as_disk_full
-from engine.io.atomic import atomic_write
+from engine.export.manifest import Manifest
+from engine.io.atomic import DISK_ERRORS, as_disk_full, atomic_write
 from engine.io.images import cv2_write, read_image
 
 #: The export's own preview folder (``preview`` beside the manifest), the default output.

@@ -27,8 +27,8 @@ from engine import contract as C
 from engine.edit.equations import edit_to_premultiplied, load_edit
 from engine.edit.render import STAGING_SUFFIX
 from engine.errors import DiskFullError, InputError
-from engine.export.manifest import DISK_ERRORS, LayerPasses, Manifest, as_disk_full, move_into_place
-from engine.io.atomic import atomic_write, signals_held
+from engine.export.manifest import LayerPasses, Manifest
+from engine.io.atomic import DISK_ERRORS, as_disk_full, atomic_write, move_into_place, signals_held
 from engine.io.clip import same_aspect
 from engine.io.colour import linear_to_srgb
 from engine.io.images import image_header, read_image, write_png, write_rgba_exr

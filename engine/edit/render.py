@@ -28,8 +28,8 @@ from tqdm import tqdm
 from engine import contract as C
 from engine.edit.equations import FILTERS, composite_edits, edit_is_empty, load_edit
 from engine.errors import DiskFullError, InputError
-from engine.export.manifest import DISK_ERRORS, Manifest, as_disk_full
-from engine.io.atomic import disk_full_as_one_line, disk_full_error, signals_held
+from engine.export.manifest import Manifest
+from engine.io.atomic import DISK_ERRORS, as_disk_full, disk_full_as_one_line, disk_full_error, signals_held
 from engine.io.clip import iter_frames, open_clip
 from engine.io.colour import linear_to_srgb, to_linear
 from engine.io.images import write_png, write_rgba_exr

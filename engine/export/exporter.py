@@ -34,11 +34,10 @@ from tqdm import tqdm
 
 from engine import contract as C
 from engine.errors import InputError
-from engine.export.manifest import DISK_ERRORS, as_disk_full, move_into_place
 from engine.fit.progress import Reporter
 from engine.fit.run_folder import ClipRecord, RunFolder
 from engine.fit.trainer import EVAL_CHUNK, FittedRun, load_fitted
-from engine.io.atomic import atomic_write_text, signals_held
+from engine.io.atomic import DISK_ERRORS, as_disk_full, atomic_write_text, move_into_place, signals_held
 from engine.io.colour import srgb_to_linear
 from engine.io.images import write_exr, write_png
 from engine.model.atlas_model import AtlasModel

@@ -5,15 +5,11 @@ The schema itself lives in ``engine.contract``; this module only resolves paths 
 resolved relative to the manifest first (``contract.resolve_manifest_path``), so a run folder moved or mounted
 elsewhere keeps working; every path written through (edit layers, their history, previews) must stay inside the
 run folder (``contract.resolve_manifest_write_path``): a manifest cannot make the engine write anywhere else.
-``move_into_place`` (with ``engine.io.atomic.signals_held``) publishes a finished export, render or edit: all of
-it or none.
 """
 
 from __future__ import annotations
 
-import errno
 import os
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -21,13 +17,9 @@ from typing import Any
 import numpy as np
 
 from engine import contract as C
-from engine.errors import DiskFullError, InputError
-from engine.io.atomic import atomic_write, disk_full_error
+from engine.errors import InputError
 from engine.io.images import read_exr
 
-#: What a write that ran out of disk raises: the OS's error, a library's RuntimeError (OpenEXR, torch), or the
-#: one-line DiskFullError an atomic write already made of it.
-DISK_ERRORS = (OSError, RuntimeError, DiskFullError)
 #: The fix of a manifest that cannot be used as it is.
 EXPORT_AGAIN = "run `python -m engine export RUN_DIR` again"
 #: The fix of a plate that is not where the manifest says.
@@ -176,37 +168,9 @@ class Manifest:
         return out
 
 
-def as_disk_full(exc: BaseException, folder: Path, need: int | None = None) -> DiskFullError | None:
-    """``exc``, raised while writing an output whose partial files are removed by now, as the one-line "disk full:
-    free N MB at ``folder``", where ``need`` is what the whole output takes (so N is what to free); None when it
-    is not a full disk."""
-    if isinstance(exc, DiskFullError):
-        exc = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-    return disk_full_error(exc, folder, need=need)
-
-
-def move_into_place(staged: Path, path: Path) -> None:
-    """Rename a staged file onto its final name; across file systems (a folder linked elsewhere) it is copied to a
-    temporary file beside ``path`` and renamed, so ``path`` is never seen half-written either way."""
-    try:
-        os.replace(staged, path)
-    except OSError as exc:
-        if exc.errno != errno.EXDEV:
-            raise
-
-        def copy(tmp: str) -> None:
-            shutil.copyfile(staged, tmp)
-
-        atomic_write(path, copy)
-        staged.unlink()
-
-
 __all__ = [
-    "DISK_ERRORS",
     "EXPORT_AGAIN",
     "PLATE_FIX",
     "LayerPasses",
     "Manifest",
-    "as_disk_full",
-    "move_into_place",
 ]

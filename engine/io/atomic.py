@@ -1,4 +1,5 @@
-"""Atomic file writes: a temp file in the destination folder, then a rename.
+"""Atomic file writes: a temp file in the destination folder, then a rename; a full disk as one line; publishing a
+staged set of files (``move_into_place`` under ``signals_held``): all of it or none.
 
 A kill or a full disk never leaves a half-written file under the real name. Torch-free, so the export,
 render and project-frame writers and the checkpoints share one mechanism. The temp name keeps the real
@@ -108,6 +109,36 @@ def atomic_write(path: Path, write: Callable[[str], None], fsync: bool = True, n
     return path
 
 
+#: What a write that ran out of disk raises: the OS's error, a library's RuntimeError (OpenEXR, torch), or the
+#: one-line DiskFullError an atomic write already made of it.
+DISK_ERRORS = (OSError, RuntimeError, DiskFullError)
+
+
+def as_disk_full(exc: BaseException, folder: Path, need: int | None = None) -> DiskFullError | None:
+    """``exc``, raised while writing an output whose partial files are removed by now, as the one-line "disk full:
+    free N MB at ``folder``", where ``need`` is what the whole output takes (so N is what to free); None when it
+    is not a full disk."""
+    if isinstance(exc, DiskFullError):
+        exc = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    return disk_full_error(exc, folder, need=need)
+
+
+def move_into_place(staged: Path, path: Path) -> None:
+    """Rename a staged file onto its final name; across file systems (a folder linked elsewhere) it is copied to a
+    temporary file beside ``path`` and renamed, so ``path`` is never seen half-written either way."""
+    try:
+        os.replace(staged, path)
+    except OSError as exc:
+        if exc.errno != errno.EXDEV:
+            raise
+
+        def copy(tmp: str) -> None:
+            shutil.copyfile(staged, tmp)
+
+        atomic_write(path, copy)
+        staged.unlink()
+
+
 #: The signals that cancel a verb (``engine.cli``), held back while a finished set of files is published.
 HELD_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -150,11 +181,14 @@ def atomic_write_text(path: Path, text: str) -> None:
 
 __all__ = [
     "DISK_ERRNOS",
+    "DISK_ERRORS",
+    "as_disk_full",
     "atomic_write",
     "atomic_write_bytes",
     "atomic_write_text",
     "disk_full_as_one_line",
     "disk_full_error",
     "free_bytes",
+    "move_into_place",
     "signals_held",
 ]
