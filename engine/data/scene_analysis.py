@@ -3,8 +3,8 @@
 A tripod shot does not need a deformable background mapping, a clip without an object needs no foreground
 or alpha networks, a single frame has no flow. Each decision carries a one-line reason and the measured
 numbers behind it, so an artist (and a bug report) can see why a run computed what it did. The decisions
-are written to ``RUN_DIR/scene.json`` (``contract.SCENE_FILE``), shown as a ``stage`` progress event, and
-copied into every export's manifest.
+are written to ``RUN_DIR/scene.json`` (``contract.SCENE_FILE``, by ``engine.fit.run_folder.RunFolder``), shown
+as a ``stage`` progress event, and copied into every export's manifest.
 
 Background motion is measured on the flow the fit computes anyway (no extra cost): per adjacent frame pair,
 over the reliable flow vectors (those that survive the forward-backward round trip) of the background
@@ -16,9 +16,7 @@ robust similarity fit decides *pan/zoom*. Anything else, or too little reliable 
 from __future__ import annotations
 
 import dataclasses
-import json
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import cv2
@@ -28,7 +26,6 @@ from engine import contract as C
 from engine.config import FitConfig, weight_ever_on
 from engine.data.flow import FlowField
 from engine.errors import InputError
-from engine.io.atomic import atomic_write_text
 
 #: A background whose median flow magnitude (working px per frame) stays under this in (almost) every frame
 #: pair is *static*: a tripod. DIS noise on a real tripod shot is far below it, and the slowest real camera
@@ -312,26 +309,6 @@ def force_all(scene: SceneAnalysis) -> SceneAnalysis:
     )
 
 
-def write_scene_file(run_dir: Path, scene: SceneAnalysis) -> Path:
-    """RUN_DIR/scene.json, atomically."""
-    path = Path(run_dir) / C.SCENE_FILE
-    atomic_write_text(path, json.dumps(scene.to_dict(), indent=2))
-    return path
-
-
-def read_scene_file(run_dir: Path) -> SceneAnalysis:
-    """The run's scene analysis (every fit writes it before its first step)."""
-    path = Path(run_dir) / C.SCENE_FILE
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-        C.validate_scene(data)
-    except FileNotFoundError:
-        raise InputError(path, "the run has no scene analysis", "restore it or fit into a new --out") from None
-    except (json.JSONDecodeError, C.ManifestError) as exc:
-        raise InputError(path, f"not a valid scene analysis ({exc})", "restore it or fit into a new --out") from None
-    return SceneAnalysis.from_dict(data)
-
-
 __all__ = [
     "ALL_TERMS",
     "PANZOOM_RESIDUAL_PX",
@@ -342,6 +319,4 @@ __all__ = [
     "classify_background",
     "force_all",
     "measure_background_motion",
-    "read_scene_file",
-    "write_scene_file",
 ]

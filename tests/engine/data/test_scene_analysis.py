@@ -21,10 +21,10 @@ from engine.data.scene_analysis import (
     PANZOOM_RESIDUAL_PX,
     STATIC_MOTION_PX,
     analyse_scene,
-    read_scene_file,
 )
 from engine.data.video import build_video_tensors, sample_pixels
 from engine.errors import InputError
+from engine.fit.run_folder import RunFolder
 from engine.fit.trainer import Reporter, build_model, fit, load_run, prepare_clip
 from engine.io.images import write_png
 from engine.model.atlas_model import FastModel
@@ -176,7 +176,7 @@ def test_fit_records_scene_and_export_has_one_layer(tmp_path):
         psnr[comp] = metrics["psnr"]
     print(f"\nbackground-only still plate, 60 steps: psnr auto {psnr['auto']:.2f} dB, all {psnr['all']:.2f} dB")
     assert psnr["auto"] > 25.0 and psnr["auto"] > psnr["all"] - 0.5 and metrics["alpha_iou"] == []
-    scene = read_scene_file(run)
+    scene = RunFolder(run).read_scene()
     assert scene.background_motion == C.BG_MOTION_STATIC and scene.num_layers == 1
     events = [m for m in map(C.parse_progress_line, stream.getvalue().splitlines()) if m]
     staged = [m for m in events if m["event"] == C.EVENT_STAGE and m["stage"] == "scene"]
@@ -200,7 +200,7 @@ def test_fit_records_scene_and_export_has_one_layer(tmp_path):
 
 def test_a_run_without_its_scene_analysis_is_refused(tmp_path):
     with pytest.raises(InputError, match="no scene analysis") as err:
-        read_scene_file(tmp_path)
+        RunFolder(tmp_path).read_scene()
     assert C.SCENE_FILE in str(err.value) and "\n" not in str(err.value)
 
 
@@ -242,7 +242,7 @@ def test_auto_masks_fit_uses_found_masks_or_falls_back(tmp_path):
     cfg = apply_overrides(preset_config("draft"), {**TINY, "steps": "20"})
     run = tmp_path / "run_obj"
     fit(frames_dir, [], run, cfg, device_name="cpu", progress_bar=False, stream=io.StringIO(), auto_masks=True)
-    scene = read_scene_file(run)
+    scene = RunFolder(run).read_scene()
     assert scene.layers_source == C.SCENE_LAYERS_AUTO and scene.num_layers == 2
     info = open_clip(frames_dir)
     found = read_masks(run / C.AUTO_MASKS_DIR, info, (128, 80))
@@ -255,7 +255,7 @@ def test_auto_masks_fit_uses_found_masks_or_falls_back(tmp_path):
     frames_dir, _ = _write_clip(tmp_path / "still", still.frames)
     run = tmp_path / "run_still"
     fit(frames_dir, [], run, cfg, device_name="cpu", progress_bar=False, stream=io.StringIO(), auto_masks=True)
-    scene = read_scene_file(run)
+    scene = RunFolder(run).read_scene()
     assert scene.num_layers == 1 and scene.layers_source == C.SCENE_LAYERS_AUTO
     assert "no moving object was found" in scene.reasons["layers"]
 
