@@ -28,12 +28,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from engine import cli
 from engine import contract as C
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.export.manifest import Manifest
 from engine.fit.run_folder import RunFolder
 from engine.io.images import read_exr, read_image, write_png
+from tests.engine_cli import run_cli
 from tests.folders import tree_digest
 from tests.paths import ROOT
 
@@ -64,14 +64,6 @@ def _engine(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
     )
 
 
-def _quiet_cli(*args: str) -> int:
-    import contextlib
-    import io
-
-    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-        return cli.main(list(args))
-
-
 def _kill_after(args: list[str], delay: float) -> int:
     """Start ``python -m engine *args``, SIGKILL it after ``delay`` seconds (unless it ended); its return code."""
     proc = subprocess.Popen(
@@ -100,8 +92,8 @@ class Base:
         self.frames, self.masks = write_scene(make_scene(SPEC), root / "clip")
         self.run = root / "run"
         fit_args = [str(self.frames), "--mask", str(self.masks), "--out", str(self.run), "--preset", "draft"]
-        assert _quiet_cli("fit", *fit_args, "--no-bar", *_sets()) == C.EXIT_OK
-        assert _quiet_cli("export", str(self.run), "--atlas-size", "64", "--no-bar") == C.EXIT_OK
+        assert run_cli("fit", *fit_args, "--no-bar", *_sets())[0] == C.EXIT_OK
+        assert run_cli("export", str(self.run), "--atlas-size", "64", "--no-bar")[0] == C.EXIT_OK
         self.manifest = self.run / C.EXPORTS_DIR / "v001" / C.MANIFEST_NAME
         # the artist's paint on the background layer's edit layer
         m = Manifest(self.manifest)

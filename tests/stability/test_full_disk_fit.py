@@ -13,9 +13,9 @@ import pytest
 
 from engine import contract as C
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
+from tests.engine_cli import run_cli
 from tests.full_disk import PAGE_BYTES, run_on_full_disk
 from tests.paths import ROOT
-from tests.stability.test_fault_injection import _quiet_cli
 
 SPEC = SceneSpec(width=48, height=32, frames=4, fg_size=(16, 12), fg_start=(10.0, 8.0))
 SETS = ["steps=40", "batch=256", "eval_every=10", "eval_pixels=500", "bootstrap_steps=10", "global_rigidity_steps=5"]
@@ -45,7 +45,7 @@ def fitted(tmp_path_factory):
     frames, masks = write_scene(make_scene(SPEC), root / "clip")
     run = root / "run"
     argv = ["fit", str(frames), "--mask", str(masks), "--out", str(run), "--preset", "draft", "--no-bar", *_sets()]
-    assert _quiet_cli(*argv) == C.EXIT_OK
+    assert run_cli(*argv)[0] == C.EXIT_OK
     return frames, masks, run
 
 
@@ -72,7 +72,7 @@ def test_resume_on_a_full_disk_is_one_line_and_keeps_the_last_checkpoint(fitted,
     shutil.rmtree(disk)
     retry = tmp_path / "retry"
     shutil.copytree(run, retry)
-    assert _quiet_cli("fit", "--resume", "--out", str(retry), "--no-bar", *_sets("steps=80")) == C.EXIT_OK
+    assert run_cli("fit", "--resume", "--out", str(retry), "--no-bar", *_sets("steps=80"))[0] == C.EXIT_OK
 
 
 def test_a_fit_on_a_disk_with_no_room_is_one_line_and_leaves_no_temp_file(fitted, tmp_path):
@@ -93,7 +93,7 @@ def test_an_export_on_a_full_disk_is_one_line_and_keeps_earlier_exports_and_edit
     _, _, run = fitted
     exported = tmp_path / "exported"
     shutil.copytree(run, exported)
-    assert _quiet_cli("export", str(exported), "--atlas-size", "64", "--no-bar") == C.EXIT_OK
+    assert run_cli("export", str(exported), "--atlas-size", "64", "--no-bar")[0] == C.EXIT_OK
     export = exported / C.EXPORTS_DIR / "v001"
     before = [
         hashlib.sha256(path.read_bytes()).hexdigest()

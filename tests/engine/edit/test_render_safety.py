@@ -5,9 +5,7 @@ exports (``tests.engine.fake_export``), no fit."""
 
 from __future__ import annotations
 
-import contextlib
 import errno
-import io
 import math
 import signal
 import subprocess
@@ -18,21 +16,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from engine import cli
 from engine import contract as C
 from engine.errors import MB
 from engine.io.images import write_png
 from tests.engine.fake_export import make_fake_export
+from tests.engine_cli import run_cli
 from tests.folders import hold_lock, tree_digest
 from tests.full_disk import run_on_full_disk
 from tests.paths import ROOT
-
-
-def _cli(*args: str) -> tuple[int, list[str]]:
-    err = io.StringIO()
-    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
-        code = cli.main([str(a) for a in args])
-    return code, [line for line in err.getvalue().splitlines() if line.strip()]
 
 
 def _export(folder: Path, frames: int = 4, size: tuple[int, int] = (32, 24), layers: int = 1) -> Path:
@@ -48,7 +39,7 @@ def _export(folder: Path, frames: int = 4, size: tuple[int, int] = (32, 24), lay
 
 def _earlier_render(manifest: Path, out: Path) -> dict[str, str]:
     """A finished render in ``out`` plus a file of the artist's there; their hashes."""
-    assert _cli("render", manifest, "--out", out, "--no-bar")[0] == C.EXIT_OK
+    assert run_cli("render", manifest, "--out", out, "--no-bar")[0] == C.EXIT_OK
     (out / "notes.txt").write_text("the artist's")
     return tree_digest(out)
 
@@ -60,7 +51,7 @@ def test_a_failing_render_leaves_no_partial_frames(tmp_path):
     earlier = _earlier_render(manifest, tmp_path / "earlier")
     (manifest.parent / C.PASSES_DIR / C.pass_file_name(2)).unlink()
     for out in (tmp_path / "earlier", tmp_path / "new" / "frames"):
-        code, lines = _cli("render", manifest, "--out", out, "--no-bar", "--movie", out.parent / "edit.mp4")
+        code, lines = run_cli("render", manifest, "--out", out, "--no-bar", "--movie", out.parent / "edit.mp4")
         assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and "atlas.00002.exr" in lines[0], lines
     assert tree_digest(tmp_path / "earlier") == earlier
     assert not (tmp_path / "new").exists() and not (tmp_path / "edit.mp4").exists()
@@ -96,7 +87,7 @@ def test_disk_full_during_a_render_is_one_line_naming_what_it_needs(tmp_path, mo
     size = sum(p.stat().st_size for p in (tmp_path / "out").glob("edit.*.exr"))
     _free_nothing(monkeypatch)
     _enospc_after(monkeypatch, render, "write_rgba_exr", 5)
-    code, lines = _cli("render", manifest, "--out", tmp_path / "out", "--no-bar")
+    code, lines = run_cli("render", manifest, "--out", tmp_path / "out", "--no-bar")
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1, lines
     assert lines[0].startswith("error: disk full: free ") and f" MB at {tmp_path / 'out'} — " in lines[0], lines
     free_mb = int(lines[0].split("free ")[1].split(" MB")[0])
@@ -111,7 +102,7 @@ def test_disk_full_in_the_movie_is_one_line_and_leaves_nothing(tmp_path, monkeyp
 
     manifest = _export(tmp_path, frames=6)
     _enospc_after(monkeypatch, render.MovieWriter, "write", 3)
-    code, lines = _cli(
+    code, lines = run_cli(
         "render", manifest, "--out", tmp_path / "new", "--movie", tmp_path / "m" / "edit.mp4", "--no-bar"
     )
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and "disk full" in lines[0], lines
@@ -163,11 +154,11 @@ def test_preview_failing_at_its_last_file_leaves_no_preview(tmp_path, monkeypatc
     run = tmp_path / "run"
     before = tree_digest(run)
     _enospc_after(monkeypatch, preview, "write_png_u8", 1)
-    code, lines = _cli("preview", manifest)
+    code, lines = run_cli("preview", manifest)
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and "disk full" in lines[0], lines
     assert not (manifest.parent / "preview").exists() and tree_digest(run) == before
     monkeypatch.undo()
-    assert _cli("preview", manifest)[0] == C.EXIT_OK
+    assert run_cli("preview", manifest)[0] == C.EXIT_OK
     names = sorted(p.name for p in (manifest.parent / "preview").iterdir())
     assert names == ["atlases.png", "checkerboard.mp4", "frames.png", "propagation.mp4"]
 
@@ -188,11 +179,11 @@ def test_project_frame_on_a_full_disk_keeps_every_edit_layer(tmp_path, monkeypat
     edits = tmp_path / "run" / C.EDITS_DIR
     before = tree_digest(edits)
     _enospc_after(monkeypatch, pf, "write_png", 1)
-    code, lines = _cli("project-frame", manifest, "--frame", "1", "--edit", _paint(tmp_path))
+    code, lines = run_cli("project-frame", manifest, "--frame", "1", "--edit", _paint(tmp_path))
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and "disk full" in lines[0], lines
     assert tree_digest(edits) == before and not list((tmp_path / "run").glob(".*partial*"))
     monkeypatch.undo()
-    assert _cli("project-frame", manifest, "--frame", "1", "--edit", _paint(tmp_path))[0] == C.EXIT_OK
+    assert run_cli("project-frame", manifest, "--frame", "1", "--edit", _paint(tmp_path))[0] == C.EXIT_OK
     after = tree_digest(edits)
     assert {n for n in after if not n.startswith("history")} == set(before)
     assert all(after[n] != d for n, d in before.items()), "both layers got the paint"
@@ -211,7 +202,7 @@ def test_project_frame_and_preview_refuse_a_run_folder_another_process_holds(tmp
     holder = hold_lock(run)
     try:
         for argv in (("project-frame", manifest, "--frame", "1", "--edit", _paint(tmp_path)), ("preview", manifest)):
-            code, lines = _cli(*argv)
+            code, lines = run_cli(*argv)
             assert code == C.EXIT_BAD_INPUT and len(lines) == 1, lines
             assert f"in use by fit (pid {holder.pid} on " in lines[0] and C.RUN_LOCKED_FIX in lines[0], lines
     finally:

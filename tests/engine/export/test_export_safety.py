@@ -4,9 +4,7 @@ changed. Real child processes (``python -m engine``) where another process is th
 
 from __future__ import annotations
 
-import contextlib
 import errno
-import io
 import json
 import math
 import os
@@ -20,11 +18,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from engine import cli
 from engine import contract as C
 from engine.errors import MB
 from engine.io.images import write_png
 from tests.engine.export.tiny_run import copy_root, export, make_run
+from tests.engine_cli import run_cli
 from tests.folders import hold_lock, tree_digest
 from tests.paths import ROOT
 
@@ -58,13 +56,6 @@ def _lines(text: str) -> list[str]:
     return [line for line in text.splitlines() if line.strip()]
 
 
-def _cli(*args: str) -> tuple[int, list[str]]:
-    err = io.StringIO()
-    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
-        code = cli.main(list(args))
-    return code, _lines(err.getvalue())
-
-
 def _manifest(root: Path, version: str = "v001") -> Path:
     return root / "run" / C.EXPORTS_DIR / version / C.MANIFEST_NAME
 
@@ -91,7 +82,7 @@ def test_writers_refuse_a_run_folder_another_process_holds(root):
             ["project-frame", str(_manifest(root)), "--frame", "1", "--edit", str(_paint(root))],
             ["preview", str(_manifest(root)), "--no-movies"],
         ):
-            code, lines = _cli(*argv)
+            code, lines = run_cli(*argv)
             assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and f"pid {holder.pid}" in lines[0], (argv, lines)
         assert tree_digest(run) == before
     finally:
@@ -116,7 +107,7 @@ def test_a_run_folder_moved_with_its_plate_renders_identically(root, tmp_path):
     out = _engine("render", str(_manifest(moved)), "--out", str(tmp_path / "after"), "--no-bar")
     assert out.returncode == C.EXIT_OK, out.stderr
     assert tree_digest(tmp_path / "after") == tree_digest(tmp_path / "before") != {}
-    code, lines = _cli("project-frame", str(_manifest(moved)), "--frame", "1", "--edit", str(_paint(moved)))
+    code, lines = run_cli("project-frame", str(_manifest(moved)), "--frame", "1", "--edit", str(_paint(moved)))
     assert code == C.EXIT_OK and all(str(moved / "run" / C.EDITS_DIR) in line for line in lines[:1]), lines
 
 
@@ -172,7 +163,7 @@ def test_disk_full_during_export_is_one_line_naming_what_it_needs(root, monkeypa
     shutil.rmtree(whole)
     before = (tree_digest(run / C.EXPORTS_DIR), tree_digest(run / C.EDITS_DIR))
     _fill_disk_after(monkeypatch, 3)
-    code, lines = _cli("export", str(run), "--atlas-size", str(BIG_ATLAS), "--no-bar")
+    code, lines = run_cli("export", str(run), "--atlas-size", str(BIG_ATLAS), "--no-bar")
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1, lines
     assert lines[0].startswith("error: disk full: free ") and f" MB at {run} — " in lines[0], lines[0]
     free_mb = int(lines[0].split("free ")[1].split(" MB")[0])
@@ -186,6 +177,6 @@ def test_disk_full_during_a_first_export_removes_what_it_created(tmp_path, monke
     """A run's first export fails on a full disk: no exports/ folder, no edit layers, nothing partial."""
     _, _, run = make_run(tmp_path)
     _fill_disk_after(monkeypatch, 2)
-    code, lines = _cli("export", str(run), "--atlas-size", "32", "--no-bar")
+    code, lines = run_cli("export", str(run), "--atlas-size", "32", "--no-bar")
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and "disk full" in lines[0], lines
     assert not (run / C.EXPORTS_DIR).exists() and not (run / C.EDITS_DIR).exists()

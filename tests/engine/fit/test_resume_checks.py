@@ -11,9 +11,7 @@
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
-import io
 import json
 import shutil
 from pathlib import Path
@@ -21,24 +19,16 @@ from pathlib import Path
 import pytest
 import torch
 
-from engine import cli
 from engine import contract as C
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.errors import InputError
 from engine.fit.run_folder import RunFolder
 from engine.fit.trainer import load_fitted
+from tests.engine_cli import run_cli
 from tests.folders import tree_digest
 from tests.stability.bad_inputs import TINY_FIT
 
 SPEC = SceneSpec(width=32, height=24, frames=3, fg_size=(12, 10), fg_start=(8.0, 6.0))
-
-
-def _cli(*argv: str) -> tuple[int, list[str]]:
-    """``python -m engine ARGV`` in-process: the exit code and the stderr lines."""
-    err = io.StringIO()
-    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
-        code = cli.main(list(argv))
-    return code, [ln for ln in err.getvalue().splitlines() if ln.strip()]
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +36,7 @@ def fitted(tmp_path_factory) -> tuple[Path, Path, Path]:
     """A finished tiny fit: (frames, masks, run folder). Tests work on copies of the run folder."""
     d = tmp_path_factory.mktemp("resume_checks")
     frames, masks = write_scene(make_scene(SPEC), d / "clip")
-    code, lines = _cli("fit", str(frames), "--mask", str(masks), "--out", str(d / "run"), *TINY_FIT)
+    code, lines = run_cli("fit", str(frames), "--mask", str(masks), "--out", str(d / "run"), *TINY_FIT)
     assert code == C.EXIT_OK, lines
     return frames, masks, d / "run"
 
@@ -61,7 +51,7 @@ def run(fitted, tmp_path) -> Path:
 def _refused(run: Path, *argv: str, needles: tuple[str, ...]) -> str:
     """``fit ARGV`` is refused: exit 2, one line holding ``needles``, the run folder byte-identical."""
     before = tree_digest(run)
-    code, lines = _cli("fit", *argv)
+    code, lines = run_cli("fit", *argv)
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and lines[0].startswith("error: "), lines
     for needle in needles:
         assert needle in lines[0], (needle, lines[0])
@@ -94,7 +84,7 @@ def test_a_resume_with_another_mask_folder_is_refused_not_fitted(run, fitted, tm
 
 def test_a_resume_naming_the_recorded_inputs_again_is_accepted(run, fitted):
     frames, masks, _ = fitted
-    code, lines = _cli("fit", str(frames), "--mask", str(masks), "--frames", "0:2", "--resume", "--out", str(run))
+    code, lines = run_cli("fit", str(frames), "--mask", str(masks), "--frames", "0:2", "--resume", "--out", str(run))
     assert code == C.EXIT_OK, lines
 
 
@@ -102,7 +92,7 @@ def test_a_resume_may_change_the_schedule_and_records_it(run):
     """``--resume --set steps=.. lr=..`` continues the fit with the new schedule, written to config.json before
     the next checkpoint (whose own config then says so too)."""
     before = RunFolder(run).read_config()
-    code, lines = _cli("fit", "--resume", "--out", str(run), "--no-bar", "--set", "steps=4", "--set", "lr=5e-4")
+    code, lines = run_cli("fit", "--resume", "--out", str(run), "--no-bar", "--set", "steps=4", "--set", "lr=5e-4")
     assert code == C.EXIT_OK, lines
     after = RunFolder(run).read_config()
     assert (after.steps, after.lr) == (4, 5e-4) and after.lr_grid == before.lr_grid
@@ -168,7 +158,7 @@ def test_a_fit_stopped_before_its_first_checkpoint_may_be_started_over(run, fitt
     (run / C.RUN_METRICS).unlink()
     (run / C.EXPORTS_DIR / ".v001.partial").mkdir(parents=True)
     assert RunFolder(run).fit_contents() == []
-    code, lines = _cli("fit", str(frames), "--mask", str(masks), "--out", str(run), *TINY_FIT)
+    code, lines = run_cli("fit", str(frames), "--mask", str(masks), "--out", str(run), *TINY_FIT)
     assert code == C.EXIT_OK, lines
 
 
@@ -178,7 +168,7 @@ def test_refit_replaces_the_fit_and_keeps_edits_and_exports_byte_identical(run, 
     artist = {d: _sha256(run / d) for d in (C.EDITS_DIR, C.EXPORTS_DIR)}
     old = {n: (run / n).read_bytes() for n in (C.RUN_CONFIG, C.RUN_CHECKPOINT, C.RUN_METRICS)}
     argv = [str(frames), "--mask", str(masks), "--out", str(run), *TINY_FIT, "--set", "steps=3", "--refit"]
-    code, lines = _cli("fit", *argv)
+    code, lines = run_cli("fit", *argv)
     assert code == C.EXIT_OK, lines
     assert {d: _sha256(run / d) for d in (C.EDITS_DIR, C.EXPORTS_DIR)} == artist
     assert all((run / n).read_bytes() != data for n, data in old.items())
@@ -196,7 +186,7 @@ def _another_config_checkpoint(run: Path, fitted: tuple[Path, Path, Path], tmp_p
     """Copy over ``run``'s checkpoint that of a fit of the same clip with another weight."""
     frames, masks, _ = fitted
     other = tmp_path / "other"
-    code, lines = _cli("fit", str(frames), "--mask", str(masks), "--out", str(other), *TINY_FIT, "--set", "w_rgb=7")
+    code, lines = run_cli("fit", str(frames), "--mask", str(masks), "--out", str(other), *TINY_FIT, "--set", "w_rgb=7")
     assert code == C.EXIT_OK, lines
     shutil.copyfile(other / C.RUN_CHECKPOINT, run / C.RUN_CHECKPOINT)
 
@@ -248,9 +238,9 @@ def test_a_checkpoint_from_before_configs_were_recorded_still_exports_and_resume
     del state["config"]
     state["schema"] = C.RUN_CHECKPOINT_SCHEMA_WITHOUT_CONFIG
     torch.save(state, path)
-    code, lines = _cli("export", str(run), "--atlas-size", "32", "--no-bar")
+    code, lines = run_cli("export", str(run), "--atlas-size", "32", "--no-bar")
     assert code == C.EXIT_OK, lines
-    code, lines = _cli("fit", "--resume", "--out", str(run), "--no-bar", "--set", "steps=4")
+    code, lines = run_cli("fit", "--resume", "--out", str(run), "--no-bar", "--set", "steps=4")
     assert code == C.EXIT_OK, lines
     saved = torch.load(path, map_location="cpu", weights_only=True)
     assert saved["schema"] == C.RUN_CHECKPOINT_SCHEMA and isinstance(saved["config"], dict)
