@@ -142,6 +142,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="inclusive range of positions in the sequence (default: all)",
     )
     f.add_argument(
+        "--colorspace",
+        default=None,
+        metavar="NAME",
+        help="the plate's OCIO colour space (a name or alias of $OCIO's config, else of the built-in ACES config: "
+        "ACEScg, ACEScct, 'sRGB Encoded Rec.709 (sRGB)', 'Linear Rec.709 (sRGB)', ...; default: the config's file "
+        "rules, else float files scene-linear Rec.709, integer files and movies sRGB; see docs/colour.md)",
+    )
+    f.add_argument(
         "--set",
         action="append",
         default=[],
@@ -263,7 +271,13 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
     r.add_argument(
         "--out", required=True, metavar="DIR", help="folder for the frames (edit.00012.exr ...), outside the run folder"
     )
-    r.add_argument("--format", default="exr", choices=["exr", "png"], help="exr (linear float, default) or png")
+    r.add_argument(
+        "--format",
+        default="exr",
+        choices=["exr", "png", "plate"],
+        help="exr (float: the plate's colour space for a float plate, else scene-linear Rec.709; default), png "
+        "(8-bit sRGB) or plate (the plate's file type, bit depth and colour space: an empty edit gives the plate back)",
+    )
     r.add_argument("--filter", default="bilinear", choices=["bilinear", "nearest"], help="texture filter")
     r.add_argument("--movie", default=None, metavar="FILE.mp4", help="also write an H.264 movie")
     r.add_argument("--no-bar", action="store_true", help="no progress bar on stderr")
@@ -351,6 +365,7 @@ def _add_masks_parser(sub: argparse._SubParsersAction) -> None:
     )
     m.add_argument("--frames", type=frame_range, default=None, metavar="FIRST:LAST", help="inclusive positions")
     m.add_argument("--truth", default=None, metavar="FOLDER", help="also print the IoU against these masks")
+    m.add_argument("--colorspace", default=None, metavar="NAME", help="the clip's OCIO colour space (as fit's)")
 
 
 def _cmd_masks(args: argparse.Namespace) -> int:
@@ -362,7 +377,9 @@ def _cmd_masks(args: argparse.Namespace) -> int:
     def say(message: str) -> None:
         print(C.progress_line(C.EVENT_STAGE, stage=C.VERB_MASKS, message=message), flush=True)
 
-    report = write_auto_masks(args.clip, args.out, frame_range=args.frames, truth=args.truth, say=say)
+    report = write_auto_masks(
+        args.clip, args.out, frame_range=args.frames, truth=args.truth, say=say, colorspace=args.colorspace
+    )
     for line in report.summary():
         print(line)
     print(C.progress_line(C.EVENT_MASKS, found=bool(report.result.found), folder=str(report.folder),
@@ -411,6 +428,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
             scribble_dir=args.scribbles,
             auto_masks=args.auto_masks,
             refit=args.refit,
+            colorspace=args.colorspace,
         )
     except FitCancelled as exc:
         print(f"cancelled: {exc}; continue with: python -m engine fit --resume --out {run_dir}", file=sys.stderr)

@@ -62,7 +62,7 @@ VERB_ESTIMATE = "estimate"  # estimate CLIP [--mask M ...] [--work RUN_DIR] --js
 #: "train_seconds", "expected_psnr" (dB or null), "expected_psnr_note", ...}]}
 ESTIMATE_TAG = "neural_atlas_estimate"
 VERB_EXPORT = "export"  # export RUN_DIR [--atlas-size N] [--frames FIRST:LAST]; last stdout line = manifest path
-VERB_RENDER = "render"  # render MANIFEST [--edit LAYER=IMAGE ...] --out DIR [--format exr|png] [--filter ...]
+VERB_RENDER = "render"  # render MANIFEST [--edit LAYER=IMAGE ...] --out DIR [--format exr|png|plate] [--filter ...]
 VERB_PROJECT_FRAME = "project-frame"  # project-frame MANIFEST --frame N --edit IMAGE
 VERB_PREVIEW = "preview"  # preview MANIFEST [--out DIR]
 VERB_MASKS = "masks"  # masks CLIP --out FOLDER [--frames FIRST:LAST]; last stdout line = the masks folder
@@ -133,7 +133,10 @@ AUTO_MASKS_DIR = "auto_masks"
 #   RUN_CLIP     {"schema": 2, "source": str (absolute), "kind": "sequence"|"movie",
 #                 "frame_range": [first, last] (inclusive positions in the source), "frame_numbers": [int],
 #                 "frame_files": [str] (absolute; [] for a movie), "native_size": [W, H], "working_size": [W, H],
-#                 "fps": float|null, "colorspace": "sRGB"|"linear", "masks": [str] (absolute folders),
+#                 "fps": float|null, "colorspace": str (the plate's OCIO colour space; "sRGB"|"linear" in runs made
+#                 before colour management), "colour_config": str (optional: the OCIO config that names it, $OCIO's
+#                 path or "ocio://default"; absent in older runs, see LEGACY_COLORSPACES),
+#                 "masks": [str] (absolute folders),
 #                 "scribbles": str|null, "layers": int (background + foreground layers of the model),
 #                 "fingerprint": str (hash of the fitted frames: a resume refuses a changed clip)}
 #                 Everything `export` needs besides the checkpoint: it never decodes the plate.
@@ -235,7 +238,35 @@ RUN_FILE_OTHER_VERSION_FIX = "fit into a new run folder or use the engine versio
 #: The fix for a run file that is damaged (not JSON, a key missing or of the wrong type).
 RUN_FILE_DAMAGED_FIX = "restore it, or fit into a new run folder"
 CLIP_KINDS: tuple[str, ...] = ("sequence", "movie")
+#: The colour-space values of records made before colour management (no "colour_config" beside them); still read.
 COLORSPACES: tuple[str, ...] = ("sRGB", "linear")
+#: Colour (docs/colour.md). A clip's "colorspace" is the name of its plate's colour space in the OCIO config named by
+#: "colour_config" ($OCIO's path when it was set, else COLOUR_BUILTIN_CONFIG). Records without "colour_config" were
+#: made before colour management: their "sRGB"/"linear" mean the built-in config's spaces below (LEGACY_COLORSPACES).
+COLOUR_BUILTIN_CONFIG = "ocio://default"
+#: Blender's scene-linear space (edit layers, atlas EXRs, the edit composite), in the built-in config's words.
+COLOUR_SCENE_LINEAR = "Linear Rec.709 (sRGB)"
+#: The sRGB encoding of COLOUR_SCENE_LINEAR (PNG edit layers and atlases; the fit's working encoding).
+COLOUR_SRGB = "sRGB Encoded Rec.709 (sRGB)"
+#: Data: passes, masks (never converted).
+COLOUR_RAW = "Raw"
+LEGACY_COLORSPACES: dict[str, str] = {"sRGB": COLOUR_SRGB, "linear": COLOUR_SCENE_LINEAR}
+#: The EXR header attribute that names a file's colour space for OCIO readers (OpenImageIO's): passes say COLOUR_RAW.
+EXR_COLORSPACE_ATTRIBUTE = "oiio:ColorSpace"
+#: The longest colour-space or config name a record may hold (a path to a config file included).
+COLOUR_NAME_MAX = 4096
+
+
+def valid_colour_record(colorspace: Any, config: Any) -> bool:
+    """A clip record's colour: a legacy value without a config, or a space name with its config (non-empty
+    strings, no control characters); whether the config knows the name is the engine's check (OCIO)."""
+
+    def name(v: Any) -> bool:
+        return isinstance(v, str) and 0 < len(v) <= COLOUR_NAME_MAX and v.isprintable()
+
+    if config is None:
+        return colorspace in COLORSPACES
+    return name(colorspace) and name(config)
 
 
 class RunFileError(ValueError):
@@ -293,7 +324,7 @@ def _check_clip_record(data: dict[str, Any]) -> None:
         problem = f"clip record: frame_range {first}..{last} does not span its {count} frames"
     elif data["frame_files"] and len(data["frame_files"]) != count:
         problem = f"clip record lists {len(data['frame_files'])} frame files for {count} frames"
-    elif data["kind"] not in CLIP_KINDS or data["colorspace"] not in COLORSPACES:
+    elif data["kind"] not in CLIP_KINDS or not valid_colour_record(data["colorspace"], data.get("colour_config")):
         problem = f"clip record: unknown kind or colour space {data['kind']!r}, {data['colorspace']!r}"
     elif data["layers"] < 1 or min(data["native_size"] + data["working_size"]) < 1:
         problem = "clip record: layers and sizes must be positive"
@@ -478,8 +509,9 @@ def pass_file_name(frame_number: int) -> str:
 #:  ISO-8601 str,
 #:  "clip": {"source": str, "kind": "sequence"|"movie", "frame_files": [str] ([] for a movie), "frame_numbers":
 #:           [int] (ascending), "first_frame": int, "last_frame": int, "fps": float|None, "resolution": [W, H],
-#:           "working_resolution": [W, H], "colorspace": "sRGB"|"linear", "masks": [str] (the fit's mask folders;
-#:           optional)},
+#:           "working_resolution": [W, H], "colorspace": str (the plate's OCIO colour space; "sRGB"|"linear" in
+#:           older manifests), "colour_config": str (optional: its OCIO config; absent = LEGACY_COLORSPACES),
+#:           "masks": [str] (the fit's mask folders; optional)},
 #:  "passes": {"dir": str, "pattern": "atlas.{frame:05d}.exr", "blender_pattern": "atlas.#####.exr",
 #:             "frames": [int] (plate frame numbers exported, each one of the clip's), "exr_layer": "Atlas",
 #:             "resolution": [W, H] (the clip's)},
@@ -517,7 +549,7 @@ MANIFEST_FIELDS: dict[str, dict[str, str]] = {
 }
 #: Fields a manifest may leave out, checked when present.
 MANIFEST_OPTIONAL_FIELDS: dict[str, dict[str, str]] = {
-    "clip": {"working_resolution": "int pair", "masks": "str list"},
+    "clip": {"working_resolution": "int pair", "masks": "str list", "colour_config": "str"},
     "fit": {"alpha_iou": "number list or null"},
 }
 MANIFEST_LAYER_FIELDS: dict[str, str] = {
@@ -592,7 +624,7 @@ def _check_size(where: str, size: list[int], limit: int = MANIFEST_MAX_SIDE) -> 
 def _check_clip(clip: dict[str, Any]) -> None:
     """The clip's fields agree with each other: known kind and colour space, frames ascending, one file each."""
     numbers = clip["frame_numbers"]
-    if clip["kind"] not in CLIP_KINDS or clip["colorspace"] not in COLORSPACES:
+    if clip["kind"] not in CLIP_KINDS or not valid_colour_record(clip["colorspace"], clip.get("colour_config")):
         raise ManifestError(
             f"manifest 'clip' has unknown kind or colour space {_quote([clip['kind'], clip['colorspace']])}"
         )

@@ -40,7 +40,7 @@ from engine.data.flow import DISFlow, FlowField, compute_flow
 from engine.errors import InputError
 from engine.io.atomic import disk_full_as_one_line, disk_full_error, signals_held
 from engine.io.clip import ClipInfo, open_clip, read_frames, read_masks, working_size
-from engine.io.colour import linear_to_srgb
+from engine.io.colour import to_working
 
 #: Fewer reliable flow vectors than this in a pair: no homography is fitted and the pair casts no vote.
 MIN_POINTS = 50
@@ -609,12 +609,15 @@ def write_auto_masks(
     cfg: AutoMaskConfig | None = None,
     truth: str | Path | None = None,
     say: Callable[[str], None] | None = None,
+    colorspace: str | None = None,
 ) -> MasksReport:
     """Find masks for ``clip`` and write them to ``out`` as 8-bit 0/255 PNGs at the clip's resolution,
     named like the frames, all or nothing (``write_mask_files``). Never overwrites: a folder already holding one
-    of those names is refused. ``say`` receives a progress line before the slow part."""
+    of those names is refused. ``say`` receives a progress line before the slow part. ``colorspace``: the clip's
+    colour space (default: ``engine.io.colour.default_colorspace``); the motion is found in the fit's working
+    encoding."""
     cfg = AutoMaskConfig() if cfg is None else cfg
-    info = open_clip(clip, frame_range)
+    info = open_clip(clip, frame_range, colorspace)
     if info.num_frames < 2:
         raise InputError(
             info.source,
@@ -626,8 +629,7 @@ def write_auto_masks(
     if say is not None:
         say(f"finding what moves in {info.num_frames} frames at {size[0]}x{size[1]}")
     frames = read_frames(info, size)
-    if info.colorspace == "linear":
-        frames = linear_to_srgb(np.nan_to_num(frames, nan=0.0, posinf=1.0, neginf=0.0))
+    frames = to_working(np.nan_to_num(frames, nan=0.0, posinf=1.0, neginf=0.0), info.colorspace, info.colour_config)
     frames = np.clip(np.nan_to_num(frames, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0).astype(np.float32)
     result = auto_masks(frames, cfg)
     full = resize_masks(result.masks, (info.width, info.height))

@@ -29,7 +29,8 @@ FILTERS = ("bilinear", "nearest")
 
 def edit_to_premultiplied(pixels: np.ndarray, is_float: bool) -> np.ndarray:
     """An edit image as linear premultiplied RGBA float32 [H, W, 4], the way Blender loads it:
-    integer files (PNG) are sRGB with straight alpha; float files (EXR) are linear and premultiplied."""
+    integer files (PNG) are sRGB with straight alpha, decoded by the OCIO transform Blender applies (the same
+    values to the last bit, docs/colour.md); float files (EXR) are scene-linear Rec.709 and premultiplied."""
     h, w, c = pixels.shape
     if c == 4:
         rgb, a = pixels[..., :3], pixels[..., 3:4]
@@ -93,6 +94,17 @@ def composite_edits(
     filter: str = "bilinear",
 ) -> np.ndarray:
     """Edited frame [H, W, 3] (linear) from the plate, each layer's passes and premultiplied edits."""
+    return composite_touched(plate_linear, passes, edits, filter)[0]
+
+
+def composite_touched(
+    plate_linear: np.ndarray,
+    passes: list[LayerPasses],
+    edits: list[np.ndarray | None],
+    filter: str = "bilinear",
+) -> tuple[np.ndarray, np.ndarray]:
+    """``composite_edits`` and where an edit touched the frame (bool [H, W]: some coverage or colour added); the
+    other pixels are the plate's, so a render in the plate's colour space copies them instead of converting."""
     out_premult = np.zeros_like(plate_linear, dtype=np.float32)
     cover = np.zeros(plate_linear.shape[:2], np.float32)
     for p, edit in zip(passes, edits, strict=True):
@@ -101,11 +113,20 @@ def composite_edits(
         s = sample_texture(edit, p.uv, filter) * p.z[..., None]
         out_premult += s[..., :3]
         cover += s[..., 3]
-    return plate_linear * (1.0 - cover[..., None]) + out_premult
+    touched = (cover != 0.0) | (out_premult != 0.0).any(-1)
+    return plate_linear * (1.0 - cover[..., None]) + out_premult, touched
 
 
 def edit_is_empty(edit: np.ndarray | None) -> bool:
     return edit is None or not bool(np.any(edit[..., 3] > 0.0))
 
 
-__all__ = ["FILTERS", "composite_edits", "edit_is_empty", "edit_to_premultiplied", "load_edit", "sample_texture"]
+__all__ = [
+    "FILTERS",
+    "composite_edits",
+    "composite_touched",
+    "edit_is_empty",
+    "edit_to_premultiplied",
+    "load_edit",
+    "sample_texture",
+]

@@ -1,8 +1,12 @@
 """`render`: the edited clip from an export, by the paper's edit equations (see ``engine.edit.equations``).
 
 Reads only the export (manifest, passes, edit layers) and the original plate, so its output is exactly
-what the Blender compositor tree built from the same manifest must produce. Frames are written as float
-EXR (scene-linear, what Blender writes) or PNG (sRGB); optionally an H.264 movie through PyAV.
+what the Blender compositor tree built from the same manifest must produce. The edits are composited in
+scene-linear Rec.709 (Blender's compositing space) and the result is converted back to the plate's colour space by
+OCIO; a pixel no edit covers is the plate's own value, so an empty edit gives the plate back bit for bit. Frames
+are written as float EXR (in the plate's colour space for a float plate, else scene-linear Rec.709, tagged with
+its chromaticities), PNG (sRGB) or ``plate`` (the plate's file type, bit depth and colour space); optionally an
+H.264 movie through PyAV, tagged BT.709 (docs/colour.md).
 
 What it writes can never destroy what it reads: an output folder that is (or directly holds) the plate's frames
 or a mask folder, or lies inside the run folder, is refused before anything is written (``check_output``). The
@@ -23,21 +27,34 @@ from types import TracebackType
 from typing import Any
 
 import numpy as np
+import OpenImageIO as oiio
 from tqdm import tqdm
 
 from engine import contract as C
-from engine.edit.equations import FILTERS, composite_edits, edit_is_empty, load_edit
+from engine.edit.equations import FILTERS, composite_edits, composite_touched, edit_is_empty, load_edit
 from engine.errors import DiskFullError, InputError
 from engine.export.manifest import Manifest
 from engine.io.atomic import DISK_ERRORS, as_disk_full, disk_full_as_one_line, disk_full_error, signals_held
 from engine.io.clip import iter_frames, open_clip
-from engine.io.colour import linear_to_srgb, to_linear
-from engine.io.images import write_png, write_rgba_exr
+from engine.io.colour import (
+    SCENE_LINEAR,
+    SRGB,
+    chromaticities,
+    from_linear,
+    linear_to_srgb,
+    recorded_space,
+    role_space,
+    to_linear,
+)
+from engine.io.images import open_image_input, write_like, write_png, write_rgba_exr
 
-FORMATS = ("exr", "png")
+FORMATS = ("exr", "png", "plate")
 OUTPUT_PREFIX = "edit."
 #: Frames per second of the movie when the plate has no rate (image sequences).
 DEFAULT_FPS = 25.0
+#: The movie's colour tags (ISO/IEC 23091-2 codes: primaries BT.709 = 1, transfer IEC 61966-2-1 sRGB = 13, matrix
+#: BT.709 = 1, range MPEG/limited = 1): what a player needs to show the sRGB frames as the PNGs show.
+MOVIE_COLOUR_TAGS = (1, 13, 1, 1)
 #: H.264 constant rate factor of the movies: visually lossless, so the movie judges the edit, not the codec.
 MOVIE_CRF = 18
 #: Hidden staging folders inside an output folder, one per writing process (``.edit.partial-1234``).
@@ -45,7 +62,9 @@ STAGING_PREFIX = "."
 STAGING_SUFFIX = ".partial-"
 #: Bytes per pixel of a rendered frame before compression (the disk-full estimate before any frame is written):
 #: float32 RGBA for EXR, 8-bit RGB for PNG.
-FRAME_BYTES_PER_PIXEL = {"exr": 16, "png": 3}
+FRAME_BYTES_PER_PIXEL = {"exr": 16, "png": 3, "plate": 16}
+#: The plate's file types that ``--format plate`` writes as they are; any other (JPEG, a movie) is written as PNG.
+PLATE_FORMATS = (".exr", ".dpx", ".png", ".tif", ".tiff")
 
 
 def parse_edit_args(items: list[str]) -> dict[str, str]:
@@ -77,14 +96,26 @@ def load_edits(manifest: Manifest, overrides: dict[str, str] | None = None) -> l
     return edits
 
 
+def plate_colour(manifest: Manifest) -> tuple[str, str]:
+    """(colour space, OCIO config) of the manifest's plate; older manifests' "sRGB"/"linear" are mapped."""
+    return recorded_space(manifest.clip["colorspace"], manifest.clip.get("colour_config"))
+
+
 def plate_frames(manifest: Manifest, frames: list[int]) -> Iterator[tuple[int, np.ndarray]]:
-    """(frame number, linear float32 [H, W, 3]) of the original plate for the given frame numbers."""
+    """(frame number, scene-linear Rec.709 float32 [H, W, 3]) of the original plate for the given frame numbers."""
+    for number, _, lin in plate_pixels(manifest, frames):
+        yield number, lin
+
+
+def plate_pixels(manifest: Manifest, frames: list[int]) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    """(frame number, the plate's own values [H, W, 3], the same as scene-linear Rec.709) for ``frames``."""
     clip = manifest.clip
+    space, config = plate_colour(manifest)
     numbers = list(clip["frame_numbers"])
     positions = [numbers.index(f) for f in frames]
     first_pos = _source_position(manifest)
     lo, hi = min(positions), max(positions)
-    info = open_clip(manifest.plate_source(), (first_pos + lo, first_pos + hi))
+    info = open_clip(manifest.plate_source(), (first_pos + lo, first_pos + hi), space, config)
     if [info.width, info.height] != list(clip["resolution"]):
         raise InputError(
             info.source,
@@ -95,12 +126,12 @@ def plate_frames(manifest: Manifest, frames: list[int]) -> Iterator[tuple[int, n
     for k, rgb in enumerate(iter_frames(info)):
         number = numbers[lo + k]
         if number in wanted:
-            lin = to_linear(rgb, clip["colorspace"])
+            lin = to_linear(rgb, space, config)
             bad = ~np.isfinite(lin)
             if bad.any():
                 print(f"warning: NaN/Inf pixels in plate frame {number} set to 0", file=sys.stderr)
                 lin = np.where(bad, 0.0, lin).astype(np.float32)
-            yield number, lin
+            yield number, rgb, lin
 
 
 def _source_position(manifest: Manifest) -> int:
@@ -108,7 +139,7 @@ def _source_position(manifest: Manifest) -> int:
     clip = manifest.clip
     if clip["kind"] != C.CLIP_KINDS[0]:
         return int(clip["frame_numbers"][0])
-    info = open_clip(manifest.plate_source())
+    info = open_clip(manifest.plate_source(), None, *plate_colour(manifest))
     first = os.path.realpath(manifest.plate_frame_file(0))
     for position, path in enumerate(info.frame_files):
         if os.path.realpath(path) == first:
@@ -125,6 +156,48 @@ def render_frames(
         manifest.check_frame(f)
     for number, plate in plate_frames(manifest, frames):
         yield number, composite_edits(plate, manifest.read_passes(number), edits, filter)
+
+
+def render_plate_frames(
+    manifest: Manifest, edits: list[np.ndarray | None], frames: list[int] | None = None, filter: str = "bilinear"
+) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    """(frame number, edited frame in the plate's colour space, the same in scene-linear Rec.709). Pixels that no
+    edit covers (zero coverage and zero colour added) are the plate's own values, copied: converting them to
+    linear and back would cost the last bits of a float and could move an integer code value."""
+    space, config = plate_colour(manifest)
+    frames = manifest.frames if frames is None else frames
+    for f in frames:
+        manifest.check_frame(f)
+    for number, raw, lin in plate_pixels(manifest, frames):
+        out_lin, touched = composite_touched(lin, manifest.read_passes(number), edits, filter)
+        out = from_linear(out_lin, space, config) if touched.any() else raw
+        yield number, np.where(touched[..., None], out, raw).astype(np.float32), out_lin
+
+
+def _plate_is_float(manifest: Manifest) -> bool:
+    """Whether the plate's frames store floats (its header; a movie never does)."""
+    if manifest.clip["kind"] != C.CLIP_KINDS[0]:
+        return False
+    path = manifest.plate_frame_file(0)
+    inp = open_image_input(path)
+    if inp is None:
+        raise InputError(path, "cannot open the plate frame", "put the plate back where the export was made from")
+    try:
+        return bool(inp.spec().format.basetype in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE))
+    finally:
+        inp.close()
+
+
+def _plate_file(manifest: Manifest) -> tuple[str | None, str]:
+    """(a plate frame to write like, its extension) for ``--format plate``: the plate's own file type when it is
+    one that holds its values exactly; else (a movie, JPEG) (None, ".png"): sRGB PNG."""
+    clip = manifest.clip
+    if clip["kind"] == C.CLIP_KINDS[0]:
+        first = str(manifest.plate_frame_file(0))
+        ext = os.path.splitext(first)[1].lower()
+        if ext in PLATE_FORMATS:
+            return first, ext
+    return None, ".png"
 
 
 def to_display_u8(frame_linear: np.ndarray) -> np.ndarray:
@@ -321,6 +394,9 @@ class MovieWriter:
         self.stream.width, self.stream.height = self.size
         self.stream.pix_fmt = "yuv420p"
         self.stream.options = {"crf": str(MOVIE_CRF)}
+        # the frames are sRGB-encoded Rec.709, converted to Y'CbCr with the BT.709 matrix (``write``), limited range
+        codec = self.stream.codec_context
+        codec.color_primaries, codec.color_trc, codec.colorspace, codec.color_range = MOVIE_COLOUR_TAGS
         self.frames = 0
 
     def write(self, rgb_u8: np.ndarray) -> None:
@@ -330,6 +406,7 @@ class MovieWriter:
         if (w, h) != self.size:
             rgb_u8 = np.pad(rgb_u8, ((0, self.size[1] - h), (0, self.size[0] - w), (0, 0)), mode="edge")
         frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb_u8), format="rgb24")
+        frame = frame.reformat(format="yuv420p", dst_colorspace="itu709")  # the matrix the stream is tagged with
         with disk_full_as_one_line(self.path.parent):
             for packet in self.stream.encode(frame):
                 self.container.mux(packet)
@@ -446,12 +523,20 @@ def _render_into(
         if movie is not None:
             writer = MovieWriter(movie, float(manifest.clip.get("fps") or DEFAULT_FPS), manifest.resolution)
         bar = tqdm(total=len(manifest.frames), disable=not progress_bar, file=sys.stderr, unit="frame")
-        for number, frame in render_frames(manifest, edits, filter=filter):
-            path = staged.path(f"{OUTPUT_PREFIX}{number:05d}.{fmt}")
-            if fmt == "exr":
-                write_rgba_exr(path, np.concatenate((frame, np.ones((*frame.shape[:2], 1), np.float32)), -1))
+        space, config = plate_colour(manifest)
+        like, ext = _plate_file(manifest) if fmt == "plate" else (None, f".{fmt}")
+        plate_is_srgb = space == role_space(SRGB, config)
+        exr_space = space if _plate_is_float(manifest) else role_space(SCENE_LINEAR, config)
+        for number, in_plate, frame in render_plate_frames(manifest, edits, filter=filter):
+            path = staged.path(f"{OUTPUT_PREFIX}{number:05d}{ext}")
+            if like is not None:
+                write_like(path, in_plate, like)
+            elif fmt == "exr":
+                rgb = in_plate if exr_space == space else frame
+                alpha = np.ones((*frame.shape[:2], 1), np.float32)
+                write_rgba_exr(path, np.concatenate((rgb, alpha), -1), chromaticities(exr_space, config), exr_space)
             else:
-                write_png(path, np.clip(linear_to_srgb(frame), 0.0, 1.0), 8)
+                write_png(path, np.clip(in_plate if plate_is_srgb else linear_to_srgb(frame), 0.0, 1.0), 8)
             sizes.frames += 1
             sizes.frame_bytes += path.stat().st_size
             if writer is not None:

@@ -38,7 +38,7 @@ from engine.fit.progress import Reporter
 from engine.fit.run_folder import ClipRecord, RunFolder
 from engine.fit.trainer import EVAL_CHUNK, FittedRun, load_fitted
 from engine.io.atomic import DISK_ERRORS, as_disk_full, atomic_write_text, move_into_place, signals_held
-from engine.io.colour import srgb_to_linear
+from engine.io.colour import RAW, REC709_CHROMATICITIES, SCENE_LINEAR, srgb_to_linear
 from engine.io.images import write_exr, write_png
 from engine.model.atlas_model import AtlasModel
 
@@ -356,6 +356,8 @@ def _export_locked(
             write_exr(
                 staging / C.ATLASES_DIR / f"{name}{C.ATLAS_EXR_EXT}",
                 {"R": lin[..., 0], "G": lin[..., 1], "B": lin[..., 2], "A": alpha[..., 0]},
+                chromaticities=REC709_CHROMATICITIES,  # scene-linear Rec.709, Blender's compositing space
+                attributes={C.EXR_COLORSPACE_ATTRIBUTE: SCENE_LINEAR},
             )
 
         # 4. passes at native resolution
@@ -375,7 +377,8 @@ def _export_locked(
                 chans[C.channel_name(uv_pass, "Y")] = tex_uv[:, 1].reshape(nh, nw)
                 chans[C.channel_name(uv_pass, "Z")] = (a * inside).reshape(nh, nw)
                 chans[C.channel_name(alpha_pass, C.ALPHA_CHANNELS[0])] = a.reshape(nh, nw)
-            out.pass_written(write_exr(staging / C.PASSES_DIR / C.pass_file_name(frame_numbers[t]), chans))
+            pass_file = staging / C.PASSES_DIR / C.pass_file_name(frame_numbers[t])
+            out.pass_written(write_exr(pass_file, chans, attributes={C.EXR_COLORSPACE_ATTRIBUTE: RAW}))  # data
             bar.update(1)
             reporter.emit(C.EVENT_PROGRESS, step=k + 1, total=len(selected), psnr=None, elapsed=None, eta=None)
         bar.close()
@@ -537,6 +540,7 @@ def _manifest(
             "resolution": list(clip.native_size),
             "working_resolution": list(clip.working_size),
             "colorspace": clip.colorspace,
+            **({"colour_config": clip.colour_config} if clip.colour_config is not None else {}),
             "masks": [relative_path(m, final) for m in clip.masks],
         },
         "passes": {

@@ -27,7 +27,7 @@ from engine.errors import InputError
 from engine.fit.progress import Reporter
 from engine.fit.run_folder import ClipRecord, RunFolder
 from engine.io.clip import ClipInfo, open_clip, read_frames, read_frames_at, read_masks, working_size
-from engine.io.colour import linear_to_srgb
+from engine.io.colour import to_working
 
 #: Characters of the frames' SHA-256 kept as the clip's fingerprint.
 FINGERPRINT_CHARS = 32
@@ -89,6 +89,7 @@ class PreparedClip:
             working_size=self.size,
             fps=info.fps,
             colorspace=info.colorspace,
+            colour_config=info.colour_config,
             masks=tuple(self.mask_dirs),
             scribbles=self.scribble_dir,
             layers=1 + self.num_foreground,
@@ -114,11 +115,14 @@ class PlateFaults:
     """Frames with finite values beyond +-PLATE_VALUE_LIMIT (clamped to it)."""
 
 
-def to_fitting_values(frames: np.ndarray, colorspace: str, source: str = "") -> tuple[np.ndarray, PlateFaults]:
-    """Frames as the values the model fits: display-encoded, finite, within +-PLATE_VALUE_LIMIT before encoding,
-    and what was repaired. Values within the limit (every 8/16-bit plate, every half-float one) are unchanged bit
-    for bit; the clamp runs in place on the one copy this makes anyway. A clip without a single finite value is
-    a one-line ``InputError`` naming ``source``: there is nothing to fit."""
+def to_fitting_values(
+    frames: np.ndarray, colorspace: str, source: str = "", colour_config: str | None = None
+) -> tuple[np.ndarray, PlateFaults]:
+    """Frames as the values the model fits: in the working encoding (sRGB-encoded Rec.709, converted from the
+    plate's ``colorspace`` by OCIO; docs/colour.md), finite, within +-PLATE_VALUE_LIMIT before encoding, and what
+    was repaired. Values within the limit of a plate already in the working encoding (every sRGB 8/16-bit plate)
+    are unchanged bit for bit; the clamp runs in place on the one copy this makes anyway. A clip without a single
+    finite value is a one-line ``InputError`` naming ``source``: there is nothing to fit."""
     per_frame = len(frames), -1
     finite = np.isfinite(frames).reshape(per_frame)
     if frames.size and not finite.any():
@@ -136,8 +140,9 @@ def to_fitting_values(frames: np.ndarray, colorspace: str, source: str = "") -> 
         beyond = (flat.max(1) > PLATE_VALUE_LIMIT) | (flat.min(1) < -PLATE_VALUE_LIMIT)
         absurd = [int(i) for i in np.nonzero(beyond)[0]]
         np.clip(out, -PLATE_VALUE_LIMIT, PLATE_VALUE_LIMIT, out=out)
-    if colorspace == "linear":
-        out = linear_to_srgb(np.clip(out, 0.0, None))
+    encoded = to_working(out, colorspace, colour_config)
+    if encoded is not out:
+        out = np.clip(encoded, 0.0, None)  # negative light (out of the Rec.709 gamut) is no colour the atlas holds
     return out.astype(np.float32), PlateFaults(bad, absurd)
 
 
@@ -162,6 +167,8 @@ def prepare_clip(
     scribble_dir: str | Path | None = None,
     auto_masks: bool = False,
     before_writing: Callable[[], None] | None = None,
+    colorspace: str | None = None,
+    colour_config: str | None = None,
 ) -> PreparedClip:
     """Read, validate and sanitise the clip and masks, and compute (or load from RUN_DIR/flow_cache) its flow.
 
@@ -170,9 +177,10 @@ def prepare_clip(
     them from motion (written to RUN_DIR/auto_masks) and fit with them; nothing found: background only.
     ``before_writing``: called once everything is read and checked, before the first write into the run folder
     (the flow cache, the auto masks): ``fit`` takes the run folder's lock there, so bad input creates no folder.
+    ``colorspace`` / ``colour_config``: the plate's colour space (``fit --colorspace``; a resume: the recorded one).
     """
     reporter = reporter or Reporter.null()
-    info = open_clip(clip, frame_range)
+    info = open_clip(clip, frame_range, colorspace, colour_config)
     size = working_size(info.width, info.height, cfg.long_edge)
     run = RunFolder(run_dir)
     finder = _AutoMasks(info, run) if auto_masks else None
@@ -181,7 +189,7 @@ def prepare_clip(
         raw, analysis_raw = read_frames_at(info, [size, finder.size])
     else:
         raw = analysis_raw = read_frames(info, size)
-    frames, faults = to_fitting_values(raw, info.colorspace, info.source)
+    frames, faults = to_fitting_values(raw, info.colorspace, info.source, info.colour_config)
     if faults.nonfinite:
         print(f"warning: NaN/Inf pixels replaced in frames {faults.nonfinite} of {info.source}", file=sys.stderr)
     if faults.absurd:
@@ -273,7 +281,8 @@ class _AutoMasks:
             frames = prepared.frames
             shared = (fit_cfg.flow_preset, fit_cfg.flow_threshold_px) == (cfg.flow_preset, cfg.flow_threshold_px)
         else:
-            frames, shared = to_fitting_values(raw, self.info.colorspace, self.info.source)[0], False
+            info = self.info
+            frames, shared = to_fitting_values(raw, info.colorspace, info.source, info.colour_config)[0], False
         flow = prepared.flow if shared else _fit_flow(frames, cfg.flow_preset, cfg.flow_threshold_px, self.cache)
         result = auto_masks(frames, cfg, flow=flow)
         native = resize_masks(result.masks, (self.info.width, self.info.height))

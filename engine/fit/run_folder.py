@@ -52,12 +52,16 @@ class ClipRecord(NumberedFrames):
     scribbles: str | None
     layers: int
     fingerprint: str
+    colour_config: str | None = None
+    """The OCIO config naming ``colorspace``; None in runs made before colour management (legacy "sRGB"/"linear")."""
 
     def to_dict(self) -> dict[str, Any]:
         data = asdict(self)
         for key, value in data.items():
             if isinstance(value, tuple):
                 data[key] = list(value)
+        if data["colour_config"] is None:
+            del data["colour_config"]
         return {"schema": C.RUN_CLIP_SCHEMA, **data}
 
     @classmethod
@@ -77,6 +81,7 @@ class ClipRecord(NumberedFrames):
             scribbles=data["scribbles"],
             layers=data["layers"],
             fingerprint=data["fingerprint"],
+            colour_config=data.get("colour_config"),
         )
 
 

@@ -35,6 +35,7 @@ from engine.fit.eta import StepClock
 from engine.fit.prepare import PreparedClip, prepare_clip
 from engine.fit.progress import Reporter
 from engine.fit.run_folder import FOREIGN_CHECKPOINT_FIX, ClipRecord, RunFolder
+from engine.io.colour import recorded_space, resolve
 from engine.model.atlas_model import AtlasModel, FastModel, motion_regions
 from engine.model.losses import psnr_from_mse
 from engine.model.motion_init import LayerMotion, estimate_layer_motion
@@ -628,6 +629,7 @@ def fit(
     scribble_dir: str | Path | None = None,
     auto_masks: bool = False,
     refit: bool = False,
+    colorspace: str | None = None,
 ) -> dict[str, Any]:
     """Fit a layered atlas to ``clip``; writes config, clip record, scene analysis, checkpoint and metrics
     into ``run_dir``. ``auto_masks``: no masks given, find them from motion (written to RUN_DIR/auto_masks
@@ -637,7 +639,8 @@ def fit(
     The run folder is written under its lock (``RunFolder.lock``), taken once the input is read and checked (at
     once when the folder exists): a second ``fit`` into it is refused with one line. A folder that holds a fit
     (``RunFolder.fit_contents``) takes ``resume`` (continue it: the same clip, masks and config, but for the
-    schedule's ``RESUMABLE_FIELDS``) or ``refit`` (fit again: edits/ and exports/ are kept)."""
+    schedule's ``RESUMABLE_FIELDS``) or ``refit`` (fit again: edits/ and exports/ are kept). ``colorspace``: the
+    plate's colour space (``fit --colorspace``; default from the config's file rules or the file type)."""
     check_config(cfg)
     if resume and refit:
         raise InputError(
@@ -659,11 +662,12 @@ def fit(
         if run.path.is_dir():
             lock()  # a folder that exists: another process writing it is refused before the clip is read
         state = scene = saved = None
-        expect = None
+        expect = colour_config = None
         if resume:
             saved, record = run.read_config(), run.read_clip()
             scene = run.read_scene(record)
             _check_resume_inputs(run, record, clip, mask_dirs, frame_range, scribble_dir)
+            colorspace, colour_config = _check_resume_colour(run, record, colorspace)
             _check_resume_config(run, saved, cfg)
             state = run.load_checkpoint(device)
             run.check_checkpoint_belongs(state, saved, record)
@@ -681,6 +685,8 @@ def fit(
             scribble_dir,
             auto_masks=find_masks,
             before_writing=lock,  # the lock from the first write (the flow cache) on
+            colorspace=colorspace,
+            colour_config=colour_config,
         )
         new_fit = saved is None or scene is None
         if new_fit:
@@ -800,6 +806,19 @@ def _check_resume_inputs(
             f"--resume with {what} {given}, but this run fitted {recorded}",
             "drop it to continue the fit as it started, or fit with it into a new --out (or --refit)",
         )
+
+
+def _check_resume_colour(run: RunFolder, record: ClipRecord, given: str | None) -> tuple[str, str]:
+    """The recorded plate colour space and config a resume continues with (runs made before colour management: their
+    "sRGB"/"linear" mapped); a ``--colorspace`` that names another space is refused in one line."""
+    space, config = recorded_space(record.colorspace, record.colour_config)
+    if given is not None and resolve(given, config) != space:
+        raise InputError(
+            run.clip,
+            f"--resume with --colorspace {given}, but this run fitted the plate as {space!r}",
+            "drop --colorspace to continue the fit as it started, or fit with it into a new --out (or --refit)",
+        )
+    return space, config
 
 
 def _check_resume_config(run: RunFolder, saved: FitConfig, cfg: FitConfig) -> None:

@@ -19,6 +19,7 @@ size within ``engine.io.images.MAX_DECODED_BYTES``; a path that is not valid UTF
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import itertools
 import os
 import re
@@ -34,6 +35,7 @@ import OpenImageIO as oiio
 
 from engine import contract as C
 from engine.errors import InputError
+from engine.io import colour
 from engine.io.images import check_declared_size, open_image_input
 
 IMAGE_EXTENSIONS: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".exr", ".dpx", ".tif", ".tiff")
@@ -81,28 +83,39 @@ class ClipInfo(NumberedFrames):
     fps: float | None
     """Stream rate of a movie; ``None`` for a sequence (image files carry no reliable rate)."""
     colorspace: str
-    """``"sRGB"`` for integer encodings, ``"linear"`` for float ones (EXR, float TIFF)."""
+    """The plate's colour space, a name in ``colour_config`` (``engine.io.colour``): ``--colorspace``, else the
+    config's file rules, else by file type (float: scene-linear, integer and movie: sRGB)."""
     channels: int
     """Channels in the file (1 grey, 3 RGB, 4 RGBA, ...)."""
+    is_float: bool = False
+    """Whether the frames store floats (EXR, float TIFF): one clip is all float or all integer."""
+    colour_config: str = C.COLOUR_BUILTIN_CONFIG
+    """The OCIO config that names ``colorspace``: ``$OCIO`` when set, else the built-in one."""
 
 
 # --- public API ---------------------------------------------------------------------------------------
 
 
-def open_clip(path: str | Path, frame_range: tuple[int, int] | None = None) -> ClipInfo:
+def open_clip(
+    path: str | Path,
+    frame_range: tuple[int, int] | None = None,
+    colorspace: str | None = None,
+    colour_config: str | None = None,
+) -> ClipInfo:
     """Open and validate a clip without decoding it all.
 
     ``frame_range = (first, last)`` is INCLUSIVE, as positions 0..N-1 in the sorted sequence (not file
-    numbers). ``None`` selects every frame.
+    numbers). ``None`` selects every frame. ``colorspace``: the plate's colour space (a name or alias in
+    ``colour_config``, default ``$OCIO`` or the built-in config); ``None``: ``colour.default_colorspace``.
     """
     source = os.path.abspath(os.path.expanduser(os.fspath(path)))
     if not os.path.exists(source):
         raise InputError(source, "does not exist", "check the path: pass a folder of image frames or a movie file")
     if os.path.isdir(source):
-        return _open_sequence(source, frame_range)
+        return _with_colour(_open_sequence(source, frame_range), colorspace, colour_config)
     ext = os.path.splitext(source)[1].lower()
     if ext in MOVIE_EXTENSIONS:
-        return _open_movie(source, frame_range)
+        return _with_colour(_open_movie(source, frame_range), colorspace, colour_config)
     if ext in IMAGE_EXTENSIONS:
         raise InputError(
             source,
@@ -357,6 +370,26 @@ def _open_sequence(folder: str, frame_range: tuple[int, int] | None) -> ClipInfo
         colorspace="linear" if head.is_float else "sRGB",
         channels=head.channels,
     )
+
+
+def _with_colour(info: ClipInfo, colorspace: str | None, config: str | None) -> ClipInfo:
+    """``info`` (opened with the file's encoding, "linear" or "sRGB") given its colour space in the OCIO config."""
+    is_float = info.colorspace == "linear"
+    config = config or colour.active_config()
+    if colorspace is not None:
+        space = colour.resolve(colorspace, config)
+    elif info.kind == _MOVIE:
+        space = colour.default_colorspace(info.source, None, config)
+    else:
+        first = info.frame_files[0]
+        with _quiet_codec_stderr():
+            inp = _open_image(first, _FRAME)
+        try:
+            facts = colour.file_colour(inp.spec(), first)
+        finally:
+            inp.close()
+        space = colour.default_colorspace(first, facts, config)
+    return dataclasses.replace(info, colorspace=space, is_float=is_float, colour_config=config)
 
 
 def _encoding(is_float: bool) -> str:
@@ -762,6 +795,6 @@ def iter_frames(info: ClipInfo, size: tuple[int, int] | None = None) -> Iterator
                 f"frame is {image.width}x{image.height} but the clip is {info.width}x{info.height}",
                 _FRAME.size_fix,
             )
-        if image.is_float != (info.colorspace == "linear"):
+        if image.is_float != info.is_float:
             raise _mixed_encoding(path, os.path.basename(info.frame_files[0]), image.is_float)
         yield _resize(image.rgb(), (out_w, out_h))

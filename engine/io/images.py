@@ -103,14 +103,25 @@ def check_declared_size(path: str | os.PathLike[str], spec: oiio.ImageSpec, noun
     )
 
 
-def write_exr(path: Path, channels: dict[str, np.ndarray], compression: str = "zip") -> Path:
-    """Write float32 ``channels`` (name -> [H, W]) to one scanline EXR part, atomically."""
+def write_exr(
+    path: Path,
+    channels: dict[str, np.ndarray],
+    compression: str = "zip",
+    chromaticities: tuple[float, ...] | None = None,
+    attributes: dict[str, str] | None = None,
+) -> Path:
+    """Write float32 ``channels`` (name -> [H, W]) to one scanline EXR part, atomically. ``chromaticities``
+    (rx, ry, gx, gy, bx, by, wx, wy) tag the colour's primaries and white (``engine.io.colour.chromaticities``);
+    ``attributes``: string header attributes (``oiio:ColorSpace`` names the colour space for OCIO readers)."""
     shapes = {c.shape for c in channels.values()}
     if len(shapes) != 1 or len(next(iter(shapes))) != 2:
         raise ValueError(f"EXR channels must share one [H, W] shape, got {shapes}")
     comp = {"zip": OpenEXR.ZIP_COMPRESSION, "piz": OpenEXR.PIZ_COMPRESSION, "none": OpenEXR.NO_COMPRESSION}[compression]
     data = {name: np.ascontiguousarray(c, dtype=np.float32) for name, c in channels.items()}
-    header = {"compression": comp, "type": OpenEXR.scanlineimage}
+    header: dict[str, object] = {"compression": comp, "type": OpenEXR.scanlineimage}
+    if chromaticities is not None:
+        header["chromaticities"] = tuple(float(v) for v in chromaticities)
+    header.update(attributes or {})
 
     def write(tmp: str) -> None:
         with OpenEXR.File(header, data) as f:
@@ -119,10 +130,48 @@ def write_exr(path: Path, channels: dict[str, np.ndarray], compression: str = "z
     return atomic_write(path, write)
 
 
-def write_rgba_exr(path: Path, rgba: np.ndarray) -> Path:
-    """An ordinary (single-layer) RGBA or RGB float EXR."""
+def write_rgba_exr(
+    path: Path, rgba: np.ndarray, chromaticities: tuple[float, ...] | None = None, colorspace: str | None = None
+) -> Path:
+    """An ordinary (single-layer) RGBA or RGB float EXR, tagged with its chromaticities and colour space."""
     names = "RGBA"[: rgba.shape[2]]
-    return write_exr(path, {n: rgba[..., i] for i, n in enumerate(names)})
+    tags = {"oiio:ColorSpace": colorspace} if colorspace else None
+    return write_exr(path, {n: rgba[..., i] for i, n in enumerate(names)}, "zip", chromaticities, tags)
+
+
+#: Header attributes of a plate frame that ``write_like`` carries into a file written in its image (the bit depth,
+#: the DPX transfer and the colour tags: what a reader needs to decode the values the same way).
+LIKE_ATTRIBUTES = ("oiio:BitsPerSample", "dpx:Transfer", "dpx:Colorimetric", "chromaticities", "compression")
+
+
+def write_like(path: Path, rgb: np.ndarray, like: str | Path) -> Path:
+    """Write [H, W, 3] values (in the file's own encoding: integers as [0, 1]) in the image file type, pixel type
+    and bit depth of the file ``like`` (a plate frame), atomically: a plate's code values come back exactly."""
+    inp = open_image_input(like)
+    if inp is None:
+        raise InputError(like, f"cannot open this image ({' '.join(oiio.geterror().split())})", "check the file")
+    try:
+        plate = inp.spec()
+    finally:
+        inp.close()
+    h, w = rgb.shape[:2]
+    spec = oiio.ImageSpec(w, h, 3, plate.format)
+    for name in LIKE_ATTRIBUTES:
+        value = plate.getattribute(name)
+        if value is not None:
+            spec.attribute(name, value)
+    ext = os.path.splitext(os.fspath(path))[1]
+
+    def write(tmp: str) -> None:
+        out = oiio.ImageOutput.create(ext)
+        if out is None or not out.open(native_path(tmp), spec):  # type: ignore[arg-type]  # bytes taken too
+            raise OSError(f"cannot write {path}: {oiio.geterror()}")
+        ok = out.write_image(np.ascontiguousarray(rgb, dtype=np.float32))
+        out.close()
+        if not ok:
+            raise OSError(f"cannot write {path}: {out.geterror()}")
+
+    return atomic_write(path, write)
 
 
 def read_exr(path: str | Path) -> dict[str, np.ndarray]:
@@ -137,8 +186,9 @@ def read_exr(path: str | Path) -> dict[str, np.ndarray]:
         raise InputError(path, f"cannot read this EXR ({type(exc).__name__})", "export the run again") from None
 
 
-def write_png(path: Path, pixels: np.ndarray, bits: int = 8) -> Path:
-    """Write [H, W, C] values in [0, 1] (already encoded: sRGB, straight alpha) as an 8 or 16-bit PNG."""
+def write_png(path: Path, pixels: np.ndarray, bits: int = 8, srgb: bool = True) -> Path:
+    """Write [H, W, C] values in [0, 1] (already encoded: sRGB, straight alpha) as an 8 or 16-bit PNG, with its
+    sRGB chunk (``srgb``; data such as masks are written without it)."""
     if bits not in (8, 16):
         raise ValueError("PNG bit depth must be 8 or 16")
     top = 255.0 if bits == 8 else 65535.0
@@ -149,6 +199,8 @@ def write_png(path: Path, pixels: np.ndarray, bits: int = 8) -> Path:
     def write(tmp: str) -> None:
         out = oiio.ImageOutput.create("png")
         spec = oiio.ImageSpec(w, h, c, oiio.UINT8 if bits == 8 else oiio.UINT16)
+        if srgb:
+            spec.attribute("oiio:ColorSpace", "sRGB")  # OIIO writes the PNG sRGB chunk for it
         if c == 4:
             spec.attribute("oiio:UnassociatedAlpha", 1)  # values are straight alpha: do not premultiply
         if out is None or not out.open(native_path(tmp), spec):  # type: ignore[arg-type]  # bytes taken too

@@ -75,8 +75,8 @@ def test_png_edits_load_like_blender():
 
 def test_srgb_round_trip():
     x = np.linspace(-0.5, 4.0, 1001, dtype=np.float32)
-    np.testing.assert_allclose(linear_to_srgb(srgb_to_linear(x)), x, atol=2e-6)
-    assert srgb_to_linear(np.float32(0.04045)) == pytest.approx(0.04045 / 12.92)
+    np.testing.assert_allclose(linear_to_srgb(srgb_to_linear(x)), x, rtol=3e-5, atol=2e-6)  # OCIO: float32 curve
+    assert srgb_to_linear(np.float32(0.04045)) == pytest.approx(0.04045 / 12.92, rel=3e-5)
 
 
 def _identity_layer(w, h, alpha=1.0):

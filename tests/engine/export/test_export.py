@@ -116,7 +116,8 @@ def test_manifest_and_files(exported):
     m = Manifest(manifest_path)
     assert [layer["name"] for layer in m.layers] == ["Background", "Foreground"]
     assert data["fit"]["steps"] == 400 and data["fit"]["psnr"] > 25
-    assert data["clip"]["colorspace"] == "sRGB" and data["clip"]["resolution"] == [192, 108]
+    assert (data["clip"]["colorspace"], data["clip"]["colour_config"]) == (C.COLOUR_SRGB, C.COLOUR_BUILTIN_CONFIG)
+    assert data["clip"]["resolution"] == [192, 108]
     for layer in m.layers:
         n = layer["name"]
         assert layer["channels"] == [f"Atlas.UV{n}.X", f"Atlas.UV{n}.Y", f"Atlas.UV{n}.Z", f"Atlas.Alpha{n}.V"]

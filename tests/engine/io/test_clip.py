@@ -91,7 +91,7 @@ def test_png_8bit_sequence(tmp_path: Path) -> None:
         width=8,
         height=6,
         fps=None,
-        colorspace="sRGB",
+        colorspace=C.COLOUR_SRGB,
         channels=3,
     )
     assert info.num_frames == 3
@@ -108,14 +108,14 @@ def test_png_16bit(tmp_path: Path) -> None:
     folder.mkdir()
     write_image(folder / "1.png", const(4, 5, (0, 30000, 65535), np.uint16))
     info = open_clip(folder)
-    assert info.colorspace == "sRGB"
+    assert info.colorspace == C.COLOUR_SRGB
     np.testing.assert_allclose(read_frames(info)[0, 2, 3], [0, 30000 / 65535, 1.0], atol=1e-6)
 
 
 def test_jpg(tmp_path: Path) -> None:
     folder = make_sequence(tmp_path / "frames", count=2, ext="jpg", size=(16, 16))
     info = open_clip(folder)
-    assert (info.width, info.height, info.colorspace, info.num_frames) == (16, 16, "sRGB", 2)
+    assert (info.width, info.height, info.colorspace, info.num_frames) == (16, 16, C.COLOUR_SRGB, 2)
     np.testing.assert_allclose(
         read_frames(info)[1], np.broadcast_to([10 / 255, 100 / 255, 190 / 255], (16, 16, 3)), atol=3 / 255
     )
@@ -129,7 +129,7 @@ def test_float_exr_keeps_raw_values(tmp_path: Path) -> None:
     write_image(folder / "shot_v2.0001.exr", pixels, "half")
     write_image(folder / "shot_v2.0002.exr", pixels, "float")
     info = open_clip(folder)
-    assert info.colorspace == "linear" and info.frame_numbers == (1, 2)
+    assert info.colorspace == C.COLOUR_SCENE_LINEAR and info.frame_numbers == (1, 2)
     frames = read_frames(info)
     assert np.isnan(frames[:, 0, 0, 0]).all()
     np.testing.assert_allclose(frames[:, 1, 1], [[2.5, -0.25, 0.1]] * 2, rtol=1e-3)
@@ -140,8 +140,8 @@ def test_float_tiff_is_linear_and_int_tiff_is_srgb(tmp_path: Path) -> None:
     (tmp_path / "b").mkdir()
     write_image(tmp_path / "a" / "0.tif", const(2, 2, (0.5, 1.5, 0.0), np.float32))
     write_image(tmp_path / "b" / "0.tif", const(2, 2, (0, 128, 255)))
-    assert open_clip(tmp_path / "a").colorspace == "linear"
-    assert open_clip(tmp_path / "b").colorspace == "sRGB"
+    assert open_clip(tmp_path / "a").colorspace == C.COLOUR_SCENE_LINEAR
+    assert open_clip(tmp_path / "b").colorspace == C.COLOUR_SRGB
 
 
 def test_greyscale_is_replicated(tmp_path: Path) -> None:
@@ -253,7 +253,7 @@ def test_movie(tmp_path: Path) -> None:
     path = write_movie(tmp_path / "clip.mp4", colours)
     info = open_clip(path)
     assert info.kind == "movie" and info.source == str(path) and info.frame_files == ()
-    assert (info.num_frames, info.width, info.height, info.colorspace) == (5, 64, 48, "sRGB")
+    assert (info.num_frames, info.width, info.height, info.colorspace) == (5, 64, 48, C.COLOUR_SRGB)
     assert info.fps == pytest.approx(24.0)
     assert info.frame_numbers == (0, 1, 2, 3, 4)
     frames = read_frames(info)
@@ -690,7 +690,7 @@ def test_blackswan() -> None:
     if not (SHARED / "frames").is_dir() or not (SHARED / "masks").is_dir():
         pytest.skip(f"{SHARED} is not available")
     info = open_clip(SHARED / "frames")
-    assert (info.num_frames, info.width, info.height, info.colorspace) == (50, 854, 480, "sRGB")
+    assert (info.num_frames, info.width, info.height, info.colorspace) == (50, 854, 480, C.COLOUR_SRGB)
     size = working_size(info.width, info.height)
     masks = read_masks(SHARED / "masks", info, size)
     assert masks.shape == (50, 432, 768) and masks.dtype == bool

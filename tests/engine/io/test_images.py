@@ -10,6 +10,7 @@ import numpy as np
 import OpenEXR
 import pytest
 
+from engine import contract as C
 from engine.errors import InputError
 from engine.io.clip import open_clip
 from engine.io.images import (
@@ -64,7 +65,7 @@ def test_an_exr_with_a_real_crop_window_still_reads(tmp_path: Path) -> None:
     folder.mkdir()
     _exr_with_display_window(folder / "00000.exr", 64)
     info = open_clip(folder)
-    assert (info.width, info.height, info.colorspace) == (64, 64, "linear")
+    assert (info.width, info.height, info.colorspace) == (64, 64, C.COLOUR_SCENE_LINEAR)
 
 
 @pytest.fixture
