@@ -179,6 +179,8 @@ def image_settings_state(settings: Any) -> dict[str, Any]:
         "file_format": settings.file_format,
         "color_depth": settings.color_depth,
         "color_mode": settings.color_mode,
+        "color_management": settings.color_management,
+        "linear_colorspace": settings.linear_colorspace_settings.name,
     }
 
 
@@ -189,12 +191,14 @@ def restore_image_settings(settings: Any, state: dict[str, Any]) -> None:
     try:
         settings.color_depth = state["color_depth"]
         settings.color_mode = state["color_mode"]
+        settings.linear_colorspace_settings.name = state["linear_colorspace"]
+        settings.color_management = state["color_management"]
     except TypeError:
         pass  # the format restored does not offer them (a movie's colour depth)
 
 
-def set_render_format(scene: Any, file_format: str) -> None:
-    """'exr' (float32 RGBA, linear), 'png' (8-bit RGBA) or 'movie' (H.264 MP4)."""
+def set_render_format(scene: Any, file_format: str, exr_colorspace: str = "Linear Rec.709") -> None:
+    """'exr' (float32 RGBA, linear, in ``exr_colorspace``), 'png' (8-bit RGBA) or 'movie' (H.264 MP4)."""
     s = scene.render.image_settings
     if file_format == "movie":
         if V5:
@@ -210,10 +214,19 @@ def set_render_format(scene: Any, file_format: str) -> None:
         s.file_format = "OPEN_EXR"
         s.color_depth = "32"
         s.exr_codec = "ZIP"
+        # the EXR in the plate's scene-linear space (ACEScg ...): the output's own colour management, both versions
+        s.color_management = "OVERRIDE"
+        s.linear_colorspace_settings.name = exr_colorspace
     else:
         s.file_format = "PNG"
         s.color_depth = "8"
     s.color_mode = "RGBA"
+
+
+def colorspace_names() -> frozenset[str]:
+    """The colour spaces of this Blender's OCIO config (4.5 has no ACEScc/ACEScct; 5.0 has both)."""
+    prop = bpy.types.ColorManagedInputColorspaceSettings.bl_rna.properties["name"]
+    return frozenset(item.identifier for item in prop.enum_items)
 
 
 def new_node(tree: Any, kind: str) -> Any:

@@ -121,11 +121,12 @@ def set_filter(scene: Any, filter_type: str) -> int:
     return count
 
 
-def render(scene: Any, out_dir: str, file_format: str = "exr") -> list[str]:
+def render(scene: Any, out_dir: str, file_format: str = "exr", exr_colorspace: str = "Linear Rec.709") -> list[str]:
     """Render the compositor for the scene's frame range into ``out_dir/edit.#####.<ext>`` (or a movie).
 
     The view transform is Standard and dithering off for the render, so a PNG is the plain sRGB encoding
-    of the linear result (the artist's settings are restored afterwards).
+    of the linear result (the artist's settings are restored afterwards). An EXR is written in
+    ``exr_colorspace`` (``TreePlan.output_colorspace``: the plate's space when scene-linear, as ``engine render``).
     """
     os.makedirs(out_dir, exist_ok=True)
     r = scene.render
@@ -144,7 +145,7 @@ def render(scene: Any, out_dir: str, file_format: str = "exr") -> list[str]:
         r.dither_intensity = 0.0
         r.compositor_device = "CPU"
         r.compositor_precision = "FULL"
-        compat.set_render_format(scene, file_format)
+        compat.set_render_format(scene, file_format, exr_colorspace)
         r.use_file_extension = True
         r.filepath = os.path.join(os.path.abspath(out_dir), "edit." if file_format != "movie" else "edit_")
         if file_format != "movie":

@@ -94,7 +94,7 @@ def run(ns: argparse.Namespace) -> dict:
         os.replace(tmp, blend)  # a half-written .blend never replaces a good one
         files: list[str] = []
         if ns.render:
-            files = compositor.render(scene, os.path.abspath(ns.render), "exr")
+            files = compositor.render(scene, os.path.abspath(ns.render), "exr", plan.output_colorspace)
         report = {
             "blender": bpy.app.version_string,
             "filter": filt,

@@ -275,7 +275,7 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
         "--format",
         default="exr",
         choices=["exr", "png", "plate"],
-        help="exr (float: the plate's colour space for a float plate, else scene-linear Rec.709; default), png "
+        help="exr (float: the plate's colour space when scene-linear, else scene-linear Rec.709; default), png "
         "(8-bit sRGB) or plate (the plate's file type, bit depth and colour space: an empty edit gives the plate back)",
     )
     r.add_argument("--filter", default="bilinear", choices=["bilinear", "nearest"], help="texture filter")

@@ -71,7 +71,7 @@ class ImageSpec:
 
     name: str
     filepath: str
-    colorspace: str  # "sRGB" | "Non-Color"
+    colorspace: str  # Blender's name: "sRGB", "Non-Color", the plate's ("ACEScg", "Linear Rec.709", ...)
     sequence: bool = False
     frame_start: int = 1  # scene frame of the first file
     frame_duration: int = 1
@@ -87,6 +87,7 @@ class TreePlan:
     frame_end: int
     resolution: tuple[int, int]
     layers: list[str]
+    output_colorspace: str = "Linear Rec.709"  # the EXR render's colour space (``output_colorspace``)
 
 
 def edit_image_name(layer: str) -> str:
@@ -109,8 +110,10 @@ def plan_tree(
     manifest_path: str,
     filter_type: str = FILTER_SMOOTH,
     edits: dict[str, str] | None = None,
+    colorspaces: frozenset[str] | None = None,
 ) -> TreePlan:
-    """The tree for a validated manifest; ``edits`` maps a layer name to another edit image file."""
+    """The tree for a validated manifest; ``edits`` maps a layer name to another edit image file. ``colorspaces``:
+    the colour spaces this Blender has (``compat.colorspace_names``): a plate in another one is a PlanError."""
     if filter_type not in (FILTER_NEAREST, FILTER_SMOOTH):
         raise PlanError(f"unknown filter {filter_type!r}")
     edits = edits or {}
@@ -131,10 +134,10 @@ def plan_tree(
         if first not in numbers:
             raise PlanError(f"plate has no frame {first}; export frames that exist in the clip")
         plate_file = plate_path(manifest_path, files[numbers.index(first)], "plate frame")
-        plate = ImageSpec(PLATE_CLIP, plate_file, _plate_colorspace(clip), True, first, count)
+        plate = ImageSpec(PLATE_CLIP, plate_file, _plate_colorspace(clip, colorspaces), True, first, count)
     else:
-        plate = ImageSpec(PLATE_CLIP, plate_path(manifest_path, clip["source"], "plate movie"), _plate_colorspace(clip),
-                          False, 0, count)  # fmt: skip
+        plate = ImageSpec(PLATE_CLIP, plate_path(manifest_path, clip["source"], "plate movie"),
+                          _plate_colorspace(clip, colorspaces), False, 0, count)  # fmt: skip
 
     images = [ImageSpec(PASSES_IMAGE, pass_first, "Non-Color", True, first, count)]
     layers = [layer["name"] for layer in manifest["layers"]]
@@ -196,7 +199,8 @@ def plan_tree(
     links.append(LinkSpec(fg_node, fg_socket, n_over, "fg"))
     links.append(LinkSpec(n_over, "image", n_out, "image"))
     res = passes["resolution"]
-    return TreePlan(nodes, links, images, plate, first, last, (int(res[0]), int(res[1])), layers)
+    size = (int(res[0]), int(res[1]))
+    return TreePlan(nodes, links, images, plate, first, last, size, layers, output_colorspace(clip))
 
 
 def edit_layer_path(manifest_path: str, layer: dict[str, Any]) -> str:
@@ -232,12 +236,93 @@ def _separate(nodes: list[NodeSpec], links: list[LinkSpec], n_map: str) -> tuple
     return n_sep, "alpha"
 
 
+#: Blender's names (4.5 and 5.0 configs) for the engine's OCIO colour spaces, by the built-in config's name; the
+#: first one Blender has is used. Blender 4.5 has no ACEScc/ACEScct (5.0 has both).
+BLENDER_COLORSPACES: dict[str, tuple[str, ...]] = {
+    C.COLOUR_SRGB: ("sRGB",),
+    C.COLOUR_SCENE_LINEAR: ("Linear Rec.709",),
+    C.COLOUR_RAW: ("Non-Color",),
+    "ACEScg": ("ACEScg",),
+    "ACES2065-1": ("ACES2065-1",),
+    "ACEScct": ("ACEScct",),
+    "ACEScc": ("ACEScc",),
+    "Linear Rec.2020": ("Linear Rec.2020",),
+    "Linear P3-D65": ("Linear DCI-P3 D65",),
+}
+#: The aliases the built-in config gives those spaces (a manifest made with an $OCIO config may use them).
+OCIO_ALIASES: dict[str, str] = {
+    "srgb_tx": C.COLOUR_SRGB,
+    "srgb_texture": C.COLOUR_SRGB,
+    "srgb - texture": C.COLOUR_SRGB,
+    "utility - srgb - texture": C.COLOUR_SRGB,
+    "srgb_encoded_rec709_srgb": C.COLOUR_SRGB,
+    "lin_rec709": C.COLOUR_SCENE_LINEAR,
+    "lin_rec709_srgb": C.COLOUR_SCENE_LINEAR,
+    "lin_srgb": C.COLOUR_SCENE_LINEAR,
+    "utility - linear - srgb": C.COLOUR_SCENE_LINEAR,
+    "utility - linear - rec.709": C.COLOUR_SCENE_LINEAR,
+    "lin_ap1": "ACEScg",
+    "aces - acescg": "ACEScg",
+    "lin_ap0": "ACES2065-1",
+    "aces - aces2065-1": "ACES2065-1",
+    "acescct_ap1": "ACEScct",
+    "aces - acescct": "ACEScct",
+    "acescc_ap1": "ACEScc",
+    "aces - acescc": "ACEScc",
+    "utility - raw": C.COLOUR_RAW,
+    "none": C.COLOUR_RAW,
+    "raw": C.COLOUR_RAW,
+}
+#: The scene-linear spaces among them: Blender writes its EXR render in the plate's space when it is one of these
+#: (as ``engine render`` does), else in its scene-linear Rec.709.
+LINEAR_COLORSPACES = frozenset({C.COLOUR_SCENE_LINEAR, "ACEScg", "ACES2065-1", "Linear Rec.2020", "Linear P3-D65"})
+
+
+def engine_colorspace(clip: dict[str, Any]) -> str:
+    """The manifest clip's colour space in the built-in config's words (older manifests' "sRGB"/"linear" mapped;
+    an alias mapped to its name; any other name kept as it is)."""
+    name = str(clip.get("colorspace", "sRGB"))
+    if "colour_config" not in clip:
+        return C.LEGACY_COLORSPACES.get(name, name)
+    return OCIO_ALIASES.get(name.lower(), name)
+
+
+def blender_colorspace(name: str, available: frozenset[str] | None = None) -> str | None:
+    """Blender's colour space for the engine's OCIO space ``name``: its entry in BLENDER_COLORSPACES, else the same
+    name (a studio $OCIO config that Blender also uses); None when Blender has none of them (``available``: the
+    names this Blender offers; None: assumed to have them all)."""
+    for candidate in (*BLENDER_COLORSPACES.get(name, ()), name):
+        if available is None or candidate in available:
+            return candidate
+    return None
+
+
+def plate_colorspace(clip: dict[str, Any], available: frozenset[str] | None = None) -> str:
+    """Blender's colour space for the manifest's plate; a space Blender lacks is a PlanError that says what to do."""
+    name = engine_colorspace(clip)
+    found = blender_colorspace(name, available)
+    if found is None:
+        raise PlanError(
+            f"this Blender's colour management has no {name!r} (the plate's colour space), so the compositor cannot "
+            f"decode the plate — use Blender 5.0 or later (it has ACEScc and ACEScct), or render with `engine render "
+            f"--format plate`; painting and saving edits work as they are"
+        )
+    return found
+
+
+def output_colorspace(clip: dict[str, Any]) -> str:
+    """Blender's colour space for the EXR render: the plate's when it is scene-linear, else Linear Rec.709 (what
+    ``engine render --format exr`` writes)."""
+    name = engine_colorspace(clip)
+    space = name if name in LINEAR_COLORSPACES else C.COLOUR_SCENE_LINEAR
+    return BLENDER_COLORSPACES[space][0]
+
+
 def edit_colorspace(path: str) -> str:
     """An edit layer is an sRGB PNG with straight alpha, or a linear float EXR with premultiplied alpha."""
     return "Non-Color" if path.lower().endswith(C.EDIT_LAYER_FLOAT_EXT) else "sRGB"
 
 
-def _plate_colorspace(clip: dict[str, Any]) -> str:
-    # an sRGB-encoded plate (PNG/JPG/8-16 bit) is decoded by Blender exactly as the engine's render does;
-    # a linear (EXR) plate is read raw
-    return "sRGB" if clip.get("colorspace", "sRGB") == "sRGB" else "Non-Color"
+def _plate_colorspace(clip: dict[str, Any], available: frozenset[str] | None) -> str:
+    # Blender decodes the plate with its OCIO config's transform for the plate's space, as the engine's render does
+    return plate_colorspace(clip, available)

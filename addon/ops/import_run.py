@@ -8,7 +8,7 @@ import bpy
 from bpy.props import BoolProperty, StringProperty
 
 from ...engine import contract as C
-from .. import compositor, paint
+from .. import compat, compositor, paint
 from ..core import tree_plan as P
 from .scene_inputs import abspath
 
@@ -22,7 +22,7 @@ def import_manifest(
     """Read the manifest, build the compositor tree and the paint canvases (``edits``: layer -> other image)."""
     props = context.scene.neural_atlas
     manifest = C.load_manifest(manifest_path)
-    plan = P.plan_tree(manifest, manifest_path, props.filter_type, edits)
+    plan = P.plan_tree(manifest, manifest_path, props.filter_type, edits, compat.colorspace_names())
     compositor.build(context.scene, plan)
     if setup_paint:
         paint.setup_canvases(context, plan.layers)

@@ -7,6 +7,7 @@ from bpy.props import EnumProperty, StringProperty
 
 from ...engine import contract as C
 from .. import compositor, paint
+from ..core import tree_plan as P
 from .paint import NO_ATLAS
 from .scene_inputs import abspath
 
@@ -35,7 +36,8 @@ class NEURALATLAS_OT_render(bpy.types.Operator):
             # the paint is saved first, so the render is of what the artist sees; a run folder in use or a full
             # disk stops the render with the one line that says so (the paint stays unsaved in Blender)
             paint.save_edits()
-            files = compositor.render(context.scene, out, fmt)
+            space = P.output_colorspace(C.load_manifest(props.manifest)["clip"])
+            files = compositor.render(context.scene, out, fmt, space)
         except (RuntimeError, ValueError, OSError, C.RunLocked) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}

@@ -22,7 +22,7 @@ import numpy as np
 
 from engine.export.manifest import LayerPasses
 from engine.io.colour import srgb_to_linear
-from engine.io.images import read_image
+from engine.io.images import image_header, read_image
 
 FILTERS = ("bilinear", "nearest")
 
@@ -49,9 +49,17 @@ def edit_to_premultiplied(pixels: np.ndarray, is_float: bool) -> np.ndarray:
     return np.concatenate((srgb_to_linear(rgb) * a, a), -1)
 
 
+#: Blender turns an 8-bit image's code values into floats as ``code * (1 / 255)`` (a float32 product), which is
+#: one float step off ``code / 255`` for some codes; the edit layers are decoded from the same floats, so the
+#: OCIO decode that follows gives Blender's values to the last bit (docs/colour.md).
+BYTE_SCALE = np.float32(1.0 / 255.0)
+
+
 def load_edit(path: str | Path) -> np.ndarray:
     """Read an edit layer file as linear premultiplied RGBA [H, W, 4]."""
     pixels, is_float = read_image(path)
+    if not is_float and image_header(path)[2] == 8:
+        pixels = np.rint(pixels * np.float32(255.0)) * BYTE_SCALE
     return edit_to_premultiplied(pixels, is_float)
 
 

@@ -4,9 +4,9 @@ Reads only the export (manifest, passes, edit layers) and the original plate, so
 what the Blender compositor tree built from the same manifest must produce. The edits are composited in
 scene-linear Rec.709 (Blender's compositing space) and the result is converted back to the plate's colour space by
 OCIO; a pixel no edit covers is the plate's own value, so an empty edit gives the plate back bit for bit. Frames
-are written as float EXR (in the plate's colour space for a float plate, else scene-linear Rec.709, tagged with
-its chromaticities), PNG (sRGB) or ``plate`` (the plate's file type, bit depth and colour space); optionally an
-H.264 movie through PyAV, tagged BT.709 (docs/colour.md).
+are written as float EXR (in the plate's colour space when it is scene-linear, e.g. ACEScg, else in scene-linear
+Rec.709, tagged with its chromaticities), PNG (sRGB) or ``plate`` (the plate's file type, bit depth and colour
+space); optionally an H.264 movie through PyAV, tagged BT.709 (docs/colour.md).
 
 What it writes can never destroy what it reads: an output folder that is (or directly holds) the plate's frames
 or a mask folder, or lies inside the run folder, is refused before anything is written (``check_output``). The
@@ -27,7 +27,6 @@ from types import TracebackType
 from typing import Any
 
 import numpy as np
-import OpenImageIO as oiio
 from tqdm import tqdm
 
 from engine import contract as C
@@ -41,12 +40,13 @@ from engine.io.colour import (
     SRGB,
     chromaticities,
     from_linear,
+    is_linear,
     linear_to_srgb,
     recorded_space,
     role_space,
     to_linear,
 )
-from engine.io.images import open_image_input, write_like, write_png, write_rgba_exr
+from engine.io.images import write_like, write_png, write_rgba_exr
 
 FORMATS = ("exr", "png", "plate")
 OUTPUT_PREFIX = "edit."
@@ -172,20 +172,6 @@ def render_plate_frames(
         out_lin, touched = composite_touched(lin, manifest.read_passes(number), edits, filter)
         out = from_linear(out_lin, space, config) if touched.any() else raw
         yield number, np.where(touched[..., None], out, raw).astype(np.float32), out_lin
-
-
-def _plate_is_float(manifest: Manifest) -> bool:
-    """Whether the plate's frames store floats (its header; a movie never does)."""
-    if manifest.clip["kind"] != C.CLIP_KINDS[0]:
-        return False
-    path = manifest.plate_frame_file(0)
-    inp = open_image_input(path)
-    if inp is None:
-        raise InputError(path, "cannot open the plate frame", "put the plate back where the export was made from")
-    try:
-        return bool(inp.spec().format.basetype in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE))
-    finally:
-        inp.close()
 
 
 def _plate_file(manifest: Manifest) -> tuple[str | None, str]:
@@ -526,7 +512,7 @@ def _render_into(
         space, config = plate_colour(manifest)
         like, ext = _plate_file(manifest) if fmt == "plate" else (None, f".{fmt}")
         plate_is_srgb = space == role_space(SRGB, config)
-        exr_space = space if _plate_is_float(manifest) else role_space(SCENE_LINEAR, config)
+        exr_space = space if is_linear(space, config) else role_space(SCENE_LINEAR, config)
         for number, in_plate, frame in render_plate_frames(manifest, edits, filter=filter):
             path = staged.path(f"{OUTPUT_PREFIX}{number:05d}{ext}")
             if like is not None:

@@ -158,12 +158,14 @@ def write_like(path: Path, rgb: np.ndarray, like: str | Path) -> Path:
     spec = oiio.ImageSpec(w, h, 3, plate.format)
     for name in LIKE_ATTRIBUTES:
         value = plate.getattribute(name)
-        if value is not None:
+        if isinstance(value, tuple):  # chromaticities: float[8]
+            spec.attribute(name, oiio.TypeDesc(f"float[{len(value)}]"), value)
+        elif value is not None:
             spec.attribute(name, value)
     ext = os.path.splitext(os.fspath(path))[1]
 
     def write(tmp: str) -> None:
-        out = oiio.ImageOutput.create(ext)
+        out = oiio.ImageOutput.create(ext.lstrip("."))
         if out is None or not out.open(native_path(tmp), spec):  # type: ignore[arg-type]  # bytes taken too
             raise OSError(f"cannot write {path}: {oiio.geterror()}")
         ok = out.write_image(np.ascontiguousarray(rgb, dtype=np.float32))

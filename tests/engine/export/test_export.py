@@ -108,6 +108,19 @@ def test_pass_files_follow_the_contract(exported):
             assert np.array_equal(p.z[visible], p.alpha[visible])
 
 
+REC709 = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
+
+
+def _header(path, name):
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    try:
+        return inp.spec().getattribute(name)
+    finally:
+        inp.close()
+
+
 def test_manifest_and_files(exported):
     _, run, manifest_path = exported
     data = json.loads(Path(manifest_path).read_text())
@@ -118,6 +131,10 @@ def test_manifest_and_files(exported):
     assert data["fit"]["steps"] == 400 and data["fit"]["psnr"] > 25
     assert (data["clip"]["colorspace"], data["clip"]["colour_config"]) == (C.COLOUR_SRGB, C.COLOUR_BUILTIN_CONFIG)
     assert data["clip"]["resolution"] == [192, 108]
+    # the passes are data: OCIO readers take them raw
+    assert (
+        _header(m.resolve(data["passes"]["dir"]) / C.pass_file_name(m.frames[0]), C.EXR_COLORSPACE_ATTRIBUTE) == "Raw"
+    )
     for layer in m.layers:
         n = layer["name"]
         assert layer["channels"] == [f"Atlas.UV{n}.X", f"Atlas.UV{n}.Y", f"Atlas.UV{n}.Z", f"Atlas.Alpha{n}.V"]
@@ -131,6 +148,10 @@ def test_manifest_and_files(exported):
         assert edit.parent == run / "edits"
         e, _ = read_image(edit)
         assert e.shape == (h, w, 4) and e.max() == 0.0
+        # tagged: the atlas EXR scene-linear Rec.709 (its chromaticities), the PNGs sRGB (their sRGB chunk)
+        assert _header(m.resolve(layer["atlas_exr"]), "chromaticities") == pytest.approx(REC709, abs=1e-6)
+        assert _header(m.resolve(layer["atlas_exr"]), C.EXR_COLORSPACE_ATTRIBUTE) == C.COLOUR_SCENE_LINEAR
+        assert b"sRGB" in Path(m.resolve(layer["atlas_png"])).read_bytes()[:200]
         # EXR is linear premultiplied, PNG sRGB straight: the same atlas
         np.testing.assert_allclose(exr["A"], png[..., 3], atol=2e-5)
         np.testing.assert_allclose(exr["R"], srgb_to_linear(png[..., 0]) * png[..., 3], atol=2e-4)
