@@ -27,7 +27,7 @@ from engine.errors import InputError
 from engine.fit.progress import Reporter
 from engine.fit.run_folder import ClipRecord, RunFolder
 from engine.io.clip import ClipInfo, open_clip, read_frames, read_frames_at, read_masks, working_size
-from engine.io.colour import to_working
+from engine.io.colour import legacy_linear_to_srgb, recorded_space, to_working
 
 #: Characters of the frames' SHA-256 kept as the clip's fingerprint.
 FINGERPRINT_CHARS = 32
@@ -140,7 +140,10 @@ def to_fitting_values(
         beyond = (flat.max(1) > PLATE_VALUE_LIMIT) | (flat.min(1) < -PLATE_VALUE_LIMIT)
         absurd = [int(i) for i in np.nonzero(beyond)[0]]
         np.clip(out, -PLATE_VALUE_LIMIT, PLATE_VALUE_LIMIT, out=out)
-    encoded = to_working(out, colorspace, colour_config)
+    if colour_config is None and colorspace == "linear":  # a run made before colour management: its own curve
+        encoded = legacy_linear_to_srgb(np.clip(out, 0.0, None))
+    else:
+        encoded = to_working(out, colorspace, colour_config)
     if encoded is not out:
         out = np.clip(encoded, 0.0, None)  # negative light (out of the Rec.709 gamut) is no colour the atlas holds
     return out.astype(np.float32), PlateFaults(bad, absurd)
@@ -180,7 +183,13 @@ def prepare_clip(
     ``colorspace`` / ``colour_config``: the plate's colour space (``fit --colorspace``; a resume: the recorded one).
     """
     reporter = reporter or Reporter.null()
-    info = open_clip(clip, frame_range, colorspace, colour_config)
+    # a run made before colour management ("sRGB"/"linear", no config) is resumed with the values it fitted
+    legacy = colour_config is None and colorspace in C.COLORSPACES
+    info = (
+        open_clip(clip, frame_range, *recorded_space(colorspace, None))
+        if legacy
+        else open_clip(clip, frame_range, colorspace, colour_config)
+    )
     size = working_size(info.width, info.height, cfg.long_edge)
     run = RunFolder(run_dir)
     finder = _AutoMasks(info, run) if auto_masks else None
@@ -189,7 +198,10 @@ def prepare_clip(
         raw, analysis_raw = read_frames_at(info, [size, finder.size])
     else:
         raw = analysis_raw = read_frames(info, size)
-    frames, faults = to_fitting_values(raw, info.colorspace, info.source, info.colour_config)
+    if legacy:
+        frames, faults = to_fitting_values(raw, str(colorspace), info.source, None)
+    else:
+        frames, faults = to_fitting_values(raw, info.colorspace, info.source, info.colour_config)
     if faults.nonfinite:
         print(f"warning: NaN/Inf pixels replaced in frames {faults.nonfinite} of {info.source}", file=sys.stderr)
     if faults.absurd:

@@ -808,9 +808,10 @@ def _check_resume_inputs(
         )
 
 
-def _check_resume_colour(run: RunFolder, record: ClipRecord, given: str | None) -> tuple[str, str]:
-    """The recorded plate colour space and config a resume continues with (runs made before colour management: their
-    "sRGB"/"linear" mapped); a ``--colorspace`` that names another space is refused in one line."""
+def _check_resume_colour(run: RunFolder, record: ClipRecord, given: str | None) -> tuple[str, str | None]:
+    """The recorded plate colour space and config a resume continues with, as recorded (a run made before colour
+    management: "sRGB"/"linear" and no config, which ``prepare_clip`` reads as it did); a ``--colorspace`` that
+    names another space is refused in one line."""
     space, config = recorded_space(record.colorspace, record.colour_config)
     if given is not None and resolve(given, config) != space:
         raise InputError(
@@ -818,7 +819,7 @@ def _check_resume_colour(run: RunFolder, record: ClipRecord, given: str | None) 
             f"--resume with --colorspace {given}, but this run fitted the plate as {space!r}",
             "drop --colorspace to continue the fit as it started, or fit with it into a new --out (or --refit)",
         )
-    return space, config
+    return record.colorspace, record.colour_config
 
 
 def _check_resume_config(run: RunFolder, saved: FitConfig, cfg: FitConfig) -> None:

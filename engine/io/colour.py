@@ -189,6 +189,16 @@ def linear_to_srgb(x: np.ndarray) -> np.ndarray:
     return _per_value(x, SCENE_LINEAR, SRGB)
 
 
+def legacy_linear_to_srgb(x: np.ndarray) -> np.ndarray:
+    """The sRGB encoding the engine computed before colour management (the IEC formula in float32): only a resume of
+    a fit made then uses it, so the fitted values, and the fingerprint that ties the checkpoint to them, match."""
+    x = np.asarray(x, dtype=np.float32)
+    a = np.abs(x)
+    encoded = C.SRGB_SCALE * np.power(a, 1.0 / C.SRGB_GAMMA, dtype=np.float32) - C.SRGB_OFFSET
+    enc = np.where(a <= C.SRGB_LINEAR_CUTOFF, a * C.SRGB_SLOPE, encoded)
+    return (np.sign(x) * enc).astype(np.float32)
+
+
 def to_linear(x: np.ndarray, colorspace: str, config: str | None = None) -> np.ndarray:
     """Pixel values of a file in ``colorspace`` as scene-linear Rec.709 float32 (legacy "sRGB"/"linear" records
     are read as the built-in config's spaces)."""
@@ -292,6 +302,7 @@ __all__ = [
     "from_linear",
     "is_data",
     "is_linear",
+    "legacy_linear_to_srgb",
     "linear_to_srgb",
     "load_config",
     "recorded_space",

@@ -126,8 +126,8 @@ def test_the_fit_works_in_srgb_encoded_rec709(tmp_path):
 def test_resume_refuses_another_colour_space(tmp_path):
     record = ClipRecord("/clip", "sequence", (0, 1), (0, 1), (), (4, 4), (4, 4), None, "sRGB", (), None, 2, "f")
     run = RunFolder(tmp_path)
-    assert _check_resume_colour(run, record, None) == (C.COLOUR_SRGB, C.COLOUR_BUILTIN_CONFIG)  # an old run
-    assert _check_resume_colour(run, record, "srgb_tx") == (C.COLOUR_SRGB, C.COLOUR_BUILTIN_CONFIG)
+    assert _check_resume_colour(run, record, None) == ("sRGB", None)  # an old run: resumed as it was fitted
+    assert _check_resume_colour(run, record, "srgb_tx") == ("sRGB", None)
     with pytest.raises(InputError) as err:
         _check_resume_colour(run, record, "ACEScg")
     assert "--resume with --colorspace ACEScg, but this run fitted the plate as 'sRGB Encoded" in str(err.value)
