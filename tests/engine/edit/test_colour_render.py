@@ -19,6 +19,7 @@ from engine.fit.trainer import _check_resume_colour
 from engine.io import colour
 from engine.io.clip import open_clip
 from tests.colour_plates import AP1, KINDS, H, T, W, _half_layer, _read, _write, export_plate, paint
+from tests.engine_cli import run_cli
 
 
 @pytest.mark.parametrize("kind", list(KINDS))
@@ -175,3 +176,18 @@ colorspaces:
     name: Raw
     isdata: true
 """
+
+
+def test_fit_refuses_an_unknown_colour_space_and_an_unnamed_log_dpx(tmp_path):
+    """Before anything is written: one line, exit 2, no run folder."""
+    log_dpx = tmp_path / "plate"
+    log_dpx.mkdir()
+    for t in range(2):
+        _write(log_dpx / f"p.{t:04d}.dpx", np.full((H, W, 3), 0.5), oiio.UINT16, **{"dpx:Transfer": "Logarithmic"})
+    code, lines = run_cli("fit", log_dpx, "--out", tmp_path / "run", "--no-bar")
+    assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and "--colorspace ACEScct" in lines[0]
+    code, lines = run_cli("fit", log_dpx, "--out", tmp_path / "run", "--colorspace", "ACEScgg", "--no-bar")
+    assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and "has no colour space 'ACEScgg'" in lines[0]
+    code, lines = run_cli("masks", log_dpx, "--out", tmp_path / "masks")
+    assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and "log transfer (Logarithmic)" in lines[0]
+    assert not (tmp_path / "run").exists() and not (tmp_path / "masks").exists()
