@@ -795,8 +795,9 @@ SRGB_GAMMA = 2.4
 
 
 def srgb_to_linear(c: float) -> float:
-    """Decode one sRGB-encoded value to linear; values outside [0, 1] extend the curve symmetrically.
-    (``engine.io.colour.srgb_to_linear`` is the same curve over arrays, with these constants.)"""
+    """Decode one sRGB-encoded value to linear by the exact IEC formula; values outside [0, 1] extend the curve
+    symmetrically. (The engine and Blender decode images by OCIO's float32 form of this curve, which differs by up
+    to 2.4e-5: ``engine.io.colour.srgb_to_linear``, docs/colour.md.)"""
     a = abs(c)
     lin = a / SRGB_SLOPE if a <= SRGB_ENCODED_CUTOFF else ((a + SRGB_OFFSET) / SRGB_SCALE) ** SRGB_GAMMA
     return math.copysign(lin, c)
