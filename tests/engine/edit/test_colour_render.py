@@ -191,3 +191,16 @@ def test_fit_refuses_an_unknown_colour_space_and_an_unnamed_log_dpx(tmp_path):
     code, lines = run_cli("masks", log_dpx, "--out", tmp_path / "masks")
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and "log transfer (Logarithmic)" in lines[0]
     assert not (tmp_path / "run").exists() and not (tmp_path / "masks").exists()
+
+
+def test_movie_frames_are_converted_with_the_bt709_matrix_they_are_tagged_with(tmp_path):
+    """Pure sRGB red becomes Y' = 16 + 219 * 0.2126 = 63 (BT.709, limited range), not BT.601's 81."""
+    from engine.edit.render import MovieWriter
+
+    writer = MovieWriter(tmp_path / "red.mp4", 24.0, (16, 16))
+    for _ in range(3):
+        writer.write(np.tile(np.uint8([255, 0, 0]), (16, 16, 1)))
+    writer.close()
+    with av.open(str(tmp_path / "red.mp4")) as container:
+        luma = next(container.decode(video=0)).to_ndarray(format="yuv420p")[:16]
+    assert abs(float(luma.mean()) - 63.0) <= 1.0
