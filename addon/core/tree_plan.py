@@ -304,8 +304,8 @@ def plate_colorspace(clip: dict[str, Any], available: frozenset[str] | None = No
     if found is None:
         raise PlanError(
             f"this Blender's colour management has no {name!r} (the plate's colour space), so the compositor cannot "
-            f"decode the plate — use Blender 5.0 or later (it has ACEScc and ACEScct), or render with `engine render "
-            f"--format plate`; painting and saving edits work as they are"
+            f"decode the plate — import it in Blender 5.0 or later (it has ACEScc and ACEScct), or render with "
+            f"`engine render --format plate`"
         )
     return found
 
