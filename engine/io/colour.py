@@ -74,7 +74,8 @@ def load_config(name: str | None = None) -> oiio.ColorConfig:
     """The OCIO config ``name`` (default: ``active_config()``); a missing or broken one is a one-line error."""
     name = name or active_config()
     if not name.startswith("ocio://") and not os.path.isfile(name):
-        raise InputError(name, "OCIO config does not exist", _CONFIG_FIX)
+        fix = "put the OCIO config back at this path (the run and its exports name it), or fit again"
+        raise InputError(name, "OCIO config does not exist", fix if name != active_config() else _CONFIG_FIX)
     return _load(name)
 
 
