@@ -6,6 +6,7 @@ animation F-curves and material nodes. The facts behind each branch: docs/blende
 
 from __future__ import annotations
 
+import contextlib
 from typing import Any
 
 import bpy
@@ -188,11 +189,12 @@ def restore_image_settings(settings: Any, state: dict[str, Any]) -> None:
     if V5 and settings.media_type != state["media_type"]:
         settings.media_type = state["media_type"]  # first: it decides which file formats exist
     settings.file_format = state["file_format"]
+    settings.color_management = state["color_management"]
+    with contextlib.suppress(TypeError, ValueError):  # a format without a linear space (PNG) keeps its own
+        settings.linear_colorspace_settings.name = state["linear_colorspace"]
     try:
         settings.color_depth = state["color_depth"]
         settings.color_mode = state["color_mode"]
-        settings.linear_colorspace_settings.name = state["linear_colorspace"]
-        settings.color_management = state["color_management"]
     except TypeError:
         pass  # the format restored does not offer them (a movie's colour depth)
 

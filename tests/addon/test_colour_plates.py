@@ -90,6 +90,8 @@ def test_blender_render_equals_engine_render(blender, tmp_path, kind):
     assert plan.output_colorspace == ("ACEScg" if kind == "acescg" else "Linear Rec.709")
     out_b, out_e = tmp_path / "blender", tmp_path / "engine"
     compositor.render(blender.context.scene, str(out_b), "exr", plan.output_colorspace)
+    settings = blender.context.scene.render.image_settings  # the artist's output settings are given back
+    assert (settings.color_management, settings.file_format) == ("FOLLOW_SCENE", "PNG")
     subprocess.run(
         [py, "-m", "engine", "render", manifest, "--out", str(out_e), "--filter", "nearest", "--no-bar"],
         cwd=ROOT, check=True, timeout=300, capture_output=True,
