@@ -18,6 +18,7 @@ import os
 import shutil
 import sys
 from collections.abc import Iterator
+from fractions import Fraction
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -32,12 +33,15 @@ from engine.export.manifest import Manifest
 from engine.io.atomic import DISK_ERRORS, as_disk_full, disk_full_as_one_line, disk_full_error, signals_held
 from engine.io.clip import iter_frames, open_clip
 from engine.io.colour import linear_to_srgb, to_linear
-from engine.io.images import write_png, write_rgba_exr
+from engine.io.images import exr_timing, write_png, write_rgba_exr
+from engine.io.timing import Timecode, exact_rate
 
 FORMATS = ("exr", "png")
 OUTPUT_PREFIX = "edit."
 #: Frames per second of the movie when the plate has no rate (image sequences).
 DEFAULT_FPS = 25.0
+#: The largest numerator or denominator of a movie's sample aspect ratio (H.264 stores two 16-bit terms).
+MAX_SAR_TERM = 1000
 #: H.264 constant rate factor of the movies: visually lossless, so the movie judges the edit, not the codec.
 MOVIE_CRF = 18
 #: Hidden staging folders inside an output folder, one per writing process (``.edit.partial-1234``).
@@ -295,7 +299,17 @@ class MovieWriter:
     hidden temporary file beside the movie and renamed into place by ``publish`` (``close`` = finish + publish);
     ``abort`` removes everything it made. A folder it cannot write is one line; so is a full disk."""
 
-    def __init__(self, path: Path, fps: float, size: tuple[int, int]) -> None:
+    def __init__(
+        self,
+        path: Path,
+        fps: float | Fraction | None,
+        size: tuple[int, int],
+        pixel_aspect: float = 1.0,
+        timecode: str | None = None,
+    ) -> None:
+        """``fps``: the rate, kept exact (24000/1001 is written as that fraction: ``timing.exact_rate``; none:
+        ``DEFAULT_FPS``); ``pixel_aspect``: the stream's sample aspect ratio (2.0: anamorphic, shown 2x wide);
+        ``timecode``: the first frame's, written as the movie's timecode track."""
         import av
 
         self.path = Path(path)
@@ -315,7 +329,12 @@ class MovieWriter:
             blocker = _in_the_way(self.path.parent)
             reason = f"{blocker} is a file" if blocker else getattr(exc, "strerror", None) or type(exc).__name__
             raise InputError(self.path, f"cannot write the movie here ({reason})", fix) from None
-        self.stream = self.container.add_stream("libx264", rate=max(1, round(fps or DEFAULT_FPS)))
+        self.rate = exact_rate(fps) or exact_rate(DEFAULT_FPS)
+        self.stream = self.container.add_stream("libx264", rate=self.rate)
+        if pixel_aspect != 1.0:
+            self.stream.codec_context.sample_aspect_ratio = Fraction(pixel_aspect).limit_denominator(MAX_SAR_TERM)
+        if timecode is not None:
+            self.stream.metadata["timecode"] = timecode
         w, h = size
         self.size = (w + w % 2, h + h % 2)
         self.stream.width, self.stream.height = self.size
@@ -364,6 +383,21 @@ class MovieWriter:
             self.tmp.unlink(missing_ok=True)
         if self.created is not None:
             shutil.rmtree(self.created, ignore_errors=True)
+
+
+def movie_writer(manifest: Manifest, path: Path, default_fps: float = DEFAULT_FPS) -> MovieWriter:
+    """A movie of the manifest's exported frames at the plate's exact rate (``default_fps`` when it states none),
+    with its pixel aspect ratio and the timecode of the first exported frame."""
+    clip = manifest.clip
+    rate = C.clip_rate(clip)
+    first = manifest.frames[0] - clip["first_frame"]
+    timecode = clip.get("timecode")
+    if timecode is not None:
+        exact = None if rate is None else Fraction(*rate)
+        parsed = Timecode.parse(timecode, exact)
+        timecode = None if parsed is None else str(parsed.offset(first))
+    fps = Fraction(*rate) if rate is not None else exact_rate(default_fps)
+    return MovieWriter(path, fps, manifest.resolution, clip.get("pixel_aspect", 1.0), timecode)
 
 
 class _Sizes:
@@ -444,12 +478,16 @@ def _render_into(
     writer = None
     try:
         if movie is not None:
-            writer = MovieWriter(movie, float(manifest.clip.get("fps") or DEFAULT_FPS), manifest.resolution)
+            writer = movie_writer(manifest, movie)
         bar = tqdm(total=len(manifest.frames), disable=not progress_bar, file=sys.stderr, unit="frame")
+        clip = manifest.clip
         for number, frame in render_frames(manifest, edits, filter=filter):
             path = staged.path(f"{OUTPUT_PREFIX}{number:05d}.{fmt}")
             if fmt == "exr":
-                write_rgba_exr(path, np.concatenate((frame, np.ones((*frame.shape[:2], 1), np.float32)), -1))
+                timing = exr_timing(C.clip_rate(clip), clip.get("pixel_aspect", 1.0), clip.get("timecode"),
+                                    number - clip["first_frame"])  # fmt: skip
+                rgba = np.concatenate((frame, np.ones((*frame.shape[:2], 1), np.float32)), -1)
+                write_rgba_exr(path, rgba, attributes=timing)
             else:
                 write_png(path, np.clip(linear_to_srgb(frame), 0.0, 1.0), 8)
             sizes.frames += 1
@@ -478,6 +516,7 @@ __all__ = [
     "check_movie",
     "check_output",
     "load_edits",
+    "movie_writer",
     "parse_edit_args",
     "protected_folders",
     "render_frames",

@@ -12,6 +12,7 @@ import hashlib
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
+from fractions import Fraction
 from pathlib import Path
 
 import cv2
@@ -93,6 +94,10 @@ class PreparedClip:
             scribbles=self.scribble_dir,
             layers=1 + self.num_foreground,
             fingerprint=self.fingerprint,
+            rate=None if info.rate is None else (info.rate.numerator, info.rate.denominator),
+            pixel_aspect=info.pixel_aspect,
+            timecode=info.timecode,
+            start_frame=info.start_frame,
         )
 
 
@@ -162,6 +167,8 @@ def prepare_clip(
     scribble_dir: str | Path | None = None,
     auto_masks: bool = False,
     before_writing: Callable[[], None] | None = None,
+    fps: Fraction | None = None,
+    start_frame: int | None = None,
 ) -> PreparedClip:
     """Read, validate and sanitise the clip and masks, and compute (or load from RUN_DIR/flow_cache) its flow.
 
@@ -170,9 +177,10 @@ def prepare_clip(
     them from motion (written to RUN_DIR/auto_masks) and fit with them; nothing found: background only.
     ``before_writing``: called once everything is read and checked, before the first write into the run folder
     (the flow cache, the auto masks): ``fit`` takes the run folder's lock there, so bad input creates no folder.
+    ``fps`` and ``start_frame``: the plate's rate and a movie's first frame number (``open_clip``); recorded only.
     """
     reporter = reporter or Reporter.null()
-    info = open_clip(clip, frame_range)
+    info = open_clip(clip, frame_range, fps=fps, start_frame=start_frame)
     size = working_size(info.width, info.height, cfg.long_edge)
     run = RunFolder(run_dir)
     finder = _AutoMasks(info, run) if auto_masks else None

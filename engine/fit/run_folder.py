@@ -52,6 +52,13 @@ class ClipRecord(NumberedFrames):
     scribbles: str | None
     layers: int
     fingerprint: str
+    rate: tuple[int, int] | None = None
+    """The plate's exact frame rate (num, den); None: none stated (and in records written before it was kept)."""
+    pixel_aspect: float = 1.0
+    timecode: str | None = None
+    """SMPTE timecode of the first fitted frame."""
+    start_frame: int = 0
+    """A movie's number of its first frame (``fit --start-frame``)."""
 
     def to_dict(self) -> dict[str, Any]:
         data = asdict(self)
@@ -77,6 +84,11 @@ class ClipRecord(NumberedFrames):
             scribbles=data["scribbles"],
             layers=data["layers"],
             fingerprint=data["fingerprint"],
+            # the plate's timing: absent from records written before it was kept (square pixels, movies from 0)
+            rate=(data["rate"][0], data["rate"][1]) if data.get("rate") else None,
+            pixel_aspect=data.get("pixel_aspect", 1.0),
+            timecode=data.get("timecode"),
+            start_frame=data.get("start_frame", 0),
         )
 
 

@@ -17,7 +17,9 @@ Two guards every reader of an image shares (``engine.io.clip`` too):
 from __future__ import annotations
 
 import os
+from fractions import Fraction
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -26,6 +28,7 @@ import OpenImageIO as oiio
 
 from engine.errors import InputError
 from engine.io.atomic import atomic_write
+from engine.io.timing import Timecode
 
 #: Every image is decoded as float32: the bytes per channel a decode allocates, whatever the file stores.
 DECODED_BYTES_PER_CHANNEL = 4
@@ -103,14 +106,17 @@ def check_declared_size(path: str | os.PathLike[str], spec: oiio.ImageSpec, noun
     )
 
 
-def write_exr(path: Path, channels: dict[str, np.ndarray], compression: str = "zip") -> Path:
-    """Write float32 ``channels`` (name -> [H, W]) to one scanline EXR part, atomically."""
+def write_exr(
+    path: Path, channels: dict[str, np.ndarray], compression: str = "zip", attributes: dict[str, Any] | None = None
+) -> Path:
+    """Write float32 ``channels`` (name -> [H, W]) to one scanline EXR part, atomically; ``attributes`` are added
+    to its header (``exr_timing``: frame rate, pixel aspect ratio, timecode)."""
     shapes = {c.shape for c in channels.values()}
     if len(shapes) != 1 or len(next(iter(shapes))) != 2:
         raise ValueError(f"EXR channels must share one [H, W] shape, got {shapes}")
     comp = {"zip": OpenEXR.ZIP_COMPRESSION, "piz": OpenEXR.PIZ_COMPRESSION, "none": OpenEXR.NO_COMPRESSION}[compression]
     data = {name: np.ascontiguousarray(c, dtype=np.float32) for name, c in channels.items()}
-    header = {"compression": comp, "type": OpenEXR.scanlineimage}
+    header = {"compression": comp, "type": OpenEXR.scanlineimage, **(attributes or {})}
 
     def write(tmp: str) -> None:
         with OpenEXR.File(header, data) as f:
@@ -119,10 +125,31 @@ def write_exr(path: Path, channels: dict[str, np.ndarray], compression: str = "z
     return atomic_write(path, write)
 
 
-def write_rgba_exr(path: Path, rgba: np.ndarray) -> Path:
-    """An ordinary (single-layer) RGBA or RGB float EXR."""
+def write_rgba_exr(path: Path, rgba: np.ndarray, attributes: dict[str, Any] | None = None) -> Path:
+    """An ordinary (single-layer) RGBA or RGB float EXR (``attributes``: added to its header)."""
     names = "RGBA"[: rgba.shape[2]]
-    return write_exr(path, {n: rgba[..., i] for i, n in enumerate(names)})
+    return write_exr(path, {n: rgba[..., i] for i, n in enumerate(names)}, attributes=attributes)
+
+
+def exr_timing(
+    rate: tuple[int, int] | None, pixel_aspect: float, first_timecode: str | None = None, offset: int = 0
+) -> dict[str, Any]:
+    """The standard OpenEXR header attributes of a frame's timing, the plate's carried into every pass and render so
+    a compositor lines them up with it: ``framesPerSecond`` (a rational: 24000/1001 stays exact),
+    ``pixelAspectRatio`` and ``timeCode`` (SMPTE 12M, what Nuke, RV and OIIO show): ``first_timecode`` (the clip's
+    first frame) plus ``offset`` frames. Absent values are left out (OpenEXR's defaults: no rate, no timecode)."""
+    exact = None if rate is None else Fraction(*rate)
+    header: dict[str, Any] = {"pixelAspectRatio": float(pixel_aspect)}
+    if exact is not None:
+        header["framesPerSecond"] = exact
+    first = None if first_timecode is None else Timecode.parse(first_timecode, exact)
+    if first is not None:
+        timecode = first.offset(offset)
+        code = OpenEXR.TimeCode()
+        code.hours, code.minutes, code.seconds, code.frame = timecode.fields()
+        code.dropFrame = timecode.drop
+        header["timeCode"] = code
+    return header
 
 
 def read_exr(path: str | Path) -> dict[str, np.ndarray]:
