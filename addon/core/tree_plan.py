@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ...engine import contract as C  # type: ignore[import-not-found]
+from . import frames as F
 
 #: Every node and image the add-on creates starts with this; rebuilding removes only these.
 PREFIX = "NA_"
@@ -87,6 +88,10 @@ class TreePlan:
     frame_end: int
     resolution: tuple[int, int]
     layers: list[str]
+    fps: tuple[int, float] | None = None
+    """The scene's ``(render.fps, render.fps_base)``: the plate's exact rate (``frames.scene_fps``); None: none."""
+    pixel_aspect: tuple[float, float] = (1.0, 1.0)
+    """The scene's ``(pixel_aspect_x, pixel_aspect_y)``: the plate's pixel aspect ratio."""
 
 
 def edit_image_name(layer: str) -> str:
@@ -133,8 +138,9 @@ def plan_tree(
         plate_file = plate_path(manifest_path, files[numbers.index(first)], "plate frame")
         plate = ImageSpec(PLATE_CLIP, plate_file, _plate_colorspace(clip), True, first, count)
     else:
+        # scene frame F shows the movie's frame numbered F: its first frame is numbered start_frame (0 by default)
         plate = ImageSpec(PLATE_CLIP, plate_path(manifest_path, clip["source"], "plate movie"), _plate_colorspace(clip),
-                          False, 0, count)  # fmt: skip
+                          False, int(clip.get("start_frame", 0)), count)  # fmt: skip
 
     images = [ImageSpec(PASSES_IMAGE, pass_first, "Non-Color", True, first, count)]
     layers = [layer["name"] for layer in manifest["layers"]]
@@ -196,7 +202,8 @@ def plan_tree(
     links.append(LinkSpec(fg_node, fg_socket, n_over, "fg"))
     links.append(LinkSpec(n_over, "image", n_out, "image"))
     res = passes["resolution"]
-    return TreePlan(nodes, links, images, plate, first, last, (int(res[0]), int(res[1])), layers)
+    fps, aspect = F.scene_fps(C.clip_rate(clip)), F.scene_pixel_aspect(clip.get("pixel_aspect", 1.0))
+    return TreePlan(nodes, links, images, plate, first, last, (int(res[0]), int(res[1])), layers, fps, aspect)
 
 
 def edit_layer_path(manifest_path: str, layer: dict[str, Any]) -> str:

@@ -106,7 +106,8 @@ def clip_inputs(props: Any, files: RunFiles, with_scribbles: bool = True) -> EC.
             if not os.path.isdir(folder):
                 raise UserError(f"layer {i}: mask folder {folder!r} does not exist")
         folders.append(folder)
-    return EC.ClipInputs(plate, tuple(folders), *F.positions(first, last, clip.frame_start), scribble_dir)
+    numbers = F.plate_numbers(first, last, clip.frame_start, first_number)
+    return EC.ClipInputs(plate, tuple(folders), *numbers, scribble_dir)
 
 
 def sets(props: Any) -> list[str]:
