@@ -27,6 +27,17 @@ def file_number(path: str) -> int | None:
     return int(m.group(1)) if m else None
 
 
+def sequence_pattern(path: str) -> str:
+    """The engine's clip argument for an image-sequence Movie Clip: the pattern of the sequence its file belongs to
+    (``/plates/plate.1001.exr`` -> ``/plates/plate.####.exr``), so the engine reads the sequence Blender shows even
+    where the folder holds others; a file name without a number is its folder."""
+    m = _DIGITS.search(os.path.basename(path))
+    if m is None:
+        return os.path.dirname(path)
+    name = os.path.basename(path)
+    return os.path.join(os.path.dirname(path), f"{name[: m.start()]}{'#' * len(m.group(1))}{name[m.end() :]}")
+
+
 def frame_range(
     clip_frame_start: int, clip_frame_duration: int, start: int, end: int, whole_clip: bool
 ) -> tuple[int, int]:

@@ -38,10 +38,10 @@ def run_dir(props: Any) -> str:
 
 
 def clip_plate(clip: Any) -> tuple[str, int | None]:
-    """(what the engine reads: a sequence's folder or the movie file, the first file's number or None)."""
+    """(what the engine reads: a sequence's pattern or the movie file, the first file's number or None)."""
     path = abspath(clip.filepath)
     if clip.source == "SEQUENCE":
-        return os.path.dirname(path), F.file_number(path)
+        return F.sequence_pattern(path), F.file_number(path)
     return path, None
 
 

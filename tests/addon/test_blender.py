@@ -332,7 +332,7 @@ def test_fit_operator_runs_engine_exports_and_imports(fit_scene, tmp_path):
     log = Path(props.log_path).read_text()
     # argv: plate folder, rasterized masks named like the plate's files, the plate's frame numbers, preset, --no-bar
     first = log.splitlines()[0]
-    assert f" fit {tmp_path / 'src' / 'plate'} --mask {tmp_path / 'run.masks' / 'layer1'} " in first
+    assert f" fit {tmp_path / 'src' / 'plate' / '#####.png'} --mask {tmp_path / 'run.masks' / 'layer1'} " in first
     assert f"--frames {FRAMES[0]}:{FRAMES[-1]}" in first and "--preset draft" in first and first.endswith("--no-bar")
     assert sorted(os.listdir(tmp_path / "run.masks" / "layer1")) == [f"{f:05d}.png" for f in FRAMES]
     assert " export " in log

@@ -56,3 +56,10 @@ def test_scene_pixel_aspect_is_the_plates():
     assert F.scene_pixel_aspect(0.5) == (1.0, 2.0)
     assert F.scene_pixel_aspect(1.0) == (1.0, 1.0)
     assert F.scene_pixel_aspect(0.0) == (1.0, 1.0)
+
+
+def test_a_sequence_clip_is_given_to_the_engine_as_its_pattern():
+    assert F.sequence_pattern("/plates/plate.1001.exr") == "/plates/plate.####.exr"
+    assert F.sequence_pattern("/plates/00003.png") == "/plates/#####.png"
+    assert F.sequence_pattern("/plates/shot2_v3_0012.png") == "/plates/shot2_v3_####.png"
+    assert F.sequence_pattern("/plates/still.png") == "/plates"
