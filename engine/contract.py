@@ -64,11 +64,13 @@ VERB_ESTIMATE = "estimate"  # estimate CLIP [--mask M ...] [--work RUN_DIR] --js
 #: "device", "prepare_seconds", "presets": [{"preset", "model", "steps", "minutes", "total_seconds",
 #: "train_seconds", "expected_psnr" (dB or null), "expected_psnr_note", ...}]}
 ESTIMATE_TAG = "neural_atlas_estimate"
-VERB_EXPORT = "export"  # export RUN_DIR [--atlas-size N] [--frames FIRST:LAST]; last stdout line = manifest path
+VERB_EXPORT = "export"  # export RUN_DIR [--atlas-size N] [--frames FIRST-LAST]; last stdout line = manifest path
 VERB_RENDER = "render"  # render MANIFEST [--edit LAYER=IMAGE ...] --out DIR [--format exr|png] [--filter ...]
 VERB_PROJECT_FRAME = "project-frame"  # project-frame MANIFEST --frame N --edit IMAGE
 VERB_PREVIEW = "preview"  # preview MANIFEST [--out DIR]
-VERB_MASKS = "masks"  # masks CLIP --out FOLDER [--frames FIRST:LAST]; last stdout line = the masks folder
+VERB_MASKS = "masks"  # masks CLIP --out FOLDER [--frames FIRST-LAST]; last stdout line = the masks folder
+#: ``--frames`` of every verb speaks the plate's frame numbers (plate.1010.exr .. plate.1050.exr: 1010-1050; a movie's
+#: frames count from 0 or ``fit --start-frame``); run folders keep recording positions (clip.json "frame_range").
 
 #: The other direction: the add-on's one headless entry point, a script run by Blender (``blender -b -P``) or by
 #: a Python with the ``bpy`` module, that builds a .blend with the add-on's compositor tree for a manifest and
