@@ -45,7 +45,8 @@ def _load_image(spec: P.ImageSpec) -> Any:
 def _load_plate(spec: P.ImageSpec) -> Any:
     clip, _ = _ours(bpy.data.movieclips, spec)
     clip.colorspace_settings.name = spec.colorspace
-    # scene frame F shows plate frame F: a sequence starts at its first file's number, a movie at frame 0
+    # scene frame F shows plate frame F: a sequence starts at its first file's number, a movie at its first frame's
+    # number (0 unless the fit numbered it with --start-frame)
     clip.frame_start = spec.frame_start
     clip.frame_offset = 0
     return clip
@@ -103,12 +104,16 @@ def add_output(tree: Any, socket: Any) -> Any:
 
 
 def configure_scene(scene: Any, plan: P.TreePlan) -> None:
+    """The scene as the plate is: its range the exported frames' numbers (handles included: every imported frame),
+    its resolution, pixel aspect ratio and exact frame rate (a plate that states no rate keeps the scene's)."""
     scene.frame_start = plan.frame_start
     scene.frame_end = plan.frame_end
     r = scene.render
     r.resolution_x, r.resolution_y = plan.resolution
     r.resolution_percentage = 100
-    r.pixel_aspect_x = r.pixel_aspect_y = 1.0
+    r.pixel_aspect_x, r.pixel_aspect_y = plan.pixel_aspect
+    if plan.fps is not None:
+        r.fps, r.fps_base = plan.fps
 
 
 def set_filter(scene: Any, filter_type: str) -> int:

@@ -78,13 +78,45 @@ def _print_paths(paths: Iterable[Path]) -> int:
 
 
 def frame_range(text: str) -> tuple[int, int]:
-    a, sep, b = text.partition(":")
+    """``--frames``: ``FIRST-LAST`` (``1010-1050``, as pipeline tools write a range), ``FIRST:LAST`` or one frame
+    ``N``, in the plate's frame numbers (inclusive)."""
+    a, sep, b = text.strip().replace(":", "-").partition("-")
     try:
-        if not sep:
+        first = int(a)
+        last = int(b) if sep else first
+        if first < 0 or last < 0:
             raise ValueError
-        return int(a), int(b)
+        return first, last
     except ValueError:
-        raise argparse.ArgumentTypeError(f"frame range {text!r} must be FIRST:LAST, e.g. 0:49") from None
+        raise argparse.ArgumentTypeError(
+            f"frame range {text!r} must be FIRST-LAST in the plate's frame numbers, e.g. 1001-1100 (or 0:49)"
+        ) from None
+
+
+def frame_rate(text: str) -> Any:
+    """``--fps``: ``24``, ``25``, ``23.976`` (taken as 24000/1001) or an exact ``24000/1001``."""
+    from engine.io.timing import parse_rate
+
+    try:
+        return parse_rate(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+#: --frames' help, for every verb that reads a plate.
+FRAMES_HELP = (
+    "inclusive range of the plate's frame numbers, FIRST-LAST (plate.1010.exr .. plate.1050.exr: 1010-1050; a "
+    "movie's frames count from 0 or --start-frame); default: all"
+)
+
+
+def _positions(clip: str | None, frames: tuple[int, int] | None, start_frame: int | None = None) -> Any:
+    """The plate frame numbers of --frames as the positions the engine's readers take (None: every frame)."""
+    if frames is None or clip is None:
+        return frames
+    from engine.io.clip import frame_positions
+
+    return frame_positions(clip, frames, start_frame)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -100,7 +132,12 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Fit a background atlas and one foreground atlas per --mask folder.",
     )
-    f.add_argument("clip", nargs="?", help="image-sequence folder (png/jpg/exr/dpx/tif) or movie file")
+    f.add_argument(
+        "clip",
+        nargs="?",
+        help="image-sequence folder (png/jpg/exr/dpx/tif), sequence pattern (plates/plate.####.exr, plate.%%04d.exr, "
+        "plate.1001-1100#.exr) or movie file",
+    )
     f.add_argument(
         "--mask",
         action="append",
@@ -134,12 +171,21 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"draft | balanced | final | paper (default: {DEFAULT_PRESET}; not with --resume)",
     )
     f.add_argument("--device", default="auto", help="auto | cpu | cuda | mps (default: auto)")
+    f.add_argument("--frames", type=frame_range, default=None, metavar="FIRST-LAST", help=FRAMES_HELP)
     f.add_argument(
-        "--frames",
-        type=frame_range,
+        "--fps",
+        type=frame_rate,
         default=None,
-        metavar="FIRST:LAST",
-        help="inclusive range of positions in the sequence (default: all)",
+        metavar="RATE",
+        help="the plate's frame rate (24, 25, 23.976 = 24000/1001): for a sequence whose files state none (EXR and "
+        "DPX may); it overrides the files'. Recorded, and used for the movies written from the fit",
+    )
+    f.add_argument(
+        "--start-frame",
+        type=int,
+        default=None,
+        metavar="N",
+        help="number a movie's frames from N (e.g. 1001; default 0); a sequence is numbered by its file names",
     )
     f.add_argument(
         "--colorspace",
@@ -196,10 +242,10 @@ def _add_estimate_parser(sub: argparse._SubParsersAction) -> None:
         epilog=EXIT_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    e.add_argument("clip", help="image-sequence folder or movie file")
+    e.add_argument("clip", help="image-sequence folder, sequence pattern or movie file")
     e.add_argument("--mask", action="append", default=[], metavar="FOLDER", help="mask folder per foreground layer")
     e.add_argument("--presets", default=None, help="comma-separated (default: every preset)")
-    e.add_argument("--frames", type=frame_range, default=None, metavar="FIRST:LAST")
+    e.add_argument("--frames", type=frame_range, default=None, metavar="FIRST-LAST", help=FRAMES_HELP)
     e.add_argument("--calib-seconds", type=float, default=2.0, help="timed seconds per preset and regime")
     e.add_argument("--work", default=None, metavar="RUN_DIR", help="keep the flow cache here (a fit reuses it)")
     e.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
@@ -221,7 +267,7 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
         work_dir=args.work,
         calib_seconds=args.calib_seconds,
         device_name=args.device,
-        frame_range=args.frames,
+        frame_range=_positions(args.clip, args.frames),
         overrides=parse_set_args(args.set),
         threads=args.threads,
     )
@@ -251,8 +297,8 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
         "--frames",
         type=frame_range,
         default=None,
-        metavar="FIRST:LAST",
-        help="inclusive positions in the source sequence, as for fit (default: every fitted frame)",
+        metavar="FIRST-LAST",
+        help="inclusive range of the plate's frame numbers, as for fit (default: every fitted frame)",
     )
     x.add_argument("--device", default="cpu", help="auto | cpu | cuda | mps (default: cpu)")
     x.add_argument("--no-bar", action="store_true", help="no progress bar on stderr")
@@ -355,7 +401,7 @@ def _add_masks_parser(sub: argparse._SubParsersAction) -> None:
         epilog=EXIT_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    m.add_argument("clip", help="image-sequence folder or movie file")
+    m.add_argument("clip", help="image-sequence folder, sequence pattern or movie file")
     m.add_argument(
         "--out",
         required=True,
@@ -363,7 +409,7 @@ def _add_masks_parser(sub: argparse._SubParsersAction) -> None:
         help="folder for the mask PNGs (created); the whole set appears at once, or none of it (a full disk or a "
         "cancel leaves nothing: run again)",
     )
-    m.add_argument("--frames", type=frame_range, default=None, metavar="FIRST:LAST", help="inclusive positions")
+    m.add_argument("--frames", type=frame_range, default=None, metavar="FIRST-LAST", help=FRAMES_HELP)
     m.add_argument("--truth", default=None, metavar="FOLDER", help="also print the IoU against these masks")
     m.add_argument("--colorspace", default=None, metavar="NAME", help="the clip's OCIO colour space (as fit's)")
 
@@ -377,8 +423,9 @@ def _cmd_masks(args: argparse.Namespace) -> int:
     def say(message: str) -> None:
         print(C.progress_line(C.EVENT_STAGE, stage=C.VERB_MASKS, message=message), flush=True)
 
+    frames = _positions(args.clip, args.frames)
     report = write_auto_masks(
-        args.clip, args.out, frame_range=args.frames, truth=args.truth, say=say, colorspace=args.colorspace
+        args.clip, args.out, frame_range=frames, truth=args.truth, say=say, colorspace=args.colorspace
     )
     for line in report.summary():
         print(line)
@@ -415,6 +462,12 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     else:
         cfg = preset_config(args.preset or DEFAULT_PRESET)
     cfg = apply_overrides(cfg, parse_set_args(args.set))
+    if args.resume and args.frames is not None:  # the recorded plate, numbered as it was fitted
+        record = RunFolder(run_dir).read_clip()
+        movie_start = record.start_frame if record.kind == C.CLIP_KINDS[1] else None
+        frames = _positions(record.source, args.frames, movie_start)
+    else:
+        frames = _positions(args.clip, args.frames, args.start_frame)
     try:
         metrics = fit(
             args.clip,
@@ -423,12 +476,14 @@ def _cmd_fit(args: argparse.Namespace) -> int:
             cfg,
             device_name=args.device,
             resume=args.resume,
-            frame_range=args.frames,
+            frame_range=frames,
             progress_bar=not args.no_bar,
             scribble_dir=args.scribbles,
             auto_masks=args.auto_masks,
             refit=args.refit,
             colorspace=args.colorspace,
+            fps=args.fps,
+            start_frame=args.start_frame,
         )
     except FitCancelled as exc:
         print(f"cancelled: {exc}; continue with: python -m engine fit --resume --out {run_dir}", file=sys.stderr)

@@ -11,7 +11,9 @@ import contextlib
 import json
 import math
 import os
+import re
 from collections.abc import Iterator
+from fractions import Fraction
 from typing import Any
 
 ENGINE_VERSION = "0.1.0"
@@ -31,6 +33,7 @@ ENGINE_REQUIREMENTS: tuple[str, ...] = (
     "av>=12",
     "tqdm>=4.66",
     "scipy>=1.11,<1.16",  # linear scattered interpolation (Delaunay) when projecting a frame edit onto atlases
+    "fileseq==3.4.0",  # image sequences found and named the way pipeline tools do (plate.####.exr, %04d, ranges)
 )
 
 #: Extra requirements for development and the test suite (same venv).
@@ -61,11 +64,13 @@ VERB_ESTIMATE = "estimate"  # estimate CLIP [--mask M ...] [--work RUN_DIR] --js
 #: "device", "prepare_seconds", "presets": [{"preset", "model", "steps", "minutes", "total_seconds",
 #: "train_seconds", "expected_psnr" (dB or null), "expected_psnr_note", ...}]}
 ESTIMATE_TAG = "neural_atlas_estimate"
-VERB_EXPORT = "export"  # export RUN_DIR [--atlas-size N] [--frames FIRST:LAST]; last stdout line = manifest path
+VERB_EXPORT = "export"  # export RUN_DIR [--atlas-size N] [--frames FIRST-LAST]; last stdout line = manifest path
 VERB_RENDER = "render"  # render MANIFEST [--edit LAYER=IMAGE ...] --out DIR [--format exr|png|plate] [--filter ...]
 VERB_PROJECT_FRAME = "project-frame"  # project-frame MANIFEST --frame N --edit IMAGE
 VERB_PREVIEW = "preview"  # preview MANIFEST [--out DIR]
-VERB_MASKS = "masks"  # masks CLIP --out FOLDER [--frames FIRST:LAST]; last stdout line = the masks folder
+VERB_MASKS = "masks"  # masks CLIP --out FOLDER [--frames FIRST-LAST]; last stdout line = the masks folder
+#: ``--frames`` of every verb speaks the plate's frame numbers (plate.1010.exr .. plate.1050.exr: 1010-1050; a movie's
+#: frames count from 0 or ``fit --start-frame``); run folders keep recording positions (clip.json "frame_range").
 
 #: The other direction: the add-on's one headless entry point, a script run by Blender (``blender -b -P``) or by
 #: a Python with the ``bpy`` module, that builds a .blend with the add-on's compositor tree for a manifest and
@@ -138,8 +143,13 @@ AUTO_MASKS_DIR = "auto_masks"
 #                 path or "ocio://default"; absent in older runs, see LEGACY_COLORSPACES),
 #                 "masks": [str] (absolute folders),
 #                 "scribbles": str|null, "layers": int (background + foreground layers of the model),
-#                 "fingerprint": str (hash of the fitted frames: a resume refuses a changed clip)}
-#                 Everything `export` needs besides the checkpoint: it never decodes the plate.
+#                 "fingerprint": str (hash of the fitted frames: a resume refuses a changed clip),
+#                 optional (RUN_CLIP_OPTIONAL_FIELDS; a record without them is of square pixels, no exact rate, no
+#                 timecode, a movie numbered from 0): "rate": [num, den]|null (exact frame rate, 24000/1001),
+#                 "pixel_aspect": number, "timecode": str|null (SMPTE, of the first fitted frame), "start_frame": int
+#                 (a movie's number of its first frame)}
+#                 Everything `export` needs besides the checkpoint: it never decodes the plate. "frame_range" is in
+#                 positions (what `open_clip` takes); "frame_numbers" are the plate's own numbers (what --frames says).
 #   RUN_METRICS  {"schema": 1, "psnr": float, "mse": float, "alpha_iou": [float] (one per mask), "steps": int,
 #                 "train_seconds": float, "seconds_per_step": float, "preset": str, "model": str, "device": str,
 #                 "working_size": [W, H], "frames": int, "engine_version": str, "torch_version": str}
@@ -217,6 +227,13 @@ RUN_FILE_FIELDS: dict[str, dict[str, str]] = {
         "overrides": "str list",
     },
 }
+#: Fields of clip.json a record may leave out (written by this engine; checked when present): the plate's timing.
+RUN_CLIP_OPTIONAL_FIELDS: dict[str, str] = {
+    "rate": "int pair or null",
+    "pixel_aspect": "number",
+    "timecode": "str or null",
+    "start_frame": "int",
+}
 RUN_FILE_SCHEMAS: dict[str, int] = {
     RUN_CONFIG: RUN_CONFIG_SCHEMA,
     RUN_CLIP: RUN_CLIP_SCHEMA,
@@ -269,6 +286,40 @@ def valid_colour_record(colorspace: Any, config: Any) -> bool:
     return name(colorspace) and name(config)
 
 
+#: A timecode as the engine records it: ``HH:MM:SS:FF``, ``;`` before the frames for drop-frame.
+TIMECODE_PATTERN = r"^\d{2}:[0-5]\d:[0-5]\d[:;]\d{2,3}$"
+
+
+def timing_problem(clip: dict[str, Any]) -> str | None:
+    """What is wrong with a clip record's (or a manifest clip's) optional timing fields, or None: a rate of two
+    positive integers, a finite positive pixel aspect ratio, a timecode ``HH:MM:SS:FF`` and a start frame >= 0."""
+    rate = clip.get("rate")
+    aspect = clip.get("pixel_aspect", 1.0)
+    timecode = clip.get("timecode")
+    if rate is not None and not (len(rate) == 2 and rate[0] > 0 and rate[1] > 0):
+        return f"rate {rate!r} is not a positive fraction [num, den]"
+    if not (math.isfinite(aspect) and aspect > 0):
+        return f"pixel_aspect {aspect!r} is not a positive number"
+    if timecode is not None and re.match(TIMECODE_PATTERN, timecode) is None:
+        return f"timecode {timecode[:MANIFEST_QUOTE_CHARS]!r} is not HH:MM:SS:FF"
+    if clip.get("start_frame", 0) < 0:
+        return "start_frame is negative"
+    return None
+
+
+def clip_rate(clip: dict[str, Any]) -> tuple[int, int] | None:
+    """A manifest clip's frame rate as an exact (num, den): its "rate", else its float "fps" as the fraction it
+    stands for (23.976... -> 24000/1001, 25.0 -> 25/1); None when it has neither."""
+    if clip.get("rate"):
+        num, den = clip["rate"]
+        return int(num), int(den)
+    fps = clip.get("fps")
+    if not fps:
+        return None
+    rate = Fraction(fps).limit_denominator(1001)
+    return rate.numerator, rate.denominator
+
+
 class RunFileError(ValueError):
     """A run-folder file that does not follow its schema: ``problem`` and ``fix``, one line each (the engine
     adds the file's path, as every one-line error does)."""
@@ -309,6 +360,9 @@ def validate_run_file(name: str, data: Any) -> dict[str, Any]:
         if not _is_type(data[key], kind):
             raise RunFileError(f"{what} {key!r} is not a {kind}: {data[key]!r}", RUN_FILE_DAMAGED_FIX)
     if name == RUN_CLIP:
+        for key, kind in RUN_CLIP_OPTIONAL_FIELDS.items():
+            if key in data and not _is_type(data[key], kind):
+                raise RunFileError(f"{what} {key!r} is not a {kind}: {data[key]!r}", RUN_FILE_DAMAGED_FIX)
         _check_clip_record(data)
     elif name == SCENE_FILE:
         _check_scene_record(data)
@@ -328,6 +382,9 @@ def _check_clip_record(data: dict[str, Any]) -> None:
         problem = f"clip record: unknown kind or colour space {data['kind']!r}, {data['colorspace']!r}"
     elif data["layers"] < 1 or min(data["native_size"] + data["working_size"]) < 1:
         problem = "clip record: layers and sizes must be positive"
+    else:
+        problem = timing_problem(data)
+        problem = problem and f"clip record: {problem}"
     if problem is not None:
         raise RunFileError(problem, RUN_FILE_DAMAGED_FIX)
 
@@ -511,7 +568,11 @@ def pass_file_name(frame_number: int) -> str:
 #:           [int] (ascending), "first_frame": int, "last_frame": int, "fps": float|None, "resolution": [W, H],
 #:           "working_resolution": [W, H], "colorspace": str (the plate's OCIO colour space; "sRGB"|"linear" in
 #:           older manifests), "colour_config": str (optional: its OCIO config; absent = LEGACY_COLORSPACES),
-#:           "masks": [str] (the fit's mask folders; optional)},
+#:           "masks": [str] (the fit's mask folders; optional), and optional, the plate's timing
+#:           (MANIFEST_OPTIONAL_FIELDS; absent: none stated): "rate": [num, den]|None (the exact frame rate, 24000/1001
+#:           for 23.976; "fps" is its float), "pixel_aspect": number (2.0: 2x anamorphic), "timecode": str|None (SMPTE
+#:           "HH:MM:SS:FF" of first_frame), "start_frame": int (a movie's number of its first frame: frame_numbers are
+#:           start_frame + the frame's index)},
 #:  "passes": {"dir": str, "pattern": "atlas.{frame:05d}.exr", "blender_pattern": "atlas.#####.exr",
 #:             "frames": [int] (plate frame numbers exported, each one of the clip's), "exr_layer": "Atlas",
 #:             "resolution": [W, H] (the clip's)},
@@ -549,7 +610,15 @@ MANIFEST_FIELDS: dict[str, dict[str, str]] = {
 }
 #: Fields a manifest may leave out, checked when present.
 MANIFEST_OPTIONAL_FIELDS: dict[str, dict[str, str]] = {
-    "clip": {"working_resolution": "int pair", "masks": "str list", "colour_config": "str"},
+    "clip": {
+        "working_resolution": "int pair",
+        "masks": "str list",
+        "colour_config": "str",
+        "rate": "int pair or null",
+        "pixel_aspect": "number",
+        "timecode": "str or null",
+        "start_frame": "int",
+    },
     "fit": {"alpha_iou": "number list or null"},
 }
 MANIFEST_LAYER_FIELDS: dict[str, str] = {
@@ -639,6 +708,9 @@ def _check_clip(clip: dict[str, Any]) -> None:
     fps = clip["fps"]
     if fps is not None and not (math.isfinite(fps) and fps > 0):
         raise ManifestError(f"manifest 'clip' fps {_quote(fps)} is not a positive number")
+    problem = timing_problem(clip)
+    if problem is not None:
+        raise ManifestError(f"manifest 'clip' {problem}")
     _check_size("'clip' resolution", clip["resolution"])
     if "working_resolution" in clip:
         _check_size("'clip' working_resolution", clip["working_resolution"])

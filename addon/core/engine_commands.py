@@ -45,7 +45,7 @@ def version_argv(python: str) -> list[str]:
 @dataclass(frozen=True)
 class ClipInputs:
     """What the engine reads of a clip: the plate (a sequence's folder or a movie file), one mask folder per
-    foreground layer, the frames as positions in the plate (first and last, inclusive) and, for a fit that
+    foreground layer, the frames as the plate's frame numbers (first and last, inclusive) and, for a fit that
     splits one object with scribbles, the scribble folder."""
 
     plate: str
@@ -62,7 +62,7 @@ class ClipInputs:
 
 
 def frames_arg(first: int, last: int) -> str:
-    """The engine's ``--frames`` value: positions in the plate, not scene frames."""
+    """The engine's ``--frames`` value: the plate's frame numbers (``core.frames.plate_numbers``), not scene frames."""
     return f"{first}:{last}"
 
 

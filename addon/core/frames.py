@@ -1,10 +1,13 @@
-"""Scene frames -> what the engine reads: sequence file numbers, mask and scribble file names, frame positions.
-No bpy here.
+"""Scene frames <-> the plate's frames, and the plate's timing as Blender's scene stores it. No bpy here.
 
 A Movie Clip starts at scene frame ``clip_frame_start``; scene frame F is position ``F - clip_frame_start`` in
 the plate. An image sequence's files carry numbers (``plate_0012.png``): the masks and scribbles the add-on
 writes carry the plate's numbers, so the engine matches them to frames by number; for a movie they are
-named by position.
+named by position. The engine's ``--frames`` speaks the plate's numbers (``plate_numbers``): a sequence's file
+numbers, a movie's frames counted from 0.
+
+Import goes the other way: the scene's range is the exported frames' numbers (scene frame 1001 shows plate frame
+1001), its rate the plate's exact fraction (``scene_fps``) and its pixel aspect the plate's (``scene_pixel_aspect``).
 """
 
 from __future__ import annotations
@@ -24,6 +27,17 @@ def file_number(path: str) -> int | None:
     return int(m.group(1)) if m else None
 
 
+def sequence_pattern(path: str) -> str:
+    """The engine's clip argument for an image-sequence Movie Clip: the pattern of the sequence its file belongs to
+    (``/plates/plate.1001.exr`` -> ``/plates/plate.####.exr``), so the engine reads the sequence Blender shows even
+    where the folder holds others; a file name without a number is its folder."""
+    m = _DIGITS.search(os.path.basename(path))
+    if m is None:
+        return os.path.dirname(path)
+    name = os.path.basename(path)
+    return os.path.join(os.path.dirname(path), f"{name[: m.start()]}{'#' * len(m.group(1))}{name[m.end() :]}")
+
+
 def frame_range(
     clip_frame_start: int, clip_frame_duration: int, start: int, end: int, whole_clip: bool
 ) -> tuple[int, int]:
@@ -38,8 +52,43 @@ def frame_range(
 
 
 def positions(first: int, last: int, clip_frame_start: int) -> tuple[int, int]:
-    """Scene frames -> positions in the plate (the engine's ``--frames``)."""
+    """Scene frames -> positions in the plate."""
     return first - clip_frame_start, last - clip_frame_start
+
+
+def plate_numbers(first: int, last: int, clip_frame_start: int, first_file_number: int | None) -> tuple[int, int]:
+    """Scene frames -> the plate's frame numbers (the engine's ``--frames``): a sequence's file numbers counted from
+    its first file's, a movie's frames from 0."""
+    a, b = positions(first, last, clip_frame_start)
+    base = first_file_number or 0
+    return base + a, base + b
+
+
+#: Blender stores the scene rate as ``render.fps`` (a short: at most this) over ``render.fps_base`` (a float).
+BLENDER_MAX_FPS = 32767
+
+
+def scene_fps(rate: tuple[int, int] | None) -> tuple[int, float] | None:
+    """``(render.fps, render.fps_base)`` for the exact rate ``(num, den)``: 24000/1001 is (24000, 1001.0), exact in
+    Blender's float (what Blender itself sets from such a movie), 25/1 is (25, 1.0); a numerator beyond
+    ``BLENDER_MAX_FPS`` (60000/1001) becomes the nearest integer over its ratio (60, 1.001). None: no rate."""
+    if rate is None:
+        return None
+    num, den = rate
+    if num <= 0 or den <= 0:
+        return None
+    if num <= BLENDER_MAX_FPS:
+        return num, float(den)
+    fps = max(1, round(num / den))
+    return fps, fps * den / num
+
+
+def scene_pixel_aspect(pixel_aspect: float) -> tuple[float, float]:
+    """``(render.pixel_aspect_x, render.pixel_aspect_y)`` for a plate's pixel aspect ratio: Blender takes each in
+    1..200, so 2.0 (anamorphic) is (2, 1) and 0.5 is (1, 2)."""
+    if not pixel_aspect > 0:
+        return 1.0, 1.0
+    return (float(pixel_aspect), 1.0) if pixel_aspect >= 1.0 else (1.0, 1.0 / pixel_aspect)
 
 
 def mask_file_names(scene_frames: list[int], first_file_number: int | None, clip_frame_start: int) -> list[str]:

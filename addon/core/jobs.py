@@ -159,7 +159,7 @@ class MasksJob(Job):
     idle_text = "finding what moves…"
 
     def __init__(self, python: str, run_dir: str, plate: str, first: int, last: int):
-        """``first``, ``last``: positions in the plate."""
+        """``first``, ``last``: the plate's frame numbers."""
         if last <= first:
             raise UserError("Find Masks needs at least two frames: the foreground is found by what moves")
         files = RunFiles(run_dir)

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ...engine import contract as C  # type: ignore[import-not-found]
+from . import frames as F
 
 #: Every node and image the add-on creates starts with this; rebuilding removes only these.
 PREFIX = "NA_"
@@ -88,6 +89,10 @@ class TreePlan:
     resolution: tuple[int, int]
     layers: list[str]
     output_colorspace: str = "Linear Rec.709"  # the EXR render's colour space (``output_colorspace``)
+    fps: tuple[int, float] | None = None
+    """The scene's ``(render.fps, render.fps_base)``: the plate's exact rate (``frames.scene_fps``); None: none."""
+    pixel_aspect: tuple[float, float] = (1.0, 1.0)
+    """The scene's ``(pixel_aspect_x, pixel_aspect_y)``: the plate's pixel aspect ratio."""
 
 
 def edit_image_name(layer: str) -> str:
@@ -136,8 +141,10 @@ def plan_tree(
         plate_file = plate_path(manifest_path, files[numbers.index(first)], "plate frame")
         plate = ImageSpec(PLATE_CLIP, plate_file, _plate_colorspace(clip, colorspaces), True, first, count)
     else:
-        plate = ImageSpec(PLATE_CLIP, plate_path(manifest_path, clip["source"], "plate movie"),
-                          _plate_colorspace(clip, colorspaces), False, 0, count)  # fmt: skip
+        # scene frame F shows the movie's frame numbered F: its first frame is numbered start_frame (0 by default)
+        movie = plate_path(manifest_path, clip["source"], "plate movie")
+        start = int(clip.get("start_frame", 0))
+        plate = ImageSpec(PLATE_CLIP, movie, _plate_colorspace(clip, colorspaces), False, start, count)
 
     images = [ImageSpec(PASSES_IMAGE, pass_first, "Non-Color", True, first, count)]
     layers = [layer["name"] for layer in manifest["layers"]]
@@ -200,7 +207,8 @@ def plan_tree(
     links.append(LinkSpec(n_over, "image", n_out, "image"))
     res = passes["resolution"]
     size = (int(res[0]), int(res[1]))
-    return TreePlan(nodes, links, images, plate, first, last, size, layers, output_colorspace(clip))
+    fps, aspect = F.scene_fps(C.clip_rate(clip)), F.scene_pixel_aspect(clip.get("pixel_aspect", 1.0))
+    return TreePlan(nodes, links, images, plate, first, last, size, layers, output_colorspace(clip), fps, aspect)
 
 
 def edit_layer_path(manifest_path: str, layer: dict[str, Any]) -> str:

@@ -84,9 +84,9 @@ class NEURALATLAS_OT_find_masks(EngineJobOperator, bpy.types.Operator):
         if props.clip is None:
             raise UserError("choose the clip to find masks in")
         run_dir = I.run_dir(props)
-        plate, _ = I.clip_plate(props.clip)
+        plate, first_number = I.clip_plate(props.clip)
         first, last = I.clip_range(props)
-        return MasksJob(python, run_dir, plate, *F.positions(first, last, props.clip.frame_start))
+        return MasksJob(python, run_dir, plate, *F.plate_numbers(first, last, props.clip.frame_start, first_number))
 
     def finish(self, context, job: MasksJob, result: EP.JobResult) -> set[str]:
         props = context.scene.neural_atlas

@@ -38,10 +38,10 @@ def run_dir(props: Any) -> str:
 
 
 def clip_plate(clip: Any) -> tuple[str, int | None]:
-    """(what the engine reads: a sequence's folder or the movie file, the first file's number or None)."""
+    """(what the engine reads: a sequence's pattern or the movie file, the first file's number or None)."""
     path = abspath(clip.filepath)
     if clip.source == "SEQUENCE":
-        return os.path.dirname(path), F.file_number(path)
+        return F.sequence_pattern(path), F.file_number(path)
     return path, None
 
 
@@ -106,7 +106,8 @@ def clip_inputs(props: Any, files: RunFiles, with_scribbles: bool = True) -> EC.
             if not os.path.isdir(folder):
                 raise UserError(f"layer {i}: mask folder {folder!r} does not exist")
         folders.append(folder)
-    return EC.ClipInputs(plate, tuple(folders), *F.positions(first, last, clip.frame_start), scribble_dir)
+    numbers = F.plate_numbers(first, last, clip.frame_start, first_number)
+    return EC.ClipInputs(plate, tuple(folders), *numbers, scribble_dir)
 
 
 def sets(props: Any) -> list[str]:

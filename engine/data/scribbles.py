@@ -56,7 +56,7 @@ def resize_labels(labels: np.ndarray, size: tuple[int, int], count: int) -> np.n
 def read_scribbles(folder: str | Path, info: ClipInfo, size: tuple[int, int]) -> np.ndarray:
     """int8 [T, H, W] labels for the clip's selected frames at working ``size``; NO_LABEL where nothing is
     scribbled (every pixel of a frame without a scribble file). Files are matched by the frame number in
-    their name (frames of a movie are numbered from 0)."""
+    their name (frames of a movie are numbered from 0, or from the fit's ``--start-frame``)."""
     path = os.path.abspath(os.path.expanduser(os.fspath(folder)))
     if not os.path.isdir(path):
         what = "is not a folder" if os.path.exists(path) else "scribble folder does not exist"

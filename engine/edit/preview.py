@@ -26,9 +26,9 @@ from engine import contract as C
 from engine.edit.equations import edit_to_premultiplied
 from engine.edit.project_frame import project_to_textures
 from engine.edit.render import (
-    MovieWriter,
     StagedFolder,
     check_output,
+    movie_writer,
     plate_frames,
     render_frames,
     to_display_u8,
@@ -176,10 +176,9 @@ def _write_previews_into(manifest: Manifest, staged: StagedFolder, movies: bool)
     stripes = project_to_textures(manifest, manifest.read_passes(first), stripes_frame_edit(manifest.resolution))
 
     picks = set(_sheet_frames(manifest.frames))
-    fps = float(manifest.clip.get("fps") or PREVIEW_FPS)
     rows: dict[str, list[np.ndarray]] = {"original": [], "checkerboard": [], "propagation": []}
     for name, edits in (("checkerboard", checker), ("propagation", stripes)):
-        writer = MovieWriter(staged.path(f"{name}.mp4"), fps, manifest.resolution) if movies else None
+        writer = movie_writer(manifest, staged.path(f"{name}.mp4"), PREVIEW_FPS) if movies else None
         try:
             for number, frame in render_frames(manifest, edits):
                 u8 = to_display_u8(frame)

@@ -22,6 +22,7 @@ import os
 import shutil
 import sys
 from collections.abc import Iterator
+from fractions import Fraction
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -46,7 +47,8 @@ from engine.io.colour import (
     role_space,
     to_linear,
 )
-from engine.io.images import write_like, write_png, write_rgba_exr
+from engine.io.images import exr_timing, write_like, write_png, write_rgba_exr
+from engine.io.timing import Timecode, exact_rate
 
 FORMATS = ("exr", "png", "plate")
 OUTPUT_PREFIX = "edit."
@@ -55,6 +57,8 @@ DEFAULT_FPS = 25.0
 #: The movie's colour tags (ISO/IEC 23091-2 codes: primaries BT.709 = 1, transfer IEC 61966-2-1 sRGB = 13, matrix
 #: BT.709 = 1, range MPEG/limited = 1): what a player needs to show the sRGB frames as the PNGs show.
 MOVIE_COLOUR_TAGS = (1, 13, 1, 1)
+#: The largest numerator or denominator of a movie's sample aspect ratio (H.264 stores two 16-bit terms).
+MAX_SAR_TERM = 1000
 #: H.264 constant rate factor of the movies: visually lossless, so the movie judges the edit, not the codec.
 MOVIE_CRF = 18
 #: Hidden staging folders inside an output folder, one per writing process (``.edit.partial-1234``).
@@ -354,7 +358,17 @@ class MovieWriter:
     hidden temporary file beside the movie and renamed into place by ``publish`` (``close`` = finish + publish);
     ``abort`` removes everything it made. A folder it cannot write is one line; so is a full disk."""
 
-    def __init__(self, path: Path, fps: float, size: tuple[int, int]) -> None:
+    def __init__(
+        self,
+        path: Path,
+        fps: float | Fraction | None,
+        size: tuple[int, int],
+        pixel_aspect: float = 1.0,
+        timecode: str | None = None,
+    ) -> None:
+        """``fps``: the rate, kept exact (24000/1001 is written as that fraction: ``timing.exact_rate``; none:
+        ``DEFAULT_FPS``); ``pixel_aspect``: the stream's sample aspect ratio (2.0: anamorphic, shown 2x wide);
+        ``timecode``: the first frame's, written as the movie's timecode track."""
         import av
 
         self.path = Path(path)
@@ -374,7 +388,12 @@ class MovieWriter:
             blocker = _in_the_way(self.path.parent)
             reason = f"{blocker} is a file" if blocker else getattr(exc, "strerror", None) or type(exc).__name__
             raise InputError(self.path, f"cannot write the movie here ({reason})", fix) from None
-        self.stream = self.container.add_stream("libx264", rate=max(1, round(fps or DEFAULT_FPS)))
+        self.rate = exact_rate(fps) or exact_rate(DEFAULT_FPS)
+        self.stream = self.container.add_stream("libx264", rate=self.rate)
+        if pixel_aspect != 1.0:
+            self.stream.codec_context.sample_aspect_ratio = Fraction(pixel_aspect).limit_denominator(MAX_SAR_TERM)
+        if timecode is not None:
+            self.stream.metadata["timecode"] = timecode
         w, h = size
         self.size = (w + w % 2, h + h % 2)
         self.stream.width, self.stream.height = self.size
@@ -427,6 +446,21 @@ class MovieWriter:
             self.tmp.unlink(missing_ok=True)
         if self.created is not None:
             shutil.rmtree(self.created, ignore_errors=True)
+
+
+def movie_writer(manifest: Manifest, path: Path, default_fps: float = DEFAULT_FPS) -> MovieWriter:
+    """A movie of the manifest's exported frames at the plate's exact rate (``default_fps`` when it states none),
+    with its pixel aspect ratio and the timecode of the first exported frame."""
+    clip = manifest.clip
+    rate = C.clip_rate(clip)
+    first = manifest.frames[0] - clip["first_frame"]
+    timecode = clip.get("timecode")
+    if timecode is not None:
+        exact = None if rate is None else Fraction(*rate)
+        parsed = Timecode.parse(timecode, exact)
+        timecode = None if parsed is None else str(parsed.offset(first))
+    fps = Fraction(*rate) if rate is not None else exact_rate(default_fps)
+    return MovieWriter(path, fps, manifest.resolution, clip.get("pixel_aspect", 1.0), timecode)
 
 
 class _Sizes:
@@ -507,20 +541,24 @@ def _render_into(
     writer = None
     try:
         if movie is not None:
-            writer = MovieWriter(movie, float(manifest.clip.get("fps") or DEFAULT_FPS), manifest.resolution)
+            writer = movie_writer(manifest, movie)
         bar = tqdm(total=len(manifest.frames), disable=not progress_bar, file=sys.stderr, unit="frame")
         space, config = plate_colour(manifest)
         like, ext = _plate_file(manifest) if fmt == "plate" else (None, f".{fmt}")
         plate_is_srgb = space == role_space(SRGB, config)
         exr_space = space if is_linear(space, config) else role_space(SCENE_LINEAR, config)
+        clip = manifest.clip
         for number, in_plate, frame in render_plate_frames(manifest, edits, filter=filter):
             path = staged.path(f"{OUTPUT_PREFIX}{number:05d}{ext}")
             if like is not None:
                 write_like(path, in_plate, like)
             elif fmt == "exr":
+                timing = exr_timing(C.clip_rate(clip), clip.get("pixel_aspect", 1.0), clip.get("timecode"),
+                                    number - clip["first_frame"])  # fmt: skip
                 rgb = in_plate if exr_space == space else frame
                 alpha = np.ones((*frame.shape[:2], 1), np.float32)
-                write_rgba_exr(path, np.concatenate((rgb, alpha), -1), chromaticities(exr_space, config), exr_space)
+                write_rgba_exr(path, np.concatenate((rgb, alpha), -1), chromaticities(exr_space, config), exr_space,
+                               attributes=timing)  # fmt: skip
             else:
                 write_png(path, np.clip(in_plate if plate_is_srgb else linear_to_srgb(frame), 0.0, 1.0), 8)
             sizes.frames += 1
@@ -549,6 +587,7 @@ __all__ = [
     "check_movie",
     "check_output",
     "load_edits",
+    "movie_writer",
     "parse_edit_args",
     "protected_folders",
     "render_frames",

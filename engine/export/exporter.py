@@ -39,7 +39,7 @@ from engine.fit.run_folder import ClipRecord, RunFolder
 from engine.fit.trainer import EVAL_CHUNK, FittedRun, load_fitted
 from engine.io.atomic import DISK_ERRORS, as_disk_full, atomic_write_text, move_into_place, signals_held
 from engine.io.colour import RAW, REC709_CHROMATICITIES, SCENE_LINEAR, srgb_to_linear
-from engine.io.images import write_exr, write_png
+from engine.io.images import exr_timing, write_exr, write_png
 from engine.model.atlas_model import AtlasModel
 
 #: Atlas cells whose aggregated coverage exceeds this decide where the layer's atlas box lies (a foreground's
@@ -266,18 +266,19 @@ def _next_version(exports: Path) -> tuple[Path, Path]:
 
 
 def _selected(clip: ClipRecord, frames: tuple[int, int] | None) -> list[int]:
-    """Run frame indices to export; ``frames`` are positions in the source sequence, like `fit --frames`."""
-    first, last = clip.frame_range
+    """Run frame indices to export; ``frames`` are the plate's frame numbers, like `fit --frames`."""
+    numbers = list(clip.frame_numbers)
     if frames is None:
         return list(range(clip.num_frames))
     a, b = frames
-    if a > b or a < first or b > last:
+    if a > b or a not in numbers or b not in numbers:
+        first, last = numbers[0], numbers[-1]
         raise InputError(
             None,
-            f"--frames {a}:{b} is outside the fitted frames {first}:{last}",
-            f"choose a range inside {first}:{last}",
+            f"--frames {a}-{b} is outside the fitted frames {first}-{last}",
+            f"choose a range inside {first}-{last} (the plate's frame numbers)",
         )
-    return list(range(a - first, b - first + 1))
+    return list(range(numbers.index(a), numbers.index(b) + 1))
 
 
 def export_run(
@@ -377,8 +378,10 @@ def _export_locked(
                 chans[C.channel_name(uv_pass, "Y")] = tex_uv[:, 1].reshape(nh, nw)
                 chans[C.channel_name(uv_pass, "Z")] = (a * inside).reshape(nh, nw)
                 chans[C.channel_name(alpha_pass, C.ALPHA_CHANNELS[0])] = a.reshape(nh, nw)
+            timing = exr_timing(clip.rate, clip.pixel_aspect, clip.timecode, frame_numbers[t] - frame_numbers[0])
             pass_file = staging / C.PASSES_DIR / C.pass_file_name(frame_numbers[t])
-            out.pass_written(write_exr(pass_file, chans, attributes={C.EXR_COLORSPACE_ATTRIBUTE: RAW}))  # data
+            tags = {C.EXR_COLORSPACE_ATTRIBUTE: RAW, **timing}  # data, with the plate's timing
+            out.pass_written(write_exr(pass_file, chans, attributes=tags))
             bar.update(1)
             reporter.emit(C.EVENT_PROGRESS, step=k + 1, total=len(selected), psnr=None, elapsed=None, eta=None)
         bar.close()
@@ -508,6 +511,17 @@ def relative_path(path: str | Path, start: Path) -> str:
         return real
 
 
+def clip_timing(clip: ClipRecord) -> dict[str, Any]:
+    """The manifest clip's timing fields (``contract.MANIFEST_OPTIONAL_FIELDS``): exact rate, pixel aspect ratio,
+    timecode of the first frame, a movie's first frame number."""
+    return {
+        "rate": None if clip.rate is None else list(clip.rate),
+        "pixel_aspect": clip.pixel_aspect,
+        "timecode": clip.timecode,
+        "start_frame": clip.start_frame,
+    }
+
+
 def _manifest(
     run_dir: Path,
     final: Path,
@@ -542,6 +556,7 @@ def _manifest(
             "colorspace": clip.colorspace,
             **({"colour_config": clip.colour_config} if clip.colour_config is not None else {}),
             "masks": [relative_path(m, final) for m in clip.masks],
+            **clip_timing(clip),
         },
         "passes": {
             "dir": C.PASSES_DIR,

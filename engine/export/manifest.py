@@ -18,6 +18,7 @@ import numpy as np
 
 from engine import contract as C
 from engine.errors import InputError
+from engine.io.clip import is_sequence_pattern
 from engine.io.images import read_exr
 
 #: The fix of a manifest that cannot be used as it is.
@@ -128,9 +129,14 @@ class Manifest:
             )
 
     def plate_source(self) -> Path:
-        """The plate (a folder of frames or a movie file), checked to exist as what the manifest says it is."""
+        """The plate (a folder of frames, a sequence pattern or a movie file), checked to exist as what the manifest
+        says it is."""
         path = self.resolve(self.clip["source"])
         is_sequence = self.clip["kind"] == C.CLIP_KINDS[0]
+        if is_sequence and is_sequence_pattern(str(path)):  # plate.####.exr: its folder must be there
+            if not path.parent.is_dir():
+                raise InputError(path.parent, "plate folder does not exist", PLATE_FIX)
+            return path
         if not (path.is_dir() if is_sequence else path.is_file()):
             what = "plate folder" if is_sequence else "plate movie"
             problem = f"{what} does not exist" if not path.exists() else f"is not the {what} the export was made from"

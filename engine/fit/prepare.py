@@ -12,6 +12,7 @@ import hashlib
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
+from fractions import Fraction
 from pathlib import Path
 
 import cv2
@@ -94,6 +95,10 @@ class PreparedClip:
             scribbles=self.scribble_dir,
             layers=1 + self.num_foreground,
             fingerprint=self.fingerprint,
+            rate=None if info.rate is None else (info.rate.numerator, info.rate.denominator),
+            pixel_aspect=info.pixel_aspect,
+            timecode=info.timecode,
+            start_frame=info.start_frame,
         )
 
 
@@ -172,6 +177,8 @@ def prepare_clip(
     before_writing: Callable[[], None] | None = None,
     colorspace: str | None = None,
     colour_config: str | None = None,
+    fps: Fraction | None = None,
+    start_frame: int | None = None,
 ) -> PreparedClip:
     """Read, validate and sanitise the clip and masks, and compute (or load from RUN_DIR/flow_cache) its flow.
 
@@ -181,15 +188,13 @@ def prepare_clip(
     ``before_writing``: called once everything is read and checked, before the first write into the run folder
     (the flow cache, the auto masks): ``fit`` takes the run folder's lock there, so bad input creates no folder.
     ``colorspace`` / ``colour_config``: the plate's colour space (``fit --colorspace``; a resume: the recorded one).
+    ``fps`` and ``start_frame``: the plate's rate and a movie's first frame number (``open_clip``); recorded only.
     """
     reporter = reporter or Reporter.null()
     # a run made before colour management ("sRGB"/"linear", no config) is resumed with the values it fitted
     legacy = colour_config is None and colorspace in C.COLORSPACES
-    info = (
-        open_clip(clip, frame_range, *recorded_space(colorspace, None))
-        if legacy
-        else open_clip(clip, frame_range, colorspace, colour_config)
-    )
+    space, config = recorded_space(colorspace, None) if legacy else (colorspace, colour_config)
+    info = open_clip(clip, frame_range, space, config, fps=fps, start_frame=start_frame)
     size = working_size(info.width, info.height, cfg.long_edge)
     run = RunFolder(run_dir)
     finder = _AutoMasks(info, run) if auto_masks else None

@@ -54,6 +54,13 @@ class ClipRecord(NumberedFrames):
     fingerprint: str
     colour_config: str | None = None
     """The OCIO config naming ``colorspace``; None in runs made before colour management (legacy "sRGB"/"linear")."""
+    rate: tuple[int, int] | None = None
+    """The plate's exact frame rate (num, den); None: none stated (and in records written before it was kept)."""
+    pixel_aspect: float = 1.0
+    timecode: str | None = None
+    """SMPTE timecode of the first fitted frame."""
+    start_frame: int = 0
+    """A movie's number of its first frame (``fit --start-frame``)."""
 
     def to_dict(self) -> dict[str, Any]:
         data = asdict(self)
@@ -82,6 +89,11 @@ class ClipRecord(NumberedFrames):
             layers=data["layers"],
             fingerprint=data["fingerprint"],
             colour_config=data.get("colour_config"),
+            # the plate's timing: absent from records written before it was kept (square pixels, movies from 0)
+            rate=(data["rate"][0], data["rate"][1]) if data.get("rate") else None,
+            pixel_aspect=data.get("pixel_aspect", 1.0),
+            timecode=data.get("timecode"),
+            start_frame=data.get("start_frame", 0),
         )
 
 

@@ -16,6 +16,7 @@ import sys
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
@@ -630,11 +631,15 @@ def fit(
     auto_masks: bool = False,
     refit: bool = False,
     colorspace: str | None = None,
+    fps: Fraction | None = None,
+    start_frame: int | None = None,
 ) -> dict[str, Any]:
     """Fit a layered atlas to ``clip``; writes config, clip record, scene analysis, checkpoint and metrics
     into ``run_dir``. ``auto_masks``: no masks given, find them from motion (written to RUN_DIR/auto_masks
     for the artist to check) and fit with them; nothing moving gives a background-only fit. ``scribble_dir``:
     red/green/... strokes that split the one mask's object into several foreground layers (paper Sec. 4.4).
+    ``fps``: the plate's rate where its files state none; ``start_frame``: a movie's first frame number (both
+    recorded in clip.json, neither changes the fit; a resume keeps the recorded ones).
 
     The run folder is written under its lock (``RunFolder.lock``), taken once the input is read and checked (at
     once when the folder exists): a second ``fit`` into it is refused with one line. A folder that holds a fit
@@ -673,6 +678,8 @@ def fit(
             run.check_checkpoint_belongs(state, saved, record)
             clip, mask_dirs, frame_range = record.source, list(record.masks), record.frame_range
             scribble_dir, expect = record.scribbles, record.fingerprint
+            fps = None if record.rate is None else Fraction(*record.rate)
+            start_frame = record.start_frame if record.kind == C.CLIP_KINDS[1] else None
         # the input is read and validated before anything is written: bad input leaves no run folder behind
         prepared = prepare_clip(
             clip,  # type: ignore[arg-type]  # a resume's clip is the recorded one; a new fit's was checked above
@@ -687,6 +694,8 @@ def fit(
             before_writing=lock,  # the lock from the first write (the flow cache) on
             colorspace=colorspace,
             colour_config=colour_config,
+            fps=fps,
+            start_frame=start_frame,
         )
         new_fit = saved is None or scene is None
         if new_fit:

@@ -26,10 +26,13 @@ import re
 import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
+from fractions import Fraction
 from pathlib import Path
+from typing import NoReturn
 
 import av
 import cv2
+import fileseq
 import numpy as np
 import OpenImageIO as oiio
 
@@ -37,6 +40,7 @@ from engine import contract as C
 from engine.errors import InputError
 from engine.io import colour
 from engine.io.images import check_declared_size, open_image_input
+from engine.io.timing import Timecode, exact_rate, pixel_aspect
 
 IMAGE_EXTENSIONS: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".exr", ".dpx", ".tif", ".tiff")
 MOVIE_EXTENSIONS: tuple[str, ...] = (".mp4", ".mov", ".mkv", ".avi", ".webm", ".m4v")
@@ -49,6 +53,10 @@ _SEQUENCE = "sequence"
 _MOVIE = "movie"
 _FLOAT_TYPES = (oiio.FLOAT, oiio.HALF, oiio.DOUBLE)
 _NUMBER = re.compile(r"\d+")
+#: A sequence pattern's frame field: ``#``/``@`` padding (with an optional range before it) or printf ``%04d``.
+_PATTERN = re.compile(r"[#@]|%0?\d*d")
+#: How sequence patterns are read: one ``#`` per digit (``plate.####.exr`` is 4 digits, as in Nuke and Houdini).
+_PAD_STYLE = fileseq.PAD_STYLE_HASH1
 _MAX_LISTED = 3  # files named in a message before "and N more"
 #: A movie whose header stores no frame count (mkv, webm, some avi) is counted by its packets. When they cover
 #: less than this fraction of the frames its duration declares (less one frame, for rounding), frames are
@@ -91,6 +99,15 @@ class ClipInfo(NumberedFrames):
     """Whether the frames store floats (EXR, float TIFF): one clip is all float or all integer."""
     colour_config: str = C.COLOUR_BUILTIN_CONFIG
     """The OCIO config that names ``colorspace``: ``$OCIO`` when set, else the built-in one."""
+    rate: Fraction | None = None
+    """The plate's frame rate, exact (24000/1001, not 23.976): the EXR's ``FramesPerSecond``, the DPX header's,
+    the movie stream's, or ``--fps``; ``None`` when neither the files nor the user state one."""
+    pixel_aspect: float = 1.0
+    """Pixel aspect ratio (2.0 for a 2x anamorphic plate), from the file's header; 1.0 when it states none."""
+    timecode: str | None = None
+    """SMPTE timecode of the first selected frame (``HH:MM:SS:FF``; ``;`` before the frames: drop-frame)."""
+    start_frame: int = 0
+    """A movie's number of its first frame (its frames are numbered ``start_frame + index``); 0 for a sequence."""
 
 
 # --- public API ---------------------------------------------------------------------------------------
@@ -101,26 +118,93 @@ def open_clip(
     frame_range: tuple[int, int] | None = None,
     colorspace: str | None = None,
     colour_config: str | None = None,
+    *,
+    fps: Fraction | None = None,
+    start_frame: int | None = None,
 ) -> ClipInfo:
     """Open and validate a clip without decoding it all.
 
-    ``frame_range = (first, last)`` is INCLUSIVE, as positions 0..N-1 in the sorted sequence (not file
-    numbers). ``None`` selects every frame. ``colorspace``: the plate's colour space (a name or alias in
-    ``colour_config``, default ``$OCIO`` or the built-in config); ``None``: ``colour.default_colorspace``.
+    ``path`` is a folder holding one image sequence, a sequence pattern (``plates/plate.####.exr``,
+    ``plate.%04d.exr``, ``plate.1001-1100#.exr``: one ``#`` per digit, the padding is not enforced; a range
+    selects those frames, each of which must exist) or a movie file. ``frame_range = (first, last)`` is
+    INCLUSIVE, as positions 0..N-1 in the sorted sequence (not file numbers: ``frame_positions`` turns the
+    plate's numbers into these). ``None`` selects every frame. ``colorspace``: the plate's colour space (a name
+    or alias in ``colour_config``, default ``$OCIO`` or the built-in config); ``None``:
+    ``colour.default_colorspace``. ``fps`` is the rate of a plate whose files state none (and overrides one that
+    does); ``start_frame`` numbers a movie's frames from it (default 0).
     """
     source = os.path.abspath(os.path.expanduser(os.fspath(path)))
-    if not os.path.exists(source):
+    if not os.path.exists(source) and is_sequence_pattern(source):
+        info = _open_sequence(source, frame_range)
+    elif not os.path.exists(source):
         raise InputError(source, "does not exist", "check the path: pass a folder of image frames or a movie file")
-    if os.path.isdir(source):
-        return _with_colour(_open_sequence(source, frame_range), colorspace, colour_config)
+    elif os.path.isdir(source):
+        info = _open_sequence(source, frame_range)
+    elif os.path.splitext(source)[1].lower() in MOVIE_EXTENSIONS:
+        info = _open_movie(source, frame_range, start_frame or 0)
+    else:
+        _refuse_file(source)
+    if start_frame is not None and info.kind == _SEQUENCE:
+        raise InputError(
+            source,
+            "--start-frame numbers a movie's frames, but this is an image sequence",
+            "drop --start-frame: a sequence's frames are numbered by their file names",
+        )
+    if fps is not None:
+        info = dataclasses.replace(info, rate=fps, fps=float(fps))
+    return _with_colour(info, colorspace, colour_config)
+
+
+def is_sequence_pattern(path: str) -> bool:
+    """Whether ``path`` names a sequence by pattern (``####``, ``@``, ``%04d`` in its file name)."""
+    return _PATTERN.search(os.path.basename(path)) is not None
+
+
+def frame_positions(path: str | Path, numbers: tuple[int, int], start_frame: int | None = None) -> tuple[int, int]:
+    """The plate's frame numbers ``numbers = (first, last)`` (inclusive; ``--frames 1010-1050``) as the positions
+    ``open_clip`` takes. Lists the sequence (or counts the movie's frames) without decoding; a number the plate
+    does not have is one line naming the plate's frames."""
+    first, last = numbers
+    source = os.path.abspath(os.path.expanduser(os.fspath(path)))
+    if os.path.isfile(source):
+        info = open_clip(source, start_frame=start_frame)
+        _, count = _position_in_full_clip(info)
+        plate = list(range(info.start_frame, info.start_frame + count))
+    else:
+        source, files = _sequence_files(source) if os.path.isdir(source) or is_sequence_pattern(source) else (
+            source, [])  # fmt: skip
+        if not files:
+            open_clip(source)  # the one-line reason there is no clip here
+        plate = [f.number if f.number is not None else i for i, f in enumerate(files)]
+    if first > last or first not in plate or last not in plate:
+        bad = first if first > last or first not in plate else last
+        what = f"--frames {first}..{last} is reversed" if first > last else f"frame {bad} is not in the plate"
+        raise InputError(
+            source,
+            f"{what} (its frames are {frame_ranges(plate)})",
+            f"choose --frames FIRST-LAST with plate frame numbers within {plate[0]}..{plate[-1]}",
+        )
+    return plate.index(first), plate.index(last)
+
+
+def frame_ranges(numbers: list[int]) -> str:
+    """``1001..1003, 1005..1010``: ascending frame numbers as runs (what a message says of a plate's frames)."""
+    runs = []
+    for _, group in itertools.groupby(enumerate(numbers), key=lambda p: p[1] - p[0]):
+        run = [n for _, n in group]
+        runs.append(f"{run[0]}..{run[-1]}" if len(run) > 1 else f"{run[0]}")
+    return ", ".join(runs)
+
+
+def _refuse_file(source: str) -> NoReturn:
+    """One line for a file that is no clip: a single image (pass its folder or a pattern) or an unknown type."""
     ext = os.path.splitext(source)[1].lower()
-    if ext in MOVIE_EXTENSIONS:
-        return _with_colour(_open_movie(source, frame_range), colorspace, colour_config)
     if ext in IMAGE_EXTENSIONS:
         raise InputError(
             source,
             "is a single image, not a clip",
-            f"pass the folder that holds the image sequence ({os.path.dirname(source)})",
+            f"pass the folder that holds the image sequence ({os.path.dirname(source)}) or a pattern such as "
+            f"{_pattern_like(source)}",
         )
     raise InputError(
         source,
@@ -304,6 +388,91 @@ def _list_images(folder: str, role: _Role) -> list[_NumberedFile]:
     return files
 
 
+def _sequence_files(source: str) -> tuple[str, list[_NumberedFile]]:
+    """(the clip's source as recorded, its frame files sorted by number) for a folder or a pattern.
+
+    A folder holding one sequence is listed as it always was (``_list_images``); a folder whose images form
+    several numbered sequences of one type (``a.0001.exr`` and ``b.0001.exr``) is one line listing them, and a
+    pattern picks one. A pattern's range must exist in full: a missing frame is reported, never skipped.
+    """
+    if os.path.isdir(source):
+        _refuse_several_sequences(source)
+        return source, _list_images(source, _FRAME)
+    folder = os.path.dirname(source)
+    if not os.path.isdir(folder):
+        raise InputError(folder, "folder of the sequence pattern does not exist", "check the path of the pattern")
+    pattern = fileseq.FileSequence(source, pad_style=_PAD_STYLE)
+    wanted = pattern.frameSet()
+    ext = pattern.extension().lower()
+    if ext not in IMAGE_EXTENSIONS:
+        raise InputError(source, f"pattern names {ext or 'no'} files", f"name {_ext_list(IMAGE_EXTENSIONS)} frames")
+    try:
+        found = fileseq.findSequenceOnDisk(source, pad_style=_PAD_STYLE)
+    except fileseq.FileSeqException:
+        others = _sequences_in(folder)
+        hint = f" (the folder holds {_name_list([_seq_label(q) for q in others])})" if others else ""
+        raise InputError(source, f"no files match this pattern{hint}", "check the file name and the padding") from None
+    numbers = [int(n) for n in found.frameSet() or []]  # whole frames: subframes are not read
+    if wanted is not None:
+        missing = sorted({int(n) for n in wanted} - set(numbers))
+        if missing:
+            raise InputError(
+                source,
+                f"frames {frame_ranges(missing)} of the pattern's range are missing",
+                "render or copy the missing frames, or give the pattern the range that exists",
+            )
+        numbers = sorted({int(n) for n in wanted})
+    files = [_NumberedFile(found.frame(n), n, str(n).zfill(found.zfill())) for n in numbers]
+    frame_range = f"{wanted}" if wanted is not None else ""
+    recorded = f"{found.dirname()}{found.basename()}{frame_range}{'#' * max(1, found.zfill())}{found.extension()}"
+    return recorded, files
+
+
+def _sequences_in(folder: str) -> list[fileseq.FileSequence]:
+    """The numbered image sequences in ``folder`` (hidden files and other types ignored)."""
+    try:
+        found = fileseq.FileSequence.findSequencesOnDisk(folder, pad_style=_PAD_STYLE)
+    except (fileseq.FileSeqException, OSError):
+        return []
+    return sorted(
+        (q for q in found if q.frameSet() is not None and q.extension().lower() in IMAGE_EXTENSIONS),
+        key=lambda q: (q.extension().lower(), _natural_key(q.basename())),
+    )
+
+
+def _seq_label(seq: fileseq.FileSequence) -> str:
+    """``plate.####.exr (1001..1100)``: a sequence as a message names it."""
+    frames = frame_ranges(sorted(int(n) for n in seq.frameSet() or []))
+    return f"{seq.basename()}{'#' * max(1, seq.zfill())}{seq.extension()} ({frames})"
+
+
+def _pattern_like(path: str) -> str:
+    """The pattern of the sequence an image file belongs to (``plate.1001.exr`` -> ``.../plate.####.exr``)."""
+    stem, ext = os.path.splitext(path)
+    m = re.search(r"(\d+)$", stem)
+    if m is None:
+        return os.path.join(os.path.dirname(path), "name.####.exr")
+    return f"{stem[: m.start()]}{'#' * len(m.group(1))}{ext}"
+
+
+def _refuse_several_sequences(folder: str) -> None:
+    """One line when a folder's images of one type form several numbered sequences: which one is the plate is
+    the user's to say, by pattern (files of several types keep ``_list_images``' own message)."""
+    by_ext: dict[str, list[fileseq.FileSequence]] = {}
+    for seq in _sequences_in(folder):
+        by_ext.setdefault(seq.extension().lower(), []).append(seq)
+    for seqs in by_ext.values():
+        names = {q.basename() for q in seqs}
+        if len(names) > 1:
+            first = seqs[0]
+            example = os.path.join(folder, f"{first.basename()}{'#' * max(1, first.zfill())}{first.extension()}")
+            raise InputError(
+                folder,
+                f"holds {len(seqs)} image sequences: {_name_list([_seq_label(q) for q in seqs])}",
+                f"pass one of them as a pattern, e.g. {example}",
+            )
+
+
 def _name_list(names: list[str]) -> str:
     shown = ", ".join(names[:_MAX_LISTED])
     return shown if len(names) <= _MAX_LISTED else f"{shown} and {len(names) - _MAX_LISTED} more"
@@ -330,8 +499,8 @@ def _check_range(source: str, frame_range: tuple[int, int] | None, count: int) -
     return first, last
 
 
-def _open_sequence(folder: str, frame_range: tuple[int, int] | None) -> ClipInfo:
-    files = _list_images(folder, _FRAME)
+def _open_sequence(source: str, frame_range: tuple[int, int] | None) -> ClipInfo:
+    folder, files = _sequence_files(source)
     if not files:
         movies = sorted(n for n in os.listdir(folder) if os.path.splitext(n)[1].lower() in MOVIE_EXTENSIONS)
         hint = f" (or pass the movie {movies[0]} itself)" if movies else ""
@@ -359,6 +528,7 @@ def _open_sequence(folder: str, frame_range: tuple[int, int] | None) -> ClipInfo
     # Unnumbered files (all or none, see _list_images) are numbered by their position.
     numbers = [f.number for f in selected]
     frame_numbers = tuple(n if n is not None else first + i for i, n in enumerate(numbers))
+    rate, aspect, timecode = _image_timing(selected[0].path)
     return ClipInfo(
         source=folder,
         kind=_SEQUENCE,
@@ -366,9 +536,12 @@ def _open_sequence(folder: str, frame_range: tuple[int, int] | None) -> ClipInfo
         frame_numbers=frame_numbers,
         width=head.width,
         height=head.height,
-        fps=None,
+        fps=float(rate) if rate else None,
         colorspace="linear" if head.is_float else "sRGB",
         channels=head.channels,
+        rate=rate,
+        pixel_aspect=aspect,
+        timecode=timecode,
     )
 
 
@@ -390,6 +563,24 @@ def _with_colour(info: ClipInfo, colorspace: str | None, config: str | None) -> 
             inp.close()
         space = colour.default_colorspace(first, facts, config)
     return dataclasses.replace(info, colorspace=space, is_float=is_float, colour_config=config)
+def _image_timing(path: str) -> tuple[Fraction | None, float, str | None]:
+    """(rate, pixel aspect ratio, timecode) from an image's header: an EXR's ``FramesPerSecond`` rational, a DPX's
+    frame rate (a float: snapped to its NTSC fraction), ``PixelAspectRatio`` and the SMPTE timecode of either."""
+    with _quiet_codec_stderr():
+        inp = _open_image(path, _FRAME)
+    try:
+        spec = inp.spec()
+        fraction = spec.getattribute("FramesPerSecond")
+        rate = exact_rate(tuple(fraction)) if isinstance(fraction, tuple) and len(fraction) == 2 else None
+        for name in ("dpx:FrameRate", "dpx:TemporalFrameRate"):
+            if rate is None:
+                rate = exact_rate(spec.get_float_attribute(name, 0.0))
+        aspect = pixel_aspect(spec.get_float_attribute("PixelAspectRatio", 1.0))
+        packed = spec.getattribute("smpte:TimeCode")
+        timecode = Timecode.from_bcd(int(packed[0]), rate) if isinstance(packed, tuple) and packed else None
+        return rate, aspect, None if timecode is None else str(timecode)
+    finally:
+        inp.close()
 
 
 def _encoding(is_float: bool) -> str:
@@ -422,14 +613,17 @@ def _check_gaps(folder: str, files: list[_NumberedFile], first: int, last: int) 
             folder,
             f"{what} between {prev.name} and {cur.name}",
             f"render or copy the missing frame, or choose a frame range that avoids it "
-            f"(positions {first}..{pos} or {pos + 1}..{last})",
+            f"(--frames {files[first].number}-{prev.number} or {cur.number}-{files[last].number})",
         )
 
 
-def _open_movie(path: str, frame_range: tuple[int, int] | None) -> ClipInfo:
+def _open_movie(path: str, frame_range: tuple[int, int] | None, start_frame: int = 0) -> ClipInfo:
     with _open_container(path) as container:
         stream = _video_stream(container, path)
         rate = stream.average_rate or stream.guessed_rate
+        aspect = stream.sample_aspect_ratio
+        stamp = next((s.metadata["timecode"] for s in container.streams if "timecode" in s.metadata), None)
+        stamp = stamp or container.metadata.get("timecode")
         count = stream.frames
         only_stream = len(container.streams) == 1
         duration = container.duration / av.time_base if container.duration else None
@@ -442,16 +636,22 @@ def _open_movie(path: str, frame_range: tuple[int, int] | None) -> ClipInfo:
     if count <= 0:  # the container has no frame count (mkv, webm, some avi): count the packets instead
         count = _count_packets(path, float(rate) if rate else None, duration if only_stream else None)
     first, last = _check_range(path, frame_range, count)
+    exact = exact_rate(Fraction(rate)) if rate else None
+    timecode = Timecode.parse(stamp, exact) if stamp else None
     return ClipInfo(
         source=path,
         kind=_MOVIE,
         frame_files=(),
-        frame_numbers=tuple(range(first, last + 1)),
+        frame_numbers=tuple(range(start_frame + first, start_frame + last + 1)),
         width=frame.width,
         height=frame.height,
         fps=float(rate) if rate else None,
         colorspace="sRGB",
         channels=len(frame.format.components),
+        rate=exact,
+        pixel_aspect=pixel_aspect(float(aspect)) if aspect else 1.0,
+        timecode=None if timecode is None else str(timecode.offset(first)),
+        start_frame=start_frame,
     )
 
 
@@ -537,7 +737,7 @@ def _decoded_frames(
 
 def _decode_movie(info: ClipInfo) -> Iterator[np.ndarray]:
     """Yield the selected frames as float32 RGB in [0, 1], decoding from the start (exact, no seeking)."""
-    first, last = info.frame_numbers[0], info.frame_numbers[-1]
+    first, last = info.frame_numbers[0] - info.start_frame, info.frame_numbers[-1] - info.start_frame
     produced = 0
     with _open_container(info.source) as container:
         stream = _video_stream(container, info.source)
@@ -754,8 +954,8 @@ def _position_in_full_clip(info: ClipInfo) -> tuple[int, int]:
     if info.kind == _MOVIE:
         with _open_container(info.source) as container:
             count = _video_stream(container, info.source).frames
-        return info.frame_numbers[0], count if count > 0 else _count_packets(info.source)
-    paths = [f.path for f in _list_images(info.source, _FRAME)]
+        return info.frame_numbers[0] - info.start_frame, count if count > 0 else _count_packets(info.source)
+    paths = [f.path for f in _sequence_files(info.source)[1]]
     offset = paths.index(info.frame_files[0]) if info.frame_files[0] in paths else 0
     return offset, len(paths)
 

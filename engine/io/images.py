@@ -17,7 +17,9 @@ Two guards every reader of an image shares (``engine.io.clip`` too):
 from __future__ import annotations
 
 import os
+from fractions import Fraction
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -26,6 +28,7 @@ import OpenImageIO as oiio
 
 from engine.errors import InputError
 from engine.io.atomic import atomic_write
+from engine.io.timing import Timecode
 
 #: Every image is decoded as float32: the bytes per channel a decode allocates, whatever the file stores.
 DECODED_BYTES_PER_CHANNEL = 4
@@ -108,17 +111,18 @@ def write_exr(
     channels: dict[str, np.ndarray],
     compression: str = "zip",
     chromaticities: tuple[float, ...] | None = None,
-    attributes: dict[str, str] | None = None,
+    attributes: dict[str, Any] | None = None,
 ) -> Path:
     """Write float32 ``channels`` (name -> [H, W]) to one scanline EXR part, atomically. ``chromaticities``
     (rx, ry, gx, gy, bx, by, wx, wy) tag the colour's primaries and white (``engine.io.colour.chromaticities``);
-    ``attributes``: string header attributes (``oiio:ColorSpace`` names the colour space for OCIO readers)."""
+    ``attributes`` are added to its header (``oiio:ColorSpace`` names the colour space for OCIO readers;
+    ``exr_timing``: frame rate, pixel aspect ratio, timecode)."""
     shapes = {c.shape for c in channels.values()}
     if len(shapes) != 1 or len(next(iter(shapes))) != 2:
         raise ValueError(f"EXR channels must share one [H, W] shape, got {shapes}")
     comp = {"zip": OpenEXR.ZIP_COMPRESSION, "piz": OpenEXR.PIZ_COMPRESSION, "none": OpenEXR.NO_COMPRESSION}[compression]
     data = {name: np.ascontiguousarray(c, dtype=np.float32) for name, c in channels.items()}
-    header: dict[str, object] = {"compression": comp, "type": OpenEXR.scanlineimage}
+    header: dict[str, Any] = {"compression": comp, "type": OpenEXR.scanlineimage}
     if chromaticities is not None:
         header["chromaticities"] = tuple(float(v) for v in chromaticities)
     header.update(attributes or {})
@@ -131,11 +135,17 @@ def write_exr(
 
 
 def write_rgba_exr(
-    path: Path, rgba: np.ndarray, chromaticities: tuple[float, ...] | None = None, colorspace: str | None = None
+    path: Path,
+    rgba: np.ndarray,
+    chromaticities: tuple[float, ...] | None = None,
+    colorspace: str | None = None,
+    attributes: dict[str, Any] | None = None,
 ) -> Path:
-    """An ordinary (single-layer) RGBA or RGB float EXR, tagged with its chromaticities and colour space."""
+    """An ordinary (single-layer) RGBA or RGB float EXR, tagged with its chromaticities and colour space
+    (``attributes``: added to its header)."""
     names = "RGBA"[: rgba.shape[2]]
-    tags = {"oiio:ColorSpace": colorspace} if colorspace else None
+    tags: dict[str, Any] = {"oiio:ColorSpace": colorspace} if colorspace else {}
+    tags.update(attributes or {})
     return write_exr(path, {n: rgba[..., i] for i, n in enumerate(names)}, "zip", chromaticities, tags)
 
 
@@ -174,6 +184,27 @@ def write_like(path: Path, rgb: np.ndarray, like: str | Path) -> Path:
             raise OSError(f"cannot write {path}: {out.geterror()}")
 
     return atomic_write(path, write)
+
+
+def exr_timing(
+    rate: tuple[int, int] | None, pixel_aspect: float, first_timecode: str | None = None, offset: int = 0
+) -> dict[str, Any]:
+    """The standard OpenEXR header attributes of a frame's timing, the plate's carried into every pass and render so
+    a compositor lines them up with it: ``framesPerSecond`` (a rational: 24000/1001 stays exact),
+    ``pixelAspectRatio`` and ``timeCode`` (SMPTE 12M, what Nuke, RV and OIIO show): ``first_timecode`` (the clip's
+    first frame) plus ``offset`` frames. Absent values are left out (OpenEXR's defaults: no rate, no timecode)."""
+    exact = None if rate is None else Fraction(*rate)
+    header: dict[str, Any] = {"pixelAspectRatio": float(pixel_aspect)}
+    if exact is not None:
+        header["framesPerSecond"] = exact
+    first = None if first_timecode is None else Timecode.parse(first_timecode, exact)
+    if first is not None:
+        timecode = first.offset(offset)
+        code = OpenEXR.TimeCode()
+        code.hours, code.minutes, code.seconds, code.frame = timecode.fields()
+        code.dropFrame = timecode.drop
+        header["timeCode"] = code
+    return header
 
 
 def read_exr(path: str | Path) -> dict[str, np.ndarray]:

@@ -83,14 +83,21 @@ def layer_names(foregrounds: int = 1) -> list[str]:
     return [C.layer_name(i, foregrounds + 1) for i in range(foregrounds + 1)]
 
 
-def make_export(root: Path, seed: int = 0, foregrounds: int = 1) -> Path:
-    """Write plate, passes, atlases and edit layers; returns the manifest path."""
+def make_export(
+    root: Path,
+    seed: int = 0,
+    foregrounds: int = 1,
+    frames: tuple[int, ...] = FRAMES,
+    clip_fields: dict | None = None,
+) -> Path:
+    """Write plate, passes, atlases and edit layers; returns the manifest path. ``frames``: the plate's frame
+    numbers; ``clip_fields``: more fields of the manifest's clip (its timing: rate, pixel_aspect, timecode)."""
     rng = np.random.default_rng(seed)
     run = root / "run"
     exp = run / C.EXPORTS_DIR / C.EXPORT_VERSION_FORMAT.format(1)
     plate_dir = root / "plate"
     frame_files = []
-    for t in FRAMES:
+    for t in frames:
         path = plate_dir / f"{t:05d}.png"
         img = rng.integers(0, 256, (H, W, 4), dtype=np.uint8)
         img[..., 3] = 255
@@ -121,7 +128,7 @@ def make_export(root: Path, seed: int = 0, foregrounds: int = 1) -> Path:
                 "atlas_box": [0.0, 0.0, 1.0, 1.0],
             }
         )
-    for t in FRAMES:
+    for t in frames:
         ch = {}
         for idx, (name, z) in enumerate(zip(names, _alphas(t, foregrounds), strict=True)):
             u, v = _uv_grid(t, idx, ATLAS_SIZES.get(name, EXTRA_ATLAS_SIZE))
@@ -139,19 +146,20 @@ def make_export(root: Path, seed: int = 0, foregrounds: int = 1) -> Path:
             "source": str(plate_dir),
             "kind": "sequence",
             "frame_files": frame_files,
-            "frame_numbers": list(FRAMES),
-            "first_frame": FRAMES[0],
-            "last_frame": FRAMES[-1],
+            "frame_numbers": list(frames),
+            "first_frame": frames[0],
+            "last_frame": frames[-1],
             "fps": 25.0,
             "resolution": [W, H],
             "working_resolution": [W, H],
             "colorspace": "sRGB",
+            **(clip_fields or {}),
         },
         "passes": {
             "dir": C.PASSES_DIR,
             "pattern": C.PASS_FILE_PREFIX + "{frame:05d}" + C.PASS_FILE_EXT,
             "blender_pattern": C.PASS_FILE_PREFIX + "#####" + C.PASS_FILE_EXT,
-            "frames": list(FRAMES),
+            "frames": list(frames),
             "exr_layer": C.EXR_LAYER,
             "resolution": [W, H],
         },

@@ -330,10 +330,10 @@ def test_fit_operator_runs_engine_exports_and_imports(fit_scene, tmp_path):
     assert props.manifest.endswith(C.MANIFEST_NAME)
     assert "NA_Over" in _tree(bpy.context.scene).nodes
     log = Path(props.log_path).read_text()
-    # argv: plate folder, rasterized masks named like the plate's files, positions, preset, --no-bar
+    # argv: plate folder, rasterized masks named like the plate's files, the plate's frame numbers, preset, --no-bar
     first = log.splitlines()[0]
-    assert f" fit {tmp_path / 'src' / 'plate'} --mask {tmp_path / 'run.masks' / 'layer1'} " in first
-    assert "--frames 0:2" in first and "--preset draft" in first and first.endswith("--no-bar")
+    assert f" fit {tmp_path / 'src' / 'plate' / '#####.png'} --mask {tmp_path / 'run.masks' / 'layer1'} " in first
+    assert f"--frames {FRAMES[0]}:{FRAMES[-1]}" in first and "--preset draft" in first and first.endswith("--no-bar")
     assert sorted(os.listdir(tmp_path / "run.masks" / "layer1")) == [f"{f:05d}.png" for f in FRAMES]
     assert " export " in log
 
@@ -406,7 +406,7 @@ def test_estimate_operator_asks_the_engine(fit_scene):
 
     assert ui._estimate_text(props) == "about 1m01s here (engine estimate), ~25.7 dB"
     argv = Path(props.run_dir + ".estimate.log").read_text().splitlines()[0]
-    assert " estimate " in argv and "--frames 0:2" in argv and argv.endswith("--json")
+    assert " estimate " in argv and f"--frames {FRAMES[0]}:{FRAMES[-1]}" in argv and argv.endswith("--json")
     props.long_edge = 512
     assert props.estimate_json == ""  # another size: back to the documented estimate
 

@@ -81,7 +81,7 @@ def test_find_masks_adds_a_layer_that_matches_the_true_masks(masks_scene, tmp_pa
     assert check.source == "SEQUENCE" and check.frame_duration == 6 and tuple(check.size) == (96, 64)
     assert check.filepath == str(out / "00000.png") and props.clip.name == "00000.png"
     argv = Path(props.log_path).read_text().splitlines()[0].split(" ")
-    assert argv[argv.index(C.VERB_MASKS) + 1] == str(root / "moving" / "frames")
+    assert argv[argv.index(C.VERB_MASKS) + 1] == str(root / "moving" / "frames" / "#####.png")  # the clip's pattern
     assert argv[argv.index("--frames") + 1] == "0:5"
     names = sorted(os.listdir(out))
     assert names == [f"{t:05d}.png" for t in range(6)]  # named like the frames: the fit matches them by number

@@ -106,7 +106,7 @@ def test_scribble_fit_rasterizes_passes_the_folder_and_imports_three_layers(scri
     argv = Path(props.log_path).read_text().splitlines()[0].split(" ")
     assert argv.count("--mask") == 1 and argv[argv.index("--mask") + 1] == str(tmp_path / "object_masks")
     assert argv[argv.index(C.SCRIBBLE_ARG) + 1] == str(folder)
-    assert argv[argv.index("--frames") + 1] == "0:2"
+    assert argv[argv.index("--frames") + 1] == "3:5"  # the plate's frame numbers (00003.png ...)
 
     # one file per scribbled frame of the fitted range, named like the plate's files; the stale one is gone
     assert sorted(p.name for p in folder.iterdir()) == ["00003.png", "00005.png"]

@@ -209,7 +209,12 @@ CASES: tuple[Case, ...] = (
         "unknown_config_key", "--set stesp=10", _good_clip_with("--set", "stesp=10"), ("stesp", "did you mean 'steps'")
     ),
     Case("bad_config_value", "--set steps=ten", _good_clip_with("--set", "steps=ten"), ("steps=ten", "int")),
-    Case("frame_range_outside_clip", "--frames 1:9 on 3 frames", _good_clip_with("--frames", "1:9"), ("1..9", "0..2")),
+    Case(
+        "frame_range_outside_clip",
+        "--frames 1-9 on frames 0..2",
+        _good_clip_with("--frames", "1-9"),
+        ("frame 9 is not in the plate", "0..2"),
+    ),
     Case("unknown_device", "--device tpu", _good_clip_with("--device", "tpu"), ("tpu", "auto")),
     Case("output_not_writable", "--out below a regular file", _not_writable, ("a_file", "--out")),
     Case("incompatible_run_schema", "--resume of a run with config schema 0", _old_schema, ("config.json", "0")),

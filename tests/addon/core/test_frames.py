@@ -1,4 +1,5 @@
-"""Scene frames -> what the engine reads (``core.frames``): file numbers, mask and scribble names, positions."""
+"""Scene frames <-> the plate (``core.frames``): file numbers, mask and scribble names, the engine's --frames in
+the plate's numbers, and the plate's rate and pixel aspect ratio as Blender's scene stores them."""
 
 from __future__ import annotations
 
@@ -30,3 +31,35 @@ def test_frame_range_whole_clip_or_clipped_to_it():
 def test_positions_count_from_the_clips_first_frame():
     assert F.positions(3, 5, 3) == (0, 2)
     assert F.positions(1, 50, 1) == (0, 49)
+
+
+def test_the_engine_is_given_the_plates_frame_numbers():
+    """A sequence plate.1001.exr ... loaded at scene frame 1 (Blender's default) fits --frames 1003-1005 for scene
+    frames 3-5; a movie's frames count from 0."""
+    assert F.plate_numbers(3, 5, 1, 1001) == (1003, 1005)
+    assert F.plate_numbers(1001, 1100, 1001, 1001) == (1001, 1100)
+    assert F.plate_numbers(3, 5, 1, None) == (2, 4)
+    assert F.plate_numbers(3, 5, 3, 0) == (0, 2)
+
+
+def test_scene_rate_is_the_plates_exact_fraction():
+    assert F.scene_fps((24000, 1001)) == (24000, 1001.0)  # 24000 / 1001.0 exactly, as Blender sets from a movie
+    assert F.scene_fps((25, 1)) == (25, 1.0)
+    assert F.scene_fps((30000, 1001)) == (30000, 1001.0)
+    fps, base = F.scene_fps((60000, 1001))  # beyond Blender's short: 60 / 1.001
+    assert fps == 60 and abs(fps / base - 60000 / 1001) < 1e-12
+    assert F.scene_fps(None) is None and F.scene_fps((0, 1)) is None
+
+
+def test_scene_pixel_aspect_is_the_plates():
+    assert F.scene_pixel_aspect(2.0) == (2.0, 1.0)  # 2x anamorphic: pixels twice as wide
+    assert F.scene_pixel_aspect(0.5) == (1.0, 2.0)
+    assert F.scene_pixel_aspect(1.0) == (1.0, 1.0)
+    assert F.scene_pixel_aspect(0.0) == (1.0, 1.0)
+
+
+def test_a_sequence_clip_is_given_to_the_engine_as_its_pattern():
+    assert F.sequence_pattern("/plates/plate.1001.exr") == "/plates/plate.####.exr"
+    assert F.sequence_pattern("/plates/00003.png") == "/plates/#####.png"
+    assert F.sequence_pattern("/plates/shot2_v3_0012.png") == "/plates/shot2_v3_####.png"
+    assert F.sequence_pattern("/plates/still.png") == "/plates"

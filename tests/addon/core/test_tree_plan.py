@@ -248,3 +248,41 @@ def test_relative_plate_paths_resolve_from_the_manifest_wherever_the_run_is(tmp_
     assert [i.filepath for i in after.images] == [
         i.filepath.replace(str(tmp_path / "a"), str(tmp_path / "b")) for i in before.images
     ]
+
+
+def test_plan_numbers_the_scene_as_the_plate_with_its_rate_and_aspect(tmp_path):
+    """Frames 1001..1003 at 24000/1001 with 2:1 pixels: the scene runs 1001-1003 (every imported frame), the plate
+    and the passes start at 1001, the rate is exact and the pixels anamorphic."""
+    timing = {"rate": [24000, 1001], "fps": 24000 / 1001, "pixel_aspect": 2.0, "timecode": "01:00:00:00"}
+    mp = make_export(tmp_path, frames=(1001, 1002, 1003), clip_fields=timing)
+    plan = P.plan_tree(C.load_manifest(str(mp)), str(mp), P.FILTER_NEAREST)
+    assert (plan.frame_start, plan.frame_end) == (1001, 1003)
+    assert (plan.plate.frame_start, plan.plate.frame_duration) == (1001, 3)
+    passes = next(i for i in plan.images if i.name == P.PASSES_IMAGE)
+    assert (passes.frame_start, passes.frame_duration) == (1001, 3) and passes.filepath.endswith("atlas.01001.exr")
+    assert plan.fps == (24000, 1001.0) and plan.pixel_aspect == (2.0, 1.0)
+
+
+def test_plan_of_a_manifest_without_timing_keeps_square_pixels_and_its_float_rate(tmp_path):
+    mp = make_export(tmp_path)  # fps 25.0, no rate, pixel_aspect or timecode: a manifest from before they were kept
+    plan = P.plan_tree(C.load_manifest(str(mp)), str(mp), P.FILTER_NEAREST)
+    assert plan.fps == (25, 1.0) and plan.pixel_aspect == (1.0, 1.0)
+    data = json.loads(mp.read_text())
+    data["clip"]["fps"] = None
+    mp.write_text(json.dumps(data))
+    assert P.plan_tree(C.load_manifest(str(mp)), str(mp), P.FILTER_NEAREST).fps is None
+
+
+def test_plan_starts_a_movie_plate_at_its_first_frame_number(tmp_path):
+    """A movie fitted with --start-frame 1001: its first frame shows at scene frame 1001 (0 without it)."""
+    mp = make_export(tmp_path, frames=(1001, 1002, 1003))
+    data = json.loads(mp.read_text())
+    movie = tmp_path / "plate.mov"
+    movie.write_bytes(b"\0")  # the plan only checks that the file is there
+    data["clip"].update(kind="movie", source=str(movie), frame_files=[], start_frame=1001)
+    mp.write_text(json.dumps(data))
+    plan = P.plan_tree(C.load_manifest(str(mp)), str(mp), P.FILTER_NEAREST)
+    assert not plan.plate.sequence and plan.plate.frame_start == 1001 and plan.frame_start == 1001
+    del data["clip"]["start_frame"]
+    mp.write_text(json.dumps(data))
+    assert P.plan_tree(C.load_manifest(str(mp)), str(mp), P.FILTER_NEAREST).plate.frame_start == 0

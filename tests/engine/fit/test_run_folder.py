@@ -3,6 +3,7 @@ back exactly, and a file of another version, damaged or edited by hand is ONE li
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import pytest
@@ -62,7 +63,8 @@ def test_what_is_written_reads_back(tmp_path):
     assert run.read_clip() == RECORD and run.read_clip().num_frames == 3
     assert run.read_metrics() == {"schema": C.RUN_METRICS_SCHEMA, **METRICS}
     data = json.loads(run.clip.read_text())
-    assert data["schema"] == C.RUN_CLIP_SCHEMA and set(data) == {"schema", *C.RUN_FILE_FIELDS[C.RUN_CLIP]}
+    written = {"schema", *C.RUN_FILE_FIELDS[C.RUN_CLIP], *C.RUN_CLIP_OPTIONAL_FIELDS}
+    assert data["schema"] == C.RUN_CLIP_SCHEMA and set(data) == written
     assert RunFolder(tmp_path / "nothing").read_metrics() is None  # an unfinished fit has none
 
 
@@ -77,6 +79,11 @@ def test_what_is_written_reads_back(tmp_path):
         (lambda d: d.update(frame_files=["/a.exr"]), ("1 frame files for 3 frames",)),
         (lambda d: d.update(kind="stream"), ("unknown kind",)),
         (lambda d: d.update(layers=0), ("layers and sizes must be positive",)),
+        (lambda d: d.update(rate=[24000]), ("'rate' is not a int pair or null",)),
+        (lambda d: d.update(rate=[24000, 0]), ("rate [24000, 0] is not a positive fraction",)),
+        (lambda d: d.update(pixel_aspect=-2.0), ("pixel_aspect -2.0 is not a positive number",)),
+        (lambda d: d.update(timecode="1:00:00"), ("timecode '1:00:00' is not HH:MM:SS:FF",)),
+        (lambda d: d.update(start_frame=-1), ("start_frame is negative",)),
     ],
 )
 def test_a_clip_record_off_its_schema_is_one_line(tmp_path, edit, needles):
@@ -87,6 +94,20 @@ def test_a_clip_record_off_its_schema_is_one_line(tmp_path, edit, needles):
     with pytest.raises(InputError) as err:
         run.read_clip()
     _one_line(err, run.clip, *needles)
+
+
+def test_the_plate_timing_reads_back_and_a_record_written_before_it_reads_as_before(tmp_path):
+    """rate, pixel_aspect, timecode and start_frame are optional: clip.json of schema 2 without them (what the engine
+    wrote before it kept the plate's timing) reads as square pixels, no exact rate or timecode, a movie from 0."""
+    run = RunFolder(tmp_path)
+    timed = dataclasses.replace(RECORD, rate=(24000, 1001), pixel_aspect=2.0, timecode="01:00:00:00", start_frame=0)
+    run.write_clip(timed)
+    assert run.read_clip() == timed and json.loads(run.clip.read_text())["rate"] == [24000, 1001]
+    old = {k: v for k, v in RECORD.to_dict().items() if k not in C.RUN_CLIP_OPTIONAL_FIELDS}
+    run.clip.write_text(json.dumps(old))
+    back = run.read_clip()
+    assert back == RECORD and (back.rate, back.pixel_aspect, back.timecode, back.start_frame) == (None, 1.0, None, 0)
+    assert back.frame_range == (2, 4) and back.frame_numbers == (1002, 1003, 1004)  # positions and plate numbers
 
 
 def test_damaged_or_missing_files_are_one_line(tmp_path):

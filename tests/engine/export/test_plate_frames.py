@@ -1,0 +1,158 @@
+"""Plate frame numbers and timing end to end, on a tiny fit: an EXR plate ``plate.1001.exr`` ... at 24000/1001 with
+2:1 pixels and timecode, beside a second sequence in its folder, fitted by pattern with ``--frames`` in plate
+numbers; the run records them, the passes, the manifest, the rendered frames and the movie carry them."""
+
+from __future__ import annotations
+
+import json
+from fractions import Fraction
+from pathlib import Path
+
+import av
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+
+from engine import contract as C
+from engine.data.synthetic import make_scene
+from engine.io.images import exr_timing, write_exr
+from tests.engine.export.tiny_run import SPEC, TINY
+from tests.engine_cli import run_cli
+
+FIRST = 1001
+RATE = (24000, 1001)
+
+
+def _spec_of(path: Path) -> oiio.ImageSpec:
+    inp = oiio.ImageInput.open(str(path))
+    try:
+        return inp.spec()
+    finally:
+        inp.close()
+
+
+def _timing(path: Path) -> tuple[object, float, str]:
+    spec = _spec_of(path)
+    return (
+        spec.getattribute("FramesPerSecond"),
+        spec.getattribute("PixelAspectRatio"),
+        spec.get_string_attribute("smpte:TimeCode"),
+    )
+
+
+@pytest.fixture(scope="module")
+def plate_run(tmp_path_factory):
+    """The plate (frames 1001..1004, a slap comp 1..4 in the same folder), its masks and a tiny fit of 1001-1003."""
+    root = tmp_path_factory.mktemp("plate_frames")
+    scene = make_scene(SPEC)
+    plates, masks = root / "plates", root / "masks"
+    for t, frame in enumerate(scene.frames):
+        rgb = {c: np.ascontiguousarray(frame[..., i], np.float32) for i, c in enumerate("RGB")}
+        write_exr(plates / f"plate.{FIRST + t}.exr", rgb, attributes=exr_timing(RATE, 2.0, "01:00:00:00", t))
+        write_exr(plates / f"slap.{t + 1:04d}.exr", rgb)
+        write_exr(masks / f"plate_mask.{FIRST + t}.exr", {"Y": scene.masks[t].astype(np.float32)})
+    run = root / "run"
+    sets = [arg for key, value in TINY.items() for arg in ("--set", f"{key}={value}")]
+    code, lines = run_cli("fit", plates / "plate.####.exr", "--mask", masks, "--frames", "1001-1003", "--out", run,
+                          "--preset", "draft", *sets, "--device", "cpu", "--no-bar")  # fmt: skip
+    assert code == C.EXIT_OK, lines
+    return root, plates, masks, run
+
+
+def test_a_folder_of_two_sequences_is_refused_in_one_line(plate_run, tmp_path):
+    _, plates, masks, _ = plate_run
+    code, lines = run_cli("fit", plates, "--mask", masks, "--out", tmp_path / "run", "--no-bar")
+    assert code == C.EXIT_BAD_INPUT and len(lines) == 1
+    assert "holds 2 image sequences: plate.####.exr (1001..1004), slap.####.exr (1..4)" in lines[0]
+    assert f"pass one of them as a pattern, e.g. {plates}/plate.####.exr" in lines[0]
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize(
+    ("frames", "needle"),
+    [
+        ("0-2", "frame 0 is not in the plate (its frames are 1001..1004)"),
+        ("1003-1005", "frame 1005 is not in the plate (its frames are 1001..1004)"),
+    ],
+)
+def test_frames_outside_the_plate_are_one_line_naming_its_range(plate_run, tmp_path, frames, needle):
+    _, plates, masks, _ = plate_run
+    code, lines = run_cli("fit", plates / "plate.####.exr", "--mask", masks, "--frames", frames,
+                          "--out", tmp_path / "run", "--no-bar")  # fmt: skip
+    assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and needle in lines[0], lines
+    assert "choose --frames FIRST-LAST with plate frame numbers within 1001..1004" in lines[0]
+
+
+def test_the_run_records_positions_plate_numbers_and_timing(plate_run):
+    _, plates, _, run = plate_run
+    record = json.loads((run / C.RUN_CLIP).read_text())
+    assert record["source"] == str(plates / "plate.####.exr")
+    assert record["frame_range"] == [0, 2] and record["frame_numbers"] == [1001, 1002, 1003]
+    assert record["frame_files"] == [str(plates / f"plate.{n}.exr") for n in (1001, 1002, 1003)]
+    assert record["rate"] == [24000, 1001] and record["fps"] == pytest.approx(24000 / 1001, rel=1e-12)
+    assert record["pixel_aspect"] == 2.0 and record["timecode"] == "01:00:00:00" and record["start_frame"] == 0
+
+
+@pytest.fixture(scope="module")
+def exported(plate_run):
+    _, _, _, run = plate_run
+    code, lines = run_cli("export", run, "--atlas-size", "32", "--frames", "1002-1003", "--no-bar")
+    assert code == C.EXIT_OK, lines
+    return run / C.EXPORTS_DIR / "v001" / C.MANIFEST_NAME
+
+
+def test_export_frames_outside_the_fit_are_one_line(plate_run):
+    code, lines = run_cli("export", plate_run[3], "--frames", "1003-1004", "--no-bar")
+    assert code == C.EXIT_BAD_INPUT and len(lines) == 1
+    assert "--frames 1003-1004 is outside the fitted frames 1001-1003" in lines[0]
+
+
+def test_passes_and_manifest_carry_plate_numbers_rate_aspect_and_timecode(exported):
+    manifest = C.load_manifest(str(exported))
+    clip, passes = manifest["clip"], manifest["passes"]
+    assert clip["frame_numbers"] == [1001, 1002, 1003] and passes["frames"] == [1002, 1003]
+    assert (clip["first_frame"], clip["last_frame"]) == (1001, 1003)
+    assert clip["rate"] == [24000, 1001] and C.clip_rate(clip) == RATE
+    assert clip["pixel_aspect"] == 2.0 and clip["timecode"] == "01:00:00:00" and clip["start_frame"] == 0
+    assert sorted(p.name for p in (exported.parent / C.PASSES_DIR).iterdir()) == ["atlas.01002.exr", "atlas.01003.exr"]
+    for number, timecode in ((1002, "01:00:00:01"), (1003, "01:00:00:02")):
+        assert _timing(exported.parent / C.PASSES_DIR / C.pass_file_name(number)) == (RATE, 2.0, timecode)
+
+
+def test_render_frames_and_movie_carry_them_too(exported, tmp_path):
+    out, movie = tmp_path / "render", tmp_path / "edited.mov"
+    code, lines = run_cli("render", exported, "--out", out, "--movie", movie, "--no-bar")
+    assert code == C.EXIT_OK, lines
+    assert sorted(p.name for p in out.iterdir()) == ["edit.01002.exr", "edit.01003.exr"]
+    assert _timing(out / "edit.01002.exr") == (RATE, 2.0, "01:00:00:01")
+    assert _timing(out / "edit.01003.exr") == (RATE, 2.0, "01:00:00:02")
+    with av.open(str(movie)) as container:
+        stream = container.streams.video[0]
+        assert stream.average_rate == Fraction(24000, 1001) and stream.sample_aspect_ratio == Fraction(2)
+        assert stream.metadata["timecode"] == "01:00:00:01"
+        stamps = [frame.pts * stream.time_base for frame in container.decode(stream)]
+        assert len(stamps) == 2 and stamps[1] - stamps[0] == Fraction(1001, 24000)  # each frame lasts 1001/24000 s
+
+
+def test_a_manifest_without_timing_still_renders_at_the_default_rate(exported, tmp_path):
+    """A manifest written before the plate's timing was kept (no rate, aspect, timecode): read, rendered at
+    ``render.DEFAULT_FPS`` with square pixels and no timecode."""
+    from engine.edit import render
+
+    data = json.loads(exported.read_text())
+    for key in C.MANIFEST_OPTIONAL_FIELDS["clip"]:
+        if key in ("rate", "pixel_aspect", "timecode", "start_frame"):
+            data["clip"].pop(key)
+    data["clip"]["fps"] = None
+    old = exported.parent / "old_manifest.json"
+    old.write_text(json.dumps(data))
+    try:
+        out, movie = tmp_path / "render", tmp_path / "old.mp4"
+        render.render_manifest(old, out, movie=movie, progress_bar=False)
+        spec = _spec_of(out / "edit.01002.exr")
+        assert spec.getattribute("FramesPerSecond") is None and spec.getattribute("smpte:TimeCode") is None
+        with av.open(str(movie)) as container:
+            stream = container.streams.video[0]
+            assert stream.average_rate == Fraction(render.DEFAULT_FPS) and "timecode" not in stream.metadata
+    finally:
+        old.unlink()
