@@ -87,9 +87,13 @@ def frame_range(text: str) -> tuple[int, int]:
         raise argparse.ArgumentTypeError(f"frame range {text!r} must be FIRST:LAST, e.g. 0:49") from None
 
 
-def build_parser() -> argparse.ArgumentParser:
+#: The command `pip install` makes (pyproject.toml's [project.scripts]): the same verbs as `python -m engine`.
+CONSOLE_SCRIPT = "neural-atlas"
+
+
+def build_parser(prog: str = "python -m engine") -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
-        prog="python -m engine", description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog=prog, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     p.add_argument("--version", action="version", version=f"neural-atlas engine {C.ENGINE_VERSION}")
     sub = p.add_subparsers(dest="verb", metavar="VERB")
@@ -436,14 +440,19 @@ def _cancelled_line(args: argparse.Namespace, exc: KeyboardInterrupt) -> str:
     return f"{line}; run the same command again"
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+def main(argv: list[str] | None = None, prog: str = "python -m engine") -> int:
+    parser = build_parser(prog)
     args = parser.parse_args(argv)
     if args.verb is None:
         parser.print_help()
         return C.EXIT_OK
     with _cancellable():
         return _run(parser, args)
+
+
+def console_main() -> int:
+    """The ``neural-atlas`` command of an installed engine: ``main`` under that name (its help and usage say it)."""
+    return main(prog=CONSOLE_SCRIPT)
 
 
 def _run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
