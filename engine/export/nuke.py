@@ -274,13 +274,12 @@ def write_nuke_script(
         raise InputError(target, "a Nuke script's name ends in .nk", "pass --out FILE.nk")
     if target.exists():
         raise InputError(target, "exists (a Nuke script may hold the artist's work)", "choose a new --out FILE.nk")
-    if not target.parent.is_dir():
-        raise InputError(target.parent, "folder does not exist", "create it or choose another --out")
     try:
         text = nuke_script(manifest.data, str(manifest.path), relocator(str(manifest.path), str(target)), filter)
     except NukeScriptError as exc:
         problem, _, fix = str(exc).partition(" — ")
         raise InputError(manifest.path, problem, fix or "export the run again") from None
+    target.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(target, text)
     return target
 
