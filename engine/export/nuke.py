@@ -5,9 +5,10 @@ edit image (premultiplied), masked by the coverage (Merge mask: ``Z * P``); the 
 over the plate with one premultiplied Merge over: ``plate * (1 - sum Z_i a_i) + sum Z_i P_i``, the paper's edit
 equation as ``engine.edit.equations`` computes it. The frame range, fps and format are the export's.
 
-Nuke cannot run here: the script is checked by parsing it back (node classes, knobs, the input wiring, that every
-file it reads exists and every channel it names is in the pass files). Paths are relative to the script's folder
-(the Root's project directory is set to it), so the export folder can move with its run folder.
+The test suite has no Nuke to run it in: it parses the script back (node classes, knobs, the input wiring, that
+every file it reads exists and every channel it names is in the pass files) and evaluates a model of its nodes.
+Paths are relative to the script's folder (the Root's project directory is set to it), so the export folder can
+move with its run folder.
 
 Nuke's EXR reader names channels by the rule of its NDK example ``ExrChannelNameToNuke``: split at dots (three
 parts at most), drop leading digits, turn other non-alphanumerics into "_", join all but the last part with "_" as
@@ -61,7 +62,7 @@ def nuke_channel_name(exr_channel: str, views: Iterable[str] = ()) -> str:
         return "unnamed"
     views = set(views)
     layer = "_".join(p for p in cleaned[:-1] if p not in views)
-    chan = cleaned[-1] if len(cleaned) > 1 else cleaned[0]
+    chan = cleaned[-1]
     if layer == "Ci":  # RenderMan's primary layer is Nuke's main layer
         layer = ""
     chan = _RGBA_SPELLINGS.get(chan, chan)

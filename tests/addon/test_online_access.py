@@ -86,3 +86,16 @@ def test_copy_install_command_puts_set_up_engines_command_on_the_clipboard(onlin
     assert bpy.ops.neural_atlas.copy_setup_command() == {"FINISHED"}
     # a bpy module without a window system keeps no clipboard (it reads back empty); Blender's does
     assert bpy.context.window_manager.clipboard in ("", ES.manual_setup_command(str(venv)))
+
+
+def test_fit_panel_points_to_engine_python_when_offline_and_none_is_set(online, monkeypatch):
+    from neural_atlas.addon import ui
+
+    monkeypatch.delenv(preferences.ENGINE_PYTHON_ENV, raising=False)
+    layout = RecordingLayout()
+    for on, expected in ((False, True), (True, False)):
+        online(on)
+        calls = layout.draw(ui.NEURALATLAS_PT_fit, bpy.context)
+        labels = [kw.get("text") for name, _, kw in calls if name == "label"]
+        assert labels[0] == "Set up the engine in the preferences"
+        assert ("Online access is off: set Engine Python there" in labels) is expected
