@@ -74,13 +74,15 @@ def test_wheel_holds_the_engine_and_nothing_else(wheel):
     dist_info = f"neural_atlas-{C.ENGINE_VERSION}.dist-info"
     assert {n.split("/")[0] for n in names} == {"engine", dist_info}
     engine_files = {n for n in names if n.startswith("engine/")}
-    expected = {
-        p.relative_to(ROOT).as_posix()
-        for p in (ROOT / "engine").rglob("*.py")
-        if "__pycache__" not in p.parts and not p.relative_to(ROOT).as_posix().startswith(NOT_SHIPPED)
-    }
-    assert {n for n in engine_files if n.endswith(".py")} == expected
-    assert {n for n in engine_files if not n.endswith(".py")} == {"engine/py.typed", "engine/fit/expected_psnr.json"}
+    # every file of the engine in the checkout (a data file too: pyproject.toml's package-data must name it)
+    files = [p.relative_to(ROOT).as_posix() for p in (ROOT / "engine").rglob("*") if p.is_file()]
+    files = [f for f in files if "__pycache__" not in f and not f.startswith(NOT_SHIPPED)]
+    ignored = subprocess.run(  # none without git: then every file counts
+        ["git", "check-ignore", "--stdin"], input="\n".join(files), capture_output=True, text=True, cwd=ROOT
+    ).stdout.split()
+    expected = set(files) - set(ignored)
+    assert engine_files == expected
+    assert {"engine/py.typed", "engine/fit/expected_psnr.json", "engine/cli.py"} <= engine_files
     assert not any(n.startswith(NOT_SHIPPED) for n in names)
 
 
