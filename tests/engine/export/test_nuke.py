@@ -179,7 +179,7 @@ def test_export_writes_the_nuke_script_beside_the_manifest(exported):
     assert nk.root["project_directory"] == "[python {nuke.script_directory()}]"
     assert (nk.root["first_frame"], nk.root["last_frame"]) == (str(min(frames)), str(max(frames)))
     assert nk.root["format"] == f"{w} {h} 0 0 {w} {h} 1 NA_{w}x{h}"
-    assert nk.root["fps"] == f"{m.clip['fps']:.6g}" if m.clip["fps"] else "fps" not in nk.root
+    assert nk.root.get("fps") == (f"{m.clip['fps']:.6g}" if m.clip["fps"] else None)
     classes = [n.cls for n in nk.nodes]
     assert classes == ["Read", *(["Shuffle", "Read", "Premult", "STMap", "Merge2"] * 2), "Merge2", "Read", "Merge2"]
     _check_wiring(nk, m, script.parent)
@@ -343,3 +343,14 @@ def test_knob_values_with_spaces_and_tcl_characters_stay_one_literal_value():
     for value in ("plain/path.%04d.exr", 'a dir/with "quotes"/[x] $HOME {y}\\z.exr', "C:/plates/shot 1/p.%04d.exr"):
         assert NK.unquote(quote(value)) == value
     assert quote("passes/atlas.%05d.exr") == "passes/atlas.%05d.exr"
+
+
+def test_export_warns_and_writes_no_script_for_a_plate_nuke_cannot_read_as_one_sequence(tmp_path, capsys):
+    from engine.export.exporter import _write_nuke_script
+
+    manifest = _movie_manifest()
+    manifest["clip"].update(kind="sequence", frame_files=[f"../../clip/shot_{c}.png" for c in "abcdefghij"])
+    _write_nuke_script(tmp_path, manifest)
+    assert not (tmp_path / C.NUKE_SCRIPT_NAME).exists()
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith(f"warning: no {C.NUKE_SCRIPT_NAME}: plate frame 'shot_a.png' is not named with its frame")
