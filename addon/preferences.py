@@ -8,6 +8,8 @@ from typing import Any
 import bpy
 from bpy.props import BoolProperty, StringProperty
 
+from .core import engine_setup as ES
+
 #: the add-on's module name (``bl_ext.<repo>.neural_atlas`` when installed): preferences are keyed by it
 ADDON_ID = __package__.rpartition(".")[0]
 #: overrides the preference (CI, pipelines): the Python that runs ``python -m engine``
@@ -34,6 +36,12 @@ def default_venv_dir() -> str:
     return bpy.utils.extension_path_user(ADDON_ID, path=VENV_FOLDER, create=True)
 
 
+def online_refusal() -> tuple[str, ...]:
+    """Why Set up engine may not download now (``ES.online_access_refusal`` of Blender's online-access state);
+    () when it may. Read when asked: the artist can switch online access while Blender runs."""
+    return ES.online_access_refusal(bpy.app.online_access, bpy.app.online_access_override)
+
+
 class NEURALATLAS_AP_preferences(bpy.types.AddonPreferences):
     bl_idname = ADDON_ID
 
@@ -53,6 +61,12 @@ class NEURALATLAS_AP_preferences(bpy.types.AddonPreferences):
         col = self.layout.column()
         col.prop(self, "engine_python")
         col.prop(self, "torch_cpu")
+        refusal = online_refusal()
+        if refusal:  # Blender's rule for extensions: no download while online access is off
+            box = col.box()
+            for i, line in enumerate(refusal):
+                box.label(text=line, icon="INTERNET_OFFLINE" if i == 0 else "BLANK1")
+            box.operator("neural_atlas.copy_setup_command", icon="COPYDOWN")
         row = col.row()
         row.operator("neural_atlas.setup_engine", icon="IMPORT")
         row.operator("neural_atlas.check_engine", icon="CHECKMARK")

@@ -78,6 +78,8 @@ class NEURALATLAS_PT_fit(_SidebarPanel, bpy.types.Panel):
         props = context.scene.neural_atlas
         if not preferences.engine_python(context):
             self.layout.label(text="Set up the engine in the preferences", icon="ERROR")
+            if preferences.online_refusal():  # Set up engine cannot download: the way that needs no network
+                self.layout.label(text="Online access is off: set Engine Python there", icon="INTERNET_OFFLINE")
         col = self.layout.column()
         col.prop(props, "clip")
         col.prop(props, "use_clip_range")

@@ -119,9 +119,13 @@ def _positions(clip: str | None, frames: tuple[int, int] | None, start_frame: in
     return frame_positions(clip, frames, start_frame)
 
 
-def build_parser() -> argparse.ArgumentParser:
+#: The command `pip install` makes (pyproject.toml's [project.scripts]): the same verbs as `python -m engine`.
+CONSOLE_SCRIPT = "neural-atlas"
+
+
+def build_parser(prog: str = "python -m engine") -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
-        prog="python -m engine", description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog=prog, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     p.add_argument("--version", action="version", version=f"neural-atlas engine {C.ENGINE_VERSION}")
     sub = p.add_subparsers(dest="verb", metavar="VERB")
@@ -230,6 +234,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_estimate_parser(sub)
     _add_export_parsers(sub)
     _add_masks_parser(sub)
+    _add_nuke_parser(sub)
     return p
 
 
@@ -390,6 +395,35 @@ def _cmd_preview(args: argparse.Namespace) -> int:
     return _print_paths(write_previews(args.manifest, args.out, movies=not args.no_movies))
 
 
+def _add_nuke_parser(sub: argparse._SubParsersAction) -> None:
+    from engine.export.nuke import DEFAULT_FILTER, STMAP_FILTERS
+
+    n = sub.add_parser(
+        C.VERB_NUKE,
+        help="write a Nuke script of the edit: per layer an STMap of its edit layer, over the plate",
+        description="Reads MANIFEST's plate and passes, per layer Shuffle (STMap<Layer>) -> STMap of the edit layer "
+        "-> Merge (mask) by its coverage, sums the layers and puts them over the plate: the edit equation of "
+        f"`render`. Paths are relative to the script's folder. `export` writes one beside the manifest "
+        f"({C.NUKE_SCRIPT_NAME}); an existing file is never overwritten. The last line printed is the script's path.",
+        epilog=EXIT_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    n.add_argument("manifest", metavar="MANIFEST", help="manifest.json of an export (or its folder)")
+    n.add_argument("--out", required=True, metavar="FILE.nk", help="the script to write (a new file)")
+    n.add_argument(
+        "--filter",
+        default=DEFAULT_FILTER,
+        choices=STMAP_FILTERS,
+        help=f"STMap's filter (default: {DEFAULT_FILTER}; Impulse matches `render --filter nearest` exactly)",
+    )
+
+
+def _cmd_nuke(args: argparse.Namespace) -> int:
+    from engine.export.nuke import write_nuke_script
+
+    return _print_paths([write_nuke_script(args.manifest, args.out, args.filter)])
+
+
 def _add_masks_parser(sub: argparse._SubParsersAction) -> None:
     m = sub.add_parser(
         C.VERB_MASKS,
@@ -509,14 +543,19 @@ def _cancelled_line(args: argparse.Namespace, exc: KeyboardInterrupt) -> str:
     return f"{line}; run the same command again"
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+def main(argv: list[str] | None = None, prog: str = "python -m engine") -> int:
+    parser = build_parser(prog)
     args = parser.parse_args(argv)
     if args.verb is None:
         parser.print_help()
         return C.EXIT_OK
     with _cancellable():
         return _run(parser, args)
+
+
+def console_main() -> int:
+    """The ``neural-atlas`` command of an installed engine: ``main`` under that name (its help and usage say it)."""
+    return main(prog=CONSOLE_SCRIPT)
 
 
 def _run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
@@ -531,6 +570,7 @@ def _run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
             C.VERB_PREVIEW: _cmd_preview,
             C.VERB_ESTIMATE: _cmd_estimate,
             C.VERB_MASKS: _cmd_masks,
+            C.VERB_NUKE: _cmd_nuke,
         }
         if args.verb in handlers:
             return handlers[args.verb](args)

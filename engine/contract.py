@@ -69,6 +69,7 @@ VERB_RENDER = "render"  # render MANIFEST [--edit LAYER=IMAGE ...] --out DIR [--
 VERB_PROJECT_FRAME = "project-frame"  # project-frame MANIFEST --frame N --edit IMAGE
 VERB_PREVIEW = "preview"  # preview MANIFEST [--out DIR]
 VERB_MASKS = "masks"  # masks CLIP --out FOLDER [--frames FIRST-LAST]; last stdout line = the masks folder
+VERB_NUKE = "nuke"  # nuke MANIFEST [--out FILE.nk] [--filter ...]: a Nuke script of the edit; last line = its path
 #: ``--frames`` of every verb speaks the plate's frame numbers (plate.1010.exr .. plate.1050.exr: 1010-1050; a movie's
 #: frames count from 0 or ``fit --start-frame``); run folders keep recording positions (clip.json "frame_range").
 
@@ -480,6 +481,16 @@ UV_PASS_PREFIX = "UV"  # UV<Layer>: channels X, Y, Z = u, v (0..1, origin bottom
 ALPHA_PASS_PREFIX = "Alpha"  # Alpha<Layer>: one channel V, the layer's alpha (opacity weight; sums to 1)
 UV_CHANNELS: tuple[str, ...] = ("X", "Y", "Z")
 ALPHA_CHANNELS: tuple[str, ...] = ("V",)
+#: The same UV pass for Nuke, Flame and Natron, in the same pass files: per layer a layer with ONE dot in its channel
+#: names, STMap<Layer>.R/G/B/A = u, v, 0 and the coverage (the UV pass's Z), float32 copies of the same values.
+#: Nuke's EXR reader turns every dot but the last into "_" (Atlas.UVForeground.X shows as Atlas_UVForeground.X) and
+#: R/G/B/A into red/green/blue/alpha, so these show as STMap<Layer>.red/green/blue/alpha: an RGBA layer whose rg is
+#: what STMap reads and whose alpha is the coverage. OpenImageIO takes a channel named "Z" or "*.Z" as depth (its
+#: z_channel), which the STMap layer avoids too. Blender's Image node skips one-dot names: its passes are unchanged.
+STMAP_PASS_PREFIX = "STMap"
+STMAP_CHANNELS: tuple[str, ...] = ("R", "G", "B", "A")
+#: The Nuke script an export writes next to its manifest (``engine nuke`` writes one anywhere).
+NUKE_SCRIPT_NAME = "neural_atlas.nk"
 
 ROLE_BACKGROUND = "background"
 ROLE_FOREGROUND = "foreground"
@@ -548,6 +559,15 @@ def alpha_pass(layer: str) -> str:
     return f"{ALPHA_PASS_PREFIX}{layer}"
 
 
+def stmap_pass(layer: str) -> str:
+    return f"{STMAP_PASS_PREFIX}{layer}"
+
+
+def stmap_channel_name(layer: str, channel: str) -> str:
+    """Full EXR channel name of a layer's STMap copy, e.g. ``STMapForeground.R`` (one dot: Nuke shows it as is)."""
+    return f"{stmap_pass(layer)}.{channel}"
+
+
 def channel_name(pass_name: str, channel: str) -> str:
     """Full EXR channel name, e.g. ``Atlas.UVForeground.X``."""
     return f"{EXR_LAYER}.{pass_name}.{channel}"
@@ -580,7 +600,9 @@ def pass_file_name(frame_number: int) -> str:
 #:              "background"|"foreground", "uv_pass": str, "alpha_pass": str, "uv_channels": [3 str],
 #:              "alpha_channels": [str], "atlas_exr": str, "atlas_png": str, "atlas_size": [W, H], "edit_layer": str,
 #:              "atlas_box": [u0, v0, u1, v1],
-#:              "channels": [full EXR channel names, e.g. "Atlas.UVForeground.X"] (optional: derivable)}],
+#:              "channels": [full EXR channel names, e.g. "Atlas.UVForeground.X"] (optional: derivable),
+#:              "stmap_pass": "STMap<Layer>", "stmap_channels": [4 full EXR channel names] (optional: exports made
+#:              before the STMap layers have neither, and their pass files have no STMap layers)}],
 #:  "fit": {"preset": str, "model": str, "steps": int, "train_seconds": float, "psnr": float|None,
 #:          "alpha_iou": [float]|None (optional)},
 #:  "scene": the run's SCENE_FILE (every export writes it; checked by ``validate_scene`` when present)}
@@ -635,7 +657,11 @@ MANIFEST_LAYER_FIELDS: dict[str, str] = {
     "edit_layer": "str",
     "atlas_box": "number list",
 }
-MANIFEST_OPTIONAL_LAYER_FIELDS: dict[str, str] = {"channels": "str list"}
+MANIFEST_OPTIONAL_LAYER_FIELDS: dict[str, str] = {
+    "channels": "str list",
+    "stmap_pass": "str",
+    "stmap_channels": "str list",
+}
 MANIFEST_KEYS: tuple[str, ...] = (*MANIFEST_FIELDS[""], "clip", "passes", "layers", "fit")
 MANIFEST_CLIP_KEYS: tuple[str, ...] = tuple(MANIFEST_FIELDS["clip"])
 MANIFEST_PASSES_KEYS: tuple[str, ...] = tuple(MANIFEST_FIELDS["passes"])

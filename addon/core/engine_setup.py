@@ -8,6 +8,7 @@ on PYTHONPATH (``engine_commands.engine_env``) so ``python -m engine`` finds the
 from __future__ import annotations
 
 import os
+import shlex
 import sys
 import tempfile
 
@@ -51,6 +52,38 @@ def create_venv_argv(base_python: str, venv_dir: str) -> list[str]:
 def pip_install_argv(python: str, cpu_only: bool = False) -> list[str]:
     extra = ["--extra-index-url", TORCH_CPU_INDEX] if cpu_only else []
     return [python, "-m", "pip", "install", "--progress-bar", "off", *extra, *C.ENGINE_REQUIREMENTS]
+
+
+#: Blender's switch for network use (extensions may use the network only while it is on), as its UI names it.
+ONLINE_ACCESS_SETTING = "Preferences > System > Network > Allow Online Access"
+
+
+def online_access_refusal(online_access: bool, forced: bool) -> tuple[str, ...]:
+    """Why Set up engine must not download now, in short lines for the preferences (the first is the headline;
+    joined, the operator's report); () when it may. Blender asks every extension to use the network only while
+    ``bpy.app.online_access`` is on; ``forced`` is ``bpy.app.online_access_override``: Blender was started with
+    ``--offline-mode``, so the preference cannot turn it on. The other way in needs no network from Blender: a
+    Python the artist installed the engine's packages into (``manual_setup_command``), set as Engine Python."""
+    if online_access:
+        return ()
+    if forced:
+        headline, turn_on = "Blender was started offline (--offline-mode):", "Start Blender without --offline-mode,"
+    else:
+        headline, turn_on = "Online access is off in Blender:", f"Turn on {ONLINE_ACCESS_SETTING},"
+    return (
+        f"{headline} Set up engine downloads nothing.",
+        turn_on,
+        "or install the engine's packages into a Python yourself (Copy Install Command)",
+        "and set Engine Python to it, then Check engine.",
+    )
+
+
+def manual_setup_command(venv_dir: str, cpu_only: bool = False, base_python: str = sys.executable) -> str:
+    """The shell command that does what Set up engine does (the same environment, the same pinned packages), for
+    the artist to run in a terminal where they choose how pip reaches its packages (an index, a proxy, a folder of
+    wheels with ``--find-links``); Engine Python is then ``venv_python(venv_dir)``."""
+    create = shlex.join(create_venv_argv(base_python, venv_dir))
+    return f"{create} && {shlex.join(pip_install_argv(venv_python(venv_dir), cpu_only))}"
 
 
 def explain_setup_failure(log_text: str) -> str:

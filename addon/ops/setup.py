@@ -1,5 +1,6 @@
-"""The preferences' operators: Set up engine (create its environment, install its requirements) and Check
-engine (``python -m engine --version``)."""
+"""The preferences' operators: Set up engine (create its environment, install its requirements; only while
+Blender's online access is on), Copy Install Command (the same set-up as a command for a terminal) and Check engine
+(``python -m engine --version``)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from bpy.props import StringProperty
 from .. import preferences
 from ..core import engine_process as EP
 from ..core import engine_setup as ES
+from ..core.errors import UserError
 from ..core.jobs import Job
 from .driver import EngineJobOperator
 
@@ -33,7 +35,18 @@ class NEURALATLAS_OT_setup_engine(EngineJobOperator, bpy.types.Operator):
     def job_key(cls, context: Any) -> str:
         return SETUP_KEY
 
+    @classmethod
+    def poll(cls, context: Any) -> bool:
+        refusal = preferences.online_refusal()
+        if refusal:
+            cls.poll_message_set(" ".join(refusal))  # the greyed button's tooltip says why
+            return False
+        return super().poll(context)
+
     def make_job(self, context) -> ES.SetupJob:
+        refusal = preferences.online_refusal()
+        if refusal:  # poll says so too; this holds for a call that skips poll
+            raise UserError(" ".join(refusal))
         prefs = preferences.addon_prefs(context)
         cpu_only = prefs is not None and prefs.torch_cpu
         return ES.SetupJob(self.venv_dir or preferences.default_venv_dir(), cpu_only)
@@ -69,6 +82,22 @@ class NEURALATLAS_OT_setup_engine(EngineJobOperator, bpy.types.Operator):
             prefs.setup_status = text
 
 
+class NEURALATLAS_OT_copy_setup_command(bpy.types.Operator):
+    """Copy the command that sets up the engine's Python from a terminal (no download from Blender)"""
+
+    bl_idname = "neural_atlas.copy_setup_command"
+    bl_label = "Copy Install Command"
+
+    def execute(self, context):
+        prefs = preferences.addon_prefs(context)
+        venv_dir = preferences.default_venv_dir()
+        context.window_manager.clipboard = ES.manual_setup_command(venv_dir, prefs is not None and prefs.torch_cpu)
+        message = f"copied: run it in a terminal, then set Engine Python to {ES.venv_python(venv_dir)}"
+        NEURALATLAS_OT_setup_engine._set_status(context, message)
+        self.report({"INFO"}, message)
+        return {"FINISHED"}
+
+
 class NEURALATLAS_OT_check_engine(bpy.types.Operator):
     """Run `python -m engine --version` with the engine Python"""
 
@@ -82,4 +111,4 @@ class NEURALATLAS_OT_check_engine(bpy.types.Operator):
         return {"FINISHED"} if ok else {"CANCELLED"}
 
 
-classes = (NEURALATLAS_OT_setup_engine, NEURALATLAS_OT_check_engine)
+classes = (NEURALATLAS_OT_setup_engine, NEURALATLAS_OT_copy_setup_command, NEURALATLAS_OT_check_engine)

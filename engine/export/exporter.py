@@ -63,9 +63,9 @@ DEFAULT_ATLAS_SIZE = C.ATLAS_SIZE_DEFAULT
 #: new edit layer, the layout) wait in its ``.edits`` folder.
 STAGING_SUFFIX = ".partial"
 STAGED_EDITS = ".edits"
-#: A layer's pass channels (UV X, Y, Z and alpha) and their bytes uncompressed: the disk-full estimate of a frame
-#: of passes before any is written.
-PASS_CHANNELS_PER_LAYER = len(C.UV_CHANNELS) + len(C.ALPHA_CHANNELS)
+#: A layer's pass channels (UV X, Y, Z, alpha and the STMap copy) and their bytes uncompressed: the disk-full
+#: estimate of a frame of passes before any is written.
+PASS_CHANNELS_PER_LAYER = len(C.UV_CHANNELS) + len(C.ALPHA_CHANNELS) + len(C.STMAP_CHANNELS)
 PASS_BYTES_PER_CHANNEL = 4
 
 
@@ -378,6 +378,8 @@ def _export_locked(
                 chans[C.channel_name(uv_pass, "Y")] = tex_uv[:, 1].reshape(nh, nw)
                 chans[C.channel_name(uv_pass, "Z")] = (a * inside).reshape(nh, nw)
                 chans[C.channel_name(alpha_pass, C.ALPHA_CHANNELS[0])] = a.reshape(nh, nw)
+                for channel, values in zip(C.STMAP_CHANNELS, stmap_values(chans, uv_pass), strict=True):
+                    chans[C.stmap_channel_name(name, channel)] = values
             timing = exr_timing(clip.rate, clip.pixel_aspect, clip.timecode, frame_numbers[t] - frame_numbers[0])
             pass_file = staging / C.PASSES_DIR / C.pass_file_name(frame_numbers[t])
             tags = {C.EXR_COLORSPACE_ATTRIBUTE: RAW, **timing}  # data, with the plate's timing
@@ -403,6 +405,7 @@ def _export_locked(
         manifest = _manifest(run_dir, final, fitted, names, frames_by_layer, selected)
         C.validate_manifest(manifest)
         atomic_write_text(staging / C.MANIFEST_NAME, json.dumps(manifest, indent=2))
+        _write_nuke_script(staging, manifest)
         out.publish()
     except BaseException as exc:
         need = out.need()
@@ -414,6 +417,17 @@ def _export_locked(
     manifest_path = final / C.MANIFEST_NAME
     reporter.emit(C.EVENT_EXPORTED, manifest=str(manifest_path))
     return manifest_path
+
+
+def _write_nuke_script(staging: Path, manifest: dict[str, Any]) -> None:
+    """The Nuke script of the edit beside the manifest (its paths are the manifest's, relative to the same folder);
+    a plate Nuke cannot read as one sequence gets a warning instead (`engine nuke` says the same)."""
+    from engine.export.nuke import NukeScriptError, nuke_script
+
+    try:
+        atomic_write_text(staging / C.NUKE_SCRIPT_NAME, nuke_script(manifest, str(staging / C.MANIFEST_NAME)))
+    except NukeScriptError as exc:
+        print(f"warning: no {C.NUKE_SCRIPT_NAME}: {exc}", file=sys.stderr)
 
 
 class _Output:
@@ -478,6 +492,13 @@ class _Output:
                     folder.rmdir()  # only when empty: nothing of the artist's is ever removed
 
 
+def stmap_values(chans: dict[str, np.ndarray], uv_pass: str) -> tuple[np.ndarray, ...]:
+    """A layer's STMap copy (contract.STMAP_CHANNELS: R, G, B, A) from its UV pass: u, v, zeros and the coverage Z,
+    the same float32 values (not half: on a 1000-texel atlas half floats round u, v by up to a quarter texel)."""
+    u, v, z = (chans[C.channel_name(uv_pass, c)] for c in C.UV_CHANNELS)
+    return u, v, np.zeros_like(u), z
+
+
 def layer_record(
     name: str, index: int, atlas_size: tuple[int, int], box: tuple[float, ...], edit_layer: str
 ) -> dict[str, Any]:
@@ -492,6 +513,8 @@ def layer_record(
         "alpha_channels": list(C.ALPHA_CHANNELS),
         "channels": [C.channel_name(C.uv_pass(name), c) for c in C.UV_CHANNELS]
         + [C.channel_name(C.alpha_pass(name), c) for c in C.ALPHA_CHANNELS],
+        "stmap_pass": C.stmap_pass(name),
+        "stmap_channels": [C.stmap_channel_name(name, c) for c in C.STMAP_CHANNELS],
         "atlas_exr": f"{C.ATLASES_DIR}/{name}{C.ATLAS_EXR_EXT}",
         "atlas_png": f"{C.ATLASES_DIR}/{name}{C.ATLAS_PNG_EXT}",
         "atlas_size": list(atlas_size),

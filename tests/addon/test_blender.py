@@ -482,6 +482,7 @@ def test_modal_estimate_keeps_the_ui_free_and_fills_the_estimate(fit_scene):
 
 def test_setup_engine_modal_path_reports_progress_and_offline(blender, tmp_path):
     """The GUI path of Set up engine, driven by hand-made TIMER events; pip is a stand-in that fails offline."""
+    blender.context.preferences.system.use_online_access = True  # factory settings have it off: no download
     venv = tmp_path / "venv"
     stand_in_pip(venv)
     statuses = []
@@ -502,6 +503,7 @@ def test_setup_engine_modal_path_reports_progress_and_offline(blender, tmp_path)
 
 def test_setup_engine_blocking_path_reports_offline(blender, tmp_path):
     """Set up engine in background mode (``execute``: the same job, stepped in a loop)."""
+    blender.context.preferences.system.use_online_access = True
     stand_in_pip(tmp_path / "venv")
     with pytest.raises(RuntimeError, match=r"cannot download the engine's packages \(offline.*setup\.log"):
         bpy.ops.neural_atlas.setup_engine("EXEC_DEFAULT", venv_dir=str(tmp_path / "venv"))

@@ -23,11 +23,55 @@ def blender_ext_cli() -> str:
     return os.path.join(bpy.utils.resource_path("LOCAL"), "scripts", "addons_core", "bl_pkg", "cli", "blender_ext.py")
 
 
+#: ``blender --command extension ARGS``: Blender's own handler, which sets the valid-tags file to Blender's tag list
+#: (scripts/modules/_bpy_internal/extensions/tags.py) before it runs the bundled CLI; the bare CLI checks no tags.
+BLENDER_COMMAND_EXTENSION = textwrap.dedent(
+    """
+    import sys
+    import bpy
+    from bl_pkg import bl_extension_cli
+    sys.exit(bl_extension_cli.cli_extension_handler(sys.argv[1:]))
+    """
+)
+
+
+def blender_command_extension(*args: str) -> subprocess.CompletedProcess[str]:
+    argv = [sys.executable, "-c", BLENDER_COMMAND_EXTENSION, *args]
+    return subprocess.run(argv, capture_output=True, text=True, timeout=120)
+
+
+def test_manifest_passes_blenders_validation_with_its_tag_list():
+    """What Blender's extension platform and `blender --command extension validate` check, on this bpy."""
+    v = blender_command_extension("validate", str(ROOT))
+    assert v.returncode == 0, v.stdout + v.stderr
+    assert "Success" in v.stdout, v.stdout
+
+
+def test_blenders_validation_refuses_a_tag_outside_its_list(tmp_path):
+    """The validator above does check tags: the manifest with a tag Blender does not list fails it."""
+    manifest = (ROOT / "blender_manifest.toml").read_text(encoding="utf-8")
+    assert 'tags = ["Compositing", "Paint", "Tracking"]' in manifest
+    (tmp_path / "__init__.py").write_text("")
+    (tmp_path / "blender_manifest.toml").write_text(manifest.replace('"Tracking"', '"Video Tools"'), encoding="utf-8")
+    v = blender_command_extension("validate", str(tmp_path))
+    assert v.returncode != 0
+    assert 'found invalid tag "Video Tools"' in v.stdout + v.stderr
+
+
+def test_manifest_names_website_and_copyright():
+    import tomllib
+
+    manifest = tomllib.loads((ROOT / "blender_manifest.toml").read_text(encoding="utf-8"))
+    assert manifest["website"].startswith("https://")
+    assert manifest["copyright"] == ["2026 Neural Atlas developers"]
+    assert manifest["license"] == ["SPDX:GPL-3.0-or-later"]
+
+
 @pytest.fixture(scope="module")
 def built_zip(tmp_path_factory):
     out = tmp_path_factory.mktemp("dist")
     cli = blender_ext_cli()
-    v = subprocess.run([sys.executable, cli, "validate", str(ROOT)], capture_output=True, text=True, timeout=120)
+    v = blender_command_extension("validate", str(ROOT))
     assert v.returncode == 0, v.stdout + v.stderr
     b = subprocess.run(
         [sys.executable, cli, "build", "--source-dir", str(ROOT), "--output-dir", str(out)],

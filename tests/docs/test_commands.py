@@ -511,8 +511,9 @@ class Scratch:
         return str(copy)
 
     def _fresh(self, name: str) -> str:
-        stem = re.sub(r"[^A-Za-z0-9_]+", "_", name).strip("_") or "out"
-        return str(self.folder / "fresh" / f"{stem}_{next(self._count)}")
+        suffix = ".nk" if name.endswith(".nk") else ""  # a Nuke script's name ends in .nk
+        stem = re.sub(r"[^A-Za-z0-9_]+", "_", name.removesuffix(suffix)).strip("_") or "out"
+        return str(self.folder / "fresh" / f"{stem}_{next(self._count)}{suffix}")
 
 
 def run_engine(program: str, argv: list[str], cwd: Path) -> subprocess.CompletedProcess:
@@ -547,6 +548,8 @@ def _assert_outputs(argv: list[str], proc: subprocess.CompletedProcess, cwd: Pat
     elif verb == C.VERB_MASKS:
         first, last_frame = (int(v) for v in (_flag(argv, "--frames") or f"0:{CLIP_FRAMES - 1}").split(":"))
         assert len(list((cwd / _flag(argv, "--out")).glob("*.png"))) == last_frame - first + 1
+    elif verb == C.VERB_NUKE:
+        assert last.endswith(".nk") and "STMap {" in (cwd / last).read_text(encoding="utf-8"), proc.stdout
     elif verb == C.VERB_ESTIMATE:
         if "--json" in argv:
             rows = json.loads(last)["presets"]

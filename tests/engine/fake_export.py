@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from engine import contract as C
-from engine.export.exporter import layer_record
+from engine.export.exporter import layer_record, stmap_values
 from engine.io.images import write_exr, write_png
 
 UVFn = Callable[[int, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
@@ -43,6 +43,8 @@ def make_fake_export(
             chans[C.channel_name(C.uv_pass(name), "Y")] = np.clip(v, 0, 1)
             chans[C.channel_name(C.uv_pass(name), "Z")] = a * inside
             chans[C.channel_name(C.alpha_pass(name), "V")] = a
+            for channel, values in zip(C.STMAP_CHANNELS, stmap_values(chans, C.uv_pass(name)), strict=True):
+                chans[C.stmap_channel_name(name, channel)] = values
         write_exr(export / C.PASSES_DIR / C.pass_file_name(t), chans)
     layer_recs = []
     for i, (name, (_, (aw, ah))) in enumerate(zip(names, layers, strict=True)):

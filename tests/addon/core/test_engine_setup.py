@@ -77,3 +77,39 @@ def test_check_engine_answers_with_the_engines_version(tmp_path):
     ok, message = ES.check_engine(str(tmp_path / "missing_python"))
     assert not ok and message.startswith(f"the engine does not run with {tmp_path / 'missing_python'}: cannot start")
     assert ES.check_engine("") == (False, "no engine Python set: run Set up engine, or choose one in the preferences")
+
+
+def test_online_access_on_lets_set_up_engine_download():
+    assert ES.online_access_refusal(True, False) == ()
+    assert ES.online_access_refusal(True, True) == ()  # started with --online-mode
+
+
+def test_online_access_off_refuses_and_offers_a_python_the_artist_installed():
+    lines = ES.online_access_refusal(False, False)
+    assert lines == (
+        "Online access is off in Blender: Set up engine downloads nothing.",
+        "Turn on Preferences > System > Network > Allow Online Access,",
+        "or install the engine's packages into a Python yourself (Copy Install Command)",
+        "and set Engine Python to it, then Check engine.",
+    )
+
+
+def test_offline_mode_from_the_command_line_is_not_turned_on_by_the_preference():
+    lines = ES.online_access_refusal(False, True)
+    assert lines[0] == "Blender was started offline (--offline-mode): Set up engine downloads nothing."
+    assert lines[1] == "Start Blender without --offline-mode,"
+    assert "Preferences" not in " ".join(lines)
+    assert lines[2:] == ES.online_access_refusal(False, False)[2:]
+
+
+def test_manual_setup_command_is_set_up_engines_commands_for_a_shell():
+    import shlex
+
+    venv = "/home/artist/my engine"  # a space: quoted for the shell
+    words = shlex.split(ES.manual_setup_command(venv, base_python="/opt/blender/python3.11"))
+    split = words.index("&&")
+    assert words[:split] == ES.create_venv_argv("/opt/blender/python3.11", venv)
+    assert words[split + 1 :] == ES.pip_install_argv(ES.venv_python(venv))
+    assert tuple(words[-len(C.ENGINE_REQUIREMENTS) :]) == C.ENGINE_REQUIREMENTS
+    cpu = shlex.split(ES.manual_setup_command(venv, cpu_only=True, base_python="py"))
+    assert cpu[cpu.index("--extra-index-url") + 1] == ES.TORCH_CPU_INDEX

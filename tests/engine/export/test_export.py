@@ -84,6 +84,8 @@ def test_pass_files_follow_the_contract(exported):
         "Atlas.UVBackground.X", "Atlas.UVBackground.Y", "Atlas.UVBackground.Z", "Atlas.AlphaBackground.V",
         "Atlas.UVForeground.X", "Atlas.UVForeground.Y", "Atlas.UVForeground.Z", "Atlas.AlphaForeground.V",
     }  # fmt: skip
+    # and the same UV passes as RGBA layers for Nuke, Flame and Natron (tests/engine/export/test_nuke.py)
+    expected |= {f"STMap{layer['name']}.{c}" for layer in m.layers for c in "RGBA"}
     for f in m.frames:
         path = m.pass_path(f)
         assert path.name == f"atlas.{f:05d}.exr"

@@ -1,0 +1,300 @@
+"""A Nuke script of an export's edit, from its manifest alone (as the add-on builds Blender's compositor tree).
+
+Per layer: the pass files' ``STMap<Layer>`` layer shuffled into rgba (u, v, 0, coverage), an STMap of the layer's
+edit image (premultiplied), masked by the coverage (Merge mask: ``Z * P``); the layers summed (Merge plus) and put
+over the plate with one premultiplied Merge over: ``plate * (1 - sum Z_i a_i) + sum Z_i P_i``, the paper's edit
+equation as ``engine.edit.equations`` computes it. The frame range, fps and format are the export's.
+
+The test suite has no Nuke to run it in: it parses the script back (node classes, knobs, the input wiring, that
+every file it reads exists and every channel it names is in the pass files) and evaluates a model of its nodes.
+Paths are relative to the script's folder (the Root's project directory is set to it), so the export folder can
+move with its run folder.
+
+Nuke's EXR reader names channels by the rule of its NDK example ``ExrChannelNameToNuke``: split at dots (three
+parts at most), drop leading digits, turn other non-alphanumerics into "_", join all but the last part with "_" as
+the layer, and rename R/G/B/A (and r, Red, RED ...) to red/green/blue/alpha. ``nuke_channel_name`` is that rule.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from engine import contract as C
+from engine.errors import InputError
+
+#: The script's format line: Nuke 13 and later load it (the nodes used are older than that).
+NUKE_VERSION = "13.0 v1"
+#: STMap's filters (its ``filter`` knob). Impulse is nearest-texel sampling: it matches `engine render --filter
+#: nearest` exactly; Cubic is Nuke's default.
+STMAP_FILTERS: tuple[str, ...] = ("Cubic", "Impulse", "Keys", "Simon", "Rifman", "Mitchell", "Parzen", "Notch")
+DEFAULT_FILTER = "Cubic"
+#: The Root's project directory: the script's own folder, so the relative paths below are relative to it.
+SCRIPT_DIRECTORY = "[python {nuke.script_directory()}]"
+#: Nuke's colour space names for the manifest's (its default OCIO config); other names are passed as they are.
+COLORSPACES = {"sRGB": "sRGB", "linear": "linear"}
+#: Node names carry this prefix, so the script's nodes are recognisable once pasted into a comp.
+PREFIX = "NA_"
+#: Node graph spacing (pixels) between the layers' columns and the rows of a column.
+COLUMN = 180
+ROW = 60
+_RGBA = {"R": "red", "G": "green", "B": "blue", "A": "alpha"}
+_RGBA_SPELLINGS = {
+    spelling: name for c, name in _RGBA.items() for spelling in (c, c.lower(), name.title(), name.upper())
+}
+_BARE = re.compile(r"^[A-Za-z0-9_./%#:+-]+$")
+
+
+class NukeScriptError(ValueError):
+    """An export the script cannot be made for (one line: what and the fix)."""
+
+
+def nuke_channel_name(exr_channel: str, views: Iterable[str] = ()) -> str:
+    """The name Nuke's EXR reader gives the EXR channel ``exr_channel`` (the NDK's ExrChannelNameToNuke rule)."""
+    parts = exr_channel.split(".", 2)  # at most three parts: the last keeps any further dots
+    cleaned = [re.sub(r"[^A-Za-z0-9]", "_", p.lstrip("0123456789")) for p in parts]
+    cleaned = [p for p in cleaned if p]
+    if not cleaned:
+        return "unnamed"
+    views = set(views)
+    layer = "_".join(p for p in cleaned[:-1] if p not in views)
+    chan = cleaned[-1]
+    if layer == "Ci":  # RenderMan's primary layer is Nuke's main layer
+        layer = ""
+    chan = _RGBA_SPELLINGS.get(chan, chan)
+    return f"{layer}.{chan}" if layer else chan
+
+
+def sequence_pattern(files: list[str], numbers: list[int]) -> str:
+    """The printf pattern (``plate.%04d.exr``) that names each of ``files`` with its frame number; raises
+    NukeScriptError when the files are not one numbered sequence (Nuke reads a sequence through one pattern)."""
+    heads, widths, padded = set(), set(), False
+    for path, number in zip(files, numbers, strict=True):
+        stem, ext = os.path.splitext(path.replace(os.sep, "/"))
+        found = list(re.finditer(r"\d+", os.path.basename(stem)))
+        if not found or int(found[-1].group()) != number:
+            raise NukeScriptError(
+                f"plate frame {os.path.basename(path)!r} is not named with its frame number {number} — Nuke reads "
+                "a plate as one numbered sequence (name.####.ext): rename the frames and fit again, or Read it by hand"
+            )
+        digits = found[-1]
+        offset = len(stem) - len(os.path.basename(stem))
+        heads.add((stem[: offset + digits.start()], stem[offset + digits.end() :] + ext))
+        widths.add(len(digits.group()))
+        padded = padded or digits.group().startswith("0")
+    if len(heads) != 1 or (len(widths) > 1 and padded):
+        raise NukeScriptError(
+            "the plate's frames are not one numbered sequence (their names or padding differ) — Nuke reads a "
+            "plate through one pattern: rename the frames name.####.ext and fit again, or Read the plate by hand"
+        )
+    head, tail = heads.pop()
+    return f"{head}{f'%0{widths.pop()}d' if len(widths) == 1 else '%d'}{tail}"
+
+
+@dataclass
+class Node:
+    """One node of the script: its class, its knobs in order, and the stack commands written before it."""
+
+    cls: str
+    knobs: list[tuple[str, str]]
+    before: list[str] = field(default_factory=list)
+    after: list[str] = field(default_factory=list)
+
+
+def quote(value: str) -> str:
+    """A knob value as the script writes it: bare when it is one plain word, else in quotes with Tcl's special
+    characters escaped (a path with a space or a bracket stays one literal value)."""
+    if _BARE.match(value):
+        return value
+    escaped = "".join("\\" + ch if ch in '\\"[]${}' else ch for ch in value)
+    return f'"{escaped}"'
+
+
+def _format(size: list[int], pixel_aspect: float = 1.0) -> str:
+    w, h = size
+    return f"{w} {h} 0 0 {w} {h} {pixel_aspect:g} {PREFIX}{w}x{h}"
+
+
+def _read(name: str, file: str, knobs: list[tuple[str, str]], x: int, y: int) -> Node:
+    return Node("Read", [("inputs", "0"), ("file", file), *knobs, ("name", name), ("xpos", str(x)), ("ypos", str(y))])
+
+
+def nuke_script(
+    manifest: dict[str, Any],
+    manifest_path: str,
+    relocate: Callable[[str], str] = lambda path: path,
+    filter: str = DEFAULT_FILTER,
+) -> str:
+    """The script's text for a validated manifest at ``manifest_path`` (which says where an edit layer's float twin
+    would be). ``relocate`` turns a manifest path (relative to the manifest's folder) into the path the script
+    writes (relative to the script's folder, "/" separated): the identity for a script next to the manifest."""
+    if filter not in STMAP_FILTERS:
+        raise NukeScriptError(f"STMap filter {filter!r} is not one of {', '.join(STMAP_FILTERS)}")
+    layers = manifest["layers"]
+    missing = [layer["name"] for layer in layers if "stmap_pass" not in layer]
+    if missing:
+        raise NukeScriptError(
+            f"this export has no STMap layers for {', '.join(missing)} (an older engine made it) — export the run "
+            "again: its pass files then carry the layers Nuke reads"
+        )
+    clip, passes = manifest["clip"], manifest["passes"]
+    frames = passes["frames"]
+    first, last = min(frames), max(frames)
+    fmt = _format(clip["resolution"], float(clip.get("pixel_aspect", 1.0)))
+    nodes = [_root(first, last, clip["fps"], fmt)]
+    pass_file = relocate(f"{passes['dir']}/{passes['pattern'].replace('{frame:05d}', f'%0{C.PASS_FILE_DIGITS}d')}")
+    range_knobs = [("first", str(first)), ("last", str(last)), ("origfirst", str(first)), ("origlast", str(last))]
+    passes_read = _read(
+        f"{PREFIX}Passes", pass_file, [("format", fmt), *range_knobs, ("origset", "true"), ("raw", "true")], 0, 0
+    )
+    passes_read.after.append(f"set {PREFIX}passes [stack 0]")
+    nodes.append(passes_read)
+    for i, layer in enumerate(layers):
+        nodes.extend(_layer_nodes(i, layer, manifest_path, relocate, filter))
+    nodes.append(_plate_read(clip, relocate, fmt, x=-COLUMN, y=ROW * 6))
+    over = [("inputs", "2"), ("operation", "over"), ("name", f"{PREFIX}Over_plate")]
+    nodes.append(Node("Merge2", [*over, ("xpos", "0"), ("ypos", str(ROW * 7))]))
+    return _text(nodes, manifest)
+
+
+def _root(first: int, last: int, fps: float | None, fmt: str) -> Node:
+    knobs = [("inputs", "0"), ("project_directory", SCRIPT_DIRECTORY), ("frame", str(first))]
+    knobs += [("first_frame", str(first)), ("last_frame", str(last)), ("lock_range", "true")]
+    if fps:
+        knobs.append(("fps", f"{fps:.6g}"))
+    knobs.append(("format", fmt))
+    return Node("Root", knobs)
+
+
+def _layer_nodes(
+    i: int, layer: dict[str, Any], manifest_path: str, relocate: Callable[[str], str], filter: str
+) -> list[Node]:
+    """Shuffle -> STMap -> Merge (mask) of one layer; from the second layer on, a Merge (plus) into the sum."""
+    name, x = layer["name"], i * COLUMN
+    shuffle = Node(
+        "Shuffle",
+        [("in", nuke_layer(layer["stmap_pass"])), ("out", "rgba"), ("name", f"{PREFIX}ST_{name}")],
+        before=[f"push ${PREFIX}passes"] if i else [],
+    )
+    shuffle.knobs += [("xpos", str(x)), ("ypos", str(ROW))]
+    shuffle.after += [f"set {PREFIX}st_{name} [stack 0]", f"push ${PREFIX}st_{name}"]
+    # the float twin when it exists, as the engine and Blender read it (the script is written for what exists now)
+    twin = C.float_edit_layer(layer["edit_layer"])
+    is_float = os.path.exists(C.resolve_manifest_path(manifest_path, twin))
+    edit = twin if is_float else layer["edit_layer"]
+    colour = [("colorspace", "linear")] if is_float else [("colorspace", "sRGB"), ("premultiplied", "false")]
+    nodes = [shuffle, _read(f"{PREFIX}Edit_{name}", relocate(edit), colour, x + COLUMN // 2, ROW)]
+    if not is_float:  # a PNG edit layer is straight alpha: premultiply after the sRGB decode, as Blender does
+        nodes.append(Node("Premult", [("name", f"{PREFIX}Premult_{name}"), ("xpos", str(x + COLUMN // 2))]))
+        nodes[-1].knobs.append(("ypos", str(ROW * 2)))
+    stmap = [
+        ("inputs", "2"),
+        ("channels", "rgba"),
+        ("uv", "rgb"),
+        ("filter", filter),
+        ("name", f"{PREFIX}STMap_{name}"),
+    ]
+    nodes.append(Node("STMap", [*stmap, ("xpos", str(x)), ("ypos", str(ROW * 3))]))
+    mask = [("inputs", "2"), ("operation", "mask"), ("name", f"{PREFIX}Coverage_{name}")]
+    nodes.append(Node("Merge2", [*mask, ("xpos", str(x)), ("ypos", str(ROW * 4))]))
+    if i:
+        plus = [("inputs", "2"), ("operation", "plus"), ("name", f"{PREFIX}Sum_{name}")]
+        nodes.append(Node("Merge2", [*plus, ("xpos", "0"), ("ypos", str(ROW * 5 + i))]))
+    return nodes
+
+
+def nuke_layer(stmap_pass: str) -> str:
+    """The layer Nuke shows a pass's STMap channels in (one dot in the EXR name: the same name)."""
+    return nuke_channel_name(f"{stmap_pass}.{C.STMAP_CHANNELS[0]}").split(".")[0]
+
+
+def _plate_read(clip: dict[str, Any], relocate: Callable[[str], str], fmt: str, x: int, y: int) -> Node:
+    numbers = clip["frame_numbers"]
+    first, last = numbers[0], numbers[-1]
+    colour = [("colorspace", COLORSPACES.get(clip["colorspace"], clip["colorspace"]))]
+    if clip["kind"] == C.CLIP_KINDS[0]:
+        file = relocate(sequence_pattern(clip["frame_files"], numbers))
+        frame_knobs: list[tuple[str, str]] = []
+        file_first, file_last = first, last
+    else:  # a movie: Nuke numbers its frames from 1, the manifest from its start frame (0 unless fit --start-frame)
+        file = relocate(clip["source"])
+        shift = 1 - int(clip.get("start_frame", 0))
+        frame_knobs = [("frame_mode", "expression"), ("frame", f"frame{shift:+d}")]
+        file_first, file_last = first + shift, last + shift
+    rng = [("first", str(file_first)), ("last", str(file_last)), ("origfirst", str(file_first))]
+    rng += [("origlast", str(file_last)), ("origset", "true")]
+    return _read(f"{PREFIX}Plate", file, [("format", fmt), *rng, *frame_knobs, *colour], x, y)
+
+
+def _text(nodes: list[Node], manifest: dict[str, Any]) -> str:
+    names = ", ".join(layer["name"] for layer in manifest["layers"])
+    lines = [
+        f"#! written by neural-atlas {C.ENGINE_VERSION} from an export's manifest (layers: {names})",
+        "# the paper's edit: plate * (1 - sum Z_i a_i) + sum Z_i P_i; structure-tested, not run in Nuke",
+        f"version {NUKE_VERSION}",
+    ]
+    for node in nodes:
+        lines.extend(node.before)
+        lines.append(f"{node.cls} {{")
+        lines.extend(f" {knob} {quote(value)}" for knob, value in node.knobs)
+        lines.append("}")
+        lines.extend(node.after)
+    return "\n".join(lines) + "\n"
+
+
+def relocator(manifest_path: str, script_path: str) -> Callable[[str], str]:
+    """``relocate`` for a script at ``script_path``: a manifest path made relative to the script's folder ("/"
+    separated), or absolute where no relative path exists (another Windows drive)."""
+    script_dir = os.path.dirname(os.path.abspath(script_path))
+
+    def relocate(path: str) -> str:
+        absolute = C.resolve_manifest_path(manifest_path, path)
+        try:
+            return os.path.relpath(absolute, os.path.realpath(script_dir)).replace(os.sep, "/")
+        except ValueError:
+            return absolute.replace(os.sep, "/")
+
+    return relocate
+
+
+def write_nuke_script(
+    manifest_path: str | os.PathLike[str], out: str | os.PathLike[str], filter: str = DEFAULT_FILTER
+) -> Path:
+    """``engine nuke``: write the script of the export at ``manifest_path`` to ``out`` (a new file: an existing one,
+    maybe the artist's comp, is never overwritten); returns its path. Errors are one line naming the file and the fix.
+    """
+    from engine.export.manifest import Manifest
+    from engine.io.atomic import atomic_write_text
+
+    manifest = Manifest(os.fspath(manifest_path))
+    target = Path(out).resolve()
+    if target.suffix.lower() != ".nk":
+        raise InputError(target, "a Nuke script's name ends in .nk", "pass --out FILE.nk")
+    if target.exists():
+        raise InputError(target, "exists (a Nuke script may hold the artist's work)", "choose a new --out FILE.nk")
+    try:
+        text = nuke_script(manifest.data, str(manifest.path), relocator(str(manifest.path), str(target)), filter)
+    except NukeScriptError as exc:
+        problem, _, fix = str(exc).partition(" — ")
+        raise InputError(manifest.path, problem, fix or "export the run again") from None
+    target.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(target, text)
+    return target
+
+
+__all__ = [
+    "DEFAULT_FILTER",
+    "STMAP_FILTERS",
+    "NukeScriptError",
+    "nuke_channel_name",
+    "nuke_layer",
+    "nuke_script",
+    "quote",
+    "relocator",
+    "sequence_pattern",
+    "write_nuke_script",
+]

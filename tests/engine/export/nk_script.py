@@ -1,0 +1,160 @@
+"""A Nuke script read back, for tests (Nuke itself cannot run here): its nodes, their knobs and their inputs, and a
+numpy model of the few nodes the engine writes, to check that the wiring computes the edit equation.
+
+The .nk format is a stack machine: a node takes its inputs from the top of the stack (``inputs N``, 1 by default;
+input 0 is the topmost) and is pushed; ``set VAR [stack 0]`` names the top, ``push $VAR`` pushes it again. Knob
+values are one word or a quoted string with backslash escapes.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import OpenImageIO as oiio
+
+from engine.contract import srgb_to_linear
+from engine.export.nuke import nuke_channel_name
+
+
+@dataclass(eq=False)
+class NkNode:
+    cls: str
+    knobs: dict[str, str]
+    inputs: list[NkNode] = field(default_factory=list)
+
+    @property
+    def name(self) -> str:
+        return self.knobs.get("name", self.cls)
+
+
+@dataclass
+class NkScript:
+    version: str
+    root: dict[str, str]
+    nodes: list[NkNode]
+    leftover: list[NkNode]  # the stack at the end: the last node on top
+
+    def node(self, name: str) -> NkNode:
+        (found,) = [n for n in self.nodes if n.name == name]
+        return found
+
+
+def unquote(value: str) -> str:
+    if not value.startswith('"'):
+        assert " " not in value, value
+        return value
+    assert value.endswith('"') and len(value) >= 2, value
+    body = value[1:-1]
+    out, i = [], 0
+    while i < len(body):
+        if body[i] == "\\":
+            out.append(body[i + 1])
+            i += 2
+        else:
+            assert body[i] != '"', value
+            out.append(body[i])
+            i += 1
+    return "".join(out)
+
+
+def parse(text: str) -> NkScript:
+    version, root, nodes, stack, names = "", {}, [], [], {}
+    lines = iter(text.splitlines())
+    for line in lines:
+        if not line.strip() or line.startswith("#"):
+            continue
+        if line.startswith("version "):
+            version = line.split(" ", 1)[1]
+        elif m := re.fullmatch(r"set (\w+) \[stack 0\]", line):
+            names[m.group(1)] = stack[-1]
+        elif m := re.fullmatch(r"push \$(\w+)", line):
+            stack.append(names[m.group(1)])
+        elif m := re.fullmatch(r"(\w+) \{", line):
+            knobs = {}
+            for body in lines:
+                if body == "}":
+                    break
+                key, _, value = body.strip().partition(" ")
+                assert key not in knobs, f"knob {key} twice"
+                knobs[key] = unquote(value)
+            if m.group(1) == "Root":
+                root = knobs
+                continue
+            count = int(knobs.get("inputs", "1"))
+            node = NkNode(m.group(1), knobs, [stack.pop() for _ in range(count)])
+            stack.append(node)
+            nodes.append(node)
+        else:
+            raise AssertionError(f"not a line of a Nuke script: {line!r}")
+    return NkScript(version, root, nodes, stack)
+
+
+# --- the nodes' arithmetic, as Nuke's documentation gives it (images: nuke channel name -> [H, W], row 0 at top) ---
+RGBA = ("rgba.red", "rgba.green", "rgba.blue", "rgba.alpha")
+
+
+def file_for(read: NkNode, script_dir: Path, frame: int) -> Path:
+    name = read.knobs["file"]
+    if "%" in name:
+        name = name % frame
+    return script_dir / name if not os.path.isabs(name) else Path(name)
+
+
+def read_channels(path: Path) -> dict[str, np.ndarray]:
+    """Every channel of an image file under the name Nuke gives it (a main-layer channel as rgba.<name>)."""
+    config = oiio.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)  # a PNG's colour as stored (straight), as Nuke's Read gives it
+    inp = oiio.ImageInput.open(str(path), config)
+    assert inp is not None, oiio.geterror()
+    spec = inp.spec()
+    pixels = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
+    inp.close()
+    out = {}
+    for i, exr_name in enumerate(spec.channelnames):
+        nuke = nuke_channel_name(exr_name)
+        out[nuke if "." in nuke else f"rgba.{nuke}"] = np.asarray(pixels[..., i], np.float32)
+    return out
+
+
+def evaluate(node: NkNode, script_dir: Path, frame: int) -> dict[str, np.ndarray]:
+    cls, k = node.cls, node.knobs
+    if cls == "Read":
+        chans = read_channels(file_for(node, script_dir, frame))
+        if k.get("raw") != "true" and k.get("colorspace") == "sRGB":
+            for c in RGBA[:3]:
+                chans[c] = np.vectorize(srgb_to_linear, otypes=[np.float32])(chans[c])
+        return chans
+    ins = [evaluate(i, script_dir, frame) for i in node.inputs]
+    shape = next(iter(ins[0].values())).shape
+    zero = np.zeros(shape, np.float32)
+    if cls == "Shuffle":
+        layer = k["in"]
+        return {out: ins[0].get(f"{layer}.{out.split('.')[1]}", zero) for out in RGBA}
+    if cls == "Premult":
+        img = dict(ins[0])
+        for c in RGBA[:3]:
+            img[c] = img[c] * img["rgba.alpha"]
+        return img
+    if cls == "STMap":
+        assert k["filter"] == "Impulse" and k["uv"] == "rgb" and k["channels"] == "rgba"
+        src, stmap = ins[0], ins[1]
+        th, tw = src["rgba.red"].shape
+        u, v = stmap["rgba.red"], stmap["rgba.green"]
+        inside = (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1)
+        col = np.clip(np.floor(u * np.float32(tw)), 0, tw - 1).astype(int)
+        row = th - 1 - np.clip(np.floor(v * np.float32(th)), 0, th - 1).astype(int)
+        return {c: np.where(inside, src.get(c, np.zeros((th, tw), np.float32))[row, col], 0.0) for c in RGBA}
+    if cls == "Merge2":
+        b, a = ins[0], ins[1]  # input 0 is B, input 1 is A
+        op = k["operation"]
+        if op == "mask":
+            return {c: b[c] * a["rgba.alpha"] for c in RGBA}
+        if op == "plus":
+            return {c: a[c] + b[c] for c in RGBA}
+        if op == "over":
+            return {c: a.get(c, zero) + b.get(c, zero) * (1.0 - a["rgba.alpha"]) for c in RGBA}
+    raise AssertionError(f"no model of {cls} {k.get('operation', '')}")

@@ -1,0 +1,163 @@
+"""The engine as a Python package: ``pip install .`` and a wheel build give the ``neural-atlas`` command.
+
+Offline and in seconds: the source is a copy of the checkout (so a build leaves no ``build/`` or ``*.egg-info``
+in it), built with ``--no-build-isolation`` (setuptools from this venv) and installed with ``--no-deps`` into a
+fresh virtual environment whose one ``.pth`` line makes this venv's installed packages (torch, OpenImageIO, ...)
+importable, so nothing is downloaded. That the declared dependencies are exactly the pins the add-on installs is
+checked on pyproject.toml and on the built wheel's metadata.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import sysconfig
+import tomllib
+import venv
+import zipfile
+from pathlib import Path
+
+import pytest
+from packaging.requirements import Requirement
+
+from engine import contract as C
+from engine.cli import CONSOLE_SCRIPT
+from tests.paths import ROOT
+
+PYPROJECT = ROOT / "pyproject.toml"
+WHEEL_NAME = f"neural_atlas-{C.ENGINE_VERSION}-py3-none-any.whl"
+#: What a copy of the checkout leaves out: environments, caches, outputs of earlier builds and runs.
+NOT_SOURCE = shutil.ignore_patterns(
+    ".venv*", ".git", "__pycache__", "*.pyc", ".*_cache", "build", "dist", "*.egg-info", "runs", "demo_out"
+)
+#: The engine's development bench stays out of the package, as it stays out of the extension.
+NOT_SHIPPED = ("engine/bench/",)
+PIP_TIMEOUT = 300
+
+
+def _requirements(lines: list[str] | tuple[str, ...]) -> list[tuple[str, str, str]]:
+    """Name, specifiers (order-free) and marker of each requirement: how pip compares them."""
+    out = []
+    for line in lines:
+        req = Requirement(line)
+        out.append((req.name, str(sorted(str(s) for s in req.specifier)), str(req.marker or "")))
+    return out
+
+
+def test_declared_dependencies_are_the_contract_pins_character_for_character():
+    project = tomllib.loads(PYPROJECT.read_text(encoding="utf-8"))["project"]
+    assert project["dependencies"] == list(C.ENGINE_REQUIREMENTS)
+    assert project["name"] == "neural-atlas" and project["version"] == C.ENGINE_VERSION
+    assert project["scripts"] == {CONSOLE_SCRIPT: "engine.cli:console_main"}
+
+
+@pytest.fixture(scope="module")
+def source(tmp_path_factory) -> Path:
+    src = tmp_path_factory.mktemp("src") / "neural-atlas"
+    shutil.copytree(ROOT, src, ignore=NOT_SOURCE, symlinks=True)
+    return src
+
+
+@pytest.fixture(scope="module")
+def wheel(source, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("wheel")
+    argv = [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-w", str(out), str(source)]
+    proc = subprocess.run(argv, capture_output=True, text=True, timeout=PIP_TIMEOUT, cwd=out)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return out / WHEEL_NAME
+
+
+def test_wheel_holds_the_engine_and_nothing_else(wheel):
+    names = zipfile.ZipFile(wheel).namelist()
+    dist_info = f"neural_atlas-{C.ENGINE_VERSION}.dist-info"
+    assert {n.split("/")[0] for n in names} == {"engine", dist_info}
+    engine_files = {n for n in names if n.startswith("engine/")}
+    # every file of the engine in the checkout (a data file too: pyproject.toml's package-data must name it)
+    files = [p.relative_to(ROOT).as_posix() for p in (ROOT / "engine").rglob("*") if p.is_file()]
+    files = [f for f in files if "__pycache__" not in f and not f.startswith(NOT_SHIPPED)]
+    ignored = subprocess.run(  # none without git: then every file counts
+        ["git", "check-ignore", "--stdin"], input="\n".join(files), capture_output=True, text=True, cwd=ROOT
+    ).stdout.split()
+    expected = set(files) - set(ignored)
+    assert engine_files == expected
+    assert {"engine/py.typed", "engine/fit/expected_psnr.json", "engine/cli.py"} <= engine_files
+    assert not any(n.startswith(NOT_SHIPPED) for n in names)
+
+
+def test_wheel_metadata_declares_the_pins_and_the_command(wheel):
+    z = zipfile.ZipFile(wheel)
+    dist_info = f"neural_atlas-{C.ENGINE_VERSION}.dist-info"
+    metadata = z.read(f"{dist_info}/METADATA").decode("utf-8").splitlines()
+    requires = [line.split(": ", 1)[1] for line in metadata if line.startswith("Requires-Dist: ")]
+    assert _requirements(requires) == _requirements(C.ENGINE_REQUIREMENTS)
+    assert "Requires-Python: >=3.11" in metadata
+    assert "License-Expression: GPL-3.0-or-later" in metadata
+    entry_points = z.read(f"{dist_info}/entry_points.txt").decode("utf-8").split()
+    assert entry_points == ["[console_scripts]", CONSOLE_SCRIPT, "=", "engine.cli:console_main"]
+
+
+@pytest.fixture(scope="module")
+def installed(source, tmp_path_factory) -> Path:
+    """A fresh venv with ``pip install .`` done in it (this venv's packages reachable through one .pth line)."""
+    env_dir = tmp_path_factory.mktemp("venv") / "env"
+    venv.EnvBuilder(with_pip=False).create(env_dir)
+    python = env_dir / "bin" / "python"
+    site = subprocess.run(
+        [str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.strip()
+    (Path(site) / "reuse_test_venv.pth").write_text(sysconfig.get_paths()["purelib"] + "\n", encoding="utf-8")
+    argv = [str(python), "-m", "pip", "install", "--no-deps", "--no-build-isolation", "--no-index", "."]
+    proc = subprocess.run(argv, capture_output=True, text=True, timeout=PIP_TIMEOUT, cwd=source)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return env_dir
+
+
+def _run(installed: Path, *argv: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    env["COLUMNS"] = "120"  # argparse wraps help to the terminal's width: the same width for both commands
+    return subprocess.run(
+        list(argv), capture_output=True, text=True, timeout=PIP_TIMEOUT, cwd=cwd or installed.parent, env=env
+    )
+
+
+def test_pip_install_gives_the_neural_atlas_command_with_the_engines_verbs(installed):
+    command = installed / "bin" / CONSOLE_SCRIPT
+    helped = _run(installed, str(command), "--help")
+    assert helped.returncode == 0, helped.stderr
+    assert helped.stdout.startswith(f"usage: {CONSOLE_SCRIPT} [-h] [--version] VERB ...")
+    # the same verbs, options and text as `python -m engine` from the checkout, under the command's name
+    module = _run(installed, sys.executable, "-m", C.CLI_MODULE, "--help", cwd=ROOT)
+    assert helped.stdout == module.stdout.replace("python -m engine", CONSOLE_SCRIPT)
+    for verb in (C.VERB_FIT, C.VERB_ESTIMATE, C.VERB_EXPORT, C.VERB_RENDER, C.VERB_PROJECT_FRAME, C.VERB_MASKS):
+        assert f"    {verb}" in helped.stdout, verb
+    version = _run(installed, str(command), "--version")
+    assert version.stdout.strip() == f"neural-atlas engine {C.ENGINE_VERSION}"
+    render = _run(installed, str(command), C.VERB_RENDER, "--help")
+    assert render.returncode == 0 and render.stdout.startswith(f"usage: {CONSOLE_SCRIPT} {C.VERB_RENDER} ")
+    bad = _run(installed, str(command), C.VERB_RENDER, str(installed / "no_such_manifest.json"), "--out", "x")
+    assert bad.returncode == C.EXIT_BAD_INPUT
+    assert "no manifest here" in bad.stderr
+
+
+def test_installed_engine_is_the_package_not_the_checkout(installed):
+    """Every module of the installed engine imports from the venv (its data file and py.typed beside it)."""
+    script = (
+        "import importlib, pkgutil, engine, pathlib\n"
+        "mods = [m.name for m in pkgutil.walk_packages(engine.__path__, 'engine.')]\n"
+        "mods = [m for m in mods if not m.endswith('__main__')]\n"
+        "[importlib.import_module(m) for m in mods]\n"
+        "root = pathlib.Path(engine.__file__).parent\n"
+        "print(root)\n"
+        "print(len(mods), (root / 'py.typed').is_file(), (root / 'fit' / 'expected_psnr.json').is_file())\n"
+    )
+    proc = _run(installed, str(installed / "bin" / "python"), "-c", script)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    root, counts = proc.stdout.split("\n")[:2]
+    assert Path(root).is_relative_to(installed)
+    shipped = [p for p in (ROOT / "engine").rglob("*.py") if "bench" not in p.parts and p.name != "__main__.py"]
+    assert counts == f"{len(shipped) - 1} True True"  # every module but engine/__init__.py itself
