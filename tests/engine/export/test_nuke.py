@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -23,10 +21,10 @@ from engine.export.manifest import Manifest
 from engine.export.nuke import NukeScriptError, nuke_channel_name, nuke_script, quote, sequence_pattern
 from engine.io.images import read_exr, write_exr, write_png
 from tests.engine.export import nk_script as NK
+from tests.engine.export.blender_probe import blender_pythons, probe_image_node
 from tests.engine.export.tiny_run import export, make_run
 from tests.engine.fake_export import make_fake_export
 from tests.engine_cli import run_cli
-from tests.paths import ROOT
 
 #: What OpenImageIO lists for an export of two layers (Background, Foreground): sorted by layer, R G B A in order.
 OIIO_CHANNELS = (
@@ -111,53 +109,16 @@ def test_pass_files_hold_the_stmap_layers_as_copies_of_the_uv_passes(exported):
         assert not st[2].any()
 
 
-BLENDER_PROBE = r"""
-import json, os, sys
-import bpy
-scene = bpy.context.scene
-if bpy.app.version >= (5, 0, 0):
-    tree = bpy.data.node_groups.new("probe", "CompositorNodeTree")
-    scene.compositing_node_group = tree
-else:
-    scene.use_nodes = True
-    tree = scene.node_tree
-node = tree.nodes.new("CompositorNodeImage")
-node.image = bpy.data.images.load(sys.argv[-1])
-try:
-    node.layer = "no such layer"
-except TypeError as exc:
-    layers = str(exc).rsplit("(", 1)[1].rstrip(")")
-out = {"version": list(bpy.app.version[:2]), "layers": layers, "layer": node.layer,
-       "sockets": [[s.name, s.type] for s in node.outputs if s.enabled]}
-print("RESULT " + json.dumps(out), flush=True)
-os._exit(0)
-"""
-
-
-def _blender_pythons() -> list[str]:
-    pythons = [sys.executable, str(ROOT / ".venv-bpy5" / "bin" / "python")]
-    found = []
-    for python in pythons:
-        if Path(python).exists():
-            probe = subprocess.run([python, "-c", "import bpy"], capture_output=True, timeout=120)
-            if probe.returncode == 0:
-                found.append(python)
-    return found
-
-
 def test_blender_sees_the_atlas_passes_exactly_as_before(exported):
     """Blender skips one-dot channel names: the Image node offers the one layer Atlas and the same sockets."""
-    pythons = _blender_pythons()
+    pythons = blender_pythons()
     if not pythons:
         pytest.skip("no Python with bpy")
     m = Manifest(exported)
     path = m.pass_path(m.data["passes"]["frames"][0])
     versions = []
     for python in pythons:
-        proc = subprocess.run([python, "-c", BLENDER_PROBE, str(path)], capture_output=True, text=True, timeout=180)
-        lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
-        assert lines, proc.stdout + proc.stderr
-        got = json.loads(lines[0][len("RESULT ") :])
+        got = probe_image_node(path, python)
         versions.append(tuple(got["version"]))
         assert got["layers"] == "'Atlas'" and got["layer"] == "Atlas"
         assert got["sockets"] == [
