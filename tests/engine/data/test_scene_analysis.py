@@ -194,7 +194,7 @@ def test_fit_records_scene_and_export_has_one_layer(tmp_path):
     chans = read_exr(manifest_path.parent / C.PASSES_DIR / C.pass_file_name(0))
     assert set(chans) == {C.channel_name(C.uv_pass("Background"), c) for c in C.UV_CHANNELS} | {
         C.channel_name(C.alpha_pass("Background"), "V")
-    }
+    } | {C.stmap_channel_name("Background", c) for c in C.STMAP_CHANNELS}
     assert np.array_equal(chans[C.channel_name(C.alpha_pass("Background"), "V")], np.ones((40, 64), np.float32))
 
 

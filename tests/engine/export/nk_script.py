@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 
-from engine.contract import srgb_to_linear
 from engine.export.nuke import nuke_channel_name
+from engine.io.colour import srgb_to_linear
 
 
 @dataclass(eq=False)
@@ -126,7 +126,7 @@ def evaluate(node: NkNode, script_dir: Path, frame: int) -> dict[str, np.ndarray
         chans = read_channels(file_for(node, script_dir, frame))
         if k.get("raw") != "true" and k.get("colorspace") == "sRGB":
             for c in RGBA[:3]:
-                chans[c] = np.vectorize(srgb_to_linear, otypes=[np.float32])(chans[c])
+                chans[c] = srgb_to_linear(chans[c])  # the decode `render` applies (OCIO's), so only the graph differs
         return chans
     ins = [evaluate(i, script_dir, frame) for i in node.inputs]
     shape = next(iter(ins[0].values())).shape

@@ -31,7 +31,7 @@ from engine.fit import trainer
 from engine.fit.checkpoint import nonfinite_entries
 from engine.fit.prepare import PLATE_VALUE_LIMIT, prepare_clip, to_fitting_values
 from engine.fit.run_folder import RunFolder
-from engine.io.colour import linear_to_srgb
+from engine.io.colour import BUILTIN_CONFIG, SCENE_LINEAR, legacy_linear_to_srgb, to_working
 from tests.paths import ROOT
 from tests.stability.fitcheck import write_masks, write_sequence
 
@@ -245,8 +245,11 @@ def test_plate_values_within_the_limit_are_unchanged_bit_for_bit():
     assert out.tobytes() == eight_bit.tobytes() and faults.nonfinite == faults.absurd == []
     hdr = np.float32(rng.uniform(0.0, 5000.0, (2, 4, 4, 3)))
     hdr[0, 0, 0] = PLATE_VALUE_LIMIT
-    out, faults = to_fitting_values(hdr, "linear")
-    assert out.tobytes() == linear_to_srgb(hdr).astype(np.float32).tobytes() and faults.absurd == []
+    out, faults = to_fitting_values(hdr, "linear")  # a run recorded before colour management: its own curve
+    assert out.tobytes() == legacy_linear_to_srgb(hdr).astype(np.float32).tobytes() and faults.absurd == []
+    out, faults = to_fitting_values(hdr, SCENE_LINEAR, colour_config=BUILTIN_CONFIG)  # the OCIO encoding alone
+    want = np.clip(to_working(hdr, SCENE_LINEAR, BUILTIN_CONFIG), 0.0, None).astype(np.float32)
+    assert out.tobytes() == want.tobytes() and faults.absurd == []
     hdr[1, 2, 2, 1] = -1e31
     _, faults = to_fitting_values(hdr, "linear")
     assert faults.absurd == [1]
