@@ -141,8 +141,8 @@ def plate_pixels(manifest: Manifest, frames: list[int]) -> Iterator[tuple[int, n
 def _source_position(manifest: Manifest) -> int:
     """Position of the manifest's first clip frame in its source (what `open_clip` ranges count)."""
     clip = manifest.clip
-    if clip["kind"] != C.CLIP_KINDS[0]:
-        return int(clip["frame_numbers"][0])
+    if clip["kind"] != C.CLIP_KINDS[0]:  # a movie's frames are numbered from its start frame (fit --start-frame)
+        return int(clip["frame_numbers"][0]) - int(clip.get("start_frame", 0))
     info = open_clip(manifest.plate_source(), None, *plate_colour(manifest))
     first = os.path.realpath(manifest.plate_frame_file(0))
     for position, path in enumerate(info.frame_files):

@@ -888,6 +888,11 @@ def load_run(run_dir: str | Path, device_name: str = "cpu") -> tuple[AtlasModel,
         fitted.folder.path,
         record.frame_range,
         scribble_dir=record.scribbles,
+        # the plate as it was fitted: its recorded colour space, rate and movie numbering, not today's defaults
+        colorspace=record.colorspace,
+        colour_config=record.colour_config,
+        fps=None if record.rate is None else Fraction(*record.rate),
+        start_frame=record.start_frame if record.kind == C.CLIP_KINDS[1] else None,
     )
     return fitted.model, prepared, fitted.cfg
 

@@ -156,3 +156,28 @@ def test_a_manifest_without_timing_still_renders_at_the_default_rate(exported, t
             assert stream.average_rate == Fraction(render.DEFAULT_FPS) and "timecode" not in stream.metadata
     finally:
         old.unlink()
+
+
+def test_a_movie_numbered_from_its_start_frame_renders_its_own_frames(tmp_path):
+    """``fit --start-frame 1001 --frames 1002-1003`` of a movie: the render reads movie frames 1 and 2 (not the
+    1002nd) and writes them as edit.01002 and edit.01003; an empty edit gives back those frames of the movie."""
+    from tests.media_files import textured_frames, write_movie
+
+    movie = write_movie(tmp_path / "plate.mp4", textured_frames(4, (48, 32)))
+    run = tmp_path / "run"
+    sets = [arg for key, value in TINY.items() for arg in ("--set", f"{key}={value}")]
+    code, lines = run_cli("fit", movie, "--start-frame", "1001", "--frames", "1002-1003", "--out", run,
+                          "--preset", "draft", *sets, "--device", "cpu", "--no-bar")  # fmt: skip
+    assert code == C.EXIT_OK, lines
+    code, lines = run_cli("export", run, "--atlas-size", "32", "--no-bar")
+    assert code == C.EXIT_OK, lines
+    out = tmp_path / "render"
+    (manifest,) = run.glob("exports/*/manifest.json")
+    code, lines = run_cli("render", manifest, "--out", out, "--format", "png", "--no-bar")
+    assert code == C.EXIT_OK, lines
+    assert sorted(p.name for p in out.iterdir()) == ["edit.01002.png", "edit.01003.png"]
+    with av.open(str(movie)) as container:
+        decoded = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
+    for number in (1002, 1003):
+        got = oiio.ImageBuf(str(out / f"edit.{number:05d}.png")).get_pixels(oiio.UINT8)
+        assert np.abs(got.astype(int) - decoded[number - 1001].astype(int)).max() <= 1

@@ -6,16 +6,22 @@ derive them differently, and an earlier fit must still export and resume: the ch
 
 from __future__ import annotations
 
+import io
 import json
 
+import numpy as np
 import pytest
 import torch
 
 from engine import contract as C
+from engine.config import apply_overrides, preset_config
+from engine.data.synthetic import make_scene, write_scene
 from engine.errors import InputError
 from engine.fit.checkpoint import load_checkpoint, save_checkpoint
-from engine.fit.trainer import load_run
-from tests.engine.fit_helpers import fit_scene
+from engine.fit.prepare import to_fitting_values
+from engine.fit.trainer import fit, load_run
+from engine.io.clip import open_clip, read_frames
+from tests.engine.fit_helpers import TINY_OVERRIDES, fit_scene
 
 
 def test_checkpoint_motions_rebuild_the_fitted_model_even_when_the_box_rule_changes(tmp_path):
@@ -53,3 +59,21 @@ def test_a_checkpoint_without_saved_motions_is_refused_in_one_line(tmp_path):
     with pytest.raises(InputError, match="checkpoint has no 'motions' — fit into a new run folder") as err:
         load_run(run)
     assert str(path) in str(err.value) and "\n" not in str(err.value)
+
+
+def test_a_run_reloads_its_plate_in_the_colour_space_it_was_fitted_in(tmp_path):
+    """``fit --colorspace ACEScg`` on PNG frames (whose default is sRGB): the reloaded clip is read as ACEScg, the
+    frames the fit saw, not as today's default for the file type would read it."""
+    scene = make_scene()
+    frames_dir, masks_dir = write_scene(scene, tmp_path / "clip")
+    cfg = apply_overrides(preset_config("draft"), {**TINY_OVERRIDES, "steps": "4", "eval_every": "4"})
+    run = tmp_path / "run"
+    fit(frames_dir, [masks_dir], run, cfg, device_name="cpu", progress_bar=False, stream=io.StringIO(),
+        colorspace="ACEScg")  # fmt: skip
+    _, prepared, _ = load_run(run)
+    assert prepared.info.colorspace == "ACEScg"
+    fresh = open_clip(frames_dir)
+    assert fresh.colorspace != "ACEScg"
+    seen, _ = to_fitting_values(read_frames(prepared.info, prepared.frames.shape[2:0:-1]), "ACEScg",
+                                colour_config=prepared.info.colour_config)  # fmt: skip
+    assert np.array_equal(prepared.frames, seen)
