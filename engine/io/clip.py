@@ -134,14 +134,15 @@ def open_clip(
     does); ``start_frame`` numbers a movie's frames from it (default 0).
     """
     source = os.path.abspath(os.path.expanduser(os.fspath(path)))
+    space = _PlateColour(colorspace, colour_config or colour.active_config())
     if not os.path.exists(source) and is_sequence_pattern(source):
-        info = _open_sequence(source, frame_range)
+        info = _open_sequence(source, frame_range, space)
     elif not os.path.exists(source):
         raise InputError(source, "does not exist", "check the path: pass a folder of image frames or a movie file")
     elif os.path.isdir(source):
-        info = _open_sequence(source, frame_range)
+        info = _open_sequence(source, frame_range, space)
     elif os.path.splitext(source)[1].lower() in MOVIE_EXTENSIONS:
-        info = _open_movie(source, frame_range, start_frame or 0)
+        info = _open_movie(source, frame_range, space, start_frame or 0)
     else:
         _refuse_file(source)
     if start_frame is not None and info.kind == _SEQUENCE:
@@ -152,7 +153,7 @@ def open_clip(
         )
     if fps is not None:
         info = dataclasses.replace(info, rate=fps, fps=float(fps))
-    return _with_colour(info, colorspace, colour_config)
+    return info
 
 
 def is_sequence_pattern(path: str) -> bool:
@@ -499,7 +500,22 @@ def _check_range(source: str, frame_range: tuple[int, int] | None, count: int) -
     return first, last
 
 
-def _open_sequence(source: str, frame_range: tuple[int, int] | None) -> ClipInfo:
+@dataclass(frozen=True)
+class _PlateColour:
+    """The colour space asked for (``--colorspace``; None: the default for the file) in the OCIO config."""
+
+    asked: str | None
+    config: str
+
+    def space(self, path: str, facts: colour.FileColour | None) -> str:
+        """The plate's colour space: the one asked for, resolved in the config, else the default for ``path``
+        (``facts``: its first frame's header; None for a movie)."""
+        if self.asked is not None:
+            return colour.resolve(self.asked, self.config)
+        return colour.default_colorspace(path, facts, self.config)
+
+
+def _open_sequence(source: str, frame_range: tuple[int, int] | None, plate: _PlateColour) -> ClipInfo:
     folder, files = _sequence_files(source)
     if not files:
         movies = sorted(n for n in os.listdir(folder) if os.path.splitext(n)[1].lower() in MOVIE_EXTENSIONS)
@@ -528,7 +544,7 @@ def _open_sequence(source: str, frame_range: tuple[int, int] | None) -> ClipInfo
     # Unnumbered files (all or none, see _list_images) are numbered by their position.
     numbers = [f.number for f in selected]
     frame_numbers = tuple(n if n is not None else first + i for i, n in enumerate(numbers))
-    rate, aspect, timecode = _image_timing(selected[0].path)
+    rate, aspect, timecode = _image_timing(head.spec)
     return ClipInfo(
         source=folder,
         kind=_SEQUENCE,
@@ -537,50 +553,28 @@ def _open_sequence(source: str, frame_range: tuple[int, int] | None) -> ClipInfo
         width=head.width,
         height=head.height,
         fps=float(rate) if rate else None,
-        colorspace="linear" if head.is_float else "sRGB",
+        colorspace=plate.space(head.path, colour.file_colour(head.spec, head.path)),
         channels=head.channels,
+        is_float=head.is_float,
+        colour_config=plate.config,
         rate=rate,
         pixel_aspect=aspect,
         timecode=timecode,
     )
 
 
-def _with_colour(info: ClipInfo, colorspace: str | None, config: str | None) -> ClipInfo:
-    """``info`` (opened with the file's encoding, "linear" or "sRGB") given its colour space in the OCIO config."""
-    is_float = info.colorspace == "linear"
-    config = config or colour.active_config()
-    if colorspace is not None:
-        space = colour.resolve(colorspace, config)
-    elif info.kind == _MOVIE:
-        space = colour.default_colorspace(info.source, None, config)
-    else:
-        first = info.frame_files[0]
-        with _quiet_codec_stderr():
-            inp = _open_image(first, _FRAME)
-        try:
-            facts = colour.file_colour(inp.spec(), first)
-        finally:
-            inp.close()
-        space = colour.default_colorspace(first, facts, config)
-    return dataclasses.replace(info, colorspace=space, is_float=is_float, colour_config=config)
-def _image_timing(path: str) -> tuple[Fraction | None, float, str | None]:
+def _image_timing(spec: oiio.ImageSpec) -> tuple[Fraction | None, float, str | None]:
     """(rate, pixel aspect ratio, timecode) from an image's header: an EXR's ``FramesPerSecond`` rational, a DPX's
     frame rate (a float: snapped to its NTSC fraction), ``PixelAspectRatio`` and the SMPTE timecode of either."""
-    with _quiet_codec_stderr():
-        inp = _open_image(path, _FRAME)
-    try:
-        spec = inp.spec()
-        fraction = spec.getattribute("FramesPerSecond")
-        rate = exact_rate(tuple(fraction)) if isinstance(fraction, tuple) and len(fraction) == 2 else None
-        for name in ("dpx:FrameRate", "dpx:TemporalFrameRate"):
-            if rate is None:
-                rate = exact_rate(spec.get_float_attribute(name, 0.0))
-        aspect = pixel_aspect(spec.get_float_attribute("PixelAspectRatio", 1.0))
-        packed = spec.getattribute("smpte:TimeCode")
-        timecode = Timecode.from_bcd(int(packed[0]), rate) if isinstance(packed, tuple) and packed else None
-        return rate, aspect, None if timecode is None else str(timecode)
-    finally:
-        inp.close()
+    fraction = spec.getattribute("FramesPerSecond")
+    rate = exact_rate(tuple(fraction)) if isinstance(fraction, tuple) and len(fraction) == 2 else None
+    for name in ("dpx:FrameRate", "dpx:TemporalFrameRate"):
+        if rate is None:
+            rate = exact_rate(spec.get_float_attribute(name, 0.0))
+    aspect = pixel_aspect(spec.get_float_attribute("PixelAspectRatio", 1.0))
+    packed = spec.getattribute("smpte:TimeCode")
+    timecode = Timecode.from_bcd(int(packed[0]), rate) if isinstance(packed, tuple) and packed else None
+    return rate, aspect, None if timecode is None else str(timecode)
 
 
 def _encoding(is_float: bool) -> str:
@@ -617,7 +611,9 @@ def _check_gaps(folder: str, files: list[_NumberedFile], first: int, last: int) 
         )
 
 
-def _open_movie(path: str, frame_range: tuple[int, int] | None, start_frame: int = 0) -> ClipInfo:
+def _open_movie(
+    path: str, frame_range: tuple[int, int] | None, plate: _PlateColour, start_frame: int = 0
+) -> ClipInfo:
     with _open_container(path) as container:
         stream = _video_stream(container, path)
         rate = stream.average_rate or stream.guessed_rate
@@ -646,8 +642,9 @@ def _open_movie(path: str, frame_range: tuple[int, int] | None, start_frame: int
         width=frame.width,
         height=frame.height,
         fps=float(rate) if rate else None,
-        colorspace="sRGB",
+        colorspace=plate.space(path, None),
         channels=len(frame.format.components),
+        colour_config=plate.config,
         rate=exact,
         pixel_aspect=pixel_aspect(float(aspect)) if aspect else 1.0,
         timecode=None if timecode is None else str(timecode.offset(first)),
@@ -784,6 +781,8 @@ class _Image:
     channel_names: tuple[str, ...]
     alpha_channel: int
     is_float: bool
+    spec: oiio.ImageSpec
+    """The file's header (colour and timing facts are read from it: the file is not opened again)."""
 
     @property
     def width(self) -> int:
@@ -902,6 +901,7 @@ def _read_image(path: str, role: _Role) -> _Image:
             channel_names=tuple(spec.channelnames),
             alpha_channel=spec.alpha_channel,
             is_float=spec.format.basetype in _FLOAT_TYPES,
+            spec=spec,
         )
     finally:
         inp.close()
