@@ -48,7 +48,7 @@ from engine.io.colour import (
     to_linear,
 )
 from engine.io.images import exr_timing, write_like, write_png, write_rgba_exr
-from engine.io.timing import Timecode, exact_rate
+from engine.io.timing import exact_rate, timecode_at
 
 FORMATS = ("exr", "png", "plate")
 OUTPUT_PREFIX = "edit."
@@ -454,13 +454,11 @@ def movie_writer(manifest: Manifest, path: Path, default_fps: float = DEFAULT_FP
     clip = manifest.clip
     rate = C.clip_rate(clip)
     first = manifest.frames[0] - clip["first_frame"]
-    timecode = clip.get("timecode")
-    if timecode is not None:
-        exact = None if rate is None else Fraction(*rate)
-        parsed = Timecode.parse(timecode, exact)
-        timecode = None if parsed is None else str(parsed.offset(first))
-    fps = Fraction(*rate) if rate is not None else exact_rate(default_fps)
-    return MovieWriter(path, fps, manifest.resolution, clip.get("pixel_aspect", 1.0), timecode)
+    exact = None if rate is None else Fraction(*rate)
+    timecode = timecode_at(clip.get("timecode"), exact, first)
+    fps = exact if exact is not None else exact_rate(default_fps)
+    tc = None if timecode is None else str(timecode)
+    return MovieWriter(path, fps, manifest.resolution, clip.get("pixel_aspect", 1.0), tc)
 
 
 class _Sizes:

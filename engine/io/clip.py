@@ -40,7 +40,7 @@ from engine import contract as C
 from engine.errors import InputError
 from engine.io import colour
 from engine.io.images import check_declared_size, open_image_input
-from engine.io.timing import Timecode, exact_rate, pixel_aspect
+from engine.io.timing import Timecode, exact_rate, pixel_aspect, timecode_at
 
 IMAGE_EXTENSIONS: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".exr", ".dpx", ".tif", ".tiff")
 MOVIE_EXTENSIONS: tuple[str, ...] = (".mp4", ".mov", ".mkv", ".avi", ".webm", ".m4v")
@@ -633,7 +633,7 @@ def _open_movie(
         count = _count_packets(path, float(rate) if rate else None, duration if only_stream else None)
     first, last = _check_range(path, frame_range, count)
     exact = exact_rate(Fraction(rate)) if rate else None
-    timecode = Timecode.parse(stamp, exact) if stamp else None
+    timecode = timecode_at(stamp, exact, first)
     return ClipInfo(
         source=path,
         kind=_MOVIE,
@@ -647,7 +647,7 @@ def _open_movie(
         colour_config=plate.config,
         rate=exact,
         pixel_aspect=pixel_aspect(float(aspect)) if aspect else 1.0,
-        timecode=None if timecode is None else str(timecode.offset(first)),
+        timecode=None if timecode is None else str(timecode),
         start_frame=start_frame,
     )
 

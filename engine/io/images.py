@@ -28,7 +28,7 @@ import OpenImageIO as oiio
 
 from engine.errors import InputError
 from engine.io.atomic import atomic_write
-from engine.io.timing import Timecode
+from engine.io.timing import timecode_at
 
 #: Every image is decoded as float32: the bytes per channel a decode allocates, whatever the file stores.
 DECODED_BYTES_PER_CHANNEL = 4
@@ -197,9 +197,8 @@ def exr_timing(
     header: dict[str, Any] = {"pixelAspectRatio": float(pixel_aspect)}
     if exact is not None:
         header["framesPerSecond"] = exact
-    first = None if first_timecode is None else Timecode.parse(first_timecode, exact)
-    if first is not None:
-        timecode = first.offset(offset)
+    timecode = timecode_at(first_timecode, exact, offset)
+    if timecode is not None:
         code = OpenEXR.TimeCode()
         code.hours, code.minutes, code.seconds, code.frame = timecode.fields()
         code.dropFrame = timecode.drop

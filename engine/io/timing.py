@@ -152,6 +152,13 @@ class Timecode:
         return (pack(hh) << 24) | (pack(mm) << 16) | (pack(ss) << 8) | pack(ff) | (0x40 if self.drop else 0)
 
 
+def timecode_at(first: str | None, rate: Fraction | None, offset: int = 0) -> Timecode | None:
+    """The timecode ``offset`` frames after ``first`` (a recorded ``HH:MM:SS:FF`` at ``rate``): a pass, a rendered
+    frame or a movie's first frame carries its plate frame's timecode. None without a (valid) first timecode."""
+    parsed = None if first is None else Timecode.parse(first, rate)
+    return None if parsed is None else parsed.offset(offset)
+
+
 def nominal_rate(rate: Fraction | None, highest_frame: int = 0) -> int:
     """The integer rate timecode counts at: 24 for 24000/1001, 25 for 25; without a rate, the smallest common
     one (24, 25, 30, 48, 50, 60) the frame field fits."""
@@ -164,4 +171,4 @@ def _drop_allowed(nominal: int) -> bool:
     return nominal in (30, 60)
 
 
-__all__ = ["Timecode", "exact_rate", "nominal_rate", "parse_rate", "pixel_aspect", "rate_text"]
+__all__ = ["Timecode", "exact_rate", "nominal_rate", "parse_rate", "pixel_aspect", "rate_text", "timecode_at"]
