@@ -498,8 +498,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     cfg = apply_overrides(cfg, parse_set_args(args.set))
     if args.resume and args.frames is not None:  # the recorded plate, numbered as it was fitted
         record = RunFolder(run_dir).read_clip()
-        movie_start = record.start_frame if record.kind == C.CLIP_KINDS[1] else None
-        frames = _positions(record.source, args.frames, movie_start)
+        frames = _positions(record.source, args.frames, record.movie_start)
     else:
         frames = _positions(args.clip, args.frames, args.start_frame)
     try:

@@ -17,6 +17,7 @@ import json
 import os
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass
+from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
@@ -61,6 +62,17 @@ class ClipRecord(NumberedFrames):
     """SMPTE timecode of the first fitted frame."""
     start_frame: int = 0
     """A movie's number of its first frame (``fit --start-frame``)."""
+
+    @property
+    def exact_rate(self) -> Fraction | None:
+        """``rate`` as the fraction ``open_clip(fps=...)`` takes (None: none recorded)."""
+        return None if self.rate is None else Fraction(*self.rate)
+
+    @property
+    def movie_start(self) -> int | None:
+        """The number a movie's frames were counted from, as ``open_clip(start_frame=...)`` takes it; None for a
+        sequence (its frames are numbered by their file names, and ``open_clip`` refuses a start frame for it)."""
+        return self.start_frame if self.kind == C.CLIP_KINDS[1] else None
 
     def to_dict(self) -> dict[str, Any]:
         data = asdict(self)

@@ -678,8 +678,7 @@ def fit(
             run.check_checkpoint_belongs(state, saved, record)
             clip, mask_dirs, frame_range = record.source, list(record.masks), record.frame_range
             scribble_dir, expect = record.scribbles, record.fingerprint
-            fps = None if record.rate is None else Fraction(*record.rate)
-            start_frame = record.start_frame if record.kind == C.CLIP_KINDS[1] else None
+            fps, start_frame = record.exact_rate, record.movie_start
         # the input is read and validated before anything is written: bad input leaves no run folder behind
         prepared = prepare_clip(
             clip,  # type: ignore[arg-type]  # a resume's clip is the recorded one; a new fit's was checked above
@@ -891,8 +890,8 @@ def load_run(run_dir: str | Path, device_name: str = "cpu") -> tuple[AtlasModel,
         # the plate as it was fitted: its recorded colour space, rate and movie numbering, not today's defaults
         colorspace=record.colorspace,
         colour_config=record.colour_config,
-        fps=None if record.rate is None else Fraction(*record.rate),
-        start_frame=record.start_frame if record.kind == C.CLIP_KINDS[1] else None,
+        fps=record.exact_rate,
+        start_frame=record.movie_start,
     )
     return fitted.model, prepared, fitted.cfg
 
