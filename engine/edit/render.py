@@ -28,6 +28,7 @@ from types import TracebackType
 from typing import Any
 
 import numpy as np
+import OpenImageIO as oiio
 from tqdm import tqdm
 
 from engine import contract as C
@@ -47,7 +48,7 @@ from engine.io.colour import (
     role_space,
     to_linear,
 )
-from engine.io.images import exr_timing, write_like, write_png, write_rgba_exr
+from engine.io.images import exr_timing, read_spec, write_like, write_png, write_rgba_exr
 from engine.io.timing import exact_rate, timecode_at
 
 FORMATS = ("exr", "png", "plate")
@@ -178,15 +179,16 @@ def render_plate_frames(
         yield number, np.where(touched[..., None], out, raw).astype(np.float32), out_lin
 
 
-def _plate_file(manifest: Manifest) -> tuple[str | None, str]:
-    """(a plate frame to write like, its extension) for ``--format plate``: the plate's own file type when it is
-    one that holds its values exactly; else (a movie, JPEG) (None, ".png"): sRGB PNG."""
+def _plate_file(manifest: Manifest) -> tuple[oiio.ImageSpec | None, str]:
+    """(the header of a plate frame to write like, its extension) for ``--format plate``: the plate's own file type
+    when it is one that holds its values exactly; else (a movie, JPEG) (None, ".png"): sRGB PNG. Read once per
+    render, not per frame."""
     clip = manifest.clip
     if clip["kind"] == C.CLIP_KINDS[0]:
         first = str(manifest.plate_frame_file(0))
         ext = os.path.splitext(first)[1].lower()
         if ext in PLATE_FORMATS:
-            return first, ext
+            return read_spec(first), ext
     return None, ".png"
 
 

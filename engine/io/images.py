@@ -154,16 +154,10 @@ def write_rgba_exr(
 LIKE_ATTRIBUTES = ("oiio:BitsPerSample", "dpx:Transfer", "dpx:Colorimetric", "chromaticities", "compression")
 
 
-def write_like(path: Path, rgb: np.ndarray, like: str | Path) -> Path:
-    """Write [H, W, 3] values (in the file's own encoding: integers as [0, 1]) in the image file type, pixel type
-    and bit depth of the file ``like`` (a plate frame), atomically: a plate's code values come back exactly."""
-    inp = open_image_input(like)
-    if inp is None:
-        raise InputError(like, f"cannot open this image ({' '.join(oiio.geterror().split())})", "check the file")
-    try:
-        plate = inp.spec()
-    finally:
-        inp.close()
+def write_like(path: Path, rgb: np.ndarray, plate: oiio.ImageSpec) -> Path:
+    """Write [H, W, 3] values (in the file's own encoding: integers as [0, 1]) in ``path``'s file type with the pixel
+    type and bit depth of the header ``plate`` (a plate frame's, ``read_spec``), atomically: a plate's code values
+    come back exactly."""
     h, w = rgb.shape[:2]
     spec = oiio.ImageSpec(w, h, 3, plate.format)
     for name in LIKE_ATTRIBUTES:
@@ -245,16 +239,21 @@ def write_png(path: Path, pixels: np.ndarray, bits: int = 8, srgb: bool = True) 
     return atomic_write(path, write)
 
 
-def image_header(path: str | Path) -> tuple[int, int, int]:
-    """(width, height, bits per channel) from the file's header, without decoding pixels."""
+def read_spec(path: str | Path) -> oiio.ImageSpec:
+    """The file's header (OpenImageIO's spec), without decoding pixels; a file that cannot be opened is one line."""
     inp = open_image_input(path)
     if inp is None:
         raise InputError(path, f"cannot open this image ({' '.join(oiio.geterror().split())})", "check the file")
     try:
-        spec = inp.spec()
-        return spec.width, spec.height, spec.format.size() * 8
+        return inp.spec()
     finally:
         inp.close()
+
+
+def image_header(path: str | Path) -> tuple[int, int, int]:
+    """(width, height, bits per channel) from the file's header, without decoding pixels."""
+    spec = read_spec(path)
+    return spec.width, spec.height, spec.format.size() * 8
 
 
 def read_image(path: str | Path) -> tuple[np.ndarray, bool]:
@@ -287,6 +286,7 @@ __all__ = [
     "open_image_input",
     "read_exr",
     "read_image",
+    "read_spec",
     "write_exr",
     "write_png",
     "write_rgba_exr",
