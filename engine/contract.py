@@ -308,6 +308,21 @@ def timing_problem(clip: dict[str, Any]) -> str | None:
     return None
 
 
+#: A frame file's number: the digits just before its extension (``plate.1001.exr``, ``plate_0012.png``).
+FRAME_FILE_DIGITS = re.compile(r"(\d+)(?=\.[^.]+$)")
+
+
+def sequence_pattern_of(path: str) -> str | None:
+    """The pattern of the image sequence a frame file belongs to, one ``#`` per digit of its number
+    (``/plates/plate.1001.exr`` -> ``/plates/plate.####.exr``: the clip argument ``fit`` takes); None for a file
+    name without a number before its extension."""
+    name = os.path.basename(path)
+    m = FRAME_FILE_DIGITS.search(name)
+    if m is None:
+        return None
+    return os.path.join(os.path.dirname(path), f"{name[: m.start()]}{'#' * len(m.group(1))}{name[m.end() :]}")
+
+
 def clip_rate(clip: dict[str, Any]) -> tuple[int, int] | None:
     """A manifest clip's frame rate as an exact (num, den): its "rate", else its float "fps" as the fraction it
     stands for (23.976... -> 24000/1001, 25.0 -> 25/1); None when it has neither."""

@@ -13,12 +13,11 @@ Import goes the other way: the scene's range is the exported frames' numbers (sc
 from __future__ import annotations
 
 import os
-import re
 
 from ...engine import contract as C  # type: ignore[import-not-found]
 from .errors import UserError
 
-_DIGITS = re.compile(r"(\d+)(?=\.[^.]+$)")
+_DIGITS = C.FRAME_FILE_DIGITS
 
 
 def file_number(path: str) -> int | None:
@@ -31,11 +30,7 @@ def sequence_pattern(path: str) -> str:
     """The engine's clip argument for an image-sequence Movie Clip: the pattern of the sequence its file belongs to
     (``/plates/plate.1001.exr`` -> ``/plates/plate.####.exr``), so the engine reads the sequence Blender shows even
     where the folder holds others; a file name without a number is its folder."""
-    m = _DIGITS.search(os.path.basename(path))
-    if m is None:
-        return os.path.dirname(path)
-    name = os.path.basename(path)
-    return os.path.join(os.path.dirname(path), f"{name[: m.start()]}{'#' * len(m.group(1))}{name[m.end() :]}")
+    return C.sequence_pattern_of(path) or os.path.dirname(path)
 
 
 def frame_range(

@@ -139,12 +139,12 @@ def plan_tree(
         if first not in numbers:
             raise PlanError(f"plate has no frame {first}; export frames that exist in the clip")
         plate_file = plate_path(manifest_path, files[numbers.index(first)], "plate frame")
-        plate = ImageSpec(PLATE_CLIP, plate_file, _plate_colorspace(clip, colorspaces), True, first, count)
+        plate = ImageSpec(PLATE_CLIP, plate_file, plate_colorspace(clip, colorspaces), True, first, count)
     else:
         # scene frame F shows the movie's frame numbered F: its first frame is numbered start_frame (0 by default)
         movie = plate_path(manifest_path, clip["source"], "plate movie")
         start = int(clip.get("start_frame", 0))
-        plate = ImageSpec(PLATE_CLIP, movie, _plate_colorspace(clip, colorspaces), False, start, count)
+        plate = ImageSpec(PLATE_CLIP, movie, plate_colorspace(clip, colorspaces), False, start, count)
 
     images = [ImageSpec(PASSES_IMAGE, pass_first, "Non-Color", True, first, count)]
     layers = [layer["name"] for layer in manifest["layers"]]
@@ -329,8 +329,3 @@ def output_colorspace(clip: dict[str, Any]) -> str:
 def edit_colorspace(path: str) -> str:
     """An edit layer is an sRGB PNG with straight alpha, or a linear float EXR with premultiplied alpha."""
     return "Non-Color" if path.lower().endswith(C.EDIT_LAYER_FLOAT_EXT) else "sRGB"
-
-
-def _plate_colorspace(clip: dict[str, Any], available: frozenset[str] | None) -> str:
-    # Blender decodes the plate with its OCIO config's transform for the plate's space, as the engine's render does
-    return plate_colorspace(clip, available)

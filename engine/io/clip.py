@@ -449,11 +449,7 @@ def _seq_label(seq: fileseq.FileSequence) -> str:
 
 def _pattern_like(path: str) -> str:
     """The pattern of the sequence an image file belongs to (``plate.1001.exr`` -> ``.../plate.####.exr``)."""
-    stem, ext = os.path.splitext(path)
-    m = re.search(r"(\d+)$", stem)
-    if m is None:
-        return os.path.join(os.path.dirname(path), "name.####.exr")
-    return f"{stem[: m.start()]}{'#' * len(m.group(1))}{ext}"
+    return C.sequence_pattern_of(path) or os.path.join(os.path.dirname(path), "name.####.exr")
 
 
 def _refuse_several_sequences(folder: str) -> None:
