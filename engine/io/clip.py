@@ -607,9 +607,7 @@ def _check_gaps(folder: str, files: list[_NumberedFile], first: int, last: int) 
         )
 
 
-def _open_movie(
-    path: str, frame_range: tuple[int, int] | None, plate: _PlateColour, start_frame: int = 0
-) -> ClipInfo:
+def _open_movie(path: str, frame_range: tuple[int, int] | None, plate: _PlateColour, start_frame: int = 0) -> ClipInfo:
     with _open_container(path) as container:
         stream = _video_stream(container, path)
         rate = stream.average_rate or stream.guessed_rate

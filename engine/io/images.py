@@ -27,7 +27,7 @@ import OpenEXR
 import OpenImageIO as oiio
 
 from engine.errors import InputError
-from engine.io.atomic import atomic_write
+from engine.io.atomic import atomic_write, signals_held
 from engine.io.timing import timecode_at
 
 #: Every image is decoded as float32: the bytes per channel a decode allocates, whatever the file stores.
@@ -166,14 +166,23 @@ def write_like(path: Path, rgb: np.ndarray, plate: oiio.ImageSpec) -> Path:
             spec.attribute(name, oiio.TypeDesc(f"float[{len(value)}]"), value)
         elif value is not None:
             spec.attribute(name, value)
-    ext = os.path.splitext(os.fspath(path))[1]
+    ext = os.path.splitext(os.fspath(path))[1].lstrip(".")
+    return _write_oiio(path, ext, spec, np.ascontiguousarray(rgb, dtype=np.float32))
+
+
+def _write_oiio(path: Path, file_format: str, spec: oiio.ImageSpec, pixels: np.ndarray) -> Path:
+    """Write one image with OpenImageIO's ``file_format`` writer (a name or an extension), atomically. The open,
+    write and close run with SIGINT/SIGTERM held: a cancel that lands between them would otherwise close a file with
+    no pixel data, and the codec (libpng: "No IDATs written into file") prints its complaint past the one-line
+    message."""
 
     def write(tmp: str) -> None:
-        out = oiio.ImageOutput.create(ext.lstrip("."))
-        if out is None or not out.open(native_path(tmp), spec):  # type: ignore[arg-type]  # bytes taken too
-            raise OSError(f"cannot write {path}: {oiio.geterror()}")
-        ok = out.write_image(np.ascontiguousarray(rgb, dtype=np.float32))
-        out.close()
+        with signals_held():
+            out = oiio.ImageOutput.create(file_format)
+            if out is None or not out.open(native_path(tmp), spec):  # type: ignore[arg-type]  # bytes taken too
+                raise OSError(f"cannot write {path}: {oiio.geterror()}")
+            ok = out.write_image(pixels)
+            out.close()
         if not ok:
             raise OSError(f"cannot write {path}: {out.geterror()}")
 
@@ -221,22 +230,12 @@ def write_png(path: Path, pixels: np.ndarray, bits: int = 8, srgb: bool = True) 
     dtype = np.uint8 if bits == 8 else np.uint16
     q = np.rint(np.clip(np.nan_to_num(pixels, nan=0.0), 0.0, 1.0) * top).astype(dtype)
     h, w, c = q.shape
-
-    def write(tmp: str) -> None:
-        out = oiio.ImageOutput.create("png")
-        spec = oiio.ImageSpec(w, h, c, oiio.UINT8 if bits == 8 else oiio.UINT16)
-        if srgb:
-            spec.attribute("oiio:ColorSpace", "sRGB")  # OIIO writes the PNG sRGB chunk for it
-        if c == 4:
-            spec.attribute("oiio:UnassociatedAlpha", 1)  # values are straight alpha: do not premultiply
-        if out is None or not out.open(native_path(tmp), spec):  # type: ignore[arg-type]  # bytes taken too
-            raise OSError(f"cannot write {path}: {oiio.geterror()}")
-        ok = out.write_image(q)
-        out.close()
-        if not ok:
-            raise OSError(f"cannot write {path}: {out.geterror()}")
-
-    return atomic_write(path, write)
+    spec = oiio.ImageSpec(w, h, c, oiio.UINT8 if bits == 8 else oiio.UINT16)
+    if srgb:
+        spec.attribute("oiio:ColorSpace", "sRGB")  # OIIO writes the PNG sRGB chunk for it
+    if c == 4:
+        spec.attribute("oiio:UnassociatedAlpha", 1)  # values are straight alpha: do not premultiply
+    return _write_oiio(path, "png", spec, q)
 
 
 def read_spec(path: str | Path) -> oiio.ImageSpec:

@@ -94,3 +94,51 @@ def test_native_and_display_path() -> None:
     assert native_path("/plates/déjà") == "/plates/déjà"  # valid UTF-8 stays text
     assert native_path(odd) == b"/plates/d\xe9j\xe0"
     assert display_path(odd) == "/plates/d\\xe9j\\xe0" and display_path("/plates/déjà") == "/plates/déjà"
+
+
+class _Cancelled(Exception):
+    pass
+
+
+def test_a_cancel_between_open_and_write_waits_for_the_whole_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """SIGTERM right after the PNG writer opened its file takes effect once the file is whole: the cancel is raised,
+    the PNG that was being written is complete or absent, and libpng prints nothing ("No IDATs written into file"
+    was what a render cancelled at that moment printed past its one-line message)."""
+    import signal
+
+    import OpenImageIO as oiio
+
+    import engine.io.images as images
+
+    real_create = oiio.ImageOutput.create
+
+    class SignalAfterOpen:
+        def __init__(self, out: oiio.ImageOutput) -> None:
+            self._out = out
+
+        def open(self, *args: object) -> bool:
+            ok = self._out.open(*args)
+            signal.raise_signal(signal.SIGTERM)
+            return ok
+
+        def __getattr__(self, name: str) -> object:
+            return getattr(self._out, name)
+
+    monkeypatch.setattr(images.oiio.ImageOutput, "create", lambda fmt: SignalAfterOpen(real_create(fmt)))
+
+    def cancel(_signum: int, _frame: object) -> None:
+        raise _Cancelled
+
+    old = signal.signal(signal.SIGTERM, cancel)
+    try:
+        with pytest.raises(_Cancelled):
+            write_png(tmp_path / "frame.png", np.full((6, 8, 3), 0.5, np.float32))
+    finally:
+        signal.signal(signal.SIGTERM, old)
+    assert "IDAT" not in capfd.readouterr().err
+    written = [p.name for p in tmp_path.iterdir()]
+    assert written in ([], ["frame.png"]), written
+    if written:
+        assert np.allclose(read_image(tmp_path / "frame.png"), 128 / 255, atol=1e-6)
