@@ -26,7 +26,7 @@ for node in ast.parse(pathlib.Path("engine/contract.py").read_text()).body:
 print("\n".join(item for name in sys.argv[1:] for item in values[name]))
 PYEOF
 }
-REQS="$(contract_list ENGINE_REQUIREMENTS DEV_REQUIREMENTS)"
+REQS="$(contract_list ENGINE_REQUIREMENTS FARM_REQUIREMENTS DEV_REQUIREMENTS)"
 STAMP=".venv/.requirements.sha256"
 WANT="$(printf '%s\n' "$REQS" | sha256sum | cut -d' ' -f1)"
 if [ ! -x .venv/bin/python ] || [ "$(cat "$STAMP" 2>/dev/null)" != "$WANT" ]; then

@@ -36,6 +36,13 @@ ENGINE_REQUIREMENTS: tuple[str, ...] = (
     "fileseq==3.4.0",  # image sequences found and named the way pipeline tools do (plate.####.exr, %04d, ranges)
 )
 
+#: The farm back ends' own requirements (pyproject's ``farm`` extra; the test venv has them): Dask for
+#: ``farm dask``; the Open Job Description CLI to check and run the bundles ``farm openjd`` writes.
+FARM_REQUIREMENTS: tuple[str, ...] = (
+    "distributed==2026.8.0",
+    "openjd-cli==0.8.0",
+)
+
 #: Extra requirements for development and the test suite (same venv).
 DEV_REQUIREMENTS: tuple[str, ...] = (
     "pytest>=8",
@@ -72,6 +79,58 @@ VERB_MASKS = "masks"  # masks CLIP --out FOLDER [--frames FIRST-LAST]; last stdo
 VERB_NUKE = "nuke"  # nuke MANIFEST [--out FILE.nk] [--filter ...]: a Nuke script of the edit; last line = its path
 #: ``--frames`` of every verb speaks the plate's frame numbers (plate.1010.exr .. plate.1050.exr: 1010-1050; a movie's
 #: frames count from 0 or ``fit --start-frame``); run folders keep recording positions (clip.json "frame_range").
+
+# --- farm: one plan of a sequence's shots, run by the schedulers studios already have ---------------------------
+VERB_FARM = "farm"  # farm plan|openjd|dask|flamenco SHOTS ...: see docs/farm.md
+FARM_PLAN = "plan"  # farm plan SHOTS [--json]: every task's engine arguments and dependencies
+FARM_OPENJD = "openjd"  # farm openjd SHOTS --out BUNDLE_DIR: an Open Job Description bundle (Deadline Cloud)
+FARM_DASK = "dask"  # farm dask SHOTS --scheduler tcp://HOST:PORT: the plan's tasks on a Dask cluster
+FARM_FLAMENCO = "flamenco"  # farm flamenco SHOTS --manager URL: one job per shot on a Flamenco Manager
+FARM_COMMANDS: tuple[str, ...] = (FARM_PLAN, FARM_OPENJD, FARM_DASK, FARM_FLAMENCO)
+#: ``export RUN --into vNNN``: export into that version (a farm's export tasks share one); ``--stage`` splits it
+#: into the tasks a farm runs: ``atlases`` (once), ``passes --frames A-B`` (chunks, concurrently), ``publish``
+#: (once, when every chunk is done: the version appears with its manifest). Each is idempotent.
+EXPORT_INTO_ARG = "--into"
+EXPORT_STAGE_ARG = "--stage"
+EXPORT_STAGES: tuple[str, ...] = ("atlases", "passes", "publish")
+#: ``fit ... --resume-if-started``: a retried farm task: continue the checkpoint of this same fit in RUN_DIR, leave
+#: a finished one as it is (exit 0), or start it.
+FIT_RESUME_IF_STARTED_FLAG = "--resume-if-started"
+#: The shots file (TOML or JSON; docs/farm.md): ``{SHOTS_TAG: SHOTS_VERSION, "defaults": {...}, "shots": [...]}``;
+#: relative paths are relative to the file. A shot's keys are SHOT_KEYS; "defaults" holds any of
+#: SHOT_DEFAULT_KEYS, which a shot may override.
+SHOTS_TAG = "neural_atlas_shots"
+SHOTS_VERSION = 1
+SHOTS_LIST_KEY = "shots"
+SHOTS_DEFAULTS_KEY = "defaults"
+SHOT_DEFAULT_KEYS: tuple[str, ...] = (
+    "preset",  # fit preset (default: balanced)
+    "set",  # fit --set KEY=VALUE overrides, a list
+    "device",  # fit/export --device (default: auto for fit, cpu for export)
+    "atlas_size",  # export --atlas-size
+    "export_chunk",  # frames per export-passes task (default 50)
+    "render_chunk",  # frames per render task (default 50)
+    "render_format",  # render --format: exr | png | plate
+    "preview",  # write the export's preview sheets (default true)
+)
+SHOT_REQUIRED_KEYS: tuple[str, ...] = ("name", "plate")
+SHOT_KEYS: tuple[str, ...] = (
+    *SHOT_REQUIRED_KEYS,
+    "masks",  # mask folders, one per foreground layer
+    "auto_masks",  # true: find the moving objects (a masks task before the fit)
+    "frames",  # "FIRST-LAST" in the plate's frame numbers
+    "colorspace",  # the plate's OCIO colour space
+    "fps",  # the plate's rate ("24", "24000/1001")
+    "start_frame",  # a movie's first frame number
+    "run",  # the run folder (default: runs/<name> beside the shots file)
+    "render",  # a folder for the edited frames (no render task without it)
+    *SHOT_DEFAULT_KEYS,
+)
+#: Flamenco: the job type name, the Manager variable that holds the engine's Python on each worker, and the API.
+FLAMENCO_JOB_TYPE = "neural-atlas"
+FLAMENCO_PYTHON_VARIABLE = "neural_atlas_python"
+FLAMENCO_API_CHECK = "/api/v3/jobs/check"
+FLAMENCO_API_SUBMIT = "/api/v3/jobs"
 
 #: The other direction: the add-on's one headless entry point, a script run by Blender (``blender -b -P``) or by
 #: a Python with the ``bpy`` module, that builds a .blend with the add-on's compositor tree for a manifest and
