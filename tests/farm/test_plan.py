@@ -72,7 +72,8 @@ def test_every_option_of_a_shot_reaches_its_command(tmp_path):
     write_clip(tmp_path / "c")
     path = write_shots(tmp_path, [{
         "name": "x", "plate": "c/frames", "colorspace": "sRGB Encoded Rec.709 (sRGB)", "fps": 25, "device": "cpu",
-        "atlas_size": 64, "render": "out", "render_format": "png", "render_chunk": 2, "frames": "1-3", "set": ["seed=2"],
+        "atlas_size": 64, "render": "out", "render_format": "png", "render_chunk": 2, "frames": "1-3",
+        "set": ["seed=2"],
     }])  # fmt: skip
     plan = load_plan(path)
     fit = plan.task("x.fit").args
