@@ -375,7 +375,8 @@ def submit_plan(
             _status, answer = manager.request("POST", C.FLAMENCO_API_SUBMIT, job, what=f"shot {shot}")
         except InputError as exc:
             if ids:  # say what is on the farm already, so a second try does not queue those shots twice
-                raise InputError(None, str(exc), f"already submitted: {done}; submit only the other shots") from None
+                fix = f"{exc.fix}; already submitted: {done} (submit only the other shots)"
+                raise InputError(exc.path, exc.problem, fix) from None
             raise
         job_id = answer.get("id") if isinstance(answer, dict) else None
         if not isinstance(job_id, str) or not job_id:
