@@ -506,19 +506,10 @@ def _cmd_masks(args: argparse.Namespace) -> int:
     return C.EXIT_OK
 
 
-#: The farm back ends other modules add: (command, module, its parser function, its run function).
-FARM_BACKENDS: tuple[tuple[str, str, str, str], ...] = (
-    (C.FARM_DASK, "engine.farm.dask_backend", "add_dask_parser", "run_dask"),
-    (C.FARM_FLAMENCO, "engine.farm.flamenco", "add_flamenco_parser", "run_flamenco"),
-)
-
-
 def _add_farm_parser(sub: argparse._SubParsersAction) -> None:
     """``farm plan|openjd|dask|flamenco SHOTS``: a sequence's shots on the schedulers studios already run. The
     back ends' own parsers come from their modules, imported here only for their parser (light; the scheduler
     libraries load when one runs)."""
-    import importlib
-
     farm = sub.add_parser(
         C.VERB_FARM,
         help="fit, export and render the shots of a sequence on a farm (OpenJD/Deadline Cloud, Dask, Flamenco)",
@@ -557,18 +548,28 @@ def _add_farm_parser(sub: argparse._SubParsersAction) -> None:
     )
     oj.add_argument("--no-gpu", action="store_true", help="no GPU host requirement on the fit and export steps")
     oj.add_argument("--name", default=None, help="the job's name (default: the shots file's name)")
-    for command, module, add_parser, _ in FARM_BACKENDS:
-        try:
-            getattr(importlib.import_module(module), add_parser)(commands)
-        except ImportError as exc:  # a back end whose module or library is missing: its command says so
-            missing = commands.add_parser(command, help=f"(not available: {exc})")
-            missing.add_argument("rest", nargs=argparse.REMAINDER)
-            missing.set_defaults(farm_missing=f"{exc}")
+    try:
+        from engine.farm.dask_backend import add_dask_parser
+
+        add_dask_parser(commands)
+    except ImportError as exc:  # a back end whose module or library is missing: its command says so
+        _add_missing_farm_parser(commands, C.FARM_DASK, exc)
+    try:
+        from engine.farm.flamenco import add_flamenco_parser
+
+        add_flamenco_parser(commands)
+    except ImportError as exc:
+        _add_missing_farm_parser(commands, C.FARM_FLAMENCO, exc)
+
+
+def _add_missing_farm_parser(commands: argparse._SubParsersAction, command: str, exc: ImportError) -> None:
+    missing = commands.add_parser(command, help=f"(not available: {exc})")
+    missing.add_argument("rest", nargs=argparse.REMAINDER)
+    missing.set_defaults(farm_missing=f"{exc}")
 
 
 def _cmd_farm(args: argparse.Namespace) -> int:
     """Plan, then hand the plan to the back end; progress per shot as JSON lines, the result's path last."""
-    import importlib
     import json
 
     missing = getattr(args, "farm_missing", None)
@@ -576,10 +577,14 @@ def _cmd_farm(args: argparse.Namespace) -> int:
         raise InputError(
             None, f"farm {args.farm_command} is not available ({missing})", "install the engine's farm extra"
         )
-    for command, module, _, run in FARM_BACKENDS:
-        if args.farm_command == command:
-            result: int = getattr(importlib.import_module(module), run)(args)
-            return result
+    if args.farm_command == C.FARM_DASK:
+        from engine.farm.dask_backend import run_dask
+
+        return run_dask(args)
+    if args.farm_command == C.FARM_FLAMENCO:
+        from engine.farm.flamenco import run_flamenco
+
+        return run_flamenco(args)
     from engine.farm.plan import plan_with_shots, task_graph_text
     from engine.farm.shots import load_shots
 
