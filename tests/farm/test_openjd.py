@@ -1,5 +1,6 @@
 """``farm openjd``: the plan as an Open Job Description bundle, checked by ``openjd check``, its commands equal to
-the plan's, and run for real by ``openjd run`` on a tiny shot: the export it makes equals a direct fit + export."""
+the plan's, and run for real by ``openjd run`` on a tiny shot: the export and the render chunks it makes equal a
+direct fit + export + render."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import os
 import re
 import subprocess
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -150,29 +152,48 @@ def _manifest(path: Path, run: Path) -> dict:
     return data
 
 
-@pytest.mark.slow
-def test_openjd_run_of_a_tiny_shot_equals_a_direct_fit_and_export(tmp_path):
-    frames, masks = write_clip(tmp_path / "clip")
-    shots = write_shots(tmp_path, [{"name": "sh010", "plate": "clip/frames", "masks": ["clip/masks"]}],
-                        {"preset": "draft", "set": TINY_SET, "export_chunk": 2, "preview": False})  # fmt: skip
-    _bundle(shots, tmp_path / "bundle")  # GPU requirements on: openjd run does not look at them
-    bundle = tmp_path / "bundle"
-    proc = _run([str(OPENJD), "run", str(bundle / "template.json"), "--step", "sh010-publish", "--run-dependencies",
-                 "-p", f"file://{bundle / 'job_parameters.json'}"], tmp_path)  # fmt: skip
-    ran = re.findall(r"Running step '([^']+)'", proc.stdout)
-    assert ran == ["sh010-fit", "sh010-atlases", "sh010-passes", "sh010-publish"]
-    assert re.findall(r"Frames\(STRING\) = (\S+)", proc.stdout) == ["0-1", "2-3", "4-4"]
-    assert "Chunks run: 6" in proc.stdout
+@dataclass(frozen=True)
+class _Runs:
+    """One tiny shot through ``openjd run`` and the same fit + export + render run directly."""
 
-    direct = tmp_path / "direct" / "sh010"  # as deep as runs/sh010: the manifests' relative paths agree
+    tmp: Path
+    farm_stdout: str
+    direct: Path  # the direct run folder
+
+    @property
+    def farm(self) -> Path:
+        return self.tmp / "runs" / "sh010"
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory) -> _Runs:
+    tmp = tmp_path_factory.mktemp("e2e")
+    frames, masks = write_clip(tmp / "clip")
+    shot = {"name": "sh010", "plate": "clip/frames", "masks": ["clip/masks"], "render": "renders/sh010"}
+    defaults = {"preset": "draft", "set": TINY_SET, "export_chunk": 2, "render_chunk": 3, "preview": False}
+    _bundle(write_shots(tmp, [shot], defaults), tmp / "bundle")  # GPU requirements on: openjd run ignores them
+    bundle = tmp / "bundle"
+    openjd = [str(OPENJD), "run", str(bundle / "template.json"), "-p", f"file://{bundle / 'job_parameters.json'}"]
+    farm = _run([*openjd, "--step", "sh010-publish", "--run-dependencies"], tmp).stdout
+
+    direct = tmp / "direct" / "sh010"  # as deep as runs/sh010: the manifests' relative paths agree
     sets = [x for s in TINY_SET for x in ("--set", s)]
     python = [sys.executable, "-m", C.CLI_MODULE]
     _run([*python, "fit", str(frames), "--out", str(direct), "--preset", "draft", *sets, "--mask", str(masks),
-          "--frames", "0-4", "--no-bar"], tmp_path)  # fmt: skip
-    _run([*python, "export", str(direct), "--frames", "0-4", "--no-bar"], tmp_path)
+          "--frames", "0-4", "--no-bar"], tmp)  # fmt: skip
+    _run([*python, "export", str(direct), "--frames", "0-4", "--no-bar"], tmp)
+    return _Runs(tmp, farm, direct)
 
-    farm, ours = tmp_path / "runs" / "sh010" / C.EXPORTS_DIR / "v001", direct / C.EXPORTS_DIR / "v001"
-    assert _manifest(farm / C.MANIFEST_NAME, farm.parent.parent) == _manifest(ours / C.MANIFEST_NAME, direct)
+
+@pytest.mark.slow
+def test_openjd_run_of_a_tiny_shot_equals_a_direct_fit_and_export(runs):
+    ran = re.findall(r"Running step '([^']+)'", runs.farm_stdout)
+    assert ran == ["sh010-fit", "sh010-atlases", "sh010-passes", "sh010-publish"]
+    assert re.findall(r"Frames\(STRING\) = (\S+)", runs.farm_stdout) == ["0-1", "2-3", "4-4"]
+    assert "Chunks run: 6" in runs.farm_stdout
+
+    farm, ours = runs.farm / C.EXPORTS_DIR / "v001", runs.direct / C.EXPORTS_DIR / "v001"
+    assert _manifest(farm / C.MANIFEST_NAME, runs.farm) == _manifest(ours / C.MANIFEST_NAME, runs.direct)
     files = sorted(p.relative_to(ours).as_posix() for p in ours.rglob("*") if p.is_file())
     assert sorted(p.relative_to(farm).as_posix() for p in farm.rglob("*") if p.is_file()) == files
     images = [f for f in files if f.endswith((".exr", ".png"))]
@@ -181,9 +202,25 @@ def test_openjd_run_of_a_tiny_shot_equals_a_direct_fit_and_export(tmp_path):
         (farm_channels, farm_pixels), (our_channels, our_pixels) = _pixels(farm / name), _pixels(ours / name)
         assert farm_channels == our_channels, name
         assert farm_pixels.dtype == our_pixels.dtype and np.array_equal(farm_pixels, our_pixels), name
-    for edit in sorted((direct / C.EDITS_DIR).glob("*.png")):
-        assert np.array_equal(_pixels(edit)[1], _pixels(farm.parent.parent / C.EDITS_DIR / edit.name)[1])
+    for edit in sorted((runs.direct / C.EDITS_DIR).glob("*.png")):
+        assert np.array_equal(_pixels(edit)[1], _pixels(runs.farm / C.EDITS_DIR / edit.name)[1])
     assert not list((farm.parent).glob(".v*")), "the staging folder became v001"
+
+
+@pytest.mark.slow
+def test_openjd_render_chunks_equal_a_direct_render(runs):
+    bundle = runs.tmp / "bundle"
+    proc = _run([str(OPENJD), "run", str(bundle / "template.json"), "-p", f"file://{bundle / 'job_parameters.json'}",
+                 "--step", "sh010-render", "--no-run-dependencies"], runs.tmp)  # fmt: skip
+    assert re.findall(r"Frames\(STRING\) = (\S+)", proc.stdout) == ["0-2", "3-4"]
+    manifest = runs.direct / C.EXPORTS_DIR / "v001" / C.MANIFEST_NAME
+    our_render, farm_render = runs.tmp / "direct_render", runs.tmp / "renders" / "sh010"
+    _run([sys.executable, "-m", C.CLI_MODULE, "render", str(manifest), "--out", str(our_render), "--no-bar"], runs.tmp)
+    rendered = sorted(p.name for p in our_render.iterdir())
+    assert len(rendered) == 5 and sorted(p.name for p in farm_render.iterdir()) == rendered
+    for name in rendered:
+        farm_frame, our_frame = _pixels(farm_render / name), _pixels(our_render / name)
+        assert farm_frame[0] == our_frame[0] and np.array_equal(farm_frame[1], our_frame[1]), name
 
 
 def test_farm_openjd_prints_a_progress_line_per_shot_then_the_templates_path(seq, tmp_path):
