@@ -361,6 +361,15 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
         "(8-bit sRGB) or plate (the plate's file type, bit depth and colour space: an empty edit gives the plate back)",
     )
     r.add_argument("--filter", default="bilinear", choices=["bilinear", "nearest"], help="texture filter")
+    r.add_argument(
+        "--frames",
+        type=frame_range,
+        default=None,
+        metavar="FIRST-LAST",
+        help="only these exported frames (the plate's frame numbers; default: every exported frame): one chunk of a "
+        "render several tasks share. Its frames join those other chunks wrote into --out (the files one whole render "
+        "writes); a chunk run again writes the same files again. With --movie: a movie of these frames",
+    )
     r.add_argument("--movie", default=None, metavar="FILE.mp4", help="also write an H.264 movie")
     r.add_argument("--no-bar", action="store_true", help="no progress bar on stderr")
     pf = sub.add_parser(
@@ -381,7 +390,8 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
         help="contact sheets and movies to judge an export: atlases, checkerboard, label propagation",
         description="Writes into MANIFEST's folder/preview (or --out, outside the run folder): atlases with "
         "coverage, a checkerboard mapped through each foreground atlas, and stripes painted on the first frame "
-        "propagated; all files appear together once written, or none does.",
+        "propagated; all files appear together once written, or none does. Run again (a retried task), it writes them "
+        "again and succeeds.",
         epilog=EXIT_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -416,6 +426,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
         filter=args.filter,
         movie=args.movie,
         progress_bar=not args.no_bar,
+        frames=args.frames,
     )
     return _print_paths([Path(out).resolve()])
 
@@ -467,7 +478,9 @@ def _add_masks_parser(sub: argparse._SubParsersAction) -> None:
         help="coarse foreground masks from motion, for a clip that has none",
         description="Find what moves against the background (a homography per frame pair fitted to the optical "
         "flow) and write one 8-bit PNG per frame (0 = background, 255 = foreground), named like the frames, to "
-        "check and fix before fitting. Existing files are never overwritten. The last line printed is the folder. "
+        "check and fix before fitting. Existing files are never overwritten: a folder holding these very masks (the "
+        "same command run before, e.g. a retried farm task) is left as it is and the command succeeds. The last line "
+        "printed is the folder. "
         "See docs/auto-masks.md.",
         epilog=EXIT_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
