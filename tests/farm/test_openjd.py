@@ -23,6 +23,7 @@ from engine import contract as C
 from engine.farm.plan import load_plan
 from tests.engine_cli import run_cli
 from tests.farm.farm_helpers import TINY_SET, two_shot_file, write_clip, write_shots
+from tests.folders import tree_digest
 from tests.paths import ROOT
 
 OPENJD = Path(sys.executable).parent / "openjd"
@@ -221,6 +222,19 @@ def test_openjd_render_chunks_equal_a_direct_render(runs):
     for name in rendered:
         farm_frame, our_frame = _pixels(farm_render / name), _pixels(our_render / name)
         assert farm_frame[0] == our_frame[0] and np.array_equal(farm_frame[1], our_frame[1]), name
+
+
+@pytest.mark.slow
+def test_the_whole_job_run_again_is_a_no_op(runs):
+    """What a farm's retry of any task does: the fit is finished, the version published; nothing changes."""
+    exports, checkpoint = runs.farm / C.EXPORTS_DIR, runs.farm / C.RUN_CHECKPOINT
+    before = (tree_digest(exports), checkpoint.read_bytes())
+    bundle = runs.tmp / "bundle"
+    proc = _run([str(OPENJD), "run", str(bundle / "template.json"), "-p", f"file://{bundle / 'job_parameters.json'}",
+                 "--step", "sh010-publish", "--run-dependencies"], runs.tmp)  # fmt: skip
+    assert "Chunks run: 6" in proc.stdout
+    assert (tree_digest(exports), checkpoint.read_bytes()) == before
+    assert sorted(p.name for p in exports.iterdir()) == ["v001"]
 
 
 def test_farm_openjd_prints_a_progress_line_per_shot_then_the_templates_path(seq, tmp_path):
