@@ -219,6 +219,14 @@ def build_parser(prog: str = "python -m engine") -> argparse.ArgumentParser:
         help="fit again into RUN_DIR although it holds a fit: its config, clip record, scene, checkpoint and "
         "metrics are replaced; its edit layers (edits/) and earlier exports (exports/) are kept as they are",
     )
+    f.add_argument(
+        C.FIT_RESUME_IF_STARTED_FLAG,
+        dest="resume_if_started",
+        action="store_true",
+        help="for a task a farm retries with the same arguments: RUN_DIR without a checkpoint starts the fit; with a "
+        "checkpoint of this same fit (the clip, masks, frames and --preset given are the recorded ones, --set "
+        "changes only the schedule, as for --resume) continues it; with this fit finished does nothing (exit 0)",
+    )
     f.add_argument("--no-bar", action="store_true", help="no progress bar on stderr (JSON lines only)")
     f.add_argument("--help-config", action="store_true", help="list every config field and exit")
     d = sub.add_parser(
@@ -235,6 +243,7 @@ def build_parser(prog: str = "python -m engine") -> argparse.ArgumentParser:
     _add_export_parsers(sub)
     _add_masks_parser(sub)
     _add_nuke_parser(sub)
+    _add_farm_parser(sub)
     return p
 
 
@@ -287,7 +296,8 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
         description="Export a fitted run for compositing into RUN_DIR/exports/vNNN (never overwritten), holding "
         "the run folder's lock. Passes are float32 EXR at the plate's native resolution; edit layers (RUN_DIR/edits) "
         "are created once and never overwritten. The manifest's paths are relative to it, so the run folder can move "
-        "with its plate. The last line printed is the manifest's path.",
+        "with its plate. The last line printed is the manifest's path (--stage atlases and passes: the staging "
+        "folder).",
         epilog=EXIT_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -295,17 +305,38 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
     x.add_argument(
         "--atlas-size",
         type=int,
-        default=C.ATLAS_SIZE_DEFAULT,
-        help=f"atlas texture long side in texels (default: {C.ATLAS_SIZE_DEFAULT})",
+        default=None,
+        help=f"atlas texture long side in texels (default: {C.ATLAS_SIZE_DEFAULT}; publish: the staged one)",
     )
     x.add_argument(
         "--frames",
         type=frame_range,
         default=None,
         metavar="FIRST-LAST",
-        help="inclusive range of the plate's frame numbers, as for fit (default: every fitted frame)",
+        help="inclusive range of the plate's frame numbers, as for fit (default: every fitted frame; passes: the "
+        "chunk to write, default the staged range)",
     )
     x.add_argument("--device", default="cpu", help="auto | cpu | cuda | mps (default: cpu)")
+    x.add_argument(
+        C.EXPORT_INTO_ARG,
+        dest="into",
+        default=None,
+        metavar="vNNN",
+        help=f"export into RUN_DIR/{C.EXPORTS_DIR}/vNNN (its manifest path is known before it runs) rather than the "
+        "next free version; already exported there with the same frames and atlas size: nothing to do, the "
+        "manifest's path is printed (a retried task succeeds); with others: refused",
+    )
+    x.add_argument(
+        C.EXPORT_STAGE_ARG,
+        dest="stage",
+        default=None,
+        choices=C.EXPORT_STAGES,
+        help=f"one part of the export {C.EXPORT_INTO_ARG} vNNN, for a farm: atlases (once, holding the lock: the "
+        f"layer frames and atlas textures into {C.EXPORTS_DIR}/.vNNN.chunks), passes --frames A-B (chunks, at once "
+        "on several hosts, no lock: frames already written are skipped, a cancel keeps the finished ones), publish "
+        "(once every chunk is done: edit layers, manifest and Nuke script, then the folder becomes vNNN). The files "
+        "are those of a whole export, byte for byte; each part run again is idempotent",
+    )
     x.add_argument("--no-bar", action="store_true", help="no progress bar on stderr")
     r = sub.add_parser(
         C.VERB_RENDER,
@@ -330,6 +361,15 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
         "(8-bit sRGB) or plate (the plate's file type, bit depth and colour space: an empty edit gives the plate back)",
     )
     r.add_argument("--filter", default="bilinear", choices=["bilinear", "nearest"], help="texture filter")
+    r.add_argument(
+        "--frames",
+        type=frame_range,
+        default=None,
+        metavar="FIRST-LAST",
+        help="only these exported frames (the plate's frame numbers; default: every exported frame): one chunk of a "
+        "render several tasks share. Its frames join those other chunks wrote into --out (the files one whole render "
+        "writes); a chunk run again writes the same files again. With --movie: a movie of these frames",
+    )
     r.add_argument("--movie", default=None, metavar="FILE.mp4", help="also write an H.264 movie")
     r.add_argument("--no-bar", action="store_true", help="no progress bar on stderr")
     pf = sub.add_parser(
@@ -350,7 +390,8 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
         help="contact sheets and movies to judge an export: atlases, checkerboard, label propagation",
         description="Writes into MANIFEST's folder/preview (or --out, outside the run folder): atlases with "
         "coverage, a checkerboard mapped through each foreground atlas, and stripes painted on the first frame "
-        "propagated; all files appear together once written, or none does.",
+        "propagated; all files appear together once written, or none does. Run again (a retried task), it writes them "
+        "again and succeeds.",
         epilog=EXIT_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -363,7 +404,13 @@ def _cmd_export(args: argparse.Namespace) -> int:
     from engine.export.exporter import export_run
 
     path = export_run(
-        args.run, atlas_size=args.atlas_size, frames=args.frames, device_name=args.device, progress_bar=not args.no_bar
+        args.run,
+        atlas_size=args.atlas_size,
+        frames=args.frames,
+        device_name=args.device,
+        progress_bar=not args.no_bar,
+        into=args.into,
+        stage=args.stage,
     )
     return _print_paths([path])
 
@@ -379,6 +426,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
         filter=args.filter,
         movie=args.movie,
         progress_bar=not args.no_bar,
+        frames=args.frames,
     )
     return _print_paths([Path(out).resolve()])
 
@@ -430,7 +478,9 @@ def _add_masks_parser(sub: argparse._SubParsersAction) -> None:
         help="coarse foreground masks from motion, for a clip that has none",
         description="Find what moves against the background (a homography per frame pair fitted to the optical "
         "flow) and write one 8-bit PNG per frame (0 = background, 255 = foreground), named like the frames, to "
-        "check and fix before fitting. Existing files are never overwritten. The last line printed is the folder. "
+        "check and fix before fitting. Existing files are never overwritten: a folder holding these very masks (the "
+        "same command run before, e.g. a retried farm task) is left as it is and the command succeeds. The last line "
+        "printed is the folder. "
         "See docs/auto-masks.md.",
         epilog=EXIT_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -469,6 +519,114 @@ def _cmd_masks(args: argparse.Namespace) -> int:
     return C.EXIT_OK
 
 
+def _add_farm_parser(sub: argparse._SubParsersAction) -> None:
+    """``farm plan|openjd|dask|flamenco SHOTS``: a sequence's shots on the schedulers studios already run. The
+    back ends' own parsers come from their modules, imported here only for their parser (light; the scheduler
+    libraries load when one runs)."""
+    farm = sub.add_parser(
+        C.VERB_FARM,
+        help="fit, export and render the shots of a sequence on a farm (OpenJD/Deadline Cloud, Dask, Flamenco)",
+        description="Plan every shot of a shots file (docs/farm.md) as engine commands with their dependencies: "
+        "masks (auto_masks) -> fit -> export atlases -> export passes per frame chunk -> publish -> render per "
+        "frame chunk -> preview; every back end runs exactly these command lines.",
+        epilog=EXIT_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    commands = farm.add_subparsers(dest="farm_command", metavar="COMMAND", required=True)
+    shots_help = "the shots file (.toml or .json; relative paths are relative to it)"
+    plan = commands.add_parser(C.FARM_PLAN, help="print every task's engine arguments and dependencies")
+    plan.add_argument("shots", metavar="SHOTS", help=shots_help)
+    plan.add_argument("--json", action="store_true", help="one JSON object: the shots and their tasks")
+    oj = commands.add_parser(
+        C.FARM_OPENJD,
+        help="write an Open Job Description bundle (AWS Deadline Cloud; `openjd run`)",
+        description="Write BUNDLE_DIR/template.json, parameter_values.json and asset_references.json (Deadline "
+        "Cloud's job bundle) and job_parameters.json (`openjd run BUNDLE_DIR/template.json -p "
+        "file://BUNDLE_DIR/job_parameters.json`). The last line printed is the template's path.",
+    )
+    oj.add_argument("shots", metavar="SHOTS", help=shots_help)
+    oj.add_argument("--out", required=True, metavar="BUNDLE_DIR", help="the bundle's folder (created)")
+    oj.add_argument(
+        "--engine-python",
+        default=sys.executable,
+        metavar="PYTHON",
+        help="the engine's Python on the workers (default: this one; the EnginePython job parameter)",
+    )
+    oj.add_argument(
+        "--engine-path",
+        default=str(Path(__file__).resolve().parent.parent),
+        metavar="DIR",
+        help="the folder holding engine/ on the workers, put on PYTHONPATH (default: this engine's; '' when the "
+        "engine is installed in the workers' Python)",
+    )
+    oj.add_argument("--no-gpu", action="store_true", help="no GPU host requirement on the fit and export steps")
+    oj.add_argument("--name", default=None, help="the job's name (default: the shots file's name)")
+    try:
+        from engine.farm.dask_backend import add_dask_parser
+
+        add_dask_parser(commands)
+    except ImportError as exc:  # a back end whose module or library is missing: its command says so
+        _add_missing_farm_parser(commands, C.FARM_DASK, exc)
+    try:
+        from engine.farm.flamenco import add_flamenco_parser
+
+        add_flamenco_parser(commands)
+    except ImportError as exc:
+        _add_missing_farm_parser(commands, C.FARM_FLAMENCO, exc)
+
+
+def _add_missing_farm_parser(commands: argparse._SubParsersAction, command: str, exc: ImportError) -> None:
+    missing = commands.add_parser(command, help=f"(not available: {exc})")
+    missing.add_argument("rest", nargs=argparse.REMAINDER)
+    missing.set_defaults(farm_missing=f"{exc}")
+
+
+def _cmd_farm(args: argparse.Namespace) -> int:
+    """Plan, then hand the plan to the back end; progress per shot as JSON lines, the result's path last."""
+    import json
+
+    missing = getattr(args, "farm_missing", None)
+    if missing is not None:
+        raise InputError(
+            None, f"farm {args.farm_command} is not available ({missing})", "install the engine's farm extra"
+        )
+    if args.farm_command == C.FARM_DASK:
+        from engine.farm.dask_backend import run_dask
+
+        return run_dask(args)
+    if args.farm_command == C.FARM_FLAMENCO:
+        from engine.farm.flamenco import run_flamenco
+
+        return run_flamenco(args)
+    from engine.farm.plan import plan_with_shots, task_graph_text
+    from engine.farm.shots import load_shots
+
+    shots = load_shots(args.shots)
+    plan, shot_plans = plan_with_shots(shots)
+    if args.farm_command == C.FARM_PLAN:
+        if args.json:
+            print(json.dumps({"schema": C.SCHEMA_VERSION, **plan.to_json()}, indent=2))
+        else:
+            print(task_graph_text(plan))
+        return C.EXIT_OK
+    from engine.farm.openjd import write_bundle
+
+    files = write_bundle(
+        plan,
+        shot_plans,
+        args.out,
+        name=args.name or f"Neural Atlas {shots.path.stem}",
+        gpu=not args.no_gpu,
+        python=args.engine_python,
+        engine_path=args.engine_path,
+    )
+    for sp in shot_plans:
+        name, count = sp.shot.name, len(plan.shot_tasks(sp.shot.name))
+        message = f"{name}: {count} tasks, export {sp.version}"
+        print(C.progress_line(C.EVENT_STAGE, stage=C.VERB_FARM, shot=name, tasks=count, message=message))
+    return _print_paths(files[:1])
+
+
 def _cmd_fit(args: argparse.Namespace) -> int:
     from engine.config import apply_overrides, config_help, parse_set_args, preset_config
 
@@ -481,10 +639,18 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         raise InputError(
             None, "--resume and --refit both given", "pass --resume to continue the fit, or --refit to fit again"
         )
+    if args.resume_if_started and (args.resume or args.refit):
+        raise InputError(
+            None,
+            f"{C.FIT_RESUME_IF_STARTED_FLAG} with --{'resume' if args.resume else 'refit'}",
+            f"pass {C.FIT_RESUME_IF_STARTED_FLAG} alone: it starts, continues or leaves the fit as RUN_DIR holds it",
+        )
     from engine.fit.run_folder import RunFolder
     from engine.fit.trainer import FitCancelled, fit
 
     run_dir = Path(args.out)
+    if args.resume_if_started and not _start_or_resume(args, run_dir):
+        return C.EXIT_OK  # this fit is finished already
     if args.resume:
         cfg = RunFolder(run_dir).read_config()
         if args.preset is not None and args.preset != cfg.preset:
@@ -495,9 +661,14 @@ def _cmd_fit(args: argparse.Namespace) -> int:
             )
     else:
         cfg = preset_config(args.preset or DEFAULT_PRESET)
+    if args.resume_if_started and args.resume:  # the config the fit started with, as the same argv builds it
+        cfg = preset_config(args.preset or DEFAULT_PRESET)
     cfg = apply_overrides(cfg, parse_set_args(args.set))
     if args.resume and args.frames is not None:  # the recorded plate, numbered as it was fitted
         record = RunFolder(run_dir).read_clip()
+        missing = record.missing_input(run_dir)
+        if missing is not None:
+            raise missing
         frames = _positions(record.source, args.frames, record.movie_start)
     else:
         frames = _positions(args.clip, args.frames, args.start_frame)
@@ -527,6 +698,29 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     return C.EXIT_OK
+
+
+def _start_or_resume(args: argparse.Namespace, run_dir: Path) -> bool:
+    """``fit --resume-if-started``: sets ``args.resume`` when RUN_DIR holds a checkpoint of this same fit; False when
+    it holds this fit finished (said on stderr: nothing to do); a different fit there is one line."""
+    from engine.config import apply_overrides, parse_set_args, preset_config
+    from engine.fit.run_folder import RunFolder
+    from engine.fit.trainer import FIT_FINISHED, FIT_NEW, fit_state
+
+    run = RunFolder(run_dir)
+    if not run.checkpoint.exists():
+        return True
+    cfg = apply_overrides(preset_config(args.preset or DEFAULT_PRESET), parse_set_args(args.set))
+    record = run.read_clip()
+    frames = _positions(record.source, args.frames, record.movie_start) if args.frames is not None else None
+    state = fit_state(run_dir, args.clip, args.mask, cfg, frames, args.scribbles, args.colorspace)
+    if state == FIT_FINISHED:
+        metrics = run.read_metrics() or {}
+        print(f"already fitted: {metrics.get('steps')} steps, PSNR {metrics.get('psnr')} dB -> {run_dir}",
+              file=sys.stderr)  # fmt: skip
+        return False
+    args.resume = state != FIT_NEW
+    return True
 
 
 def _cancelled_line(args: argparse.Namespace, exc: KeyboardInterrupt) -> str:
@@ -570,6 +764,7 @@ def _run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
             C.VERB_ESTIMATE: _cmd_estimate,
             C.VERB_MASKS: _cmd_masks,
             C.VERB_NUKE: _cmd_nuke,
+            C.VERB_FARM: _cmd_farm,
         }
         if args.verb in handlers:
             return handlers[args.verb](args)
