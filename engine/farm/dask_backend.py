@@ -249,16 +249,16 @@ def _check_resources(client: Any, address: str, resources: dict[str, float]) -> 
             )
 
 
-def _connect(address: str) -> Any:
+def _connect(address: str, timeout: float) -> Any:
     from distributed import Client
 
     try:
-        return Client(address, timeout=CONNECT_SECONDS, set_as_default=False)
+        return Client(address, timeout=timeout, set_as_default=False)
     except (OSError, TimeoutError) as exc:
         raise InputError(
             address,
             f"no Dask scheduler answers ({type(exc).__name__})",
-            "start one (dask scheduler) or fix --scheduler",
+            "start `dask scheduler`, or fix --scheduler",
         ) from None
 
 
@@ -274,6 +274,7 @@ def run_plan(
     threads: int | None = None,
     lock_wait: float = LOCK_WAIT_SECONDS,
     stream: TextIO | None = None,
+    connect_timeout: float = CONNECT_SECONDS,
 ) -> FarmResult:
     """Run every task of ``plan`` on the Dask scheduler at ``scheduler_address`` and wait for them all.
 
@@ -285,7 +286,7 @@ def run_plan(
     token = uuid.uuid4().hex[:12]  # unique keys: a plan submitted twice runs twice
     start = time.monotonic()
     result = FarmResult()
-    client = _connect(scheduler_address)
+    client = _connect(scheduler_address, connect_timeout)
     try:
         _check_resources(client, scheduler_address, fit_resources or {})
         futures: dict[str, Any] = {}
@@ -382,6 +383,13 @@ def add_dask_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         metavar="SECONDS",
         help="how long a task waits for a run folder another engine still holds (default: %(default)s)",
     )
+    d.add_argument(
+        "--connect-timeout",
+        type=float,
+        default=CONNECT_SECONDS,
+        metavar="SECONDS",
+        help="how long to try reaching the scheduler (default: %(default)s)",
+    )
     return d
 
 
@@ -399,6 +407,7 @@ def run_dask(args: argparse.Namespace) -> int:
         retries=args.retries,
         threads=args.threads,
         lock_wait=args.lock_wait,
+        connect_timeout=args.connect_timeout,
     )
     line = summary_line(plan, result)
     if result.ok:
