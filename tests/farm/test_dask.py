@@ -32,16 +32,16 @@ from tests.paths import ROOT
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG and /proc are Linux's")
 
-STEPS = 150
+STEPS = 80
 FIT_SETS = [
     f"steps={STEPS}",
     "batch=2000",
     "eval_every=10",
     "bootstrap_steps=50",
     "global_rigidity_steps=50",
-    "checkpoint_seconds=0.5",
+    "checkpoint_seconds=0.3",
 ]
-FRAMES = 12
+FRAMES = 8
 #: Bounds of the waits (the machine is shared and slow; each is far above what a run needs).
 CHECKPOINT_WAIT = 90.0
 CHILD_EXIT_WAIT = 30.0
@@ -52,9 +52,12 @@ def write_shots(tmp: Path) -> Path:
     """Two tiny synthetic shots (different seeds), draft with a tiny schedule, exports in chunks of 6 frames."""
     shots = []
     for seed, name in enumerate(("a", "b")):
-        frames, masks = write_scene(make_scene(SceneSpec(frames=FRAMES, seed=seed)), tmp / "clips" / name)
+        frames, masks = write_scene(
+            make_scene(SceneSpec(frames=FRAMES, width=128, height=72, fg_size=(28, 20), seed=seed)),
+            tmp / "clips" / name,
+        )
         shots.append({"name": name, "plate": str(frames), "masks": [str(masks)]})
-    defaults = {"preset": "draft", "set": FIT_SETS, "device": "cpu", "export_chunk": 6, "preview": False}
+    defaults = {"preset": "draft", "set": FIT_SETS, "device": "cpu", "export_chunk": 4, "preview": False}
     path = tmp / "shots.json"
     path.write_text(json.dumps({C.SHOTS_TAG: C.SHOTS_VERSION, C.SHOTS_DEFAULTS_KEY: defaults, "shots": shots}))
     return path
