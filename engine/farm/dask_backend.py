@@ -262,6 +262,22 @@ def _connect(address: str, timeout: float) -> Any:
         ) from None
 
 
+def _failure(task_id: str, key: Any, exc: BaseException) -> dict[str, Any]:
+    """A task's outcome from the exception Dask handed its future: its own failure, or a dependency's."""
+    from distributed.scheduler import KilledWorker
+
+    if isinstance(exc, KilledWorker):
+        if exc.task != key:
+            return {"state": STATE_SKIPPED, "error": f"a task before it lost {exc.allowed_failures + 1} workers"}
+        error = f"{exc.allowed_failures + 1} workers died while running it (the engine's log: its run folder)"
+        return {"state": STATE_FAILED, "error": error}
+    text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    if isinstance(exc, TaskFailed) and text.startswith(f"{task_id}: "):
+        # its own engine failed and the retries are spent: "exit N: <the engine's last stderr line>"
+        return {"state": STATE_FAILED, "error": text[len(task_id) + 2 :]}
+    return {"state": STATE_SKIPPED, "error": text}  # a dependency's failure, handed on by Dask
+
+
 def _emit(stream: TextIO, event: str, **fields: Any) -> None:
     print(C.progress_line(event, **fields), file=stream, flush=True)
 
@@ -311,9 +327,7 @@ def run_plan(
             try:
                 record = future.result()
             except Exception as exc:  # retries spent, or a dependency's failure: Dask hands on the exception
-                text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-                own = text.startswith(f"{task.id}:")
-                record = {"id": task.id, "state": STATE_FAILED if own else STATE_SKIPPED, "error": text}
+                record = {"id": task.id, **_failure(task.id, future.key, exc)}
             result.results[task.id] = record
             finished[task.shot] += 1
             total = len(plan.shot_tasks(task.shot))

@@ -264,3 +264,32 @@ def test_farm_dask_without_a_scheduler_is_one_line(tmp_path: Path) -> None:
     assert proc.stderr.strip().splitlines() == [
         f"error: {address}: no Dask scheduler answers (OSError) — start `dask scheduler`, or fix --scheduler"
     ]
+
+
+def test_farm_dask_bad_input_fails_the_task_and_skips_what_follows(tmp_path: Path) -> None:
+    """A fit refused for bad input (exit 2) is not retried: its shot's later tasks are skipped, and `farm dask`
+    exits 1 naming the task and the engine's one line."""
+    frames, masks = write_scene(make_scene(SceneSpec(frames=4, width=64, height=48, seed=0)), tmp_path / "clip")
+    few = tmp_path / "few_masks"
+    few.mkdir()
+    (few / "00000.png").write_bytes((masks / "00000.png").read_bytes())
+    shots_file = tmp_path / "shots.json"
+    shot = {"name": "a", "plate": str(frames), "masks": [str(few)]}
+    shots_file.write_text(json.dumps({C.SHOTS_TAG: C.SHOTS_VERSION, "defaults": {"preview": False}, "shots": [shot]}))
+    plan = load_plan(shots_file)
+    with local_dask(tmp_path / "cluster", 1) as cluster:
+        argv = [sys.executable, "-m", C.CLI_MODULE, C.VERB_FARM, C.FARM_DASK, str(shots_file)]
+        argv += ["--scheduler", cluster.address, "--retries", "3"]
+        proc = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == C.EXIT_FAILED, proc.stderr
+    (line,) = proc.stderr.strip().splitlines()
+    assert line.startswith(f"error: farm dask: 1 shot(s), 0/{len(plan.tasks)} tasks done in ")
+    assert line.endswith(
+        f"; task a.fit failed: error: {few}: 1 mask files for a clip of 4 selected frames — provide one mask per "
+        "frame, named with the frame numbers (e.g. 00012.png for frame 00012) or exactly one per frame in the same "
+        "order"
+    )
+    messages = [json.loads(m) for m in proc.stdout.splitlines()]
+    states = {m["task"]: m["state"] for m in messages if m["event"] == C.EVENT_PROGRESS}
+    assert states == {t.id: "failed" if t.kind == "fit" else "skipped" for t in plan.tasks}
+    assert [(m["shot"], m["ok"]) for m in messages if m["event"] == C.EVENT_DONE] == [("a", False)]

@@ -29,7 +29,7 @@ def test_bench_farm_times_both_routes_and_their_exports_agree(
         write_scene(make_scene(SceneSpec(frames=6, width=96, height=64, seed=seed)), tmp_path / name)
         clips.append(str(tmp_path / name))
     out = tmp_path / "bench"
-    argv = ["farm", *clips, "--out", str(out), "--cores", "1", "--export-chunk", "3"]
+    argv = ["farm", *clips, "--out", str(out), "--cores", "1", "--export-chunk", "6"]
     for override in TINY:
         argv += ["--set", override]
     assert main(argv) == C.EXIT_OK
