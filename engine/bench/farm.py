@@ -255,20 +255,34 @@ def _file_diff(name: str, a: bytes, b: bytes, folders: tuple[Path, Path]) -> flo
     return math.inf
 
 
+def _psnr(run: Path) -> float | None:
+    try:
+        return float(json.loads((run / C.RUN_METRICS).read_text())["psnr"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
 def compare_exports(run_a: Path, run_b: Path) -> dict[str, Any]:
-    """Two run folders' exports compared: the same files, and the largest difference of their floats (EXR
-    pixels, manifest numbers) and of their 8-bit PNGs. Two routes fit with different torch thread counts, whose
-    float sums round differently (~1e-7), and a PNG code value can then round the other way (1/255)."""
+    """Two run folders' exports compared: the same files, how many have the same bytes, the largest difference
+    of their floats (EXR pixels, manifest numbers) and of their PNGs (None: a file differs in shape or text), and
+    each fit's PSNR. With the same torch thread count the routes give the same bytes; with different counts float
+    sums round differently, training amplifies that, and the PSNRs say whether the fits are equally good."""
     fa, fb = export_files(run_a), export_files(run_b)
     diffs = {name: _file_diff(name, fa[name], fb[name], (run_a, run_b)) for name in fa if name in fb}
     floats = [d for n, d in diffs.items() if not n.endswith(".png")]
     pngs = [d for n, d in diffs.items() if n.endswith(".png")]
+
+    def largest(values: list[float]) -> float | None:
+        worst = max(values, default=0.0)
+        return None if math.isinf(worst) else worst
+
     return {
         "files": len(fa),
         "same_files": sorted(fa) == sorted(fb),
         "identical_files": sum(fa[n] == fb[n] for n in diffs),
-        "max_float_diff": max(floats, default=0.0),
-        "max_png_diff": max(pngs, default=0.0),
+        "max_float_diff": largest(floats),
+        "max_png_diff": largest(pngs),
+        "psnr": [_psnr(run_a), _psnr(run_b)],
     }
 
 
@@ -288,12 +302,19 @@ def run_farm_bench(
     names = [c.name for c in clips]
     if len(set(names)) != len(names):
         raise InputError(None, f"two clips share a name ({names})", "pass clip folders with different names")
+    if workers < 1 or (cores is not None and cores < 1):
+        raise InputError(None, "--workers and --cores must be at least 1", "pass e.g. --workers 2")
     cores = cores or os.cpu_count() or 1
     per_worker = max(1, cores // workers)
     out = out.resolve()
-    if out.exists():
-        shutil.rmtree(out)
-    out.mkdir(parents=True)
+    ours = {ROUTE_SEQUENTIAL, ROUTE_DASK, FARM_BENCH_JSON}
+    if out.is_dir() and not set(os.listdir(out)) <= ours:
+        raise InputError(out, "holds files other than an earlier farm bench's", "pass a new or empty --out folder")
+    for name in ours:  # an earlier measurement's runs: fitted again from scratch
+        shutil.rmtree(out / name, ignore_errors=True)
+        with contextlib.suppress(FileNotFoundError, IsADirectoryError):
+            (out / name).unlink()
+    out.mkdir(parents=True, exist_ok=True)
     sets = list(overrides or [])
     record: dict[str, Any] = {
         "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
@@ -323,6 +344,17 @@ def run_farm_bench(
     return record
 
 
+def _export_summary(name: str, e: dict[str, Any]) -> str:
+    same = "the same files" if e["same_files"] else "different files"
+    text = f"{name}: {same}, {e['identical_files']}/{e['files']} byte for byte"
+    if e["max_float_diff"] is not None and e["max_png_diff"] is not None:
+        text += f", values within {max(e['max_float_diff'], e['max_png_diff']):.2g}"
+    psnr = e["psnr"]
+    if None not in psnr:
+        text += f", PSNR {psnr[0]:.2f} / {psnr[1]:.2f} dB"
+    return text
+
+
 def format_table(record: dict[str, Any]) -> str:
     """The measurement as markdown: when, where, how, then one row per route and the ratio."""
     m, routes = record["machine"], record["routes"]
@@ -341,12 +373,8 @@ def format_table(record: dict[str, Any]) -> str:
         "",
         f"Ratio (one after another / Dask): **{record['ratio']:.2f}x**.",
         "",
-        "Exports of the two routes: "
-        + "; ".join(
-            f"{name}: {e['identical_files']}/{e['files']} files identical, floats within {e['max_float_diff']:.1g}, "
-            f"8-bit PNGs within {round(e['max_png_diff'] * 255)}/255"
-            for name, e in record["exports"].items()
-        )
+        "Exports of the two routes (one after another / Dask): "
+        + "; ".join(_export_summary(name, e) for name, e in record["exports"].items())
         + ".",
     ]
     return "\n".join(lines)

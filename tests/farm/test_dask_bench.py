@@ -61,11 +61,16 @@ def test_bench_farm_times_both_routes_and_their_exports_agree(
         assert sorted(files[0]) == sorted(files[1])
         manifest = f"{C.EXPORTS_DIR}/v001/{C.MANIFEST_NAME}"
         assert [f for f in files[0] if files[0][f] != files[1][f]] == [manifest]
+        psnr = record["exports"][name]["psnr"]
+        assert isinstance(psnr[0], float) and psnr[0] == psnr[1]
         assert record["exports"][name] == {
             "files": len(files[0]),
             "same_files": True,
             "identical_files": len(files[0]) - 1,
             "max_float_diff": 0.0,
             "max_png_diff": 0.0,
+            "psnr": psnr,
         }
-    assert any(line.startswith("Exports of the two routes: shot-a: ") for line in printed)
+    psnr = record["exports"]["shot-a"]["psnr"][0]
+    summary = f"shot-a: the same files, 11/12 byte for byte, values within 0, PSNR {psnr:.2f} / {psnr:.2f} dB; "
+    assert any(line.startswith("Exports of the two routes (one after another / Dask): " + summary) for line in printed)
