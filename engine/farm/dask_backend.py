@@ -18,7 +18,14 @@ it safe is that the forking thread is the waiting thread: ``_run_child`` forks, 
 ``finally``, terminates and reaps it before it returns or raises. The thread can therefore not exit while
 the child runs, and the signal fires exactly when the worker process dies. (A long-lived launcher thread
 would give the same guarantee, with a queue and a second thread to get wrong.) A worker that dies between
-the fork and the ``prctl`` is caught by comparing the parent's pid right after it.
+the fork and the ``prctl`` is caught by comparing the parent's pid right after it. The engine's output goes to
+unnamed temporary files, not pipes, so a dead worker leaves no broken pipe under the checkpointing engine.
+Elsewhere (macOS, Windows) there is no such signal: a killed worker's engine runs on to its end, and the retry
+waits for its lock.
+
+Stopping ``farm dask`` (Ctrl-C) releases the tasks that have not started; a task already running finishes on
+its worker (Dask cannot interrupt a running task); running the command again continues each fit from its
+checkpoint.
 
 A task whose engine exits 2 (bad input) or 4 (the fit diverged) fails at once: the same argv would fail the
 same way, and Dask retries every exception, so such a task returns a failed result instead of raising, and
