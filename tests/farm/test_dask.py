@@ -293,3 +293,12 @@ def test_farm_dask_bad_input_fails_the_task_and_skips_what_follows(tmp_path: Pat
     states = {m["task"]: m["state"] for m in messages if m["event"] == C.EVENT_PROGRESS}
     assert states == {t.id: "failed" if t.kind == "fit" else "skipped" for t in plan.tasks}
     assert [(m["shot"], m["ok"]) for m in messages if m["event"] == C.EVENT_DONE] == [("a", False)]
+
+
+def test_dask_runs_the_plans_command_lines(tmp_path: Path) -> None:
+    """What a worker runs for each task is the plan's own command line, with the worker's Python."""
+    plan = load_plan(write_shots(tmp_path))
+    python = "/opt/engine/bin/python"
+    for task in plan.tasks:
+        assert dask_backend.engine_argv(task.args, python) == task.argv(python)
+        assert dask_backend.engine_argv(task.args) == task.argv(sys.executable)
