@@ -361,6 +361,15 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
         "(8-bit sRGB) or plate (the plate's file type, bit depth and colour space: an empty edit gives the plate back)",
     )
     r.add_argument("--filter", default="bilinear", choices=["bilinear", "nearest"], help="texture filter")
+    r.add_argument(
+        "--frames",
+        type=frame_range,
+        default=None,
+        metavar="FIRST-LAST",
+        help="only these exported frames (the plate's frame numbers; default: every exported frame): one chunk of a "
+        "render several tasks share. Its frames join those other chunks wrote into --out (the files one whole render "
+        "writes); a chunk run again writes the same files again. With --movie: a movie of these frames",
+    )
     r.add_argument("--movie", default=None, metavar="FILE.mp4", help="also write an H.264 movie")
     r.add_argument("--no-bar", action="store_true", help="no progress bar on stderr")
     pf = sub.add_parser(
@@ -381,7 +390,8 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
         help="contact sheets and movies to judge an export: atlases, checkerboard, label propagation",
         description="Writes into MANIFEST's folder/preview (or --out, outside the run folder): atlases with "
         "coverage, a checkerboard mapped through each foreground atlas, and stripes painted on the first frame "
-        "propagated; all files appear together once written, or none does.",
+        "propagated; all files appear together once written, or none does. Run again (a retried task), it writes them "
+        "again and succeeds.",
         epilog=EXIT_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -416,6 +426,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
         filter=args.filter,
         movie=args.movie,
         progress_bar=not args.no_bar,
+        frames=args.frames,
     )
     return _print_paths([Path(out).resolve()])
 
@@ -467,7 +478,9 @@ def _add_masks_parser(sub: argparse._SubParsersAction) -> None:
         help="coarse foreground masks from motion, for a clip that has none",
         description="Find what moves against the background (a homography per frame pair fitted to the optical "
         "flow) and write one 8-bit PNG per frame (0 = background, 255 = foreground), named like the frames, to "
-        "check and fix before fitting. Existing files are never overwritten. The last line printed is the folder. "
+        "check and fix before fitting. Existing files are never overwritten: a folder holding these very masks (the "
+        "same command run before, e.g. a retried farm task) is left as it is and the command succeeds. The last line "
+        "printed is the folder. "
         "See docs/auto-masks.md.",
         epilog=EXIT_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -506,19 +519,10 @@ def _cmd_masks(args: argparse.Namespace) -> int:
     return C.EXIT_OK
 
 
-#: The farm back ends other modules add: (command, module, its parser function, its run function).
-FARM_BACKENDS: tuple[tuple[str, str, str, str], ...] = (
-    (C.FARM_DASK, "engine.farm.dask_backend", "add_dask_parser", "run_dask"),
-    (C.FARM_FLAMENCO, "engine.farm.flamenco", "add_flamenco_parser", "run_flamenco"),
-)
-
-
 def _add_farm_parser(sub: argparse._SubParsersAction) -> None:
     """``farm plan|openjd|dask|flamenco SHOTS``: a sequence's shots on the schedulers studios already run. The
     back ends' own parsers come from their modules, imported here only for their parser (light; the scheduler
     libraries load when one runs)."""
-    import importlib
-
     farm = sub.add_parser(
         C.VERB_FARM,
         help="fit, export and render the shots of a sequence on a farm (OpenJD/Deadline Cloud, Dask, Flamenco)",
@@ -557,18 +561,28 @@ def _add_farm_parser(sub: argparse._SubParsersAction) -> None:
     )
     oj.add_argument("--no-gpu", action="store_true", help="no GPU host requirement on the fit and export steps")
     oj.add_argument("--name", default=None, help="the job's name (default: the shots file's name)")
-    for command, module, add_parser, _ in FARM_BACKENDS:
-        try:
-            getattr(importlib.import_module(module), add_parser)(commands)
-        except ImportError as exc:  # a back end whose module or library is missing: its command says so
-            missing = commands.add_parser(command, help=f"(not available: {exc})")
-            missing.add_argument("rest", nargs=argparse.REMAINDER)
-            missing.set_defaults(farm_missing=f"{exc}")
+    try:
+        from engine.farm.dask_backend import add_dask_parser
+
+        add_dask_parser(commands)
+    except ImportError as exc:  # a back end whose module or library is missing: its command says so
+        _add_missing_farm_parser(commands, C.FARM_DASK, exc)
+    try:
+        from engine.farm.flamenco import add_flamenco_parser
+
+        add_flamenco_parser(commands)
+    except ImportError as exc:
+        _add_missing_farm_parser(commands, C.FARM_FLAMENCO, exc)
+
+
+def _add_missing_farm_parser(commands: argparse._SubParsersAction, command: str, exc: ImportError) -> None:
+    missing = commands.add_parser(command, help=f"(not available: {exc})")
+    missing.add_argument("rest", nargs=argparse.REMAINDER)
+    missing.set_defaults(farm_missing=f"{exc}")
 
 
 def _cmd_farm(args: argparse.Namespace) -> int:
     """Plan, then hand the plan to the back end; progress per shot as JSON lines, the result's path last."""
-    import importlib
     import json
 
     missing = getattr(args, "farm_missing", None)
@@ -576,10 +590,14 @@ def _cmd_farm(args: argparse.Namespace) -> int:
         raise InputError(
             None, f"farm {args.farm_command} is not available ({missing})", "install the engine's farm extra"
         )
-    for command, module, _, run in FARM_BACKENDS:
-        if args.farm_command == command:
-            result: int = getattr(importlib.import_module(module), run)(args)
-            return result
+    if args.farm_command == C.FARM_DASK:
+        from engine.farm.dask_backend import run_dask
+
+        return run_dask(args)
+    if args.farm_command == C.FARM_FLAMENCO:
+        from engine.farm.flamenco import run_flamenco
+
+        return run_flamenco(args)
     from engine.farm.plan import plan_with_shots, task_graph_text
     from engine.farm.shots import load_shots
 

@@ -114,6 +114,9 @@ SHOT_DEFAULT_KEYS: tuple[str, ...] = (
     "preview",  # write the export's preview sheets (default true)
 )
 SHOT_REQUIRED_KEYS: tuple[str, ...] = ("name", "plate")
+#: A shot's name: letters, digits, ``-`` and ``_``, starting with a letter or digit, at most this long: it names the
+#: shot's tasks, its run folder and (with a kind: ``sh010-atlases``) an OpenJD step, whose names hold 64 characters.
+SHOT_NAME_MAX = 48
 SHOT_KEYS: tuple[str, ...] = (
     *SHOT_REQUIRED_KEYS,
     "masks",  # mask folders, one per foreground layer

@@ -450,9 +450,12 @@ class MasksReport:
     result: AutoMasks
     iou: np.ndarray | None = None
     """Per-frame IoU against ``truth`` when it was given, at the clip's resolution (the written masks)."""
+    reused: bool = False
+    """The folder held this very set already (the same command run before): it was left as it is."""
 
     def summary(self) -> list[str]:
-        lines = [f"auto masks: {self.result.message}"]
+        again = " (the folder held these very masks already: left as they are)" if self.reused else ""
+        lines = [f"auto masks: {self.result.message}{again}"]
         if self.iou is not None and len(self.iou):
             lines.append(f"IoU against the given masks: mean {self.iou.mean():.3f}, min {self.iou.min():.3f}")
         return lines
@@ -465,9 +468,10 @@ def mask_file_names(info: ClipInfo) -> list[str]:
     return [f"{n:05d}.png" for n in info.frame_numbers]
 
 
-def mask_folder(info: ClipInfo, out: str | Path) -> tuple[Path, list[str]]:
+def mask_folder(info: ClipInfo, out: str | Path, whole_set: bool = False) -> tuple[Path, list[str]]:
     """The folder the masks of ``info`` go to and their file names; a one-line error when the folder is a file,
-    the clip's own frame folder, or already holds one of the names (masks are never overwritten)."""
+    the clip's own frame folder, or already holds one of the names (masks are never overwritten) but, with
+    ``whole_set``, for every one of them (the caller compares them with the set it would write)."""
     folder = Path(out).expanduser().resolve()
     if folder.exists() and not folder.is_dir():
         raise InputError(folder, "is a file, not a folder", "pass a folder for the masks with --out")
@@ -477,9 +481,20 @@ def mask_folder(info: ClipInfo, out: str | Path) -> tuple[Path, list[str]]:
         )
     names = mask_file_names(info)
     clash = [n for n in names if (folder / n).exists()]
-    if clash:
+    if clash and not (whole_set and len(clash) == len(names)):
         raise _already_holds(folder, clash)
     return folder, names
+
+
+def _holds_the_same(folder: Path, names: list[str], masks: np.ndarray) -> bool:
+    """Whether ``folder`` holds every mask of the set, each file byte for byte what ``write_mask_files`` writes."""
+    for name, mask in zip(names, masks, strict=True):
+        try:
+            if (folder / name).read_bytes() != _encode_mask(mask, name):
+                return False
+        except OSError:
+            return False
+    return True
 
 
 #: The hidden folder a set of masks is assembled in, beside its destination (same file system, so publishing is a
@@ -613,9 +628,10 @@ def write_auto_masks(
 ) -> MasksReport:
     """Find masks for ``clip`` and write them to ``out`` as 8-bit 0/255 PNGs at the clip's resolution,
     named like the frames, all or nothing (``write_mask_files``). Never overwrites: a folder already holding one
-    of those names is refused. ``say`` receives a progress line before the slow part. ``colorspace``: the clip's
-    colour space (default: ``engine.io.colour.default_colorspace``); the motion is found in the fit's working
-    encoding."""
+    of those names is refused, but for a folder holding these very masks (the same command run before: a retried
+    farm task), which is left as it is and succeeds. ``say`` receives a progress line before the slow part.
+    ``colorspace``: the clip's colour space (default: ``engine.io.colour.default_colorspace``); the motion is found in
+    the fit's working encoding."""
     cfg = AutoMaskConfig() if cfg is None else cfg
     info = open_clip(clip, frame_range, colorspace)
     if info.num_frames < 2:
@@ -624,7 +640,7 @@ def write_auto_masks(
             "a single frame has no motion to find the foreground by",
             "select at least two frames (--frames FIRST:LAST), or paint the mask by hand",
         )
-    folder, names = mask_folder(info, out)
+    folder, names = mask_folder(info, out, whole_set=True)
     size = working_size(info.width, info.height, cfg.long_edge)
     if say is not None:
         say(f"finding what moves in {info.num_frames} frames at {size[0]}x{size[1]}")
@@ -634,4 +650,8 @@ def write_auto_masks(
     result = auto_masks(frames, cfg)
     full = resize_masks(result.masks, (info.width, info.height))
     iou = None if truth is None else mask_iou(full, read_masks(truth, info, (info.width, info.height)))
+    if all((folder / n).exists() for n in names):  # written before: the very same set, or refused
+        if not _holds_the_same(folder, names, full):
+            raise _already_holds(folder, names)
+        return MasksReport(str(folder), [str(folder / n) for n in names], result, iou, reused=True)
     return MasksReport(str(folder), write_mask_files(folder, names, full), result, iou)

@@ -284,10 +284,13 @@ class StagedFolder:
     are written (``commit``). Leaving the block without a commit (any failure, a full disk, a cancel) removes the
     staging, and ``out`` itself when this created it: nothing partial is left and earlier files are untouched."""
 
-    def __init__(self, out: str | Path, what: str, option: str) -> None:
+    def __init__(self, out: str | Path, what: str, option: str, shared: bool = False) -> None:
+        """``what`` names the staging folder (one per writer of ``out`` at a time); ``shared``: other processes write
+        into ``out`` too (a chunk of a render), so a failure never removes ``out`` even when this created it."""
         self.out = Path(out)
         self.what = what
         self.option = option
+        self.shared = shared
         self.staging = self.out / f"{STAGING_PREFIX}{what}{STAGING_SUFFIX}{os.getpid()}"
         self.created: Path | None = None
         self.names: list[str] = []
@@ -297,7 +300,7 @@ class StagedFolder:
     def __enter__(self) -> StagedFolder:
         if self.out.exists() and not self.out.is_dir():
             raise InputError(self.out, "is a file, not a folder", f"give {self.option} a folder (created when missing)")
-        self.created = _first_missing(self.out)
+        self.created = None if self.shared else _first_missing(self.out)
         try:
             self.out.mkdir(parents=True, exist_ok=True)
             self._clear_stale()
@@ -450,17 +453,34 @@ class MovieWriter:
             shutil.rmtree(self.created, ignore_errors=True)
 
 
-def movie_writer(manifest: Manifest, path: Path, default_fps: float = DEFAULT_FPS) -> MovieWriter:
-    """A movie of the manifest's exported frames at the plate's exact rate (``default_fps`` when it states none),
-    with its pixel aspect ratio and the timecode of the first exported frame."""
+def movie_writer(
+    manifest: Manifest, path: Path, default_fps: float = DEFAULT_FPS, first_frame: int | None = None
+) -> MovieWriter:
+    """A movie of the manifest's exported frames (from plate frame ``first_frame``, default the first exported) at
+    the plate's exact rate (``default_fps`` when it states none), with its pixel aspect ratio and the timecode of its
+    first frame."""
     clip = manifest.clip
     rate = C.clip_rate(clip)
-    first = manifest.frames[0] - clip["first_frame"]
+    first = (manifest.frames[0] if first_frame is None else first_frame) - clip["first_frame"]
     exact = None if rate is None else Fraction(*rate)
     timecode = timecode_at(clip.get("timecode"), exact, first)
     fps = exact if exact is not None else exact_rate(default_fps)
     tc = None if timecode is None else str(timecode)
     return MovieWriter(path, fps, manifest.resolution, clip.get("pixel_aspect", 1.0), tc)
+
+
+def chunk_frames(manifest: Manifest, frames: tuple[int, int]) -> list[int]:
+    """The exported frames of the inclusive range ``frames`` (plate frame numbers); a range that is not inside the
+    exported frames is one line."""
+    first, last = frames
+    done = manifest.frames
+    if first > last or first not in done or last not in done:
+        raise InputError(
+            manifest.path,
+            f"--frames {first}-{last} is not inside the exported frames {done[0]}-{done[-1]}",
+            f"choose a range inside {done[0]}-{done[-1]} (the plate's frame numbers)",
+        )
+    return [f for f in done if first <= f <= last]
 
 
 class _Sizes:
@@ -499,14 +519,19 @@ def render_manifest(
     filter: str = "bilinear",
     movie: str | Path | None = None,
     progress_bar: bool = True,
+    frames: tuple[int, int] | None = None,
 ) -> Path:
-    """Render every exported frame with the edits into ``out_dir``; returns the folder (or the movie). All frames
-    (and the movie) appear together, or none does."""
+    """Render every exported frame (``frames``: those of that inclusive range of plate frame numbers) with the
+    edits into ``out_dir``; returns the folder (or the movie). All frames (and the movie) appear together, or none
+    does. A render of a range is one chunk of a render several processes share: its frames join those the others
+    committed into ``out_dir`` (the same files one whole render writes), and run again it writes the same files
+    again; its movie is of that range."""
     if fmt not in FORMATS:
         raise InputError(None, f"unknown --format {fmt!r}", f"use one of {', '.join(FORMATS)}")
     if filter not in FILTERS:
         raise InputError(None, f"unknown --filter {filter!r}", f"use one of {', '.join(FILTERS)}")
     manifest = Manifest(manifest_path)
+    chosen = manifest.frames if frames is None else chunk_frames(manifest, frames)
     out = Path(out_dir)
     check_output(manifest, out, "--out")
     movie_path = None if movie is None else Path(movie)
@@ -514,11 +539,12 @@ def render_manifest(
         check_movie(manifest, movie_path)
     edits = load_edits(manifest, edit_overrides)
     w, h = manifest.resolution
-    sizes = _Sizes(len(manifest.frames), w * h * FRAME_BYTES_PER_PIXEL[fmt])
-    staged = StagedFolder(out, OUTPUT_PREFIX.rstrip("."), "--out")
+    sizes = _Sizes(len(chosen), w * h * FRAME_BYTES_PER_PIXEL[fmt])
+    what = OUTPUT_PREFIX.rstrip(".") if frames is None else f"{OUTPUT_PREFIX.rstrip('.')}-{frames[0]}-{frames[1]}"
+    staged = StagedFolder(out, what, "--out", shared=frames is not None)
     try:
         with staged:
-            _render_into(manifest, staged, edits, fmt, filter, movie_path, progress_bar, sizes)
+            _render_into(manifest, staged, edits, fmt, filter, movie_path, progress_bar, sizes, chosen)
     except DISK_ERRORS as exc:
         full = _disk_full_needing(exc, staged, sizes.need())
         if full is None:
@@ -536,19 +562,21 @@ def _render_into(
     movie: Path | None,
     progress_bar: bool,
     sizes: _Sizes,
+    frames: list[int],
 ) -> None:
-    """Every frame into the staging folder (and the movie into its temporary file), then both into place."""
+    """Every frame of ``frames`` into the staging folder (and the movie into its temporary file), then both into
+    place."""
     writer = None
     try:
         if movie is not None:
-            writer = movie_writer(manifest, movie)
-        bar = tqdm(total=len(manifest.frames), disable=not progress_bar, file=sys.stderr, unit="frame")
+            writer = movie_writer(manifest, movie, first_frame=frames[0])
+        bar = tqdm(total=len(frames), disable=not progress_bar, file=sys.stderr, unit="frame")
         space, config = plate_colour(manifest)
         like, ext = _plate_file(manifest) if fmt == "plate" else (None, f".{fmt}")
         plate_is_srgb = space == role_space(SRGB, config)
         exr_space = space if is_linear(space, config) else role_space(SCENE_LINEAR, config)
         clip = manifest.clip
-        for number, in_plate, frame in render_plate_frames(manifest, edits, filter=filter):
+        for number, in_plate, frame in render_plate_frames(manifest, edits, frames, filter=filter):
             path = staged.path(f"{OUTPUT_PREFIX}{number:05d}{ext}")
             if like is not None:
                 write_like(path, in_plate, like)
@@ -586,6 +614,7 @@ __all__ = [
     "StagedFolder",
     "check_movie",
     "check_output",
+    "chunk_frames",
     "load_edits",
     "movie_writer",
     "parse_edit_args",

@@ -274,7 +274,7 @@ def task_graph_text(plan: Plan) -> str:
             gpu = " [gpu]" if t.accelerator else ""
             after = f"  <- {', '.join(t.depends)}" if t.depends else ""
             lines.append(f"  {t.id}{gpu}{after}")
-            lines.append(f"      {C.CLI_MODULE} {' '.join(t.args)}")
+            lines.append(f"      python -m {C.CLI_MODULE} {' '.join(t.args)}")
     return "\n".join(lines)
 
 

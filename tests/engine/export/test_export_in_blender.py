@@ -16,6 +16,7 @@ from tests.engine.fake_export import make_fake_export
 
 pytestmark = pytest.mark.skipif(importlib.util.find_spec("bpy") is None, reason="bpy is not installed")
 
+
 def test_blender_sees_one_socket_per_pass(tmp_path):
     plate = np.full((2, 12, 16, 3), 0.5, np.float32)
     layer = (lambda t, xs, ys: (xs / 16, 1.0 - ys / 12, np.ones(xs.shape) * 0.5), (16, 12))
