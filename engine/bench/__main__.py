@@ -5,6 +5,7 @@ part of the product (its CLI is ``python -m engine``) and not in the extension z
     speed        seconds per step of presets, side by side on one clip
     scene-speed  what the scene analysis saves: one clip fitted with components=auto and components=all
     expected-psnr  a finished fit's PSNR as its preset's expected PSNR (engine/fit/expected_psnr.json)
+    farm         shots one after another against the same shots through `farm dask` with local workers
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ BENCH = "bench"
 SPEED = "speed"
 SCENE_SPEED = "scene-speed"
 EXPECTED_PSNR = "expected-psnr"
+FARM = "farm"
 PROG = "python -m engine.bench"
 
 BENCH_EPILOG = """\
@@ -107,7 +109,25 @@ def build_parser() -> argparse.ArgumentParser:
     ep.add_argument("run", metavar="RUN_DIR", help="a finished fit of PRESET")
     ep.add_argument("--clip", required=True, help="the clip's name, e.g. blackswan")
     ep.add_argument("--note", required=True, help="one line: where the measurement is documented")
+    _add_farm_parser(sub)
     return p
+
+
+def _add_farm_parser(sub: argparse._SubParsersAction) -> None:
+    fb = sub.add_parser(
+        FARM,
+        help="shots one after another vs through `farm dask` with local workers: wall times and their ratio",
+        description="Plan the clips as a shots file and run the plan twice: every task one after another (all "
+        "cores to each engine), then on a Dask scheduler and workers started on 127.0.0.1 (the cores split "
+        "between them). Prints a markdown table (date, machine, this command) and writes OUT/farm_bench.json.",
+    )
+    fb.add_argument("clips", nargs="+", metavar="CLIP", help="clip folder holding frames/ and masks/")
+    fb.add_argument("--out", default="farm_bench_out", help="output folder, replaced (default: farm_bench_out)")
+    fb.add_argument("--preset", default="draft", help="fit preset of every shot (default: draft)")
+    fb.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="fit config override")
+    fb.add_argument("--workers", type=int, default=2, help="Dask workers, one engine each (default: 2)")
+    fb.add_argument("--cores", type=int, default=None, help="torch threads in all (default: the machine's cores)")
+    fb.add_argument("--export-chunk", type=int, default=None, metavar="N", help="frames per export-passes task")
 
 
 def _bench(args: argparse.Namespace) -> int:
@@ -173,12 +193,31 @@ def _expected_psnr(args: argparse.Namespace) -> int:
     return C.EXIT_OK
 
 
+def _farm(args: argparse.Namespace) -> int:
+    from engine.bench.bench import resolve_clip
+    from engine.bench.farm import FARM_BENCH_JSON, format_table, run_farm_bench
+
+    record = run_farm_bench(
+        [resolve_clip(c) for c in args.clips],
+        Path(args.out),
+        command=[PROG, *args.argv],
+        preset=args.preset,
+        overrides=args.set,
+        workers=args.workers,
+        cores=args.cores,
+        export_chunk=args.export_chunk,
+    )
+    print(format_table(record))
+    print(str((Path(args.out) / FARM_BENCH_JSON).resolve()))
+    return C.EXIT_OK
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
     args.argv = argv  # recorded by bench
-    tools = {BENCH: _bench, SPEED: _speed, SCENE_SPEED: _scene_speed, EXPECTED_PSNR: _expected_psnr}
+    tools = {BENCH: _bench, SPEED: _speed, SCENE_SPEED: _scene_speed, EXPECTED_PSNR: _expected_psnr, FARM: _farm}
     if args.tool not in tools:
         parser.print_help()
         return C.EXIT_OK

@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import datetime
 import json
+import math
 import os
 import platform
 import shutil
@@ -208,7 +209,81 @@ def run_dask_route(shots_file: Path, workers: int, threads: int, folder: Path) -
 def export_files(run: Path) -> dict[str, bytes]:
     """Every file of a run folder's exports, by path relative to the run folder (to compare two routes)."""
     root = run / C.EXPORTS_DIR
-    return {str(p.relative_to(run)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+    return {p.relative_to(run).as_posix(): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+#: Manifest fields that say when or how fast, not what: they differ between any two runs.
+VOLATILE_KEYS = frozenset({"created", "train_seconds", "seconds_per_step"})
+
+
+def _json_diff(a: Any, b: Any, key: str = "") -> float:
+    """The largest difference between two JSON values' numbers (inf: a different shape, text or key)."""
+    if key in VOLATILE_KEYS:
+        return 0.0
+    if isinstance(a, dict) and isinstance(b, dict):
+        if a.keys() != b.keys():
+            return math.inf
+        return max([_json_diff(a[k], b[k], k) for k in a], default=0.0)
+    if isinstance(a, list) and isinstance(b, list):
+        if len(a) != len(b):
+            return math.inf
+        return max([_json_diff(x, y, key) for x, y in zip(a, b, strict=True)], default=0.0)
+    numbers = (int, float)
+    if isinstance(a, numbers) and isinstance(b, numbers) and not isinstance(a, bool) and not isinstance(b, bool):
+        return abs(float(a) - float(b))
+    return 0.0 if a == b else math.inf
+
+
+def _file_diff(name: str, a: bytes, b: bytes, folders: tuple[Path, Path]) -> float:
+    """How far two files of the same name differ: 0 for the same bytes, else by their content (pixels, JSON)."""
+    if a == b:
+        return 0.0
+    import numpy as np
+
+    from engine.io.images import read_exr, read_image
+
+    if name.endswith(".exr"):
+        ca, cb = (read_exr(folder / name) for folder in folders)
+        if ca.keys() != cb.keys() or any(ca[k].shape != cb[k].shape for k in ca):
+            return math.inf
+        return max(float(np.abs(ca[k] - cb[k]).max()) for k in ca)
+    if name.endswith(".png"):
+        (pa, _), (pb, _) = (read_image(folder / name) for folder in folders)
+        return math.inf if pa.shape != pb.shape else float(np.abs(pa - pb).max())
+    if name.endswith(".json"):
+        return _json_diff(json.loads(a), json.loads(b))
+    return math.inf
+
+
+def _psnr(run: Path) -> float | None:
+    try:
+        return float(json.loads((run / C.RUN_METRICS).read_text())["psnr"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def compare_exports(run_a: Path, run_b: Path) -> dict[str, Any]:
+    """Two run folders' exports compared: the same files, how many have the same bytes, the largest difference
+    of their floats (EXR pixels, manifest numbers) and of their PNGs (None: a file differs in shape or text), and
+    each fit's PSNR. With the same torch thread count the routes give the same bytes; with different counts float
+    sums round differently, training amplifies that, and the PSNRs say whether the fits are equally good."""
+    fa, fb = export_files(run_a), export_files(run_b)
+    diffs = {name: _file_diff(name, fa[name], fb[name], (run_a, run_b)) for name in fa if name in fb}
+    floats = [d for n, d in diffs.items() if not n.endswith(".png")]
+    pngs = [d for n, d in diffs.items() if n.endswith(".png")]
+
+    def largest(values: list[float]) -> float | None:
+        worst = max(values, default=0.0)
+        return None if math.isinf(worst) else worst
+
+    return {
+        "files": len(fa),
+        "same_files": sorted(fa) == sorted(fb),
+        "identical_files": sum(fa[n] == fb[n] for n in diffs),
+        "max_float_diff": largest(floats),
+        "max_png_diff": largest(pngs),
+        "psnr": [_psnr(run_a), _psnr(run_b)],
+    }
 
 
 def run_farm_bench(
@@ -227,12 +302,19 @@ def run_farm_bench(
     names = [c.name for c in clips]
     if len(set(names)) != len(names):
         raise InputError(None, f"two clips share a name ({names})", "pass clip folders with different names")
+    if workers < 1 or (cores is not None and cores < 1):
+        raise InputError(None, "--workers and --cores must be at least 1", "pass e.g. --workers 2")
     cores = cores or os.cpu_count() or 1
     per_worker = max(1, cores // workers)
     out = out.resolve()
-    if out.exists():
-        shutil.rmtree(out)
-    out.mkdir(parents=True)
+    ours = {ROUTE_SEQUENTIAL, ROUTE_DASK, FARM_BENCH_JSON}
+    if out.is_dir() and not set(os.listdir(out)) <= ours:
+        raise InputError(out, "holds files other than an earlier farm bench's", "pass a new or empty --out folder")
+    for name in ours:  # an earlier measurement's runs: fitted again from scratch
+        shutil.rmtree(out / name, ignore_errors=True)
+        with contextlib.suppress(FileNotFoundError, IsADirectoryError):
+            (out / name).unlink()
+    out.mkdir(parents=True, exist_ok=True)
     sets = list(overrides or [])
     record: dict[str, Any] = {
         "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
@@ -255,12 +337,22 @@ def run_farm_bench(
     record["routes"][ROUTE_DASK] = {"workers": workers, "threads_per_engine": per_worker, "seconds": round(seconds, 2)}
     record["ratio"] = round(record["routes"][ROUTE_SEQUENTIAL]["seconds"] / max(seconds, 1e-9), 3)
     runs = {route: out / route / "runs" for route in (ROUTE_SEQUENTIAL, ROUTE_DASK)}
-    same = {
-        c.name: export_files(runs[ROUTE_SEQUENTIAL] / c.name) == export_files(runs[ROUTE_DASK] / c.name) for c in clips
+    record["exports"] = {
+        c.name: compare_exports(runs[ROUTE_SEQUENTIAL] / c.name, runs[ROUTE_DASK] / c.name) for c in clips
     }
-    record["same_exports"] = same
     (out / FARM_BENCH_JSON).write_text(json.dumps(record, indent=2))
     return record
+
+
+def _export_summary(name: str, e: dict[str, Any]) -> str:
+    same = "the same files" if e["same_files"] else "different files"
+    text = f"{name}: {same}, {e['identical_files']}/{e['files']} byte for byte"
+    if e["max_float_diff"] is not None and e["max_png_diff"] is not None:
+        text += f", values within {max(e['max_float_diff'], e['max_png_diff']):.2g}"
+    psnr = e["psnr"]
+    if None not in psnr:
+        text += f", PSNR {psnr[0]:.2f} / {psnr[1]:.2f} dB"
+    return text
 
 
 def format_table(record: dict[str, Any]) -> str:
@@ -280,6 +372,10 @@ def format_table(record: dict[str, Any]) -> str:
         f"{routes[ROUTE_DASK]['threads_per_engine']} | {routes[ROUTE_DASK]['seconds']:.1f} |",
         "",
         f"Ratio (one after another / Dask): **{record['ratio']:.2f}x**.",
+        "",
+        "Exports of the two routes (one after another / Dask): "
+        + "; ".join(_export_summary(name, e) for name, e in record["exports"].items())
+        + ".",
     ]
     return "\n".join(lines)
 
@@ -287,6 +383,7 @@ def format_table(record: dict[str, Any]) -> str:
 __all__ = [
     "FARM_BENCH_JSON",
     "LocalDask",
+    "compare_exports",
     "export_files",
     "format_table",
     "local_dask",

@@ -18,7 +18,14 @@ it safe is that the forking thread is the waiting thread: ``_run_child`` forks, 
 ``finally``, terminates and reaps it before it returns or raises. The thread can therefore not exit while
 the child runs, and the signal fires exactly when the worker process dies. (A long-lived launcher thread
 would give the same guarantee, with a queue and a second thread to get wrong.) A worker that dies between
-the fork and the ``prctl`` is caught by comparing the parent's pid right after it.
+the fork and the ``prctl`` is caught by comparing the parent's pid right after it. The engine's output goes to
+unnamed temporary files, not pipes, so a dead worker leaves no broken pipe under the checkpointing engine.
+Elsewhere (macOS, Windows) there is no such signal: a killed worker's engine runs on to its end, and the retry
+waits for its lock.
+
+Stopping ``farm dask`` (Ctrl-C) releases the tasks that have not started; a task already running finishes on
+its worker (Dask cannot interrupt a running task); running the command again continues each fit from its
+checkpoint.
 
 A task whose engine exits 2 (bad input) or 4 (the fit diverged) fails at once: the same argv would fail the
 same way, and Dask retries every exception, so such a task returns a failed result instead of raising, and
@@ -249,17 +256,33 @@ def _check_resources(client: Any, address: str, resources: dict[str, float]) -> 
             )
 
 
-def _connect(address: str) -> Any:
+def _connect(address: str, timeout: float) -> Any:
     from distributed import Client
 
     try:
-        return Client(address, timeout=CONNECT_SECONDS, set_as_default=False)
+        return Client(address, timeout=timeout, set_as_default=False)
     except (OSError, TimeoutError) as exc:
         raise InputError(
             address,
             f"no Dask scheduler answers ({type(exc).__name__})",
-            "start one (dask scheduler) or fix --scheduler",
+            "start `dask scheduler`, or fix --scheduler",
         ) from None
+
+
+def _failure(task_id: str, key: Any, exc: BaseException) -> dict[str, Any]:
+    """A task's outcome from the exception Dask handed its future: its own failure, or a dependency's."""
+    from distributed.scheduler import KilledWorker
+
+    if isinstance(exc, KilledWorker):
+        if exc.task != key:
+            return {"state": STATE_SKIPPED, "error": f"a task before it lost {exc.allowed_failures + 1} workers"}
+        error = f"{exc.allowed_failures + 1} workers died while running it (the engine's log: its run folder)"
+        return {"state": STATE_FAILED, "error": error}
+    text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    if isinstance(exc, TaskFailed) and text.startswith(f"{task_id}: "):
+        # its own engine failed and the retries are spent: "exit N: <the engine's last stderr line>"
+        return {"state": STATE_FAILED, "error": text[len(task_id) + 2 :]}
+    return {"state": STATE_SKIPPED, "error": text}  # a dependency's failure, handed on by Dask
 
 
 def _emit(stream: TextIO, event: str, **fields: Any) -> None:
@@ -274,6 +297,7 @@ def run_plan(
     threads: int | None = None,
     lock_wait: float = LOCK_WAIT_SECONDS,
     stream: TextIO | None = None,
+    connect_timeout: float = CONNECT_SECONDS,
 ) -> FarmResult:
     """Run every task of ``plan`` on the Dask scheduler at ``scheduler_address`` and wait for them all.
 
@@ -285,7 +309,7 @@ def run_plan(
     token = uuid.uuid4().hex[:12]  # unique keys: a plan submitted twice runs twice
     start = time.monotonic()
     result = FarmResult()
-    client = _connect(scheduler_address)
+    client = _connect(scheduler_address, connect_timeout)
     try:
         _check_resources(client, scheduler_address, fit_resources or {})
         futures: dict[str, Any] = {}
@@ -310,9 +334,7 @@ def run_plan(
             try:
                 record = future.result()
             except Exception as exc:  # retries spent, or a dependency's failure: Dask hands on the exception
-                text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-                own = text.startswith(f"{task.id}:")
-                record = {"id": task.id, "state": STATE_FAILED if own else STATE_SKIPPED, "error": text}
+                record = {"id": task.id, **_failure(task.id, future.key, exc)}
             result.results[task.id] = record
             finished[task.shot] += 1
             total = len(plan.shot_tasks(task.shot))
@@ -382,6 +404,13 @@ def add_dask_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         metavar="SECONDS",
         help="how long a task waits for a run folder another engine still holds (default: %(default)s)",
     )
+    d.add_argument(
+        "--connect-timeout",
+        type=float,
+        default=CONNECT_SECONDS,
+        metavar="SECONDS",
+        help="how long to try reaching the scheduler (default: %(default)s)",
+    )
     return d
 
 
@@ -399,6 +428,7 @@ def run_dask(args: argparse.Namespace) -> int:
         retries=args.retries,
         threads=args.threads,
         lock_wait=args.lock_wait,
+        connect_timeout=args.connect_timeout,
     )
     line = summary_line(plan, result)
     if result.ok:

@@ -9,12 +9,12 @@ every frame's pass present once and no staging left behind.
 
 from __future__ import annotations
 
-import io
 import json
 import os
 import signal
+import socket
+import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -26,21 +26,22 @@ from engine.bench.farm import local_dask, stop_process
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.errors import InputError
 from engine.farm import dask_backend
-from engine.farm.dask_backend import FarmResult, TaskFailed, parse_resources, run_plan, run_task
+from engine.farm.dask_backend import TaskFailed, parse_resources, run_task
 from engine.farm.plan import load_plan
+from tests.paths import ROOT
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG and /proc are Linux's")
 
-STEPS = 150
+STEPS = 80
 FIT_SETS = [
     f"steps={STEPS}",
     "batch=2000",
     "eval_every=10",
     "bootstrap_steps=50",
     "global_rigidity_steps=50",
-    "checkpoint_seconds=0.5",
+    "checkpoint_seconds=0.3",
 ]
-FRAMES = 12
+FRAMES = 8
 #: Bounds of the waits (the machine is shared and slow; each is far above what a run needs).
 CHECKPOINT_WAIT = 90.0
 CHILD_EXIT_WAIT = 30.0
@@ -51,9 +52,12 @@ def write_shots(tmp: Path) -> Path:
     """Two tiny synthetic shots (different seeds), draft with a tiny schedule, exports in chunks of 6 frames."""
     shots = []
     for seed, name in enumerate(("a", "b")):
-        frames, masks = write_scene(make_scene(SceneSpec(frames=FRAMES, seed=seed)), tmp / "clips" / name)
+        frames, masks = write_scene(
+            make_scene(SceneSpec(frames=FRAMES, width=128, height=72, fg_size=(28, 20), seed=seed)),
+            tmp / "clips" / name,
+        )
         shots.append({"name": name, "plate": str(frames), "masks": [str(masks)]})
-    defaults = {"preset": "draft", "set": FIT_SETS, "device": "cpu", "export_chunk": 6, "preview": False}
+    defaults = {"preset": "draft", "set": FIT_SETS, "device": "cpu", "export_chunk": 4, "preview": False}
     path = tmp / "shots.json"
     path.write_text(json.dumps({C.SHOTS_TAG: C.SHOTS_VERSION, C.SHOTS_DEFAULTS_KEY: defaults, "shots": shots}))
     return path
@@ -112,20 +116,14 @@ def test_killed_worker_mid_fit_resumes_and_both_shots_finish(tmp_path: Path) -> 
     shots_file = write_shots(tmp_path)
     plan = load_plan(shots_file)
     run_a, run_b = tmp_path / "runs" / "a", tmp_path / "runs" / "b"
-    out = io.StringIO()
-    outcome: dict[str, Any] = {}
+    stdout, stderr = tmp_path / "farm.out", tmp_path / "farm.err"
     children: list[int] = []
     with local_dask(tmp_path / "cluster", 2, resources="GPU=1") as cluster:
         started = list(cluster.workers)
-
-        def submit() -> None:
-            try:
-                outcome["result"] = run_plan(plan, cluster.address, {"GPU": 1}, retries=1, threads=1, stream=out)
-            except BaseException as exc:  # reported by the assertion below
-                outcome["error"] = exc
-
-        runner = threading.Thread(target=submit, daemon=True)
-        runner.start()
+        argv = [sys.executable, "-m", C.CLI_MODULE, C.VERB_FARM, C.FARM_DASK, str(shots_file)]
+        argv += ["--scheduler", cluster.address, "--fit-resource", "GPU=1", "--threads", "1", "--retries", "1"]
+        with open(stdout, "wb") as out, open(stderr, "wb") as err:
+            farm = subprocess.Popen(argv, cwd=ROOT, stdin=subprocess.DEVNULL, stdout=out, stderr=err)
         try:
             wait_for("a checkpoint of shot a's fit past step 0", lambda: checkpoint_past_zero(run_a), CHECKPOINT_WAIT)
             child, worker_pid = wait_for("shot a's engine fit", lambda: engine_fit(run_a), 10.0)
@@ -137,20 +135,18 @@ def test_killed_worker_mid_fit_resumes_and_both_shots_finish(tmp_path: Path) -> 
             # the kernel told the orphaned engine (PR_SET_PDEATHSIG): it checkpoints and exits on its own
             wait_for("the killed worker's engine to exit", lambda: gone(child), CHILD_EXIT_WAIT)
             cluster.add_worker()  # the host comes back
-            runner.join(PLAN_WAIT)
-            assert not runner.is_alive(), "the plan did not finish in time"
+            returncode = farm.wait(PLAN_WAIT)
         finally:
+            stop_process(farm)
             for pid in children:  # bounded clean-up of anything the test saw, by PID
                 if not gone(pid):
                     os.kill(pid, signal.SIGKILL)
-    for proc in [*cluster.workers, cluster.scheduler]:
+    for proc in [*cluster.workers, cluster.scheduler, farm]:
         assert proc is not None and proc.returncode is not None  # every process the test started is stopped
 
-    assert "error" not in outcome, outcome.get("error")
-    result: FarmResult = outcome["result"]
-    assert result.ok, {k: (v["state"], v.get("error")) for k, v in result.results.items()}
-    assert set(result.results) == {t.id for t in plan.tasks}
-
+    assert returncode == C.EXIT_OK, stderr.read_text()
+    lines = stdout.read_text().splitlines()
+    assert lines[-1].startswith(f"farm dask: 2 shot(s), {len(plan.tasks)}/{len(plan.tasks)} tasks done in ")
     # the killed fit: a SIGTERM checkpoint mid-way, then the retry continued from it (no new step-0 start)
     events = fit_events(run_a)
     cancelled = [i for i, e in enumerate(events) if e["event"] == C.EVENT_CANCELLED]
@@ -183,11 +179,11 @@ def test_killed_worker_mid_fit_resumes_and_both_shots_finish(tmp_path: Path) -> 
         assert leftovers == []
 
     # progress: one line per task, then one done line per shot
-    lines = [json.loads(line) for line in out.getvalue().splitlines()]
-    progress = [m for m in lines if m["event"] == C.EVENT_PROGRESS]
+    messages = [json.loads(line) for line in lines[:-1]]
+    progress = [m for m in messages if m["event"] == C.EVENT_PROGRESS]
     assert sorted(m["task"] for m in progress) == sorted(t.id for t in plan.tasks)
     assert all(m["state"] == "done" for m in progress)
-    assert sorted((m["shot"], m["ok"]) for m in lines if m["event"] == C.EVENT_DONE) == [("a", True), ("b", True)]
+    assert sorted((m["shot"], m["ok"]) for m in messages if m["event"] == C.EVENT_DONE) == [("a", True), ("b", True)]
     for shot in plan.shots:
         mine = [m["done"] for m in progress if m["shot"] == shot]
         assert mine == list(range(1, len(plan.shot_tasks(shot)) + 1))
@@ -233,10 +229,8 @@ def test_parse_resources() -> None:
             parse_resources([bad])
 
 
-def test_stop_process_is_bounded(tmp_path: Path) -> None:
+def test_stop_process_is_bounded() -> None:
     """A child that ignores SIGTERM is killed after the grace period."""
-    import subprocess
-
     code = "import signal, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); print('up', flush=True); time.sleep(60)"
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE)
     try:
@@ -248,3 +242,63 @@ def test_stop_process_is_bounded(tmp_path: Path) -> None:
         if proc.poll() is None:
             proc.kill()
             proc.wait(5)
+
+
+def test_farm_dask_without_a_scheduler_is_one_line(tmp_path: Path) -> None:
+    """No scheduler at the address: exit 2 and one line naming it (nothing is submitted)."""
+    shots_file = write_shots(tmp_path)
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        address = f"tcp://127.0.0.1:{s.getsockname()[1]}"
+    argv = [sys.executable, "-m", C.CLI_MODULE, C.VERB_FARM, C.FARM_DASK, str(shots_file), "--scheduler", address]
+    argv += ["--connect-timeout", "1"]
+    proc = subprocess.run(
+        argv,
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={**os.environ, "DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT": "2s"},
+    )
+    assert proc.returncode == C.EXIT_BAD_INPUT, proc.stderr
+    assert proc.stderr.strip().splitlines() == [
+        f"error: {address}: no Dask scheduler answers (OSError) — start `dask scheduler`, or fix --scheduler"
+    ]
+
+
+def test_farm_dask_bad_input_fails_the_task_and_skips_what_follows(tmp_path: Path) -> None:
+    """A fit refused for bad input (exit 2) is not retried: its shot's later tasks are skipped, and `farm dask`
+    exits 1 naming the task and the engine's one line."""
+    frames, masks = write_scene(make_scene(SceneSpec(frames=4, width=64, height=48, seed=0)), tmp_path / "clip")
+    few = tmp_path / "few_masks"
+    few.mkdir()
+    (few / "00000.png").write_bytes((masks / "00000.png").read_bytes())
+    shots_file = tmp_path / "shots.json"
+    shot = {"name": "a", "plate": str(frames), "masks": [str(few)]}
+    shots_file.write_text(json.dumps({C.SHOTS_TAG: C.SHOTS_VERSION, "defaults": {"preview": False}, "shots": [shot]}))
+    plan = load_plan(shots_file)
+    with local_dask(tmp_path / "cluster", 1) as cluster:
+        argv = [sys.executable, "-m", C.CLI_MODULE, C.VERB_FARM, C.FARM_DASK, str(shots_file)]
+        argv += ["--scheduler", cluster.address, "--retries", "3"]
+        proc = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == C.EXIT_FAILED, proc.stderr
+    (line,) = proc.stderr.strip().splitlines()
+    assert line.startswith(f"error: farm dask: 1 shot(s), 0/{len(plan.tasks)} tasks done in ")
+    assert line.endswith(
+        f"; task a.fit failed: error: {few}: 1 mask files for a clip of 4 selected frames — provide one mask per "
+        "frame, named with the frame numbers (e.g. 00012.png for frame 00012) or exactly one per frame in the same "
+        "order"
+    )
+    messages = [json.loads(m) for m in proc.stdout.splitlines()]
+    states = {m["task"]: m["state"] for m in messages if m["event"] == C.EVENT_PROGRESS}
+    assert states == {t.id: "failed" if t.kind == "fit" else "skipped" for t in plan.tasks}
+    assert [(m["shot"], m["ok"]) for m in messages if m["event"] == C.EVENT_DONE] == [("a", False)]
+
+
+def test_dask_runs_the_plans_command_lines(tmp_path: Path) -> None:
+    """What a worker runs for each task is the plan's own command line, with the worker's Python."""
+    plan = load_plan(write_shots(tmp_path))
+    python = "/opt/engine/bin/python"
+    for task in plan.tasks:
+        assert dask_backend.engine_argv(task.args, python) == task.argv(python)
+        assert dask_backend.engine_argv(task.args) == task.argv(sys.executable)
