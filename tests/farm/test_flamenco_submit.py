@@ -150,6 +150,25 @@ def test_a_refused_check_gives_flamencos_message_and_submits_nothing(
     assert [c.path for c in manager.calls if c.method == "POST"] == [C.FLAMENCO_API_CHECK]
 
 
+def test_a_job_type_changed_since_its_etag_was_read_is_refused(manager: StubManager, tmp_path: Path) -> None:
+    """The etag read first goes into every job: a Manager whose script changed meanwhile refuses it (412)."""
+    plan = two_shot_plan(tmp_path)
+    original = manager.get
+
+    def newer_after_reading(path: str) -> tuple[int, object]:
+        answer = original(path)
+        if path == TYPE_PATH:
+            manager.etag = "a-newer-script"
+        return answer
+
+    manager.get = newer_after_reading  # type: ignore[method-assign]
+    with pytest.raises(InputError) as exc:
+        _submit(manager, plan)
+    text = _one_line(exc)
+    assert "job type changed during the submission (HTTP 412" in text and text.endswith("submit again")
+    assert manager.jobs == {}
+
+
 def test_a_plan_the_job_type_refuses_comes_back_as_the_scripts_message(manager: StubManager, tmp_path: Path) -> None:
     """The stub Manager compiles with the real script: a job whose plan the script refuses gets its one line."""
     plan = two_shot_plan(tmp_path)
