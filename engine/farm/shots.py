@@ -1,0 +1,396 @@
+"""The shots file: the shots of a sequence a farm fits, exports and renders, read and validated in one place.
+
+A shots file is TOML (``.toml``) or JSON (``.json``), chosen by its extension, and versioned by
+``contract.SHOTS_TAG``. Every mistake is refused before anything is submitted, as one line naming the file, the
+shot, the key and the fix: a farm that finds a typo an hour into a sequence has wasted the hour on every shot.
+
+::
+
+    neural_atlas_shots = 1
+
+    [defaults]               # any of contract.SHOT_DEFAULT_KEYS; a shot's own value wins
+    preset = "draft"
+    export_chunk = 50
+
+    [[shots]]
+    name = "sh010"           # letters, digits, - and _: it names the shot's tasks and its run folder
+    plate = "plates/sh010"   # a folder of frames, a pattern (plate.####.exr) or a movie; relative to this file
+    masks = ["masks/sh010_car"]
+    frames = "1001-1100"
+
+Relative paths resolve against the file's folder, so a sequence's folder can move with its shots file; a shot's
+run folder defaults to ``runs/<name>`` beside the file.
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+import os
+import re
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from engine import contract as C
+from engine.errors import InputError
+
+#: What a shot gets for a key neither it nor the defaults give.
+DEFAULT_PRESET = "balanced"
+DEFAULT_EXPORT_CHUNK = 50
+DEFAULT_RENDER_CHUNK = 50
+#: render --format's choices.
+RENDER_FORMATS: tuple[str, ...] = ("exr", "png", "plate")
+#: --device's choices (cuda:N too).
+DEVICES: tuple[str, ...] = ("auto", "cpu", "cuda", "mps")
+#: A shot's name becomes task ids, OpenJD step names and a folder name: a portable, short identifier.
+NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
+#: Where a shot's run folder goes when the shot names none, relative to the shots file.
+RUNS_DIR = "runs"
+
+_FORMATS = {".toml": "TOML", ".json": "JSON"}
+
+
+@dataclass(frozen=True)
+class Shot:
+    """One shot, with every path absolute and every default filled in: what the plan needs, nothing to look up."""
+
+    name: str
+    plate: str
+    """A folder of frames, a sequence pattern or a movie file (absolute)."""
+    run: str
+    """The shot's run folder (absolute): the fit, its exports and, with auto_masks, the found masks."""
+    masks: tuple[str, ...] = ()
+    auto_masks: bool = False
+    frames: tuple[int, int] | None = None
+    """Inclusive, in the plate's frame numbers; None: every frame."""
+    colorspace: str | None = None
+    fps: str | None = None
+    start_frame: int | None = None
+    render: str | None = None
+    """A folder for the rendered frames; None: no render tasks."""
+    preset: str = DEFAULT_PRESET
+    set: tuple[str, ...] = ()
+    device: str | None = None
+    atlas_size: int | None = None
+    export_chunk: int = DEFAULT_EXPORT_CHUNK
+    render_chunk: int = DEFAULT_RENDER_CHUNK
+    render_format: str | None = None
+    preview: bool = True
+
+
+@dataclass(frozen=True)
+class ShotsFile:
+    """A validated shots file."""
+
+    path: Path
+    shots: tuple[Shot, ...]
+
+
+def load_shots(path: str | Path) -> ShotsFile:
+    """Read and validate a shots file; ``InputError`` (one line: the file, the shot, the key, the fix) otherwise."""
+    file = Path(os.path.abspath(os.path.expanduser(os.fspath(path))))
+    data = _parse(file)
+    return ShotsFile(file, parse_shots(data, file))
+
+
+def parse_shots(data: Any, file: Path) -> tuple[Shot, ...]:
+    """Validate the decoded document ``data`` of ``file`` (its folder resolves relative paths)."""
+    if not isinstance(data, dict):
+        raise InputError(file, "is not a table of keys", f"start it with {C.SHOTS_TAG} = {C.SHOTS_VERSION}")
+    _check_version(file, data)
+    _check_keys(file, "the file", data, (C.SHOTS_TAG, C.SHOTS_DEFAULTS_KEY, C.SHOTS_LIST_KEY))
+    defaults = data.get(C.SHOTS_DEFAULTS_KEY, {})
+    if not isinstance(defaults, dict):
+        raise InputError(file, f"'{C.SHOTS_DEFAULTS_KEY}' is not a table", f"write [{C.SHOTS_DEFAULTS_KEY}] with keys")
+    for key in defaults:
+        if key in C.SHOT_KEYS and key not in C.SHOT_DEFAULT_KEYS:
+            raise InputError(
+                file,
+                f"'{C.SHOTS_DEFAULTS_KEY}' sets '{key}', which is a shot's own",
+                f"move '{key}' into each shot; defaults may hold {', '.join(C.SHOT_DEFAULT_KEYS)}",
+            )
+    _check_keys(file, f"'{C.SHOTS_DEFAULTS_KEY}'", defaults, C.SHOT_DEFAULT_KEYS)
+    entries = data.get(C.SHOTS_LIST_KEY)
+    if not isinstance(entries, list) or not entries:
+        raise InputError(
+            file,
+            f"no '{C.SHOTS_LIST_KEY}' list" if entries is None else f"'{C.SHOTS_LIST_KEY}' is not a list of shots",
+            f"add one table per shot ([[{C.SHOTS_LIST_KEY}]] in TOML) with at least "
+            f"{' and '.join(C.SHOT_REQUIRED_KEYS)}",
+        )
+    shots = []
+    for index, entry in enumerate(entries):
+        where = f"shot #{index + 1}"
+        if not isinstance(entry, dict):
+            raise InputError(file, f"{where} is not a table", f"write each shot as a table of {C.SHOT_KEYS}")
+        if isinstance(entry.get("name"), str):
+            where = f"shot {entry['name']!r}"
+        _check_keys(file, where, entry, C.SHOT_KEYS)
+        shots.append(_shot(file, where, {**defaults, **entry}))
+    _check_unique(file, shots)
+    return tuple(shots)
+
+
+def _parse(file: Path) -> Any:
+    kind = _FORMATS.get(file.suffix.lower())
+    if kind is None:
+        raise InputError(file, "is not a .toml or .json file", "name the shots file *.toml or *.json")
+    try:
+        raw = file.read_bytes()
+    except FileNotFoundError:
+        raise InputError(file, "does not exist", "check the path of the shots file") from None
+    except OSError as exc:
+        raise InputError(file, f"cannot be read ({exc.strerror})", "check the path and its permissions") from None
+    try:
+        text = raw.decode("utf-8")
+        return tomllib.loads(text) if kind == "TOML" else json.loads(text)
+    except UnicodeDecodeError:
+        raise InputError(file, "is not UTF-8 text", "save the shots file as UTF-8") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(file, f"is not valid TOML ({exc})", "fix the syntax at that line") from None
+    except json.JSONDecodeError as exc:
+        raise InputError(
+            file, f"is not valid JSON ({exc.msg} at line {exc.lineno} column {exc.colno})", "fix the syntax there"
+        ) from None
+
+
+def _check_version(file: Path, data: dict[str, Any]) -> None:
+    version = data.get(C.SHOTS_TAG)
+    if version is None:
+        raise InputError(
+            file, f"has no '{C.SHOTS_TAG}' version key", f"add {C.SHOTS_TAG} = {C.SHOTS_VERSION} at the top"
+        )
+    if isinstance(version, bool) or version != C.SHOTS_VERSION:
+        raise InputError(
+            file,
+            f"is a shots file of version {version!r}; this engine reads version {C.SHOTS_VERSION}",
+            f"write it in version {C.SHOTS_VERSION} (docs/farm.md) or use the engine that wrote it",
+        )
+
+
+def _check_keys(file: Path, where: str, table: dict[str, Any], known: tuple[str, ...]) -> None:
+    for key in table:
+        if key not in known:
+            close = difflib.get_close_matches(str(key), known, n=1)
+            hint = f"did you mean '{close[0]}'?" if close else f"the keys are {', '.join(known)}"
+            raise InputError(file, f"{where}: unknown key '{key}'", hint)
+
+
+def _shot(file: Path, where: str, entry: dict[str, Any]) -> Shot:
+    """One shot's table (defaults merged) as a Shot, every value checked."""
+    for key in C.SHOT_REQUIRED_KEYS:
+        if key not in entry:
+            raise InputError(file, f"{where}: no '{key}'", f"give every shot a {' and a '.join(C.SHOT_REQUIRED_KEYS)}")
+    v = _Values(file, where, entry)
+    name = v.text("name")
+    if not NAME_PATTERN.match(name):
+        raise InputError(
+            file,
+            f"{where}: name {name!r} is not a plain identifier",
+            "use letters, digits, - and _ (at most 64, starting with a letter or digit), e.g. sh010",
+        )
+    folder = file.parent
+    plate = v.path("plate", folder)
+    _check_plate(file, where, plate)
+    masks = tuple(v.path_list("masks", folder))
+    for mask in masks:
+        if not os.path.isdir(mask):
+            raise InputError(file, f"{where}: mask folder {mask} does not exist", "fix 'masks' (relative to this file)")
+    auto = v.flag("auto_masks", False)
+    if auto and masks:
+        raise InputError(file, f"{where}: both 'masks' and 'auto_masks'", "drop one: given masks or found ones")
+    preset = v.choice("preset", tuple(C.PRESET_STEPS), DEFAULT_PRESET)
+    overrides = tuple(v.text_list("set"))
+    _check_overrides(file, where, preset, overrides)
+    device = v.optional_text("device")
+    if device is not None and device not in DEVICES and not re.fullmatch(r"cuda:\d+", device):
+        raise InputError(file, f"{where}: 'device' is {device!r}", f"use one of {', '.join(DEVICES)} or cuda:N")
+    fps = v.rate("fps")
+    run = v.optional_path("run", folder) or os.path.join(folder, RUNS_DIR, name)
+    render = v.optional_path("render", folder)
+    if render is not None:
+        _check_render(file, where, render, run, plate)
+    return Shot(
+        name=name,
+        plate=plate,
+        run=run,
+        masks=masks,
+        auto_masks=auto,
+        frames=v.frames("frames"),
+        colorspace=v.optional_text("colorspace"),
+        fps=fps,
+        start_frame=v.count("start_frame", None, 0),
+        render=render,
+        preset=preset,
+        set=overrides,
+        device=device,
+        atlas_size=v.count("atlas_size", None, 1),
+        export_chunk=v.count("export_chunk", DEFAULT_EXPORT_CHUNK, 1) or DEFAULT_EXPORT_CHUNK,
+        render_chunk=v.count("render_chunk", DEFAULT_RENDER_CHUNK, 1) or DEFAULT_RENDER_CHUNK,
+        render_format=v.choice("render_format", RENDER_FORMATS, None),
+        preview=v.flag("preview", True),
+    )
+
+
+def _check_plate(file: Path, where: str, plate: str) -> None:
+    """The plate exists (a folder or a movie), or is a pattern whose folder exists; what is in it the plan reads."""
+    from engine.io.clip import is_sequence_pattern
+
+    if os.path.exists(plate):
+        return
+    if is_sequence_pattern(plate) and os.path.isdir(os.path.dirname(plate)):
+        return
+    raise InputError(
+        file,
+        f"{where}: plate {plate} does not exist",
+        "fix 'plate' (a folder of frames, a pattern such as plate.####.exr, or a movie; relative to this file)",
+    )
+
+
+def _check_overrides(file: Path, where: str, preset: str, overrides: tuple[str, ...]) -> None:
+    """Each ``set`` entry as ``fit --set`` takes it: a known config key with a value of its type."""
+    from engine.config import apply_overrides, parse_set_args, preset_config
+
+    try:
+        apply_overrides(preset_config(preset), parse_set_args(list(overrides)))
+    except InputError as exc:
+        raise InputError(file, f"{where}: 'set': {exc.problem}", exc.fix) from None
+
+
+def _check_render(file: Path, where: str, render: str, run: str, plate: str) -> None:
+    """render --out may be neither inside the run folder nor the plate's folder (the render verb refuses both)."""
+    out = Path(render)
+    plate_folder = Path(plate) if os.path.isdir(plate) else Path(plate).parent
+    if out == Path(run) or Path(run) in out.parents or out == plate_folder:
+        what = "inside the run folder" if out != plate_folder else "the plate's folder"
+        raise InputError(file, f"{where}: 'render' {render} is {what}", "choose a folder of its own for the frames")
+
+
+def _check_unique(file: Path, shots: list[Shot]) -> None:
+    """Shot names, and run folders, name one shot each (case-insensitively: a folder on macOS or Windows)."""
+    for what, key in (("name", lambda s: s.name.casefold()), ("run folder", lambda s: os.path.normcase(s.run))):
+        seen: dict[str, str] = {}
+        for shot in shots:
+            k = key(shot)
+            if k in seen:
+                raise InputError(
+                    file,
+                    f"shots {seen[k]!r} and {shot.name!r} have the same {what}",
+                    "give every shot its own name and run folder",
+                )
+            seen[k] = shot.name
+
+
+class _Values:
+    """A shot's values, each read with its type checked and a one-line error naming the shot and the key."""
+
+    def __init__(self, file: Path, where: str, table: dict[str, Any]) -> None:
+        self.file, self.where, self.table = file, where, table
+
+    def _bad(self, key: str, wanted: str, example: str) -> InputError:
+        value = self.table[key]
+        return InputError(
+            self.file,
+            f"{self.where}: '{key}' is {type(value).__name__} {value!r}, not {wanted}",
+            f"write e.g. {key} = {example}",
+        )
+
+    def text(self, key: str) -> str:
+        value = self.table[key]
+        if not isinstance(value, str) or not value.strip():
+            raise self._bad(key, "a non-empty string", '"..."')
+        return value
+
+    def optional_text(self, key: str) -> str | None:
+        return self.text(key) if key in self.table else None
+
+    def text_list(self, key: str) -> list[str]:
+        value = self.table.get(key, [])
+        if not isinstance(value, list) or not all(isinstance(x, str) and x.strip() for x in value):
+            raise self._bad(key, "a list of strings", '["steps=2000"]' if key == "set" else '["a", "b"]')
+        return value
+
+    def path(self, key: str, folder: Path) -> str:
+        return _absolute(self.text(key), folder)
+
+    def optional_path(self, key: str, folder: Path) -> str | None:
+        return self.path(key, folder) if key in self.table else None
+
+    def path_list(self, key: str, folder: Path) -> list[str]:
+        return [_absolute(p, folder) for p in self.text_list(key)]
+
+    def flag(self, key: str, default: bool) -> bool:
+        value = self.table.get(key, default)
+        if not isinstance(value, bool):
+            raise self._bad(key, "true or false", "true")
+        return value
+
+    def count(self, key: str, default: int | None, minimum: int) -> int | None:
+        if key not in self.table:
+            return default
+        value = self.table[key]
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self._bad(key, "a whole number", str(max(minimum, 1) * 50))
+        if value < minimum:
+            raise InputError(self.file, f"{self.where}: '{key}' is {value}", f"give {key} a number >= {minimum}")
+        return value
+
+    def choice(self, key: str, choices: tuple[str, ...], default: str | None) -> Any:
+        if key not in self.table:
+            return default
+        value = self.table[key]
+        if value not in choices:
+            close = difflib.get_close_matches(str(value), choices, n=1)
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            raise InputError(self.file, f"{self.where}: '{key}' is {value!r}", f"{hint}use one of {', '.join(choices)}")
+        return value
+
+    def rate(self, key: str) -> str | None:
+        """fps: a number or a string (``24``, ``23.976``, ``"24000/1001"``), kept as fit --fps takes it."""
+        if key not in self.table:
+            return None
+        value = self.table[key]
+        if isinstance(value, bool) or not isinstance(value, int | float | str):
+            raise self._bad(key, "a frame rate", '"24000/1001"')
+        text = str(value)
+        from engine.io.timing import parse_rate
+
+        try:
+            parse_rate(text)
+        except ValueError as exc:
+            raise InputError(self.file, f"{self.where}: 'fps': {exc}", 'write e.g. fps = "24000/1001"') from None
+        return text
+
+    def frames(self, key: str) -> tuple[int, int] | None:
+        """``"1001-1100"`` (or ``"1001:1100"``, or one frame): inclusive plate frame numbers, FIRST <= LAST."""
+        if key not in self.table:
+            return None
+        value = self.table[key]
+        if isinstance(value, int) and not isinstance(value, bool):
+            value = str(value)
+        if not isinstance(value, str):
+            raise self._bad(key, "a FIRST-LAST string", '"1001-1100"')
+        match = re.fullmatch(r"\s*(\d+)\s*(?:[-:]\s*(\d+)\s*)?", value)
+        if match is None:
+            raise InputError(
+                self.file,
+                f"{self.where}: 'frames' is {value!r}",
+                'write FIRST-LAST in the plate\'s frame numbers, e.g. frames = "1001-1100"',
+            )
+        first = int(match.group(1))
+        last = int(match.group(2)) if match.group(2) is not None else first
+        if first > last:
+            raise InputError(
+                self.file, f"{self.where}: 'frames' {value!r} is reversed", f'write frames = "{last}-{first}"'
+            )
+        return first, last
+
+
+def _absolute(path: str, folder: Path) -> str:
+    """``path`` (``~`` expanded) against the shots file's folder, normalised, absolute."""
+    return os.path.normpath(os.path.join(folder, os.path.expanduser(path)))
+
+
+__all__ = ["DEFAULT_EXPORT_CHUNK", "DEFAULT_PRESET", "DEFAULT_RENDER_CHUNK", "Shot", "ShotsFile", "load_shots"]
