@@ -34,6 +34,8 @@ DEFAULT_PRIORITY = 50
 PRIORITY_MIN, PRIORITY_MAX = 0, 100
 #: The bundle folder's name (beside the run folder, or under the preference's folder in a folder per shot).
 BUNDLE_FOLDER_NAME = "openjd"
+#: The longest shot name the engine takes (it names folders and task ids).
+SHOT_NAME_MAX = 64
 #: What a farm job's shot is called when the clip's name has nothing usable in it.
 FALLBACK_SHOT_NAME = "shot"
 
@@ -88,7 +90,7 @@ def shot_name(clip_name: str, sequence: bool = True) -> str:
     stem = re.sub(r"\.[A-Za-z0-9]{2,5}$", "", clip_name.strip())
     if sequence:
         stem = re.sub(r"[._](#+|[0-9]+)$", "", stem) or stem
-    name = re.sub(r"[^A-Za-z0-9_-]+", "_", stem).strip("_-")
+    name = re.sub(r"[^A-Za-z0-9_-]+", "_", stem).strip("_-")[:SHOT_NAME_MAX].rstrip("_-")
     return name or FALLBACK_SHOT_NAME
 
 

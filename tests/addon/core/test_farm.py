@@ -77,6 +77,7 @@ def test_written_shots_file_reads_back_and_replaces_the_last(tmp_path):
         ("interview take 2.mov", False, "interview_take_2"),
         ("sh020_01.mp4", False, "sh020_01"),
         ("...", True, FM.FALLBACK_SHOT_NAME),
+        ("_" + "a" * 70 + ".mov", False, "a" * FM.SHOT_NAME_MAX),
     ],
 )
 def test_shot_name_from_the_clips_name(clip, sequence, name):
