@@ -127,10 +127,15 @@ def load_plan(shots_file: str | Path) -> Plan:
 
 
 def plan_shots(shots: ShotsFile) -> Plan:
-    tasks: list[Task] = []
-    for shot_plan in shot_plans(shots):
-        tasks.extend(shot_tasks(shot_plan))
-    return Plan(tuple(tasks), tuple(s.name for s in shots.shots))
+    return plan_with_shots(shots)[0]
+
+
+def plan_with_shots(shots: ShotsFile) -> tuple[Plan, list[ShotPlan]]:
+    """The plan, and what it decided per shot (frame range, export version): what a back end names as job inputs
+    and outputs beside the tasks. Reads every plate once."""
+    plans = shot_plans(shots)
+    tasks = [task for sp in plans for task in shot_tasks(sp)]
+    return Plan(tuple(tasks), tuple(s.name for s in shots.shots)), plans
 
 
 def shot_plans(shots: ShotsFile) -> list[ShotPlan]:
@@ -273,4 +278,14 @@ def task_graph_text(plan: Plan) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["TASK_KINDS", "Plan", "ShotPlan", "Task", "chunk_ranges", "load_plan", "next_version", "plan_shots"]
+__all__ = [
+    "TASK_KINDS",
+    "Plan",
+    "ShotPlan",
+    "Task",
+    "chunk_ranges",
+    "load_plan",
+    "next_version",
+    "plan_shots",
+    "plan_with_shots",
+]

@@ -1,0 +1,260 @@
+"""The plan as an Open Job Description job bundle (``jobtemplate-2023-09``), for AWS Deadline Cloud and ``openjd run``.
+
+A bundle is a folder of three files (JSON, which every OpenJD and Deadline Cloud reader takes as it takes YAML):
+
+- ``template.json``: one step per task kind per shot (``sh010-fit``, ``sh010-passes``, ...), the chunks of a kind as
+  the step's tasks over a ``Frames`` task parameter, the plan's dependencies as step dependencies, and, on the
+  steps that want one, a host requirement of a GPU (``amount.worker.gpu``; ``--no-gpu`` leaves it out for a
+  farm of CPU hosts). Every path is a job parameter of type PATH: plates and mask folders ``dataFlow: IN``, run and
+  render folders ``OUT``, so Deadline Cloud maps them onto each worker's mounts and its job attachments upload the
+  inputs and download the outputs. The worker's engine Python is the ``EnginePython`` parameter, and
+  ``EnginePath`` (the folder holding ``engine/``, empty when the engine is installed into that Python) becomes
+  ``PYTHONPATH`` for the job's commands.
+- ``parameter_values.json``: those parameters' values on the submitting machine (Deadline Cloud's format).
+- ``asset_references.json``: the same inputs and outputs as Deadline Cloud's asset references.
+- ``job_parameters.json``: the parameter values again, as ``openjd run -p file://BUNDLE/job_parameters.json``
+  reads them, to run the bundle on this machine.
+
+The step commands are the plan's command lines with each path replaced by its parameter (``farm plan`` shows
+them); the task parameter substitutes the chunk's frames. ``openjd run`` does not look at host requirements, so a
+bundle with GPU requirements still runs on a CPU host locally.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from engine import contract as C
+from engine.errors import InputError
+from engine.farm.plan import CHUNKED_KINDS, Plan, ShotPlan, Task
+from engine.io.atomic import atomic_write_text
+
+SPECIFICATION_VERSION = "jobtemplate-2023-09"
+TEMPLATE_FILE = "template.json"
+PARAMETER_VALUES_FILE = "parameter_values.json"
+ASSET_REFERENCES_FILE = "asset_references.json"
+#: The same values as ``openjd run -p file://BUNDLE/job_parameters.json`` takes them (a plain name: value map).
+JOB_PARAMETERS_FILE = "job_parameters.json"
+#: The job parameters every bundle has.
+PYTHON_PARAMETER = "EnginePython"
+ENGINE_PATH_PARAMETER = "EnginePath"
+#: The task parameter of a chunked step: its tasks' frame ranges ("1001-1050").
+FRAMES_PARAMETER = "Frames"
+#: The host requirement of the fit, atlases and passes steps.
+GPU_AMOUNT = "amount.worker.gpu"
+DEFAULT_PYTHON = "python3"
+_IDENTIFIER_MAX = 64
+
+
+@dataclass
+class _PathParameter:
+    name: str
+    value: str
+    object_type: str  # FILE | DIRECTORY
+    data_flow: str  # IN | OUT
+    description: str
+
+    def definition(self) -> dict[str, Any]:
+        """No default: OpenJD takes a PATH default only relative to the template's folder and inside it, and
+        the plan's paths are neither (parameter_values.json gives them)."""
+        return {
+            "name": self.name,
+            "type": "PATH",
+            "objectType": self.object_type,
+            "dataFlow": self.data_flow,
+            "description": self.description,
+        }
+
+
+@dataclass
+class _Parameters:
+    """The job's PATH parameters, and how to write a path of the plan through them."""
+
+    paths: list[_PathParameter] = field(default_factory=list)
+
+    def add(self, prefix: str, shot: str, value: str, object_type: str, data_flow: str, description: str) -> None:
+        name = _identifier(f"{prefix}_{shot}")
+        taken = {p.name for p in self.paths}
+        if name in taken:
+            name = _identifier(f"{prefix}_{len(self.paths) + 1}")
+        self.paths.append(_PathParameter(name, value, object_type, data_flow, description))
+
+    def substitute(self, arg: str) -> str:
+        """``arg`` with the longest parameter path it is, or starts with, written as that parameter."""
+        for p in sorted(self.paths, key=lambda p: len(p.value), reverse=True):
+            if arg == p.value:
+                return f"{{{{Param.{p.name}}}}}"
+            if arg.startswith(p.value.rstrip(os.sep) + os.sep):
+                rest = arg[len(p.value.rstrip(os.sep)) + 1 :]
+                return f"{{{{Param.{p.name}}}}}/{rest.replace(os.sep, '/')}"
+        return arg
+
+
+def write_bundle(
+    plan: Plan,
+    shot_plans: list[ShotPlan],
+    out: str | Path,
+    *,
+    name: str = "Neural Atlas",
+    gpu: bool = True,
+    python: str = DEFAULT_PYTHON,
+    engine_path: str = "",
+) -> list[Path]:
+    """Write the bundle of ``plan`` into the folder ``out`` (created; the bundle's files are replaced, each
+    atomically). Returns the files written."""
+    folder = Path(out)
+    if folder.exists() and not folder.is_dir():
+        raise InputError(folder, "is a file, not a folder", "pass a folder for the bundle with --out")
+    params = _parameters(shot_plans)
+    template = job_template(plan, params, name=name, gpu=gpu, python=python, engine_path=engine_path)
+    values = {PYTHON_PARAMETER: python, ENGINE_PATH_PARAMETER: engine_path, **{p.name: p.value for p in params.paths}}
+    folder.mkdir(parents=True, exist_ok=True)
+    files = []
+    for file, data in (
+        (TEMPLATE_FILE, template),
+        (PARAMETER_VALUES_FILE, {"parameterValues": [{"name": k, "value": v} for k, v in values.items()]}),
+        (JOB_PARAMETERS_FILE, values),
+        (ASSET_REFERENCES_FILE, asset_references(params)),
+    ):
+        path = folder / file
+        atomic_write_text(path, json.dumps(data, indent=2) + "\n")
+        files.append(path)
+    return files
+
+
+def job_template(
+    plan: Plan, params: _Parameters, *, name: str, gpu: bool, python: str, engine_path: str
+) -> dict[str, Any]:
+    """The job template: the parameters, an environment that puts the engine on PYTHONPATH, and the steps."""
+    definitions: list[dict[str, Any]] = [
+        {
+            "name": PYTHON_PARAMETER,
+            "type": "STRING",
+            "default": python,
+            "description": "the engine's Python on the workers (it runs `python -m engine ...`)",
+        },
+        {
+            "name": ENGINE_PATH_PARAMETER,
+            "type": "STRING",
+            "default": engine_path,
+            "minLength": 0,
+            "description": "the folder holding engine/ on the workers (PYTHONPATH); empty when the engine is installed",
+        },
+        *(p.definition() for p in params.paths),
+    ]
+    return {
+        "specificationVersion": SPECIFICATION_VERSION,
+        "name": name[:128],
+        "parameterDefinitions": definitions,
+        "jobEnvironments": [
+            {
+                "name": "NeuralAtlasEngine",
+                "description": "the engine's package on the workers' Python path",
+                "variables": {"PYTHONPATH": f"{{{{Param.{ENGINE_PATH_PARAMETER}}}}}"},
+            }
+        ],
+        "steps": [_step(step, tasks, plan, params, gpu) for step, tasks in steps_of(plan)],
+    }
+
+
+def step_name(task: Task) -> str:
+    """The OpenJD step a task belongs to: one per task kind per shot."""
+    return f"{task.shot}-{task.kind}"
+
+
+def steps_of(plan: Plan) -> list[tuple[str, list[Task]]]:
+    """The plan's tasks grouped into steps, in the plan's order (dependencies first)."""
+    steps: dict[str, list[Task]] = {}
+    for task in plan.tasks:
+        steps.setdefault(step_name(task), []).append(task)
+    return list(steps.items())
+
+
+def _step(step: str, tasks: list[Task], plan: Plan, params: _Parameters, gpu: bool) -> dict[str, Any]:
+    first = tasks[0]
+    args = _templated_args(step, tasks, params)
+    body: dict[str, Any] = {"name": step}
+    if first.kind in CHUNKED_KINDS:
+        ranges = [f"{t.frames[0]}-{t.frames[1]}" for t in tasks if t.frames is not None]
+        body["parameterSpace"] = {
+            "taskParameterDefinitions": [{"name": FRAMES_PARAMETER, "type": "STRING", "range": ranges}]
+        }
+    depends = sorted({step_name(plan.task(d)) for t in tasks for d in t.depends} - {step})
+    if depends:
+        body["dependencies"] = [{"dependsOn": d} for d in depends]
+    if gpu and first.accelerator:
+        body["hostRequirements"] = {"amounts": [{"name": GPU_AMOUNT, "min": 1}]}
+    body["script"] = {
+        "actions": {
+            "onRun": {
+                "command": f"{{{{Param.{PYTHON_PARAMETER}}}}}",
+                "args": ["-m", C.CLI_MODULE, *args],
+                # SIGTERM first, then time to checkpoint: a preempted fit or chunk keeps its work for the retry
+                "cancelation": {"mode": "NOTIFY_THEN_TERMINATE", "notifyPeriodInSeconds": 60},
+            }
+        }
+    }
+    return body
+
+
+def _templated_args(step: str, tasks: list[Task], params: _Parameters) -> list[str]:
+    """The step's one command line: the tasks' argv with paths as parameters and a chunk's frames as the task
+    parameter. Every task of the step must give the same line (else the plan does not fit one step)."""
+    lines = set()
+    for task in tasks:
+        args = [params.substitute(a) for a in task.args]
+        if task.kind in CHUNKED_KINDS:
+            at = args.index("--frames") + 1
+            args[at] = f"{{{{Task.Param.{FRAMES_PARAMETER}}}}}"
+        lines.add(tuple(args))
+    if len(lines) != 1:
+        raise ValueError(f"the tasks of step {step} differ beyond their frames: {sorted(lines)}")
+    return list(lines.pop())
+
+
+def _parameters(shot_plans: Iterable[ShotPlan]) -> _Parameters:
+    params = _Parameters()
+    for sp in shot_plans:
+        shot = sp.shot
+        plate, kind = shot.plate, "DIRECTORY" if os.path.isdir(shot.plate) else "FILE"
+        if not os.path.exists(plate):  # a sequence pattern: its folder is the input, the pattern stays in the args
+            plate, kind = os.path.dirname(plate), "DIRECTORY"
+        params.add("Plate", shot.name, plate, kind, "IN", f"shot {shot.name}: the plate")
+        for i, mask in enumerate(shot.masks):
+            params.add(f"Mask{i + 1}", shot.name, mask, "DIRECTORY", "IN", f"shot {shot.name}: mask folder {i + 1}")
+        params.add("Run", shot.name, shot.run, "DIRECTORY", "OUT", f"shot {shot.name}: the run folder")
+        if shot.render is not None:
+            params.add("Render", shot.name, shot.render, "DIRECTORY", "OUT", f"shot {shot.name}: rendered frames")
+    return params
+
+
+def asset_references(params: _Parameters) -> dict[str, Any]:
+    """Deadline Cloud's asset references: the input files and folders to upload, the output folders to fetch."""
+    inputs = [p for p in params.paths if p.data_flow == "IN"]
+    return {
+        "assetReferences": {
+            "inputs": {
+                "filenames": [p.value for p in inputs if p.object_type == "FILE"],
+                "directories": [p.value for p in inputs if p.object_type == "DIRECTORY"],
+            },
+            "outputs": {"directories": [p.value for p in params.paths if p.data_flow == "OUT"]},
+            "referencedPaths": [],
+        }
+    }
+
+
+def _identifier(text: str) -> str:
+    """An OpenJD identifier: letters, digits and _, not starting with a digit, at most 64 characters."""
+    name = re.sub(r"[^A-Za-z0-9_]", "_", text)
+    if not re.match(r"[A-Za-z_]", name):
+        name = f"P{name}"
+    return name[:_IDENTIFIER_MAX]
+
+
+__all__ = ["TEMPLATE_FILE", "job_template", "step_name", "steps_of", "write_bundle"]
