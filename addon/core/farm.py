@@ -213,7 +213,7 @@ class FarmJob(Job):
         self.bundle_dir = bundle_dir if settings.kind == FARM_OPENJD else None
         argv = farm_argv(python, settings, shots_path, self.bundle_dir)
         super().__init__([Command(settings.kind, argv)], log_path, EC.engine_env())
-        #: what the engine's last line said (the Manager's job ids, or the bundle folder)
+        #: the engine's last line: the Manager's job ids (``farm flamenco``), or the bundle folder (``farm openjd``)
         self.answer = ""
 
     def finish(self, result: EP.JobResult) -> EP.JobResult:
@@ -226,5 +226,6 @@ class FarmJob(Job):
             result.message = f"OpenJD bundle for Deadline Cloud: {self.bundle_dir}"
         else:
             url = self.settings.manager_url.strip().rstrip("/")
-            result.message = f"submitted to Flamenco at {url}: {self.answer or 'done'}"
+            ids = self.answer.split()  # the engine's last line: the Manager's job ids, in shot order
+            result.message = f"submitted to Flamenco at {url}: {'job' if len(ids) == 1 else 'jobs'} {' '.join(ids)}"
         return result

@@ -28,11 +28,11 @@ def farm(argv: list[str], mode: str) -> int:
     if argv[0] == C.FARM_OPENJD:
         out = Path(argv[argv.index("--out") + 1])
         out.mkdir(parents=True)
-        (out / "template.yaml").write_text("specificationVersion: jobtemplate-2023-09\n")
-        (out / "parameter_values.yaml").write_text("parameterValues: []\n")
+        (out / "template.json").write_text('{"specificationVersion": "jobtemplate-2023-09"}\n')
+        (out / "parameter_values.json").write_text('{"parameterValues": []}\n')
         print(out)
         return 0
-    print(f"fake: job fake-0001 on {argv[argv.index('--manager') + 1]}")
+    print("fake-0001")
     return 0
 
 

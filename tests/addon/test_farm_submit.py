@@ -129,7 +129,7 @@ def test_shots_file_of_a_clip_with_masks(farm_scene, tmp_path):
     assert sorted(os.listdir(tmp_path / "sh010.masks" / "layer1")) == [f"{f:05d}.png" for f in FRAMES]
     bundle = tmp_path / "sh010.farm" / "openjd"
     assert props.farm_status == f"OpenJD bundle for Deadline Cloud: {bundle}"
-    assert sorted(os.listdir(bundle)) == ["parameter_values.yaml", "template.yaml"]  # the stand-in engine's
+    assert sorted(os.listdir(bundle)) == ["parameter_values.json", "template.json"]  # the stand-in engine's
     # a second submission gets a bundle folder of its own
     assert bpy.ops.neural_atlas.submit_farm("EXEC_DEFAULT") == {"FINISHED"}
     assert props.farm_status.endswith(str(tmp_path / "sh010.farm" / "openjd_2"))
@@ -222,14 +222,19 @@ def test_panel_shows_the_button_and_the_status_line(farm_scene):
     assert labels[-1] == ui.FARM_OFFLINE_TEXT
 
 
+#: The Manager's answers the submitter reads first: its job type (with the etag each job carries) and its variables.
+JOB_TYPE_PATH = f"/api/v3/jobs/type/{C.FLAMENCO_JOB_TYPE}"
+VARIABLES_PATH = "/api/v3/configuration/variables/workers/"
+ETAG = "0f1e2d3c"
 #: Flamenco's SubmittedJob: the fields every job has, and their JSON types
 JOB_FIELDS = {"name": str, "type": str, "priority": int, "settings": dict, "submitter_platform": str}
 
 
 # --- Flamenco: a stub Manager on 127.0.0.1 ----------------------------------------------------------------------
 class StubManager:
-    """A Flamenco Manager's two job endpoints on 127.0.0.1 (port 0: the OS picks a free one), in a thread. It checks
-    each body against the fields of Flamenco's SubmittedJob schema and records (method, path, body)."""
+    """A Flamenco Manager's API on 127.0.0.1 (port 0: the OS picks a free one), in a thread: the job type and the
+    variables, then jobs/check and jobs. It checks each job against the fields of Flamenco's SubmittedJob schema and
+    records (method, path, body)."""
 
     def __init__(self):
         self.requests: list[tuple[str, str, dict]] = []
@@ -242,7 +247,14 @@ class StubManager:
 
             def do_GET(self):
                 stub.requests.append(("GET", self.path, {}))
-                self._answer(404, {"code": 404, "message": f"not in the stub: {self.path}"})
+                if self.path == JOB_TYPE_PATH:  # the job type is installed
+                    self._answer(
+                        200, {"name": C.FLAMENCO_JOB_TYPE, "label": "Neural Atlas", "settings": [], "etag": ETAG}
+                    )
+                elif self.path.startswith(VARIABLES_PATH):  # the engine's Python on the workers
+                    self._answer(200, {C.FLAMENCO_PYTHON_VARIABLE: {"value": "/opt/na/bin/python", "is_twoway": False}})
+                else:
+                    self._answer(404, {"code": 404, "message": f"not in the stub: {self.path}"})
 
             def do_POST(self):
                 body = json.loads(self.rfile.read(int(self.headers.get("Content-Length") or 0)) or b"{}")
@@ -294,17 +306,18 @@ def test_submit_to_a_stub_flamenco_manager(farm_scene, tmp_path, monkeypatch):
         result = bpy.ops.neural_atlas.submit_farm("EXEC_DEFAULT", timeout=SUBMIT_TIMEOUT)
     assert result == {"FINISHED"}, props.farm_status
     assert manager.problems == []
-    posts = [(path, body) for method, path, body in manager.requests if method == "POST"]
-    assert [path for path, _ in posts] == [C.FLAMENCO_API_CHECK, C.FLAMENCO_API_SUBMIT]
-    (_, check), (_, submitted) = posts
+    calls = [(method, path) for method, path, _ in manager.requests]
+    assert calls[-2:] == [("POST", C.FLAMENCO_API_CHECK), ("POST", C.FLAMENCO_API_SUBMIT)]  # check, then submit
+    assert {m for m, _ in calls[:-2]} == {"GET"} and ("GET", JOB_TYPE_PATH) in calls
+    check, submitted = (body for _, _, body in manager.requests[-2:])
     assert check == submitted
     assert submitted["type"] == C.FLAMENCO_JOB_TYPE and submitted["priority"] == 73
+    assert submitted.get("type_etag") == ETAG
     assert "00003" in submitted["name"]
     assert submitted["submitter_platform"] in ("linux", "windows", "darwin")
     settings = json.dumps(submitted["settings"])
     assert str(tmp_path / "sh010") in settings and str(tmp_path / "sh010.masks" / "layer1") in settings
-    assert props.farm_status.startswith(f"submitted to Flamenco at {manager.url}: ")
-    assert "00000000-0000-4000-8000-000000000001" in props.farm_status
+    assert props.farm_status == f"submitted to Flamenco at {manager.url}: job 00000000-0000-4000-8000-000000000001"
 
 
 def test_flamenco_manager_error_is_reported_as_the_engine_says_it(farm_scene, monkeypatch):
@@ -352,12 +365,16 @@ def test_openjd_bundle_from_the_real_engine(farm_scene, tmp_path, monkeypatch):
     assert bpy.ops.neural_atlas.submit_farm("EXEC_DEFAULT", timeout=SUBMIT_TIMEOUT) == {"FINISHED"}, props.farm_status
     bundle = tmp_path / "bundles" / "00003" / "openjd"
     assert props.farm_status == f"OpenJD bundle for Deadline Cloud: {bundle}"
-    names = sorted(os.listdir(bundle))
-    template = next(n for n in names if n.startswith("template."))
-    values = next(n for n in names if n.startswith("parameter_values."))
-    text = (bundle / template).read_text()
-    assert "jobtemplate-2023-09" in text
-    assert str(tmp_path / "sh010") in (bundle / values).read_text() + text
+    assert {"template.json", "parameter_values.json"} <= set(os.listdir(bundle))
+    template = json.loads((bundle / "template.json").read_text())
+    assert template["specificationVersion"] == "jobtemplate-2023-09"
+    steps = [step["name"] for step in template["steps"]]
+    assert [s.split("-", 1)[1] for s in steps[:3]] == ["fit", "atlases", "passes"], steps
+    values = {
+        v["name"]: v["value"] for v in json.loads((bundle / "parameter_values.json").read_text())["parameterValues"]
+    }
+    assert str(tmp_path / "sh010") in values.values()  # the Run Folder, an OUT path Deadline maps
+    assert str(tmp_path / "sh010.masks" / "layer1") in values.values()  # the rasterised Mask layer, an IN path
 
 
 # --- Import of a run folder the farm exported in chunks ------------------------------------------------------------

@@ -116,7 +116,7 @@ def test_bundle_folders_are_never_reused(tmp_path):
     assert FM.fresh_bundle_dir(beside, run, "sh010") == str(tmp_path / "run.farm" / "openjd")
     (tmp_path / "run.farm" / "openjd").mkdir(parents=True)
     assert FM.fresh_bundle_dir(beside, run, "sh010") == str(tmp_path / "run.farm" / "openjd")  # empty: reused
-    (tmp_path / "run.farm" / "openjd" / "template.yaml").write_text("x")
+    (tmp_path / "run.farm" / "openjd" / "template.json").write_text("{}")
     assert FM.fresh_bundle_dir(beside, run, "sh010") == str(tmp_path / "run.farm" / "openjd_2")
     elsewhere = FM.FarmSettings(FM.FARM_OPENJD, bundle_dir=str(tmp_path / "bundles"))
     assert FM.fresh_bundle_dir(elsewhere, run, "sh010") == str(tmp_path / "bundles" / "sh010" / "openjd")
@@ -154,7 +154,7 @@ def test_job_reports_the_bundle_folder(tmp_path):
     job = FM.FarmJob(fake_python(tmp_path), FM.FarmSettings(FM.FARM_OPENJD), shots, str(tmp_path / "farm.log"), bundle)
     result = _drive(job)
     assert (result.status, result.message) == (EP.STATUS_OK, f"OpenJD bundle for Deadline Cloud: {bundle}")
-    assert sorted(os.listdir(bundle)) == ["parameter_values.yaml", "template.yaml"]
+    assert sorted(os.listdir(bundle)) == ["parameter_values.json", "template.json"]
     first = Path(job.log_path).read_text().splitlines()[0]
     assert first.endswith(f" -m engine farm openjd {shots} --out {bundle}")
 
@@ -164,7 +164,7 @@ def test_job_reports_the_managers_answer(tmp_path):
     settings = FM.FarmSettings(FM.FARM_FLAMENCO, "http://farm:8080/", 40)
     result = _drive(FM.FarmJob(fake_python(tmp_path), settings, shots, str(tmp_path / "farm.log")))
     assert result.status == EP.STATUS_OK
-    assert result.message == "submitted to Flamenco at http://farm:8080: fake: job fake-0001 on http://farm:8080"
+    assert result.message == "submitted to Flamenco at http://farm:8080: job fake-0001"
 
 
 def test_job_passes_the_engines_one_line_error_on(tmp_path, monkeypatch):
