@@ -235,6 +235,7 @@ def build_parser(prog: str = "python -m engine") -> argparse.ArgumentParser:
     _add_export_parsers(sub)
     _add_masks_parser(sub)
     _add_nuke_parser(sub)
+    _add_farm_parser(sub)
     return p
 
 
@@ -469,6 +470,109 @@ def _cmd_masks(args: argparse.Namespace) -> int:
     return C.EXIT_OK
 
 
+#: The farm back ends other modules add: (command, module, its parser function, its run function).
+FARM_BACKENDS: tuple[tuple[str, str, str, str], ...] = (
+    (C.FARM_DASK, "engine.farm.dask_backend", "add_dask_parser", "run_dask"),
+    (C.FARM_FLAMENCO, "engine.farm.flamenco", "add_flamenco_parser", "run_flamenco"),
+)
+
+
+def _add_farm_parser(sub: argparse._SubParsersAction) -> None:
+    """``farm plan|openjd|dask|flamenco SHOTS``: a sequence's shots on the schedulers studios already run. The
+    back ends' own parsers come from their modules, imported here only for their parser (light; the scheduler
+    libraries load when one runs)."""
+    import importlib
+
+    farm = sub.add_parser(
+        C.VERB_FARM,
+        help="fit, export and render the shots of a sequence on a farm (OpenJD/Deadline Cloud, Dask, Flamenco)",
+        description="Plan every shot of a shots file (docs/farm.md) as engine commands with their dependencies: "
+        "masks (auto_masks) -> fit -> export atlases -> export passes per frame chunk -> publish -> render per "
+        "frame chunk -> preview; every back end runs exactly these command lines.",
+        epilog=EXIT_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    commands = farm.add_subparsers(dest="farm_command", metavar="COMMAND", required=True)
+    shots_help = "the shots file (.toml or .json; relative paths are relative to it)"
+    plan = commands.add_parser(C.FARM_PLAN, help="print every task's engine arguments and dependencies")
+    plan.add_argument("shots", metavar="SHOTS", help=shots_help)
+    plan.add_argument("--json", action="store_true", help="one JSON object: the shots and their tasks")
+    oj = commands.add_parser(
+        C.FARM_OPENJD,
+        help="write an Open Job Description bundle (AWS Deadline Cloud; `openjd run`)",
+        description="Write BUNDLE_DIR/template.json, parameter_values.json and asset_references.json (Deadline "
+        "Cloud's job bundle) and job_parameters.json (`openjd run BUNDLE_DIR/template.json -p "
+        "file://BUNDLE_DIR/job_parameters.json`). The last line printed is the template's path.",
+    )
+    oj.add_argument("shots", metavar="SHOTS", help=shots_help)
+    oj.add_argument("--out", required=True, metavar="BUNDLE_DIR", help="the bundle's folder (created)")
+    oj.add_argument(
+        "--engine-python",
+        default=sys.executable,
+        metavar="PYTHON",
+        help="the engine's Python on the workers (default: this one; the EnginePython job parameter)",
+    )
+    oj.add_argument(
+        "--engine-path",
+        default=str(Path(__file__).resolve().parent.parent),
+        metavar="DIR",
+        help="the folder holding engine/ on the workers, put on PYTHONPATH (default: this engine's; '' when the "
+        "engine is installed in the workers' Python)",
+    )
+    oj.add_argument("--no-gpu", action="store_true", help="no GPU host requirement on the fit and export steps")
+    oj.add_argument("--name", default=None, help="the job's name (default: the shots file's name)")
+    for command, module, add_parser, _ in FARM_BACKENDS:
+        try:
+            getattr(importlib.import_module(module), add_parser)(commands)
+        except ImportError as exc:  # a back end whose module or library is missing: its command says so
+            missing = commands.add_parser(command, help=f"(not available: {exc})")
+            missing.add_argument("rest", nargs=argparse.REMAINDER)
+            missing.set_defaults(farm_missing=f"{exc}")
+
+
+def _cmd_farm(args: argparse.Namespace) -> int:
+    """Plan, then hand the plan to the back end; progress per shot as JSON lines, the result's path last."""
+    import importlib
+    import json
+
+    missing = getattr(args, "farm_missing", None)
+    if missing is not None:
+        raise InputError(
+            None, f"farm {args.farm_command} is not available ({missing})", "install the engine's farm extra"
+        )
+    for command, module, _, run in FARM_BACKENDS:
+        if args.farm_command == command:
+            result: int = getattr(importlib.import_module(module), run)(args)
+            return result
+    from engine.farm.plan import plan_with_shots, task_graph_text
+    from engine.farm.shots import load_shots
+
+    shots = load_shots(args.shots)
+    plan, shot_plans = plan_with_shots(shots)
+    if args.farm_command == C.FARM_PLAN:
+        if args.json:
+            print(json.dumps({"schema": C.SCHEMA_VERSION, **plan.to_json()}, indent=2))
+        else:
+            print(task_graph_text(plan))
+        return C.EXIT_OK
+    from engine.farm.openjd import write_bundle
+
+    files = write_bundle(
+        plan,
+        shot_plans,
+        args.out,
+        name=args.name or f"Neural Atlas {shots.path.stem}",
+        gpu=not args.no_gpu,
+        python=args.engine_python,
+        engine_path=args.engine_path,
+    )
+    for sp in shot_plans:
+        name, count = sp.shot.name, len(plan.shot_tasks(sp.shot.name))
+        message = f"{name}: {count} tasks, export {sp.version}"
+        print(C.progress_line(C.EVENT_STAGE, stage=C.VERB_FARM, shot=name, tasks=count, message=message))
+    return _print_paths(files[:1])
+
+
 def _cmd_fit(args: argparse.Namespace) -> int:
     from engine.config import apply_overrides, config_help, parse_set_args, preset_config
 
@@ -570,6 +674,7 @@ def _run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
             C.VERB_ESTIMATE: _cmd_estimate,
             C.VERB_MASKS: _cmd_masks,
             C.VERB_NUKE: _cmd_nuke,
+            C.VERB_FARM: _cmd_farm,
         }
         if args.verb in handlers:
             return handlers[args.verb](args)

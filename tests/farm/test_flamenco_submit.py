@@ -198,3 +198,15 @@ def test_the_parser_and_job_type_out(tmp_path: Path, capsys: pytest.CaptureFixtu
         flamenco.run_flamenco(args)
     args = parser.parse_args(["flamenco", "s.json", "--manager", "http://m:8080", "--priority", "10", "--check-only"])
     assert (args.shots, args.manager, args.priority, args.check_only) == ("s.json", "http://m:8080", 10, True)
+
+
+def test_a_manager_that_does_not_answer_times_out_in_one_line() -> None:
+    with socket.socket() as sock:  # accepts connections (the backlog) and never answers
+        sock.bind(("127.0.0.1", 0))
+        sock.listen(4)
+        url = f"http://127.0.0.1:{sock.getsockname()[1]}"
+        with pytest.raises(InputError) as exc:
+            flamenco.Manager(url, timeout=0.3).request("GET", TYPE_PATH)
+    text = _one_line(exc)
+    assert text.startswith(url + TYPE_PATH + ": the Flamenco Manager did not answer in 0.3 s")
+    assert "--timeout" in text

@@ -49,6 +49,7 @@ def _requirements(lines: list[str] | tuple[str, ...]) -> list[tuple[str, str, st
 def test_declared_dependencies_are_the_contract_pins_character_for_character():
     project = tomllib.loads(PYPROJECT.read_text(encoding="utf-8"))["project"]
     assert project["dependencies"] == list(C.ENGINE_REQUIREMENTS)
+    assert project["optional-dependencies"] == {"farm": list(C.FARM_REQUIREMENTS)}
     assert project["name"] == "neural-atlas" and project["version"] == C.ENGINE_VERSION
     assert project["scripts"] == {CONSOLE_SCRIPT: "engine.cli:console_main"}
 
@@ -91,7 +92,12 @@ def test_wheel_metadata_declares_the_pins_and_the_command(wheel):
     dist_info = f"neural_atlas-{C.ENGINE_VERSION}.dist-info"
     metadata = z.read(f"{dist_info}/METADATA").decode("utf-8").splitlines()
     requires = [line.split(": ", 1)[1] for line in metadata if line.startswith("Requires-Dist: ")]
-    assert _requirements(requires) == _requirements(C.ENGINE_REQUIREMENTS)
+    farm_marker = 'extra == "farm"'
+    assert _requirements([r for r in requires if farm_marker not in r]) == _requirements(C.ENGINE_REQUIREMENTS)
+    # the farm extra: exactly the contract's FARM_REQUIREMENTS, each under the extra's marker
+    assert "Provides-Extra: farm" in metadata
+    farm = [r.split(";")[0].strip() for r in requires if farm_marker in r]
+    assert _requirements(farm) == _requirements(C.FARM_REQUIREMENTS)
     assert "Requires-Python: >=3.11" in metadata
     assert "License-Expression: GPL-3.0-or-later" in metadata
     entry_points = z.read(f"{dist_info}/entry_points.txt").decode("utf-8").split()
