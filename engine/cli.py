@@ -288,7 +288,8 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
         description="Export a fitted run for compositing into RUN_DIR/exports/vNNN (never overwritten), holding "
         "the run folder's lock. Passes are float32 EXR at the plate's native resolution; edit layers (RUN_DIR/edits) "
         "are created once and never overwritten. The manifest's paths are relative to it, so the run folder can move "
-        "with its plate. The last line printed is the manifest's path.",
+        "with its plate. The last line printed is the manifest's path (--stage atlases and passes: the staging "
+        "folder).",
         epilog=EXIT_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -296,17 +297,38 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
     x.add_argument(
         "--atlas-size",
         type=int,
-        default=C.ATLAS_SIZE_DEFAULT,
-        help=f"atlas texture long side in texels (default: {C.ATLAS_SIZE_DEFAULT})",
+        default=None,
+        help=f"atlas texture long side in texels (default: {C.ATLAS_SIZE_DEFAULT}; publish: the staged one)",
     )
     x.add_argument(
         "--frames",
         type=frame_range,
         default=None,
         metavar="FIRST-LAST",
-        help="inclusive range of the plate's frame numbers, as for fit (default: every fitted frame)",
+        help="inclusive range of the plate's frame numbers, as for fit (default: every fitted frame; passes: the "
+        "chunk to write, default the staged range)",
     )
     x.add_argument("--device", default="cpu", help="auto | cpu | cuda | mps (default: cpu)")
+    x.add_argument(
+        C.EXPORT_INTO_ARG,
+        dest="into",
+        default=None,
+        metavar="vNNN",
+        help=f"export into RUN_DIR/{C.EXPORTS_DIR}/vNNN (its manifest path is known before it runs) rather than the "
+        "next free version; already exported there with the same frames and atlas size: nothing to do, the "
+        "manifest's path is printed (a retried task succeeds); with others: refused",
+    )
+    x.add_argument(
+        C.EXPORT_STAGE_ARG,
+        dest="stage",
+        default=None,
+        choices=C.EXPORT_STAGES,
+        help=f"one part of the export {C.EXPORT_INTO_ARG} vNNN, for a farm: atlases (once, holding the lock: the "
+        f"layer frames and atlas textures into {C.EXPORTS_DIR}/.vNNN.chunks), passes --frames A-B (chunks, at once "
+        "on several hosts, no lock: frames already written are skipped, a cancel keeps the finished ones), publish "
+        "(once every chunk is done: edit layers, manifest and Nuke script, then the folder becomes vNNN). The files "
+        "are those of a whole export, byte for byte; each part run again is idempotent",
+    )
     x.add_argument("--no-bar", action="store_true", help="no progress bar on stderr")
     r = sub.add_parser(
         C.VERB_RENDER,
@@ -364,7 +386,13 @@ def _cmd_export(args: argparse.Namespace) -> int:
     from engine.export.exporter import export_run
 
     path = export_run(
-        args.run, atlas_size=args.atlas_size, frames=args.frames, device_name=args.device, progress_bar=not args.no_bar
+        args.run,
+        atlas_size=args.atlas_size,
+        frames=args.frames,
+        device_name=args.device,
+        progress_bar=not args.no_bar,
+        into=args.into,
+        stage=args.stage,
     )
     return _print_paths([path])
 

@@ -63,6 +63,13 @@ DEFAULT_ATLAS_SIZE = C.ATLAS_SIZE_DEFAULT
 #: new edit layer, the layout) wait in its ``.edits`` folder.
 STAGING_SUFFIX = ".partial"
 STAGED_EDITS = ".edits"
+#: A staged export (``export --into vNNN --stage ...``) is assembled in ``exports/.vNNN.chunks``: its atlases, the
+#: passes its chunks write (no lock: several hosts at once) and its record (``STAGE_RECORD``: frames, atlas size,
+#: each layer's atlas frame), until ``--stage publish`` renames it to ``vNNN``. A whole export never removes it and
+#: never takes its number.
+CHUNKS_SUFFIX = ".chunks"
+STAGE_RECORD = "stage.json"
+STAGE_SCHEMA = "neural_atlas.export_stage/1"
 #: A layer's pass channels (UV X, Y, Z, alpha and the STMap copy) and their bytes uncompressed: the disk-full
 #: estimate of a frame of passes before any is written.
 PASS_CHANNELS_PER_LAYER = len(C.UV_CHANNELS) + len(C.ALPHA_CHANNELS) + len(C.STMAP_CHANNELS)
@@ -252,17 +259,49 @@ def _read_layout(edits_dir: Path) -> dict[str, Any]:
 
 def _next_version(exports: Path) -> tuple[Path, Path]:
     """The next free ``vNNN`` and its hidden staging folder (created). Called under the run folder's lock, so any
-    staging folder already there is a killed export's leftover: it is removed first."""
+    staging folder already there is a killed export's leftover: it is removed first. A number a staged export holds
+    (``.vNNN.chunks``, whose passes other hosts may be writing without the lock) is never taken, nor its folder
+    removed."""
     exports.mkdir(parents=True, exist_ok=True)
     for leftover in exports.glob(f".*{STAGING_SUFFIX}"):
         shutil.rmtree(leftover, ignore_errors=True)
     n = 1
-    while (exports / C.EXPORT_VERSION_FORMAT.format(n)).exists():
+    while _taken(exports, C.EXPORT_VERSION_FORMAT.format(n)):
         n += 1
     final = exports / C.EXPORT_VERSION_FORMAT.format(n)
-    staging = exports / f".{final.name}{STAGING_SUFFIX}"
+    return final, _fresh_staging(exports, final.name)
+
+
+def _taken(exports: Path, version: str) -> bool:
+    """Whether ``version`` is published, or held by a staged export."""
+    return (exports / version).exists() or _chunks_folder(exports, version).exists()
+
+
+def _fresh_staging(exports: Path, version: str) -> Path:
+    """``exports/.vNNN.partial``, created empty (a killed export's leftover of that name is removed first)."""
+    exports.mkdir(parents=True, exist_ok=True)
+    staging = exports / f".{version}{STAGING_SUFFIX}"
+    shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir()
-    return final, staging
+    return staging
+
+
+def _chunks_folder(exports: Path, version: str) -> Path:
+    """The hidden folder a staged export (``--into vNNN --stage ...``) is assembled in until it is published."""
+    return exports / f".{version}{CHUNKS_SUFFIX}"
+
+
+def export_version(text: str) -> str:
+    """``--into``'s version name, checked: ``v001``, ``v002``, ... (``contract.EXPORT_VERSION_FORMAT``)."""
+    digits = text[1:]
+    if text[:1] == "v" and digits.isdigit() and int(digits) > 0 and C.EXPORT_VERSION_FORMAT.format(int(digits)) == text:
+        return text
+    raise InputError(
+        None,
+        f"{C.EXPORT_INTO_ARG} {text!r} is not an export version",
+        f"name it as the exports are named: {C.EXPORT_VERSION_FORMAT.format(1)}, {C.EXPORT_VERSION_FORMAT.format(2)}, "
+        "...",
+    )
 
 
 def _selected(clip: ClipRecord, frames: tuple[int, int] | None) -> list[int]:
@@ -283,56 +322,144 @@ def _selected(clip: ClipRecord, frames: tuple[int, int] | None) -> list[int]:
 
 def export_run(
     run_dir: str | Path,
-    atlas_size: int = DEFAULT_ATLAS_SIZE,
+    atlas_size: int | None = DEFAULT_ATLAS_SIZE,
     frames: tuple[int, int] | None = None,
     device_name: str = "cpu",
     progress_bar: bool = True,
     stream: Any = None,
+    into: str | None = None,
+    stage: str | None = None,
 ) -> Path:
     """Export ``run_dir``; returns the path of the manifest.json written. Reads the run folder only (its
     ``clip.json`` says what export needs of the clip): the plate is not decoded. Holds the run folder's lock for
     the whole write; the export and any new edit layers appear together, or (a failure, a full disk, a cancel)
-    nothing does and the edit layers and earlier exports are as they were."""
+    nothing does and the edit layers and earlier exports are as they were.
+
+    ``into`` (``vNNN``): that version rather than the next free one; already published with the same frames and
+    atlas size, its manifest is returned at once (a retried farm task), with others it is a one-line error.
+    ``stage`` (``contract.EXPORT_STAGES``, with ``into``) runs one part of that export, so a farm can split it:
+    ``atlases`` (the layer frames and atlas textures, into ``exports/.vNNN.chunks``), ``passes`` (the passes of
+    ``frames``, without the lock: chunks run at once on several hosts; returns the staging folder) and ``publish``
+    (every pass present: edit layers, manifest and Nuke script as a whole export writes them, then the folder
+    becomes ``vNNN``). The staged export's files are those of a whole export of the same run, byte for byte.
+    ``atlas_size`` None: the default (publish: the staged one)."""
     run_dir = Path(run_dir).resolve()
     low, high = C.ATLAS_SIZE_RANGE
-    if not low <= atlas_size <= high:
+    if atlas_size is not None and not low <= atlas_size <= high:
         raise InputError(None, f"--atlas-size {atlas_size} is out of range", f"use {low}..{high} (paper: 1000)")
+    version = None if into is None else export_version(into)
+    if stage is not None and stage not in C.EXPORT_STAGES:
+        raise InputError(None, f"unknown {C.EXPORT_STAGE_ARG} {stage!r}", f"use one of {', '.join(C.EXPORT_STAGES)}")
+    if stage is not None and version is None:
+        raise InputError(
+            None,
+            f"{C.EXPORT_STAGE_ARG} {stage} without {C.EXPORT_INTO_ARG}",
+            f"name the version its stages share: {C.EXPORT_INTO_ARG} {C.EXPORT_VERSION_FORMAT.format(1)}",
+        )
     RunFolder(run_dir).require_fit()
+    job = _Job(run_dir, device_name, progress_bar, stream)
+    if stage == C.EXPORT_STAGES[1]:
+        assert version is not None
+        return _export_passes(job, version, frames)  # no lock: its chunks run at once on several hosts
+    publish = stage == C.EXPORT_STAGES[2]
+    size = atlas_size if publish or atlas_size is not None else DEFAULT_ATLAS_SIZE  # publish: the staged one
     with C.run_lock(run_dir, C.VERB_EXPORT):
-        return _export_locked(run_dir, atlas_size, frames, device_name, progress_bar, stream)
+        if version is None:
+            return _export_whole(job, DEFAULT_ATLAS_SIZE if size is None else size, frames, None)
+        done = _published(run_dir, version, size, frames, any_frames=publish and frames is None)
+        if done is not None:
+            return done
+        if publish:
+            return _export_publish(job, version, size, frames)
+        assert size is not None
+        if stage == C.EXPORT_STAGES[0]:
+            return _export_atlases(job, version, size, frames)
+        chunks = _chunks_folder(run_dir / C.EXPORTS_DIR, version)
+        if chunks.exists():
+            raise InputError(
+                chunks,
+                f"holds a staged export of {version}",
+                f"finish it ({C.EXPORT_STAGE_ARG} passes, then publish), or delete that folder to export {version} "
+                "whole",
+            )
+        return _export_whole(job, size, frames, version)
 
 
-def _export_locked(
-    run_dir: Path,
-    atlas_size: int,
-    frames: tuple[int, int] | None,
-    device_name: str,
-    progress_bar: bool,
-    stream: Any,
-) -> Path:
-    reporter = Reporter(stream=stream)
-    reporter.emit(C.EVENT_STAGE, stage="load", message=f"loading the fit in {run_dir}")
-    fitted = load_fitted(run_dir, device_name)
+@dataclass
+class _Job:
+    """What every part of an export is given: the run, the device, and where its progress goes."""
+
+    run_dir: Path
+    device_name: str
+    progress_bar: bool
+    stream: Any
+
+    def __post_init__(self) -> None:
+        self.reporter = Reporter(stream=self.stream)
+
+    def load(self) -> FittedRun:
+        self.reporter.emit(C.EVENT_STAGE, stage="load", message=f"loading the fit in {self.run_dir}")
+        fitted = load_fitted(self.run_dir, self.device_name)
+        if fitted.metrics is None:
+            print(f"warning: {self.run_dir} has no {C.RUN_METRICS}: exporting an unfinished fit", file=sys.stderr)
+        return fitted
+
+    def bar(self, total: int) -> Any:
+        return tqdm(total=total, disable=not self.progress_bar, file=sys.stderr, unit="frame")
+
+
+@dataclass
+class _Plan:
+    """What every part of one export shares: the layers, the atlas frame of each and the frames exported."""
+
+    names: list[str]
+    frames_by_layer: list[LayerFrame]
+    selected: list[int]  # run frame indices
+    atlas_size: int
+
+    def numbers(self, clip: ClipRecord) -> list[int]:
+        return [clip.frame_numbers[t] for t in self.selected]
+
+    def to_record(self, clip: ClipRecord) -> dict[str, Any]:
+        """The staged export's record (``STAGE_RECORD``): JSON keeps each float exactly, so every pass a chunk
+        writes from it is the whole export's."""
+        numbers = self.numbers(clip)
+        layers = [
+            {"name": n, "atlas_box": list(fr.box), "atlas_size": list(fr.size)}
+            for n, fr in zip(self.names, self.frames_by_layer, strict=True)
+        ]
+        return {"schema": STAGE_SCHEMA, "frames": [numbers[0], numbers[-1]], "atlas_size": self.atlas_size,
+                "layers": layers}  # fmt: skip
+
+    @classmethod
+    def from_record(cls, data: dict[str, Any], clip: ClipRecord) -> _Plan:
+        frames = (int(data["frames"][0]), int(data["frames"][1]))
+        layers = data["layers"]
+        return cls(
+            [str(layer["name"]) for layer in layers],
+            [LayerFrame(tuple(layer["atlas_box"]), tuple(layer["atlas_size"])) for layer in layers],  # type: ignore[arg-type]
+            _selected(clip, frames),
+            int(data["atlas_size"]),
+        )
+
+
+def _plan(
+    job: _Job, fitted: FittedRun, atlas_size: int, frames: tuple[int, int] | None, bar: Any
+) -> tuple[_Plan, list[_Coverage]]:
+    """Where each layer's mapping lands (every frame, working resolution) and each layer's atlas frame: an existing
+    edit layer's frame wins (its paint must not shift)."""
     model, clip = fitted.model, fitted.clip
     device = next(model.parameters()).device
-    if fitted.metrics is None:
-        print(f"warning: {run_dir} has no {C.RUN_METRICS}: exporting an unfinished fit", file=sys.stderr)
     selected = _selected(clip, frames)
-    t_count = clip.num_frames
     names = [C.layer_name(i, model.num_layers) for i in range(model.num_layers)]
-
-    # 1. where each layer's mapping lands, and with what alpha (every frame, working resolution)
-    reporter.emit(C.EVENT_STAGE, stage="atlas", message="atlas extent and coverage")
-    cov = [_Coverage(model.uv_per_px(i), t_count, foreground=i > 0) for i in range(model.num_layers)]
+    job.reporter.emit(C.EVENT_STAGE, stage="atlas", message="atlas extent and coverage")
+    cov = [_Coverage(model.uv_per_px(i), clip.num_frames, foreground=i > 0) for i in range(model.num_layers)]
     xy_work = _pixel_grid(clip.working_size, (1.0, 1.0), device)
-    bar = tqdm(total=t_count + len(selected), disable=not progress_bar, file=sys.stderr, unit="frame")
-    for t in range(t_count):
+    for t in range(clip.num_frames):
         uvs, wts = _eval_pixels(model, xy_work, t)
         for i in range(model.num_layers):
             cov[i].add(t, uvs[i], wts[:, i])
         bar.update(1)
-
-    # 2. the atlas frame of every layer: an existing edit layer's frame wins (its paint must not shift)
     edits_dir = fitted.folder.edits
     layout = _read_layout(edits_dir)
     frames_by_layer: list[LayerFrame] = []
@@ -343,70 +470,78 @@ def _export_locked(
             frames_by_layer.append(layer_frame_for(tuple(rec["atlas_box"]), atlas_size))  # type: ignore[arg-type]
         else:
             frames_by_layer.append(layer_frame_for(cov[i].box(), atlas_size))
+    return _Plan(names, frames_by_layer, selected, atlas_size), cov
 
-    out = _Output(fitted.folder, clip.native_size, len(names), len(selected))
+
+def _write_atlases(fitted: FittedRun, plan: _Plan, cov: list[_Coverage], dest: Path) -> None:
+    """Atlas textures into ``dest/atlases``: colours from the atlas network, coverage from the alpha network."""
+    model = fitted.model
+    device = next(model.parameters()).device
+    for i, name in enumerate(plan.names):
+        fr = plan.frames_by_layer[i]
+        rgb = _atlas_colours(model, i, fr, device)
+        alpha = np.clip(cov[i].sample(fr), 0.0, 1.0)[..., None]
+        write_png(dest / C.ATLASES_DIR / f"{name}{C.ATLAS_PNG_EXT}", np.concatenate((rgb, alpha), -1), 16)
+        lin = srgb_to_linear(rgb) * alpha
+        write_exr(
+            dest / C.ATLASES_DIR / f"{name}{C.ATLAS_EXR_EXT}",
+            {"R": lin[..., 0], "G": lin[..., 1], "B": lin[..., 2], "A": alpha[..., 0]},
+            chromaticities=REC709_CHROMATICITIES,  # scene-linear Rec.709, Blender's compositing space
+            attributes={C.EXR_COLORSPACE_ATTRIBUTE: SCENE_LINEAR},
+        )
+
+
+def _pass_file(dest: Path, number: int) -> Path:
+    return dest / C.PASSES_DIR / C.pass_file_name(number)
+
+
+def _write_passes(
+    job: _Job, fitted: FittedRun, plan: _Plan, todo: list[int], dest: Path, bar: Any, written: Any = None
+) -> None:
+    """The UV + alpha passes of the run frames ``todo`` at native resolution into ``dest/passes``, each file
+    atomic (a frame's pass exists whole or not at all); ``written(path)`` is told of each."""
+    model, clip = fitted.model, fitted.clip
+    device = next(model.parameters()).device
+    job.reporter.emit(C.EVENT_STAGE, stage="passes", message=f"{len(todo)} frames of UV + alpha passes")
+    nw, nh = clip.native_size
+    ww, wh = clip.working_size
+    xy_native = _pixel_grid((nw, nh), (ww / nw, wh / nh), device)
+    frame_numbers = list(clip.frame_numbers)
+    for k, t in enumerate(todo):
+        uvs, wts = _eval_pixels(model, xy_native, t)
+        chans: dict[str, np.ndarray] = {}
+        for i, name in enumerate(plan.names):
+            tex_uv, inside = plan.frames_by_layer[i].to_texture_uv(uvs[i])
+            a = wts[:, i]
+            uv_pass, alpha_pass = C.uv_pass(name), C.alpha_pass(name)
+            chans[C.channel_name(uv_pass, "X")] = tex_uv[:, 0].reshape(nh, nw)
+            chans[C.channel_name(uv_pass, "Y")] = tex_uv[:, 1].reshape(nh, nw)
+            chans[C.channel_name(uv_pass, "Z")] = (a * inside).reshape(nh, nw)
+            chans[C.channel_name(alpha_pass, C.ALPHA_CHANNELS[0])] = a.reshape(nh, nw)
+            for channel, values in zip(C.STMAP_CHANNELS, stmap_values(chans, uv_pass), strict=True):
+                chans[C.stmap_channel_name(name, channel)] = values
+        timing = exr_timing(clip.rate, clip.pixel_aspect, clip.timecode, frame_numbers[t] - frame_numbers[0])
+        tags = {C.EXR_COLORSPACE_ATTRIBUTE: RAW, **timing}  # data, with the plate's timing
+        path = write_exr(_pass_file(dest, frame_numbers[t]), chans, attributes=tags)
+        if written is not None:
+            written(path)
+        bar.update(1)
+        job.reporter.emit(C.EVENT_PROGRESS, step=k + 1, total=len(todo), psnr=None, elapsed=None, eta=None)
+
+
+def _export_whole(job: _Job, atlas_size: int, frames: tuple[int, int] | None, version: str | None) -> Path:
+    """A whole export, under the lock: into the next free version, or ``version``."""
+    fitted = job.load()
+    clip = fitted.clip
+    out = _Output(fitted.folder, clip.native_size, fitted.model.num_layers, len(_selected(clip, frames)))
     try:
-        final, staging = out.begin()
-        # 3. atlas textures: colours from the atlas network, coverage from the alpha network
-        for i, name in enumerate(names):
-            fr = frames_by_layer[i]
-            rgb = _atlas_colours(model, i, fr, device)
-            alpha = np.clip(cov[i].sample(fr), 0.0, 1.0)[..., None]
-            write_png(staging / C.ATLASES_DIR / f"{name}{C.ATLAS_PNG_EXT}", np.concatenate((rgb, alpha), -1), 16)
-            lin = srgb_to_linear(rgb) * alpha
-            write_exr(
-                staging / C.ATLASES_DIR / f"{name}{C.ATLAS_EXR_EXT}",
-                {"R": lin[..., 0], "G": lin[..., 1], "B": lin[..., 2], "A": alpha[..., 0]},
-                chromaticities=REC709_CHROMATICITIES,  # scene-linear Rec.709, Blender's compositing space
-                attributes={C.EXR_COLORSPACE_ATTRIBUTE: SCENE_LINEAR},
-            )
-
-        # 4. passes at native resolution
-        reporter.emit(C.EVENT_STAGE, stage="passes", message=f"{len(selected)} frames of UV + alpha passes")
-        nw, nh = clip.native_size
-        ww, wh = clip.working_size
-        xy_native = _pixel_grid((nw, nh), (ww / nw, wh / nh), device)
-        frame_numbers = list(clip.frame_numbers)
-        for k, t in enumerate(selected):
-            uvs, wts = _eval_pixels(model, xy_native, t)
-            chans: dict[str, np.ndarray] = {}
-            for i, name in enumerate(names):
-                tex_uv, inside = frames_by_layer[i].to_texture_uv(uvs[i])
-                a = wts[:, i]
-                uv_pass, alpha_pass = C.uv_pass(name), C.alpha_pass(name)
-                chans[C.channel_name(uv_pass, "X")] = tex_uv[:, 0].reshape(nh, nw)
-                chans[C.channel_name(uv_pass, "Y")] = tex_uv[:, 1].reshape(nh, nw)
-                chans[C.channel_name(uv_pass, "Z")] = (a * inside).reshape(nh, nw)
-                chans[C.channel_name(alpha_pass, C.ALPHA_CHANNELS[0])] = a.reshape(nh, nw)
-                for channel, values in zip(C.STMAP_CHANNELS, stmap_values(chans, uv_pass), strict=True):
-                    chans[C.stmap_channel_name(name, channel)] = values
-            timing = exr_timing(clip.rate, clip.pixel_aspect, clip.timecode, frame_numbers[t] - frame_numbers[0])
-            pass_file = staging / C.PASSES_DIR / C.pass_file_name(frame_numbers[t])
-            tags = {C.EXR_COLORSPACE_ATTRIBUTE: RAW, **timing}  # data, with the plate's timing
-            out.pass_written(write_exr(pass_file, chans, attributes=tags))
-            bar.update(1)
-            reporter.emit(C.EVENT_PROGRESS, step=k + 1, total=len(selected), psnr=None, elapsed=None, eta=None)
+        bar = job.bar(clip.num_frames + out.frames)
+        plan, cov = _plan(job, fitted, atlas_size, frames, bar)
+        final, staging = out.begin(version)
+        _write_atlases(fitted, plan, cov, staging)
+        _write_passes(job, fitted, plan, plan.selected, staging, bar, out.pass_written)
         bar.close()
-
-        # 5. edit layers: created once, never overwritten; their atlas frame recorded for later exports
-        recorded = json.dumps(layout, indent=2)
-        for i, name in enumerate(names):
-            path = edits_dir / f"{name}{C.EDIT_LAYER_EXT}"
-            fr = frames_by_layer[i]
-            if not path.exists():  # a new (or deleted) edit layer: it is painted in this export's frame
-                w, h = fr.size
-                write_png(out.stage_edit(path), np.zeros((h, w, 4), np.float32), 8)
-                layout["layers"][name] = {"atlas_box": list(fr.box), "atlas_size": list(fr.size)}
-            elif name not in layout["layers"]:  # the artist's own image: record the frame it now lives in
-                layout["layers"][name] = {"atlas_box": list(fr.box), "atlas_size": list(fr.size)}
-        if json.dumps(layout, indent=2) != recorded or not (edits_dir / C.EDITS_LAYOUT).exists():
-            atomic_write_text(out.stage_edit(edits_dir / C.EDITS_LAYOUT), json.dumps(layout, indent=2))
-
-        manifest = _manifest(run_dir, final, fitted, names, frames_by_layer, selected)
-        C.validate_manifest(manifest)
-        atomic_write_text(staging / C.MANIFEST_NAME, json.dumps(manifest, indent=2))
-        _write_nuke_script(staging, manifest)
-        out.publish()
+        _publish(job, fitted, plan, out)
     except BaseException as exc:
         need = out.need()
         out.discard()
@@ -414,9 +549,206 @@ def _export_locked(
         if full is not None:
             raise full from None
         raise
+    return final / C.MANIFEST_NAME
+
+
+def _publish(job: _Job, fitted: FittedRun, plan: _Plan, out: _Output) -> None:
+    """The end of every export (whole or staged; passes and atlases are in ``out.staging``): new edit layers,
+    created once and never overwritten, their atlas frame recorded for later exports; the manifest and the Nuke
+    script; then everything into place at once."""
+    assert out.final is not None and out.staging is not None
+    edits_dir = fitted.folder.edits
+    layout = _read_layout(edits_dir)
+    recorded = json.dumps(layout, indent=2)
+    for i, name in enumerate(plan.names):
+        path = edits_dir / f"{name}{C.EDIT_LAYER_EXT}"
+        fr = plan.frames_by_layer[i]
+        if not path.exists():  # a new (or deleted) edit layer: it is painted in this export's frame
+            w, h = fr.size
+            write_png(out.stage_edit(path), np.zeros((h, w, 4), np.float32), 8)
+            layout["layers"][name] = {"atlas_box": list(fr.box), "atlas_size": list(fr.size)}
+        elif name not in layout["layers"]:  # the artist's own image: record the frame it now lives in
+            layout["layers"][name] = {"atlas_box": list(fr.box), "atlas_size": list(fr.size)}
+    if json.dumps(layout, indent=2) != recorded or not (edits_dir / C.EDITS_LAYOUT).exists():
+        atomic_write_text(out.stage_edit(edits_dir / C.EDITS_LAYOUT), json.dumps(layout, indent=2))
+    manifest = _manifest(job.run_dir, out.final, fitted, plan.names, plan.frames_by_layer, plan.selected)
+    C.validate_manifest(manifest)
+    atomic_write_text(out.staging / C.MANIFEST_NAME, json.dumps(manifest, indent=2))
+    _write_nuke_script(out.staging, manifest)
+    out.publish()
+    job.reporter.emit(C.EVENT_EXPORTED, manifest=str(out.final / C.MANIFEST_NAME))
+
+
+# --- a staged export: atlases once, passes in chunks (no lock), publish once ---------------------------------------
+
+
+def _published(
+    run_dir: Path, version: str, atlas_size: int | None, frames: tuple[int, int] | None, any_frames: bool = False
+) -> Path | None:
+    """The manifest of ``version`` when it is published with these frames (None: every fitted frame; any with
+    ``any_frames``) and atlas size (None: any), so a retried task is done at once; None when it is not published; a
+    one-line error when it is, with other parameters."""
+    final = run_dir / C.EXPORTS_DIR / version
     manifest_path = final / C.MANIFEST_NAME
-    reporter.emit(C.EVENT_EXPORTED, manifest=str(manifest_path))
+    if not final.exists():
+        return None
+    if not manifest_path.is_file():
+        raise InputError(final, "is an export folder without its manifest", "export into another --into version")
+    try:
+        manifest = json.loads(manifest_path.read_text(encoding="utf-8"))
+        done_frames = [int(n) for n in manifest["passes"]["frames"]]
+        done_size = max(max(int(s) for s in layer["atlas_size"]) for layer in manifest["layers"])
+    except (OSError, ValueError, KeyError, TypeError):
+        raise InputError(manifest_path, "is not a manifest this engine wrote", "export into another version") from None
+    clip = RunFolder(run_dir).read_clip()
+    wanted = done_frames if any_frames else [clip.frame_numbers[t] for t in _selected(clip, frames)]
+    if wanted != done_frames or (atlas_size is not None and atlas_size != done_size):
+        raise InputError(
+            manifest_path,
+            f"{version} is already exported with frames {done_frames[0]}-{done_frames[-1]} and atlas size "
+            f"{done_size}, not {wanted[0]}-{wanted[-1]} and {done_size if atlas_size is None else atlas_size}",
+            f"export into another {C.EXPORT_INTO_ARG} version (exports are never overwritten)",
+        )
     return manifest_path
+
+
+def _read_stage(chunks: Path) -> dict[str, Any] | None:
+    """A staged export's record (None: no atlases stage finished there)."""
+    path = chunks / STAGE_RECORD
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        if data.get("schema") != STAGE_SCHEMA:
+            raise ValueError
+        int(data["atlas_size"])
+        [int(n) for n in data["frames"][:2]]
+        [
+            (str(r["name"]), [float(b) for b in r["atlas_box"]], [int(s) for s in r["atlas_size"]])
+            for r in data["layers"]
+        ]
+        return data  # type: ignore[no-any-return]
+    except (OSError, ValueError, KeyError, TypeError):
+        raise InputError(
+            path, "staged export record is damaged", "delete its folder and stage the export again"
+        ) from None
+
+
+def _no_stage(version: str, chunks: Path) -> InputError:
+    return InputError(
+        chunks,
+        f"no staged export of {version} here",
+        f"run `export RUN {C.EXPORT_INTO_ARG} {version} {C.EXPORT_STAGE_ARG} atlases` first",
+    )
+
+
+def _export_atlases(job: _Job, version: str, atlas_size: int, frames: tuple[int, int] | None) -> Path:
+    """Under the lock: the layer frames and atlas textures into ``exports/.vNNN.chunks``, its record written last
+    (a killed stage leaves no record, and is redone). Already staged with these parameters: nothing to do."""
+    chunks = _chunks_folder(job.run_dir / C.EXPORTS_DIR, version)
+    record = _read_stage(chunks)
+    if record is not None:
+        clip = RunFolder(job.run_dir).read_clip()
+        numbers = [clip.frame_numbers[t] for t in _selected(clip, frames)]
+        if [numbers[0], numbers[-1]] != list(record["frames"]) or atlas_size != record["atlas_size"]:
+            first, last = record["frames"]
+            raise InputError(
+                chunks / STAGE_RECORD,
+                f"{version} is staged with frames {first}-{last} and atlas size {record['atlas_size']}, not "
+                f"{numbers[0]}-{numbers[-1]} and {atlas_size}",
+                f"stage another {C.EXPORT_INTO_ARG} version, or delete that folder",
+            )
+        return chunks
+    fitted = job.load()
+    bar = job.bar(fitted.clip.num_frames)
+    plan, cov = _plan(job, fitted, atlas_size, frames, bar)
+    bar.close()
+    shutil.rmtree(chunks, ignore_errors=True)  # a killed atlases stage's leftover (no record: no pass was written)
+    chunks.mkdir(parents=True)
+    try:
+        _write_atlases(fitted, plan, cov, chunks)
+        (chunks / C.PASSES_DIR).mkdir()
+        atomic_write_text(chunks / STAGE_RECORD, json.dumps(plan.to_record(fitted.clip), indent=2))
+    except BaseException:
+        shutil.rmtree(chunks, ignore_errors=True)
+        raise
+    return chunks
+
+
+def _export_passes(job: _Job, version: str, frames: tuple[int, int] | None) -> Path:
+    """Without the lock: the passes of ``frames`` (default: the staged range) that the staging folder lacks, each
+    file atomic, so a chunk cancelled or killed keeps its finished frames and its retry writes only the rest.
+    Returns the staging folder (the manifest, once published)."""
+    exports = job.run_dir / C.EXPORTS_DIR
+    chunks = _chunks_folder(exports, version)
+    record = _read_stage(chunks)
+    clip = RunFolder(job.run_dir).read_clip()
+    if record is None:
+        done = _published(job.run_dir, version, None, None, any_frames=True)
+        if done is not None and frames is not None:
+            numbers = [clip.frame_numbers[t] for t in _selected(clip, frames)]
+            published = json.loads(done.read_text(encoding="utf-8"))["passes"]["frames"]
+            if not set(numbers) <= set(published):
+                raise InputError(done, f"{version} is published without frames {frames[0]}-{frames[1]}",
+                                 f"export them into another {C.EXPORT_INTO_ARG} version")  # fmt: skip
+        if done is not None:
+            return done
+        raise _no_stage(version, chunks)
+    plan = _Plan.from_record(record, clip)
+    staged = plan.numbers(clip)
+    if frames is not None and not (staged[0] <= frames[0] <= frames[1] <= staged[-1]):
+        raise InputError(
+            chunks / STAGE_RECORD,
+            f"--frames {frames[0]}-{frames[1]} is outside the staged frames {staged[0]}-{staged[-1]}",
+            f"choose a range inside {staged[0]}-{staged[-1]}",
+        )
+    chunk = plan.selected if frames is None else _selected(clip, frames)
+    todo = [t for t in chunk if not _pass_file(chunks, clip.frame_numbers[t]).exists()]
+    if todo:
+        fitted = job.load()
+        bar = job.bar(len(todo))
+        _write_passes(job, fitted, plan, todo, chunks, bar)
+        bar.close()
+    return chunks
+
+
+def _export_publish(job: _Job, version: str, atlas_size: int | None, frames: tuple[int, int] | None) -> Path:
+    """Under the lock, once every chunk is done: what a whole export writes after its passes, then the staging
+    folder becomes ``exports/vNNN``. A frame without its pass is a one-line refusal naming the chunk to run."""
+    chunks = _chunks_folder(job.run_dir / C.EXPORTS_DIR, version)
+    record = _read_stage(chunks)
+    if record is None:
+        raise _no_stage(version, chunks)
+    clip = RunFolder(job.run_dir).read_clip()
+    plan = _Plan.from_record(record, clip)
+    numbers = plan.numbers(clip)
+    given = None if frames is None else [clip.frame_numbers[t] for t in _selected(clip, frames)]
+    if (given is not None and given != numbers) or (atlas_size is not None and atlas_size != plan.atlas_size):
+        raise InputError(
+            chunks / STAGE_RECORD,
+            f"{version} is staged with frames {numbers[0]}-{numbers[-1]} and atlas size {plan.atlas_size}",
+            f"publish it without --frames and --atlas-size, or stage another {C.EXPORT_INTO_ARG} version",
+        )
+    missing = [n for n in numbers if not _pass_file(chunks, n).is_file()]
+    if missing:
+        raise InputError(
+            _pass_file(chunks, missing[0]),
+            f"frame {missing[0]} has no pass yet ({len(missing)} of {len(numbers)} frames missing)",
+            f"run `export {job.run_dir} {C.EXPORT_INTO_ARG} {version} {C.EXPORT_STAGE_ARG} passes --frames "
+            f"{missing[0]}-{missing[-1]}`, then publish again",
+        )
+    fitted = job.load()
+    out = _Output(fitted.folder, clip.native_size, len(plan.names), len(numbers), keep_staging=True)
+    out.final, out.staging = job.run_dir / C.EXPORTS_DIR / version, chunks
+    for leftover in chunks.rglob(".*"):  # a killed chunk's temporary file
+        if leftover.is_file():
+            leftover.unlink()
+    try:
+        _publish(job, fitted, plan, out)
+    except BaseException:
+        out.discard()
+        raise
+    return out.final / C.MANIFEST_NAME
 
 
 def _write_nuke_script(staging: Path, manifest: dict[str, Any]) -> None:
@@ -433,22 +765,30 @@ def _write_nuke_script(staging: Path, manifest: dict[str, Any]) -> None:
 class _Output:
     """What one export writes: its hidden staging folder under ``exports/``, holding the new edit layer files and
     layout too. ``publish`` moves them all into place (signals held); ``discard`` removes whatever was made (and the
-    ``exports``/``edits`` folders when this export created them)."""
+    ``exports``/``edits`` folders when this export created them). A staged export's folder (``keep_staging``) is
+    kept by ``discard``: its chunks' passes stay for the next publish."""
 
-    def __init__(self, run: RunFolder, native_size: tuple[int, int], layers: int, frames: int) -> None:
+    def __init__(
+        self, run: RunFolder, native_size: tuple[int, int], layers: int, frames: int, keep_staging: bool = False
+    ) -> None:
         self.run = run
         self.made_exports = not run.exports.exists()
         self.made_edits = not run.edits.exists()
         self.staging: Path | None = None
         self.final: Path | None = None
+        self.keep_staging = keep_staging
         self.edits: list[tuple[Path, Path]] = []  # (staged file, final name)
         self.frames = frames
         self.pass_bytes: list[int] = []
         w, h = native_size
         self.pass_estimate = w * h * layers * PASS_CHANNELS_PER_LAYER * PASS_BYTES_PER_CHANNEL
 
-    def begin(self) -> tuple[Path, Path]:
-        self.final, self.staging = _next_version(self.run.exports)
+    def begin(self, version: str | None = None) -> tuple[Path, Path]:
+        """The staging folder of the next free version, or of ``version``."""
+        if version is None:
+            self.final, self.staging = _next_version(self.run.exports)
+        else:
+            self.final, self.staging = self.run.exports / version, _fresh_staging(self.run.exports, version)
         return self.final, self.staging
 
     def stage_edit(self, path: Path) -> Path:
@@ -480,12 +820,18 @@ class _Output:
             for staged, path in self.edits:
                 move_into_place(staged, path)
             shutil.rmtree(self.staging / STAGED_EDITS, ignore_errors=True)
+            (self.staging / STAGE_RECORD).unlink(missing_ok=True)
             os.replace(self.staging, self.final)
             self.edits, self.staging = [], None
 
     def discard(self) -> None:
         if self.staging is not None:
-            shutil.rmtree(self.staging, ignore_errors=True)
+            if self.keep_staging:
+                shutil.rmtree(self.staging / STAGED_EDITS, ignore_errors=True)
+                (self.staging / C.MANIFEST_NAME).unlink(missing_ok=True)
+                (self.staging / C.NUKE_SCRIPT_NAME).unlink(missing_ok=True)
+            else:
+                shutil.rmtree(self.staging, ignore_errors=True)
         for folder, made in ((self.run.exports, self.made_exports), (self.run.edits, self.made_edits)):
             if made:
                 with contextlib.suppress(OSError):
@@ -602,4 +948,12 @@ def _manifest(
     }
 
 
-__all__ = ["DEFAULT_ATLAS_SIZE", "LayerFrame", "export_run", "layer_frame_for", "layer_record", "relative_path"]
+__all__ = [
+    "DEFAULT_ATLAS_SIZE",
+    "LayerFrame",
+    "export_run",
+    "export_version",
+    "layer_frame_for",
+    "layer_record",
+    "relative_path",
+]

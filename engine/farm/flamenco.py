@@ -205,6 +205,14 @@ def submitted_job(
 # --- the Manager's HTTP API ---------------------------------------------------------------------------------
 
 
+class ManagerError(InputError):
+    """The Manager answered with an HTTP error: ``status`` says which (the message is Flamenco's own)."""
+
+    def __init__(self, url: str, status: int, problem: str, fix: str) -> None:
+        super().__init__(url, problem, fix)
+        self.status = status
+
+
 class Manager:
     """A Flamenco Manager at URL: JSON requests with a timeout, every failure one line naming the URL and the fix."""
 
@@ -265,30 +273,34 @@ def _error_message(exc: urllib.error.HTTPError) -> str:
     return " ".join(text.split()) or "no message"
 
 
-def _http_error(url: str, exc: urllib.error.HTTPError, what: str) -> InputError:
+def _http_error(url: str, exc: urllib.error.HTTPError, what: str) -> ManagerError:
     code = exc.code
     message = _error_message(exc)
     subject = f" {what}" if what else ""
     if code == 412:
-        return InputError(
+        return ManagerError(
             url,
+            code,
             f"the Manager's {C.FLAMENCO_JOB_TYPE} job type changed during the submission (HTTP 412: {message})",
             "submit again",
         )
     if code >= 500:
-        return InputError(
+        return ManagerError(
             url,
+            code,
             f"the Flamenco Manager failed{subject} (HTTP {code}: {message})",
             "see the Manager's log, then submit again",
         )
     if code in (400, 422):
-        return InputError(
+        return ManagerError(
             url,
+            code,
             f"the Flamenco Manager refused{subject} (HTTP {code}: {message})",
             f"fix the shots file, or install this engine's job type on the Manager: {INSTALL_FIX}",
         )
-    return InputError(
+    return ManagerError(
         url,
+        code,
         f"the Flamenco Manager refused{subject} (HTTP {code}: {message})",
         "check --manager (the Manager's own URL, http://HOST:PORT) and the Manager's log",
     )
@@ -299,8 +311,8 @@ def fetch_job_type(manager: Manager) -> dict[str, Any]:
     Manager has none."""
     try:
         _status, body = manager.request("GET", API_JOB_TYPE + quote(C.FLAMENCO_JOB_TYPE), what="the job type")
-    except InputError as exc:
-        if "HTTP 404" in str(exc):
+    except ManagerError as exc:
+        if exc.status == 404:
             raise InputError(
                 manager.base + API_JOB_TYPE + C.FLAMENCO_JOB_TYPE,
                 f"the Flamenco Manager has no {C.FLAMENCO_JOB_TYPE} job type",

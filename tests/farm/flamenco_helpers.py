@@ -1,4 +1,5 @@
-"""Helpers of the Flamenco tests: a two-shot plan, the job compiler run under Node, and a stub Flamenco Manager.
+"""Helpers of the Flamenco tests: a two-shot shots file and its plan, the job compiler run under Node, and a stub
+Flamenco Manager.
 
 The stub Manager answers the API calls ``farm flamenco`` makes the way Flamenco 3.x does (pkg/api/flamenco-
 openapi.yaml): it checks each SubmittedJob's required fields and compiles the job with the real job type script
@@ -21,6 +22,7 @@ from typing import Any
 
 from engine import contract as C
 from engine.farm import flamenco
+from engine.farm.plan import Plan, load_plan
 
 HERE = Path(__file__).resolve().parent
 AUTHOR_STUB = HERE / "flamenco_author_stub.js"
@@ -30,89 +32,33 @@ SUBMITTED_JOB_REQUIRED = ("name", "type", "priority", "submitter_platform")
 PLATFORMS = ("linux", "windows", "darwin")
 
 
-@dataclass(frozen=True)
-class Task:
-    """engine/farm/plan.py's Task, as the brief's interface has it."""
+def write_shots(root: Path) -> Path:
+    """A shots file of two shots over tiny 10-frame PNG plates (plate.1001.png ..): sh010 finds its masks, both
+    are exported in chunks of 5 frames and rendered."""
+    import cv2
+    import numpy as np
 
-    id: str
-    shot: str
-    kind: str
-    args: tuple[str, ...]
-    depends: tuple[str, ...]
-    accelerator: bool
-    frames: tuple[int, int] | None = None
-
-
-@dataclass(frozen=True)
-class Plan:
-    tasks: tuple[Task, ...]
-    shots: tuple[str, ...]
-
-    def shot_tasks(self, shot: str) -> tuple[Task, ...]:
-        return tuple(t for t in self.tasks if t.shot == shot)
-
-
-def shot_tasks(root: Path, shot: str) -> list[Task]:
-    """One shot's tasks as the plan makes them: masks -> fit -> atlases -> two passes chunks -> publish ->
-    render -> preview, with absolute paths."""
-    plate = str(root / "plates" / shot / "plate.####.exr")
-    run = str(root / "runs" / shot)
-    masks = str(root / "runs" / shot / "masks")
-    manifest = str(root / "runs" / shot / "exports" / "v001" / "manifest.json")
-    render = str(root / "renders" / shot)
-    into = ["--into", "v001"]
-
-    def t(name: str, kind: str, args: list[str], depends: list[str], gpu: bool, frames: Any = None) -> Task:
-        return Task(f"{shot}.{name}", shot, kind, tuple(args), tuple(f"{shot}.{d}" for d in depends), gpu, frames)
-
-    return [
-        t("masks", "masks", ["masks", plate, "--out", masks], [], False),
-        t(
-            "fit",
-            "fit",
-            ["fit", plate, "--mask", masks, "--out", run, "--preset", "draft", "--resume-if-started"],
-            ["masks"],
-            True,
-        ),
-        t("atlases", "atlases", ["export", run, *into, "--stage", "atlases", "--frames", "1001-1010"], ["fit"], True),
-        t(
-            "passes.1001-1005",
-            "passes",
-            ["export", run, *into, "--stage", "passes", "--frames", "1001-1005"],
-            ["atlases"],
-            True,
-            (1001, 1005),
-        ),
-        t(
-            "passes.1006-1010",
-            "passes",
-            ["export", run, *into, "--stage", "passes", "--frames", "1006-1010"],
-            ["atlases"],
-            True,
-            (1006, 1010),
-        ),
-        t(
-            "publish",
-            "publish",
-            ["export", run, *into, "--stage", "publish"],
-            ["passes.1001-1005", "passes.1006-1010"],
-            False,
-        ),
-        t(
-            "render.1001-1010",
-            "render",
-            ["render", manifest, "--out", render, "--frames", "1001-1010"],
-            ["publish"],
-            False,
-            (1001, 1010),
-        ),
-        t("preview", "preview", ["preview", manifest], ["publish"], False),
-    ]
+    for shot in ("sh010", "sh020"):
+        folder = root / "plates" / shot
+        folder.mkdir(parents=True, exist_ok=True)
+        for n in range(1001, 1011):
+            cv2.imwrite(str(folder / f"plate.{n}.png"), np.full((8, 8, 3), n % 256, np.uint8))
+    shots = {
+        C.SHOTS_TAG: C.SHOTS_VERSION,
+        "defaults": {"preset": "draft", "export_chunk": 5, "render_chunk": 10},
+        "shots": [
+            {"name": "sh010", "plate": "plates/sh010", "auto_masks": True, "render": "renders/sh010"},
+            {"name": "sh020", "plate": "plates/sh020", "frames": "1003-1010", "render": "renders/sh020"},
+        ],
+    }
+    path = root / "shots.json"
+    path.write_text(json.dumps(shots, indent=2), encoding="utf-8")
+    return path
 
 
 def two_shot_plan(root: Path) -> Plan:
-    shots = ("sh010", "sh020")
-    return Plan(tuple(t for s in shots for t in shot_tasks(root, s)), shots)
+    """The plan of ``write_shots(root)``, as ``farm flamenco`` makes it."""
+    return load_plan(write_shots(root))
 
 
 def compile_job(job: dict[str, Any], script: Path | None = None) -> tuple[int, dict[str, Any] | None, str]:

@@ -17,6 +17,7 @@ import pytest
 
 from engine import contract as C
 from engine.farm import flamenco
+from engine.farm.plan import TASK_KINDS
 from tests.farm.flamenco_helpers import NODE, compile_job, two_shot_plan
 
 pytestmark = pytest.mark.skipif(NODE is None, reason="node (v20) is not on PATH")
@@ -74,7 +75,7 @@ def test_job_type_declares_the_settings_and_names_the_python_agree_on(tmp_path: 
     assert const("PYTHON_EXE") == VARIABLE
     assert const("TASK_TYPE") == flamenco.TASK_TYPE
     assert const("TASK_TYPE_GPU") == flamenco.TASK_TYPE_GPU
-    assert const("TASK_KINDS") == ["masks", "fit", "atlases", "passes", "publish", "render", "preview"]
+    assert const("TASK_KINDS") == list(TASK_KINDS)
     # Flamenco names a job type after its script's file
     assert SCRIPT.stem.replace("_", "-") == C.FLAMENCO_JOB_TYPE
 

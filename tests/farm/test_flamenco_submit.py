@@ -101,9 +101,13 @@ def test_paths_under_a_two_way_variable_are_sent_as_the_variable(manager: StubMa
     body = next(c.body for c in manager.calls if c.path == C.FLAMENCO_API_SUBMIT)
     assert isinstance(body, dict)
     sent = json.loads(body["settings"]["plan"])["tasks"]
-    fit = next(t for t in sent if t["kind"] == "fit")
-    assert fit["args"][1] == "{studio}/plates/sh010/plate.####.exr"
-    assert not any(str(tmp_path) in a for t in sent for a in t["args"])
+    planned = plan.shot_tasks("sh010")
+    assert [t["id"] for t in sent] == [t.id for t in planned]
+    for task, got in zip(planned, sent, strict=True):
+        assert got["args"] == [
+            "{studio}" + a[len(str(tmp_path)) :] if a.startswith(str(tmp_path)) else a for a in task.args
+        ]
+        assert any(a.startswith("{studio}/") for a in got["args"])
 
 
 def _one_line(exc: pytest.ExceptionInfo[InputError]) -> str:
@@ -144,6 +148,25 @@ def test_a_refused_check_gives_flamencos_message_and_submits_nothing(
     assert text.startswith(manager.url + C.FLAMENCO_API_CHECK + ": ")
     assert f"refused shot sh010 (HTTP {status}: compiling job: something is off)" in text
     assert [c.path for c in manager.calls if c.method == "POST"] == [C.FLAMENCO_API_CHECK]
+
+
+def test_a_job_type_changed_since_its_etag_was_read_is_refused(manager: StubManager, tmp_path: Path) -> None:
+    """The etag read first goes into every job: a Manager whose script changed meanwhile refuses it (412)."""
+    plan = two_shot_plan(tmp_path)
+    original = manager.get
+
+    def newer_after_reading(path: str) -> tuple[int, object]:
+        answer = original(path)
+        if path == TYPE_PATH:
+            manager.etag = "a-newer-script"
+        return answer
+
+    manager.get = newer_after_reading  # type: ignore[method-assign]
+    with pytest.raises(InputError) as exc:
+        _submit(manager, plan)
+    text = _one_line(exc)
+    assert "job type changed during the submission (HTTP 412" in text and text.endswith("submit again")
+    assert manager.jobs == {}
 
 
 def test_a_plan_the_job_type_refuses_comes_back_as_the_scripts_message(manager: StubManager, tmp_path: Path) -> None:
@@ -210,3 +233,51 @@ def test_a_manager_that_does_not_answer_times_out_in_one_line() -> None:
     text = _one_line(exc)
     assert text.startswith(url + TYPE_PATH + ": the Flamenco Manager did not answer in 0.3 s")
     assert "--timeout" in text
+
+
+def _cli_has_farm_flamenco() -> bool:
+    from engine import cli
+
+    try:
+        cli.build_parser("python -m engine").parse_args([C.VERB_FARM, C.FARM_FLAMENCO, "--job-type-out", "x"])
+    except SystemExit:
+        return False
+    return True
+
+
+needs_cli = pytest.mark.skipif(not _cli_has_farm_flamenco(), reason="engine/cli.py has no `farm flamenco` yet")
+
+
+@needs_cli
+def test_the_cli_submits_a_shots_file_and_prints_the_job_ids(
+    manager: StubManager, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from engine import cli
+    from tests.farm.flamenco_helpers import write_shots
+
+    shots = write_shots(tmp_path)
+    code = cli.main([C.VERB_FARM, C.FARM_FLAMENCO, str(shots), "--manager", manager.url, "--priority", "60"])
+    out = capsys.readouterr().out.splitlines()
+    assert code == C.EXIT_OK
+    assert out[-1].split() == list(manager.jobs)
+    assert [c.body["priority"] for c in manager.calls if c.method == "POST"] == [60] * 4
+
+
+@needs_cli
+@pytest.mark.parametrize("status", [None, 400, 422])
+def test_the_cli_says_one_line_and_exits_2(manager: StubManager, tmp_path: Path, status: int | None) -> None:
+    from tests.engine_cli import run_cli
+    from tests.farm.flamenco_helpers import write_shots
+
+    shots = write_shots(tmp_path)
+    url = manager.url
+    if status is None:
+        manager.close()  # connection refused
+    else:
+        manager.fail[C.FLAMENCO_API_CHECK] = (status, "compiling job: bad")
+    code, lines = run_cli(C.VERB_FARM, C.FARM_FLAMENCO, shots, "--manager", url)
+    assert code == C.EXIT_BAD_INPUT
+    assert len(lines) == 1, lines
+    assert lines[0].startswith(f"error: {url}/api/v3/")
+    expected = "cannot reach the Flamenco Manager" if status is None else f"HTTP {status}: compiling job: bad"
+    assert expected in lines[0]

@@ -1,0 +1,177 @@
+"""``farm openjd``: the plan as an Open Job Description bundle, checked by ``openjd check``, its commands equal to
+the plan's, and run for real by ``openjd run`` on a tiny shot: the export it makes equals a direct fit + export."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+
+from engine import contract as C
+from engine.farm.plan import load_plan
+from tests.engine_cli import run_cli
+from tests.farm.farm_helpers import TINY_SET, two_shot_file, write_clip, write_shots
+from tests.paths import ROOT
+
+OPENJD = Path(sys.executable).parent / "openjd"
+TIMEOUT = 300
+#: One thread for every fit here: the same seed and thread count give the same numbers.
+THREADS_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+pytestmark = pytest.mark.skipif(not OPENJD.exists(), reason="openjd-cli is not installed (the farm extra)")
+
+
+def _bundle(shots: Path, out: Path, *extra: str) -> dict:
+    code, err = run_cli(C.VERB_FARM, C.FARM_OPENJD, shots, "--out", out, "--engine-python", sys.executable,
+                        "--engine-path", str(ROOT), *extra)  # fmt: skip
+    assert code == C.EXIT_OK, err
+    return json.loads((out / "template.json").read_text(encoding="utf-8"))
+
+
+@pytest.fixture(scope="module")
+def seq(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("seq")
+    two_shot_file(folder)
+    return folder
+
+
+def test_openjd_check_passes(seq, tmp_path):
+    _bundle(seq / "shots.json", tmp_path / "bundle")
+    proc = subprocess.run([str(OPENJD), "check", str(tmp_path / "bundle" / "template.json")],
+                          capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "passes validation checks" in proc.stdout
+
+
+def _substitute(text: str, values: dict[str, str]) -> str:
+    return re.sub(r"\{\{\s*([A-Za-z0-9_.]+)\s*\}\}", lambda m: values[m.group(1)], text)
+
+
+def test_the_bundles_commands_with_parameters_substituted_are_the_plans(seq, tmp_path):
+    template = _bundle(seq / "shots.json", tmp_path / "bundle")
+    values = json.loads((tmp_path / "bundle" / "job_parameters.json").read_text(encoding="utf-8"))
+    deadline = json.loads((tmp_path / "bundle" / "parameter_values.json").read_text(encoding="utf-8"))
+    assert {v["name"]: v["value"] for v in deadline["parameterValues"]} == values
+    params = {f"Param.{k}": v for k, v in values.items()}
+    commands = []
+    for step in template["steps"]:
+        action = step["script"]["actions"]["onRun"]
+        space = step.get("parameterSpace", {}).get("taskParameterDefinitions", [])
+        for frames in space[0]["range"] if space else [None]:
+            names = {**params, "Task.Param.Frames": frames} if frames else params
+            commands.append((step["name"], [_substitute(a, names) for a in [action["command"], *action["args"]]]))
+    plan = load_plan(seq / "shots.json")
+    assert commands == [(f"{t.shot}-{t.kind}", t.argv(sys.executable)) for t in plan.tasks]
+    # step dependencies are the plan's, per step
+    deps = {s["name"]: sorted(d["dependsOn"] for d in s.get("dependencies", [])) for s in template["steps"]}
+    want: dict[str, set[str]] = {}
+    for t in plan.tasks:
+        step = f"{t.shot}-{t.kind}"
+        want.setdefault(step, set()).update(f"{plan.task(d).shot}-{plan.task(d).kind}" for d in t.depends)
+    assert deps == {step: sorted(d - {step}) for step, d in want.items()}
+
+
+def test_paths_are_parameters_in_and_out_and_gpu_steps_ask_for_a_gpu(seq, tmp_path):
+    template = _bundle(seq / "shots.json", tmp_path / "bundle")
+    kinds = {p["name"]: (p["type"], p.get("objectType"), p.get("dataFlow")) for p in template["parameterDefinitions"]}
+    assert kinds == {
+        "EnginePython": ("STRING", None, None),
+        "EnginePath": ("STRING", None, None),
+        "Plate_sh010": ("PATH", "DIRECTORY", "IN"),
+        "Mask1_sh010": ("PATH", "DIRECTORY", "IN"),
+        "Run_sh010": ("PATH", "DIRECTORY", "OUT"),
+        "Render_sh010": ("PATH", "DIRECTORY", "OUT"),
+        "Plate_sh020": ("PATH", "DIRECTORY", "IN"),
+        "Run_sh020": ("PATH", "DIRECTORY", "OUT"),
+    }
+    gpu = {s["name"] for s in template["steps"] if "hostRequirements" in s}
+    assert gpu == {f"{shot}-{kind}" for shot in ("sh010", "sh020") for kind in ("fit", "atlases", "passes")}
+    assert all(
+        s["hostRequirements"] == {"amounts": [{"name": "amount.worker.gpu", "min": 1}]}
+        for s in template["steps"] if "hostRequirements" in s
+    )  # fmt: skip
+    assert not any("hostRequirements" in s for s in _bundle(seq / "shots.json", tmp_path / "cpu", "--no-gpu")["steps"])
+    refs = json.loads((tmp_path / "bundle" / "asset_references.json").read_text(encoding="utf-8"))["assetReferences"]
+    assert refs["inputs"]["directories"] == [
+        f"{seq}/clips/a/frames", f"{seq}/clips/a/masks", f"{seq}/clips/b/frames"]  # fmt: skip
+    assert refs["outputs"]["directories"] == [f"{seq}/runs/sh010", f"{seq}/renders/sh010", f"{seq}/runs/sh020"]
+    passes = next(s for s in template["steps"] if s["name"] == "sh010-passes")
+    assert passes["parameterSpace"]["taskParameterDefinitions"] == [
+        {"name": "Frames", "type": "STRING", "range": ["0-1", "2-3", "4-4"]}]  # fmt: skip
+
+
+def test_a_sequence_pattern_plate_is_its_folder_as_the_parameter(tmp_path):
+    write_clip(tmp_path / "c")
+    shots = write_shots(tmp_path, [{"name": "p", "plate": "c/frames/#####.png"}])
+    template = _bundle(shots, tmp_path / "bundle")
+    plate = next(p for p in template["parameterDefinitions"] if p["name"] == "Plate_p")
+    assert (plate["objectType"], plate["dataFlow"]) == ("DIRECTORY", "IN")
+    fit = next(s for s in template["steps"] if s["name"] == "p-fit")["script"]["actions"]["onRun"]["args"]
+    assert fit[3] == "{{Param.Plate_p}}/#####.png"
+    values = json.loads((tmp_path / "bundle" / "job_parameters.json").read_text(encoding="utf-8"))
+    assert values["Plate_p"] == str(tmp_path / "c" / "frames")
+
+
+# --- end to end: openjd run of a tiny shot, against a direct fit + export ----------------------------------------
+
+
+def _run(argv: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, **THREADS_ENV, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run(argv, capture_output=True, text=True, timeout=TIMEOUT, cwd=cwd, env=env)
+    assert proc.returncode == 0, (argv, proc.stdout[-4000:], proc.stderr[-4000:])
+    return proc
+
+
+def _pixels(path: Path) -> tuple[list[str], np.ndarray]:
+    image = oiio.ImageInput.open(str(path))
+    assert image is not None, oiio.geterror()
+    try:
+        spec = image.spec()
+        return list(spec.channelnames), image.read_image(format=spec.format)
+    finally:
+        image.close()
+
+
+def _manifest(path: Path, run: Path) -> dict:
+    data = json.loads(path.read_text(encoding="utf-8").replace(str(run), "RUN"))
+    data.pop("created")
+    return data
+
+
+def test_openjd_run_of_a_tiny_shot_equals_a_direct_fit_and_export(tmp_path):
+    frames, masks = write_clip(tmp_path / "clip")
+    shots = write_shots(tmp_path, [{"name": "sh010", "plate": "clip/frames", "masks": ["clip/masks"]}],
+                        {"preset": "draft", "set": TINY_SET, "export_chunk": 2, "preview": False})  # fmt: skip
+    _bundle(shots, tmp_path / "bundle")  # GPU requirements on: openjd run does not look at them
+    bundle = tmp_path / "bundle"
+    proc = _run([str(OPENJD), "run", str(bundle / "template.json"), "--step", "sh010-publish", "--run-dependencies",
+                 "-p", f"file://{bundle / 'job_parameters.json'}"], tmp_path)  # fmt: skip
+    assert "sh010-passes" in proc.stdout and "Chunks run: 3" in proc.stdout
+
+    direct = tmp_path / "direct" / "sh010"  # as deep as runs/sh010: the manifests' relative paths agree
+    sets = [x for s in TINY_SET for x in ("--set", s)]
+    python = [sys.executable, "-m", C.CLI_MODULE]
+    _run([*python, "fit", str(frames), "--out", str(direct), "--preset", "draft", *sets, "--mask", str(masks),
+          "--frames", "0-4", "--no-bar"], tmp_path)  # fmt: skip
+    _run([*python, "export", str(direct), "--frames", "0-4", "--no-bar"], tmp_path)
+
+    farm, ours = tmp_path / "runs" / "sh010" / C.EXPORTS_DIR / "v001", direct / C.EXPORTS_DIR / "v001"
+    assert _manifest(farm / C.MANIFEST_NAME, farm.parent.parent) == _manifest(ours / C.MANIFEST_NAME, direct)
+    files = sorted(p.relative_to(ours).as_posix() for p in ours.rglob("*") if p.is_file())
+    assert sorted(p.relative_to(farm).as_posix() for p in farm.rglob("*") if p.is_file()) == files
+    images = [f for f in files if f.endswith((".exr", ".png"))]
+    assert sum(f.startswith("passes/") for f in images) == 5 and any(f.startswith("atlases/") for f in images)
+    for name in images:
+        (farm_channels, farm_pixels), (our_channels, our_pixels) = _pixels(farm / name), _pixels(ours / name)
+        assert farm_channels == our_channels, name
+        assert farm_pixels.dtype == our_pixels.dtype and np.array_equal(farm_pixels, our_pixels), name
+    for edit in sorted((direct / C.EDITS_DIR).glob("*.png")):
+        assert np.array_equal(_pixels(edit)[1], _pixels(farm.parent.parent / C.EDITS_DIR / edit.name)[1])
+    assert not list((farm.parent).glob(".v*")), "the staging folder became v001"
