@@ -23,7 +23,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 import fake_export as X  # noqa: E402
-from helpers import RecordingLayout, as_operator, fake_python  # noqa: E402
+from helpers import RecordingLayout, as_operator, drive_modal, fake_python  # noqa: E402
 from neural_atlas.addon import compat, preferences, ui  # noqa: E402
 from neural_atlas.addon.core import farm as FM  # noqa: E402
 from neural_atlas.addon.core import running  # noqa: E402
@@ -172,6 +172,24 @@ def test_shots_file_validates_with_the_engines_reader(farm_scene, tmp_path):
     assert fit[fit.index("--frames") + 1].replace(":", "-") == f"{FRAMES[0]}-{FRAMES[-1]}"
     assert fit[fit.index("--preset") + 1] == "draft" and "long_edge=256" in fit and "steps=30" in fit
     assert fit[fit.index("--colorspace") + 1] == C.COLOUR_SRGB
+
+
+def test_the_modal_path_shows_its_status_and_ends_with_the_bundle(farm_scene, tmp_path):
+    """The UI path (invoke's modal operator, driven by hand-made TIMER events: no event loop runs headless)."""
+    props, prefs = farm_scene
+    prefs.farm_kind = FM.FARM_OPENJD
+    seen = []
+
+    def events(tick, job):
+        seen.append(props.farm_status)
+        return "TIMER"
+
+    ret, op, job = drive_modal(farm_ops.NEURALATLAS_OT_submit_farm, bpy.context, events)
+    assert ret == {"FINISHED"} and running.jobs() == {}
+    assert FM.FarmJob.idle_text in seen and not props.running  # the status line moved; the fit's state is untouched
+    assert job.bundle_dir == str(tmp_path / "sh010.farm" / "openjd")
+    assert props.farm_status == f"OpenJD bundle for Deadline Cloud: {job.bundle_dir}"
+    assert op.reports == [({"INFO"}, props.farm_status)]
 
 
 def test_no_layers_means_auto_masks(farm_scene, tmp_path):
