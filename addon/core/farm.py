@@ -227,5 +227,6 @@ class FarmJob(Job):
         else:
             url = self.settings.manager_url.strip().rstrip("/")
             ids = self.answer.split()  # the engine's last line: the Manager's job ids, in shot order
-            result.message = f"submitted to Flamenco at {url}: {'job' if len(ids) == 1 else 'jobs'} {' '.join(ids)}"
+            jobs = f": {'job' if len(ids) == 1 else 'jobs'} {' '.join(ids)}" if ids else ""
+            result.message = f"submitted to Flamenco at {url}{jobs}"
         return result
