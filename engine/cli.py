@@ -219,6 +219,14 @@ def build_parser(prog: str = "python -m engine") -> argparse.ArgumentParser:
         help="fit again into RUN_DIR although it holds a fit: its config, clip record, scene, checkpoint and "
         "metrics are replaced; its edit layers (edits/) and earlier exports (exports/) are kept as they are",
     )
+    f.add_argument(
+        C.FIT_RESUME_IF_STARTED_FLAG,
+        dest="resume_if_started",
+        action="store_true",
+        help="for a task a farm retries with the same arguments: RUN_DIR without a checkpoint starts the fit; with a "
+        "checkpoint of this same fit (the clip, masks, frames and --preset given are the recorded ones, --set "
+        "changes only the schedule, as for --resume) continues it; with this fit finished does nothing (exit 0)",
+    )
     f.add_argument("--no-bar", action="store_true", help="no progress bar on stderr (JSON lines only)")
     f.add_argument("--help-config", action="store_true", help="list every config field and exit")
     d = sub.add_parser(
@@ -613,10 +621,18 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         raise InputError(
             None, "--resume and --refit both given", "pass --resume to continue the fit, or --refit to fit again"
         )
+    if args.resume_if_started and (args.resume or args.refit):
+        raise InputError(
+            None,
+            f"{C.FIT_RESUME_IF_STARTED_FLAG} with --{'resume' if args.resume else 'refit'}",
+            f"pass {C.FIT_RESUME_IF_STARTED_FLAG} alone: it starts, continues or leaves the fit as RUN_DIR holds it",
+        )
     from engine.fit.run_folder import RunFolder
     from engine.fit.trainer import FitCancelled, fit
 
     run_dir = Path(args.out)
+    if args.resume_if_started and not _start_or_resume(args, run_dir):
+        return C.EXIT_OK  # this fit is finished already
     if args.resume:
         cfg = RunFolder(run_dir).read_config()
         if args.preset is not None and args.preset != cfg.preset:
@@ -627,9 +643,14 @@ def _cmd_fit(args: argparse.Namespace) -> int:
             )
     else:
         cfg = preset_config(args.preset or DEFAULT_PRESET)
+    if args.resume_if_started and args.resume:  # the config the fit started with, as the same argv builds it
+        cfg = preset_config(args.preset or DEFAULT_PRESET)
     cfg = apply_overrides(cfg, parse_set_args(args.set))
     if args.resume and args.frames is not None:  # the recorded plate, numbered as it was fitted
         record = RunFolder(run_dir).read_clip()
+        missing = record.missing_input(run_dir)
+        if missing is not None:
+            raise missing
         frames = _positions(record.source, args.frames, record.movie_start)
     else:
         frames = _positions(args.clip, args.frames, args.start_frame)
@@ -659,6 +680,29 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     return C.EXIT_OK
+
+
+def _start_or_resume(args: argparse.Namespace, run_dir: Path) -> bool:
+    """``fit --resume-if-started``: sets ``args.resume`` when RUN_DIR holds a checkpoint of this same fit; False when
+    it holds this fit finished (said on stderr: nothing to do); a different fit there is one line."""
+    from engine.config import apply_overrides, parse_set_args, preset_config
+    from engine.fit.run_folder import RunFolder
+    from engine.fit.trainer import FIT_FINISHED, FIT_NEW, fit_state
+
+    run = RunFolder(run_dir)
+    if not run.checkpoint.exists():
+        return True
+    cfg = apply_overrides(preset_config(args.preset or DEFAULT_PRESET), parse_set_args(args.set))
+    record = run.read_clip()
+    frames = _positions(record.source, args.frames, record.movie_start) if args.frames is not None else None
+    state = fit_state(run_dir, args.clip, args.mask, cfg, frames, args.scribbles, args.colorspace)
+    if state == FIT_FINISHED:
+        metrics = run.read_metrics() or {}
+        print(f"already fitted: {metrics.get('steps')} steps, PSNR {metrics.get('psnr')} dB -> {run_dir}",
+              file=sys.stderr)  # fmt: skip
+        return False
+    args.resume = state != FIT_NEW
+    return True
 
 
 def _cancelled_line(args: argparse.Namespace, exc: KeyboardInterrupt) -> str:

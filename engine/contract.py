@@ -114,6 +114,9 @@ SHOT_DEFAULT_KEYS: tuple[str, ...] = (
     "preview",  # write the export's preview sheets (default true)
 )
 SHOT_REQUIRED_KEYS: tuple[str, ...] = ("name", "plate")
+#: A shot's name: letters, digits, ``-`` and ``_``, starting with a letter or digit, at most this long: it names the
+#: shot's tasks, its run folder and (with a kind: ``sh010-atlases``) an OpenJD step, whose names hold 64 characters.
+SHOT_NAME_MAX = 48
 SHOT_KEYS: tuple[str, ...] = (
     *SHOT_REQUIRED_KEYS,
     "masks",  # mask folders, one per foreground layer
@@ -207,7 +210,9 @@ AUTO_MASKS_DIR = "auto_masks"
 #                 optional (RUN_CLIP_OPTIONAL_FIELDS; a record without them is of square pixels, no exact rate, no
 #                 timecode, a movie numbered from 0): "rate": [num, den]|null (exact frame rate, 24000/1001),
 #                 "pixel_aspect": number, "timecode": str|null (SMPTE, of the first fitted frame), "start_frame": int
-#                 (a movie's number of its first frame)}
+#                 (a movie's number of its first frame), "source_relative", "frame_files_relative", "masks_relative",
+#                 "scribbles_relative" (the same paths relative to the run folder, read where the absolute ones are
+#                 missing: a run folder moved or mounted elsewhere with its plate)}
 #                 Everything `export` needs besides the checkpoint: it never decodes the plate. "frame_range" is in
 #                 positions (what `open_clip` takes); "frame_numbers" are the plate's own numbers (what --frames says).
 #   RUN_METRICS  {"schema": 1, "psnr": float, "mse": float, "alpha_iou": [float] (one per mask), "steps": int,
@@ -293,6 +298,12 @@ RUN_CLIP_OPTIONAL_FIELDS: dict[str, str] = {
     "pixel_aspect": "number",
     "timecode": "str or null",
     "start_frame": "int",
+    # the paths relative to the run folder ("/" separated; null: none, another drive), beside the absolute ones: a
+    # run folder moved or mounted elsewhere with its plate reads the plate there (engine/fit/run_folder.py)
+    "source_relative": "str or null",
+    "frame_files_relative": "str or null list",
+    "masks_relative": "str or null list",
+    "scribbles_relative": "str or null",
 }
 RUN_FILE_SCHEMAS: dict[str, int] = {
     RUN_CONFIG: RUN_CONFIG_SCHEMA,
@@ -457,6 +468,8 @@ def _check_clip_record(data: dict[str, Any]) -> None:
         problem = f"clip record: unknown kind or colour space {data['kind']!r}, {data['colorspace']!r}"
     elif data["layers"] < 1 or min(data["native_size"] + data["working_size"]) < 1:
         problem = "clip record: layers and sizes must be positive"
+    elif any(len(data.get(f"{k}_relative", data[k])) != len(data[k]) for k in ("frame_files", "masks")):
+        problem = "clip record: its relative paths do not match its frame files and masks"
     else:
         problem = timing_problem(data)
         problem = problem and f"clip record: {problem}"

@@ -25,7 +25,8 @@ from engine.io.images import read_exr
 EXPORT_AGAIN = "run `python -m engine export RUN_DIR` again"
 #: The fix of a plate that is not where the manifest says.
 PLATE_FIX = (
-    "put the plate back where the export was made from (its path is relative to the manifest), or export the run again"
+    "put the plate back where the export was made from (its path is relative to the manifest), or export the run again "
+    "once the plate is where it was fitted from or at the same place relative to the run folder"
 )
 
 

@@ -132,6 +132,7 @@ def job_template(
     plan: Plan, params: _Parameters, *, name: str, gpu: bool, python: str, engine_path: str
 ) -> dict[str, Any]:
     """The job template: the parameters, an environment that puts the engine on PYTHONPATH, and the steps."""
+    steps = {task.id: step_name(task) for task in plan.tasks}
     definitions: list[dict[str, Any]] = [
         {
             "name": PYTHON_PARAMETER,
@@ -159,7 +160,7 @@ def job_template(
                 "variables": {"PYTHONPATH": f"{{{{Param.{ENGINE_PATH_PARAMETER}}}}}"},
             }
         ],
-        "steps": [_step(step, tasks, plan, params, gpu) for step, tasks in steps_of(plan)],
+        "steps": [_step(step, tasks, steps, params, gpu) for step, tasks in steps_of(plan)],
     }
 
 
@@ -176,7 +177,8 @@ def steps_of(plan: Plan) -> list[tuple[str, list[Task]]]:
     return list(steps.items())
 
 
-def _step(step: str, tasks: list[Task], plan: Plan, params: _Parameters, gpu: bool) -> dict[str, Any]:
+def _step(step: str, tasks: list[Task], steps: dict[str, str], params: _Parameters, gpu: bool) -> dict[str, Any]:
+    """One step: ``steps`` names each task's step by task id (a dependency's step)."""
     first = tasks[0]
     args = _templated_args(step, tasks, params)
     body: dict[str, Any] = {"name": step}
@@ -185,7 +187,7 @@ def _step(step: str, tasks: list[Task], plan: Plan, params: _Parameters, gpu: bo
         body["parameterSpace"] = {
             "taskParameterDefinitions": [{"name": FRAMES_PARAMETER, "type": "STRING", "range": ranges}]
         }
-    depends = sorted({step_name(plan.task(d)) for t in tasks for d in t.depends} - {step})
+    depends = sorted({steps[d] for t in tasks for d in t.depends} - {step})
     if depends:
         body["dependencies"] = [{"dependsOn": d} for d in depends]
     if gpu and first.accelerator:

@@ -45,7 +45,7 @@ RENDER_FORMATS: tuple[str, ...] = ("exr", "png", "plate")
 #: --device's choices (cuda:N too).
 DEVICES: tuple[str, ...] = ("auto", "cpu", "cuda", "mps")
 #: A shot's name becomes task ids, OpenJD step names and a folder name: a portable, short identifier.
-NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,47}$")
+NAME_PATTERN = re.compile(rf"^[A-Za-z0-9][A-Za-z0-9_-]{{0,{C.SHOT_NAME_MAX - 1}}}$")
 #: Where a shot's run folder goes when the shot names none, relative to the shots file.
 RUNS_DIR = "runs"
 
@@ -189,7 +189,7 @@ def _shot(file: Path, where: str, entry: dict[str, Any]) -> Shot:
         raise InputError(
             file,
             f"{where}: name {name!r} is not a plain identifier",
-            "use letters, digits, - and _ (at most 48, starting with a letter or digit), e.g. sh010",
+            f"use letters, digits, - and _ (at most {C.SHOT_NAME_MAX}, starting with a letter or digit), e.g. sh010",
         )
     folder = file.parent
     plate = v.path("plate", folder)

@@ -62,6 +62,14 @@ class ClipRecord(NumberedFrames):
     """SMPTE timecode of the first fitted frame."""
     start_frame: int = 0
     """A movie's number of its first frame (``fit --start-frame``)."""
+    source_relative: str | None = dataclasses.field(default=None, compare=False)
+    """``source`` relative to the run folder ("/" separated; None where there is none, another drive): a run folder
+    moved or mounted elsewhere together with its plate finds it there (``located``). The same for the frame files,
+    the masks and the scribbles; all None in records written before they were kept. The same paths in another
+    form: records that differ only in them are equal."""
+    frame_files_relative: tuple[str | None, ...] | None = dataclasses.field(default=None, compare=False)
+    masks_relative: tuple[str | None, ...] | None = dataclasses.field(default=None, compare=False)
+    scribbles_relative: str | None = dataclasses.field(default=None, compare=False)
 
     @property
     def exact_rate(self) -> Fraction | None:
@@ -74,6 +82,49 @@ class ClipRecord(NumberedFrames):
         sequence (its frames are numbered by their file names, and ``open_clip`` refuses a start frame for it)."""
         return self.start_frame if self.kind == C.CLIP_KINDS[1] else None
 
+    def relative_to(self, run_dir: str | Path) -> ClipRecord:
+        """This record with its paths also relative to ``run_dir`` (what ``RunFolder.write_clip`` records)."""
+        return dataclasses.replace(
+            self,
+            source_relative=_relative(self.source, run_dir),
+            frame_files_relative=tuple(_relative(f, run_dir) for f in self.frame_files),
+            masks_relative=tuple(_relative(m, run_dir) for m in self.masks),
+            scribbles_relative=None if self.scribbles is None else _relative(self.scribbles, run_dir),
+        )
+
+    def located(self, run_dir: str | Path) -> ClipRecord:
+        """This record with each path where it is now: as given (absolute) when it exists there, else its relative
+        form resolved against where the run folder ``run_dir`` is now when that exists (the run folder was moved or
+        mounted elsewhere with its plate), else as given (``missing_input`` names what is missing)."""
+        ff = self.frame_files_relative or (None,) * len(self.frame_files)
+        mr = self.masks_relative or (None,) * len(self.masks)
+        return dataclasses.replace(
+            self,
+            source=_locate(self.source, self.source_relative, run_dir),
+            frame_files=tuple(_locate(f, r, run_dir) for f, r in zip(self.frame_files, ff, strict=False)),
+            masks=tuple(_locate(m, r, run_dir) for m, r in zip(self.masks, mr, strict=False)),
+            scribbles=None if self.scribbles is None else _locate(self.scribbles, self.scribbles_relative, run_dir),
+        )
+
+    def missing_input(self, run_dir: str | Path) -> InputError | None:
+        """The one line for a located record whose plate, a mask folder or the scribbles are neither where they were
+        given nor where they were relative to the run folder (None when all are there): it names the path and the
+        ways to remap it."""
+        masks_relative = self.masks_relative or (None,) * len(self.masks)
+        inputs = [("plate", self.source, self.source_relative)]
+        inputs += [("mask folder", m, r) for m, r in zip(self.masks, masks_relative, strict=False)]
+        if self.scribbles is not None:
+            inputs.append(("scribbles folder", self.scribbles, self.scribbles_relative))
+        for what, path, rel in inputs:
+            if not _exists(path):
+                beside = "" if rel is None else f" or the run folder where the {what} is at {rel} from it,"
+                return InputError(
+                    path,
+                    f"the {what} this run fitted is not here, nor where it was relative to the run folder",
+                    f"move the {what} to this path,{beside} or mount the storage at the path it was fitted from",
+                )
+        return None
+
     def to_dict(self) -> dict[str, Any]:
         data = asdict(self)
         for key, value in data.items():
@@ -81,6 +132,9 @@ class ClipRecord(NumberedFrames):
                 data[key] = list(value)
         if data["colour_config"] is None:
             del data["colour_config"]
+        if self.frame_files_relative is None:  # a record from before the relative paths were kept
+            for key in RELATIVE_FIELDS:
+                del data[key]
         return {"schema": C.RUN_CLIP_SCHEMA, **data}
 
     @classmethod
@@ -106,7 +160,45 @@ class ClipRecord(NumberedFrames):
             pixel_aspect=data.get("pixel_aspect", 1.0),
             timecode=data.get("timecode"),
             start_frame=data.get("start_frame", 0),
+            # the paths relative to the run folder: absent from records written before they were kept
+            source_relative=data.get("source_relative"),
+            frame_files_relative=_tuple_or_none(data.get("frame_files_relative")),
+            masks_relative=_tuple_or_none(data.get("masks_relative")),
+            scribbles_relative=data.get("scribbles_relative"),
         )
+
+
+#: clip.json's fields that say the paths relative to the run folder (``ClipRecord.located``).
+RELATIVE_FIELDS = ("source_relative", "frame_files_relative", "masks_relative", "scribbles_relative")
+
+
+def _tuple_or_none(value: list[str | None] | None) -> tuple[str | None, ...] | None:
+    return None if value is None else tuple(value)
+
+
+def _relative(path: str, run_dir: str | Path) -> str | None:
+    """``path`` relative to the run folder, "/" separated, without resolving symlinks (a plate folder linked beside
+    the run folder moves with it); None where there is no relative path (another Windows drive)."""
+    try:
+        return os.path.relpath(os.path.abspath(path), os.path.abspath(run_dir)).replace(os.sep, "/")
+    except ValueError:
+        return None
+
+
+def _exists(path: str) -> bool:
+    """Whether ``path`` is there: a file or folder, or a sequence pattern's folder (plate.####.exr)."""
+    from engine.io.clip import is_sequence_pattern
+
+    return os.path.exists(path) or (is_sequence_pattern(path) and os.path.isdir(os.path.dirname(path) or "."))
+
+
+def _locate(given: str, relative: str | None, run_dir: str | Path) -> str:
+    """``given`` when it is there, else ``relative`` resolved against the run folder when that is there, else
+    ``given``."""
+    if _exists(given) or relative is None:
+        return given
+    moved = os.path.normpath(os.path.join(os.path.abspath(run_dir), relative))
+    return moved if _exists(moved) else given
 
 
 def _entry(name: str) -> property:
@@ -195,13 +287,16 @@ class RunFolder:
 
     # --- clip.json
     def read_clip(self) -> ClipRecord:
+        """The clip record, its paths located (``ClipRecord.located``): where the plate, masks and scribbles are now,
+        also when the run folder was moved or mounted elsewhere together with them."""
         text = self._read_text(
             self.clip, "this run folder has no record of its clip", "resume a folder written by `fit`"
         )
-        return ClipRecord.from_dict(self._validated(self.clip, text))
+        return ClipRecord.from_dict(self._validated(self.clip, text)).located(self.path)
 
     def write_clip(self, record: ClipRecord) -> None:
-        self._write_json(self.clip, record.to_dict())
+        """``record``, its paths recorded as given and relative to this folder."""
+        self._write_json(self.clip, record.relative_to(self.path).to_dict())
 
     # --- metrics.json
     def read_metrics(self) -> dict[str, Any] | None:

@@ -672,6 +672,9 @@ def fit(
             saved, record = run.read_config(), run.read_clip()
             scene = run.read_scene(record)
             _check_resume_inputs(run, record, clip, mask_dirs, frame_range, scribble_dir)
+            missing = record.missing_input(run.path)
+            if missing is not None:
+                raise missing
             colorspace, colour_config = _check_resume_colour(run, record, colorspace)
             _check_resume_config(run, saved, cfg)
             state = run.load_checkpoint(device)
@@ -781,6 +784,38 @@ def _fit_locked(run: RunFolder, trainer: Trainer, reporter: Reporter, progress_b
     return metrics
 
 
+#: What ``fit_state`` finds in a run folder for ``fit --resume-if-started``.
+FIT_NEW, FIT_STARTED, FIT_FINISHED = "new", "started", "finished"
+
+
+def fit_state(
+    run_dir: str | Path,
+    clip: str | Path | None,
+    mask_dirs: list[str | Path],
+    cfg: FitConfig,
+    frame_range: tuple[int, int] | None = None,
+    scribble_dir: str | Path | None = None,
+    colorspace: str | None = None,
+) -> str:
+    """For a retried fit (``fit --resume-if-started``, whose arguments are the same on every try): ``FIT_NEW`` when
+    ``run_dir`` holds no checkpoint (start it), ``FIT_STARTED`` when it holds one of this same fit (continue it as
+    ``--resume`` does), ``FIT_FINISHED`` when it holds this fit finished (nothing to do). This same fit: the clip,
+    masks, scribbles, frames and colour space given are the recorded ones and ``cfg`` differs from config.json in
+    nothing but the schedule (``RESUMABLE_FIELDS``), checked as ``--resume`` checks them; else one line. Reads
+    only: the fit that follows takes the lock."""
+    run = RunFolder(run_dir)
+    if not run.checkpoint.exists():
+        return FIT_NEW
+    saved, record = run.read_config(), run.read_clip()
+    _check_resume_inputs(run, record, clip, mask_dirs, frame_range, scribble_dir)
+    _check_resume_colour(run, record, colorspace)
+    _check_resume_config(run, saved, cfg)
+    metrics = run.read_metrics()
+    if metrics is not None and cfg == saved:
+        return FIT_FINISHED
+    return FIT_STARTED
+
+
 def _same_path(given: str | Path, recorded: str) -> bool:
     """Whether a path given on the command line names what the run recorded (symlinks and ``~`` resolved)."""
     return os.path.realpath(os.path.expanduser(os.fspath(given))) == os.path.realpath(recorded)
@@ -880,6 +915,9 @@ def load_run(run_dir: str | Path, device_name: str = "cpu") -> tuple[AtlasModel,
     from the cache) and its config: for looking at a fit against its plate (the demo's contact sheet)."""
     fitted = load_fitted(run_dir, device_name)
     record = fitted.clip
+    missing = record.missing_input(fitted.folder.path)
+    if missing is not None:
+        raise missing
     prepared = prepare_clip(
         record.source,
         list(record.masks),
@@ -906,6 +944,7 @@ __all__ = [
     "Trainer",
     "build_model",
     "fit",
+    "fit_state",
     "load_fitted",
     "load_run",
     "make_optimizer",

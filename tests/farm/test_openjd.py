@@ -3,6 +3,8 @@ the plan's, and run for real by ``openjd run`` on a tiny shot: the export it mak
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import os
 import re
@@ -14,6 +16,7 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 
+from engine import cli
 from engine import contract as C
 from engine.farm.plan import load_plan
 from tests.engine_cli import run_cli
@@ -140,8 +143,10 @@ def _pixels(path: Path) -> tuple[list[str], np.ndarray]:
 
 
 def _manifest(path: Path, run: Path) -> dict:
+    """The manifest but for when it was written and how long the fit took (wall clock)."""
     data = json.loads(path.read_text(encoding="utf-8").replace(str(run), "RUN"))
     data.pop("created")
+    data["fit"].pop("train_seconds")
     return data
 
 
@@ -175,3 +180,19 @@ def test_openjd_run_of_a_tiny_shot_equals_a_direct_fit_and_export(tmp_path):
     for edit in sorted((direct / C.EDITS_DIR).glob("*.png")):
         assert np.array_equal(_pixels(edit)[1], _pixels(farm.parent.parent / C.EDITS_DIR / edit.name)[1])
     assert not list((farm.parent).glob(".v*")), "the staging folder became v001"
+
+
+def test_farm_openjd_prints_a_progress_line_per_shot_then_the_templates_path(seq, tmp_path):
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        code = cli.main([C.VERB_FARM, C.FARM_OPENJD, str(seq / "shots.json"), "--out", str(tmp_path / "b")])
+    assert code == C.EXIT_OK
+    lines = out.getvalue().splitlines()
+    assert lines[-1] == str(tmp_path / "b" / "template.json")
+    progress = [C.parse_progress_line(line) for line in lines[:-1]]
+    assert [(p["shot"], p["tasks"], p["stage"]) for p in progress if p] == [("sh010", 8, "farm"), ("sh020", 6, "farm")]
+    assert sorted(p.name for p in (tmp_path / "b").iterdir()) == [
+        "asset_references.json", "job_parameters.json", "parameter_values.json", "template.json"]  # fmt: skip
+    # the defaults: this Python, this engine's folder on PYTHONPATH
+    values = json.loads((tmp_path / "b" / "job_parameters.json").read_text(encoding="utf-8"))
+    assert (values["EnginePython"], values["EnginePath"]) == (sys.executable, str(ROOT))

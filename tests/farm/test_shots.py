@@ -115,7 +115,7 @@ GOOD = {"name": "sh010", "plate": "clip/frames"}
         ({**GOOD, "render_format": "jpg"}, None, "'render_format' is 'jpg'"),
         ({**GOOD, "preview": "yes"}, None, "'preview' is str 'yes', not true or false"),
         ({**GOOD, "name": "sh 010"}, None, "name 'sh 010' is not a plain identifier"),
-        ({**GOOD, "name": "x" * 49}, None, "is not a plain identifier"),
+        ({**GOOD, "name": "x" * (C.SHOT_NAME_MAX + 1)}, None, "is not a plain identifier"),
         ({"plate": "clip/frames"}, None, "shot #1: no 'name'"),
         ({"name": "sh010"}, None, "shot 'sh010': no 'plate'"),
         ({**GOOD, "render": "runs/sh010/renders"}, None, "'render'"),

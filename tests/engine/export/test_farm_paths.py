@@ -1,0 +1,70 @@
+"""A run folder opened from another mount point: clip.json records the plate, its frames and the masks both as given
+(absolute) and relative to the run folder, and reads whichever is there. Moved (its parent renamed) together with
+its plate, the run exports, renders the same bytes and is found fitted by the same farm task naming the new paths;
+moved away from its plate, it still exports (export never reads the plate), and render and fit --resume name the
+missing plate and how to remap it in one line."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+from engine import contract as C
+from tests.engine.export.tiny_run import ATLAS_SIZE, TINY, make_run
+from tests.engine_cli import run_cli
+from tests.folders import tree_digest
+
+
+def _export(run) -> tuple[int, list[str]]:  # type: ignore[no-untyped-def]
+    return run_cli("export", run, "--no-bar", "--atlas-size", str(ATLAS_SIZE))
+
+
+def _latest(run) -> str:  # type: ignore[no-untyped-def]
+    versions = sorted(p for p in (run / C.EXPORTS_DIR).iterdir() if not p.name.startswith("."))
+    return str(versions[-1] / C.MANIFEST_NAME)
+
+
+def _render(run, out) -> tuple[int, list[str]]:  # type: ignore[no-untyped-def]
+    return run_cli("render", _latest(run), "--out", out, "--no-bar")
+
+
+def test_a_run_moved_with_its_plate_and_without_it(tmp_path):
+    first = tmp_path / "a"
+    make_run(first)
+    record = json.loads((first / "run" / C.RUN_CLIP).read_text())
+    assert record["source"] == str(first / "clip" / "frames")
+    assert record["source_relative"] == "../clip/frames"
+    assert record["masks_relative"] == ["../clip/masks"]
+    assert record["frame_files_relative"] == [f"../clip/frames/{n:05d}.png" for n in range(4)]
+    assert _export(first / "run") == (0, [])
+    assert _render(first / "run", tmp_path / "before") == (0, [])
+
+    # the parent holding plate and run renamed (another mount point): the recorded absolute paths are gone
+    moved = tmp_path / "b"
+    first.rename(moved)
+    assert _export(moved / "run") == (0, [])
+    manifest = json.loads((moved / "run" / C.EXPORTS_DIR / "v002" / C.MANIFEST_NAME).read_text())
+    assert manifest["clip"]["source"] == "../../../clip/frames"
+    assert _render(moved / "run", tmp_path / "after") == (0, [])
+    assert tree_digest(tmp_path / "after") == tree_digest(tmp_path / "before") != {}
+    # the farm's retried fit task, naming the plate where it now is: found finished, nothing changed
+    sets = [a for k, v in TINY.items() for a in ("--set", f"{k}={v}")]
+    argv = ["fit", moved / "clip" / "frames", "--mask", moved / "clip" / "masks", "--out", moved / "run",
+            "--preset", "draft", *sets, "--no-bar", C.FIT_RESUME_IF_STARTED_FLAG]  # fmt: skip
+    before = tree_digest(moved / "run")
+    code, lines = run_cli(*argv)
+    assert code == C.EXIT_OK and lines[0].startswith("already fitted"), lines
+    assert tree_digest(moved / "run") == before
+
+    # the run folder alone moved elsewhere: neither path reaches the plate
+    alone = tmp_path / "c" / "run"
+    alone.parent.mkdir()
+    shutil.move(moved / "run", alone)
+    assert _export(alone) == (0, [])
+    code, lines = _render(alone, tmp_path / "lost")
+    plate = str(first / "clip" / "frames")
+    assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and lines[0].startswith(f"error: {plate}: "), lines
+    assert not (tmp_path / "lost").exists()
+    code, lines = run_cli("fit", "--resume", "--out", alone, "--no-bar", "--set", "steps=14")
+    assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and lines[0].startswith(f"error: {plate}: "), lines
+    assert "move the plate to this path" in lines[0] and "../clip/frames" in lines[0]
