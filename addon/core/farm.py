@@ -34,8 +34,8 @@ DEFAULT_PRIORITY = 50
 PRIORITY_MIN, PRIORITY_MAX = 0, 100
 #: The bundle folder's name (beside the run folder, or under the preference's folder in a folder per shot).
 BUNDLE_FOLDER_NAME = "openjd"
-#: The longest shot name the engine takes (it names folders and task ids).
-SHOT_NAME_MAX = 64
+#: The longest shot name the engine takes (it names folders, task ids and OpenJD steps).
+SHOT_NAME_MAX = C.SHOT_NAME_MAX
 #: What a farm job's shot is called when the clip's name has nothing usable in it.
 FALLBACK_SHOT_NAME = "shot"
 
