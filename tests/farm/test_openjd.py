@@ -150,6 +150,7 @@ def _manifest(path: Path, run: Path) -> dict:
     return data
 
 
+@pytest.mark.slow
 def test_openjd_run_of_a_tiny_shot_equals_a_direct_fit_and_export(tmp_path):
     frames, masks = write_clip(tmp_path / "clip")
     shots = write_shots(tmp_path, [{"name": "sh010", "plate": "clip/frames", "masks": ["clip/masks"]}],
@@ -158,7 +159,10 @@ def test_openjd_run_of_a_tiny_shot_equals_a_direct_fit_and_export(tmp_path):
     bundle = tmp_path / "bundle"
     proc = _run([str(OPENJD), "run", str(bundle / "template.json"), "--step", "sh010-publish", "--run-dependencies",
                  "-p", f"file://{bundle / 'job_parameters.json'}"], tmp_path)  # fmt: skip
-    assert "sh010-passes" in proc.stdout and "Chunks run: 3" in proc.stdout
+    ran = re.findall(r"Running step '([^']+)'", proc.stdout)
+    assert ran == ["sh010-fit", "sh010-atlases", "sh010-passes", "sh010-publish"]
+    assert re.findall(r"Frames\(STRING\) = (\S+)", proc.stdout) == ["0-1", "2-3", "4-4"]
+    assert "Chunks run: 6" in proc.stdout
 
     direct = tmp_path / "direct" / "sh010"  # as deep as runs/sh010: the manifests' relative paths agree
     sets = [x for s in TINY_SET for x in ("--set", s)]
