@@ -1,4 +1,5 @@
-"""Preferences: the engine's interpreter (``ops/setup.py`` holds the operators that set it up and check it)."""
+"""Preferences: the engine's interpreter (``ops/setup.py`` holds the operators that set it up and check it) and
+the farm Submit to Farm sends to (``ops/farm.py``)."""
 
 from __future__ import annotations
 
@@ -6,9 +7,10 @@ import os
 from typing import Any
 
 import bpy
-from bpy.props import BoolProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 
 from .core import engine_setup as ES
+from .core import farm as FM
 
 #: the add-on's module name (``bl_ext.<repo>.neural_atlas`` when installed): preferences are keyed by it
 ADDON_ID = __package__.rpartition(".")[0]
@@ -42,6 +44,22 @@ def online_refusal() -> tuple[str, ...]:
     return ES.online_access_refusal(bpy.app.online_access, bpy.app.online_access_override)
 
 
+def farm_settings(context: Any = None) -> FM.FarmSettings:
+    """The farm Submit to Farm sends to (the defaults while the add-on has no preferences, e.g. in a script that
+    registered it without enabling it)."""
+    prefs = addon_prefs(context)
+    if prefs is None:
+        return FM.FarmSettings()
+    bundle_dir = os.path.normpath(bpy.path.abspath(prefs.farm_bundle_dir)) if prefs.farm_bundle_dir else ""
+    return FM.FarmSettings(prefs.farm_kind, prefs.farm_manager_url, prefs.farm_priority, bundle_dir)
+
+
+def farm_refusal(context: Any = None) -> str:
+    """Why Submit to Farm may not use the network now (``FM.online_refusal`` of Blender's state); '' when it may.
+    Read when asked: the artist can switch online access, or the farm, while Blender runs."""
+    return FM.online_refusal(farm_settings(context).kind, bpy.app.online_access, bpy.app.online_access_override)
+
+
 class NEURALATLAS_AP_preferences(bpy.types.AddonPreferences):
     bl_idname = ADDON_ID
 
@@ -55,6 +73,34 @@ class NEURALATLAS_AP_preferences(bpy.types.AddonPreferences):
         name="CPU-only torch",
         default=False,
         description="Install PyTorch's CPU wheels (far smaller than the CUDA build; for machines without NVIDIA GPU)",
+    )
+
+    farm_kind: EnumProperty(
+        name="Farm",
+        items=[
+            (FM.FARM_FLAMENCO, "Flamenco Manager", "Submit a job to a Flamenco Manager (needs online access)"),
+            (FM.FARM_OPENJD, "OpenJD bundle (Deadline Cloud)", "Write an Open Job Description bundle to submit"),
+        ],
+        default=FM.FARM_FLAMENCO,
+    )
+    farm_manager_url: StringProperty(
+        name="Manager URL",
+        default=FM.DEFAULT_MANAGER_URL,
+        description="The Flamenco Manager's address (its neural-atlas job type installed; see docs/farm.md)",
+    )
+    farm_priority: IntProperty(
+        name="Priority",
+        default=FM.DEFAULT_PRIORITY,
+        min=FM.PRIORITY_MIN,
+        max=FM.PRIORITY_MAX,
+        description="The Flamenco job's priority (higher runs first)",
+    )
+    farm_bundle_dir: StringProperty(
+        name="Bundle Folder",
+        subtype="DIR_PATH",
+        default="",
+        description="Where OpenJD bundles are written, one folder per shot; empty: beside the Run Folder "
+        "(<Run Folder>.farm/openjd)",
     )
 
     def draw(self, context):
@@ -72,6 +118,24 @@ class NEURALATLAS_AP_preferences(bpy.types.AddonPreferences):
         row.operator("neural_atlas.check_engine", icon="CHECKMARK")
         if self.setup_status:
             col.label(text=self.setup_status)
+        draw_farm(col.box(), self)
+
+
+#: The preferences' line while Flamenco is chosen and online access is off.
+FARM_OFFLINE_TEXT = "Flamenco needs Allow Online Access (System > Network)"
+
+
+def draw_farm(box: Any, prefs: Any) -> None:
+    """Submit to Farm's settings: the Manager's for Flamenco, the bundle folder for OpenJD."""
+    box.label(text="Submit to Farm", icon="NETWORK_DRIVE")
+    box.prop(prefs, "farm_kind")
+    if prefs.farm_kind == FM.FARM_FLAMENCO:
+        box.prop(prefs, "farm_manager_url")
+        box.prop(prefs, "farm_priority")
+        if FM.online_refusal(prefs.farm_kind, bpy.app.online_access, bpy.app.online_access_override):
+            box.label(text=FARM_OFFLINE_TEXT, icon="INTERNET_OFFLINE")
+    else:
+        box.prop(prefs, "farm_bundle_dir")
 
 
 classes = (NEURALATLAS_AP_preferences,)

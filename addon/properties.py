@@ -101,6 +101,8 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
     status: StringProperty(default="")
     log_path: StringProperty(default="")
     can_resume: BoolProperty(default=False)
+    # what Submit to Farm last said (the Manager's job, the bundle folder, or why not)
+    farm_status: StringProperty(default="")
 
 
 classes = (NEURALATLAS_PG_layer, NEURALATLAS_PG_scene)

@@ -8,6 +8,7 @@ import bpy
 
 from . import preferences, scribbles
 from .core import estimate, running
+from .core import farm as FM
 from .core import scribble_math as S
 
 #: Theme colour-set icons that show the scribble colours in the panel (default theme: red, green, blue, yellow).
@@ -17,6 +18,8 @@ COLOUR_ICONS = {
     "blue": "COLORSET_04_VEC",
     "yellow": "COLORSET_09_VEC",
 }
+#: The Fit Atlas panel's line while Submit to Farm may not reach the Flamenco Manager.
+FARM_OFFLINE_TEXT = "Online access is off: Flamenco needs it (Preferences > System > Network)"
 #: How many scribbled frames the panel lists.
 FRAMES_SHOWN = 8
 
@@ -60,6 +63,18 @@ def _draw_scribbles(box, props) -> None:
     names = [c for k, (c, _) in enumerate(S.legend()) if k in scribbles.scribble_labels(annotation)]
     shown = ", ".join(str(f) for f in frames[:FRAMES_SHOWN]) + (" …" if len(frames) > FRAMES_SHOWN else "")
     box.label(text=f"{', '.join(names)} on frame(s) {shown}", icon="CHECKMARK" if len(names) > 1 else "ERROR")
+
+
+def _draw_farm(col, props, context) -> None:
+    """Submit to Farm and its one status line (what the farm got, or why it cannot be sent now)."""
+    settings = preferences.farm_settings(context)
+    where = "Flamenco" if settings.kind == FM.FARM_FLAMENCO else "OpenJD bundle"
+    col.operator("neural_atlas.submit_farm", text=f"Submit to Farm ({where})", icon="NETWORK_DRIVE")
+    refusal = preferences.farm_refusal(context)
+    if refusal:
+        col.label(text=FARM_OFFLINE_TEXT, icon="INTERNET_OFFLINE")
+    elif props.farm_status:
+        col.label(text=props.farm_status)
 
 
 class _SidebarPanel:
@@ -117,6 +132,7 @@ class NEURALATLAS_PT_fit(_SidebarPanel, bpy.types.Panel):
                 col.label(text=props.status)
             if props.log_path:
                 col.label(text=f"log: {props.log_path}")
+        _draw_farm(col, props, context)
 
 
 class NEURALATLAS_PT_edit(_SidebarPanel, bpy.types.Panel):

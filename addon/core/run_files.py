@@ -9,6 +9,9 @@ for the engine and what it logged:
     RUN.blender.log       the fit and export commands' output
     RUN.masks.log         Find Masks' output
     RUN.estimate.log      Estimate Time's output
+    RUN.farm/shots.json   Submit to Farm's shots file (the clip as the farm's engine reads it)
+    RUN.farm/openjd/      Submit to Farm's OpenJD bundles (openjd_2, ... for later submissions)
+    RUN.farm.log          Submit to Farm's output
 """
 
 from __future__ import annotations
@@ -34,6 +37,9 @@ class RunFiles:
         self.masks_log = run_dir + ".masks.log"
         self.estimate_log = run_dir + ".estimate.log"
         self.scribbles = run_dir + ".scribbles"
+        self.farm_dir = run_dir + ".farm"
+        self.farm_log = run_dir + ".farm.log"
+        self.shots_file = os.path.join(self.farm_dir, "shots.json")
 
     def layer_masks(self, index: int) -> str:
         """The folder foreground layer ``index`` (1-based) is rasterised into."""

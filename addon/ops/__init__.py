@@ -6,11 +6,20 @@ beside it) and reports. Grouped by what they act on:
 - ``import_run``: Import Atlas;
 - ``paint``: paint canvases, Save Edits, Float Edit Layers;
 - ``render``: Render Edited Clip;
-- ``setup``: the preferences' Set up engine and Check engine.
+- ``setup``: the preferences' Set up engine and Check engine;
+- ``farm``: Submit to Farm (a Flamenco job or an OpenJD bundle of the clip).
 """
 
 from __future__ import annotations
 
-from . import fit, import_run, layers, paint, render, setup
+from . import farm, fit, import_run, layers, paint, render, setup
 
-classes = (*fit.classes, *layers.classes, *import_run.classes, *paint.classes, *render.classes, *setup.classes)
+classes = (
+    *fit.classes,
+    *layers.classes,
+    *import_run.classes,
+    *paint.classes,
+    *render.classes,
+    *setup.classes,
+    *farm.classes,
+)

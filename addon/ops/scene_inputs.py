@@ -1,6 +1,6 @@
 """What the engine operators read from the scene: the engine Python, the Run Folder, the clip and its frame
 range, and each foreground layer's masks (rasterised from a Mask datablock, or a folder of images), plus the
-clip's scribbles for a fit that splits one object."""
+clip's scribbles for a fit that splits one object; for Submit to Farm, the same as one shot of a shots file."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import bpy
 
 from .. import masks, preferences, scribbles
 from ..core import engine_commands as EC
+from ..core import farm as FM
 from ..core import frames as F
 from ..core import scribble_math as S
 from ..core.errors import UserError
@@ -113,3 +114,34 @@ def clip_inputs(props: Any, files: RunFiles, with_scribbles: bool = True) -> EC.
 def sets(props: Any) -> list[str]:
     """The engine's ``--set`` arguments: the working size and the artist's overrides."""
     return EC.set_args(props.long_edge, props.overrides)
+
+
+def farm_shot(props: Any, files: RunFiles) -> FM.FarmShot:
+    """The clip as one farm shot, read as Fit Atlas reads it: the same plate, the same frames (the plate's numbers),
+    Mask layers rasterised into the same folders, the same preset and overrides, the same Run Folder. No foreground
+    layer: the farm finds the moving objects first (``auto_masks``)."""
+    clip = props.clip
+    if clip is None:
+        raise UserError("choose the clip to submit")
+    if props.use_scribbles:
+        raise UserError(
+            "Submit to Farm: Split with Scribbles is fitted here only (Fit Atlas): turn it off to submit the clip"
+        )
+    if props.layers:
+        inputs = clip_inputs(props, files, with_scribbles=False)
+        plate, masks, first, last = inputs.plate, inputs.masks, inputs.first, inputs.last
+    else:
+        plate, first_number = clip_plate(clip)
+        masks = ()
+        first, last = F.plate_numbers(*clip_range(props), clip.frame_start, first_number)
+    return FM.FarmShot(
+        name=FM.shot_name(clip.name, clip.source == "SEQUENCE"),
+        plate=plate,
+        masks=masks,
+        first=first,
+        last=last,
+        preset=props.preset,
+        sets=FM.set_items(props.long_edge, props.overrides),
+        run_dir=files.run_dir,
+        colorspace=FM.engine_colorspace(clip.colorspace_settings.name),
+    )

@@ -20,12 +20,30 @@ def say(event: str, **fields) -> None:
     print(C.progress_line(event, **fields), flush=True)
 
 
+def farm(argv: list[str], mode: str) -> int:
+    """``farm openjd SHOTS --out DIR`` (a bundle's two files) or ``farm flamenco SHOTS --manager URL`` (a job id)."""
+    if mode == "bad_input":
+        print(f'error: {argv[1]}: no shot has a plate — add "plate" to each shot', file=sys.stderr)
+        return C.EXIT_BAD_INPUT
+    if argv[0] == C.FARM_OPENJD:
+        out = Path(argv[argv.index("--out") + 1])
+        out.mkdir(parents=True)
+        (out / "template.json").write_text('{"specificationVersion": "jobtemplate-2023-09"}\n')
+        (out / "parameter_values.json").write_text('{"parameterValues": []}\n')
+        print(out)
+        return 0
+    print("fake-0001")
+    return 0
+
+
 def main(argv: list[str]) -> int:
     mode = os.environ.get("FAKE_ENGINE_MODE", "ok")
     if argv and argv[0] == "--version":
         print(f"neural-atlas engine {C.ENGINE_VERSION} (fake)")
         return 0
     verb = argv[0]
+    if verb == C.VERB_FARM:
+        return farm(argv[1:], mode)
     out = argv[argv.index("--out") + 1] if "--out" in argv else (argv[1] if len(argv) > 1 else "")
     if verb == C.VERB_EXPORT:
         from fake_export import make_export

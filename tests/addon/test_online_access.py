@@ -35,7 +35,8 @@ def online(blender):
 def _draw_preferences() -> list[tuple[str, tuple, dict]]:
     """The preferences' ``draw`` with a recording layout (it never runs headless: no region is drawn)."""
     layout = RecordingLayout()
-    preferences.NEURALATLAS_AP_preferences.draw(SimpleNamespace(layout=layout, setup_status=""), bpy.context)
+    prefs = SimpleNamespace(layout=layout, setup_status="", farm_kind="openjd")
+    preferences.NEURALATLAS_AP_preferences.draw(prefs, bpy.context)
     return layout.calls
 
 
