@@ -40,6 +40,8 @@ CHUNKED_KINDS: frozenset[str] = frozenset({PASSES, RENDER})
 
 #: An export version's folder, a chunked export's staging folder or a dead export's leftovers: numbers taken.
 _VERSION_ENTRY = re.compile(r"^\.?v(\d+)(?:\..*)?$")
+#: The staging folder of a chunked export (engine.export's ``.vNNN.chunks``; not imported: the plan stays torch-free).
+CHUNKED_SUFFIX = ".chunks"
 
 
 @dataclass(frozen=True)
@@ -212,17 +214,26 @@ def chunk_ranges(numbers: list[int], size: int) -> list[tuple[int, int]]:
 
 def next_version(run: str | Path) -> str:
     """The export version this plan's export tasks write: the next number after every one ``RUN/exports`` holds,
-    published (``v002``), being assembled by chunks (``.v003.chunks``) or left by a dead export."""
+    published (``v002``) or left by a dead export (``.v003.partial``); except that an unfinished chunked export that
+    is the newest (``.v004.chunks`` and no ``v004``: a farm run stopped part way) is continued, not left behind, so a
+    sequence submitted again picks up its finished chunks (each export stage is idempotent)."""
     folder = Path(run) / C.EXPORTS_DIR
     taken = [0]
+    chunked: set[int] = set()
     try:
         for entry in folder.iterdir():
             match = _VERSION_ENTRY.match(entry.name)
             if match:
                 taken.append(int(match.group(1)))
+                if entry.name.endswith(CHUNKED_SUFFIX):
+                    chunked.add(int(match.group(1)))
     except (FileNotFoundError, NotADirectoryError):
         pass
-    return C.EXPORT_VERSION_FORMAT.format(max(taken) + 1)
+    newest = max(taken)
+    published = (folder / C.EXPORT_VERSION_FORMAT.format(newest)).exists()
+    if newest in chunked and not published:
+        return C.EXPORT_VERSION_FORMAT.format(newest)
+    return C.EXPORT_VERSION_FORMAT.format(newest + 1)
 
 
 def plate_frame_numbers(shots_file: Path, shot: Shot) -> list[int]:

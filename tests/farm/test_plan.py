@@ -117,9 +117,14 @@ def test_the_export_version_is_the_next_free_one_past_chunked_and_dead_ones(tmp_
     assert next_version(run) == "v002"
     (run / C.EXPORTS_DIR / ".v004.chunks").mkdir()
     (run / C.EXPORTS_DIR / "notes").mkdir()
+    assert next_version(run) == "v004", "the newest, unfinished chunked export is continued"
+    (run / C.EXPORTS_DIR / "v004").mkdir()
     assert next_version(run) == "v005"
     (run / C.EXPORTS_DIR / ".v007.partial").mkdir()
     assert next_version(run) == "v008"
+    (run / C.EXPORTS_DIR / ".v009.chunks").mkdir()
+    (run / C.EXPORTS_DIR / "v010").mkdir()
+    assert next_version(run) == "v011", "an older unfinished chunked export is left as it is"
 
 
 @given(
@@ -151,3 +156,10 @@ def test_the_plan_loads_without_torch(seq):
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=ROOT, timeout=60)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "[]"
+
+
+def test_the_plan_names_the_exporters_staging_folder_as_it_does() -> None:
+    from engine.export.exporter import CHUNKS_SUFFIX
+    from engine.farm.plan import CHUNKED_SUFFIX
+
+    assert CHUNKED_SUFFIX == CHUNKS_SUFFIX
