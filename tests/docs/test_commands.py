@@ -17,7 +17,8 @@ both; a run folder (``RUN_DIR``, ``RUN``, ``run``, ``runs/<name>``) a fitted run
 ``MANIFEST`` or ``.../exports/v001/manifest.json``; ``FIRST:LAST`` and ``A:B`` are ``0:3``; ``N`` is ``12``; ``P``,
 ``PRESET`` every preset; ``LAYER=IMAGE`` ``Foreground=<a paint image>`` (the one foreground layer's name); ``PAINT.png``
 and ``paint_on_frame_12.png`` a paint image the size of the plate; ``key=value`` ``steps=2``; ``FOLDER`` after
-``--scribbles`` a scribble folder. A path after ``--out`` or ``--work`` (``MASKS``, ``RUN_DIR``, ``DIR``, ``edited/``,
+``--scribbles`` a scribble folder; a shots file (``SHOTS``, ``shots.toml``) one shot of the synthetic clip. A path
+after ``--out`` or ``--work`` (``MASKS``, ``RUN_DIR``, ``DIR``, ``edited/``,
 ``/tmp/auto/$c``...) is a new folder of its own.
 
 **Checks** (``test_every_documented_command_parses``): each variant parses with the real parser
@@ -300,6 +301,7 @@ class Places:
     paint: str = "paint.png"
     scribbles: str = "scribbles"
     fresh: Callable[[str], str] = lambda name: name
+    shots: str = "shots.toml"
 
 
 #: (pattern of a whole word, what it becomes). A pattern that is an output after --out/--work gets a new folder.
@@ -315,6 +317,7 @@ SUBSTITUTIONS: list[tuple[str, Callable[[Places, str], str]]] = [
     (r"PAINT\.png|paint_on_frame_12\.png", lambda p, w: p.paint),
     (r"key=value", lambda p, w: "steps=2"),
     (r"FOLDER", lambda p, w: p.scribbles),
+    (r"SHOTS|shots\.(toml|json)", lambda p, w: p.shots),
 ]
 #: Placeholders of a preset: every preset is checked.
 PRESET_PLACEHOLDERS = {"P", "PRESET"}
@@ -467,6 +470,12 @@ def parse_only_reason(cmd: Documented, argv: list[str]) -> str | None:
         return "--scribbles needs strokes drawn on the clip (tests/engine/data/test_scribbles.py, the fit tests)"
     if "--resume" in argv:
         return "--resume needs a fit stopped part way (tests/stability/test_faults.py)"
+    if argv[:2] == [C.VERB_FARM, C.FARM_DASK]:
+        return "farm dask needs a Dask scheduler and workers (tests/farm/test_dask.py starts them on 127.0.0.1)"
+    if argv[:2] == [C.VERB_FARM, C.FARM_FLAMENCO] and "--manager" in argv:
+        return "farm flamenco needs a Flamenco Manager (tests/farm/test_flamenco_submit.py runs a stub one)"
+    if any(word.startswith("SEQ/") for word in argv):
+        return "a command farm plan prints: SEQ stands for the shots file's folder (tests/farm/test_plan.py)"
     return None
 
 
@@ -496,8 +505,19 @@ class Scratch:
             paint=str(self.paint),
             scribbles=str(folder / "no_scribbles"),
             fresh=self._fresh,
+            shots=str(self._shots_file(frames, masks)),
         )
         self._count = itertools.count()
+
+    def _shots_file(self, frames: Path, masks: Path) -> Path:
+        """A shots file of one shot, the synthetic clip with its masks, on the fit's budget caps."""
+        path = self.folder / "shots.json"
+        caps = [v for k, v in zip(CAPS[C.VERB_FIT], CAPS[C.VERB_FIT][1:], strict=False) if k == "--set"]
+        shot = {"name": "sh010", "plate": str(frames), "masks": [str(masks)], "run": "farm_runs/sh010"}
+        shots = {C.SHOTS_TAG: C.SHOTS_VERSION, C.SHOTS_DEFAULTS_KEY: {"preset": "draft", "set": caps},
+                 C.SHOTS_LIST_KEY: [shot]}  # fmt: skip
+        path.write_text(json.dumps(shots), encoding="utf-8")
+        return path
 
     def _engine(self, argv: list[str]) -> subprocess.CompletedProcess:
         proc = run_engine("engine", argv, self.folder)

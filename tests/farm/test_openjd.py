@@ -146,7 +146,7 @@ def _pixels(path: Path) -> tuple[list[str], np.ndarray]:
 
 
 def _manifest(path: Path, run: Path) -> dict:
-    """The manifest but for when it was written and how long the fit took (wall clock)."""
+    """The manifest without its creation time and the fit's wall-clock training seconds (they differ run to run)."""
     data = json.loads(path.read_text(encoding="utf-8").replace(str(run), "RUN"))
     data.pop("created")
     data["fit"].pop("train_seconds")
