@@ -160,7 +160,8 @@ def build_parser(prog: str = "python -m engine") -> argparse.ArgumentParser:
         dest="auto_masks",
         action="store_true",
         help=f"no masks: find moving objects (masks written to RUN_DIR/{C.AUTO_MASKS_DIR} for checking) and fit "
-        "them; nothing moving gives a background-only fit. Without --mask or this, the fit is background-only",
+        f"them; nothing moving gives a background-only fit. A full set of masks already in RUN_DIR/{C.AUTO_MASKS_DIR} "
+        "(written by `masks`, or fixed by hand) is used as it is. Without --mask or this, the fit is background-only",
     )
     f.add_argument(
         "--out",

@@ -10,10 +10,11 @@ Every task is safe to run again (a farm retries preempted and failed tasks): ``f
 its own checkpoint, the export's stages and the render's chunks skip or rewrite what they already wrote, and the
 export version (``--into vNNN``) is chosen here, once, so a retried task writes into the same one.
 
-The masks task writes ``RUN/auto_masks`` (``contract.AUTO_MASKS_DIR``, where ``fit --auto-masks`` would put them)
-with the ``masks`` verb and the fit reads them with ``--mask``: finding masks needs no GPU and is a task of its own,
-so it runs on any host, its result stays in the run folder for the artist to check, and a retried fit never finds
-masks again.
+The masks task writes ``RUN/auto_masks`` (``contract.AUTO_MASKS_DIR``, where ``fit --auto-masks`` puts them) with
+the ``masks`` verb, and the fit, ``--auto-masks``, uses the masks it finds there: finding masks needs no GPU and is a
+task of its own, so it runs on any host, its result stays in the run folder for the artist to check, a retried fit
+never finds masks again, and masks that found nothing give a background-only fit, as ``fit --auto-masks`` alone
+does.
 
 Torch-free: the submitting machine needs the plate (its frame numbers chunk the export) but no GPU stack.
 """
@@ -163,17 +164,17 @@ def shot_tasks(sp: ShotPlan) -> list[Task]:
         tasks.append(task)
         return task
 
-    masks = list(shot.masks)
     fit_after: list[str] = []
     if shot.auto_masks:
         found = add(MASKS, [C.VERB_MASKS, shot.plate, "--out", sp.masks_out, *_masks_options(shot, sp)], [])
-        masks = [sp.masks_out]
         fit_after = [found.id]
     fit_args = [C.VERB_FIT, shot.plate, "--out", shot.run, C.FIT_RESUME_IF_STARTED_FLAG, "--preset", shot.preset]
     for override in shot.set:
         fit_args += ["--set", override]
-    for mask in masks:
+    for mask in shot.masks:
         fit_args += ["--mask", mask]
+    if shot.auto_masks:
+        fit_args.append(C.FIT_AUTO_MASKS_FLAG)
     fit_args += ["--frames", frames]
     fit_args += _option("--colorspace", shot.colorspace) + _option("--fps", shot.fps)
     fit_args += _option("--start-frame", shot.start_frame) + _option("--device", shot.device) + ["--no-bar"]

@@ -282,8 +282,13 @@ class _AutoMasks:
         self.cache = run.flow_cache
         #: the analysis size; None: a single frame, nothing to analyse
         self.size = working_size(info.width, info.height, self.cfg.long_edge) if info.num_frames >= 2 else None
-        # checked before anything is decoded: a folder that holds masks already is refused at once
-        self.folder, self.names = mask_folder(info, self.shown) if self.size is not None else (self.shown, [])
+        # checked before anything is decoded: a folder that holds some of the masks already is refused at once;
+        # one that holds every one of them (``masks`` wrote them, a farm's masks task, or the artist fixed an
+        # earlier fit's) is used as it is, never searched again or overwritten
+        self.folder, self.names = (
+            mask_folder(info, self.shown, whole_set=True) if self.size is not None else (self.shown, [])
+        )
+        self.reuse = bool(self.names) and all((self.folder / n).exists() for n in self.names)
 
     def find(self, prepared: PreparedClip, fit_cfg: FitConfig, raw: np.ndarray | None, reporter: Reporter) -> None:
         """Set ``prepared``'s masks from motion. ``raw``: the frames decoded at the analysis size (None: the
@@ -291,6 +296,9 @@ class _AutoMasks:
         prepared.layers_source = C.SCENE_LAYERS_AUTO
         if self.size is None:
             prepared.masks_note = SINGLE_FRAME_NOTE
+            return
+        if self.reuse:
+            self._use_written(prepared, reporter)
             return
         cfg = self.cfg
         reporter.emit(C.EVENT_STAGE, stage="masks", message=f"finding moving objects; masks go to {self.shown}")
@@ -315,6 +323,19 @@ class _AutoMasks:
                 matte = np.stack([cv2.resize(m, (w, h), interpolation=cv2.INTER_AREA) for m in matte])
             prepared.masks = (matte > C.MASK_THRESHOLD)[None]
             prepared.mask_dirs = [str(self.folder)]
+
+    def _use_written(self, prepared: PreparedClip, reporter: Reporter) -> None:
+        """The masks already in the folder, read as ``--mask`` reads a folder; all of them empty is what a search
+        that found nothing writes: a background-only fit, as then."""
+        reporter.emit(C.EVENT_STAGE, stage="masks", message=f"using the masks already in {self.shown}")
+        masks = read_masks(self.folder, self.info, prepared.size)
+        if masks.any():
+            prepared.masks = masks[None]
+            prepared.mask_dirs = [str(self.folder)]
+            prepared.masks_note = f"the masks already in {self.shown}"
+        else:
+            prepared.masks_note = f"no foreground in the masks already in {self.shown}: a background-only fit"
+        print(f"auto masks: {prepared.masks_note}", file=sys.stderr)
 
 
 __all__ = ["PLATE_VALUE_LIMIT", "PlateFaults", "PreparedClip", "prepare_clip", "to_fitting_values"]

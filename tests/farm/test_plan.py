@@ -51,7 +51,7 @@ def test_two_shots_give_these_command_lines_and_dependencies(seq):
         ("sh010.preview", ["preview", manifest], ["sh010.publish"]),
         ("sh020.masks", ["masks", f"{b}/frames", "--out", f"{run_b}/auto_masks", "--frames", "1-4"], []),
         ("sh020.fit", ["fit", f"{b}/frames", "--out", run_b, "--resume-if-started", "--preset", "draft", *sets,
-                       "--mask", f"{run_b}/auto_masks", "--frames", "1-4", "--no-bar"], ["sh020.masks"]),
+                       "--auto-masks", "--frames", "1-4", "--no-bar"], ["sh020.masks"]),
         ("sh020.atlases", [*export_b, "atlases", "--frames", "1-4", "--no-bar"], ["sh020.fit"]),
         ("sh020.passes.1-2", [*export_b, "passes", "--frames", "1-2", "--no-bar"], ["sh020.atlases"]),
         ("sh020.passes.3-4", [*export_b, "passes", "--frames", "3-4", "--no-bar"], ["sh020.atlases"]),

@@ -4,6 +4,7 @@ masks written for the artist are exactly what the ``masks`` verb writes, and exa
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
@@ -13,6 +14,7 @@ from engine import contract as C
 from engine.config import apply_overrides, preset_config
 from engine.data.auto_masks import mask_iou, write_auto_masks
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
+from engine.errors import InputError
 from engine.fit.prepare import prepare_clip
 from engine.io.clip import open_clip, read_masks
 from engine.io.images import read_image
@@ -60,3 +62,53 @@ def test_one_pass_over_the_clip(tmp_path, monkeypatch, long_edge, flows):
         assert np.array_equal(read_image(ours)[0], read_image(name)[0]), ours.name
     iou = mask_iou(prepared.masks[0], read_masks(masks_dir, info, prepared.size))
     assert iou.min() > 0.8, iou
+
+
+def test_masks_already_in_the_run_folder_are_used_not_searched_again(tmp_path, monkeypatch):
+    """``masks PLATE --out RUN/auto_masks`` then ``fit --auto-masks --out RUN`` (a farm's masks task, then its fit;
+    or an artist who fixed the found masks): the fit reads those masks, as ``--mask`` would, and finds nothing
+    again; a hand fix in them is what the fit gets."""
+    frames_dir, _ = write_scene(make_scene(SMALL), tmp_path / "clip")
+    run = tmp_path / "run"
+    folder = (run / C.AUTO_MASKS_DIR).resolve()
+    written = write_auto_masks(frames_dir, folder)
+    first = folder / written.files[0].rsplit("/", 1)[-1]
+    fixed = np.zeros_like(read_image(first)[0][..., 0], np.uint8)
+    fixed[5:15, 5:15] = 255
+    cv2.imwrite(str(first), fixed)  # the artist's fix of frame 0
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    calls: dict[str, int] = {}
+    _count(monkeypatch, engine.fit.prepare, "auto_masks", calls)
+    cfg = apply_overrides(preset_config("draft"), {"long_edge": "512"})
+    prepared = prepare_clip(frames_dir, [], cfg, run, None, auto_masks=True)
+    assert calls == {}, "the motion search ran again"
+    assert prepared.mask_dirs == [str(folder)] and prepared.layers_source == C.SCENE_LAYERS_AUTO
+    assert np.array_equal(prepared.masks[0], read_masks(folder, open_clip(frames_dir), prepared.size))
+    assert prepared.masks[0][0, 5:15, 5:15].all() and prepared.masks[0][0].sum() == 100
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before, "nothing rewritten"
+
+
+def test_empty_masks_already_in_the_run_folder_give_a_background_only_fit(tmp_path):
+    """What ``masks`` writes when nothing moves (every mask empty) makes ``fit --auto-masks`` fit the background
+    only, as when its own search finds nothing, rather than a foreground layer that no frame has."""
+    frames_dir, _ = write_scene(make_scene(SMALL), tmp_path / "clip")
+    run = tmp_path / "run"
+    folder = run / C.AUTO_MASKS_DIR
+    folder.mkdir(parents=True)
+    for path in sorted(frames_dir.iterdir()):
+        cv2.imwrite(str(folder / f"{path.stem}.png"), np.zeros((SMALL.height, SMALL.width), np.uint8))
+    cfg = apply_overrides(preset_config("draft"), {"long_edge": "512"})
+    prepared = prepare_clip(frames_dir, [], cfg, run, None, auto_masks=True)
+    assert prepared.mask_dirs == [] and prepared.masks.shape[0] == 0
+    assert prepared.masks_note is not None and "background-only" in prepared.masks_note
+
+
+def test_a_partial_set_of_masks_in_the_run_folder_is_still_refused(tmp_path):
+    frames_dir, _ = write_scene(make_scene(SMALL), tmp_path / "clip")
+    folder = tmp_path / "run" / C.AUTO_MASKS_DIR
+    folder.mkdir(parents=True)
+    first = sorted(frames_dir.iterdir())[0]
+    cv2.imwrite(str(folder / f"{first.stem}.png"), np.zeros((SMALL.height, SMALL.width), np.uint8))
+    cfg = preset_config("draft")
+    with pytest.raises(InputError, match="already holds"):
+        prepare_clip(frames_dir, [], cfg, tmp_path / "run", None, auto_masks=True)
