@@ -16,11 +16,11 @@ from ...engine import contract as C  # type: ignore[import-not-found]
 #: Without an imported export (Import Atlas, or a finished Fit Atlas, imports one).
 NO_IMPORT = "Import an atlas first (Import Atlas, or Fit Atlas, which imports its result)"
 #: An imported export whose manifest has gone (moved or deleted since the import).
-MANIFEST_GONE = "The imported manifest is not there any more: import the atlas again: "
+MANIFEST_GONE = "The imported manifest is gone: put it back or import again: "
 #: An import without its passes image (removed from the file since).
 NO_PASSES = "The imported atlas has no passes image: import the atlas again"
 #: An import whose passes are not on disk (the run folder moved or was cleaned).
-PASSES_GONE = "The imported atlas's passes are not on disk: put the run folder back or import again: "
+PASSES_GONE = "The passes are not on disk: put the run folder back or import again: "
 #: Save Edits with nothing painted since the last save.
 NOTHING_TO_SAVE = "Nothing to save: every edit layer is saved (paint first)"
 #: Float Edit Layers when every imported edit layer is a float EXR already.

@@ -68,7 +68,7 @@ class NEURALATLAS_OT_scribble_layers(bpy.types.Operator):
     def execute(self, context):
         clip = context.scene.neural_atlas.clip
         if clip is None:  # poll says so; this holds for a call that skips poll
-            self.report({"ERROR"}, "choose the clip to scribble on")
+            self.report({"ERROR"}, needs.NO_CLIP)
             return {"CANCELLED"}
         names = scribbles.ensure_scribble_layers(clip, self.parts)
         self.report({"INFO"}, f"scribble layers: {', '.join(names)}; draw on each with the Annotate tool")

@@ -13,8 +13,8 @@ from ..core import tree_plan as P
 from .import_run import import_manifest
 from .scene_inputs import abspath
 
-#: What the operators that work on an imported atlas say without one.
-NO_ATLAS = "import an atlas first"
+#: What the operators that work on an imported atlas say without one (their polls say it first).
+NO_ATLAS = needs.NO_IMPORT
 
 
 def edit_images() -> list:

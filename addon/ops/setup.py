@@ -67,7 +67,7 @@ class NEURALATLAS_OT_setup_engine(EngineJobOperator, bpy.types.Operator):
     def finish(self, context, job: ES.SetupJob, result: EP.JobResult) -> set[str]:
         self._set_status(context, result.message)
         if result.status != EP.STATUS_OK:
-            self.report({"ERROR"}, result.message)
+            self.report({"WARNING" if result.status == EP.STATUS_CANCELLED else "ERROR"}, result.message)
             return {"CANCELLED"}
         prefs = preferences.addon_prefs(context)
         if prefs is not None:

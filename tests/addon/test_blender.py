@@ -18,6 +18,7 @@ import fake_export as X  # noqa: E402
 from helpers import RecordingLayout, drive_modal, fake_python, stand_in_pip  # noqa: E402
 from mask_reference import px_to_mask, rasterize_polygon  # noqa: E402
 from neural_atlas.addon import compat  # noqa: E402
+from neural_atlas.addon.core import engine_setup as ES  # noqa: E402
 from neural_atlas.addon.core import needs, running  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 from neural_atlas.addon.ops import fit as fit_ops  # noqa: E402
@@ -565,8 +566,9 @@ def test_cancel_setup_stops_set_up_engine(blender, tmp_path):
             assert bpy.ops.neural_atlas.cancel_setup() == {"FINISHED"}
         return "TIMER"
 
-    ret, _, job = drive_modal(setup_ops.NEURALATLAS_OT_setup_engine, blender.context, events, venv_dir=str(venv))
+    ret, op, job = drive_modal(setup_ops.NEURALATLAS_OT_setup_engine, blender.context, events, venv_dir=str(venv))
     assert ret == {"CANCELLED"} and job.result.status == "cancelled" and running.jobs() == {}
+    assert op.reports[-1] == ({"WARNING"}, f"{ES.CANCELLED_TEXT} (log: {venv / 'setup.log'})")
     assert not bpy.ops.neural_atlas.cancel_setup.poll()
     with pytest.raises(RuntimeError, match=re.escape(needs.SETUP_NOT_RUNNING)):
         bpy.ops.neural_atlas.cancel_setup()
