@@ -11,6 +11,7 @@ from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 
 from .core import engine_setup as ES
 from .core import farm as FM
+from .core import running
 
 #: the add-on's module name (``bl_ext.<repo>.neural_atlas`` when installed): preferences are keyed by it
 ADDON_ID = __package__.rpartition(".")[0]
@@ -115,6 +116,8 @@ class NEURALATLAS_AP_preferences(bpy.types.AddonPreferences):
             box.operator("neural_atlas.copy_setup_command", icon="COPYDOWN")
         row = col.row()
         row.operator("neural_atlas.setup_engine", icon="IMPORT")
+        if running.is_running(running.SETUP_KEY):  # the only way to stop it: ESC does not (ops/driver.py)
+            row.operator("neural_atlas.cancel_setup", icon="CANCEL")
         row.operator("neural_atlas.check_engine", icon="CHECKMARK")
         if self.setup_status:
             col.label(text=self.setup_status)

@@ -60,7 +60,11 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
     )
     preset: EnumProperty(name="Preset", items=estimate.preset_items(), default="draft")
     overrides: StringProperty(
-        name="Overrides", default="", description="Engine config overrides, space separated KEY=VALUE (advanced)"
+        name="Overrides",
+        default="",
+        description="Engine settings for Fit Atlas, Estimate Time and Submit to Farm, space separated KEY=VALUE, "
+        "e.g. steps=2000 (advanced; python -m engine fit --help-config lists the keys)",
+        update=_forget_estimate,
     )
     layers: CollectionProperty(type=NEURALATLAS_PG_layer)
     layer_index: IntProperty()

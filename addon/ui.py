@@ -104,6 +104,7 @@ class NEURALATLAS_PT_fit(_SidebarPanel, bpy.types.Panel):
             row.prop(props, "frame_end")
         col.prop(props, "long_edge")
         col.prop(props, "preset")
+        col.prop(props, "overrides")
         text = _estimate_text(props)
         if text:
             row = col.row()

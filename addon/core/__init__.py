@@ -6,6 +6,7 @@
 - ``jobs``: the jobs the operators drive (fit then export, find masks, estimate, set up the engine): one
   state machine, polled from a modal timer or in a blocking loop.
 - ``running``: the jobs running now, by scene.
+- ``needs``: what each operator needs before it can run (its poll), and the line that says what is missing.
 - ``engine_setup``: the engine's Python (its virtual environment, pip, the environment of its processes).
 - ``run_files``: the files the add-on writes beside a Run Folder.
 - ``frames``: scene frames -> sequence file numbers, mask file names, the engine's frame positions.

@@ -98,6 +98,10 @@ def explain_setup_failure(log_text: str) -> str:
     return lines[-1] if lines else "installing the engine's packages failed"
 
 
+#: What Set up engine says when Cancel stopped it.
+CANCELLED_TEXT = "Set up engine cancelled: what it installed stays; Set up engine again installs the rest"
+
+
 class SetupJob(Job):
     """Set up engine: create the venv (unless it exists), then pip-install the pinned requirements."""
 
@@ -117,6 +121,9 @@ class SetupJob(Job):
         return f"{self.index + 1}/{len(self.commands)} {self.label}" + (f": {last[:STATUS_LINE_CHARS]}" if last else "")
 
     def finish(self, result: EP.JobResult) -> EP.JobResult:
+        if result.status == EP.STATUS_CANCELLED:  # Cancel (pip stopped by SIGTERM), not a failure to explain
+            result.message = f"{CANCELLED_TEXT} (log: {self.log_path})"
+            return result
         if result.status != EP.STATUS_OK:
             return failed(result, f"{explain_setup_failure(progress.read_log(self.log_path))} (log: {self.log_path})")
         result.message = f"engine ready: {self.python}"

@@ -9,6 +9,9 @@ from __future__ import annotations
 
 from .jobs import Job
 
+#: The key of Set up engine: one at a time, whatever the scene (it runs for the preferences).
+SETUP_KEY = "Set up engine"
+
 _RUNNING: dict[str, Job] = {}
 
 

@@ -1,12 +1,14 @@
 """The add-on's operators, thin: each reads the scene, calls the logic in ``addon/core`` (or the bpy helpers
-beside it) and reports. Grouped by what they act on:
+beside it) and reports. Each that needs something has a ``poll`` (``core.needs``: greyed out, saying why), and
+each that changes the scene pushes an undo step (docs/addon.md, *Buttons, undo and ESC*). Grouped by what they
+act on:
 
 - ``fit``: engine jobs for a scene: Fit Atlas, Find Masks, Estimate Time, Cancel (driven by ``driver``);
 - ``layers``: the foreground layer list and the clip's scribble layers;
 - ``import_run``: Import Atlas;
 - ``paint``: paint canvases, Save Edits, Float Edit Layers;
 - ``render``: Render Edited Clip;
-- ``setup``: the preferences' Set up engine and Check engine;
+- ``setup``: the preferences' Set up engine (and its Cancel), Copy Install Command and Check engine;
 - ``farm``: Submit to Farm (a Flamenco job or an OpenJD bundle of the clip).
 """
 

@@ -2,9 +2,18 @@
 
 The pattern of Blender's own extension manager (bl_pkg): the child process speaks JSON lines, and the operator
 polls it on a timer. ``invoke`` (the UI) is modal: a timer event every ``POLL_SECONDS`` steps the job and
-redraws the panel; ESC or the Cancel button stops it. ``execute`` (background mode, scripts, tests, and
-``invoke`` where there is no event loop) blocks, stepping the job in a loop. Either way the job is in the
-``core.running`` table while it runs, and the subclass's ``finish`` reads its result.
+redraws the panel; only the Cancel button stops it. ESC passes through (it stops playback, leaves paint mode, closes
+menus: the artist pressing it means that, not the end of an hour's fit) with one line, once, saying where Cancel is.
+``execute`` (background mode, scripts, tests, and ``invoke`` where there is no event loop) blocks, stepping the job
+in a loop. Either way the job is in the ``core.running`` table while it runs, and the subclass's ``finish`` reads
+its result.
+
+Undo: an operator whose ``finish`` changes the scene (Fit Atlas imports, Find Masks adds a layer) has
+``{'REGISTER', 'UNDO'}``; Blender pushes its undo step when ``modal`` returns FINISHED, after the result is in
+the scene, so Ctrl+Z takes back that import as one step (the run folder on disk stays; Import Atlas brings it
+back) instead of folding it into the artist's next step. Nothing it runs is ever repeated by Blender: its
+properties are hidden (no Adjust Last Operation panel, whose change would undo and run ``execute``: a blocking
+fit), and Repeat Last is refused (``execute`` would block the UI for the whole job).
 """
 
 from __future__ import annotations
@@ -14,7 +23,7 @@ from typing import Any
 import bpy
 
 from ..core import engine_process as EP
-from ..core import running
+from ..core import needs, running
 from ..core.errors import UserError
 from ..core.jobs import Job
 
@@ -26,8 +35,11 @@ class EngineJobOperator:
     timeout: float = 0.0
     #: The areas redrawn while the job runs.
     redraw_areas: tuple[str, ...] = ("CLIP_EDITOR", "PROPERTIES")
+    #: Where the Cancel button of this job is (what ESC's line points to).
+    cancel_where = "the Fit Atlas panel (Movie Clip Editor sidebar)"
     _timer: Any = None
     _job: Job | None = None
+    _esc_said = False
 
     # --- what a subclass provides ---------------------------------------------------------------------------
     def make_job(self, context: Any) -> Job:
@@ -59,6 +71,10 @@ class EngineJobOperator:
 
     # --- the driver ------------------------------------------------------------------------------------------
     def execute(self, context: Any) -> set[str]:
+        options = getattr(self, "options", None)
+        if options is not None and (options.is_repeat or options.is_repeat_last):
+            self.report({"WARNING"}, f"{self.bl_label} is not repeated: press its button (it runs with progress)")
+            return {"CANCELLED"}
         job = self._begin(context)
         if job is None:
             return {"CANCELLED"}
@@ -83,8 +99,9 @@ class EngineJobOperator:
     def modal(self, context: Any, event: Any) -> set[str]:
         job = self._job
         assert job is not None
-        if event.type == "ESC":
-            job.cancel()
+        if event.type == "ESC" and not self._esc_said:
+            self._esc_said = True  # said once: ESC pressed to stop playback again and again needs no more lines
+            self.report({"INFO"}, needs.esc_text(self.bl_label, self.cancel_where))
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
         more = job.step()

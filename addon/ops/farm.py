@@ -24,6 +24,8 @@ class NEURALATLAS_OT_submit_farm(EngineJobOperator, bpy.types.Operator):
 
     bl_idname = "neural_atlas.submit_farm"
     bl_label = "Submit to Farm"
+    # no UNDO: it hands the clip to a farm (a job sent, a bundle written) and sets a status line; an undo cannot
+    # take a job back from the Manager
     bl_options = {"REGISTER"}  # noqa: RUF012 (Blender reads a set)
 
     timeout: FloatProperty(name="Timeout", default=0.0, options={"SKIP_SAVE", "HIDDEN"}, description="0: none")

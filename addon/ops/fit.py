@@ -13,7 +13,7 @@ import bpy
 from bpy.props import BoolProperty, FloatProperty
 
 from ..core import engine_process as EP
-from ..core import estimate, running
+from ..core import estimate, needs, running
 from ..core import frames as F
 from ..core import tree_plan as P
 from ..core.errors import UserError
@@ -37,8 +37,11 @@ class NEURALATLAS_OT_fit(EngineJobOperator, bpy.types.Operator):
 
     bl_idname = "neural_atlas.fit"
     bl_label = "Fit Atlas"
+    # its import is one undo step, pushed when it finishes (the driver's docstring)
+    bl_options = {"REGISTER", "UNDO"}  # noqa: RUF012 (Blender reads a set)
 
-    resume: BoolProperty(name="Resume", default=False, options={"SKIP_SAVE"})
+    # hidden: a visible property would give Adjust Last Operation, which undoes the import and runs the fit again
+    resume: BoolProperty(name="Resume", default=False, options={"SKIP_SAVE", "HIDDEN"})
     timeout: _timeout()
 
     def make_job(self, context) -> FitJob:
@@ -75,6 +78,8 @@ class NEURALATLAS_OT_find_masks(EngineJobOperator, bpy.types.Operator):
 
     bl_idname = "neural_atlas.find_masks"
     bl_label = "Find Masks"
+    # the layer and the masks clip it adds are one undo step, pushed when it finishes (the driver's docstring)
+    bl_options = {"REGISTER", "UNDO"}  # noqa: RUF012 (Blender reads a set)
 
     timeout: _timeout()
 
@@ -136,6 +141,9 @@ class NEURALATLAS_OT_estimate(EngineJobOperator, bpy.types.Operator):
 
     bl_idname = "neural_atlas.estimate"
     bl_label = "Estimate Time"
+    # no UNDO: it measures, and only the panel's estimate line changes (an undo step would take back a measurement,
+    # not an edit)
+    bl_options = {"REGISTER"}  # noqa: RUF012 (Blender reads a set)
 
     timeout: _timeout()
 
@@ -161,10 +169,19 @@ class NEURALATLAS_OT_cancel(bpy.types.Operator):
 
     bl_idname = "neural_atlas.cancel"
     bl_label = "Cancel"
+    # no UNDO: it stops a process; the job's operator reports the end (an undo cannot restart an engine)
+    bl_options = {"REGISTER"}  # noqa: RUF012 (Blender reads a set)
+
+    @classmethod
+    def poll(cls, context) -> bool:
+        need = needs.cancel_need(context.scene is not None and running.is_running(context.scene.name))
+        if need:
+            cls.poll_message_set(need)
+        return need is None
 
     def execute(self, context):
         job = running.get(context.scene.name)
-        if job is None:
+        if job is None:  # poll says so; this holds for a call that skips poll
             context.scene.neural_atlas.running = False
             return {"CANCELLED"}
         job.cancel()

@@ -36,6 +36,7 @@ class NEURALATLAS_OT_import(bpy.types.Operator):
 
     bl_idname = "neural_atlas.import_run"
     bl_label = "Import Atlas"
+    bl_options = {"REGISTER", "UNDO"}  # noqa: RUF012 (Blender reads a set)
 
     filepath: StringProperty(subtype="FILE_PATH")
     filter_glob: StringProperty(default=C.MANIFEST_NAME, options={"HIDDEN"})

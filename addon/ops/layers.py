@@ -7,6 +7,7 @@ from bpy.props import IntProperty
 
 from ...engine import contract as C
 from .. import scribbles
+from ..core import needs
 
 
 class NEURALATLAS_OT_layer_add(bpy.types.Operator):
@@ -14,6 +15,7 @@ class NEURALATLAS_OT_layer_add(bpy.types.Operator):
 
     bl_idname = "neural_atlas.layer_add"
     bl_label = "Add Layer"
+    bl_options = {"REGISTER", "UNDO"}  # noqa: RUF012 (Blender reads a set)
 
     def execute(self, context):
         props = context.scene.neural_atlas
@@ -27,6 +29,15 @@ class NEURALATLAS_OT_layer_remove(bpy.types.Operator):
 
     bl_idname = "neural_atlas.layer_remove"
     bl_label = "Remove Layer"
+    bl_options = {"REGISTER", "UNDO"}  # noqa: RUF012 (Blender reads a set)
+
+    @classmethod
+    def poll(cls, context):
+        props = getattr(context.scene, "neural_atlas", None)
+        need = needs.layer_remove_need(len(props.layers) if props is not None else 0)
+        if need:
+            cls.poll_message_set(need)
+        return need is None
 
     def execute(self, context):
         props = context.scene.neural_atlas
@@ -42,13 +53,22 @@ class NEURALATLAS_OT_scribble_layers(bpy.types.Operator):
 
     bl_idname = "neural_atlas.scribble_layers"
     bl_label = "Add Scribble Layers"
+    bl_options = {"REGISTER", "UNDO"}  # noqa: RUF012 (Blender reads a set)
 
     parts: IntProperty(name="Parts", default=2, min=2, max=len(C.SCRIBBLE_COLOURS))
 
+    @classmethod
+    def poll(cls, context):
+        props = getattr(context.scene, "neural_atlas", None)
+        need = needs.scribble_layers_need(props is not None and props.clip is not None)
+        if need:
+            cls.poll_message_set(need)
+        return need is None
+
     def execute(self, context):
         clip = context.scene.neural_atlas.clip
-        if clip is None:
-            self.report({"ERROR"}, "choose the clip to scribble on")
+        if clip is None:  # poll says so; this holds for a call that skips poll
+            self.report({"ERROR"}, needs.NO_CLIP)
             return {"CANCELLED"}
         names = scribbles.ensure_scribble_layers(clip, self.parts)
         self.report({"INFO"}, f"scribble layers: {', '.join(names)}; draw on each with the Annotate tool")

@@ -8,13 +8,26 @@ import bpy
 
 from ...engine import contract as C
 from .. import paint
-from ..core import run_files
+from ..core import needs, run_files
 from ..core import tree_plan as P
 from .import_run import import_manifest
 from .scene_inputs import abspath
 
-#: What the operators that work on an imported atlas say without one.
-NO_ATLAS = "import an atlas first"
+#: What the operators that work on an imported atlas say without one (their polls say it first).
+NO_ATLAS = needs.NO_IMPORT
+
+
+def edit_images() -> list:
+    """The imported edit layers' images (``NA_Edit_<Layer>``)."""
+    prefix = P.edit_image_name("")
+    return [img for img in bpy.data.images if img.name.startswith(prefix)]
+
+
+def _poll(cls, need: str | None) -> bool:
+    """An operator's poll from its need: greyed, with the line as the tooltip, when something is missing."""
+    if need:
+        cls.poll_message_set(need)
+    return need is None
 
 
 class NEURALATLAS_OT_float_edits(bpy.types.Operator):
@@ -22,10 +35,19 @@ class NEURALATLAS_OT_float_edits(bpy.types.Operator):
 
     bl_idname = "neural_atlas.float_edits"
     bl_label = "Float Edit Layers"
+    # an undo step: Ctrl+Z puts the PNGs back in the tree and canvases; the EXRs it wrote stay on disk, and are the
+    # edit layers from then on (contract.edit_layer_file): Import Atlas shows them again
+    bl_options = {"REGISTER", "UNDO"}  # noqa: RUF012 (Blender reads a set)
+
+    @classmethod
+    def poll(cls, context):
+        props = getattr(context.scene, "neural_atlas", None)
+        manifest = props.manifest if props is not None else ""
+        return _poll(cls, needs.float_edits_need(manifest, (img.filepath for img in edit_images())))
 
     def execute(self, context):
         props = context.scene.neural_atlas
-        if not props.manifest:
+        if not props.manifest:  # poll says so; this holds for a call that skips poll
             self.report({"ERROR"}, NO_ATLAS)
             return {"CANCELLED"}
         made, skipped = [], []
@@ -58,6 +80,13 @@ class NEURALATLAS_OT_save_edits(bpy.types.Operator):
 
     bl_idname = "neural_atlas.save_edits"
     bl_label = "Save Edits"
+    # no UNDO: it writes the paint to files, which an undo cannot take back; the .blend's data does not change
+    bl_options = {"REGISTER"}  # noqa: RUF012 (Blender reads a set)
+
+    @classmethod
+    def poll(cls, context):
+        images = edit_images()
+        return _poll(cls, needs.save_edits_need(len(images), sum(1 for img in images if img.is_dirty)))
 
     def execute(self, context):
         try:
@@ -74,10 +103,15 @@ class NEURALATLAS_OT_paint_setup(bpy.types.Operator):
 
     bl_idname = "neural_atlas.paint_setup"
     bl_label = "Paint Canvases"
+    bl_options = {"REGISTER", "UNDO"}  # noqa: RUF012 (Blender reads a set)
+
+    @classmethod
+    def poll(cls, context):
+        return _poll(cls, needs.paint_setup_need(len(edit_images())))
 
     def execute(self, context):
         prefix = P.edit_image_name("")
-        layers = [img.name.removeprefix(prefix) for img in bpy.data.images if img.name.startswith(prefix)]
+        layers = [img.name.removeprefix(prefix) for img in edit_images()]
         objs = paint.setup_canvases(context, layers)
         self.report({"INFO"}, f"{len(objs)} canvas(es): select one and switch to Texture Paint")
         return {"FINISHED"}

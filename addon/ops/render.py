@@ -7,9 +7,16 @@ from bpy.props import EnumProperty, StringProperty
 
 from ...engine import contract as C
 from .. import compositor, paint
+from ..core import needs
 from ..core import tree_plan as P
 from .paint import NO_ATLAS
 from .scene_inputs import abspath
+
+
+def passes_file() -> str | None:
+    """The imported passes' first file on disk (None without the passes image)."""
+    img = bpy.data.images.get(P.PASSES_IMAGE)
+    return abspath(img.filepath) if img is not None and img.filepath else None
 
 
 class NEURALATLAS_OT_render(bpy.types.Operator):
@@ -17,6 +24,8 @@ class NEURALATLAS_OT_render(bpy.types.Operator):
 
     bl_idname = "neural_atlas.render"
     bl_label = "Render Edited Clip"
+    # no UNDO: what it makes is files, which an undo cannot take back; the output settings it sets are put back
+    bl_options = {"REGISTER"}  # noqa: RUF012 (Blender reads a set)
 
     directory: StringProperty(subtype="DIR_PATH", options={"SKIP_SAVE"})
     file_format: EnumProperty(
@@ -25,11 +34,19 @@ class NEURALATLAS_OT_render(bpy.types.Operator):
         options={"SKIP_SAVE"},
     )
 
+    @classmethod
+    def poll(cls, context):
+        props = getattr(context.scene, "neural_atlas", None)
+        need = needs.render_need(abspath(props.manifest) if props is not None else "", passes_file())
+        if need:
+            cls.poll_message_set(need)
+        return need is None
+
     def execute(self, context):
         props = context.scene.neural_atlas
         out = abspath(self.directory or props.render_dir)
         fmt = self.file_format or props.render_format
-        if not props.manifest:
+        if not props.manifest:  # poll says so; this holds for a call that skips poll
             self.report({"ERROR"}, NO_ATLAS)
             return {"CANCELLED"}
         try:

@@ -12,12 +12,13 @@ from bpy.props import StringProperty
 from .. import preferences
 from ..core import engine_process as EP
 from ..core import engine_setup as ES
+from ..core import needs, running
 from ..core.errors import UserError
 from ..core.jobs import Job
 from .driver import EngineJobOperator
 
 #: ``core.running``'s key for Set up engine: one at a time, whatever the scene.
-SETUP_KEY = "Set up engine"
+SETUP_KEY = running.SETUP_KEY
 
 
 class NEURALATLAS_OT_setup_engine(EngineJobOperator, bpy.types.Operator):
@@ -25,10 +26,13 @@ class NEURALATLAS_OT_setup_engine(EngineJobOperator, bpy.types.Operator):
 
     bl_idname = "neural_atlas.setup_engine"
     bl_label = "Set up engine"
+    # no UNDO: it changes the preferences (Engine Python), which are not in the undo history
+    bl_options = {"REGISTER"}  # noqa: RUF012 (Blender reads a set)
 
-    venv_dir: StringProperty(name="Folder", default="", options={"SKIP_SAVE"})
+    venv_dir: StringProperty(name="Folder", default="", options={"SKIP_SAVE", "HIDDEN"})
     timeout = ES.SETUP_TIMEOUT_SECONDS
     redraw_areas = ("PREFERENCES",)
+    cancel_where = "the add-on's preferences"
     _label = ""
 
     @classmethod
@@ -63,7 +67,7 @@ class NEURALATLAS_OT_setup_engine(EngineJobOperator, bpy.types.Operator):
     def finish(self, context, job: ES.SetupJob, result: EP.JobResult) -> set[str]:
         self._set_status(context, result.message)
         if result.status != EP.STATUS_OK:
-            self.report({"ERROR"}, result.message)
+            self.report({"WARNING" if result.status == EP.STATUS_CANCELLED else "ERROR"}, result.message)
             return {"CANCELLED"}
         prefs = preferences.addon_prefs(context)
         if prefs is not None:
@@ -82,11 +86,35 @@ class NEURALATLAS_OT_setup_engine(EngineJobOperator, bpy.types.Operator):
             prefs.setup_status = text
 
 
+class NEURALATLAS_OT_cancel_setup(bpy.types.Operator):
+    """Stop Set up engine (what it installed so far stays; Set up engine again installs the rest)"""
+
+    bl_idname = "neural_atlas.cancel_setup"
+    bl_label = "Cancel"
+    bl_options = {"REGISTER"}  # noqa: RUF012 (Blender reads a set): it stops a process, nothing to undo
+
+    @classmethod
+    def poll(cls, context: Any) -> bool:
+        need = needs.cancel_need(running.is_running(SETUP_KEY), needs.SETUP_NOT_RUNNING)
+        if need:
+            cls.poll_message_set(need)
+        return need is None
+
+    def execute(self, context):
+        job = running.get(SETUP_KEY)
+        if job is None:  # poll says so; this holds for a call that skips poll
+            return {"CANCELLED"}
+        job.cancel()
+        NEURALATLAS_OT_setup_engine._set_status(context, job.cancel_text)
+        return {"FINISHED"}
+
+
 class NEURALATLAS_OT_copy_setup_command(bpy.types.Operator):
     """Copy the command that sets up the engine's Python from a terminal (no download from Blender)"""
 
     bl_idname = "neural_atlas.copy_setup_command"
     bl_label = "Copy Install Command"
+    bl_options = {"REGISTER"}  # noqa: RUF012 (Blender reads a set): the clipboard is not undone
 
     def execute(self, context):
         prefs = preferences.addon_prefs(context)
@@ -103,6 +131,7 @@ class NEURALATLAS_OT_check_engine(bpy.types.Operator):
 
     bl_idname = "neural_atlas.check_engine"
     bl_label = "Check engine"
+    bl_options = {"REGISTER"}  # noqa: RUF012 (Blender reads a set): it only runs the engine and reports
 
     def execute(self, context):
         ok, message = ES.check_engine(preferences.engine_python(context))
@@ -111,4 +140,9 @@ class NEURALATLAS_OT_check_engine(bpy.types.Operator):
         return {"FINISHED"} if ok else {"CANCELLED"}
 
 
-classes = (NEURALATLAS_OT_setup_engine, NEURALATLAS_OT_copy_setup_command, NEURALATLAS_OT_check_engine)
+classes = (
+    NEURALATLAS_OT_setup_engine,
+    NEURALATLAS_OT_cancel_setup,
+    NEURALATLAS_OT_copy_setup_command,
+    NEURALATLAS_OT_check_engine,
+)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import sys
 from pathlib import Path
 
@@ -17,7 +18,8 @@ import fake_export as X  # noqa: E402
 from helpers import RecordingLayout, drive_modal, fake_python, stand_in_pip  # noqa: E402
 from mask_reference import px_to_mask, rasterize_polygon  # noqa: E402
 from neural_atlas.addon import compat  # noqa: E402
-from neural_atlas.addon.core import running  # noqa: E402
+from neural_atlas.addon.core import engine_setup as ES  # noqa: E402
+from neural_atlas.addon.core import needs, running  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 from neural_atlas.addon.ops import fit as fit_ops  # noqa: E402
 from neural_atlas.addon.ops import setup as setup_ops  # noqa: E402
@@ -427,7 +429,8 @@ def test_operators_refuse_without_inputs(blender, monkeypatch):
     _fit_error("choose the clip to fit")
     props.run_dir = ""
     _fit_error("choose a Run Folder")
-    with pytest.raises(RuntimeError, match="import an atlas first"):
+    assert not bpy.ops.neural_atlas.render.poll()  # greyed out; a script calling it gets the poll's line
+    with pytest.raises(RuntimeError, match=re.escape(needs.NO_IMPORT)):
         bpy.ops.neural_atlas.render("EXEC_DEFAULT")
 
 
@@ -446,15 +449,14 @@ def test_modal_path_progress_then_import(fit_scene):
     assert props.manifest and not running.is_running(bpy.context.scene.name)
 
 
-@pytest.mark.parametrize("how", ["escape", "cancel_button"])
-def test_modal_path_cancel(fit_scene, monkeypatch, how):
+def test_modal_path_cancel_button(fit_scene, monkeypatch):
     props, _ = fit_scene
     monkeypatch.setenv("FAKE_ENGINE_MODE", "hang")
+    polls = []
 
     def events(tick, job):
+        polls.append(bpy.ops.neural_atlas.cancel.poll())
         if job.state.step >= 3 and tick % 2 == 0:
-            if how == "escape":
-                return "ESC"
             assert bpy.ops.neural_atlas.cancel() == {"FINISHED"}
             assert props.status == "cancelling: writing a checkpoint…"
         return "TIMER"
@@ -462,7 +464,39 @@ def test_modal_path_cancel(fit_scene, monkeypatch, how):
     ret, op, _ = drive_modal(fit_ops.NEURALATLAS_OT_fit, bpy.context, events, resume=False)
     assert ret == {"CANCELLED"} and op.reports[-1][0] == {"WARNING"}
     assert "cancelled at step" in op.reports[-1][1] and props.can_resume
-    assert bpy.ops.neural_atlas.fit.poll()
+    assert all(polls) and bpy.ops.neural_atlas.fit.poll()
+    assert not bpy.ops.neural_atlas.cancel.poll()  # nothing runs: the button is greyed, and says why
+    with pytest.raises(RuntimeError, match=re.escape(needs.NOTHING_RUNNING)):
+        bpy.ops.neural_atlas.cancel()
+
+
+def test_modal_path_escape_does_not_cancel(fit_scene, monkeypatch):
+    """ESC (pressed in the Clip Editor to stop playback, five times) passes through: the fit keeps running and
+    stepping, one line says where Cancel is; only Cancel stops it, with a checkpoint."""
+    props, _ = fit_scene
+    monkeypatch.setenv("FAKE_ENGINE_MODE", "hang")
+    escapes: list[int] = []  # the engine's step at each ESC
+    after: list[tuple[int, bool, bool]] = []  # (step, cancelling, engine alive) on the timer ticks after them
+
+    def events(_tick, job):
+        if job.state.step >= 3 and len(escapes) < 5:
+            escapes.append(job.state.step)
+            return "ESC"
+        if escapes:
+            after.append((job.state.step, job.cancelling, job.process.running))
+            if job.state.step >= escapes[-1] + 5 and not job.cancelling:
+                assert bpy.ops.neural_atlas.cancel() == {"FINISHED"}
+        return "TIMER"
+
+    ret, op, _ = drive_modal(fit_ops.NEURALATLAS_OT_fit, bpy.context, events, resume=False)
+    assert len(escapes) == 5
+    before_cancel = [a for a in after if not a[1]]
+    assert before_cancel and all(alive for _, _, alive in before_cancel)  # ESC stopped nothing
+    assert before_cancel[-1][0] >= escapes[-1] + 5  # and the fit kept stepping after them
+    said = [m for level, m in op.reports if level == {"INFO"}]
+    assert said == [needs.esc_text("Fit Atlas", fit_ops.NEURALATLAS_OT_fit.cancel_where)]  # once, not five times
+    assert "press Cancel in the Fit Atlas panel" in said[0]
+    assert ret == {"CANCELLED"} and "cancelled at step" in op.reports[-1][1] and props.can_resume
 
 
 def test_modal_estimate_keeps_the_ui_free_and_fills_the_estimate(fit_scene):
@@ -486,11 +520,13 @@ def test_setup_engine_modal_path_reports_progress_and_offline(blender, tmp_path)
     venv = tmp_path / "venv"
     stand_in_pip(venv)
     statuses = []
+    cancel = []  # (Cancel's poll, the preferences draw Cancel) while it runs
 
-    def events(_tick, job):
+    def events(tick, job):
         assert len(job.commands) == 1  # the environment exists: only the install runs
         statuses.append(job.status_text())
-        return "TIMER"
+        cancel.append((bpy.ops.neural_atlas.cancel_setup.poll(), "neural_atlas.cancel_setup" in _preference_ops()))
+        return "ESC" if tick == 1 else "TIMER"  # ESC does not stop it: pip goes on to its offline error
 
     ret, op, _ = drive_modal(setup_ops.NEURALATLAS_OT_setup_engine, blender.context, events, venv_dir=str(venv))
     assert ret == {"CANCELLED"}
@@ -498,7 +534,44 @@ def test_setup_engine_modal_path_reports_progress_and_offline(blender, tmp_path)
     reports = op.reports
     assert reports[-1][0] == {"ERROR"} and "offline" in reports[-1][1] and "setup.log" in reports[-1][1]
     assert reports[0] == ({"INFO"}, "Set up engine: installing torch and the engine's packages (about 1 GB)…")
+    assert ({"INFO"}, needs.esc_text("Set up engine", "the add-on's preferences")) in reports
+    assert cancel and all(c == (True, True) for c in cancel)
     assert running.jobs() == {}
+    assert not bpy.ops.neural_atlas.cancel_setup.poll() and "neural_atlas.cancel_setup" not in _preference_ops()
+
+
+def _preference_ops() -> list[str]:
+    """The operators the add-on's preferences draw (with a recording layout: no region is drawn headless)."""
+    from types import SimpleNamespace
+
+    from neural_atlas.addon import preferences
+
+    layout = RecordingLayout()
+    prefs = SimpleNamespace(layout=layout, setup_status="", farm_kind="openjd")
+    preferences.NEURALATLAS_AP_preferences.draw(prefs, bpy.context)
+    return [a[0] for name, a, _ in layout.calls if name == "operator"]
+
+
+def test_cancel_setup_stops_set_up_engine(blender, tmp_path):
+    """Cancel in the preferences stops Set up engine (ESC does not)."""
+    blender.context.preferences.system.use_online_access = True
+    venv = tmp_path / "venv"
+    (venv / "bin").mkdir(parents=True)
+    pip = venv / "bin" / "python"
+    pip.write_text(f"#!{sys.executable}\nimport time\nprint('Collecting torch', flush=True)\ntime.sleep(60)\n")
+    pip.chmod(0o755)
+
+    def events(tick, job):
+        if tick == 3:
+            assert bpy.ops.neural_atlas.cancel_setup() == {"FINISHED"}
+        return "TIMER"
+
+    ret, op, job = drive_modal(setup_ops.NEURALATLAS_OT_setup_engine, blender.context, events, venv_dir=str(venv))
+    assert ret == {"CANCELLED"} and job.result.status == "cancelled" and running.jobs() == {}
+    assert op.reports[-1] == ({"WARNING"}, f"{ES.CANCELLED_TEXT} (log: {venv / 'setup.log'})")
+    assert not bpy.ops.neural_atlas.cancel_setup.poll()
+    with pytest.raises(RuntimeError, match=re.escape(needs.SETUP_NOT_RUNNING)):
+        bpy.ops.neural_atlas.cancel_setup()
 
 
 def test_setup_engine_blocking_path_reports_offline(blender, tmp_path):

@@ -13,6 +13,7 @@ bpy = pytest.importorskip("bpy")
 
 import fake_export as X  # noqa: E402
 from neural_atlas.addon import paint  # noqa: E402
+from neural_atlas.addon.core import needs  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 from neural_atlas.addon.ops.import_run import import_manifest  # noqa: E402
 
@@ -51,7 +52,9 @@ def test_float_edit_layers_convert_switch_and_never_overwrite(blender, tmp_path)
     assert err <= 1e-6 and np.abs(exr[0, 0] - want[0, 0]).max() <= 1e-6 and exr[0, 0, 3] == np.float32(128 / 255)
 
     stamp = os.stat(edits / "Foreground.exr").st_mtime_ns
-    assert blender.ops.neural_atlas.float_edits("EXEC_DEFAULT") == {"FINISHED"}  # already float: nothing to do
+    assert not blender.ops.neural_atlas.float_edits.poll()  # already float: greyed out, saying so
+    with pytest.raises(RuntimeError, match=needs.ALL_FLOAT):
+        blender.ops.neural_atlas.float_edits("EXEC_DEFAULT")
     assert os.stat(edits / "Foreground.exr").st_mtime_ns == stamp
     with pytest.raises(ValueError, match="already a float edit layer"):
         paint.make_float_edit("Foreground")

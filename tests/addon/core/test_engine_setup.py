@@ -4,6 +4,7 @@ pip's command, the offline explanation, a real set-up that cannot reach an index
 from __future__ import annotations
 
 import os
+import sys
 
 from helpers import HERE, fake_python, stand_in_pip
 from neural_atlas.addon.core import engine_commands as EC
@@ -69,6 +70,21 @@ def test_setup_job_status_shows_pips_latest_line(tmp_path):
         statuses.append(job.status_text())
     assert any(s.startswith("1/1 installing torch") and s.endswith(": Collecting torch==2.13.0") for s in statuses)
     assert job.result is not None and "offline" in job.result.message and "setup.log" in job.result.message
+
+
+def test_a_cancelled_setup_says_so_and_is_not_explained_as_a_failure(tmp_path):
+    """Cancel stops pip (SIGTERM): the result is "cancelled" with its own line, not pip's offline explanation."""
+    venv = tmp_path / "venv"
+    (venv / "bin").mkdir(parents=True)
+    pip = venv / "bin" / "python"
+    pip.write_text(f"#!{sys.executable}\nimport time\nprint('Collecting torch', flush=True)\ntime.sleep(60)\n")
+    pip.chmod(0o755)
+    job = ES.SetupJob(str(venv))
+    job.start()
+    EP.run_blocking(job, 0.5)  # past 0.5 s the job is cancelled, as the Cancel button does
+    result = job.result
+    assert result is not None and result.status == EP.STATUS_CANCELLED
+    assert result.message == f"{ES.CANCELLED_TEXT} (log: {venv / 'setup.log'})"
 
 
 def test_check_engine_answers_with_the_engines_version(tmp_path):

@@ -1,0 +1,96 @@
+"""What each operator needs before it can do anything, and the one line that says what is missing. No bpy here.
+
+An operator's ``poll`` reads the scene into plain values and asks the function here; ``None`` means ready.
+Blender greys out a button whose poll fails and shows the line as its tooltip (``poll_message_set``); a script
+that calls the operator anyway gets the line in its ``RuntimeError``. So no button reports FINISHED having done
+nothing. Blender quotes at most 200 characters of the line in that error: the lines stay short, a path last.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterable
+
+from ...engine import contract as C  # type: ignore[import-not-found]
+
+#: Without an imported export (Import Atlas, or a finished Fit Atlas, imports one).
+NO_IMPORT = "Import an atlas first (Import Atlas, or Fit Atlas, which imports its result)"
+#: An imported export whose manifest has gone (moved or deleted since the import).
+MANIFEST_GONE = "The imported manifest is gone: put it back or import again: "
+#: An import without its passes image (removed from the file since).
+NO_PASSES = "The imported atlas has no passes image: import the atlas again"
+#: An import whose passes are not on disk (the run folder moved or was cleaned).
+PASSES_GONE = "The passes are not on disk: put the run folder back or import again: "
+#: Save Edits with nothing painted since the last save.
+NOTHING_TO_SAVE = "Nothing to save: every edit layer is saved (paint first)"
+#: Float Edit Layers when every imported edit layer is a float EXR already.
+ALL_FLOAT = "Every edit layer is a float EXR already"
+#: Cancel with no job.
+NOTHING_RUNNING = "No engine job is running for this scene"
+#: Cancel Set up engine with none running.
+SETUP_NOT_RUNNING = "Set up engine is not running"
+#: Remove Layer with no layer.
+NO_LAYER = "No foreground layer to remove"
+#: Add Scribble Layers without a clip.
+NO_CLIP = "Choose the clip to scribble on"
+
+
+def render_need(manifest: str, passes_file: str | None, exists: Callable[[str], bool] = os.path.isfile) -> str | None:
+    """Render Edited Clip: an imported export (``manifest``: the scene's, '' when none) whose passes exist
+    (``passes_file``: the passes image's first file, None when the image is gone). ``exists`` is the file test
+    (poll runs on every redraw: a stat or two, never the manifest read)."""
+    if not manifest:
+        return NO_IMPORT
+    if not exists(manifest):
+        return MANIFEST_GONE + manifest
+    if passes_file is None:
+        return NO_PASSES
+    if not exists(passes_file):
+        return PASSES_GONE + passes_file
+    return None
+
+
+def save_edits_need(edit_layers: int, unsaved: int) -> str | None:
+    """Save Edits: edit layers loaded (``edit_layers``: how many) and paint not yet saved in ``unsaved`` of them."""
+    if edit_layers == 0:
+        return NO_IMPORT
+    if unsaved == 0:
+        return NOTHING_TO_SAVE
+    return None
+
+
+def float_edits_need(manifest: str, edit_paths: Iterable[str]) -> str | None:
+    """Float Edit Layers: an import with at least one edit layer (``edit_paths``: each loaded edit image's file) that
+    is not a float EXR yet. A layer that shows another image than the run's counts: the operator says it skipped it."""
+    paths = list(edit_paths)
+    if not manifest or not paths:
+        return NO_IMPORT
+    if all(p.lower().endswith(C.EDIT_LAYER_FLOAT_EXT) for p in paths):
+        return ALL_FLOAT
+    return None
+
+
+def paint_setup_need(edit_layers: int) -> str | None:
+    """Paint Canvases: edit layers to make canvases for."""
+    return NO_IMPORT if edit_layers == 0 else None
+
+
+def cancel_need(is_running: bool, not_running: str = NOTHING_RUNNING) -> str | None:
+    """Cancel: a job running for what the button cancels."""
+    return None if is_running else not_running
+
+
+def layer_remove_need(layers: int) -> str | None:
+    """Remove Layer: a layer to remove."""
+    return NO_LAYER if layers == 0 else None
+
+
+def scribble_layers_need(has_clip: bool) -> str | None:
+    """Add Scribble Layers: the clip the annotation layers go on."""
+    return None if has_clip else NO_CLIP
+
+
+def esc_text(label: str, where: str) -> str:
+    """What ESC says while an engine job runs: ESC also stops playback and leaves modes in every editor, so it
+    never ends a job that may have run for an hour; Cancel (``where``) does."""
+    return f"{label} keeps running (ESC does not stop it): press Cancel in {where} to stop it"
