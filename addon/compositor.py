@@ -12,6 +12,7 @@ from typing import Any
 import bpy
 
 from . import compat
+from .core import frames as F
 from .core import tree_plan as P
 
 
@@ -59,8 +60,9 @@ def remove_ours(tree: Any) -> int:
     return len(ours)
 
 
-def build(scene: Any, plan: P.TreePlan) -> dict[str, Any]:
-    """Create (or recreate) the plan's nodes in the scene's compositor; returns them by name."""
+def build(scene: Any, plan: P.TreePlan, set_range: bool = False) -> dict[str, Any]:
+    """Create (or recreate) the plan's nodes in the scene's compositor; returns them by name. ``set_range``: the
+    scene's range becomes the imported frames even where the artist's lies within them (``configure_scene``)."""
     images = {spec.name: _load_image(spec) for spec in plan.images}
     clip = _load_plate(plan.plate)
     tree = compat.scene_tree(scene)
@@ -91,7 +93,7 @@ def build(scene: Any, plan: P.TreePlan) -> dict[str, Any]:
         tree.links.new(src, dst)
     out = next(n for name, n in nodes.items() if kinds[name] == P.OUTPUT)
     compat.make_output_active(tree, out)
-    configure_scene(scene, plan)
+    configure_scene(scene, plan, set_range)
     return nodes
 
 
@@ -103,11 +105,14 @@ def add_output(tree: Any, socket: Any) -> Any:
     return out
 
 
-def configure_scene(scene: Any, plan: P.TreePlan) -> None:
-    """The scene as the plate is: its range the exported frames' numbers (handles included: every imported frame),
-    its resolution, pixel aspect ratio and exact frame rate (a plate that states no rate keeps the scene's)."""
-    scene.frame_start = plan.frame_start
-    scene.frame_end = plan.frame_end
+def configure_scene(scene: Any, plan: P.TreePlan, set_range: bool = False) -> None:
+    """The scene as the plate is: its range the exported frames' numbers (handles included: every imported frame)
+    unless the artist's lies within them (``frames.scene_range``; ``set_range``: always), its resolution, pixel
+    aspect ratio and exact frame rate (a plate that states no rate keeps the scene's)."""
+    first, last = F.scene_range(
+        (scene.frame_start, scene.frame_end), (plan.frame_start, plan.frame_end), force=set_range
+    )
+    scene.frame_start, scene.frame_end = first, last  # a start past the old end moves the end there first: no clamp
     r = scene.render
     r.resolution_x, r.resolution_y = plan.resolution
     r.resolution_percentage = 100

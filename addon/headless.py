@@ -86,7 +86,8 @@ def run(ns: argparse.Namespace) -> dict:
         scene = bpy.context.scene
         filt = compat.EXACT_FILTER if ns.filter == "exact" else ns.filter
         scene.neural_atlas.filter_type = filt
-        plan = import_manifest(bpy.context, manifest_path, setup_paint=True, edits=edits)
+        # a factory scene's 1-250 is no artist's range: the render is every exported frame (an export of 0-299 too)
+        plan = import_manifest(bpy.context, manifest_path, setup_paint=True, edits=edits, set_range=True)
         blend = os.path.abspath(ns.blend)
         os.makedirs(os.path.dirname(blend), exist_ok=True)
         tmp = blend[: -len(".blend")] + ".tmp.blend" if blend.endswith(".blend") else blend + ".tmp"

@@ -6,8 +6,10 @@ writes carry the plate's numbers, so the engine matches them to frames by number
 named by position. The engine's ``--frames`` speaks the plate's numbers (``plate_numbers``): a sequence's file
 numbers, a movie's frames counted from 0.
 
-Import goes the other way: the scene's range is the exported frames' numbers (scene frame 1001 shows plate frame
-1001), its rate the plate's exact fraction (``scene_fps``) and its pixel aspect the plate's (``scene_pixel_aspect``).
+Import goes the other way: scene frame 1001 shows plate frame 1001 (the Movie Clip starts at its first file's
+number, the passes' sequence reads file F at scene frame F), the scene's range is the exported frames' numbers
+unless the artist's range already lies within them (``scene_range``), its rate the plate's exact fraction
+(``scene_fps``) and its pixel aspect the plate's (``scene_pixel_aspect``).
 """
 
 from __future__ import annotations
@@ -57,6 +59,17 @@ def plate_numbers(first: int, last: int, clip_frame_start: int, first_file_numbe
     a, b = positions(first, last, clip_frame_start)
     base = first_file_number or 0
     return base + a, base + b
+
+
+def scene_range(current: tuple[int, int], imported: tuple[int, int], force: bool = False) -> tuple[int, int]:
+    """The scene's range after an import of plate frames ``imported`` (first, last): the artist's ``current`` range
+    when it lies within them (a range narrowed to the frames being worked on survives a re-import), else the imported
+    frames (a scene numbered otherwise, such as Blender's 1-250, would show frames the export does not have);
+    ``force``: the imported frames whatever the current range."""
+    first, last = imported
+    if not force and first <= current[0] <= current[1] <= last:
+        return current
+    return first, last
 
 
 #: Blender stores the scene rate as ``render.fps`` (a short: at most this) over ``render.fps_base`` (a float).

@@ -17,13 +17,18 @@ IMPORT_ERRORS = (C.ManifestError, P.PlanError)
 
 
 def import_manifest(
-    context: Any, manifest_path: str, setup_paint: bool = True, edits: dict[str, str] | None = None
+    context: Any,
+    manifest_path: str,
+    setup_paint: bool = True,
+    edits: dict[str, str] | None = None,
+    set_range: bool = False,
 ) -> P.TreePlan:
-    """Read the manifest, build the compositor tree and the paint canvases (``edits``: layer -> other image)."""
+    """Read the manifest, build the compositor tree and the paint canvases (``edits``: layer -> other image;
+    ``set_range``: the scene's range becomes the imported frames even where the artist's lies within them)."""
     props = context.scene.neural_atlas
     manifest = C.load_manifest(manifest_path)
     plan = P.plan_tree(manifest, manifest_path, props.filter_type, edits, compat.colorspace_names())
-    compositor.build(context.scene, plan)
+    compositor.build(context.scene, plan, set_range)
     if setup_paint:
         paint.setup_canvases(context, plan.layers)
     props.manifest = manifest_path
@@ -41,14 +46,22 @@ class NEURALATLAS_OT_import(bpy.types.Operator):
     filepath: StringProperty(subtype="FILE_PATH")
     filter_glob: StringProperty(default=C.MANIFEST_NAME, options={"HIDDEN"})
     setup_paint: BoolProperty(name="Paint Canvases", default=True)
+    set_range: BoolProperty(
+        name="Set Scene Range",
+        description="Set the scene's range to the imported frames even where the current range lies within them",
+        default=False,
+    )
 
     def execute(self, context):
         try:
-            plan = import_manifest(context, abspath(self.filepath), self.setup_paint)
+            plan = import_manifest(context, abspath(self.filepath), self.setup_paint, set_range=self.set_range)
         except IMPORT_ERRORS as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        self.report({"INFO"}, f"imported {len(plan.layers)} layers, frames {plan.frame_start}-{plan.frame_end}")
+        scene = context.scene
+        kept = (scene.frame_start, scene.frame_end) != (plan.frame_start, plan.frame_end)
+        note = f" (scene range {scene.frame_start}-{scene.frame_end} kept)" if kept else ""
+        self.report({"INFO"}, f"imported {len(plan.layers)} layers, frames {plan.frame_start}-{plan.frame_end}{note}")
         return {"FINISHED"}
 
     def invoke(self, context, event):

@@ -89,16 +89,18 @@ def make_export(
     foregrounds: int = 1,
     frames: tuple[int, ...] = FRAMES,
     clip_fields: dict | None = None,
+    plate_name: str = "{frame:05d}.png",
 ) -> Path:
     """Write plate, passes, atlases and edit layers; returns the manifest path. ``frames``: the plate's frame
-    numbers; ``clip_fields``: more fields of the manifest's clip (its timing: rate, pixel_aspect, timecode)."""
+    numbers; ``clip_fields``: more fields of the manifest's clip (its timing: rate, pixel_aspect, timecode);
+    ``plate_name``: the plate files' name (``plate.{frame}.png``: a shot's own numbering)."""
     rng = np.random.default_rng(seed)
     run = root / "run"
     exp = run / C.EXPORTS_DIR / C.EXPORT_VERSION_FORMAT.format(1)
     plate_dir = root / "plate"
     frame_files = []
     for t in frames:
-        path = plate_dir / f"{t:05d}.png"
+        path = plate_dir / plate_name.format(frame=t)
         img = rng.integers(0, 256, (H, W, 4), dtype=np.uint8)
         img[..., 3] = 255
         write_png(path, img)

@@ -4,6 +4,8 @@ and the compositor shows plate frame F at scene frame F (the render of scene fra
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -12,6 +14,8 @@ bpy = pytest.importorskip("bpy")
 import fake_export as X  # noqa: E402
 from neural_atlas.addon import compat  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
+
+from engine import contract as C  # noqa: E402
 
 FRAMES = (1001, 1002, 1003)
 TIMING = {"rate": [24000, 1001], "fps": 24000 / 1001, "pixel_aspect": 2.0, "timecode": "01:00:00:00"}
@@ -59,3 +63,76 @@ def test_a_plate_without_a_rate_keeps_the_scenes(blender, tmp_path):
     assert (scene.render.fps, scene.render.fps_base) == (30, 1.0)
     assert (scene.render.pixel_aspect_x, scene.render.pixel_aspect_y) == (1.0, 1.0)
     assert (scene.frame_start, scene.frame_end) == (1001, 1003)
+
+
+SHOT = tuple(range(1011, 1023))  # plate.1011.png .. plate.1022.png: positions 0..11, numbers 1011..1022
+
+
+def _shot(blender, tmp_path):
+    """A shot numbered plate.1011.png .. plate.1022.png, loaded as the artist loads it (Blender starts such a clip
+    at scene frame 1, offset 0: measured on 4.5 and 5.0), and its export."""
+    manifest = X.make_export(tmp_path, frames=SHOT, plate_name="plate.{frame}.png")
+    artist_clip = blender.data.movieclips.load(str(tmp_path / "plate" / "plate.1011.png"))
+    assert (artist_clip.source, artist_clip.frame_start, artist_clip.frame_offset) == ("SEQUENCE", 1, 0)
+    assert artist_clip.frame_duration == len(SHOT)
+    blender.context.scene.neural_atlas.filter_type = P.FILTER_NEAREST
+    return manifest
+
+
+def _shifted(out, manifest, pairs) -> float:
+    """The smallest difference of each rendered frame F against the render equation of plate frame G != F."""
+    return min(
+        float(
+            np.abs(
+                X.read_exr_rgba(out / f"edit.{f:05d}.exr")[..., :3] - X.reference_frame(manifest, g, "nearest")
+            ).max()
+        )
+        for f, g in pairs
+    )
+
+
+def test_a_shot_keeps_its_frame_numbers_end_to_end(blender, tmp_path):
+    """Blender's 1-250 becomes the shot's 1011-1022 (not the positions 10-21); the plate clip starts at 1011, the
+    passes read file F at scene frame F, and the render writes edit.01011.exr .. edit.01022.exr, each the render
+    equation of its own plate frame (1015 of plate and passes 1015, not 1014 or 1016)."""
+    manifest = _shot(blender, tmp_path)
+    scene = blender.context.scene
+    assert (scene.frame_start, scene.frame_end) == (1, 250)
+    assert blender.ops.neural_atlas.import_run("EXEC_DEFAULT", filepath=str(manifest)) == {"FINISHED"}
+    assert (scene.frame_start, scene.frame_end) == (1011, 1022)
+    clip = blender.data.movieclips[P.PLATE_CLIP]
+    # the Clip Editor (as the compositor's Movie Clip node) shows file 1011 + (F - frame_start) at scene frame F
+    assert (clip.frame_start, clip.frame_offset, clip.frame_duration) == (1011, 0, 12)
+    assert os.path.basename(clip.filepath) == "plate.1011.png"
+    passes = compat.scene_tree(scene).nodes["NA_Passes"]
+    assert (passes.frame_start, passes.frame_duration, passes.frame_offset) == (1011, 12, 1010)
+    assert os.path.basename(passes.image.filepath) == C.pass_file_name(1011)
+
+    out = tmp_path / "out"
+    assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out), file_format="exr") == {"FINISHED"}
+    assert sorted(p.name for p in out.iterdir()) == [f"edit.{f:05d}.exr" for f in SHOT]
+    err = X.render_error(out, manifest, "nearest", frames=SHOT)
+    at_1015 = X.render_error(out, manifest, "nearest", frames=(1015,))
+    shifted = _shifted(out, manifest, ((1015, 1014), (1015, 1016), (1011, 1012), (1022, 1021)))
+    print(f"{TAG} shot 1011-1022: max abs err {err:.2e}, frame 1015 {at_1015:.2e}, shifted by one {shifted:.2f}")
+    assert err <= 5e-5 and at_1015 <= 5e-5 and shifted > 0.1
+
+
+def test_the_artists_range_within_the_shot_is_left_alone(blender, tmp_path):
+    """A range narrowed to 1014-1016 survives Import Atlas (and the render is those frames, each its own plate
+    frame); Set Scene Range sets the shot's 1011-1022; a range outside the shot (10-21) becomes the shot's."""
+    manifest = _shot(blender, tmp_path)
+    scene = blender.context.scene
+    scene.frame_start, scene.frame_end = 1014, 1016
+    assert blender.ops.neural_atlas.import_run("EXEC_DEFAULT", filepath=str(manifest)) == {"FINISHED"}
+    assert (scene.frame_start, scene.frame_end) == (1014, 1016)
+    out = tmp_path / "out"
+    assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out), file_format="exr") == {"FINISHED"}
+    assert sorted(p.name for p in out.iterdir()) == ["edit.01014.exr", "edit.01015.exr", "edit.01016.exr"]
+    assert X.render_error(out, manifest, "nearest", frames=(1014, 1015, 1016)) <= 5e-5
+
+    assert blender.ops.neural_atlas.import_run("EXEC_DEFAULT", filepath=str(manifest), set_range=True) == {"FINISHED"}
+    assert (scene.frame_start, scene.frame_end) == (1011, 1022)
+    scene.frame_start, scene.frame_end = 10, 21
+    assert blender.ops.neural_atlas.import_run("EXEC_DEFAULT", filepath=str(manifest)) == {"FINISHED"}
+    assert (scene.frame_start, scene.frame_end) == (1011, 1022)

@@ -63,3 +63,16 @@ def test_a_sequence_clip_is_given_to_the_engine_as_its_pattern():
     assert F.sequence_pattern("/plates/00003.png") == "/plates/#####.png"
     assert F.sequence_pattern("/plates/shot2_v3_0012.png") == "/plates/shot2_v3_####.png"
     assert F.sequence_pattern("/plates/still.png") == "/plates"
+
+
+def test_the_scene_range_is_the_imported_frames_unless_the_artists_lies_within_them():
+    """Blender's 1-250 (or a range beside the shot) becomes the shot's 1011-1022; a range narrowed to 1014-1018
+    (or the shot's own) is left alone; ``force`` sets the imported frames whatever the range."""
+    shot = (1011, 1022)
+    assert F.scene_range((1, 250), shot) == shot
+    assert F.scene_range((10, 21), shot) == shot
+    assert F.scene_range((1000, 1015), shot) == shot  # partly outside: frames the export does not have
+    assert F.scene_range((1014, 1018), shot) == (1014, 1018)
+    assert F.scene_range(shot, shot) == shot
+    assert F.scene_range((1015, 1015), shot) == (1015, 1015)
+    assert F.scene_range((1014, 1018), shot, force=True) == shot
