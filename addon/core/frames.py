@@ -72,6 +72,19 @@ def scene_range(current: tuple[int, int], imported: tuple[int, int], force: bool
     return first, last
 
 
+def clip_offset_note(name: str, clip_frame_start: int, first_file_number: int | None, aligned_clip: str) -> str | None:
+    """What to tell the artist whose own clip ``name`` (a sequence starting with file ``first_file_number``) does not
+    show plate frame N at scene frame N once the scene is numbered as the plate: Blender starts a sequence at scene
+    frame 1 whatever its numbers, so over 1011-1022 the Clip Editor shows nothing there. The clip is not moved (the
+    masks and scribbles drawn on it are keyed to scene frames); ``aligned_clip`` is. None: it lines up, or a movie."""
+    if first_file_number is None or clip_frame_start == first_file_number:
+        return None
+    return (
+        f"clip {name!r} shows plate frame {first_file_number} at scene frame {clip_frame_start}; view "
+        f"{aligned_clip!r} in the Clip Editor to see plate frame N at scene frame N"
+    )
+
+
 #: Blender stores the scene rate as ``render.fps`` (a short: at most this) over ``render.fps_base`` (a float).
 BLENDER_MAX_FPS = 32767
 

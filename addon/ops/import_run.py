@@ -9,8 +9,9 @@ from bpy.props import BoolProperty, StringProperty
 
 from ...engine import contract as C
 from .. import compat, compositor, paint
+from ..core import frames as F
 from ..core import tree_plan as P
-from .scene_inputs import abspath
+from .scene_inputs import abspath, clip_plate
 
 #: What a manifest that cannot be imported raises (both say what is wrong and what to do).
 IMPORT_ERRORS = (C.ManifestError, P.PlanError)
@@ -34,6 +35,14 @@ def import_manifest(
     props.manifest = manifest_path
     props.imported_layers = ", ".join(plan.layers)
     return plan
+
+
+def clip_note(context: Any) -> str | None:
+    """``frames.clip_offset_note`` for the panel's clip (None: no clip, a movie, or it lines up)."""
+    clip = context.scene.neural_atlas.clip
+    if clip is None:
+        return None
+    return F.clip_offset_note(clip.name, clip.frame_start, clip_plate(clip)[1], P.PLATE_CLIP)
 
 
 class NEURALATLAS_OT_import(bpy.types.Operator):
@@ -62,6 +71,9 @@ class NEURALATLAS_OT_import(bpy.types.Operator):
         kept = (scene.frame_start, scene.frame_end) != (plan.frame_start, plan.frame_end)
         note = f" (scene range {scene.frame_start}-{scene.frame_end} kept)" if kept else ""
         self.report({"INFO"}, f"imported {len(plan.layers)} layers, frames {plan.frame_start}-{plan.frame_end}{note}")
+        clip = clip_note(context)
+        if clip is not None:
+            self.report({"WARNING"}, clip)
         return {"FINISHED"}
 
     def invoke(self, context, event):

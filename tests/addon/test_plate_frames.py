@@ -13,7 +13,9 @@ bpy = pytest.importorskip("bpy")
 
 import fake_export as X  # noqa: E402
 from neural_atlas.addon import compat  # noqa: E402
+from neural_atlas.addon.core import frames as F  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
+from neural_atlas.addon.ops.import_run import clip_note  # noqa: E402
 
 from engine import contract as C  # noqa: E402
 
@@ -98,8 +100,13 @@ def test_a_shot_keeps_its_frame_numbers_end_to_end(blender, tmp_path):
     manifest = _shot(blender, tmp_path)
     scene = blender.context.scene
     assert (scene.frame_start, scene.frame_end) == (1, 250)
+    scene.neural_atlas.clip = blender.data.movieclips["plate.1011.png"]  # the panel's clip, as the fit had it
     assert blender.ops.neural_atlas.import_run("EXEC_DEFAULT", filepath=str(manifest)) == {"FINISHED"}
     assert (scene.frame_start, scene.frame_end) == (1011, 1022)
+    # the artist's own clip stays at scene frame 1 (what is drawn on it is keyed to scene frames): the import says so
+    assert blender.data.movieclips["plate.1011.png"].frame_start == 1
+    assert clip_note(blender.context) == F.clip_offset_note("plate.1011.png", 1, 1011, P.PLATE_CLIP)
+    assert "view 'NA_Plate' in the Clip Editor" in clip_note(blender.context)
     clip = blender.data.movieclips[P.PLATE_CLIP]
     # the Clip Editor (as the compositor's Movie Clip node) shows file 1011 + (F - frame_start) at scene frame F
     assert (clip.frame_start, clip.frame_offset, clip.frame_duration) == (1011, 0, 12)

@@ -76,3 +76,14 @@ def test_the_scene_range_is_the_imported_frames_unless_the_artists_lies_within_t
     assert F.scene_range(shot, shot) == shot
     assert F.scene_range((1015, 1015), shot) == (1015, 1015)
     assert F.scene_range((1014, 1018), shot, force=True) == shot
+
+
+def test_a_clip_numbered_otherwise_than_the_scene_is_named():
+    """plate.1011.png loaded at scene frame 1 (Blender's default) is named with what to view instead; a clip at
+    1011, or a movie, is not."""
+    assert F.clip_offset_note("plate.1011.png", 1, 1011, "NA_Plate") == (
+        "clip 'plate.1011.png' shows plate frame 1011 at scene frame 1; view 'NA_Plate' in the Clip Editor to see "
+        "plate frame N at scene frame N"
+    )
+    assert F.clip_offset_note("plate.1011.png", 1011, 1011, "NA_Plate") is None
+    assert F.clip_offset_note("shot.mov", 1, None, "NA_Plate") is None
