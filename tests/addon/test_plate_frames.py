@@ -1,6 +1,7 @@
 """Import Atlas numbers the scene as the plate (bpy 4.5 and 5.0): an export of plate frames 1001..1003 at
 24000/1001 with 2:1 pixels sets the scene range to 1001-1003, its rate to the exact fraction and its pixel aspect,
-and the compositor shows plate frame F at scene frame F (the render of scene frame 1002 is plate frame 1002 edited)."""
+and the compositor shows plate frame F at scene frame F (the render of scene frame 1002 is plate frame 1002 edited).
+A shot plate.1011.png .. plate.1022.png keeps its numbers end to end, and an artist's range within it is kept."""
 
 from __future__ import annotations
 
