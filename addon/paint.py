@@ -17,7 +17,7 @@ import bpy
 
 from ..engine import contract as C
 from . import compat
-from .core import float_edit, run_files
+from .core import float_edit, run_files, unsaved_paint
 from .core import tree_plan as P
 
 
@@ -95,6 +95,25 @@ def _is_exr(path: str) -> bool:
     return path.lower().endswith(C.EDIT_LAYER_FLOAT_EXT)
 
 
+def _dirty_edits() -> list[Any]:
+    return [img for img in bpy.data.images if img.name.startswith(P.PREFIX + "Edit_") and img.is_dirty]
+
+
+def save_before_reload(action: str) -> list[str]:
+    """Save the unsaved paint of every edit layer (``save_edits``) before ``action`` reloads or replaces the edit
+    images, which would drop it; returns the paths saved. Raises ValueError (one line, ``unsaved_paint.refusal``)
+    when some paint has no file to go to, before anything is saved or reloaded; a run folder in use or a full disk
+    raise as in ``save_edits``, the paint still unsaved in Blender."""
+    dirty = [
+        unsaved_paint.EditImage(img.name, img.filepath, img.packed_file is not None, img.source == "GENERATED")
+        for img in _dirty_edits()
+    ]
+    line = unsaved_paint.refusal(action, dirty)
+    if line:
+        raise ValueError(line)
+    return save_edits()
+
+
 def save_edits(manifest_path: str | None = None) -> list[str]:
     """Write every painted edit layer back to its file, keeping the format it has; returns the paths.
 
@@ -102,7 +121,7 @@ def save_edits(manifest_path: str | None = None) -> list[str]:
     (Non-Color since the import, so Blender writes the raw values: a Linear one would be saved encoded). Holds the
     run folder's lock of ``manifest_path`` (default: the imported atlas's) while writing: ``contract.RunLocked``
     (one line naming the export or project-frame that holds it) leaves every file as it was."""
-    dirty = [img for img in bpy.data.images if img.name.startswith(P.PREFIX + "Edit_") and img.is_dirty]
+    dirty = _dirty_edits()
     if not dirty:
         return []
     manifest_path = manifest_path or bpy.context.scene.neural_atlas.manifest

@@ -21,6 +21,8 @@ MANIFEST_GONE = "The imported manifest is gone: put it back or import again: "
 NO_PASSES = "The imported atlas has no passes image: import the atlas again"
 #: An import whose passes are not on disk (the run folder moved or was cleaned).
 PASSES_GONE = "The passes are not on disk: put the run folder back or import again: "
+#: An edit layer file not on disk (deleted, or the run folder moved): the render would be the bare plate.
+EDIT_GONE = "An edit layer is not on disk: put it back (or the run folder) or import again: "
 #: Save Edits with nothing painted since the last save.
 NOTHING_TO_SAVE = "Nothing to save: every edit layer is saved (paint first)"
 #: Float Edit Layers when every imported edit layer is a float EXR already.
@@ -35,10 +37,17 @@ NO_LAYER = "No foreground layer to remove"
 NO_CLIP = "Choose the clip to scribble on"
 
 
-def render_need(manifest: str, passes_file: str | None, exists: Callable[[str], bool] = os.path.isfile) -> str | None:
+def render_need(
+    manifest: str,
+    passes_file: str | None,
+    exists: Callable[[str], bool] = os.path.isfile,
+    edit_files: Iterable[str] = (),
+) -> str | None:
     """Render Edited Clip: an imported export (``manifest``: the scene's, '' when none) whose passes exist
-    (``passes_file``: the passes image's first file, None when the image is gone). ``exists`` is the file test
-    (poll runs on every redraw: a stat or two, never the manifest read)."""
+    (``passes_file``: the passes image's first file, None when the image is gone) and whose edit layers exist
+    (``edit_files``: the file of each edit image the tree shows; a missing one would render as nothing, so the
+    result would silently be the bare plate). ``exists`` is the file test (poll runs on every redraw: a few stats,
+    never the manifest read)."""
     if not manifest:
         return NO_IMPORT
     if not exists(manifest):
@@ -47,6 +56,9 @@ def render_need(manifest: str, passes_file: str | None, exists: Callable[[str], 
         return NO_PASSES
     if not exists(passes_file):
         return PASSES_GONE + passes_file
+    for path in edit_files:
+        if not exists(path):
+            return EDIT_GONE + path
     return None
 
 

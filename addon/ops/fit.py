@@ -56,7 +56,7 @@ class NEURALATLAS_OT_fit(EngineJobOperator, bpy.types.Operator):
         props.can_resume = job.can_resume()
         if result.status == EP.STATUS_OK and job.manifest:
             try:
-                plan = import_manifest(context, job.manifest)
+                plan = import_manifest(context, job.manifest, action="Fit Atlas")
             except (*IMPORT_ERRORS, RuntimeError) as exc:
                 props.status = f"import failed: {exc}"
                 self.report({"ERROR"}, f"{props.status} (log: {job.log_path})")

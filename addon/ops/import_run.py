@@ -13,8 +13,9 @@ from ..core import frames as F
 from ..core import tree_plan as P
 from .scene_inputs import abspath, clip_plate
 
-#: What a manifest that cannot be imported raises (both say what is wrong and what to do).
-IMPORT_ERRORS = (C.ManifestError, P.PlanError)
+#: What an import that cannot be done raises, each one line saying what is wrong and what to do: a bad manifest or
+#: plan; unsaved paint that cannot be saved first (ValueError), a run folder in use, a full disk.
+IMPORT_ERRORS = (C.ManifestError, P.PlanError, ValueError, OSError, C.RunLocked)
 
 
 def import_manifest(
@@ -22,13 +23,19 @@ def import_manifest(
     manifest_path: str,
     setup_paint: bool = True,
     edits: dict[str, str] | None = None,
+    *,
     set_range: bool = False,
+    action: str = "Import Atlas",
 ) -> P.TreePlan:
     """Read the manifest, build the compositor tree and the paint canvases (``edits``: layer -> other image;
-    ``set_range``: the scene's range becomes the imported frames even where the artist's lies within them)."""
+    ``set_range``: the scene's range becomes the imported frames even where the artist's lies within them).
+
+    Building reloads or replaces the edit images, so unsaved paint is saved to its files first
+    (``paint.save_before_reload``; ``action`` names what refuses when it cannot be); a refusal reloads nothing."""
     props = context.scene.neural_atlas
     manifest = C.load_manifest(manifest_path)
     plan = P.plan_tree(manifest, manifest_path, props.filter_type, edits, compat.colorspace_names())
+    paint.save_before_reload(action)
     compositor.build(context.scene, plan, set_range)
     if setup_paint:
         paint.setup_canvases(context, plan.layers)

@@ -53,6 +53,9 @@ class NEURALATLAS_OT_float_edits(bpy.types.Operator):
         made, skipped = [], []
         try:
             manifest = C.load_manifest(props.manifest)
+            # the import below reloads every edit image: unsaved paint goes to its file first (a PNG that becomes an
+            # EXR too, so its file holds the paint as well as the EXR made from the same pixels does)
+            paint.save_before_reload(self.bl_label)
             with run_files.edits_lock(props.manifest, run_files.FLOAT_EDITS_HOLDER):
                 for layer in manifest["layers"]:
                     img = bpy.data.images.get(P.edit_image_name(layer["name"]))
@@ -64,7 +67,7 @@ class NEURALATLAS_OT_float_edits(bpy.types.Operator):
                         continue
                     made.append(paint.make_float_edit(layer["name"], P.float_edit_path(props.manifest, layer)))
             keep = {name: abspath(bpy.data.images[P.edit_image_name(name)].filepath) for name in skipped}
-            import_manifest(context, props.manifest, True, keep)  # the tree and canvases now use the EXRs
+            import_manifest(context, props.manifest, True, keep, action=self.bl_label)  # the tree, canvases: the EXRs
         except (ValueError, OSError, C.RunLocked) as exc:  # ManifestError, PlanError, an existing EXR, a full disk
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}

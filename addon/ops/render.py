@@ -9,7 +9,7 @@ from ...engine import contract as C
 from .. import compositor, paint
 from ..core import needs
 from ..core import tree_plan as P
-from .paint import NO_ATLAS
+from .paint import edit_images
 from .scene_inputs import abspath
 
 
@@ -17,6 +17,22 @@ def passes_file() -> str | None:
     """The imported passes' first file on disk (None without the passes image)."""
     img = bpy.data.images.get(P.PASSES_IMAGE)
     return abspath(img.filepath) if img is not None and img.filepath else None
+
+
+def edit_files() -> list[str]:
+    """The files of the edit layers the tree shows (a packed one, or one made in Blender, has none to miss)."""
+    return [
+        abspath(img.filepath)
+        for img in edit_images()
+        if img.filepath and img.packed_file is None and img.source != "GENERATED"
+    ]
+
+
+def _need(context) -> str | None:
+    """What Render lacks (``needs.render_need``), read from the scene: the poll's line, and execute's."""
+    props = getattr(context.scene, "neural_atlas", None)
+    manifest = abspath(props.manifest) if props is not None and props.manifest else ""
+    return needs.render_need(manifest, passes_file(), edit_files=edit_files())
 
 
 class NEURALATLAS_OT_render(bpy.types.Operator):
@@ -36,8 +52,7 @@ class NEURALATLAS_OT_render(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        props = getattr(context.scene, "neural_atlas", None)
-        need = needs.render_need(abspath(props.manifest) if props is not None else "", passes_file())
+        need = _need(context)
         if need:
             cls.poll_message_set(need)
         return need is None
@@ -46,8 +61,9 @@ class NEURALATLAS_OT_render(bpy.types.Operator):
         props = context.scene.neural_atlas
         out = abspath(self.directory or props.render_dir)
         fmt = self.file_format or props.render_format
-        if not props.manifest:  # poll says so; this holds for a call that skips poll
-            self.report({"ERROR"}, NO_ATLAS)
+        need = _need(context)
+        if need:  # poll says so; this holds for a call that skips poll (and for files gone since it ran)
+            self.report({"ERROR"}, need)
             return {"CANCELLED"}
         try:
             # the paint is saved first, so the render is of what the artist sees; a run folder in use or a full

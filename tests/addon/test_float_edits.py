@@ -1,5 +1,6 @@
 """Float Edit Layers: the PNG paint (unsaved strokes included) becomes <Layer>.exr, linear and premultiplied;
-the tree switches to it; the PNG is left alone; an existing EXR is never replaced; the render uses it."""
+the tree switches to it; the PNG gets the unsaved strokes first (saved, as before any reload); an existing EXR is
+never replaced; the render uses it."""
 
 from __future__ import annotations
 
@@ -25,7 +26,6 @@ def test_float_edit_layers_convert_switch_and_never_overwrite(blender, tmp_path)
     blender.context.scene.neural_atlas.filter_type = P.FILTER_NEAREST
     assert blender.ops.neural_atlas.import_run("EXEC_DEFAULT", filepath=str(manifest)) == {"FINISHED"}
     edits = tmp_path / "run" / "edits"
-    png_bytes = (edits / "Foreground.png").read_bytes()
 
     img = bpy.data.images[P.edit_image_name("Foreground")]
     w, h = img.size
@@ -39,7 +39,8 @@ def test_float_edit_layers_convert_switch_and_never_overwrite(blender, tmp_path)
     straight = px.astype(np.float64)
 
     assert blender.ops.neural_atlas.float_edits("EXEC_DEFAULT") == {"FINISHED"}
-    assert (edits / "Foreground.png").read_bytes() == png_bytes  # the PNG is never touched
+    png = X.read_png_rgba8(edits / "Foreground.png")[::-1]  # saved first: the PNG holds the stroke as painted
+    assert np.array_equal(png, np.round(straight * 255).astype(np.uint8))
     for layer in ("Background", "Foreground"):
         img = bpy.data.images[P.edit_image_name(layer)]
         assert img.filepath.endswith(f"{layer}.exr") and img.colorspace_settings.name == "Non-Color"

@@ -26,6 +26,19 @@ def test_render_need_reads_the_disk_by_default(tmp_path):
     assert needs.render_need(str(manifest), str(passes)) is None
 
 
+def test_render_needs_the_edit_layers_on_disk():
+    """A missing edit layer would render as nothing (the bare plate): the line names the first missing file."""
+    manifest, passes = "/run/exports/v001/manifest.json", "/run/exports/v001/passes/atlas.01001.exr"
+    edits = ["/run/edits/Background.png", "/run/edits/Foreground.exr"]
+    on_disk = {manifest, passes, *edits}
+    assert needs.render_need(manifest, passes, on_disk.__contains__, edits) is None
+    on_disk.discard(edits[1])
+    assert needs.render_need(manifest, passes, on_disk.__contains__, edits) == needs.EDIT_GONE + edits[1]
+    on_disk.discard(passes)  # the passes are named first: without them nothing renders
+    assert needs.render_need(manifest, passes, on_disk.__contains__, edits) == needs.PASSES_GONE + passes
+    assert needs.render_need(manifest, None, on_disk.__contains__, edits) == needs.NO_PASSES
+
+
 def test_save_edits_needs_edit_layers_with_unsaved_paint():
     assert needs.save_edits_need(0, 0) == needs.NO_IMPORT
     assert needs.save_edits_need(2, 0) == needs.NOTHING_TO_SAVE
