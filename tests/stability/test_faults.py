@@ -32,6 +32,7 @@ from engine.config import apply_overrides, parse_set_args, preset_config
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.fit.run_folder import RunFolder
 from engine.fit.trainer import fit
+from tests.engine_cli import progress_until, start_engine
 from tests.paths import ROOT
 
 SPEC = SceneSpec(width=48, height=32, frames=4, fg_size=(16, 12), fg_start=(10.0, 8.0))
@@ -69,29 +70,6 @@ def uninterrupted(clip, tmp_path_factory):
     return fit(frames, [masks], run, cfg, device_name="cpu", progress_bar=False, stream=io.StringIO())
 
 
-def _start(args: list[str]) -> subprocess.Popen:
-    return subprocess.Popen(
-        [sys.executable, "-m", "engine", *args],
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-
-
-def _run_until(proc: subprocess.Popen, stop_when) -> list[dict]:  # type: ignore[no-untyped-def]
-    """Read progress lines until ``stop_when(events)`` is true; returns the events read so far."""
-    events: list[dict] = []
-    assert proc.stdout is not None
-    for line in proc.stdout:
-        msg = C.parse_progress_line(line)
-        if msg:
-            events.append(msg)
-            if stop_when(events):
-                break
-    return events
-
-
 def _resume(run: Path) -> tuple[int, dict, list[dict]]:
     out = subprocess.run(
         [sys.executable, "-m", "engine", "fit", "--resume", "--out", str(run), "--no-bar"],
@@ -117,8 +95,8 @@ def _first_step(events: list[dict]) -> int:
 def test_sigterm_checkpoints_where_it_stops_and_resume_reaches_the_same_quality(tmp_path, clip, uninterrupted):
     frames, masks = clip
     run = tmp_path / "run"
-    proc = _start(_args(frames, masks, run))
-    events = _run_until(proc, lambda ev: ev[-1]["event"] == C.EVENT_PROGRESS and ev[-1]["step"] >= 10)
+    proc = start_engine(_args(frames, masks, run))
+    events = progress_until(proc, lambda ev: ev[-1]["event"] == C.EVENT_PROGRESS and ev[-1]["step"] >= 10)
     proc.send_signal(signal.SIGTERM)
     rest, err = proc.communicate(timeout=300)
     events += [m for m in map(C.parse_progress_line, rest.splitlines()) if m]
@@ -142,9 +120,9 @@ def test_sigkill_loses_at_most_the_checkpoint_interval_and_resume_reaches_the_sa
 ):
     frames, masks = clip
     run = tmp_path / "run"
-    proc = _start(_args(frames, masks, run))
+    proc = start_engine(_args(frames, masks, run))
     # wait for a periodic checkpoint (every checkpoint_seconds) and a few more steps, then kill without warning
-    events = _run_until(
+    events = progress_until(
         proc,
         lambda ev: (
             (
@@ -197,8 +175,8 @@ def _sigterm_at(
     args: list[str], stage: str, delay_s: float = 0.0, sig: signal.Signals = signal.SIGTERM
 ) -> tuple[subprocess.CompletedProcess, list[dict]]:
     """Run ``python -m engine ARGS``, send ``sig`` ``delay_s`` after its ``stage`` event; the exit, its events."""
-    proc = _start(args)
-    events = _run_until(proc, lambda ev: ev[-1]["event"] == C.EVENT_STAGE and ev[-1]["stage"] == stage)
+    proc = start_engine(args)
+    events = progress_until(proc, lambda ev: ev[-1]["event"] == C.EVENT_STAGE and ev[-1]["stage"] == stage)
     time.sleep(delay_s)
     proc.send_signal(sig)
     rest, err = proc.communicate(timeout=300)

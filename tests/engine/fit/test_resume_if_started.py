@@ -16,7 +16,7 @@ import torch
 
 from engine import contract as C
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
-from tests.engine_cli import run_cli
+from tests.engine_cli import progress_until, run_cli, start_engine
 from tests.folders import tree_digest
 from tests.paths import ROOT
 
@@ -33,12 +33,6 @@ def _argv(frames: Path, masks: Path, run: Path, *extra: str) -> list[str]:
             C.FIT_RESUME_IF_STARTED_FLAG, *extra]  # fmt: skip
 
 
-def _start(argv: list[str]) -> subprocess.Popen:
-    return subprocess.Popen(
-        [sys.executable, "-m", "engine", *argv], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-    )
-
-
 def _events(text: str) -> list[dict]:
     return [m for m in map(C.parse_progress_line, text.splitlines()) if m]
 
@@ -49,15 +43,8 @@ def test_a_retried_fit_starts_continues_and_then_does_nothing(tmp_path):
     argv = _argv(frames, masks, run)
 
     # 1. it starts; the farm preempts it mid-fit
-    proc = _start(argv)
-    events: list[dict] = []
-    assert proc.stdout is not None
-    for line in proc.stdout:
-        msg = C.parse_progress_line(line)
-        if msg:
-            events.append(msg)
-            if msg["event"] == C.EVENT_PROGRESS and msg["step"] >= 5:
-                break
+    proc = start_engine(argv)
+    events = progress_until(proc, lambda ev: ev[-1]["event"] == C.EVENT_PROGRESS and ev[-1]["step"] >= 5)
     proc.send_signal(signal.SIGTERM)
     rest, err = proc.communicate(timeout=300)
     events += _events(rest)
