@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 from pathlib import Path
 from typing import Any
 
@@ -40,3 +41,23 @@ def two_shot_file(folder: Path, **defaults: Any) -> Path:
         {"name": "sh020", "plate": "clips/b/frames", "auto_masks": True, "frames": "1-4", "preview": False},
     ]
     return write_shots(folder, shots, {"preset": "draft", "set": TINY_SET, "export_chunk": 2, **defaults})
+
+
+def openjd_commands(bundle: Path) -> list[tuple[str, list[str]]]:
+    """(step name, command line) of every task of an OpenJD bundle, with the job parameters (its
+    job_parameters.json) and each chunk's ``Frames`` task parameter substituted, as ``openjd run`` runs them."""
+    template = json.loads((bundle / "template.json").read_text(encoding="utf-8"))
+    values = json.loads((bundle / "job_parameters.json").read_text(encoding="utf-8"))
+    params = {f"Param.{k}": v for k, v in values.items()}
+
+    def substitute(text: str, names: dict[str, str]) -> str:
+        return re.sub(r"\{\{\s*([A-Za-z0-9_.]+)\s*\}\}", lambda m: names[m.group(1)], text)
+
+    commands = []
+    for step in template["steps"]:
+        action = step["script"]["actions"]["onRun"]
+        space = step.get("parameterSpace", {}).get("taskParameterDefinitions", [])
+        for frames in space[0]["range"] if space else [None]:
+            names = {**params, "Task.Param.Frames": frames} if frames else params
+            commands.append((step["name"], [substitute(a, names) for a in [action["command"], *action["args"]]]))
+    return commands

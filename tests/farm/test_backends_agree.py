@@ -6,8 +6,6 @@ for task, to the plan's."""
 
 from __future__ import annotations
 
-import json
-import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -18,6 +16,7 @@ from engine import contract as C
 from engine.farm import dask_backend, flamenco
 from engine.farm.plan import load_plan
 from tests.engine_cli import run_cli
+from tests.farm.farm_helpers import openjd_commands
 from tests.farm.flamenco_helpers import NODE, compile_job, write_shots
 from tests.paths import ROOT
 
@@ -26,25 +25,11 @@ pytestmark = pytest.mark.skipif(NODE is None, reason="node (v20) is not on PATH"
 PYTHON = sys.executable
 
 
-def _substitute(text: str, values: dict[str, str]) -> str:
-    return re.sub(r"\{\{\s*([A-Za-z0-9_.]+)\s*\}\}", lambda m: values[m.group(1)], text)
-
-
 def _openjd(shots: Path, bundle: Path) -> list[tuple[str, list[str]]]:
     code, err = run_cli(C.VERB_FARM, C.FARM_OPENJD, shots, "--out", bundle, "--engine-python", PYTHON,
                         "--engine-path", str(ROOT))  # fmt: skip
     assert code == C.EXIT_OK, err
-    template = json.loads((bundle / "template.json").read_text(encoding="utf-8"))
-    values = json.loads((bundle / "job_parameters.json").read_text(encoding="utf-8"))
-    params = {f"Param.{k}": v for k, v in values.items()}
-    out = []
-    for step in template["steps"]:
-        action = step["script"]["actions"]["onRun"]
-        space = step.get("parameterSpace", {}).get("taskParameterDefinitions", [])
-        for frames in space[0]["range"] if space else [None]:
-            names = {**params, "Task.Param.Frames": frames} if frames else params
-            out.append((step["name"], [_substitute(a, names) for a in [action["command"], *action["args"]]]))
-    return out
+    return openjd_commands(bundle)
 
 
 def _flamenco(plan: Any) -> list[tuple[str, list[str]]]:

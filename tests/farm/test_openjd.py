@@ -22,7 +22,7 @@ from engine import cli
 from engine import contract as C
 from engine.farm.plan import load_plan
 from tests.engine_cli import run_cli
-from tests.farm.farm_helpers import TINY_SET, two_shot_file, write_clip, write_shots
+from tests.farm.farm_helpers import TINY_SET, openjd_commands, two_shot_file, write_clip, write_shots
 from tests.folders import tree_digest
 from tests.paths import ROOT
 
@@ -56,23 +56,12 @@ def test_openjd_check_passes(seq, tmp_path):
     assert "passes validation checks" in proc.stdout
 
 
-def _substitute(text: str, values: dict[str, str]) -> str:
-    return re.sub(r"\{\{\s*([A-Za-z0-9_.]+)\s*\}\}", lambda m: values[m.group(1)], text)
-
-
 def test_the_bundles_commands_with_parameters_substituted_are_the_plans(seq, tmp_path):
     template = _bundle(seq / "shots.json", tmp_path / "bundle")
     values = json.loads((tmp_path / "bundle" / "job_parameters.json").read_text(encoding="utf-8"))
     deadline = json.loads((tmp_path / "bundle" / "parameter_values.json").read_text(encoding="utf-8"))
     assert {v["name"]: v["value"] for v in deadline["parameterValues"]} == values
-    params = {f"Param.{k}": v for k, v in values.items()}
-    commands = []
-    for step in template["steps"]:
-        action = step["script"]["actions"]["onRun"]
-        space = step.get("parameterSpace", {}).get("taskParameterDefinitions", [])
-        for frames in space[0]["range"] if space else [None]:
-            names = {**params, "Task.Param.Frames": frames} if frames else params
-            commands.append((step["name"], [_substitute(a, names) for a in [action["command"], *action["args"]]]))
+    commands = openjd_commands(tmp_path / "bundle")
     plan = load_plan(seq / "shots.json")
     assert commands == [(f"{t.shot}-{t.kind}", t.argv(sys.executable)) for t in plan.tasks]
     # step dependencies are the plan's, per step
