@@ -138,6 +138,16 @@ class StubManager:
         self.server.server_close()
         self.thread.join(timeout=10)
 
+    def __enter__(self) -> StubManager:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+    def requests(self) -> list[tuple[str, str, Any]]:
+        """(method, path, body) of every call, in order."""
+        return [(c.method, c.path, c.body) for c in self.calls]
+
     @staticmethod
     def error(status: int, message: str) -> tuple[int, dict[str, Any]]:
         return status, {"code": status, "message": message}
