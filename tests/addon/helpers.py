@@ -10,6 +10,7 @@ import time
 import types
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 HERE = Path(__file__).resolve().parent
 
@@ -125,3 +126,24 @@ def drive_modal(cls, context, events, limit: int = 1500, **attrs):
             return ret, op, job
         time.sleep(0.02)
     raise AssertionError("the modal operator never finished")
+
+
+def polygon_mask(
+    data: Any, corners_by_frame: list[tuple[int, list[tuple[float, float]]]], width: int, height: int
+) -> Any:
+    """A Mask datablock "Roto" in ``data`` (``bpy.data``: passed in, this module imports no bpy) with one cyclic
+    polygon, its points (pixels, origin bottom-left) keyed at each frame of ``corners_by_frame``."""
+    from mask_reference import px_to_mask
+
+    mask = data.masks.new("Roto")
+    layer = mask.layers.new(name="L")
+    spline = layer.splines.new()
+    spline.points.add(len(corners_by_frame[0][1]) - 1)
+    spline.use_cyclic = True
+    for frame, corners in corners_by_frame:
+        for i, (p, (x, y)) in enumerate(zip(spline.points, corners, strict=True)):
+            p.handle_left_type = p.handle_right_type = "VECTOR"
+            p.co = p.handle_left = p.handle_right = px_to_mask(x, y, width, height)
+            for prop in ("co", "handle_left", "handle_right"):
+                mask.keyframe_insert(f'layers["L"].splines[0].points[{i}].{prop}', frame=frame)
+    return mask

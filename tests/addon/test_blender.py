@@ -15,7 +15,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 import fake_export as X  # noqa: E402
-from helpers import RecordingLayout, drive_modal, fake_python, stand_in_pip  # noqa: E402
+from helpers import RecordingLayout, drive_modal, fake_python, polygon_mask, stand_in_pip  # noqa: E402
 from mask_reference import px_to_mask, rasterize_polygon  # noqa: E402
 from neural_atlas.addon import compat  # noqa: E402
 from neural_atlas.addon.core import engine_setup as ES  # noqa: E402
@@ -204,21 +204,6 @@ def test_paint_then_save_and_render_png(blender, tmp_path):
 
 
 # --- masks --------------------------------------------------------------------------------------------------
-def _polygon_mask(corners_by_frame, width, height):
-    mask = bpy.data.masks.new("Roto")
-    layer = mask.layers.new(name="L")
-    spline = layer.splines.new()
-    spline.points.add(len(corners_by_frame[0][1]) - 1)
-    spline.use_cyclic = True
-    for frame, corners in corners_by_frame:
-        for i, (p, (x, y)) in enumerate(zip(spline.points, corners, strict=True)):
-            p.handle_left_type = p.handle_right_type = "VECTOR"
-            p.co = p.handle_left = p.handle_right = px_to_mask(x, y, width, height)
-            for prop in ("co", "handle_left", "handle_right"):
-                mask.keyframe_insert(f'layers["L"].splines[0].points[{i}].{prop}', frame=frame)
-    return mask
-
-
 def test_mask_datablock_rasterizes_exactly(blender, tmp_path):
     from neural_atlas.addon import masks
 
@@ -227,7 +212,7 @@ def test_mask_datablock_rasterizes_exactly(blender, tmp_path):
         (1, [(10, 8), (30, 8), (30, 20), (10, 20)]),
         (2, [(22, 8), (42, 10), (42, 30), (20, 30)]),  # moved and skewed: an animated roto
     ]
-    mask = _polygon_mask(frames, w, h)
+    mask = polygon_mask(bpy.data, frames, w, h)
     paths = masks.rasterize(mask, w, h, [1, 2], str(tmp_path / "m"), ["00001.png", "00002.png"])
     assert [os.path.basename(p) for p in paths] == ["00001.png", "00002.png"]
     for (_frame, corners), path in zip(frames, paths, strict=True):
@@ -309,7 +294,7 @@ def fit_scene(blender, tmp_path, monkeypatch):
     props = blender.context.scene.neural_atlas
     props.clip = clip
     layer = props.layers.add()
-    layer.mask = _polygon_mask([(clip.frame_start, [(5, 5), (20, 5), (20, 15), (5, 15)])], W, H)
+    layer.mask = polygon_mask(bpy.data, [(clip.frame_start, [(5, 5), (20, 5), (20, 15), (5, 15)])], W, H)
     props.run_dir = str(tmp_path / "run")
     return props, src
 

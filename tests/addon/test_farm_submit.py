@@ -21,7 +21,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 import fake_export as X  # noqa: E402
-from helpers import RecordingLayout, as_operator, drive_modal, fake_python  # noqa: E402
+from helpers import RecordingLayout, as_operator, drive_modal, fake_python, polygon_mask  # noqa: E402
 from neural_atlas.addon import compat, preferences, ui  # noqa: E402
 from neural_atlas.addon.core import farm as FM  # noqa: E402
 from neural_atlas.addon.core import running  # noqa: E402
@@ -49,22 +49,6 @@ def _engine_python(*verb: str, needs: str = "usage:") -> str:
     return py
 
 
-def _polygon_mask(corners, frame: int):
-    """A Mask datablock with one square on ``frame``."""
-    from mask_reference import px_to_mask
-
-    mask = bpy.data.masks.new("Roto")
-    spline = mask.layers.new(name="L").splines.new()
-    spline.points.add(len(corners) - 1)
-    spline.use_cyclic = True
-    for i, (p, (x, y)) in enumerate(zip(spline.points, corners, strict=True)):
-        p.handle_left_type = p.handle_right_type = "VECTOR"
-        p.co = p.handle_left = p.handle_right = px_to_mask(x, y, W, H)
-        for prop in ("co", "handle_left", "handle_right"):
-            mask.keyframe_insert(f'layers["L"].splines[0].points[{i}].{prop}', frame=frame)
-    return mask
-
-
 @pytest.fixture
 def farm_prefs(blender):
     """The add-on's preferences (enabled as Blender enables it: an entry in preferences.addons); removed after."""
@@ -88,7 +72,7 @@ def farm_scene(blender, farm_prefs, tmp_path, monkeypatch):
     monkeypatch.setenv(preferences.ENGINE_PYTHON_ENV, fake_python(tmp_path))
     props = blender.context.scene.neural_atlas
     props.clip = clip
-    props.layers.add().mask = _polygon_mask([(5, 5), (20, 5), (20, 15), (5, 15)], clip.frame_start)
+    props.layers.add().mask = polygon_mask(bpy.data, [(clip.frame_start, [(5, 5), (20, 5), (20, 15), (5, 15)])], W, H)
     folder = props.layers.add()
     folder.source = "FOLDER"
     folder.folder = str(tmp_path / "src" / "masks_by_hand")
