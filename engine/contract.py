@@ -547,6 +547,9 @@ def parse_progress_line(line: str) -> dict[str, Any] | None:
 #   RUN_DIR/edits/<Layer>.png (+ RUN_DIR/edits/layout.json, the atlas frame each edit layer was painted in)
 EXPORTS_DIR = "exports"
 EXPORT_VERSION_FORMAT = "v{:03d}"
+#: A farm's staged export (``export --into vNNN --stage ...``) is assembled in ``exports/.vNNN`` + this suffix until
+#: it is published; the farm plan reads the same name to continue an unfinished one.
+EXPORT_CHUNKS_SUFFIX = ".chunks"
 EDITS_DIR = "edits"
 EDITS_LAYOUT = "layout.json"
 MANIFEST_NAME = "manifest.json"

@@ -67,7 +67,7 @@ STAGED_EDITS = ".edits"
 #: passes its chunks write (no lock: several hosts at once) and its record (``STAGE_RECORD``: frames, atlas size,
 #: each layer's atlas frame), until ``--stage publish`` renames it to ``vNNN``. A whole export never removes it and
 #: never takes its number.
-CHUNKS_SUFFIX = ".chunks"
+CHUNKS_SUFFIX = C.EXPORT_CHUNKS_SUFFIX
 STAGE_RECORD = "stage.json"
 STAGE_SCHEMA = "neural_atlas.export_stage/1"
 #: A layer's pass channels (UV X, Y, Z, alpha and the STMap copy) and their bytes uncompressed: the disk-full

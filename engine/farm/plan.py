@@ -41,8 +41,6 @@ CHUNKED_KINDS: frozenset[str] = frozenset({PASSES, RENDER})
 
 #: An export version's folder, a chunked export's staging folder or a dead export's leftovers: numbers taken.
 _VERSION_ENTRY = re.compile(r"^\.?v(\d+)(?:\..*)?$")
-#: The staging folder of a chunked export (engine.export's ``.vNNN.chunks``; not imported: the plan stays torch-free).
-CHUNKED_SUFFIX = ".chunks"
 
 
 @dataclass(frozen=True)
@@ -226,7 +224,7 @@ def next_version(run: str | Path) -> str:
             match = _VERSION_ENTRY.match(entry.name)
             if match:
                 taken.append(int(match.group(1)))
-                if entry.name.endswith(CHUNKED_SUFFIX):
+                if entry.name.endswith(C.EXPORT_CHUNKS_SUFFIX):
                     chunked.add(int(match.group(1)))
     except (FileNotFoundError, NotADirectoryError):
         pass

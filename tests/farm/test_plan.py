@@ -156,10 +156,3 @@ def test_the_plan_loads_without_torch(seq):
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=ROOT, timeout=60)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "[]"
-
-
-def test_the_plan_names_the_exporters_staging_folder_as_it_does() -> None:
-    from engine.export.exporter import CHUNKS_SUFFIX
-    from engine.farm.plan import CHUNKED_SUFFIX
-
-    assert CHUNKED_SUFFIX == CHUNKS_SUFFIX
