@@ -18,12 +18,11 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 import fake_export as X  # noqa: E402
-from helpers import as_operator, fake_python  # noqa: E402
+from helpers import as_operator, fake_python, polygon_mask  # noqa: E402
 from neural_atlas.addon.core import needs  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 from neural_atlas.addon.ops import import_run as import_ops  # noqa: E402
 from neural_atlas.addon.ops import render as render_ops  # noqa: E402
-from test_blender import _polygon_mask  # noqa: E402
 
 #: The stroke: a 4x4 block at the atlas's bottom-left, as an 8-bit image stores it (sRGB, straight alpha).
 RED = (1.0, 0.0, 0.0, 1.0)
@@ -93,7 +92,7 @@ def test_the_import_after_a_finished_fit_saves_the_paint_first(blender, tmp_path
     props = blender.context.scene.neural_atlas
     props.clip = clip
     layer = props.layers.add()
-    layer.mask = _polygon_mask([(clip.frame_start, [(5, 5), (20, 5), (20, 15), (5, 15)])], X.W, X.H)
+    layer.mask = polygon_mask(bpy.data, [(clip.frame_start, [(5, 5), (20, 5), (20, 15), (5, 15)])], X.W, X.H)
     props.run_dir = str(tmp_path / "run")
     assert bpy.ops.neural_atlas.fit("EXEC_DEFAULT") == {"FINISHED"}
     png = _edit_file()
