@@ -40,6 +40,11 @@ FILTER_SMOOTH = "smooth"  # 5.0: Bilinear; 4.x: its only other filter, EWA ("ANI
 
 PLATE_CLIP = f"{PREFIX}Plate"
 PASSES_IMAGE = f"{PREFIX}Passes"
+#: The live preview: a plate-sized plane in the 3D viewport whose material is the composite (``addon/preview.py``).
+PREVIEW_OBJECT = f"{PREFIX}Preview"
+#: Paint laid on one plate frame (plate-sized RGBA, transparent where unpainted), shown over the preview and landed on
+#: the atlases by ``engine project-frame``.
+FRAME_PAINT_IMAGE = f"{PREFIX}FramePaint"
 
 
 #: The fix of a plate that is not where the manifest says.
