@@ -1,7 +1,8 @@
 """Every difference between Blender 4.2-4.5 and 5.0 the add-on meets, and the only module that branches on
 one (a version or a feature check): the compositor tree and its output, Map UV filtering, Alpha Over, Set
-Alpha and Math sockets, the render's file/video settings, float EXR saving, the clip's annotation datablock,
-animation F-curves and material nodes. The facts behind each branch: docs/blender-compat.md.
+Alpha and Math sockets, the mattes' File Output nodes, the render's file/video settings, float EXR saving, the
+clip's annotation datablock, animation F-curves and material nodes. The facts behind each branch:
+docs/blender-compat.md.
 """
 
 from __future__ import annotations
@@ -26,6 +27,9 @@ _NODE_TYPES = {
     P.SET_ALPHA: "CompositorNodeSetAlpha",
     P.ALPHA_OVER: "CompositorNodeAlphaOver",
     P.OUTPUT: "NodeGroupOutput" if V5 else "CompositorNodeComposite",
+    P.FRAME: "NodeFrame",
+    P.REROUTE: "NodeReroute",
+    P.FILE_OUTPUT: "CompositorNodeOutputFile",
 }
 
 #: the name of the 5.0 compositing node group the add-on creates when the scene has none
@@ -111,6 +115,50 @@ def setup_node(node: Any, kind: str, params: dict[str, Any]) -> None:
             node.inputs[0].default_value = 1.0
     elif kind == P.OUTPUT and hasattr(node, "use_alpha"):  # 4.3-4.5; 4.2 has an Alpha input instead
         node.use_alpha = True
+    elif kind == P.FRAME:
+        node.label = params["label"]
+        node.use_custom_color = True
+        node.color = params["color"]
+        node.label_size = 16
+    elif kind == P.FILE_OUTPUT:
+        setup_matte_output(node)
+
+
+def setup_matte_output(node: Any) -> None:
+    """A File Output node with one float input written as a single-channel (``V``) full-float EXR named
+    ``tree_plan.MATTE_FILE`` in the node's folder (``set_file_output_dir``), values as they are (Non-Color).
+
+    4.x: ``base_path`` + one file slot whose path is the file name (``#`` the frame number). 5.0 replaced those
+    with ``directory`` + ``file_name`` + ``file_output_items`` (an item's name follows the file name; a ``/`` in it
+    becomes ``_``, so each matte has its own node and folder), its format starts as multilayer EXR, and an input that
+    is a single value rather than an image writes no file (measured on 5.0.1)."""
+    fmt = node.format
+    if V5:
+        fmt.media_type = "IMAGE"  # first: it decides which file formats exist
+        node.file_output_items.clear()
+        node.file_output_items.new("FLOAT", P.MATTE_FILE)
+        node.file_name = ""
+    else:
+        node.file_slots.clear()
+        node.file_slots.new(P.MATTE_FILE)
+    fmt.file_format = "OPEN_EXR"
+    fmt.color_depth = "32"
+    fmt.exr_codec = "ZIP"
+    fmt.color_mode = "BW"
+    fmt.color_management = "OVERRIDE"
+    fmt.linear_colorspace_settings.name = "Non-Color"  # a matte is data: no conversion from the scene's space
+
+
+def file_output_dir(node: Any) -> str:
+    return node.directory if V5 else node.base_path
+
+
+def set_file_output_dir(node: Any, directory: str) -> None:
+    """The folder a File Output node writes into (``//`` relative to the .blend allowed)."""
+    if V5:
+        node.directory = directory
+    else:
+        node.base_path = directory
 
 
 def set_map_uv_filter(node: Any, filter_type: str) -> None:
@@ -143,7 +191,7 @@ def input_socket(node: Any, kind: str, key: str) -> Any:
         if V5:
             return node.inputs["Background" if key == "bg" else "Foreground"]
         return node.inputs[1 if key == "bg" else 2]  # both are called "Image" on 4.x
-    if kind == P.OUTPUT:
+    if kind in (P.OUTPUT, P.REROUTE, P.FILE_OUTPUT):
         return node.inputs[0]
     raise KeyError(f"{kind} has no input {key!r}")
 
@@ -157,7 +205,7 @@ def output_socket(node: Any, kind: str, key: str) -> Any:
         return node.outputs["Alpha"]
     if kind == P.ADD_COLOR:
         return _enabled(node.outputs, "Result") if V5 else node.outputs[0]
-    if kind == P.ADD_VALUE:
+    if kind in (P.ADD_VALUE, P.REROUTE):
         return node.outputs[0]
     raise KeyError(f"{kind} has no output {key!r}")
 

@@ -69,11 +69,12 @@ def build(scene: Any, plan: P.TreePlan, set_range: bool = False) -> dict[str, An
     remove_ours(tree)
     nodes: dict[str, Any] = {}
     kinds: dict[str, str] = {}
+    mattes_root = os.path.join(render_dir(scene), P.MATTES_DIR)
     for spec in plan.nodes:
         node = compat.new_node(tree, spec.kind)
         node.name = spec.name
         node.label = spec.name.removeprefix(P.PREFIX).replace("_", " ")
-        node.location = spec.location
+        node.location = spec.location  # before the parent: a node keeps its place in the editor when framed
         if spec.kind == P.PLATE:
             node.clip = clip
         elif spec.kind == P.IMAGE:
@@ -85,8 +86,14 @@ def build(scene: Any, plan: P.TreePlan, set_range: bool = False) -> dict[str, An
                 node.use_auto_refresh = True
                 node.layer = spec.params["layer"]
         compat.setup_node(node, spec.kind, spec.params)
+        if spec.kind == P.FILE_OUTPUT:
+            compat.set_file_output_dir(node, os.path.join(mattes_root, spec.params["matte"]))
+            node.mute = not writes_mattes(scene)
         nodes[spec.name] = node
         kinds[spec.name] = spec.kind
+    for spec in plan.nodes:
+        if spec.parent:
+            nodes[spec.name].parent = nodes[spec.parent]
     for link in plan.links:
         src = compat.output_socket(nodes[link.from_node], kinds[link.from_node], link.from_socket)
         dst = compat.input_socket(nodes[link.to_node], kinds[link.to_node], link.to_socket)
@@ -95,6 +102,38 @@ def build(scene: Any, plan: P.TreePlan, set_range: bool = False) -> dict[str, An
     compat.make_output_active(tree, out)
     configure_scene(scene, plan, set_range)
     return nodes
+
+
+def render_dir(scene: Any) -> str:
+    """The panel's render folder (as the artist typed it: ``//`` relative to the .blend)."""
+    props = getattr(scene, "neural_atlas", None)
+    return str(props.render_dir) if props is not None and props.render_dir else "//neural_atlas_render/"
+
+
+def writes_mattes(scene: Any) -> bool:
+    props = getattr(scene, "neural_atlas", None)
+    return bool(props.write_mattes) if props is not None else True
+
+
+def point_mattes(scene: Any, out_dir: str | None = None) -> list[str]:
+    """Aim the tree's matte File Output nodes at ``out_dir/mattes/<Matte>/`` (None: where they are) and mute
+    them unless the panel's Write Mattes is on; returns the folders they write to when they write.
+
+    File Output nodes write on every render of the scene (an F12 animation render too), so they stay aimed at
+    the last Render Edited Clip's folder: the mattes always sit beside the frames they belong to."""
+    tree = compat.scene_tree(scene, create=False)
+    write = writes_mattes(scene)
+    folders = []
+    for node in tree.nodes if tree is not None else ():
+        matte = P.matte_of_file_node(node.name)
+        if matte is None:
+            continue
+        if out_dir is not None:
+            compat.set_file_output_dir(node, P.matte_dir(os.path.abspath(out_dir), matte))
+        node.mute = not write
+        if write:
+            folders.append(compat.file_output_dir(node))
+    return folders
 
 
 def add_output(tree: Any, socket: Any) -> Any:
@@ -137,8 +176,10 @@ def render(scene: Any, out_dir: str, file_format: str = "exr", exr_colorspace: s
     The view transform is Standard and dithering off for the render, so a PNG is the plain sRGB encoding
     of the linear result (the artist's settings are restored afterwards). An EXR is written in
     ``exr_colorspace`` (``TreePlan.output_colorspace``: the plate's space when scene-linear, as ``engine render``).
+    The tree's mattes are written beside it, ``out_dir/mattes/<Matte>/matte.#####.exr`` (``point_mattes``).
     """
     os.makedirs(out_dir, exist_ok=True)
+    point_mattes(scene, out_dir)
     r = scene.render
     s = r.image_settings
     saved = {

@@ -10,14 +10,16 @@ from __future__ import annotations
 
 import array
 import os
+from collections.abc import Iterable
 from contextlib import nullcontext
 from typing import Any
 
 import bpy
+from mathutils import Vector
 
 from ..engine import contract as C
 from . import compat
-from .core import float_edit, run_files, unsaved_paint
+from .core import float_edit, placement, run_files, unsaved_paint
 from .core import tree_plan as P
 
 
@@ -55,19 +57,38 @@ def _material(layer: str, edit: Any, atlas: Any) -> Any:
     return mat
 
 
+def scene_boxes(context: Any, also: Iterable[str] = ()) -> list[placement.Box]:
+    """World-space boxes of the scene's visible objects, the add-on's own (``NA_``) left out except those named in
+    ``also``: what a plane the add-on places must keep clear of (``placement.place_row``)."""
+    context.view_layer.update()  # world matrices of objects moved since the last update
+    keep = set(also)
+    boxes = []
+    for obj in context.scene.objects:
+        if (obj.name.startswith(P.PREFIX) and obj.name not in keep) or not obj.visible_get():
+            continue
+        world = obj.matrix_world
+        boxes.append(placement.Box.around(tuple(world @ Vector(corner)) for corner in obj.bound_box))
+    return boxes
+
+
 def setup_canvases(context: Any, layers: list[str]) -> list[Any]:
-    """A unit plane per layer, side by side, UVs covering the atlas; returns the objects."""
-    objects = []
+    """A plane per layer, UVs covering the atlas, its sides in the atlas's proportions; in a row beyond the scene's
+    own objects (``placement.place_row``), so no canvas sits inside or on top of the artist's work. Returns them."""
     collection = bpy.data.collections.get(f"{P.PREFIX}Canvases")
     if collection is None:
         collection = bpy.data.collections.new(f"{P.PREFIX}Canvases")
     if collection.name not in context.scene.collection.children:
         context.scene.collection.children.link(collection)
+    found = []
     for layer in layers:
         edit = bpy.data.images.get(P.edit_image_name(layer))
         atlas = bpy.data.images.get(P.atlas_image_name(layer))
-        if edit is None or atlas is None:
-            continue
+        if edit is not None and atlas is not None:
+            found.append((layer, edit, atlas))
+    aspects = [edit.size[0] / edit.size[1] if edit.size[1] else 1.0 for _, edit, _ in found]
+    spots = placement.place_row(scene_boxes(context), [(aspect, 1.0) for aspect in aspects])
+    objects = []
+    for (layer, edit, atlas), aspect, spot in zip(found, aspects, spots, strict=True):
         name = canvas_name(layer)
         mesh = bpy.data.meshes.get(name)
         if mesh is None:
@@ -79,9 +100,8 @@ def setup_canvases(context: Any, layers: list[str]) -> list[Any]:
         obj = bpy.data.objects.get(name) or bpy.data.objects.new(name, mesh)
         if obj.name not in collection.objects:
             collection.objects.link(obj)
-        aspect = edit.size[0] / edit.size[1] if edit.size[1] else 1.0
         obj.scale = (aspect, 1.0, 1.0)  # texels stay square while painting
-        obj.location = (sum(1.2 * max(1.0, o.scale[0]) for o in objects), 0.0, 0.0)
+        obj.location = spot
         mat = _material(layer, edit, atlas)
         if not mesh.materials:
             mesh.materials.append(mat)

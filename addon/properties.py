@@ -22,6 +22,12 @@ def _forget_estimate(self, context):
     self.estimate_json = ""  # measured for another clip or size
 
 
+def _on_write_mattes(self, context):
+    from . import compositor
+
+    compositor.point_mattes(context.scene)
+
+
 def _on_filter(self, context):
     from . import compositor
 
@@ -89,6 +95,13 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
         update=_on_filter,
     )
     render_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//neural_atlas_render/")
+    write_mattes: BoolProperty(
+        name="Write Mattes",
+        default=True,
+        description="Render Edited Clip also writes each layer's matte and the paint's coverage, float EXR, "
+        "to <Output>/mattes/<Layer>/matte.#####.exr",
+        update=_on_write_mattes,
+    )
     render_format: EnumProperty(
         name="Format",
         items=[

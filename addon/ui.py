@@ -155,6 +155,7 @@ class NEURALATLAS_PT_edit(_SidebarPanel, bpy.types.Panel):
         col.operator("neural_atlas.float_edits", icon="IMAGE_DATA")
         col.prop(props, "render_dir")
         col.prop(props, "render_format")
+        col.prop(props, "write_mattes")
         col.operator("neural_atlas.render", icon="RENDER_ANIMATION")
 
 

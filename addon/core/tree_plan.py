@@ -10,6 +10,11 @@ The colour sum uses Mix/Add, whose alpha is its first input's, so the alphas are
 (Separate Color -> Math/Add) and put back with Set Alpha; one premultiplied Alpha Over puts the sum over
 the plate. ``addon/compositor.py`` turns a plan into nodes; ``addon/compat.py`` maps the abstract socket keys used
 here to each Blender version's sockets.
+
+The plan also says where each node sits: every node belongs to a labelled frame (Plate, Passes, one per layer, Blend,
+Mattes), so an artist opening the tree sees what each group does. The Mattes frame offers each layer's matte (its
+alpha pass) and the paint's coverage (the alpha sum above) as named Reroutes a compositor can pick up, and writes
+them as float EXR sequences beside the render (``matte_path``).
 """
 
 from __future__ import annotations
@@ -34,6 +39,9 @@ ADD_VALUE = "add_value"  # inputs "a", "b"; output "value"
 SET_ALPHA = "set_alpha"  # inputs "image", "alpha"; output "image" (alpha replaced)
 ALPHA_OVER = "alpha_over"  # inputs "bg", "fg" (premultiplied); output "image"
 OUTPUT = "output"  # input "image"
+FRAME = "frame"  # a labelled, coloured box that groups nodes (params "label", "color"); no sockets
+REROUTE = "reroute"  # input "in"; output "out": a named point in the tree to pick a matte up from
+FILE_OUTPUT = "file_output"  # input "image": written each rendered frame to <mattes dir>/<params "matte">/MATTE_FILE
 
 FILTER_NEAREST = "nearest"
 FILTER_SMOOTH = "smooth"  # 5.0: Bilinear; 4.x: its only other filter, EWA ("ANISOTROPIC")
@@ -51,6 +59,16 @@ FRAME_PAINT_IMAGE = f"{PREFIX}FramePaint"
 PLATE_FIX = "put the plate back where the export was made from (its path is relative to the manifest), or export again"
 
 
+#: The render folder's subfolder of the mattes: ``<render dir>/mattes/<Matte>/matte.#####.exr``.
+MATTES_DIR = "mattes"
+#: A matte's file name in its folder, ``#####`` the plate's frame number (as the render's ``edit.#####``).
+MATTE_FILE = "matte.#####"
+MATTE_EXT = ".exr"
+#: The matte of the paint: where the edit layers cover the plate, ``sum_i A_i`` (the alpha the Blend frame puts over
+#: the plate). Not a layer name: layers are Background, Foreground, Foreground1, ... (``contract.layer_name``).
+PAINT_MATTE = "Paint"
+
+
 class PlanError(ValueError):
     """The manifest cannot be turned into a tree (message says why and what to do)."""
 
@@ -59,8 +77,9 @@ class PlanError(ValueError):
 class NodeSpec:
     name: str
     kind: str
-    location: tuple[float, float]
+    location: tuple[float, float]  # in the editor's space, not relative to the frame the node sits in
     params: dict[str, Any] = field(default_factory=dict)
+    parent: str = ""  # the FRAME node it sits in ("": none, as a frame itself)
 
 
 @dataclass(frozen=True)
@@ -98,6 +117,8 @@ class TreePlan:
     """The scene's ``(render.fps, render.fps_base)``: the plate's exact rate (``frames.scene_fps``); None: none."""
     pixel_aspect: tuple[float, float] = (1.0, 1.0)
     """The scene's ``(pixel_aspect_x, pixel_aspect_y)``: the plate's pixel aspect ratio."""
+    mattes: list[str] = field(default_factory=list)
+    """The mattes the tree offers and writes: each layer's (its alpha pass), then ``PAINT_MATTE``."""
 
 
 def edit_image_name(layer: str) -> str:
@@ -106,6 +127,62 @@ def edit_image_name(layer: str) -> str:
 
 def atlas_image_name(layer: str) -> str:
     return f"{PREFIX}Atlas_{layer}"
+
+
+def matte_node_name(matte: str) -> str:
+    """The Reroute a compositor picks the matte up from (a layer's name, or ``PAINT_MATTE``)."""
+    return f"{PREFIX}Matte_{matte}"
+
+
+def matte_file_node_name(matte: str) -> str:
+    """The File Output node that writes the matte on each rendered frame."""
+    return f"{PREFIX}MatteFile_{matte}"
+
+
+def matte_of_file_node(name: str) -> str | None:
+    """The matte a File Output node named ``matte_file_node_name(matte)`` writes; None for any other node."""
+    prefix = matte_file_node_name("")
+    return name.removeprefix(prefix) if name.startswith(prefix) and name != prefix else None
+
+
+def matte_dir(render_dir: str, matte: str) -> str:
+    """The folder of one matte's EXR sequence in a render folder."""
+    return os.path.join(render_dir, MATTES_DIR, matte)
+
+
+def matte_path(render_dir: str, matte: str, frame: int) -> str:
+    """The matte of plate frame ``frame`` in a render folder: ``<render_dir>/mattes/<matte>/matte.00012.exr``."""
+    digits = MATTE_FILE.count("#")
+    name = MATTE_FILE.replace("#" * digits, f"{frame:0{digits}d}") + MATTE_EXT
+    return os.path.join(matte_dir(render_dir, matte), name)
+
+
+def frame_node_name(group: str) -> str:
+    return f"{PREFIX}Frame_{group}"
+
+
+#: The frames' groups, labels and colours (linear RGB, dim: Blender draws a frame's colour behind its nodes).
+FRAME_PLATE, FRAME_PASSES, FRAME_BLEND, FRAME_MATTES = "Plate", "Passes", "Blend", "Mattes"
+FRAME_COLORS: dict[str, tuple[float, float, float]] = {
+    FRAME_PLATE: (0.25, 0.25, 0.32),
+    FRAME_PASSES: (0.22, 0.30, 0.22),
+    "Layer": (0.32, 0.26, 0.18),
+    FRAME_BLEND: (0.20, 0.27, 0.33),
+    FRAME_MATTES: (0.30, 0.20, 0.28),
+}
+
+
+def layer_frame_group(layer: str) -> str:
+    return f"Layer_{layer}"
+
+
+def layer_frame_label(layer: str) -> str:
+    return f"Layer {layer}: edit + Map UV"
+
+
+def frame_spec(group: str, label: str, color_key: str) -> NodeSpec:
+    """A FRAME node: its location is unused (a frame fits itself around its nodes)."""
+    return NodeSpec(frame_node_name(group), FRAME, (0.0, 0.0), {"label": label, "color": FRAME_COLORS[color_key]})
 
 
 def contiguous_frames(frames: list[int]) -> tuple[int, int]:
@@ -163,57 +240,80 @@ def plan_tree(
         images.append(ImageSpec(edit_image_name(name), edit, edit_colorspace(edit)))
         images.append(ImageSpec(atlas_image_name(name), at(layer["atlas_png"]), "sRGB"))
 
-    nodes: list[NodeSpec] = []
+    nodes: list[NodeSpec] = [
+        frame_spec(FRAME_PLATE, "Plate", FRAME_PLATE),
+        frame_spec(FRAME_PASSES, "Passes", FRAME_PASSES),
+    ]
     links: list[LinkSpec] = []
+    f_plate, f_passes = frame_node_name(FRAME_PLATE), frame_node_name(FRAME_PASSES)
+    f_blend, f_mattes = frame_node_name(FRAME_BLEND), frame_node_name(FRAME_MATTES)
     n_plate, n_passes = f"{PREFIX}Plate", f"{PREFIX}Passes"
-    nodes.append(NodeSpec(n_plate, PLATE, (-900.0, 300.0), {"clip": PLATE_CLIP}))
+    nodes.append(NodeSpec(n_plate, PLATE, (-900.0, 300.0), {"clip": PLATE_CLIP}, f_plate))
     passes_params = {"image": PASSES_IMAGE, "layer": passes["exr_layer"], "sequence": True}
-    nodes.append(NodeSpec(n_passes, IMAGE, (-900.0, 0.0), passes_params))
+    nodes.append(NodeSpec(n_passes, IMAGE, (-900.0, 0.0), passes_params, f_passes))
     map_outputs: list[str] = []
     for i, layer in enumerate(manifest["layers"]):
         name = layer["name"]
-        y = -300.0 - 250.0 * i
+        y = -420.0 - 250.0 * i  # below the passes node, whose height grows with the layers
+        f_layer = frame_node_name(layer_frame_group(name))
+        nodes.append(frame_spec(layer_frame_group(name), layer_frame_label(name), "Layer"))
         n_edit, n_map = f"{PREFIX}Edit_{name}", f"{PREFIX}MapUV_{name}"
-        nodes.append(NodeSpec(n_edit, IMAGE, (-900.0, y), {"image": edit_image_name(name)}))
-        nodes.append(NodeSpec(n_map, MAP_UV, (-600.0, y), {"filter": filter_type}))
+        nodes.append(NodeSpec(n_edit, IMAGE, (-900.0, y), {"image": edit_image_name(name)}, f_layer))
+        nodes.append(NodeSpec(n_map, MAP_UV, (-650.0, y), {"filter": filter_type}, f_layer))
         links.append(LinkSpec(n_edit, "image", n_map, "image"))
         links.append(LinkSpec(n_passes, layer["uv_pass"], n_map, "uv"))
         map_outputs.append(n_map)
 
+    nodes.append(frame_spec(FRAME_BLEND, "Blend", FRAME_BLEND))
+    # the paint's matte: the alpha of the sum (one layer: its Map UV's alpha)
+    alpha_node, alpha_socket = _separate(nodes, links, map_outputs[0], f_blend)
     if len(map_outputs) == 1:
         fg_node, fg_socket = map_outputs[0], "image"
     else:
         color_node, color_socket = map_outputs[0], "image"
-        alpha_node, alpha_socket = _separate(nodes, links, map_outputs[0])
         for i, n_map in enumerate(map_outputs[1:], start=1):
             y = -250.0 * i
             n_add = f"{PREFIX}AddColor_{i}"
-            nodes.append(NodeSpec(n_add, ADD_COLOR, (-300.0, y)))
+            nodes.append(NodeSpec(n_add, ADD_COLOR, (-200.0, y), parent=f_blend))
             links.append(LinkSpec(color_node, color_socket, n_add, "a"))
             links.append(LinkSpec(n_map, "image", n_add, "b"))
             color_node, color_socket = n_add, "result"
-            sep_node, sep_socket = _separate(nodes, links, n_map)
+            sep_node, sep_socket = _separate(nodes, links, n_map, f_blend)
             n_addv = f"{PREFIX}AddAlpha_{i}"
-            nodes.append(NodeSpec(n_addv, ADD_VALUE, (-300.0, y - 120.0)))
+            nodes.append(NodeSpec(n_addv, ADD_VALUE, (-200.0, y - 120.0), parent=f_blend))
             links.append(LinkSpec(alpha_node, alpha_socket, n_addv, "a"))
             links.append(LinkSpec(sep_node, sep_socket, n_addv, "b"))
             alpha_node, alpha_socket = n_addv, "value"
         n_set = f"{PREFIX}SetAlpha"
-        nodes.append(NodeSpec(n_set, SET_ALPHA, (0.0, 0.0)))
+        nodes.append(NodeSpec(n_set, SET_ALPHA, (0.0, 0.0), parent=f_blend))
         links.append(LinkSpec(color_node, color_socket, n_set, "image"))
         links.append(LinkSpec(alpha_node, alpha_socket, n_set, "alpha"))
         fg_node, fg_socket = n_set, "image"
 
     n_over, n_out = f"{PREFIX}Over", f"{PREFIX}Output"
-    nodes.append(NodeSpec(n_over, ALPHA_OVER, (200.0, 200.0)))
-    nodes.append(NodeSpec(n_out, OUTPUT, (400.0, 200.0)))
+    nodes.append(NodeSpec(n_over, ALPHA_OVER, (200.0, 200.0), parent=f_blend))
+    nodes.append(NodeSpec(n_out, OUTPUT, (400.0, 200.0), parent=f_blend))
     links.append(LinkSpec(n_plate, "image", n_over, "bg"))
     links.append(LinkSpec(fg_node, fg_socket, n_over, "fg"))
     links.append(LinkSpec(n_over, "image", n_out, "image"))
+
+    sources = [(layer["name"], n_passes, layer["alpha_pass"]) for layer in manifest["layers"]]
+    sources.append((PAINT_MATTE, alpha_node, alpha_socket))
+    nodes.append(frame_spec(FRAME_MATTES, "Mattes", FRAME_MATTES))
+    for k, (matte, src_node, src_socket) in enumerate(sources):
+        y = 200.0 - 130.0 * k
+        n_matte, n_file = matte_node_name(matte), matte_file_node_name(matte)
+        nodes.append(NodeSpec(n_matte, REROUTE, (700.0, y), parent=f_mattes))
+        nodes.append(NodeSpec(n_file, FILE_OUTPUT, (800.0, y + 40.0), {"matte": matte}, f_mattes))
+        links.append(LinkSpec(src_node, src_socket, n_matte, "in"))
+        links.append(LinkSpec(n_matte, "out", n_file, "image"))
     res = passes["resolution"]
     size = (int(res[0]), int(res[1]))
     fps, aspect = F.scene_fps(C.clip_rate(clip)), F.scene_pixel_aspect(clip.get("pixel_aspect", 1.0))
-    return TreePlan(nodes, links, images, plate, first, last, size, layers, output_colorspace(clip), fps, aspect)
+    mattes = [matte for matte, _, _ in sources]
+    return TreePlan(
+        nodes, links, images, plate, first, last, size, layers, output_colorspace(clip), fps, aspect, mattes
+    )
 
 
 def edit_layer_path(manifest_path: str, layer: dict[str, Any]) -> str:
@@ -241,10 +341,10 @@ def plate_path(manifest_path: str, path: str, what: str) -> str:
     return full
 
 
-def _separate(nodes: list[NodeSpec], links: list[LinkSpec], n_map: str) -> tuple[str, str]:
+def _separate(nodes: list[NodeSpec], links: list[LinkSpec], n_map: str, parent: str) -> tuple[str, str]:
     src = nodes[[n.name for n in nodes].index(n_map)]
     n_sep = f"{PREFIX}Alpha_{n_map.removeprefix(PREFIX + 'MapUV_')}"
-    nodes.append(NodeSpec(n_sep, SEPARATE, (src.location[0] + 150.0, src.location[1] - 120.0)))
+    nodes.append(NodeSpec(n_sep, SEPARATE, (-400.0, src.location[1] - 60.0), parent=parent))
     links.append(LinkSpec(n_map, "image", n_sep, "image"))
     return n_sep, "alpha"
 

@@ -95,7 +95,7 @@ def test_compositor_matches_render_equation(blender, tmp_path, lut, filt):
     scene = _import(blender, manifest, filt)
     tree = _tree(scene)
     ours = [n for n in tree.nodes if n.name.startswith(P.PREFIX)]
-    assert len(ours) == 13
+    assert len(ours) == 13 + 12  # + 6 frames, and a Reroute and a File Output per matte (2 layers + paint)
     assert _map_uv_filter(tree.nodes["NA_MapUV_Foreground"]) == filt
     assert (scene.frame_start, scene.frame_end) == (FRAMES[0], FRAMES[-1])
     assert (scene.render.resolution_x, scene.render.resolution_y) == (W, H)
@@ -123,7 +123,7 @@ def test_compositor_three_layers_matches_render_equation(blender, tmp_path, lut)
     scene = _import(blender, manifest, P.FILTER_NEAREST)
     tree = _tree(scene)
     ours = {n.name for n in tree.nodes if n.name.startswith(P.PREFIX)}
-    assert len(ours) == 18
+    assert len(ours) == 18 + 15  # + 7 frames, and a Reroute and a File Output per matte (3 layers + paint)
     assert {"NA_MapUV_Background", "NA_MapUV_Foreground1", "NA_MapUV_Foreground2"} <= ours
     out_dir = tmp_path / "out"
     assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out_dir), file_format="exr") == {"FINISHED"}
@@ -165,8 +165,8 @@ def test_rebuild_is_idempotent_and_keeps_the_artists_nodes(blender, tmp_path):
         _import(blender, manifest)
     names = sorted(n.name for n in tree.nodes)
     assert names.count("Artist Blur") == 1
-    assert len([n for n in names if n.startswith(P.PREFIX)]) == 13
-    assert len(names) == 14
+    assert len([n for n in names if n.startswith(P.PREFIX)]) == 25
+    assert len(names) == 26
     assert bpy.data.images.get("artist_plate") == artist_img
     assert len([i for i in bpy.data.images if i.name.startswith("NA_Edit_")]) == 2
     assert len([c for c in bpy.data.movieclips if c.name.startswith(P.PREFIX)]) == 1
@@ -199,7 +199,7 @@ def test_paint_then_save_and_render_png(blender, tmp_path):
     assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(tmp_path / "png"), file_format="png") == {
         "FINISHED"
     }
-    assert sorted(os.listdir(tmp_path / "png")) == [f"edit.{f:05d}.png" for f in FRAMES]
+    assert sorted(os.listdir(tmp_path / "png")) == [*(f"edit.{f:05d}.png" for f in FRAMES), P.MATTES_DIR]
     assert scene.render.image_settings.file_format == "PNG" or scene.render.filepath != ""
 
 

@@ -337,7 +337,7 @@ def _imported(blender, manifest: Path) -> dict:
     imported_range = (scene.frame_start, scene.frame_end)
     scene.frame_end = scene.frame_start
     assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out), file_format="exr") == {"FINISHED"}
-    (frame,) = sorted(out.iterdir())
+    (frame,) = sorted(out.glob("edit.*"))
     return {
         "nodes": sorted(n.name for n in tree.nodes if n.name.startswith(P.PREFIX)),
         "images": images,

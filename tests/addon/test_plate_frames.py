@@ -41,7 +41,7 @@ def test_import_sets_the_scene_range_rate_and_aspect_of_the_plate(blender, tmp_p
 
     out = tmp_path / "out"
     assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out), file_format="exr") == {"FINISHED"}
-    assert sorted(p.name for p in out.iterdir()) == [f"edit.{f:05d}.exr" for f in FRAMES]
+    assert sorted(p.name for p in out.iterdir()) == [*(f"edit.{f:05d}.exr" for f in FRAMES), P.MATTES_DIR]
     err = X.render_error(out, manifest, "nearest", frames=FRAMES)
     # each frame against the plate and passes of the NEIGHBOURING number: a shifted mapping would match these
     shifted = max(
@@ -118,7 +118,7 @@ def test_a_shot_keeps_its_frame_numbers_end_to_end(blender, tmp_path):
 
     out = tmp_path / "out"
     assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out), file_format="exr") == {"FINISHED"}
-    assert sorted(p.name for p in out.iterdir()) == [f"edit.{f:05d}.exr" for f in SHOT]
+    assert sorted(p.name for p in out.iterdir()) == [*(f"edit.{f:05d}.exr" for f in SHOT), P.MATTES_DIR]
     err = X.render_error(out, manifest, "nearest", frames=SHOT)
     at_1015 = X.render_error(out, manifest, "nearest", frames=(1015,))
     shifted = _shifted(out, manifest, ((1015, 1014), (1015, 1016), (1011, 1012), (1022, 1021)))
@@ -136,7 +136,7 @@ def test_the_artists_range_within_the_shot_is_left_alone(blender, tmp_path):
     assert (scene.frame_start, scene.frame_end) == (1014, 1016)
     out = tmp_path / "out"
     assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out), file_format="exr") == {"FINISHED"}
-    assert sorted(p.name for p in out.iterdir()) == ["edit.01014.exr", "edit.01015.exr", "edit.01016.exr"]
+    assert sorted(p.name for p in out.iterdir()) == ["edit.01014.exr", "edit.01015.exr", "edit.01016.exr", P.MATTES_DIR]
     assert X.render_error(out, manifest, "nearest", frames=(1014, 1015, 1016)) <= 5e-5
 
     assert blender.ops.neural_atlas.import_run("EXEC_DEFAULT", filepath=str(manifest), set_range=True) == {"FINISHED"}

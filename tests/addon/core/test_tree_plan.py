@@ -33,6 +33,9 @@ def test_plan_topology_two_layers(tmp_path):
         P.SET_ALPHA: 1,
         P.ALPHA_OVER: 1,
         P.OUTPUT: 1,
+        P.FRAME: 6,  # Plate, Passes, one per layer, Blend, Mattes
+        P.REROUTE: 3,  # a matte per layer + the paint's
+        P.FILE_OUTPUT: 3,
     }
     assert all(n.name.startswith(P.PREFIX) for n in plan.nodes)
     assert all(i.name.startswith(P.PREFIX) for i in plan.images)
@@ -156,7 +159,7 @@ def test_one_layer_manifest_plans_a_tree_with_only_the_background(tmp_path):
     counts = kinds(plan)
     assert counts[P.MAP_UV] == 1 and counts[P.ALPHA_OVER] == 1 and counts[P.OUTPUT] == 1
     assert P.ADD_COLOR not in counts and P.ADD_VALUE not in counts and P.SET_ALPHA not in counts
-    assert P.SEPARATE not in counts
+    assert counts[P.SEPARATE] == 1  # only for the paint's matte: the alpha of the one Map UV
     names = {n.name for n in plan.nodes}
     assert not any("Foreground" in n for n in names)
     assert {i.name for i in plan.images} == {
@@ -286,3 +289,54 @@ def test_plan_starts_a_movie_plate_at_its_first_frame_number(tmp_path):
     del data["clip"]["start_frame"]
     mp.write_text(json.dumps(data))
     assert P.plan_tree(C.load_manifest(str(mp)), str(mp), P.FILTER_NEAREST).plate.frame_start == 0
+
+
+def test_every_node_sits_in_a_labelled_frame(tmp_path):
+    mp = make_export(tmp_path)
+    plan = P.plan_tree(C.load_manifest(str(mp)), str(mp), P.FILTER_NEAREST)
+    frames = {n.name: n for n in plan.nodes if n.kind == P.FRAME}
+    assert sorted(f.params["label"] for f in frames.values()) == [
+        "Blend",
+        "Layer Background: edit + Map UV",
+        "Layer Foreground: edit + Map UV",
+        "Mattes",
+        "Passes",
+        "Plate",
+    ]
+    assert all(not f.parent and len(f.params["color"]) == 3 for f in frames.values())
+    parent = {n.name: frames[n.parent].params["label"] for n in plan.nodes if n.kind != P.FRAME}
+    assert len(parent) == len(plan.nodes) - len(frames)  # every other node has a frame
+    assert parent["NA_Plate"] == "Plate" and parent["NA_Passes"] == "Passes"
+    assert parent["NA_Edit_Foreground"] == parent["NA_MapUV_Foreground"] == "Layer Foreground: edit + Map UV"
+    assert {parent[n] for n in ("NA_Alpha_Background", "NA_AddColor_1", "NA_SetAlpha", "NA_Over", "NA_Output")} == {
+        "Blend"
+    }
+    assert {parent[P.matte_node_name(m)] for m in plan.mattes} == {"Mattes"}
+    # the frames do not overlap: each frame's nodes lie left of, or below, the next frame's
+    spans: dict[str, list[tuple[float, float]]] = {}
+    for n in plan.nodes:
+        if n.parent:
+            spans.setdefault(n.parent, []).append(n.location)
+    xs = {f: (min(x for x, _ in locs), max(x for x, _ in locs)) for f, locs in spans.items()}
+    layer_frames = [f for f in frames if "Layer" in f]
+    blend, mattes = P.frame_node_name(P.FRAME_BLEND), P.frame_node_name(P.FRAME_MATTES)
+    node_width = 200.0
+    assert all(xs[f][1] + node_width <= xs[blend][0] for f in layer_frames)
+    assert xs[blend][1] + node_width <= xs[mattes][0]
+
+
+def test_mattes_are_each_layers_alpha_pass_and_the_paints_coverage(tmp_path):
+    mp = make_export(tmp_path)
+    plan = P.plan_tree(C.load_manifest(str(mp)), str(mp))
+    assert plan.mattes == ["Background", "Foreground", P.PAINT_MATTE]
+    links = {(lk.from_node, lk.from_socket, lk.to_node, lk.to_socket) for lk in plan.links}
+    for layer in ("Background", "Foreground"):
+        assert ("NA_Passes", C.alpha_pass(layer), P.matte_node_name(layer), "in") in links
+    # the paint's matte is the alpha the tree puts over the plate
+    assert ("NA_AddAlpha_1", "value", P.matte_node_name(P.PAINT_MATTE), "in") in links
+    assert ("NA_AddAlpha_1", "value", "NA_SetAlpha", "alpha") in links
+    for matte in plan.mattes:
+        assert (P.matte_node_name(matte), "out", P.matte_file_node_name(matte), "image") in links
+        assert P.matte_of_file_node(P.matte_file_node_name(matte)) == matte
+    assert P.matte_of_file_node("NA_MatteFile_") is None and P.matte_of_file_node("NA_Matte_Background") is None
+    assert P.matte_path("/r", "Foreground", 1012) == os.path.join("/r", "mattes", "Foreground", "matte.01012.exr")
