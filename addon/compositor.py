@@ -129,11 +129,22 @@ def point_mattes(scene: Any, out_dir: str | None = None) -> list[str]:
         if matte is None:
             continue
         if out_dir is not None:
-            compat.set_file_output_dir(node, P.matte_dir(os.path.abspath(out_dir), matte))
+            compat.set_file_output_dir(node, _blend_relative(P.matte_dir(os.path.abspath(out_dir), matte)))
         node.mute = not write
         if write:
             folders.append(compat.file_output_dir(node))
     return folders
+
+
+def _blend_relative(path: str) -> str:
+    """``path`` relative to the saved .blend (``//...``), so the File Output follows a shot folder that moves with
+    its .blend; as it is when the .blend is unsaved or on another drive."""
+    if not bpy.data.filepath:
+        return path
+    try:
+        return str(bpy.path.relpath(path))
+    except ValueError:
+        return path
 
 
 def add_output(tree: Any, socket: Any) -> Any:

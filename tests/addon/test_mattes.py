@@ -5,6 +5,7 @@ tree makes sits in a labelled frame at the place the plan gives it; and the rend
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import OpenEXR
@@ -125,3 +126,37 @@ def test_the_tree_groups_every_node_in_a_labelled_frame_where_the_plan_puts_it(b
     paint = ours[P.matte_node_name(P.PAINT_MATTE)].inputs[0].links[0].from_socket.node
     alpha_into_over = ours["NA_SetAlpha"].inputs["Alpha"].links[0].from_socket.node
     assert paint == alpha_into_over
+
+
+def test_frames_and_mattes_leave_the_render_bit_for_bit_the_same(blender, tmp_path):
+    """The tree as planned vs the same tree with its frames, Reroutes and File Outputs removed (the tree before
+    frames and mattes existed): every pixel of every frame equal."""
+    manifest = X.make_export(tmp_path, frames=FRAMES, foregrounds=2)
+    _import(blender, manifest)
+    scene = blender.context.scene
+    with_all = tmp_path / "with"
+    assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(with_all), file_format="exr") == {"FINISHED"}
+    tree = compat.scene_tree(scene)
+    extra = [n for n in tree.nodes if n.bl_idname in ("NodeFrame", "NodeReroute", "CompositorNodeOutputFile")]
+    assert len(extra) == 7 + 4 + 4
+    for node in extra:
+        tree.nodes.remove(node)
+    bare = tmp_path / "bare"
+    assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(bare), file_format="exr") == {"FINISHED"}
+    assert not (bare / P.MATTES_DIR).exists()
+    for frame in FRAMES:
+        a = X.read_exr_rgba(with_all / f"edit.{frame:05d}.exr")
+        b = X.read_exr_rgba(bare / f"edit.{frame:05d}.exr")
+        assert np.array_equal(a, b), frame
+
+
+def test_a_saved_blend_keeps_the_matte_folders_relative_to_it(blender, tmp_path):
+    manifest = X.make_export(tmp_path, frames=FRAMES)
+    _import(blender, manifest)
+    blender.ops.wm.save_as_mainfile(filepath=str(tmp_path / "shot.blend"))
+    out = tmp_path / "renders" / "v1"
+    assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out), file_format="exr") == {"FINISHED"}
+    tree = compat.scene_tree(blender.context.scene)
+    node = tree.nodes[P.matte_file_node_name("Foreground")]
+    assert compat.file_output_dir(node).replace("\\", "/") == "//renders/v1/mattes/Foreground"
+    assert all(os.path.isfile(P.matte_path(str(out), "Foreground", f)) for f in FRAMES)
