@@ -161,7 +161,7 @@ def frame_node_name(group: str) -> str:
     return f"{PREFIX}Frame_{group}"
 
 
-#: The frames' groups, labels and colours (linear RGB, dim: Blender draws a frame's colour behind its nodes).
+#: The frames' groups and colours (display RGB, dim: Blender draws a frame's colour behind its nodes).
 FRAME_PLATE, FRAME_PASSES, FRAME_BLEND, FRAME_MATTES = "Plate", "Passes", "Blend", "Mattes"
 FRAME_COLORS: dict[str, tuple[float, float, float]] = {
     FRAME_PLATE: (0.25, 0.25, 0.32),

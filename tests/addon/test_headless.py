@@ -4,6 +4,7 @@ add-on's tree -> the compositor's render, in a fresh process of this test's Blen
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -57,7 +58,8 @@ def test_headless_builds_the_blend_and_renders_the_equation(blender, tmp_path):
     # the saved .blend is what an artist opens: the add-on's tree, the override as the Foreground edit layer
     bpy.ops.wm.open_mainfile(filepath=str(out / "shot.blend"))
     tree = compat.scene_tree(bpy.context.scene, create=False)
-    assert len([n for n in tree.nodes if n.name.startswith(P.PREFIX)]) == 13
+    assert len([n for n in tree.nodes if n.name.startswith(P.PREFIX)]) == 25  # 13 + frames and mattes
+    assert os.path.isfile(P.matte_path(str(out / "render"), "Foreground", X.FRAMES[0]))  # beside the render
     edit = bpy.data.images[P.edit_image_name("Foreground")]
     assert Path(bpy.path.abspath(edit.filepath)).resolve() == other.resolve()
     assert bpy.data.objects.get("NA_Canvas_Foreground") is not None
