@@ -27,8 +27,8 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 import fake_export as X  # noqa: E402
-from helpers import drive_modal, engine_python  # noqa: E402
-from neural_atlas.addon import compat, compositor  # noqa: E402
+from helpers import RecordingLayout, drive_modal, engine_python  # noqa: E402
+from neural_atlas.addon import compat, compositor, ui  # noqa: E402
 from neural_atlas.addon.core import frame_paint as FP  # noqa: E402
 from neural_atlas.addon.core import running  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
@@ -253,7 +253,7 @@ def test_paint_laid_on_frame_n_lands_on_the_atlas_and_shows_on_every_frame(blend
     near = np.zeros_like(under)
     r0, r1, c0, c1 = rows.min(), rows.max(), cols.min(), cols.max()
     near[max(0, r0 - 2) : r1 + 3, max(0, c0 - 2) : c1 + 3] = True
-    print(f"{TAG} edit layer: changed under the stroke {changed[under].mean():.2f}, elsewhere max {diff[~near].max():.4f}")
+    print(f"{TAG} edit layer: changed under the stroke {changed[under].mean():.2f}, elsewhere {diff[~near].max():.4f}")
     assert changed[under].all() and not changed[~near].any()
 
     # the compositor at frame N shows the painted colour on the stroke, and at 3 and 5 it moved with the object
@@ -281,7 +281,7 @@ def test_paint_laid_on_frame_n_lands_on_the_atlas_and_shows_on_every_frame(blend
     )
     print(
         f"{TAG} frame paint landed: frame {N} stroke core max err {errs[N][0]:.2e} (whole stroke {errs[N][1]:.2e}); "
-        f"{where[N][0]} px of paint colour at x {where[N][1]:.1f}, frame 3 at {where[3][1]:.1f}, 5 at {where[5][1]:.1f}; "
+        f"{where[N][0]} px of its colour at x {where[N][1]:.1f}, frame 3 at {where[3][1]:.1f}, 5 at {where[5][1]:.1f}; "
         f"frame 3 core {errs[3][0]:.2e}, frame 5 core {errs[5][0]:.2e}; "
         f"Blender vs engine render, frames 3-5: {vs_engine:.2e}"
     )
@@ -295,15 +295,20 @@ def test_the_modal_path_shows_the_stages_and_lands(blender, export, tmp_path, mo
     monkeypatch.setenv("NEURAL_ATLAS_ENGINE_PYTHON", engine_python(C.VERB_PROJECT_FRAME, "cv2, scipy"))
     _import(blender, export(tmp_path))
     _stroke(_start(blender))
-    seen = []
+    seen, drawn = [], []
 
     def events(tick, job):
         props = bpy.context.scene.neural_atlas
         seen.append((props.progress, props.status, bpy.ops.neural_atlas.fit.poll()))
+        if tick == 0:  # the Paint & Render panel while it runs: the bar and Cancel under the buttons
+            drawn.extend(RecordingLayout().draw(ui.NEURALATLAS_PT_edit, bpy.context))
         return "TIMER"
 
     ret, op, job = drive_modal(fp_ops.NEURALATLAS_OT_frame_paint_land, bpy.context, events)
     assert ret == {"FINISHED"}, op.reports
+    ops = [a[0] for name, a, _ in drawn if name == "operator"]
+    assert {"neural_atlas.frame_paint_start", "neural_atlas.frame_paint_land", "neural_atlas.cancel"} <= set(ops)
+    assert any(name == "progress" for name, _, _ in drawn)
     assert any(s.startswith(f"{FP.LAND_LABEL} 2/3: projecting") for _, s, _ in seen), seen
     assert not any(fit_ok for _, _, fit_ok in seen)  # one engine job per scene
     assert running.jobs() == {} and bpy.context.scene.neural_atlas.progress == 1.0
