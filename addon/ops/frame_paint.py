@@ -22,8 +22,8 @@ from ...engine import contract as C
 from .. import paint
 from ..core import engine_process as EP
 from ..core import frame_paint as FP
+from ..core import running, unsaved_paint
 from ..core import tree_plan as P
-from ..core import unsaved_paint
 from ..core.errors import UserError
 from ..core.project_job import ProjectFrameJob
 from . import scene_inputs as I
@@ -36,6 +36,8 @@ PREVIEW_NODE = "FramePaint"
 #: each time would slow painting down).
 PAINTED_CACHE_SECONDS = 0.5
 _painted_cache: dict[str, tuple[float, int, bool]] = {}
+#: Paint on Frame and Land while an engine job runs for the scene (one job at a time; Land reads the frame paint).
+JOB_RUNNING = "An engine job is running for this scene: wait for it, or Cancel it"
 
 
 def frame_paint_image() -> Any:
@@ -61,11 +63,12 @@ def alpha_max(img: Any) -> float:
 
 
 def has_paint(img: Any, cached: bool = False) -> bool:
-    """Whether the frame paint holds some paint; ``cached``: an answer up to ``PAINTED_CACHE_SECONDS`` old will do."""
+    """Whether the frame paint holds some paint; ``cached``: an earlier answer will do when it was "yes" (a brush
+    adds paint; Paint on Frame and Land forget it) or is at most ``PAINTED_CACHE_SECONDS`` old."""
     now = time.monotonic()
     key = img.name_full
     hit = _painted_cache.get(key)
-    if cached and hit is not None and now - hit[0] < PAINTED_CACHE_SECONDS and hit[1] == id(img):
+    if cached and hit is not None and hit[1] == id(img) and (hit[2] or now - hit[0] < PAINTED_CACHE_SECONDS):
         return hit[2]
     painted = FP.has_paint(alpha_max(img))
     _painted_cache[key] = (now, id(img), painted)
@@ -162,6 +165,8 @@ def show_frame_paint(context: Any, img: Any) -> None:
 
 def _need_start(context) -> str | None:
     props = getattr(context.scene, "neural_atlas", None)
+    if context.scene is not None and running.is_running(context.scene.name):
+        return JOB_RUNNING  # Land may be reading the frame paint's file
     return FP.start_need(props.manifest if props is not None else "")
 
 
@@ -222,7 +227,7 @@ class NEURALATLAS_OT_frame_paint_land(EngineJobOperator, bpy.types.Operator):
     @classmethod
     def poll(cls, context) -> bool:
         if not super().poll(context):
-            cls.poll_message_set("An engine job is running for this scene")
+            cls.poll_message_set(JOB_RUNNING)
             return False
         need = _need_land(context)
         if need:
@@ -293,15 +298,16 @@ def clear_frame_paint(img: Any, path: str) -> str:
     kept = FP.landed_file(path)
     os.makedirs(os.path.dirname(kept), exist_ok=True)
     os.replace(path, kept)
-    if img is not None and img.is_dirty:
+    if img is None or I.abspath(img.filepath) != os.path.normpath(path):
+        return kept  # the image shows another file: nothing of it landed
+    if img.is_dirty:
         # strokes made while the paint landed: saved where the frame paint was, to land next (not cleared)
         save_frame_paint(img)
         return kept
-    if img is not None:
-        w, h = img.size
-        _blank_png(path, (w, h))
-        img.reload()
-        _painted_cache.pop(img.name_full, None)
+    w, h = img.size
+    _blank_png(path, (w, h))
+    img.reload()
+    _painted_cache.pop(img.name_full, None)
     return kept
 
 

@@ -291,7 +291,7 @@ def test_paint_laid_on_frame_n_lands_on_the_atlas_and_shows_on_every_frame(blend
 
 def test_the_modal_path_shows_the_stages_and_lands(blender, export, tmp_path, monkeypatch):
     """The UI path (hand-made TIMER events, no event loop headless): the bar moves through the engine's stages, a
-    second job cannot start meanwhile, and the paint lands."""
+    second job cannot start and Paint on Frame is greyed meanwhile, and the paint lands."""
     monkeypatch.setenv("NEURAL_ATLAS_ENGINE_PYTHON", engine_python(C.VERB_PROJECT_FRAME, "cv2, scipy"))
     _import(blender, export(tmp_path))
     _stroke(_start(blender))
@@ -299,7 +299,8 @@ def test_the_modal_path_shows_the_stages_and_lands(blender, export, tmp_path, mo
 
     def events(tick, job):
         props = bpy.context.scene.neural_atlas
-        seen.append((props.progress, props.status, bpy.ops.neural_atlas.fit.poll()))
+        polls = (bpy.ops.neural_atlas.fit.poll(), bpy.ops.neural_atlas.frame_paint_start.poll())
+        seen.append((props.progress, props.status, any(polls)))
         if tick == 0:  # the Paint & Render panel while it runs: the bar and Cancel under the buttons
             drawn.extend(RecordingLayout().draw(ui.NEURALATLAS_PT_edit, bpy.context))
         return "TIMER"
@@ -310,7 +311,7 @@ def test_the_modal_path_shows_the_stages_and_lands(blender, export, tmp_path, mo
     assert {"neural_atlas.frame_paint_start", "neural_atlas.frame_paint_land", "neural_atlas.cancel"} <= set(ops)
     assert any(name == "progress" for name, _, _ in drawn)
     assert any(s.startswith(f"{FP.LAND_LABEL} 2/3: projecting") for _, s, _ in seen), seen
-    assert not any(fit_ok for _, _, fit_ok in seen)  # one engine job per scene
+    assert not any(other for _, _, other in seen)  # one engine job per scene; the frame paint is not re-targeted
     assert running.jobs() == {} and bpy.context.scene.neural_atlas.progress == 1.0
     assert list((tmp_path / "run" / "edits" / "history").glob("Foreground.*.png"))
     assert os.path.isfile(job.log_path)
