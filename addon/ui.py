@@ -153,6 +153,12 @@ class NEURALATLAS_PT_edit(_SidebarPanel, bpy.types.Panel):
         row.operator("neural_atlas.paint_setup", icon="BRUSH_DATA")
         row.operator("neural_atlas.save_edits", icon="FILE_TICK")
         col.operator("neural_atlas.float_edits", icon="IMAGE_DATA")
+        row = col.row(align=True)  # paint over one plate frame, landed on the atlases (engine project-frame)
+        row.operator("neural_atlas.frame_paint_start", icon="TPAINT_HLT")
+        row.operator("neural_atlas.frame_paint_land", icon="IMPORT")
+        if running.is_running(context.scene.name):
+            col.progress(factor=props.progress, type="BAR", text=props.status or "running…")
+            col.operator("neural_atlas.cancel", icon="CANCEL")
         col.prop(props, "render_dir")
         col.prop(props, "render_format")
         col.prop(props, "write_mattes")

@@ -435,7 +435,12 @@ def _cmd_render(args: argparse.Namespace) -> int:
 def _cmd_project_frame(args: argparse.Namespace) -> int:
     from engine.edit.project_frame import project_frame
 
-    return _print_paths(project_frame(args.manifest, args.frame, args.edit, args.layer).values())
+    def stage(name: str, message: str, step: int, total: int) -> None:
+        # the add-on's progress bar: what it does now, and how far (stages done of all)
+        print(C.progress_line(C.EVENT_STAGE, stage=name, message=message), flush=True)
+        print(C.progress_line(C.EVENT_PROGRESS, step=step, total=total), flush=True)
+
+    return _print_paths(project_frame(args.manifest, args.frame, args.edit, args.layer, on_stage=stage).values())
 
 
 def _cmd_preview(args: argparse.Namespace) -> int:

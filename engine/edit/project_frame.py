@@ -17,6 +17,7 @@ import os
 import posixpath
 import shutil
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,6 +41,11 @@ REACH_PX = 1.5
 #: Owned pixels within this many pixels of paint join the triangulation (they pin alpha to 0 around it).
 CONTEXT_PX = 3
 HISTORY_DIR = "history"
+
+#: Told each stage as it starts: (stage, message, step, total); the CLI prints them as progress lines.
+StageCallback = Callable[[str, str, int, int], None]
+#: The stages of ``project_frame``, in order (``step`` of ``total`` on its progress lines).
+STAGES = ("read", "project", "write")
 
 
 def read_frame_edit(path: str | Path, size: tuple[int, int]) -> np.ndarray:
@@ -186,17 +192,29 @@ class _Change:
 
 
 def project_frame(
-    manifest_path: str | Path, frame: int, edit_path: str | Path, layers: list[str] | None = None
+    manifest_path: str | Path,
+    frame: int,
+    edit_path: str | Path,
+    layers: list[str] | None = None,
+    on_stage: StageCallback | None = None,
 ) -> dict[str, Path]:
     """Land the paint of ``edit_path`` (drawn on plate frame ``frame``) on the export's edit layers, holding the
     run folder's lock. Every changed layer is kept in ``history/`` first, and the new layers replace the old ones
-    together once all are written: a failure, a full disk or a cancel leaves every edit layer as it was."""
+    together once all are written: a failure, a full disk or a cancel leaves every edit layer as it was.
+    ``on_stage`` is told each of ``STAGES`` as it starts (the CLI prints them: the add-on's progress bar)."""
+
+    def stage(name: str, message: str) -> None:
+        if on_stage is not None:
+            on_stage(name, message, STAGES.index(name), len(STAGES))
+
     manifest = Manifest(manifest_path)
     manifest.check_layers(layers)
     manifest.check_frame(frame)
+    stage("read", f"reading the paint and the passes of frame {frame}")
     frame_edit = read_frame_edit(edit_path, manifest.resolution)
     with C.run_lock(manifest.run_root, C.VERB_PROJECT_FRAME):
         passes = manifest.read_passes(frame)
+        stage("project", "projecting the paint into the atlases of the layers that own it")
         splats = project_to_textures(manifest, passes, frame_edit, layers)
         changes = []
         for layer, splat in zip(manifest.layers, splats, strict=True):
@@ -207,6 +225,7 @@ def project_frame(
             if old.shape != splat.shape:
                 splat = cv2.resize(splat, (old.shape[1], old.shape[0]), interpolation=cv2.INTER_LINEAR)
             changes.append(_Change(layer, path, over(splat, old)))
+        stage("write", f"writing {len(changes)} edit layer(s), the previous ones kept in {HISTORY_DIR}/")
         _replace_edit_layers(manifest, changes)
     written = {c.layer["name"]: c.path for c in changes}
     for name, path in written.items():
@@ -275,4 +294,13 @@ def project_to_textures(
     return out
 
 
-__all__ = ["over", "owners", "project_frame", "project_to_textures", "read_frame_edit", "splat_layer"]
+__all__ = [
+    "STAGES",
+    "StageCallback",
+    "over",
+    "owners",
+    "project_frame",
+    "project_to_textures",
+    "read_frame_edit",
+    "splat_layer",
+]

@@ -107,6 +107,24 @@ def test_project_frame_with_an_opaque_layer_is_exact(tmp_path):
         np.testing.assert_allclose(frames[t], lin[t] * (1 - a) + expected[..., :3], atol=3.0 / 255)
 
 
+def test_project_frame_cli_prints_its_stages_then_the_paths(tmp_path, capsys):
+    """The CLI verb says each stage as a progress line (the add-on's bar), then the files it wrote, last."""
+    from engine import contract as C
+    from engine.cli import main
+
+    manifest = make_fake_export(tmp_path, _plate(), [_identity_layer(32, 24)])
+    paint = np.zeros((24, 32, 4), np.float32)
+    paint[5:12, 8:20] = (0.9, 0.2, 0.1, 1.0)
+    write_png(tmp_path / "paint.png", paint, 8)
+    assert main([C.VERB_PROJECT_FRAME, str(manifest), "--frame", "1", "--edit", str(tmp_path / "paint.png")]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    msgs = [m for m in map(C.parse_progress_line, lines) if m is not None]
+    assert [m["stage"] for m in msgs if m["event"] == C.EVENT_STAGE] == ["read", "project", "write"]
+    assert [(m["step"], m["total"]) for m in msgs if m["event"] == C.EVENT_PROGRESS] == [(0, 3), (1, 3), (2, 3)]
+    m = Manifest(manifest)
+    assert lines[-1] == str(m.edit_path(m.layers[0]))
+
+
 def test_project_frame_lands_in_the_float_edit_layer_when_there_is_one(tmp_path):
     """An artist who switched a layer to a float EXR edit layer: projected paint goes there (where the renders
     read it), in linear premultiplied float, and the PNG beside it is left as it was."""
