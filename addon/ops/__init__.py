@@ -8,13 +8,14 @@ act on:
 - ``import_run``: Import Atlas;
 - ``paint``: paint canvases, Save Edits, Float Edit Layers;
 - ``render``: Render Edited Clip;
+- ``relink``: Relink Run Folder (the run folder moved since the import);
 - ``setup``: the preferences' Set up engine (and its Cancel), Copy Install Command and Check engine;
 - ``farm``: Submit to Farm (a Flamenco job or an OpenJD bundle of the clip).
 """
 
 from __future__ import annotations
 
-from . import farm, fit, import_run, layers, paint, render, setup
+from . import farm, fit, import_run, layers, paint, relink, render, setup
 
 classes = (
     *fit.classes,
@@ -22,6 +23,7 @@ classes = (
     *import_run.classes,
     *paint.classes,
     *render.classes,
+    *relink.classes,
     *setup.classes,
     *farm.classes,
 )

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import bpy
@@ -39,7 +40,7 @@ def import_manifest(
     compositor.build(context.scene, plan, set_range)
     if setup_paint:
         paint.setup_canvases(context, plan.layers)
-    props.manifest = manifest_path
+    props.manifest = compositor.blend_path(os.path.abspath(manifest_path))  # relative to the .blend where it can be
     props.imported_layers = ", ".join(plan.layers)
     return plan
 
