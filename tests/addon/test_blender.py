@@ -17,7 +17,7 @@ bpy = pytest.importorskip("bpy")
 import fake_export as X  # noqa: E402
 from helpers import RecordingLayout, drive_modal, fake_python, polygon_mask, stand_in_pip  # noqa: E402
 from mask_reference import px_to_mask, rasterize_polygon  # noqa: E402
-from neural_atlas.addon import compat  # noqa: E402
+from neural_atlas.addon import compat, preferences  # noqa: E402
 from neural_atlas.addon.core import engine_setup as ES  # noqa: E402
 from neural_atlas.addon.core import needs, running  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
@@ -519,7 +519,8 @@ def test_setup_engine_modal_path_reports_progress_and_offline(blender, tmp_path)
     assert any("Collecting torch" in s for s in statuses)  # pip's latest line is what the preferences show
     reports = op.reports
     assert reports[-1][0] == {"ERROR"} and "offline" in reports[-1][1] and "setup.log" in reports[-1][1]
-    assert reports[0] == ({"INFO"}, "Set up engine: installing torch and the engine's packages (about 1 GB)…")
+    label = preferences.torch_choice(blender.context).label()  # the build for this machine, and its download
+    assert reports[0] == ({"INFO"}, f"Set up engine: {label}…") and label.startswith("installing torch (")
     assert ({"INFO"}, needs.esc_text("Set up engine", "the add-on's preferences")) in reports
     assert cancel and all(c == (True, True) for c in cancel)
     assert running.jobs() == {}
