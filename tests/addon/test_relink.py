@@ -40,6 +40,16 @@ def _refused(name: str, line: str) -> None:
         op("EXEC_DEFAULT")
 
 
+def _panel() -> tuple[list[str], list[str]]:
+    """The Paint & Render panel's labels and operators (a recording layout: no region is drawn headless)."""
+    from helpers import RecordingLayout
+    from neural_atlas.addon import ui
+
+    calls = RecordingLayout().draw(ui.NEURALATLAS_PT_edit, bpy.context)
+    labels = [kw.get("text", "") for name, _, kw in calls if name == "label"]
+    return labels, [a[0] for name, a, _ in calls if name == "operator"]
+
+
 def _our_paths() -> dict[str, str]:
     blocks = [*bpy.data.images, *bpy.data.movieclips]
     return {b.name: b.filepath for b in blocks if b.name.startswith(P.PREFIX) and b.filepath}
@@ -79,6 +89,8 @@ def test_a_copied_shot_renders_the_same_and_a_moved_run_folder_is_relinked(blend
     shutil.move(str(copy / "run"), str(moved))
     gone = os.path.normpath(str(copy / "run" / "exports" / "v001" / "manifest.json"))
     _refused("render", needs.MANIFEST_GONE + gone)
+    labels, ops_drawn = _panel()
+    assert needs.MANIFEST_GONE + gone in labels and "neural_atlas.relink" in ops_drawn  # the panel says so
     assert needs.moved_need(gone, str(copy / "run" / "exports" / "v001" / "passes" / "x")) == needs.MANIFEST_GONE + gone
     # Relink with the run folder (its newest export's manifest is found)
     assert bpy.ops.neural_atlas.relink("EXEC_DEFAULT", filepath=str(moved)) == {"FINISHED"}
@@ -87,6 +99,7 @@ def test_a_copied_shot_renders_the_same_and_a_moved_run_folder_is_relinked(blend
     relinked = _our_paths()
     assert relinked[P.PLATE_CLIP] == paths[P.PLATE_CLIP]  # the plate did not move: its path is kept
     assert relinked[P.PASSES_IMAGE].startswith("//../../moved/run_moved/")
+    assert not any(line.startswith(needs.MANIFEST_GONE) for line in _panel()[0])
     err_relinked = _diff(_render(tmp_path / "out_relinked"), original)
     print(f"{TAG} copied shot vs original render: max abs diff {err_copy:.2e}; relinked run folder: {err_relinked:.2e}")
     assert err_relinked == 0.0
