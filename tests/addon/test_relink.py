@@ -143,3 +143,28 @@ def test_relink_keeps_unsaved_paint(blender, tmp_path):
     saved = X.read_png_rgba8(moved / "edits" / "Foreground.png")
     assert tuple(saved[-1, 0]) == (255, 0, 0, 255)  # bottom-left texel (Blender's rows are bottom-up)
     assert not (shot / "run").exists()  # nothing written at the old place
+
+
+def test_an_import_before_the_first_save_becomes_relative_when_saved(blender, tmp_path):
+    """Imported into a .blend never saved (absolute paths: nothing to be relative to), then saved into the shot
+    folder: the file holds the manifest and every NA_ image and clip relative to it, a Save Copy elsewhere leaves
+    the session's own paths, and the copied folder renders the same."""
+    shot = tmp_path / "shot"
+    manifest = X.make_export(shot)
+    bpy.context.scene.neural_atlas.filter_type = P.FILTER_NEAREST
+    assert bpy.ops.neural_atlas.import_run("EXEC_DEFAULT", filepath=str(manifest)) == {"FINISHED"}
+    assert bpy.context.scene.neural_atlas.manifest == str(manifest)
+    assert not any(p.startswith("//") for p in _our_paths().values())
+    assert bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "elsewhere.blend"), copy=True) == {"FINISHED"}
+    assert bpy.context.scene.neural_atlas.manifest == str(manifest)  # a copy: the session is unchanged
+    assert not any(p.startswith("//") for p in _our_paths().values())
+    assert bpy.ops.wm.save_as_mainfile(filepath=str(shot / "scene.blend")) == {"FINISHED"}
+    assert bpy.context.scene.neural_atlas.manifest == "//run/exports/v001/manifest.json"
+    assert all(p.startswith("//") for p in _our_paths().values()), _our_paths()
+    original = _render(tmp_path / "out_original")
+    copy = tmp_path / "copy"
+    shutil.copytree(shot, copy)
+    shutil.rmtree(shot)
+    assert bpy.ops.wm.open_mainfile(filepath=str(copy / "scene.blend")) == {"FINISHED"}
+    assert bpy.context.scene.neural_atlas.manifest == "//run/exports/v001/manifest.json"
+    assert _diff(_render(tmp_path / "out_copy"), original) == 0.0
