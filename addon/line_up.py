@@ -1,5 +1,6 @@
 """Line Up My Clip: move the artist's own clip so it shows plate frame F at scene frame F, and move the animation of
-the masks drawn on it by the same number of frames, so each mask stays on the object it was drawn on.
+the masks drawn on it, and its annotation strokes (the scribbles), by the same number of frames, so each stays on
+the object it was drawn on.
 
 A Blender Mask is animated two ways: layer shape keys (what the Clip Editor's mask tools key) and F-curves (a script's
 ``keyframe_insert``). F-curves are moved key by key. Shape keys have no Python API: each layer's keyed frames are found
@@ -143,10 +144,24 @@ def shift_shape_keys(context: Any, clip: Any, mask: Any, offset: int) -> int:
     return moved
 
 
-def line_up(context: Any, clip: Any, masks: list[Any], offset: int) -> tuple[int, int]:
-    """Start ``clip`` ``offset`` frames later and move the animation of ``masks`` with it; (keys moved, masks).
-    Each mask's own frame range moves too."""
+def shift_annotation(clip: Any, offset: int) -> int:
+    """Move the keyframes of the clip's annotation (the scribbles, keyed to scene frames) ``offset`` frames;
+    returns how many moved. The last first when moving later (and the first first when earlier): no frame lands
+    on one not moved yet."""
+    annotation = compat.clip_annotation(clip)
     moved = 0
+    for layer in annotation.layers if annotation is not None else ():
+        frames = sorted(layer.frames, key=lambda f: f.frame_number, reverse=offset > 0)
+        for frame in frames:
+            frame.frame_number += offset
+            moved += 1
+    return moved
+
+
+def line_up(context: Any, clip: Any, masks: list[Any], offset: int) -> tuple[int, int]:
+    """Start ``clip`` ``offset`` frames later and move the animation of ``masks`` and the clip's annotation
+    (scribbles) with it; (keys moved, masks). Each mask's own frame range moves too."""
+    moved = shift_annotation(clip, offset)
     for mask in masks:
         moved += shift_fcurves(mask, offset)
         moved += shift_shape_keys(context, clip, mask, offset)

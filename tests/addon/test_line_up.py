@@ -1,8 +1,9 @@
 """Line Up My Clip (bpy 4.5 and 5.0): a shot numbered plate.1011.png .. is loaded by Blender at scene frame 1, and the
 artist's masks are keyed to scene frames 1..3. Import Atlas with Line Up My Clip starts the clip at 1011 (plate frame F
 at scene frame F) and moves the masks' keys by the same 1010 frames: layer shape keys (the Clip Editor's mask tools)
-and F-curves alike. Each mask rasterized at scene frame 1011..1013 after equals the one at 1..3 before (pixel for
-pixel), so the masks stay on the object; without the option the clip and masks are left alone and the import warns."""
+and F-curves alike, and the clip's annotation (scribble) frames. Each mask rasterized at scene frame 1011..1013 after
+equals the one at 1..3 before (pixel for pixel), so the masks stay on the object; without the option the clip and
+masks are left alone and the import warns."""
 
 from __future__ import annotations
 
@@ -72,6 +73,9 @@ def _scene(blender, tmp_path):
     curved = polygon_mask(bpy.data, CORNERS, W, H)
     for mask in (keyed, curved):
         props.layers.add().mask = mask
+    layer = compat.new_clip_annotation(clip, "Scribbles").layers.new("red")  # scribbles on scene frames 1 and 3
+    for frame in (1, 3):
+        layer.frames.new(frame)
     return manifest, clip, keyed, curved
 
 
@@ -92,6 +96,7 @@ def test_line_up_my_clip_moves_the_clip_and_its_masks_together(blender, tmp_path
     assert line_up.shape_key_frames(blender.context, clip, keyed) == [[1011, 1012, 1013]]
     assert sorted({kp.co.x for fc in compat.action_fcurves(curved) for kp in fc.keyframe_points}) == [1011, 1012, 1013]
     assert (props.frame_start, props.frame_end) == (1012, 1013)  # the same plate frames
+    assert [f.frame_number for f in compat.clip_annotation(clip).layers[0].frames] == [1011, 1013]
     assert not any(p.select for spline in keyed.layers[0].splines for p in spline.points)  # selection put back
     diffs = {}
     for mask in (keyed, curved):
@@ -107,3 +112,4 @@ def test_without_the_option_the_clip_and_masks_stay_and_the_import_says_so(blend
     assert clip.frame_start == 1 and clip_note(blender.context) is not None
     assert line_up.shape_key_frames(blender.context, clip, keyed) == [[1, 2, 3]]
     assert sorted({kp.co.x for fc in compat.action_fcurves(curved) for kp in fc.keyframe_points}) == [1, 2, 3]
+    assert [f.frame_number for f in compat.clip_annotation(clip).layers[0].frames] == [1, 3]
