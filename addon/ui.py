@@ -10,6 +10,7 @@ from . import preferences, scribbles
 from .core import estimate, needs, running
 from .core import farm as FM
 from .core import scribble_math as S
+from .ops.render import imported_manifest, passes_file
 
 #: Theme colour-set icons that show the scribble colours in the panel (default theme: red, green, blue, yellow).
 COLOUR_ICONS = {
@@ -79,8 +80,6 @@ def _draw_farm(col, props, context) -> None:
 
 def _moved_line(context) -> str | None:
     """The line saying the imported manifest or passes are not on disk (``needs.moved_need``): Relink Run Folder."""
-    from .ops.render import imported_manifest, passes_file
-
     return needs.moved_need(imported_manifest(context), passes_file())
 
 

@@ -93,7 +93,8 @@ class NEURALATLAS_OT_import(bpy.types.Operator):
     line_up_clip: BoolProperty(
         name="Line Up My Clip",
         description="Start the Fit Atlas panel's clip at its first file's number, so it shows plate frame N at scene "
-        "frame N, and move the keys of the foreground layers' masks by as many frames (they stay on the object)",
+        "frame N, and move the keys of the foreground layers' masks and of its scribbles by as many frames (they "
+        "stay on the object)",
         default=False,
     )
 
