@@ -16,6 +16,10 @@ from .core import tree_plan as P
 
 V5 = bpy.app.version >= (5, 0, 0)
 
+#: The options of a path setting that may hold a path relative to the .blend (``//``): 4.5 and later warn on such a
+#: value unless the property says it supports one; earlier versions do not know the option (and do not warn).
+PATH_OPTIONS: set[str] = {"PATH_SUPPORTS_BLEND_RELATIVE"} if bpy.app.version >= (4, 5, 0) else {"ANIMATABLE"}
+
 _NODE_TYPES = {
     P.PLATE: "CompositorNodeMovieClip",
     P.IMAGE: "CompositorNodeImage",

@@ -13,19 +13,28 @@ import bpy
 
 from . import compat
 from .core import frames as F
+from .core import relink
 from .core import tree_plan as P
+
+
+def blend_path(path: str) -> str:
+    """``path`` as the scene stores it: relative to the saved .blend (``//``, as Blender stores the artist's own
+    clip) where it can be, so a shot folder copied with its .blend keeps working; absolute in an unsaved .blend or
+    on another drive (``core.relink.relative_path``)."""
+    return relink.relative_path(path, bpy.data.filepath)
 
 
 def _ours(collection: Any, spec: P.ImageSpec) -> tuple[Any, bool]:
     """The datablock ``spec`` names in ``collection`` (images, movie clips), loaded from its file unless it
-    already shows that file (then it is reused); (datablock, reused)."""
+    already shows that file (then it is reused); (datablock, reused). Loaded by its path relative to the .blend
+    where it has one (``blend_path``)."""
     path = os.path.abspath(spec.filepath)
     block = collection.get(spec.name)
     if block is not None and os.path.abspath(bpy.path.abspath(block.filepath)) == path:
         return block, True
     if block is not None:
         collection.remove(block)
-    block = collection.load(path, check_existing=False)
+    block = collection.load(blend_path(path), check_existing=False)
     block.name = spec.name
     return block, False
 

@@ -19,7 +19,7 @@ from mathutils import Vector
 
 from ..engine import contract as C
 from . import compat
-from .core import float_edit, placement, run_files, unsaved_paint
+from .core import float_edit, placement, relink, run_files, unsaved_paint
 from .core import tree_plan as P
 
 
@@ -144,14 +144,14 @@ def save_edits(manifest_path: str | None = None) -> list[str]:
     dirty = _dirty_edits()
     if not dirty:
         return []
-    manifest_path = manifest_path or bpy.context.scene.neural_atlas.manifest
+    manifest_path = manifest_path or bpy.path.abspath(bpy.context.scene.neural_atlas.manifest)
     lock = run_files.edits_lock(manifest_path, run_files.SAVE_EDITS_HOLDER) if manifest_path else nullcontext()
     saved = []
     with lock:
         for img in dirty:
             path = bpy.path.abspath(img.filepath)
             os.makedirs(os.path.dirname(path), exist_ok=True)
-            img.filepath_raw = path
+            img.filepath_raw = relink.relative_path(path, bpy.data.filepath)  # stays relative to the .blend
             if _is_exr(path):
                 # the import made it Non-Color (raw values on save); setting the colourspace here, even to the same
                 # name, would reload the image from disk and silently drop the unsaved paint (docs/blender-compat.md)

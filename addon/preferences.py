@@ -7,7 +7,7 @@ import os
 from typing import Any
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
+from bpy.props import EnumProperty, IntProperty, StringProperty
 
 from .core import engine_setup as ES
 from .core import farm as FM
@@ -37,6 +37,12 @@ def engine_python(context: Any = None) -> str:
 
 def default_venv_dir() -> str:
     return bpy.utils.extension_path_user(ADDON_ID, path=VENV_FOLDER, create=True)
+
+
+def torch_choice(context: Any = None) -> ES.TorchChoice:
+    """The torch build Set up engine installs here (``ES.torch_choice`` of the Torch Build preference)."""
+    prefs = addon_prefs(context)
+    return ES.torch_choice(prefs.torch_build if prefs is not None else ES.TORCH_AUTO)
 
 
 def online_refusal() -> tuple[str, ...]:
@@ -70,10 +76,15 @@ class NEURALATLAS_AP_preferences(bpy.types.AddonPreferences):
         description="A Python 3.11 with the engine's requirements (Set up engine creates one)",
     )
     setup_status: StringProperty(default="")
-    torch_cpu: BoolProperty(
-        name="CPU-only torch",
-        default=False,
-        description="Install PyTorch's CPU wheels (far smaller than the CUDA build; for machines without NVIDIA GPU)",
+    torch_build: EnumProperty(
+        name="Torch Build",
+        items=[
+            (ES.TORCH_AUTO, "Auto", "The CUDA build where this machine has an NVIDIA GPU, else the CPU build"),
+            (ES.TORCH_CPU, "CPU", f"PyTorch's CPU wheels (about {ES.TORCH_DOWNLOAD_GB[ES.TORCH_CPU]:g} GB)"),
+            (ES.TORCH_CUDA, "CUDA", f"The CUDA build (about {ES.TORCH_DOWNLOAD_GB[ES.TORCH_CUDA]:g} GB; NVIDIA GPU)"),
+        ],
+        default=ES.TORCH_AUTO,
+        description="Which PyTorch Set up engine installs (macOS always takes the default wheel, with MPS)",
     )
 
     farm_kind: EnumProperty(
@@ -107,13 +118,15 @@ class NEURALATLAS_AP_preferences(bpy.types.AddonPreferences):
     def draw(self, context):
         col = self.layout.column()
         col.prop(self, "engine_python")
-        col.prop(self, "torch_cpu")
+        col.prop(self, "torch_build")
         refusal = online_refusal()
         if refusal:  # Blender's rule for extensions: no download while online access is off
             box = col.box()
             for i, line in enumerate(refusal):
                 box.label(text=line, icon="INTERNET_OFFLINE" if i == 0 else "BLANK1")
             box.operator("neural_atlas.copy_setup_command", icon="COPYDOWN")
+        for i, line in enumerate(ES.torch_lines(torch_choice(context))):  # which torch, how large, and why
+            col.label(text=line, icon="INFO" if i == 0 else "BLANK1")
         row = col.row()
         row.operator("neural_atlas.setup_engine", icon="IMPORT")
         if running.is_running(running.SETUP_KEY):  # the only way to stop it: ESC does not (ops/driver.py)

@@ -14,6 +14,7 @@ from bpy.props import (
 )
 
 from ..engine import contract as C
+from . import compat
 from .core import estimate
 from .core import tree_plan as P
 
@@ -45,7 +46,10 @@ class NEURALATLAS_PG_layer(bpy.types.PropertyGroup):
     )
     mask: PointerProperty(name="Mask", type=bpy.types.Mask, description="Roto of this foreground object")
     folder: StringProperty(
-        name="Folder", subtype="DIR_PATH", description=f"Mask images (>{C.MASK_THRESHOLD:.0%} = foreground)"
+        name="Folder",
+        subtype="DIR_PATH",
+        description=f"Mask images (>{C.MASK_THRESHOLD:.0%} = foreground)",
+        options=compat.PATH_OPTIONS,
     )
 
 
@@ -81,9 +85,16 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
         "strokes: part 1 in red, part 2 in green, part 3 in blue, part 4 in yellow, on a few frames",
     )
     run_dir: StringProperty(
-        name="Run Folder", subtype="DIR_PATH", default="//neural_atlas/", description="Where the fit is written"
+        name="Run Folder",
+        subtype="DIR_PATH",
+        default="//neural_atlas/",
+        description="Where the fit is written",
+        options=compat.PATH_OPTIONS,
     )
-    manifest: StringProperty(name="Manifest", subtype="FILE_PATH", description="The imported export")
+    # relative to the .blend where it can be (as the imported images are): a shot folder copied whole keeps working
+    manifest: StringProperty(
+        name="Manifest", subtype="FILE_PATH", description="The imported export", options=compat.PATH_OPTIONS
+    )
     imported_layers: StringProperty(default="", description="The imported run's layers, comma separated")
     filter_type: EnumProperty(
         name="Filter",
@@ -94,7 +105,9 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
         default=P.FILTER_SMOOTH,
         update=_on_filter,
     )
-    render_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//neural_atlas_render/")
+    render_dir: StringProperty(
+        name="Output", subtype="DIR_PATH", default="//neural_atlas_render/", options=compat.PATH_OPTIONS
+    )
     write_mattes: BoolProperty(
         name="Write Mattes",
         default=True,

@@ -7,9 +7,10 @@ import json
 import bpy
 
 from . import preferences, scribbles
-from .core import estimate, running
+from .core import estimate, needs, running
 from .core import farm as FM
 from .core import scribble_math as S
+from .ops.render import imported_manifest, passes_file
 
 #: Theme colour-set icons that show the scribble colours in the panel (default theme: red, green, blue, yellow).
 COLOUR_ICONS = {
@@ -75,6 +76,11 @@ def _draw_farm(col, props, context) -> None:
         col.label(text=FARM_OFFLINE_TEXT, icon="INTERNET_OFFLINE")
     elif props.farm_status:
         col.label(text=props.farm_status)
+
+
+def _moved_line(context) -> str | None:
+    """The line saying the imported manifest or passes are not on disk (``needs.moved_need``): Relink Run Folder."""
+    return needs.moved_need(imported_manifest(context), passes_file())
 
 
 class _SidebarPanel:
@@ -148,6 +154,10 @@ class NEURALATLAS_PT_edit(_SidebarPanel, bpy.types.Panel):
             col.label(text=props.manifest)
             if props.imported_layers:
                 col.label(text=f"Layers: {props.imported_layers}", icon="RENDERLAYERS")
+            moved = _moved_line(context)
+            if moved:
+                col.label(text=moved, icon="ERROR")
+            col.operator("neural_atlas.relink", icon="FILE_REFRESH")
         col.prop(props, "filter_type")
         row = col.row(align=True)
         row.operator("neural_atlas.paint_setup", icon="BRUSH_DATA")

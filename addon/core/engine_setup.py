@@ -9,8 +9,11 @@ from __future__ import annotations
 
 import os
 import shlex
+import shutil
 import sys
 import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
 
 from ...engine import contract as C  # type: ignore[import-not-found]
 from . import engine_commands as EC
@@ -31,6 +34,27 @@ OFFLINE_MARKERS = (
 )
 #: PyTorch's CPU-only wheels (on Linux, PyPI's torch is a multi-GB CUDA build)
 TORCH_CPU_INDEX = "https://download.pytorch.org/whl/cpu"
+#: The CUDA build on Windows (PyPI's Windows torch is the CPU build): PyTorch's CUDA 12.8 wheels.
+TORCH_CUDA_WINDOWS_INDEX = "https://download.pytorch.org/whl/cu128"
+#: The Torch Build preference: pick for this machine, or the artist's choice.
+TORCH_AUTO, TORCH_CPU, TORCH_CUDA = "AUTO", "CPU", "CUDA"
+#: macOS: PyPI's default wheel (it has the Apple GPU backend, MPS; there is no CUDA build).
+TORCH_MAC = "MAC"
+#: Approximate download of the engine's packages in GB, per torch build: torch's wheel and the libraries pip fetches
+#: with it (the CUDA build brings the nvidia-* CUDA, cuDNN and NCCL wheels), plus the other requirements
+#: (about 0.2 GB: OpenCV, OpenImageIO, SciPy, PyAV, numpy). The sizes of the published wheels, rounded up.
+TORCH_DOWNLOAD_GB = {TORCH_CPU: 0.5, TORCH_CUDA: 3.5, TORCH_MAC: 0.4}
+#: Where each build comes from: an extra index for pip (PyPI's default wheel when None), per platform.
+TORCH_INDEX = {
+    ("linux", TORCH_CPU): TORCH_CPU_INDEX,
+    ("linux", TORCH_CUDA): None,
+    ("win32", TORCH_CPU): TORCH_CPU_INDEX,
+    ("win32", TORCH_CUDA): TORCH_CUDA_WINDOWS_INDEX,
+}
+#: Where Linux's NVIDIA driver shows itself (present once the kernel module is loaded).
+NVIDIA_PROC = "/proc/driver/nvidia"
+#: Windows's NVIDIA driver installs nvidia-smi here (and usually on PATH too).
+NVIDIA_SMI_WINDOWS = r"C:\Windows\System32\nvidia-smi.exe"
 #: Set up engine in background mode (no event loop: it blocks) gives up after this long; torch is a large download.
 SETUP_TIMEOUT_SECONDS = 3600.0
 #: ``python -m engine --version`` answers within this, or the engine Python is reported as not working.
@@ -49,8 +73,69 @@ def create_venv_argv(base_python: str, venv_dir: str) -> list[str]:
     return [base_python, "-m", "venv", venv_dir]
 
 
-def pip_install_argv(python: str, cpu_only: bool = False) -> list[str]:
-    extra = ["--extra-index-url", TORCH_CPU_INDEX] if cpu_only else []
+def platform_key(platform: str = sys.platform) -> str:
+    """``sys.platform`` as the torch choice knows it: "linux", "win32" or "darwin" (other Unixes count as Linux)."""
+    if platform.startswith("win"):
+        return "win32"
+    return "darwin" if platform == "darwin" else "linux"
+
+
+def has_nvidia_gpu(
+    platform: str = sys.platform,
+    which: Callable[[str], str | None] = shutil.which,
+    exists: Callable[[str], bool] = os.path.exists,
+) -> bool:
+    """Whether this machine has an NVIDIA GPU with its driver: Linux's ``/proc/driver/nvidia`` or ``nvidia-smi``
+    (both come with the driver); on Windows ``nvidia-smi``; never on macOS. Nothing is run: only looked up."""
+    key = platform_key(platform)
+    if key == "darwin":
+        return False
+    if key == "linux" and exists(NVIDIA_PROC):
+        return True
+    return which("nvidia-smi") is not None or (key == "win32" and exists(NVIDIA_SMI_WINDOWS))
+
+
+@dataclass(frozen=True)
+class TorchChoice:
+    """The torch build Set up engine installs: ``build`` (CPU, CUDA or MAC), pip's extra index for it (None:
+    PyPI's default wheel), the approximate download in GB, and why it was picked (the preferences' line)."""
+
+    build: str
+    index_url: str | None
+    download_gb: float
+    why: str
+
+    @property
+    def name(self) -> str:
+        return {TORCH_CPU: "CPU build", TORCH_CUDA: "CUDA build", TORCH_MAC: "macOS build (MPS)"}[self.build]
+
+    def label(self) -> str:
+        """What the set-up step says: ``installing torch (CPU build) and the engine's packages (about 0.5 GB)``."""
+        return f"installing torch ({self.name}) and the engine's packages (about {self.download_gb:g} GB)"
+
+
+def torch_choice(setting: str = TORCH_AUTO, platform: str = sys.platform, nvidia: bool | None = None) -> TorchChoice:
+    """The torch build for ``setting`` (Auto: CUDA where there is an NVIDIA GPU, ``has_nvidia_gpu`` unless
+    ``nvidia`` says; else CPU) on ``platform``. macOS always takes PyPI's wheel (MPS; no CUDA there)."""
+    key = platform_key(platform)
+    if key == "darwin":
+        return TorchChoice(TORCH_MAC, None, TORCH_DOWNLOAD_GB[TORCH_MAC], "macOS: the default wheel (Apple GPU, MPS)")
+    if setting == TORCH_AUTO:
+        gpu = has_nvidia_gpu(platform) if nvidia is None else nvidia
+        build = TORCH_CUDA if gpu else TORCH_CPU
+        why = "Auto: an NVIDIA GPU found" if gpu else "Auto: no NVIDIA GPU found"
+    elif setting in (TORCH_CPU, TORCH_CUDA):
+        build, why = setting, f"chosen in the preferences ({setting})"
+    else:
+        raise ValueError(f"unknown torch build {setting!r}: use one of {TORCH_AUTO}, {TORCH_CPU}, {TORCH_CUDA}")
+    return TorchChoice(build, TORCH_INDEX[(key, build)], TORCH_DOWNLOAD_GB[build], why)
+
+
+def pip_install_argv(python: str, torch: TorchChoice | None = None) -> list[str]:
+    """pip's command for the engine's requirements; the chosen torch build's index as an extra index (pip takes
+    its ``torch==X+cpu``/``+cu128`` over PyPI's ``torch==X``: a local version sorts after the plain one)."""
+    index = torch.index_url if torch is not None else None
+    extra = ["--extra-index-url", index] if index else []
     return [python, "-m", "pip", "install", "--progress-bar", "off", *extra, *C.ENGINE_REQUIREMENTS]
 
 
@@ -78,12 +163,20 @@ def online_access_refusal(online_access: bool, forced: bool) -> tuple[str, ...]:
     )
 
 
-def manual_setup_command(venv_dir: str, cpu_only: bool = False, base_python: str = sys.executable) -> str:
-    """The shell command that does what Set up engine does (the same environment, the same pinned packages), for
-    the artist to run in a terminal where they choose how pip reaches its packages (an index, a proxy, a folder of
-    wheels with ``--find-links``); Engine Python is then ``venv_python(venv_dir)``."""
+def manual_setup_command(venv_dir: str, torch: TorchChoice | None = None, base_python: str = sys.executable) -> str:
+    """The shell command that does what Set up engine does (the same environment, the same pinned packages, the
+    same torch build), for the artist to run in a terminal where they choose how pip reaches its packages (an index,
+    a proxy, a folder of wheels with ``--find-links``); Engine Python is then ``venv_python(venv_dir)``."""
     create = shlex.join(create_venv_argv(base_python, venv_dir))
-    return f"{create} && {shlex.join(pip_install_argv(venv_python(venv_dir), cpu_only))}"
+    return f"{create} && {shlex.join(pip_install_argv(venv_python(venv_dir), torch))}"
+
+
+def torch_lines(torch: TorchChoice) -> tuple[str, str]:
+    """The preferences' two lines about the torch build: what is installed and how large, and why."""
+    return (
+        f"Set up engine installs torch's {torch.name}: about {torch.download_gb:g} GB",
+        f"{torch.why}; from {torch.index_url or 'PyPI'}",
+    )
 
 
 def explain_setup_failure(log_text: str) -> str:
@@ -105,14 +198,15 @@ CANCELLED_TEXT = "Set up engine cancelled: what it installed stays; Set up engin
 class SetupJob(Job):
     """Set up engine: create the venv (unless it exists), then pip-install the pinned requirements."""
 
-    def __init__(self, venv_dir: str, cpu_only: bool = False, base_python: str = sys.executable):
+    def __init__(self, venv_dir: str, torch: TorchChoice | None = None, base_python: str = sys.executable):
         self.python = venv_python(venv_dir)
+        self.torch = torch or torch_choice()
         os.makedirs(venv_dir, exist_ok=True)
         commands = []
         if not os.path.exists(self.python):
             commands.append(Command("creating the environment", create_venv_argv(base_python, venv_dir)))
-        pip = pip_install_argv(self.python, cpu_only)
-        commands.append(Command("installing torch and the engine's packages (about 1 GB)", pip))
+        pip = pip_install_argv(self.python, self.torch)
+        commands.append(Command(self.torch.label(), pip))
         super().__init__(commands, os.path.join(venv_dir, "setup.log"))
 
     def status_text(self) -> str:

@@ -85,6 +85,15 @@ def clip_offset_note(name: str, clip_frame_start: int, first_file_number: int | 
     )
 
 
+def line_up_offset(clip_frame_start: int, first_file_number: int | None) -> int | None:
+    """Line Up My Clip: how many frames the artist's clip (and the masks drawn on it, keyed to scene frames) move so
+    that it shows plate frame N at scene frame N: its start becomes its first file's number. None: a movie, or it
+    lines up already (``clip_offset_note`` says nothing then either)."""
+    if first_file_number is None or clip_frame_start == first_file_number:
+        return None
+    return first_file_number - clip_frame_start
+
+
 #: Blender stores the scene rate as ``render.fps`` (a short: at most this) over ``render.fps_base`` (a float).
 BLENDER_MAX_FPS = 32767
 

@@ -16,13 +16,19 @@ from ...engine import contract as C  # type: ignore[import-not-found]
 #: Without an imported export (Import Atlas, or a finished Fit Atlas, imports one).
 NO_IMPORT = "Import an atlas first (Import Atlas, or Fit Atlas, which imports its result)"
 #: An imported export whose manifest has gone (moved or deleted since the import).
-MANIFEST_GONE = "The imported manifest is gone: put it back or import again: "
+MANIFEST_GONE = "The imported manifest is gone: Relink Run Folder (Paint & Render panel) or put it back: "
 #: An import without its passes image (removed from the file since).
 NO_PASSES = "The imported atlas has no passes image: import the atlas again"
 #: An import whose passes are not on disk (the run folder moved or was cleaned).
-PASSES_GONE = "The passes are not on disk: put the run folder back or import again: "
+PASSES_GONE = "The passes are not on disk: Relink Run Folder (Paint & Render panel) or put it back: "
 #: An edit layer file not on disk (deleted, or the run folder moved): the render would be the bare plate.
-EDIT_GONE = "An edit layer is not on disk: put it back (or the run folder) or import again: "
+EDIT_GONE = "An edit layer is not on disk: put it back, or Relink Run Folder: "
+#: An atlas image not on disk: the canvases and the preview would show nothing under the paint.
+ATLAS_GONE = "An atlas is not on disk: Relink Run Folder, or put it back: "
+#: The imported plate clip without its file: the render would be black.
+PLATE_GONE = "The plate is not on disk (the render would be black): put it back, or Relink Run Folder: "
+#: An import without its plate clip (removed from the file since).
+NO_PLATE = "The imported atlas has no plate clip: import the atlas again"
 #: Save Edits with nothing painted since the last save.
 NOTHING_TO_SAVE = "Nothing to save: every edit layer is saved (paint first)"
 #: Float Edit Layers when every imported edit layer is a float EXR already.
@@ -35,6 +41,10 @@ SETUP_NOT_RUNNING = "Set up engine is not running"
 NO_LAYER = "No foreground layer to remove"
 #: Add Scribble Layers without a clip.
 NO_CLIP = "Choose the clip to scribble on"
+#: Fit Atlas, Find Masks and Estimate Time without a clip.
+NO_FIT_CLIP = "Choose the clip to fit in the Fit Atlas panel"
+NO_MASKS_CLIP = "Choose the clip to find masks in, in the Fit Atlas panel"
+NO_ESTIMATE_CLIP = "Choose the clip to time in the Fit Atlas panel"
 
 
 def render_need(
@@ -42,12 +52,34 @@ def render_need(
     passes_file: str | None,
     exists: Callable[[str], bool] = os.path.isfile,
     edit_files: Iterable[str] = (),
+    plate_file: str | None = "",
+    atlas_files: Iterable[str] = (),
 ) -> str | None:
     """Render Edited Clip: an imported export (``manifest``: the scene's, '' when none) whose passes exist
     (``passes_file``: the passes image's first file, None when the image is gone) and whose edit layers exist
     (``edit_files``: the file of each edit image the tree shows; a missing one would render as nothing, so the
-    result would silently be the bare plate). ``exists`` is the file test (poll runs on every redraw: a few stats,
-    never the manifest read)."""
+    result would silently be the bare plate), its atlases (``atlas_files``) and its plate (``plate_file``: the plate
+    clip's file, None when the clip is gone, '' not checked; a missing one renders black). ``exists`` is the file
+    test (poll runs on every redraw: a few stats, never the manifest read)."""
+    line = moved_need(manifest, passes_file, exists)
+    if line:
+        return line
+    for path in edit_files:
+        if not exists(path):
+            return EDIT_GONE + path
+    for path in atlas_files:
+        if not exists(path):
+            return ATLAS_GONE + path
+    if plate_file is None:
+        return NO_PLATE
+    if plate_file and not exists(plate_file):
+        return PLATE_GONE + plate_file
+    return None
+
+
+def moved_need(manifest: str, passes_file: str | None, exists: Callable[[str], bool] = os.path.isfile) -> str | None:
+    """An import whose manifest and passes are on disk (None), else the line saying what is gone: the panel shows it
+    above Relink Run Folder (a run folder moved since the import), Render greys out with it."""
     if not manifest:
         return NO_IMPORT
     if not exists(manifest):
@@ -56,10 +88,17 @@ def render_need(
         return NO_PASSES
     if not exists(passes_file):
         return PASSES_GONE + passes_file
-    for path in edit_files:
-        if not exists(path):
-            return EDIT_GONE + path
     return None
+
+
+def relink_need(manifest: str) -> str | None:
+    """Relink Run Folder: an import to relink (its manifest may be gone: that is what Relink is for)."""
+    return None if manifest else NO_IMPORT
+
+
+def clip_need(has_clip: bool, line: str = NO_FIT_CLIP) -> str | None:
+    """Fit Atlas, Find Masks, Estimate Time: the panel's clip (``line``: what the button says without one)."""
+    return None if has_clip else line
 
 
 def save_edits_need(edit_layers: int, unsaved: int) -> str | None:

@@ -9,13 +9,14 @@ act on:
 - ``paint``: paint canvases, Save Edits, Float Edit Layers;
 - ``frame_paint``: Paint on Frame, Land Paint on Atlases (``engine project-frame``, driven by ``driver``);
 - ``render``: Render Edited Clip;
+- ``relink``: Relink Run Folder (the run folder moved since the import);
 - ``setup``: the preferences' Set up engine (and its Cancel), Copy Install Command and Check engine;
 - ``farm``: Submit to Farm (a Flamenco job or an OpenJD bundle of the clip).
 """
 
 from __future__ import annotations
 
-from . import farm, fit, frame_paint, import_run, layers, paint, render, setup
+from . import farm, fit, frame_paint, import_run, layers, paint, relink, render, setup
 
 classes = (
     *fit.classes,
@@ -24,6 +25,7 @@ classes = (
     *paint.classes,
     *frame_paint.classes,
     *render.classes,
+    *relink.classes,
     *setup.classes,
     *farm.classes,
 )

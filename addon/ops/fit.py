@@ -27,6 +27,17 @@ from .import_run import IMPORT_ERRORS, import_manifest
 AUTO_MASKS_CLIP = f"{P.PREFIX}AutoMasks"
 
 
+def _clip_poll(cls: Any, context: Any, has_clip: bool, line: str) -> bool:
+    """The driver's poll (no job of this scene running), then the clip (``needs.clip_need``): greyed out, saying to
+    choose the clip, instead of a button that refuses when pressed."""
+    if not EngineJobOperator.poll.__func__(cls, context):  # type: ignore[attr-defined]
+        return False
+    need = needs.clip_need(has_clip, line)
+    if need:
+        cls.poll_message_set(need)
+    return need is None
+
+
 def _timeout() -> Any:
     """The blocking path's limit in seconds, after which the job is cancelled (scripts, tests; 0: none)."""
     return FloatProperty(name="Timeout", default=0.0, options={"SKIP_SAVE", "HIDDEN"}, description="0: none")
@@ -43,6 +54,13 @@ class NEURALATLAS_OT_fit(EngineJobOperator, bpy.types.Operator):
     # hidden: a visible property would give Adjust Last Operation, which undoes the import and runs the fit again
     resume: BoolProperty(name="Resume", default=False, options={"SKIP_SAVE", "HIDDEN"})
     timeout: _timeout()
+
+    @classmethod
+    def poll(cls, context) -> bool:
+        # a fit to resume needs no clip (it continues from its checkpoint): the poll cannot tell Fit from Resume
+        props = getattr(context.scene, "neural_atlas", None)
+        ready = props is not None and (props.clip is not None or props.can_resume)
+        return _clip_poll(cls, context, ready, needs.NO_FIT_CLIP)
 
     def make_job(self, context) -> FitJob:
         props = context.scene.neural_atlas
@@ -82,6 +100,11 @@ class NEURALATLAS_OT_find_masks(EngineJobOperator, bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}  # noqa: RUF012 (Blender reads a set)
 
     timeout: _timeout()
+
+    @classmethod
+    def poll(cls, context) -> bool:
+        props = getattr(context.scene, "neural_atlas", None)
+        return _clip_poll(cls, context, props is not None and props.clip is not None, needs.NO_MASKS_CLIP)
 
     def make_job(self, context) -> MasksJob:
         props = context.scene.neural_atlas
@@ -146,6 +169,11 @@ class NEURALATLAS_OT_estimate(EngineJobOperator, bpy.types.Operator):
     bl_options = {"REGISTER"}  # noqa: RUF012 (Blender reads a set)
 
     timeout: _timeout()
+
+    @classmethod
+    def poll(cls, context) -> bool:
+        props = getattr(context.scene, "neural_atlas", None)
+        return _clip_poll(cls, context, props is not None and props.clip is not None, needs.NO_ESTIMATE_CLIP)
 
     def make_job(self, context) -> EstimateJob:
         props = context.scene.neural_atlas

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import bpy
 from bpy.props import BoolProperty, StringProperty
 
 from ...engine import contract as C
-from .. import compat, compositor, paint
+from .. import compat, compositor, line_up, paint
 from ..core import frames as F
 from ..core import tree_plan as P
 from .scene_inputs import abspath, clip_plate
@@ -39,7 +40,7 @@ def import_manifest(
     compositor.build(context.scene, plan, set_range)
     if setup_paint:
         paint.setup_canvases(context, plan.layers)
-    props.manifest = manifest_path
+    props.manifest = compositor.blend_path(os.path.abspath(manifest_path))  # relative to the .blend where it can be
     props.imported_layers = ", ".join(plan.layers)
     return plan
 
@@ -50,6 +51,28 @@ def clip_note(context: Any) -> str | None:
     if clip is None:
         return None
     return F.clip_offset_note(clip.name, clip.frame_start, clip_plate(clip)[1], P.PLATE_CLIP)
+
+
+def line_up_clip(context: Any) -> str | None:
+    """Line Up My Clip (``frames.line_up_offset``): the panel's clip starts at its first file's number and the masks
+    of the foreground layers move with it (``line_up``); the fit's own range, in scene frames, moves too. The line
+    saying what moved; None when there is nothing to line up."""
+    props = context.scene.neural_atlas
+    clip = props.clip
+    if clip is None:
+        return None
+    offset = F.line_up_offset(clip.frame_start, clip_plate(clip)[1])
+    if offset is None:
+        return None
+    masks = list(
+        {m.name_full: m for m in (lyr.mask for lyr in props.layers if lyr.source == "MASK") if m is not None}.values()
+    )
+    keys, count = line_up.line_up(context, clip, masks, offset)
+    props.frame_start += offset
+    props.frame_end += offset
+    return (
+        f"clip {clip.name!r} starts at scene frame {clip.frame_start}; {count} mask(s), {keys} key(s) moved {offset:+d}"
+    )
 
 
 class NEURALATLAS_OT_import(bpy.types.Operator):
@@ -67,6 +90,13 @@ class NEURALATLAS_OT_import(bpy.types.Operator):
         description="Set the scene's range to the imported frames even where the current range lies within them",
         default=False,
     )
+    line_up_clip: BoolProperty(
+        name="Line Up My Clip",
+        description="Start the Fit Atlas panel's clip at its first file's number, so it shows plate frame N at scene "
+        "frame N, and move the keys of the foreground layers' masks and of its scribbles by as many frames (they "
+        "stay on the object)",
+        default=False,
+    )
 
     def execute(self, context):
         try:
@@ -78,9 +108,13 @@ class NEURALATLAS_OT_import(bpy.types.Operator):
         kept = (scene.frame_start, scene.frame_end) != (plan.frame_start, plan.frame_end)
         note = f" (scene range {scene.frame_start}-{scene.frame_end} kept)" if kept else ""
         self.report({"INFO"}, f"imported {len(plan.layers)} layers, frames {plan.frame_start}-{plan.frame_end}{note}")
+        if self.line_up_clip:
+            lined = line_up_clip(context)
+            if lined:
+                self.report({"INFO"}, lined)
         clip = clip_note(context)
         if clip is not None:
-            self.report({"WARNING"}, clip)
+            self.report({"WARNING"}, clip + " (or import with Line Up My Clip)")
         return {"FINISHED"}
 
     def invoke(self, context, event):

@@ -42,7 +42,7 @@ class NEURALATLAS_OT_float_edits(bpy.types.Operator):
     @classmethod
     def poll(cls, context):
         props = getattr(context.scene, "neural_atlas", None)
-        manifest = props.manifest if props is not None else ""
+        manifest = abspath(props.manifest) if props is not None and props.manifest else ""
         return _poll(cls, needs.float_edits_need(manifest, (img.filepath for img in edit_images())))
 
     def execute(self, context):
@@ -51,23 +51,24 @@ class NEURALATLAS_OT_float_edits(bpy.types.Operator):
             self.report({"ERROR"}, NO_ATLAS)
             return {"CANCELLED"}
         made, skipped = [], []
+        manifest_path = abspath(props.manifest)  # stored relative to the .blend where it can be
         try:
-            manifest = C.load_manifest(props.manifest)
+            manifest = C.load_manifest(manifest_path)
             # the import below reloads every edit image: unsaved paint goes to its file first (a PNG that becomes an
             # EXR too, so its file holds the paint as well as the EXR made from the same pixels does)
             paint.save_before_reload(self.bl_label)
-            with run_files.edits_lock(props.manifest, run_files.FLOAT_EDITS_HOLDER):
+            with run_files.edits_lock(manifest_path, run_files.FLOAT_EDITS_HOLDER):
                 for layer in manifest["layers"]:
                     img = bpy.data.images.get(P.edit_image_name(layer["name"]))
                     if img is None or abspath(img.filepath).lower().endswith(C.EDIT_LAYER_FLOAT_EXT):
                         continue  # not imported, or already float
-                    run_edit = os.path.normpath(C.resolve_manifest_write_path(props.manifest, layer["edit_layer"]))
+                    run_edit = os.path.normpath(C.resolve_manifest_write_path(manifest_path, layer["edit_layer"]))
                     if abspath(img.filepath) != run_edit:
                         skipped.append(layer["name"])  # another image was given for this layer: not the run's edit
                         continue
-                    made.append(paint.make_float_edit(layer["name"], P.float_edit_path(props.manifest, layer)))
+                    made.append(paint.make_float_edit(layer["name"], P.float_edit_path(manifest_path, layer)))
             keep = {name: abspath(bpy.data.images[P.edit_image_name(name)].filepath) for name in skipped}
-            import_manifest(context, props.manifest, True, keep, action=self.bl_label)  # the tree, canvases: the EXRs
+            import_manifest(context, manifest_path, True, keep, action=self.bl_label)  # the tree, canvases: the EXRs
         except (ValueError, OSError, C.RunLocked) as exc:  # ManifestError, PlanError, an existing EXR, a full disk
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}

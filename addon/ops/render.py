@@ -28,11 +28,37 @@ def edit_files() -> list[str]:
     ]
 
 
+def atlas_files() -> list[str]:
+    """The files of the imported atlas images (``NA_Atlas_<Layer>``) that come from a file."""
+    prefix = P.atlas_image_name("")
+    return [
+        abspath(img.filepath)
+        for img in bpy.data.images
+        if img.name.startswith(prefix) and img.filepath and img.packed_file is None and img.source != "GENERATED"
+    ]
+
+
+def plate_file() -> str | None:
+    """The imported plate clip's file (None without the clip)."""
+    clip = bpy.data.movieclips.get(P.PLATE_CLIP)
+    return abspath(clip.filepath) if clip is not None else None
+
+
+def imported_manifest(context) -> str:
+    """The scene's imported manifest, absolute ('' when none; it is stored relative to the .blend where it can)."""
+    props = getattr(context.scene, "neural_atlas", None)
+    return abspath(props.manifest) if props is not None and props.manifest else ""
+
+
 def _need(context) -> str | None:
     """What Render lacks (``needs.render_need``), read from the scene: the poll's line, and execute's."""
-    props = getattr(context.scene, "neural_atlas", None)
-    manifest = abspath(props.manifest) if props is not None and props.manifest else ""
-    return needs.render_need(manifest, passes_file(), edit_files=edit_files())
+    return needs.render_need(
+        imported_manifest(context),
+        passes_file(),
+        edit_files=edit_files(),
+        plate_file=plate_file(),
+        atlas_files=atlas_files(),
+    )
 
 
 class NEURALATLAS_OT_render(bpy.types.Operator):
@@ -69,7 +95,7 @@ class NEURALATLAS_OT_render(bpy.types.Operator):
             # the paint is saved first, so the render is of what the artist sees; a run folder in use or a full
             # disk stops the render with the one line that says so (the paint stays unsaved in Blender)
             paint.save_edits()
-            space = P.output_colorspace(C.load_manifest(props.manifest)["clip"])
+            space = P.output_colorspace(C.load_manifest(imported_manifest(context))["clip"])
             files = compositor.render(context.scene, out, fmt, space)
         except (RuntimeError, ValueError, OSError, C.RunLocked) as exc:
             self.report({"ERROR"}, str(exc))

@@ -51,9 +51,7 @@ class NEURALATLAS_OT_setup_engine(EngineJobOperator, bpy.types.Operator):
         refusal = preferences.online_refusal()
         if refusal:  # poll says so too; this holds for a call that skips poll
             raise UserError(" ".join(refusal))
-        prefs = preferences.addon_prefs(context)
-        cpu_only = prefs is not None and prefs.torch_cpu
-        return ES.SetupJob(self.venv_dir or preferences.default_venv_dir(), cpu_only)
+        return ES.SetupJob(self.venv_dir or preferences.default_venv_dir(), preferences.torch_choice(context))
 
     def set_running(self, context, on: bool) -> None:
         pass  # the preferences show the job's status line instead
@@ -117,10 +115,13 @@ class NEURALATLAS_OT_copy_setup_command(bpy.types.Operator):
     bl_options = {"REGISTER"}  # noqa: RUF012 (Blender reads a set): the clipboard is not undone
 
     def execute(self, context):
-        prefs = preferences.addon_prefs(context)
+        torch = preferences.torch_choice(context)
         venv_dir = preferences.default_venv_dir()
-        context.window_manager.clipboard = ES.manual_setup_command(venv_dir, prefs is not None and prefs.torch_cpu)
-        message = f"copied: run it in a terminal, then set Engine Python to {ES.venv_python(venv_dir)}"
+        context.window_manager.clipboard = ES.manual_setup_command(venv_dir, torch)
+        message = (
+            f"copied (torch {torch.name}, about {torch.download_gb:g} GB): run it in a terminal, then set Engine "
+            f"Python to {ES.venv_python(venv_dir)}"
+        )
         NEURALATLAS_OT_setup_engine._set_status(context, message)
         self.report({"INFO"}, message)
         return {"FINISHED"}

@@ -17,7 +17,7 @@ bpy = pytest.importorskip("bpy")
 import fake_export as X  # noqa: E402
 from helpers import RecordingLayout, drive_modal, fake_python, polygon_mask, stand_in_pip  # noqa: E402
 from mask_reference import px_to_mask, rasterize_polygon  # noqa: E402
-from neural_atlas.addon import compat  # noqa: E402
+from neural_atlas.addon import compat, preferences  # noqa: E402
 from neural_atlas.addon.core import engine_setup as ES  # noqa: E402
 from neural_atlas.addon.core import needs, running  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
@@ -58,7 +58,7 @@ def test_register_unregister_repeatable(registered):
         assert not hasattr(bpy.types, "NEURALATLAS_PT_fit")
         registered.register()
         assert hasattr(bpy.types, "NEURALATLAS_PT_fit")
-        assert bpy.ops.neural_atlas.fit.poll()
+        assert bpy.ops.neural_atlas.import_run.poll()  # registered (Fit Atlas is greyed: no clip)
     assert len(registration.classes) == len(set(registration.classes)) >= 13
     assert [h.__name__ for h in bpy.app.handlers.load_pre].count("_cancel_jobs") == 1
     assert bpy.context.scene.neural_atlas.preset == "draft"
@@ -406,12 +406,13 @@ def test_check_engine_operator(blender, tmp_path, monkeypatch):
         bpy.ops.neural_atlas.check_engine("EXEC_DEFAULT")
 
 
-def test_operators_refuse_without_inputs(blender, monkeypatch):
+def test_operators_refuse_without_inputs(blender, monkeypatch, tmp_path):
     props = blender.context.scene.neural_atlas
     monkeypatch.setenv("NEURAL_ATLAS_ENGINE_PYTHON", sys.executable)
+    _fit_error(re.escape(needs.NO_FIT_CLIP))  # no clip: greyed out, the poll's line
+    X.write_png(tmp_path / "plate.png", np.zeros((4, 4, 4), np.uint8))
+    props.clip = bpy.data.movieclips.load(str(tmp_path / "plate.png"))
     _fit_error("save the .blend file first")  # the default Run Folder is relative to the .blend
-    props.run_dir = "/tmp/na_unused_run"
-    _fit_error("choose the clip to fit")
     props.run_dir = ""
     _fit_error("choose a Run Folder")
     assert not bpy.ops.neural_atlas.render.poll()  # greyed out; a script calling it gets the poll's line
@@ -518,7 +519,8 @@ def test_setup_engine_modal_path_reports_progress_and_offline(blender, tmp_path)
     assert any("Collecting torch" in s for s in statuses)  # pip's latest line is what the preferences show
     reports = op.reports
     assert reports[-1][0] == {"ERROR"} and "offline" in reports[-1][1] and "setup.log" in reports[-1][1]
-    assert reports[0] == ({"INFO"}, "Set up engine: installing torch and the engine's packages (about 1 GB)…")
+    label = preferences.torch_choice(blender.context).label()  # the build for this machine, and its download
+    assert reports[0] == ({"INFO"}, f"Set up engine: {label}…") and label.startswith("installing torch (")
     assert ({"INFO"}, needs.esc_text("Set up engine", "the add-on's preferences")) in reports
     assert cancel and all(c == (True, True) for c in cancel)
     assert running.jobs() == {}

@@ -33,6 +33,7 @@ UNDO = {
     "paint_setup",
     "float_edits",
     "frame_paint_start",
+    "relink",
 }
 #: Operators that write files, run or stop a process, or change the preferences: no undo step (the reason is a
 #: comment beside each one's bl_options).

@@ -105,7 +105,7 @@ INSTALL_SCRIPT = textwrap.dedent(
     prefs = bpy.context.preferences.addons[mod].preferences
     out["prefs_engine_python"] = hasattr(prefs, "engine_python")
     out["panel"] = hasattr(bpy.types, "NEURALATLAS_PT_fit")
-    out["fit_poll"] = bpy.ops.neural_atlas.fit.poll()
+    out["import_poll"] = bpy.ops.neural_atlas.import_run.poll()  # Fit Atlas is greyed without a clip
     out["scene_props"] = bpy.context.scene.neural_atlas.preset
     out["installed_dir"] = os.path.dirname(sys.modules[mod].__file__)
     prefs.engine_python = engine_python
@@ -140,7 +140,7 @@ def test_install_enable_check_engine_disable(built_zip, tmp_path):
     assert lines, proc.stdout[-3000:] + proc.stderr[-3000:]
     out = json.loads(lines[-1][len("RESULT ") :])
     assert out["install"] == ["FINISHED"] and out["enabled"] and out["prefs_engine_python"]
-    assert out["panel"] and out["fit_poll"] and out["scene_props"] == "draft"
+    assert out["panel"] and out["import_poll"] and out["scene_props"] == "draft"
     assert out["installed_dir"].startswith(str(tmp_path / "extensions"))
     ok, message = out["check"]
     # the engine shipped inside the installed extension answers `python -m engine --version`

@@ -9,6 +9,7 @@ test_end_to_end.py). Skipped when that Python has no torch/OpenCV or its engine 
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 from pathlib import Path
 
@@ -18,7 +19,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from helpers import drive_modal, engine_python, fake_python  # noqa: E402
-from neural_atlas.addon.core import running  # noqa: E402
+from neural_atlas.addon.core import needs, running  # noqa: E402
 from neural_atlas.addon.ops import fit as fit_ops  # noqa: E402
 
 from engine import contract as C  # noqa: E402
@@ -118,7 +119,7 @@ def test_find_masks_on_a_static_clip_reports_and_keeps_the_layers(masks_scene, t
 
 def test_find_masks_errors_name_the_fix_and_the_log(masks_scene, tmp_path, monkeypatch):
     props, root = masks_scene
-    with pytest.raises(RuntimeError, match="choose the clip to find masks in"):
+    with pytest.raises(RuntimeError, match=re.escape(needs.NO_MASKS_CLIP)):  # greyed out: the poll's line
         bpy.ops.neural_atlas.find_masks("EXEC_DEFAULT")
     props.clip = bpy.data.movieclips.load(str(root / "moving" / "frames" / "00000.png"))
     props.use_clip_range = False

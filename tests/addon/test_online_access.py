@@ -83,10 +83,14 @@ def test_copy_install_command_puts_set_up_engines_command_on_the_clipboard(onlin
     monkeypatch.setattr(preferences, "default_venv_dir", lambda: str(venv))
     op = as_operator(setup_ops.NEURALATLAS_OT_copy_setup_command)
     assert op.execute(bpy.context) == {"FINISHED"}
-    assert op.reports == [({"INFO"}, f"copied: run it in a terminal, then set Engine Python to {venv}/bin/python")]
+    torch = preferences.torch_choice(bpy.context)
+    size = f"torch {torch.name}, about {torch.download_gb:g} GB"
+    assert op.reports == [
+        ({"INFO"}, f"copied ({size}): run it in a terminal, then set Engine Python to {venv}/bin/python")
+    ]
     assert bpy.ops.neural_atlas.copy_setup_command() == {"FINISHED"}
     # a bpy module without a window system keeps no clipboard (it reads back empty); Blender's does
-    assert bpy.context.window_manager.clipboard in ("", ES.manual_setup_command(str(venv)))
+    assert bpy.context.window_manager.clipboard in ("", ES.manual_setup_command(str(venv), torch))
 
 
 def test_fit_panel_points_to_engine_python_when_offline_and_none_is_set(online, monkeypatch):

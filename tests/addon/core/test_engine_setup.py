@@ -20,7 +20,7 @@ def test_setup_commands_install_the_contract_requirements():
     assert argv[:4] == ["/x/bin/python", "-m", "pip", "install"]
     assert tuple(argv[-len(C.ENGINE_REQUIREMENTS) :]) == C.ENGINE_REQUIREMENTS
     assert EC.engine_argv("py", "fit", "a") == ["py", "-m", "engine", "fit", "a"]
-    cpu = ES.pip_install_argv("/x/bin/python", cpu_only=True)
+    cpu = ES.pip_install_argv("/x/bin/python", ES.torch_choice(ES.TORCH_CPU, "linux"))
     assert cpu[cpu.index("--extra-index-url") + 1] == "https://download.pytorch.org/whl/cpu"
     env = EC.engine_env({"PYTHONPATH": "/other"})
     assert env["PYTHONPATH"].split(":")[0] == EC.extension_root()
@@ -62,8 +62,8 @@ def test_setup_engine_offline_error_is_clear(tmp_path, monkeypatch):
 def test_setup_job_status_shows_pips_latest_line(tmp_path):
     venv = tmp_path / "venv"
     stand_in_pip(venv)
-    job = ES.SetupJob(str(venv))
-    assert [c.label for c in job.commands] == ["installing torch and the engine's packages (about 1 GB)"]
+    job = ES.SetupJob(str(venv), ES.torch_choice(ES.TORCH_CPU, "linux"))
+    assert [c.label for c in job.commands] == ["installing torch (CPU build) and the engine's packages (about 0.5 GB)"]
     job.start()
     statuses = []
     while job.step():
@@ -127,5 +127,71 @@ def test_manual_setup_command_is_set_up_engines_commands_for_a_shell():
     assert words[:split] == ES.create_venv_argv("/opt/blender/python3.11", venv)
     assert words[split + 1 :] == ES.pip_install_argv(ES.venv_python(venv))
     assert tuple(words[-len(C.ENGINE_REQUIREMENTS) :]) == C.ENGINE_REQUIREMENTS
-    cpu = shlex.split(ES.manual_setup_command(venv, cpu_only=True, base_python="py"))
+    cpu = shlex.split(ES.manual_setup_command(venv, ES.torch_choice(ES.TORCH_CPU, "linux"), base_python="py"))
     assert cpu[cpu.index("--extra-index-url") + 1] == ES.TORCH_CPU_INDEX
+
+
+# --- which torch: detection faked, each platform and preference ---------------------------------------------
+def _found(*paths):
+    """A fake ``which``/``exists`` pair that finds only ``paths``."""
+    return (lambda name: name if name in paths else None), (lambda path: path in paths)
+
+
+def test_an_nvidia_gpu_is_found_by_its_driver():
+    which, exists = _found(ES.NVIDIA_PROC)
+    assert ES.has_nvidia_gpu("linux", which, exists)  # the kernel module, without nvidia-smi on PATH
+    which, exists = _found("nvidia-smi")
+    assert ES.has_nvidia_gpu("linux", which, exists) and ES.has_nvidia_gpu("win32", which, exists)
+    which, exists = _found(ES.NVIDIA_SMI_WINDOWS)
+    assert ES.has_nvidia_gpu("win32", which, exists) and not ES.has_nvidia_gpu("linux", which, exists)
+    which, exists = _found()
+    assert not ES.has_nvidia_gpu("linux", which, exists) and not ES.has_nvidia_gpu("win32", which, exists)
+    which, exists = _found("nvidia-smi", ES.NVIDIA_PROC)
+    assert not ES.has_nvidia_gpu("darwin", which, exists)  # no CUDA on macOS
+
+
+def test_auto_picks_cuda_with_an_nvidia_gpu_and_cpu_without():
+    cuda = ES.torch_choice(ES.TORCH_AUTO, "linux", nvidia=True)
+    assert (cuda.build, cuda.index_url) == (ES.TORCH_CUDA, None)  # PyPI's Linux torch is the CUDA build
+    assert cuda.download_gb == ES.TORCH_DOWNLOAD_GB[ES.TORCH_CUDA] == 3.5 and cuda.why == "Auto: an NVIDIA GPU found"
+    cpu = ES.torch_choice(ES.TORCH_AUTO, "linux", nvidia=False)
+    assert (cpu.build, cpu.index_url, cpu.download_gb) == (ES.TORCH_CPU, "https://download.pytorch.org/whl/cpu", 0.5)
+    assert cpu.why == "Auto: no NVIDIA GPU found"
+    win = ES.torch_choice(ES.TORCH_AUTO, "win32", nvidia=True)
+    assert (win.build, win.index_url) == (ES.TORCH_CUDA, ES.TORCH_CUDA_WINDOWS_INDEX)  # PyPI's Windows torch is CPU
+    assert ES.torch_choice(ES.TORCH_AUTO, "win32", nvidia=False).index_url == ES.TORCH_CPU_INDEX
+    mac = ES.torch_choice(ES.TORCH_CUDA, "darwin", nvidia=True)
+    assert (mac.build, mac.index_url, mac.download_gb) == (ES.TORCH_MAC, None, 0.4)  # the default wheel, with MPS
+
+
+def test_the_preference_overrides_the_detection():
+    assert ES.torch_choice(ES.TORCH_CPU, "linux", nvidia=True).build == ES.TORCH_CPU
+    forced = ES.torch_choice(ES.TORCH_CUDA, "linux", nvidia=False)
+    assert forced.build == ES.TORCH_CUDA and forced.why == "chosen in the preferences (CUDA)"
+    import pytest
+
+    with pytest.raises(ValueError, match="unknown torch build"):
+        ES.torch_choice("ROCM", "linux")
+
+
+def test_the_choice_reaches_pip_the_set_up_step_and_the_preferences(tmp_path):
+    import shlex
+
+    for setting, nvidia, index in ((ES.TORCH_AUTO, False, ES.TORCH_CPU_INDEX), (ES.TORCH_AUTO, True, None)):
+        choice = ES.torch_choice(setting, "linux", nvidia=nvidia)
+        argv = ES.pip_install_argv("/v/bin/python", choice)
+        assert ("--extra-index-url" in argv) == (index is not None)
+        if index:
+            assert argv[argv.index("--extra-index-url") + 1] == index
+        assert shlex.split(ES.manual_setup_command("/v", choice, "py"))[-len(argv) :] == argv
+    cuda = ES.torch_choice(ES.TORCH_CUDA, "linux")
+    job = ES.SetupJob(str(tmp_path / "venv"), cuda)
+    assert job.commands[-1].label == "installing torch (CUDA build) and the engine's packages (about 3.5 GB)"
+    assert "--extra-index-url" not in job.commands[-1].argv
+    assert ES.torch_lines(cuda) == (
+        "Set up engine installs torch's CUDA build: about 3.5 GB",
+        "chosen in the preferences (CUDA); from PyPI",
+    )
+    assert ES.torch_lines(ES.torch_choice(ES.TORCH_CPU, "linux"))[1].endswith(
+        "; from https://download.pytorch.org/whl/cpu"
+    )

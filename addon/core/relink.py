@@ -1,0 +1,154 @@
+"""Paths that survive a moved shot: relative to the .blend where Blender can, and re-linked when the run folder
+moves. No bpy here: the operator (``ops.relink``) reads the datablocks' paths and writes back what this decides.
+
+Blender writes a path relative to the .blend as ``//`` + the path from the .blend's folder (``bpy.path.relpath``),
+which keeps working when the .blend and the files it uses are copied together. A file on another drive (Windows)
+has no relative path and stays absolute, as Blender leaves it.
+
+A run folder moved on its own is found again from one file: the new manifest (or the run folder, whose newest
+export's manifest is taken). The old and the new manifest paths end alike (``run/exports/v001/manifest.json``);
+what comes before that common ending is the old root and the new root, and every path under the old root is
+rewritten under the new one where the file is there (a plate left where it was keeps its path).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+
+from ...engine import contract as C  # type: ignore[import-not-found]
+
+#: How Blender marks a path relative to the .blend's folder.
+BLEND_PREFIX = "//"
+#: What Relink says when the file chosen is neither a manifest nor a run or export folder holding one.
+NO_MANIFEST = "no manifest.json there: choose the run folder, or the manifest.json of its export: "
+
+
+def relative_path(path: str, blend_file: str) -> str:
+    """``path`` (absolute) relative to the .blend ``blend_file`` (``//``-prefixed, ``/`` separators as Blender
+    writes them), or ``path`` as it is where there is none: an unsaved .blend (``blend_file`` '') or another drive."""
+    if not path or not blend_file or path.startswith(BLEND_PREFIX):
+        return path
+    folder = os.path.dirname(os.path.abspath(blend_file))
+    if os.path.splitdrive(os.path.abspath(path))[0].lower() != os.path.splitdrive(folder)[0].lower():
+        return path
+    try:
+        rel = os.path.relpath(os.path.abspath(path), folder)
+    except ValueError:  # another drive (Windows)
+        return path
+    return BLEND_PREFIX + rel.replace(os.sep, "/")
+
+
+def absolute_path(path: str, blend_file: str) -> str:
+    """A ``//`` path made absolute against the .blend ``blend_file``'s folder (normalised); others as they are."""
+    if not path.startswith(BLEND_PREFIX) or not blend_file:
+        return os.path.normpath(path) if path else path
+    folder = os.path.dirname(os.path.abspath(blend_file))
+    return os.path.normpath(os.path.join(folder, path[len(BLEND_PREFIX) :]))
+
+
+def _parts(path: str) -> list[str]:
+    drive, rest = os.path.splitdrive(os.path.normpath(os.path.abspath(path)))
+    return [drive + os.sep, *[p for p in rest.split(os.sep) if p]]
+
+
+def roots(old_manifest: str, new_manifest: str) -> tuple[str, str]:
+    """(old root, new root): the two manifest paths without the ending they share. ``/a/shot/run/exports/v001/
+    manifest.json`` -> ``/b/run/exports/v001/manifest.json`` gives (``/a/shot``, ``/b``): whatever lay under
+    ``/a/shot`` is looked for under ``/b``."""
+    old, new = _parts(old_manifest), _parts(new_manifest)
+    same = 0
+    while same < min(len(old), len(new)) - 1 and old[-1 - same] == new[-1 - same]:
+        same += 1
+    return os.path.join(*old[: len(old) - same]), os.path.join(*new[: len(new) - same])
+
+
+def rebase(path: str, old_root: str, new_root: str) -> str | None:
+    """``path`` moved from under ``old_root`` to under ``new_root``; None when it does not lie under ``old_root``."""
+    path, old_root = os.path.normpath(path), os.path.normpath(old_root)
+    try:
+        if os.path.commonpath([path, old_root]) != old_root:
+            return None
+    except ValueError:  # another drive, or one relative and one absolute
+        return None
+    rest = os.path.relpath(path, old_root)
+    return os.path.normpath(new_root) if rest == os.curdir else os.path.normpath(os.path.join(new_root, rest))
+
+
+@dataclass(frozen=True)
+class Link:
+    """One path the scene holds: a datablock's file (an image, a movie clip) or a setting (``kind`` "prop").
+    ``required``: reported when missing (a setting such as the Run Folder may name a folder not made yet)."""
+
+    name: str
+    kind: str
+    path: str  # absolute
+    required: bool = True
+
+
+@dataclass
+class RelinkPlan:
+    """What Relink does: ``moves`` (name -> new absolute path) for the links found under the new root, ``missing``
+    the links whose file is neither where it was nor under the new root."""
+
+    old_root: str
+    new_root: str
+    moves: dict[str, str] = field(default_factory=dict)
+    missing: list[str] = field(default_factory=list)
+
+
+def plan_relink(
+    links: Iterable[Link], old_manifest: str, new_manifest: str, exists: Callable[[str], bool] = os.path.exists
+) -> RelinkPlan:
+    """Each link under the old root moves to the new root where its file is there; one still where it was stays
+    (the old folder was copied, not moved, or it lies outside the moved folder); the others are ``missing``."""
+    old_root, new_root = roots(old_manifest, new_manifest)
+    plan = RelinkPlan(old_root, new_root)
+    for link in links:
+        moved = rebase(link.path, old_root, new_root)
+        if moved is not None and moved != os.path.normpath(link.path) and exists(moved):
+            plan.moves[link.name] = moved
+        elif link.required and not exists(link.path):
+            plan.missing.append(link.name)
+    return plan
+
+
+def missing(links: Iterable[Link], exists: Callable[[str], bool] = os.path.exists) -> list[str]:
+    """The names of the required links whose file is not on disk."""
+    return [link.name for link in links if link.required and not exists(link.path)]
+
+
+def message(plan: RelinkPlan) -> str:
+    """The one line Relink reports: how many paths moved from where to where, and what is still missing."""
+    line = f"relinked {len(plan.moves)} path(s) from {plan.old_root} to {plan.new_root}"
+    if plan.missing:
+        line += f"; still missing: {', '.join(plan.missing)}"
+    return line
+
+
+_EXPORT_DIR = re.compile(r"^v\d+$")
+
+
+def find_manifest(
+    path: str, isfile: Callable[[str], bool] = os.path.isfile, listdir: Callable[[str], list[str]] = os.listdir
+) -> str:
+    """The manifest that ``path`` names: a manifest file itself, an export folder's ``manifest.json``, or a run
+    folder's newest export (``RUN/exports/vNNN/manifest.json``, the highest NNN); ValueError (one line) otherwise."""
+    path = os.path.normpath(path)
+    if isfile(path):
+        return path
+    own = os.path.join(path, C.MANIFEST_NAME)
+    if isfile(own):
+        return own
+    exports = os.path.join(path, C.EXPORTS_DIR)
+    try:
+        versions = sorted((v for v in listdir(exports) if _EXPORT_DIR.match(v)), key=lambda v: int(v[1:]))
+    except OSError:
+        versions = []
+    for version in reversed(versions):
+        candidate = os.path.join(exports, version, C.MANIFEST_NAME)
+        if isfile(candidate):
+            return candidate
+    raise ValueError(NO_MANIFEST + path)
