@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import bpy
 
-from . import ops, preferences, properties, ui
+from . import ops, preferences, preview, properties, ui
 from .core import running
 
 classes = (*properties.classes, *preferences.classes, *ops.classes, *ui.classes)
@@ -26,6 +26,7 @@ def register() -> None:
 
 def unregister() -> None:
     _cancel_jobs()
+    preview.stop_live()
     for handler in [h for h in bpy.app.handlers.load_pre if getattr(h, "__name__", "") == "_cancel_jobs"]:
         bpy.app.handlers.load_pre.remove(handler)
     properties.unregister_props()

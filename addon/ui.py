@@ -153,6 +153,7 @@ class NEURALATLAS_PT_edit(_SidebarPanel, bpy.types.Panel):
         row.operator("neural_atlas.paint_setup", icon="BRUSH_DATA")
         row.operator("neural_atlas.save_edits", icon="FILE_TICK")
         col.operator("neural_atlas.float_edits", icon="IMAGE_DATA")
+        col.operator("neural_atlas.live_preview", icon="HIDE_OFF")
         col.prop(props, "render_dir")
         col.prop(props, "render_format")
         col.operator("neural_atlas.render", icon="RENDER_ANIMATION")

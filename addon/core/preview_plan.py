@@ -124,11 +124,14 @@ class PreviewPlan:
     framing: Framing
     layers: list[str]
     mirrors: dict[str, str] = field(default_factory=dict)
-    """8-bit edit layers -> the float twin the material samples (kept equal to the edit image by ``preview.sync``)."""
+    """Each layer -> the float twin of its edit image that the material samples (``preview.sync`` copies the paint)."""
 
 
 def mirror_image_name(layer: str) -> str:
-    """The float twin of an 8-bit edit image that the preview samples (``straight_srgb_to_premultiplied``)."""
+    """The float twin of an edit image that the preview samples: an 8-bit one converted
+    (``straight_srgb_to_premultiplied``), a float one copied. Why a twin, even of a float image: Cycles' final render
+    reads a file image from its file, not the unsaved paint in Blender (only generated, packed and movie images come
+    from memory), so only a generated image shows every stroke in both the viewport and a render."""
     return f"{P.PREFIX}PreviewEdit_{layer}"
 
 
@@ -223,13 +226,9 @@ def plan_preview(
         splits.append(UVSplit(name, (channels[0], channels[1], channels[2]), files))
         user = sequence_user(tree.frame_start, tree.frame_start, count)
         images.append(PreviewImage(uv_image_name(name), files[0][1], "Non-Color", "SEQUENCE", user))
-    srgb = {spec.name for spec in tree.images if spec.colorspace == "sRGB"}
-    sampled = {
-        name: mirror_image_name(name) if P.edit_image_name(name) in srgb else P.edit_image_name(name)
-        for name in tree.layers
-    }
+    sampled = {name: mirror_image_name(name) for name in tree.layers}
     nodes, links = shader_graph(sampled, filter_type, frame_paint)
-    mirrors = {name: image for name, image in sampled.items() if image != P.edit_image_name(name)}
+    mirrors = dict(sampled)
     fit = framing(tree.resolution, tree.pixel_aspect)
     return PreviewPlan(nodes, links, images, splits, fit, list(tree.layers), mirrors)
 

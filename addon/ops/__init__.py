@@ -7,6 +7,7 @@ act on:
 - ``layers``: the foreground layer list and the clip's scribble layers;
 - ``import_run``: Import Atlas;
 - ``paint``: paint canvases, Save Edits, Float Edit Layers;
+- ``preview``: Live Preview (the composite on a plane in the 3D viewport);
 - ``render``: Render Edited Clip;
 - ``setup``: the preferences' Set up engine (and its Cancel), Copy Install Command and Check engine;
 - ``farm``: Submit to Farm (a Flamenco job or an OpenJD bundle of the clip).
@@ -14,13 +15,14 @@ act on:
 
 from __future__ import annotations
 
-from . import farm, fit, import_run, layers, paint, render, setup
+from . import farm, fit, import_run, layers, paint, preview, render, setup
 
 classes = (
     *fit.classes,
     *layers.classes,
     *import_run.classes,
     *paint.classes,
+    *preview.classes,
     *render.classes,
     *setup.classes,
     *farm.classes,

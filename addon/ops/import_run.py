@@ -27,8 +27,9 @@ def import_manifest(
     set_range: bool = False,
     action: str = "Import Atlas",
 ) -> P.TreePlan:
-    """Read the manifest, build the compositor tree, the paint canvases and the live preview (``edits``: layer -> other image;
-    ``set_range``: the scene's range becomes the imported frames even where the artist's lies within them).
+    """Read the manifest, build the compositor tree, the paint canvases and the live preview (``edits``: layer ->
+    other image; ``set_range``: the scene's range becomes the imported frames even where the artist's lies within
+    them).
 
     Building reloads or replaces the edit images, so unsaved paint is saved to its files first
     (``paint.save_before_reload``; ``action`` names what refuses when it cannot be); a refusal reloads nothing."""
