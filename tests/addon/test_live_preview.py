@@ -154,7 +154,7 @@ def test_a_stroke_shows_in_the_preview_at_once(blender, tmp_path):
 def test_the_preview_frames_the_plate_and_rebuilds_in_place(blender, tmp_path):
     """Plane, camera, material and images are named NA_..., the camera frames the plane exactly, the frame-paint
     image shows in node FramePaint once it exists, and a second build replaces rather than adds."""
-    manifest, scene = _import(blender, tmp_path)
+    _, scene = _import(blender, tmp_path)
     plane, cam = bpy.data.objects[V.PREVIEW_OBJECT], bpy.data.objects[V.PREVIEW_CAMERA]
     assert plane.users_collection[0].name == V.PREVIEW_COLLECTION
     xs = [plane.matrix_world @ v.co for v in plane.data.vertices]
