@@ -22,6 +22,7 @@ def register() -> None:
         bpy.utils.register_class(cls)
     properties.register_props()
     bpy.app.handlers.load_pre.append(_cancel_jobs)
+    preview.start_live()  # a saved file's preview follows the paint too (the timer idles while none is shown)
 
 
 def unregister() -> None:
