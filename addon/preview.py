@@ -8,7 +8,7 @@ the canvases' own datablocks (never reloaded here): paint shows on the plane as 
 from __future__ import annotations
 
 import os
-import zlib
+import time
 from typing import Any
 
 import bpy
@@ -156,9 +156,13 @@ def _camera(coll: Any, framing: V.Framing) -> Any:
     return obj
 
 
-_synced: dict[str, int] = {}
-#: How often (seconds) the float twins of 8-bit edit images follow the paint while the preview is shown.
+#: Each twin's edit pixels at its last copy (to copy only what changed).
+_synced: dict[str, np.ndarray] = {}
+#: How often (seconds) at most the float twins follow the paint while the preview is shown; the timer waits
+#: ``SYNC_LOAD`` times as long as its last check took (large atlases), at most ``SYNC_SLOWEST`` s.
 SYNC_INTERVAL = 0.25
+SYNC_LOAD = 4.0
+SYNC_SLOWEST = 2.0
 
 
 def _mirror(edit: Any, name: str) -> Any:
@@ -177,7 +181,8 @@ def _mirror(edit: Any, name: str) -> Any:
 def sync(force: bool = False) -> int:
     """Copy every edit image's pixels (unsaved paint included) into its float twin (an 8-bit one converted as the
     engine reads the PNG; a float one, linear premultiplied, as it is); only images whose pixels changed since the
-    last copy (``force``: all). Returns how many."""
+    last copy (``force``: all; an edit image with no unsaved paint is not read again once copied). Returns how
+    many."""
     mat = bpy.data.materials.get(V.PREVIEW_MATERIAL)
     if mat is None or mat.node_tree is None:
         return 0
@@ -191,23 +196,26 @@ def sync(force: bool = False) -> int:
         edit = bpy.data.images.get(P.edit_image_name(twin.name.removeprefix(V.mirror_image_name(""))))
         if edit is None or not edit.size[0]:
             continue
+        last = _synced.get(twin.name)
+        if not force and last is not None and not edit.is_dirty:
+            continue
         w, h = edit.size
         px = np.empty(w * h * 4, np.float32)
         edit.pixels.foreach_get(px)
-        stamp = zlib.crc32(px.tobytes())
-        if not force and _synced.get(twin.name) == stamp and tuple(twin.size) == (w, h):
+        if not force and last is not None and tuple(twin.size) == (w, h) and np.array_equal(last, px):
             continue
         if tuple(twin.size) != (w, h):
             twin = _mirror(edit, twin.name)
             node.image = twin
         twin.pixels.foreach_set(px if edit.is_float else V.straight_srgb_to_premultiplied(px))
         twin.update()
-        _synced[twin.name] = stamp
+        _synced[twin.name] = px
         copied += 1
     return copied
 
 
 def _tick() -> float | None:
+    start = time.perf_counter()
     try:
         scene = bpy.context.scene
         if scene is None or not is_shown(scene):
@@ -215,7 +223,7 @@ def _tick() -> float | None:
         sync()
     except (ReferenceError, AttributeError, RuntimeError):
         pass  # a file loading or the add-on going away: try again next time
-    return SYNC_INTERVAL
+    return min(SYNC_SLOWEST, max(SYNC_INTERVAL, SYNC_LOAD * (time.perf_counter() - start)))
 
 
 def start_live() -> None:

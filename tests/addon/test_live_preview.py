@@ -136,6 +136,14 @@ def test_a_stroke_shows_in_the_preview_at_once(blender, tmp_path):
     disk = {p: p.read_bytes() for p in (tmp_path / "run" / C.EDITS_DIR).iterdir()}
     for layer, colour in (("Background", (0.0, 0.0, 1.0, 1.0)), ("Foreground", (1.0, 1.0, 0.0, 1.0))):
         _paint(bpy.data.images[P.edit_image_name(layer)], colour, (0.0, 0.0, 1.0, 1.0))  # the whole atlas
+    # what the viewport shows: the timer's tick (no event loop runs headless: called as the timer would) copies the
+    # paint into the float twins the material samples, and asks again within a second
+    assert bpy.app.timers.is_registered(preview._tick)
+    assert preview.SYNC_INTERVAL <= preview._tick() <= 1.0
+    for layer, want_px in (("Background", (0.0, 0.0, 1.0, 1.0)), ("Foreground", (1.0, 1.0, 0.0, 1.0))):
+        twin = _pixels(bpy.data.images[V.mirror_image_name(layer)])
+        assert np.abs(twin - np.array(want_px, np.float32)).max() <= 1e-7, layer
+    assert preview.sync() == 0  # nothing changed since: nothing copied
     after = X.read_exr_rgba(Path(preview.render_frame(scene, FRAME_A, str(tmp_path / "after.exr"))))
     assert {p: p.read_bytes() for p in disk} == disk
     # the whole atlas painted opaque: out = plate * (1 - Zb - Zf) + blue * Zb + yellow * Zf (Z: the passes' alphas)
