@@ -19,7 +19,7 @@ bpy = pytest.importorskip("bpy")
 
 import fake_export as X  # noqa: E402
 from helpers import engine_python  # noqa: E402
-from neural_atlas.addon import preview  # noqa: E402
+from neural_atlas.addon import compat, preview  # noqa: E402
 from neural_atlas.addon.core import preview_plan as V  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 
@@ -162,7 +162,12 @@ def test_a_stroke_shows_in_the_preview_at_once(blender, tmp_path):
 def test_the_preview_frames_the_plate_and_rebuilds_in_place(blender, tmp_path):
     """Plane, camera, material and images are named NA_..., the camera frames the plane exactly, the frame-paint
     image shows in node FramePaint once it exists, and a second build replaces rather than adds."""
+    assert blender.context.scene.neural_atlas.filter_type == P.FILTER_ENGINE  # the panel's default
     _, scene = _import(blender, tmp_path)
+    # Match engine: the compositor's Map UV samples as engine render does (4.x Nearest, 5.0 Bilinear)
+    map_uv = compat.scene_tree(scene).nodes["NA_MapUV_Foreground"]
+    sampling = map_uv.inputs["Interpolation"].default_value if compat.V5 else map_uv.filter_type
+    assert sampling.upper() == ("BILINEAR" if compat.V5 else "NEAREST") and compat.matches_engine(P.FILTER_ENGINE)
     plane, cam = bpy.data.objects[V.PREVIEW_OBJECT], bpy.data.objects[V.PREVIEW_CAMERA]
     assert plane.users_collection[0].name == V.PREVIEW_COLLECTION
     xs = [plane.matrix_world @ v.co for v in plane.data.vertices]
@@ -174,6 +179,10 @@ def test_the_preview_frames_the_plate_and_rebuilds_in_place(blender, tmp_path):
     assert nodes["Edit_Foreground"].image.name == V.mirror_image_name("Foreground")  # the float twins
     assert nodes["Edit_Background"].image.name == V.mirror_image_name("Background")
     assert V.FRAME_PAINT_NODE not in nodes
+    assert {nodes[f"Edit_{n}"].interpolation for n in ("Background", "Foreground")} == {"Linear"}
+    scene.neural_atlas.filter_type = P.FILTER_NEAREST  # the panel's Filter: the preview follows
+    assert {nodes[f"Edit_{n}"].interpolation for n in ("Background", "Foreground")} == {"Closest"}
+    scene.neural_atlas.filter_type = P.FILTER_ENGINE
     bpy.data.images.new(P.FRAME_PAINT_IMAGE, X.W, X.H, alpha=True, float_buffer=True)
     counts = (len(bpy.data.objects), len(bpy.data.materials), len(bpy.data.images), len(bpy.data.cameras))
     assert bpy.ops.neural_atlas.live_preview("EXEC_DEFAULT") == {"FINISHED"}  # shown: hides it

@@ -5,6 +5,7 @@ files, bit for bit."""
 from __future__ import annotations
 
 import array
+import json
 from collections import Counter
 from pathlib import Path
 
@@ -170,3 +171,22 @@ def test_exr_reader_reads_what_openexr_writes(tmp_path, shape):
     (tmp_path / "bad.exr").write_bytes(b"not an exr at all")
     with pytest.raises(exr_passes.ExrError, match="not an OpenEXR file"):
         exr_passes.read_channels(str(tmp_path / "bad.exr"))
+
+
+def test_a_movie_plate_shows_its_frame_numbered_as_the_scene_frame(tmp_path):
+    """A movie fitted with --start-frame 1001: scene frame F shows its frame numbered F, the (F - 1000)th of the
+    file (an Image Texture counts a movie's frames from 1)."""
+    mp = make_export(tmp_path, frames=(1001, 1002, 1003))
+    data = json.loads(mp.read_text())
+    movie = tmp_path / "plate.mov"
+    movie.write_bytes(b"\0")  # the plan only checks that the file is there
+    data["clip"].update(kind="movie", source=str(movie), frame_files=[], start_frame=1001)
+    mp.write_text(json.dumps(data))
+    manifest = C.load_manifest(str(mp))
+    tree = P.plan_tree(manifest, str(mp))
+    plate = V.plan_preview(tree, manifest, str(mp)).images[0]
+    assert (plate.name, plate.source, plate.filepath) == (V.PREVIEW_PLATE_IMAGE, "MOVIE", str(movie))
+    assert plate.user is not None
+    for f in (1001, 1002, 1003):
+        assert f - plate.user.frame_start + 1 + plate.user.frame_offset == f - 1000
+    assert plate.user.frame_duration == 3
