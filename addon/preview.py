@@ -14,6 +14,7 @@ from typing import Any
 import bpy
 import numpy as np
 
+from ..engine import contract as C
 from . import compat
 from .core import exr_passes
 from .core import preview_plan as V
@@ -257,6 +258,19 @@ def build(scene: Any, tree: P.TreePlan, manifest: dict[str, Any], manifest_path:
     sync(force=True)
     start_live()
     return plane
+
+
+def rebuild(scene: Any) -> Any:
+    """Build the preview again for the scene's imported export (after ``NA_FramePaint`` appears, say); returns the
+    plane. Raises the import's errors (``ops.import_run.IMPORT_ERRORS``, one line each)."""
+    props = scene.neural_atlas
+    manifest_path = bpy.path.abspath(props.manifest)
+    manifest = C.load_manifest(manifest_path)
+    tree = P.plan_tree(manifest, manifest_path, props.filter_type, None, compat.colorspace_names())
+    missing = sorted(name for name in map(P.edit_image_name, tree.layers) if bpy.data.images.get(name) is None)
+    if missing:
+        raise ValueError(f"{', '.join(missing)} missing: import the atlas again ({manifest_path})")
+    return build(scene, tree, manifest, manifest_path, props.filter_type)
 
 
 def set_filter(filter_type: str) -> int:

@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import bpy
 
-from ...engine import contract as C
-from .. import compat, preview
+from .. import preview
 from ..core import needs
-from ..core import tree_plan as P
 from .import_run import IMPORT_ERRORS
 
 
@@ -32,16 +30,8 @@ class NEURALATLAS_OT_live_preview(bpy.types.Operator):
             preview.hide(scene)
             self.report({"INFO"}, "live preview hidden")
             return {"FINISHED"}
-        props = scene.neural_atlas
-        manifest_path = bpy.path.abspath(props.manifest)
         try:
-            manifest = C.load_manifest(manifest_path)
-            plan = P.plan_tree(manifest, manifest_path, props.filter_type, None, compat.colorspace_names())
-            edits = {P.edit_image_name(layer) for layer in plan.layers}
-            missing = sorted(name for name in edits if bpy.data.images.get(name) is None)
-            if missing:
-                raise ValueError(f"{', '.join(missing)} missing: import the atlas again ({manifest_path})")
-            preview.build(scene, plan, manifest, manifest_path, props.filter_type)
+            preview.rebuild(scene)
         except IMPORT_ERRORS as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
