@@ -43,9 +43,14 @@ TREE_NAME = f"{P.PREFIX}Compositing"
 EXACT_FILTER = P.FILTER_SMOOTH if V5 else P.FILTER_NEAREST
 
 
+def map_uv_filter(filter_type: str) -> str:
+    """The Map UV filter a panel choice means here: "Match engine" is ``EXACT_FILTER``."""
+    return EXACT_FILTER if filter_type == P.FILTER_ENGINE else filter_type
+
+
 def matches_engine(filter_type: str) -> bool:
     """Does a render with this Map UV filter match ``engine render`` (nearest or bilinear) to float precision?"""
-    return filter_type in (P.FILTER_NEAREST, EXACT_FILTER)
+    return map_uv_filter(filter_type) in (P.FILTER_NEAREST, EXACT_FILTER)
 
 
 def node_type(kind: str) -> str:
@@ -85,7 +90,7 @@ def _ensure_output_interface(tree: Any) -> None:
 def setup_node(node: Any, kind: str, params: dict[str, Any]) -> None:
     """Per-kind settings that differ between versions."""
     if kind == P.MAP_UV:
-        set_map_uv_filter(node, params.get("filter", P.FILTER_SMOOTH))
+        set_map_uv_filter(node, params.get("filter", P.FILTER_ENGINE))
     elif kind == P.ADD_COLOR:
         node.blend_type = "ADD"
         if V5:
@@ -166,6 +171,7 @@ def set_file_output_dir(node: Any, directory: str) -> None:
 
 
 def set_map_uv_filter(node: Any, filter_type: str) -> None:
+    filter_type = map_uv_filter(filter_type)
     if V5:
         node.inputs["Interpolation"].default_value = "Nearest" if filter_type == P.FILTER_NEAREST else "Bilinear"
         node.inputs["Extension X"].default_value = "Clip"

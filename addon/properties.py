@@ -30,9 +30,10 @@ def _on_write_mattes(self, context):
 
 
 def _on_filter(self, context):
-    from . import compositor
+    from . import compositor, preview
 
     compositor.set_filter(context.scene, self.filter_type)
+    preview.set_filter(self.filter_type)
 
 
 class NEURALATLAS_PG_layer(bpy.types.PropertyGroup):
@@ -99,10 +100,16 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
     filter_type: EnumProperty(
         name="Filter",
         items=[
+            (
+                P.FILTER_ENGINE,
+                "Match engine",
+                "The sampling engine render reproduces: Bilinear on Blender 5, Nearest on Blender 4.x (whose smooth "
+                "filter is EWA); the live preview samples bilinearly on both",
+            ),
             (P.FILTER_SMOOTH, "Smooth", "Bilinear (Blender 5) / EWA (Blender 4.x) sampling of the edit layers"),
             (P.FILTER_NEAREST, "Nearest", "Nearest texel: exact, blocky"),
         ],
-        default=P.FILTER_SMOOTH,
+        default=P.FILTER_ENGINE,
         update=_on_filter,
     )
     render_dir: StringProperty(

@@ -163,6 +163,7 @@ class NEURALATLAS_PT_edit(_SidebarPanel, bpy.types.Panel):
         row.operator("neural_atlas.paint_setup", icon="BRUSH_DATA")
         row.operator("neural_atlas.save_edits", icon="FILE_TICK")
         col.operator("neural_atlas.float_edits", icon="IMAGE_DATA")
+        col.operator("neural_atlas.live_preview", icon="HIDE_OFF")
         row = col.row(align=True)  # paint over one plate frame, landed on the atlases (engine project-frame)
         row.operator("neural_atlas.frame_paint_start", icon="TPAINT_HLT")
         row.operator("neural_atlas.frame_paint_land", icon="IMPORT")

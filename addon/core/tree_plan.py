@@ -45,6 +45,10 @@ FILE_OUTPUT = "file_output"  # input "image": written each rendered frame to <ma
 
 FILTER_NEAREST = "nearest"
 FILTER_SMOOTH = "smooth"  # 5.0: Bilinear; 4.x: its only other filter, EWA ("ANISOTROPIC")
+#: The default: the Map UV filter that ``engine render`` reproduces (``compat.EXACT_FILTER``: Bilinear on 5.0, Nearest
+#: on 4.x, whose only smooth filter is EWA); the live preview samples bilinearly with it on both.
+FILTER_ENGINE = "engine"
+FILTERS = (FILTER_ENGINE, FILTER_SMOOTH, FILTER_NEAREST)
 
 PLATE_CLIP = f"{PREFIX}Plate"
 PASSES_IMAGE = f"{PREFIX}Passes"
@@ -195,13 +199,13 @@ def contiguous_frames(frames: list[int]) -> tuple[int, int]:
 def plan_tree(
     manifest: dict[str, Any],
     manifest_path: str,
-    filter_type: str = FILTER_SMOOTH,
+    filter_type: str = FILTER_ENGINE,
     edits: dict[str, str] | None = None,
     colorspaces: frozenset[str] | None = None,
 ) -> TreePlan:
     """The tree for a validated manifest; ``edits`` maps a layer name to another edit image file. ``colorspaces``:
     the colour spaces this Blender has (``compat.colorspace_names``): a plate in another one is a PlanError."""
-    if filter_type not in (FILTER_NEAREST, FILTER_SMOOTH):
+    if filter_type not in FILTERS:
         raise PlanError(f"unknown filter {filter_type!r}")
     edits = edits or {}
 

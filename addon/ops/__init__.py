@@ -8,6 +8,7 @@ act on:
 - ``import_run``: Import Atlas;
 - ``paint``: paint canvases, Save Edits, Float Edit Layers;
 - ``frame_paint``: Paint on Frame, Land Paint on Atlases (``engine project-frame``, driven by ``driver``);
+- ``preview``: Live Preview (the composite on a plane in the 3D viewport);
 - ``render``: Render Edited Clip;
 - ``relink``: Relink Run Folder (the run folder moved since the import);
 - ``setup``: the preferences' Set up engine (and its Cancel), Copy Install Command and Check engine;
@@ -16,7 +17,7 @@ act on:
 
 from __future__ import annotations
 
-from . import farm, fit, frame_paint, import_run, layers, paint, relink, render, setup
+from . import farm, fit, frame_paint, import_run, layers, paint, preview, relink, render, setup
 
 classes = (
     *fit.classes,
@@ -24,6 +25,7 @@ classes = (
     *import_run.classes,
     *paint.classes,
     *frame_paint.classes,
+    *preview.classes,
     *render.classes,
     *relink.classes,
     *setup.classes,

@@ -19,9 +19,10 @@ import bpy
 import numpy as np
 
 from ...engine import contract as C
-from .. import paint
+from .. import paint, preview
 from ..core import engine_process as EP
 from ..core import frame_paint as FP
+from ..core import preview_plan as V
 from ..core import running, unsaved_paint
 from ..core import tree_plan as P
 from ..core.errors import UserError
@@ -31,7 +32,7 @@ from .driver import EngineJobOperator
 from .paint import edit_images
 
 #: The preview material's image node that shows the frame paint over the composite.
-PREVIEW_NODE = "FramePaint"
+PREVIEW_NODE = V.FRAME_PAINT_NODE
 #: Seconds a poll's "is there paint" answer is reused (the poll runs on every redraw; reading a plate's pixels
 #: each time would slow painting down).
 PAINTED_CACHE_SECONDS = 0.5
@@ -145,6 +146,11 @@ def show_frame_paint(context: Any, img: Any) -> None:
     """The frame paint as what the brush paints: the preview plane's "FramePaint" node (its active paint slot), and
     the image every Image Editor shows."""
     obj = bpy.data.objects.get(P.PREVIEW_OBJECT)
+    if obj is not None and not any(
+        s.material is not None and s.material.node_tree is not None and PREVIEW_NODE in s.material.node_tree.nodes
+        for s in obj.material_slots
+    ):
+        obj = preview.rebuild(context.scene)  # a preview built before the frame paint existed has no node for it
     for slot in obj.material_slots if obj is not None else ():
         mat = slot.material
         node = mat.node_tree.nodes.get(PREVIEW_NODE) if mat is not None and mat.node_tree is not None else None

@@ -9,7 +9,7 @@ import bpy
 from bpy.props import BoolProperty, StringProperty
 
 from ...engine import contract as C
-from .. import compat, compositor, line_up, paint
+from .. import compat, compositor, line_up, paint, preview
 from ..core import frames as F
 from ..core import tree_plan as P
 from .scene_inputs import abspath, clip_plate
@@ -28,8 +28,9 @@ def import_manifest(
     set_range: bool = False,
     action: str = "Import Atlas",
 ) -> P.TreePlan:
-    """Read the manifest, build the compositor tree and the paint canvases (``edits``: layer -> other image;
-    ``set_range``: the scene's range becomes the imported frames even where the artist's lies within them).
+    """Read the manifest, build the compositor tree, the paint canvases and the live preview (``edits``: layer ->
+    other image; ``set_range``: the scene's range becomes the imported frames even where the artist's lies within
+    them).
 
     Building reloads or replaces the edit images, so unsaved paint is saved to its files first
     (``paint.save_before_reload``; ``action`` names what refuses when it cannot be); a refusal reloads nothing."""
@@ -40,6 +41,7 @@ def import_manifest(
     compositor.build(context.scene, plan, set_range)
     if setup_paint:
         paint.setup_canvases(context, plan.layers)
+        preview.build(context.scene, plan, manifest, manifest_path, props.filter_type)
     props.manifest = compositor.blend_path(os.path.abspath(manifest_path))  # relative to the .blend where it can be
     props.imported_layers = ", ".join(plan.layers)
     return plan

@@ -34,6 +34,7 @@ UNDO = {
     "float_edits",
     "frame_paint_start",
     "relink",
+    "live_preview",
 }
 #: Operators that write files, run or stop a process, or change the preferences: no undo step (the reason is a
 #: comment beside each one's bl_options).

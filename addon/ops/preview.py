@@ -1,0 +1,42 @@
+"""Live Preview: build (or rebuild) the preview plane of the imported export and show it, or hide it."""
+
+from __future__ import annotations
+
+import bpy
+
+from .. import preview
+from ..core import needs
+from .import_run import IMPORT_ERRORS
+
+
+class NEURALATLAS_OT_live_preview(bpy.types.Operator):
+    """Show the edited plate at the current frame in the 3D viewport (Material Preview or Rendered shading), updated
+    as you paint; press again to hide it"""
+
+    bl_idname = "neural_atlas.live_preview"
+    bl_label = "Live Preview"
+    bl_options = {"REGISTER", "UNDO"}  # noqa: RUF012 (Blender reads a set)
+
+    @classmethod
+    def poll(cls, context):
+        need = None if context.scene.neural_atlas.manifest else needs.NO_IMPORT
+        if need is not None:
+            cls.poll_message_set(need)
+        return need is None
+
+    def execute(self, context):
+        scene = context.scene
+        if preview.is_shown(scene):
+            preview.hide(scene)
+            self.report({"INFO"}, "live preview hidden")
+            return {"FINISHED"}
+        try:
+            preview.rebuild(scene)
+        except IMPORT_ERRORS as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        self.report({"INFO"}, "live preview: view it in Material Preview or Rendered shading")
+        return {"FINISHED"}
+
+
+classes = (NEURALATLAS_OT_live_preview,)

@@ -1,0 +1,380 @@
+"""The live preview in the 3D viewport: build the plane, its material and its camera from a ``PreviewPlan``
+(``core.preview_plan``), and render one frame of it (Cycles on the CPU) for a check or a figure.
+
+Only datablocks named ``NA_...`` are created, reused or removed, so rebuilding is idempotent. The edit images are
+the canvases' own datablocks (never reloaded here): paint shows on the plane as it is laid down.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from typing import Any
+
+import bpy
+import numpy as np
+
+from ..engine import contract as C
+from . import compat
+from .core import exr_passes
+from .core import preview_plan as V
+from .core import tree_plan as P
+
+_NODE_TYPES = {
+    V.TEX_COORD: "ShaderNodeTexCoord",
+    V.TEX_IMAGE: "ShaderNodeTexImage",
+    V.SEPARATE_XYZ: "ShaderNodeSeparateXYZ",
+    V.COMBINE_XYZ: "ShaderNodeCombineXYZ",
+    V.MATH: "ShaderNodeMath",
+    V.VECTOR_MATH: "ShaderNodeVectorMath",
+    V.MIX: "ShaderNodeMix",
+    V.EMISSION: "ShaderNodeEmission",
+    V.OUTPUT: "ShaderNodeOutputMaterial",
+}
+
+
+def split_uv_passes(plan: V.PreviewPlan) -> int:
+    """Write each layer's UV pass as plain RGB EXRs (``exr_passes``), skipping files newer than their pass file;
+    returns how many were written."""
+    written = 0
+    for split in plan.splits:
+        for pass_file, rgb_file in split.files:
+            if os.path.isfile(rgb_file) and os.path.getmtime(rgb_file) >= os.path.getmtime(pass_file):
+                continue
+            ch = exr_passes.read_channels(pass_file, split.channels)
+            exr_passes.write_rgb(rgb_file, *(ch[c] for c in split.channels))
+            written += 1
+    return written
+
+
+def _image(spec: V.PreviewImage) -> Any:
+    path = os.path.abspath(spec.filepath)
+    img = bpy.data.images.get(spec.name)
+    if img is not None and os.path.abspath(bpy.path.abspath(img.filepath)) == path:
+        img.reload()  # the split files may have been rewritten
+    else:
+        if img is not None:
+            bpy.data.images.remove(img)
+        img = bpy.data.images.load(path, check_existing=False)
+        img.name = spec.name
+    img.source = spec.source
+    img.colorspace_settings.name = spec.colorspace
+    return img
+
+
+def _socket(sockets: Any, key: str | int) -> Any:
+    if isinstance(key, int):
+        return sockets[key]
+    return next(s for s in sockets if s.name == key and s.enabled)
+
+
+def _material(plan: V.PreviewPlan, images: dict[str, Any]) -> Any:
+    mat = bpy.data.materials.get(V.PREVIEW_MATERIAL) or bpy.data.materials.new(V.PREVIEW_MATERIAL)
+    compat.ensure_material_nodes(mat)
+    nt = mat.node_tree
+    nt.nodes.clear()
+    users = {spec.name: spec.user for spec in plan.images}
+    made: dict[str, Any] = {}
+    for spec in plan.nodes:
+        node = nt.nodes.new(_NODE_TYPES[spec.kind])
+        node.name = node.label = spec.name
+        node.location = spec.location
+        params = spec.params
+        if spec.kind == V.TEX_IMAGE:
+            image_name = params["image"]
+            node.image = images.get(image_name) or bpy.data.images.get(image_name)
+            node.interpolation = params["interpolation"]
+            node.extension = "CLIP"
+            user = users.get(image_name)
+            if user is not None:
+                iu = node.image_user
+                iu.frame_duration = user.frame_duration
+                iu.frame_start = user.frame_start
+                iu.frame_offset = user.frame_offset
+                iu.use_auto_refresh = True
+                iu.use_cyclic = False
+        elif spec.kind in (V.MATH, V.VECTOR_MATH):
+            node.operation = params["operation"]
+            if spec.kind == V.MATH:
+                node.use_clamp = False
+        elif spec.kind == V.MIX:
+            node.data_type = "RGBA"
+            node.blend_type = "MIX"
+            node.clamp_factor = True
+            node.clamp_result = False
+        for key, value in params.get("defaults", {}).items():
+            _socket(node.inputs, key).default_value = value
+        made[spec.name] = node
+    for link in plan.links:
+        nt.links.new(
+            _socket(made[link.from_node].outputs, link.from_socket), _socket(made[link.to_node].inputs, link.to_socket)
+        )
+    if V.FRAME_PAINT_NODE in made:
+        nt.nodes.active = made[V.FRAME_PAINT_NODE]
+    return mat
+
+
+def _collection(scene: Any) -> Any:
+    coll = bpy.data.collections.get(V.PREVIEW_COLLECTION) or bpy.data.collections.new(V.PREVIEW_COLLECTION)
+    if coll.name not in scene.collection.children:
+        scene.collection.children.link(coll)
+    return coll
+
+
+def _plane(coll: Any, framing: V.Framing, mat: Any) -> Any:
+    mesh = bpy.data.meshes.get(V.PREVIEW_OBJECT) or bpy.data.meshes.new(V.PREVIEW_OBJECT)
+    mesh.clear_geometry()
+    w, h = framing.size
+    mesh.from_pydata([(0, 0, 0), (w, 0, 0), (w, h, 0), (0, h, 0)], [], [(0, 1, 2, 3)])
+    uv = mesh.uv_layers.new(name="UVMap")
+    for loop, co in zip(uv.data, ((0, 0), (1, 0), (1, 1), (0, 1)), strict=True):
+        loop.uv = co
+    mesh.materials.clear()
+    mesh.materials.append(mat)
+    obj = bpy.data.objects.get(V.PREVIEW_OBJECT) or bpy.data.objects.new(V.PREVIEW_OBJECT, mesh)
+    obj.data = mesh
+    obj.location = (framing.origin[0], framing.origin[1], 0.0)
+    obj.rotation_euler = (0.0, 0.0, 0.0)
+    obj.scale = (1.0, 1.0, 1.0)
+    if obj.name not in coll.objects:
+        coll.objects.link(obj)
+    return obj
+
+
+def _camera(coll: Any, framing: V.Framing) -> Any:
+    cam = bpy.data.cameras.get(V.PREVIEW_CAMERA) or bpy.data.cameras.new(V.PREVIEW_CAMERA)
+    cam.type = "ORTHO"
+    cam.ortho_scale = framing.ortho_scale
+    cam.sensor_fit = "AUTO"
+    cam.shift_x, cam.shift_y = framing.shift
+    cam.clip_start, cam.clip_end = 0.01, 2.0 * V.CAMERA_HEIGHT
+    obj = bpy.data.objects.get(V.PREVIEW_CAMERA) or bpy.data.objects.new(V.PREVIEW_CAMERA, cam)
+    obj.data = cam
+    obj.location = framing.camera_location
+    obj.rotation_euler = (0.0, 0.0, 0.0)  # looking down -Z at the plane
+    if obj.name not in coll.objects:
+        coll.objects.link(obj)
+    return obj
+
+
+#: Each twin's edit pixels at its last copy (to copy only what changed).
+_synced: dict[str, np.ndarray] = {}
+#: How often (seconds) at most the float twins follow the paint while the preview is shown; the timer waits
+#: ``SYNC_LOAD`` times as long as its last check took (large atlases), at most ``SYNC_SLOWEST`` s.
+SYNC_INTERVAL = 0.25
+SYNC_LOAD = 4.0
+SYNC_SLOWEST = 2.0
+
+
+def _mirror(edit: Any, name: str) -> Any:
+    w, h = edit.size
+    img = bpy.data.images.get(name)
+    if img is None or tuple(img.size) != (w, h) or not img.is_float:
+        if img is not None:
+            bpy.data.images.remove(img)
+        img = bpy.data.images.new(name, w, h, alpha=True, float_buffer=True)
+        _synced.pop(name, None)
+    img.colorspace_settings.name = "Non-Color"  # raw premultiplied linear values, as the engine reads its PNG
+    img.alpha_mode = "PREMUL"
+    return img
+
+
+def sync(force: bool = False) -> int:
+    """Copy every edit image's pixels (unsaved paint included) into its float twin (an 8-bit one converted as the
+    engine reads the PNG; a float one, linear premultiplied, as it is); only images whose pixels changed since the
+    last copy (``force``: all; an edit image with no unsaved paint is not read again once copied). Returns how
+    many."""
+    mat = bpy.data.materials.get(V.PREVIEW_MATERIAL)
+    if mat is None or mat.node_tree is None:
+        return 0
+    copied = 0
+    for node in mat.node_tree.nodes:
+        if not node.name.startswith("Edit_") or node.image is None:
+            continue
+        twin = node.image
+        if not twin.name.startswith(V.mirror_image_name("")):
+            continue
+        edit = bpy.data.images.get(P.edit_image_name(twin.name.removeprefix(V.mirror_image_name(""))))
+        if edit is None or not edit.size[0]:
+            continue
+        last = _synced.get(twin.name)
+        if not force and last is not None and not edit.is_dirty:
+            continue
+        w, h = edit.size
+        px = np.empty(w * h * 4, np.float32)
+        edit.pixels.foreach_get(px)
+        if not force and last is not None and tuple(twin.size) == (w, h) and np.array_equal(last, px):
+            continue
+        if tuple(twin.size) != (w, h):
+            twin = _mirror(edit, twin.name)
+            node.image = twin
+        twin.pixels.foreach_set(px if edit.is_float else V.straight_srgb_to_premultiplied(px))
+        twin.update()
+        _synced[twin.name] = px
+        copied += 1
+    return copied
+
+
+def _tick() -> float | None:
+    start = time.perf_counter()
+    try:
+        scene = bpy.context.scene
+        if scene is None or not is_shown(scene):
+            return SYNC_INTERVAL
+        sync()
+    except (ReferenceError, AttributeError, RuntimeError):
+        pass  # a file loading or the add-on going away: try again next time
+    return min(SYNC_SLOWEST, max(SYNC_INTERVAL, SYNC_LOAD * (time.perf_counter() - start)))
+
+
+def start_live() -> None:
+    """Keep the float twins following the paint (a timer: painting sends no event an add-on can hook)."""
+    if not bpy.app.timers.is_registered(_tick):
+        bpy.app.timers.register(_tick, first_interval=SYNC_INTERVAL, persistent=True)
+
+
+def stop_live() -> None:
+    if bpy.app.timers.is_registered(_tick):
+        bpy.app.timers.unregister(_tick)
+
+
+def build(scene: Any, tree: P.TreePlan, manifest: dict[str, Any], manifest_path: str, filter_type: str) -> Any:
+    """Create (or recreate) the preview for an imported export whose compositor tree ``tree`` is built (its edit
+    images exist); returns the plane. The scene's camera becomes the preview's only when it has none."""
+    frame_paint = bpy.data.images.get(P.FRAME_PAINT_IMAGE) is not None
+    plan = V.plan_preview(tree, manifest, manifest_path, filter_type, frame_paint)
+    split_uv_passes(plan)
+    images = {spec.name: _image(spec) for spec in plan.images}
+    for layer, twin in plan.mirrors.items():
+        images[twin] = _mirror(bpy.data.images[P.edit_image_name(layer)], twin)
+    coll = _collection(scene)
+    mat = _material(plan, images)
+    plane = _plane(coll, plan.framing, mat)
+    cam = _camera(coll, plan.framing)
+    if scene.camera is None:
+        scene.camera = cam
+    coll.hide_viewport = False
+    coll.hide_render = False
+    sync(force=True)
+    start_live()
+    return plane
+
+
+def rebuild(scene: Any) -> Any:
+    """Build the preview again for the scene's imported export (after ``NA_FramePaint`` appears, say); returns the
+    plane. Raises the import's errors (``ops.import_run.IMPORT_ERRORS``, one line each)."""
+    props = scene.neural_atlas
+    manifest_path = bpy.path.abspath(props.manifest)
+    manifest = C.load_manifest(manifest_path)
+    tree = P.plan_tree(manifest, manifest_path, props.filter_type, None, compat.colorspace_names())
+    missing = sorted(name for name in map(P.edit_image_name, tree.layers) if bpy.data.images.get(name) is None)
+    if missing:
+        raise ValueError(f"{', '.join(missing)} missing: import the atlas again ({manifest_path})")
+    return build(scene, tree, manifest, manifest_path, props.filter_type)
+
+
+def set_filter(filter_type: str) -> int:
+    """The edit images' interpolation in the preview material for a panel filter; returns the nodes set."""
+    mat = bpy.data.materials.get(V.PREVIEW_MATERIAL)
+    count = 0
+    for node in mat.node_tree.nodes if mat is not None and mat.node_tree is not None else ():
+        if node.name.startswith("Edit_") and node.bl_idname == "ShaderNodeTexImage":
+            node.interpolation = V.INTERPOLATION.get(filter_type, "Linear")
+            count += 1
+    return count
+
+
+def is_shown(scene: Any) -> bool:
+    coll = bpy.data.collections.get(V.PREVIEW_COLLECTION)
+    return coll is not None and coll.name in scene.collection.children and not coll.hide_viewport
+
+
+def hide(scene: Any) -> None:
+    coll = bpy.data.collections.get(V.PREVIEW_COLLECTION)
+    if coll is not None:
+        coll.hide_viewport = True
+        coll.hide_render = True
+
+
+def render_frame(scene: Any, frame: int, path: str) -> str:
+    """Render the preview at scene frame ``frame`` to a float EXR (scene-linear RGBA), as the viewport's Rendered
+    shading shows it: Cycles on the CPU, 1 sample, a 0.01-pixel box filter (each pixel the plane point under its
+    centre), no denoising, Standard view, the compositor off, through the preview camera. The scene's settings are
+    restored afterwards; returns ``path``.
+
+    A final Cycles render without a UI reloads every file image from its file afterwards, dropping unsaved paint
+    (measured on 4.5 and 5.0, even for an empty scene): the pixels of every image with unsaved changes are kept and
+    put back. (A scratch scene holding only the preview would not do: its image sequences do not follow its frame.)"""
+    r, cycles = scene.render, scene.cycles
+    saved = {
+        (r, "engine"): r.engine,
+        (r, "use_compositing"): r.use_compositing,
+        (r, "use_sequencer"): r.use_sequencer,
+        (r, "filter_size"): r.filter_size,
+        (r, "film_transparent"): r.film_transparent,
+        (r, "dither_intensity"): r.dither_intensity,
+        (scene, "camera"): scene.camera,
+        (scene.view_settings, "view_transform"): scene.view_settings.view_transform,
+        (scene.view_settings, "look"): scene.view_settings.look,
+        (scene.view_settings, "exposure"): scene.view_settings.exposure,
+        (scene.view_settings, "gamma"): scene.view_settings.gamma,
+        (cycles, "device"): cycles.device,
+        (cycles, "samples"): cycles.samples,
+        (cycles, "use_denoising"): cycles.use_denoising,
+        (cycles, "pixel_filter_type"): cycles.pixel_filter_type,
+        (cycles, "filter_width"): cycles.filter_width,
+        (cycles, "use_adaptive_sampling"): cycles.use_adaptive_sampling,
+    }
+    current = scene.frame_current
+    unsaved = _keep_unsaved()
+    try:
+        r.engine = "CYCLES"
+        r.use_compositing = False  # the compositor would replace the picture with its own tree's result
+        r.use_sequencer = False
+        r.film_transparent = False
+        r.dither_intensity = 0.0
+        scene.camera = bpy.data.objects[V.PREVIEW_CAMERA]
+        scene.view_settings.view_transform = "Standard"
+        scene.view_settings.look = "None"
+        scene.view_settings.exposure = 0.0
+        scene.view_settings.gamma = 1.0
+        cycles.device = "CPU"
+        cycles.samples = 1
+        cycles.use_adaptive_sampling = False
+        cycles.use_denoising = False
+        cycles.pixel_filter_type = "BOX"
+        cycles.filter_width = 0.01
+        scene.frame_set(frame)
+        sync()
+        bpy.ops.render.render(write_still=False, scene=scene.name)
+        result = bpy.data.images["Render Result"]
+        settings = scene.render.image_settings
+        state = compat.image_settings_state(settings)
+        try:
+            compat.set_render_format(scene, "exr")
+            os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+            result.save_render(filepath=path, scene=scene)
+        finally:
+            compat.restore_image_settings(settings, state)
+    finally:
+        for (owner, attr), value in saved.items():
+            setattr(owner, attr, value)
+        _put_back(unsaved)
+        scene.frame_set(current)
+    return path
+
+
+def _keep_unsaved() -> list[tuple[Any, np.ndarray]]:
+    kept = []
+    for img in bpy.data.images:
+        if img.is_dirty and img.source == "FILE" and img.size[0]:
+            px = np.empty(len(img.pixels), np.float32)
+            img.pixels.foreach_get(px)
+            kept.append((img, px))
+    return kept
+
+
+def _put_back(kept: list[tuple[Any, np.ndarray]]) -> None:
+    for img, px in kept:
+        img.pixels.foreach_set(px)  # marks it unsaved again, as it was
+        img.update()

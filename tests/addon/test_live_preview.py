@@ -1,0 +1,200 @@
+"""The live preview (bpy 4.5 and 5.0): Import Atlas builds a plate-shaped plane whose material is the render equation;
+rendered headless with Cycles on the CPU (1 sample, 0.01-pixel box filter, Standard view) at two frames, it equals
+``engine render`` of the same edit, for an 8-bit PNG edit layer and a float EXR one, with both filters.
+
+Painting operators cannot run headless: each test writes its stroke's pixels into the edit image (``img.pixels``), as
+a brush would, without saving; the preview render shows them at once (the engine is given the same pixels as files).
+The engine runs in its own interpreter: NEURAL_ATLAS_TEST_ENGINE_PYTHON, else the checkout's .venv."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import OpenEXR
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+import fake_export as X  # noqa: E402
+from helpers import engine_python  # noqa: E402
+from neural_atlas.addon import compat, preview  # noqa: E402
+from neural_atlas.addon.core import preview_plan as V  # noqa: E402
+from neural_atlas.addon.core import tree_plan as P  # noqa: E402
+
+from engine import contract as C  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[2]
+TAG = f"[bpy {bpy.app.version_string}]"
+#: Two frames of the export (scrubbing: the same paint seen at another frame).
+FRAME_A, FRAME_B = X.FRAMES[0], X.FRAMES[-1]
+#: Preview vs engine render: the plate is an 8-bit sRGB PNG that the engine decodes by OCIO's float32 curve, within
+#: 2.4e-5 of the exact formula (docs/colour.md); the rest is float rounding (measured 4e-7 against the exact formula).
+TOLERANCE = 1e-4
+
+
+def _float_edit(manifest: Path, layer: str) -> Path:
+    """Make ``layer``'s edit a float EXR edit layer (linear, premultiplied) beside its PNG, from the PNG's pixels."""
+    m = C.load_manifest(str(manifest))
+    png = Path(C.resolve_manifest_path(str(manifest), next(x for x in m["layers"] if x["name"] == layer)["edit_layer"]))
+    rgba8 = X.read_png_rgba8(png)
+    a = rgba8[..., 3:4] / 255.0
+    pre = np.concatenate([X.srgb_to_linear(rgba8[..., :3] / 255.0) * a, a], -1).astype(np.float32)
+    exr = Path(C.float_edit_layer(str(png)))
+    X.write_exr(exr, {c: pre[..., i] for i, c in enumerate("RGBA")})
+    return exr
+
+
+def _import(blender, tmp_path, filt=P.FILTER_ENGINE):
+    manifest = X.make_export(tmp_path)
+    _float_edit(manifest, "Foreground")  # Foreground: float EXR edit layer; Background: 8-bit PNG
+    scene = blender.context.scene
+    scene.neural_atlas.filter_type = filt
+    assert blender.ops.neural_atlas.import_run("EXEC_DEFAULT", filepath=str(manifest)) == {"FINISHED"}
+    return manifest, scene
+
+
+def _pixels(img) -> np.ndarray:
+    w, h = img.size
+    px = np.empty(w * h * 4, np.float32)
+    img.pixels.foreach_get(px)
+    return px.reshape(h, w, 4)  # rows bottom-up
+
+
+def _paint(img, rgba: tuple[float, float, float, float], box: tuple[float, float, float, float]) -> None:
+    """A stroke: ``rgba`` over the texels in ``box`` (u0, v0, u1, v1). An 8-bit image gets straight sRGB values on
+    byte steps (as a brush leaves them); a float one linear premultiplied values."""
+    px = _pixels(img)
+    h, w, _ = px.shape
+    u0, v0, u1, v1 = box
+    block = px[int(v0 * h) : int(v1 * h), int(u0 * w) : int(u1 * w)]
+    if img.is_float:
+        block[...] = (rgba[0] * rgba[3], rgba[1] * rgba[3], rgba[2] * rgba[3], rgba[3])
+    else:
+        block[...] = np.round(np.array(rgba) * 255) / 255
+    img.pixels.foreach_set(px.ravel())
+    img.update()
+
+
+def _edit_files(folder: Path) -> dict[str, Path]:
+    """The edit images' pixels as the engine reads them (8-bit PNG, or float EXR), written outside Blender."""
+    files = {}
+    for layer in ("Background", "Foreground"):
+        img = bpy.data.images[P.edit_image_name(layer)]
+        px = _pixels(img)[::-1]
+        if img.is_float:
+            files[layer] = folder / f"{layer}.exr"
+            X.write_exr(files[layer], {c: px[..., i] for i, c in enumerate("RGBA")})
+        else:
+            files[layer] = folder / f"{layer}.png"
+            X.write_png(files[layer], np.round(px * 255).astype(np.uint8))
+    return files
+
+
+def _engine_render(manifest: Path, edits: dict[str, Path], out: Path, filt: str) -> None:
+    py = engine_python("render", "torch")
+    args = [py, "-m", "engine", "render", str(manifest), "--out", str(out), "--format", "exr", "--filter", filt]
+    for layer, path in edits.items():
+        args += ["--edit", f"{layer}={path}"]
+    done = subprocess.run([*args, "--no-bar"], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+
+
+@pytest.mark.parametrize("filt", [P.FILTER_ENGINE, P.FILTER_NEAREST])
+def test_preview_render_equals_engine_render(blender, tmp_path, filt):
+    """Painted (not saved) PNG and EXR layers; the preview at frames A and B against ``engine render`` of that paint
+    (bilinear for Match engine, whose preview samples Linear on both versions; nearest for Nearest)."""
+    manifest, scene = _import(blender, tmp_path, filt)
+    assert not bpy.data.images[P.edit_image_name("Background")].is_float
+    assert bpy.data.images[P.edit_image_name("Foreground")].is_float
+    _paint(bpy.data.images[P.edit_image_name("Background")], (1.0, 0.2, 0.05, 0.6), (0.3, 0.2, 0.8, 0.7))
+    _paint(bpy.data.images[P.edit_image_name("Foreground")], (0.1, 0.9, 0.3, 0.8), (0.1, 0.1, 0.9, 0.6))
+    engine_filter = "nearest" if filt == P.FILTER_NEAREST else "bilinear"
+    _engine_render(manifest, _edit_files(tmp_path / "edits"), tmp_path / "engine", engine_filter)
+    errors = {}
+    for frame in (FRAME_A, FRAME_B):
+        got = X.read_exr_rgba(Path(preview.render_frame(scene, frame, str(tmp_path / f"preview.{frame}.exr"))))
+        want = X.read_exr_rgba(tmp_path / "engine" / f"edit.{frame:05d}.exr")
+        assert got.shape == want.shape == (X.H, X.W, 4)
+        errors[frame] = float(np.abs(got[..., :3] - want[..., :3]).max())
+    scrub = float(np.abs(got[..., :3] - X.read_exr_rgba(tmp_path / f"preview.{FRAME_A}.exr")[..., :3]).max())
+    print(
+        f"{TAG} live preview ({filt}: {V.INTERPOLATION[filt]}) vs engine render --filter {engine_filter}: max abs err "
+        f"frame {FRAME_A} {errors[FRAME_A]:.2e}, frame {FRAME_B} {errors[FRAME_B]:.2e} (frames differ by {scrub:.2f})"
+    )
+    assert max(errors.values()) <= TOLERANCE
+    assert scrub > 0.1  # the second frame is another plate frame, not the first one again
+    assert all(bpy.data.images[P.edit_image_name(n)].is_dirty for n in ("Background", "Foreground"))
+
+
+def test_a_stroke_shows_in_the_preview_at_once(blender, tmp_path):
+    """A stroke on each layer (unsaved) changes the next preview render where the layer shows, by what the render
+    equation says, and the files on disk are untouched."""
+    manifest, scene = _import(blender, tmp_path)
+    before = X.read_exr_rgba(Path(preview.render_frame(scene, FRAME_A, str(tmp_path / "before.exr"))))
+    disk = {p: p.read_bytes() for p in (tmp_path / "run" / C.EDITS_DIR).iterdir()}
+    for layer, colour in (("Background", (0.0, 0.0, 1.0, 1.0)), ("Foreground", (1.0, 1.0, 0.0, 1.0))):
+        _paint(bpy.data.images[P.edit_image_name(layer)], colour, (0.0, 0.0, 1.0, 1.0))  # the whole atlas
+    # what the viewport shows: the timer's tick (no event loop runs headless: called as the timer would) copies the
+    # paint into the float twins the material samples, and asks again within a second
+    assert bpy.app.timers.is_registered(preview._tick)
+    assert preview.SYNC_INTERVAL <= preview._tick() <= 1.0
+    for layer, want_px in (("Background", (0.0, 0.0, 1.0, 1.0)), ("Foreground", (1.0, 1.0, 0.0, 1.0))):
+        twin = _pixels(bpy.data.images[V.mirror_image_name(layer)])
+        assert np.abs(twin - np.array(want_px, np.float32)).max() <= 1e-7, layer
+    assert preview.sync() == 0  # nothing changed since: nothing copied
+    after = X.read_exr_rgba(Path(preview.render_frame(scene, FRAME_A, str(tmp_path / "after.exr"))))
+    assert {p: p.read_bytes() for p in disk} == disk
+    # the whole atlas painted opaque: out = plate * (1 - Zb - Zf) + blue * Zb + yellow * Zf (Z: the passes' alphas)
+    with OpenEXR.File(str(manifest.parent / C.PASSES_DIR / C.pass_file_name(FRAME_A))) as f:
+        ch = {k: np.asarray(v.pixels, np.float64) for k, v in f.channels().items()}
+    zb, zf = ch["Atlas.UVBackground.Z"], ch["Atlas.UVForeground.Z"]
+    plate = X.srgb_to_linear(X.read_png_rgba8(tmp_path / "plate" / f"{FRAME_A:05d}.png")[..., :3] / 255.0)
+    want = plate * (1 - zb - zf)[..., None] + np.array([0.0, 0.0, 1.0]) * zb[..., None]
+    want = want + np.array([1.0, 1.0, 0.0]) * zf[..., None]
+    err = float(np.abs(after[..., :3] - want).max())
+    changed = float(np.abs(after - before).max())
+    print(f"{TAG} a stroke shows in the next preview render: changed by up to {changed:.2f}, max abs err {err:.2e}")
+    assert changed > 0.3 and err <= TOLERANCE
+
+
+def test_the_preview_frames_the_plate_and_rebuilds_in_place(blender, tmp_path):
+    """Plane, camera, material and images are named NA_..., the camera frames the plane exactly, the frame-paint
+    image shows in node FramePaint once it exists, and a second build replaces rather than adds."""
+    assert blender.context.scene.neural_atlas.filter_type == P.FILTER_ENGINE  # the panel's default
+    _, scene = _import(blender, tmp_path)
+    # Match engine: the compositor's Map UV samples as engine render does (4.x Nearest, 5.0 Bilinear)
+    map_uv = compat.scene_tree(scene).nodes["NA_MapUV_Foreground"]
+    sampling = map_uv.inputs["Interpolation"].default_value if compat.V5 else map_uv.filter_type
+    assert sampling.upper() == ("BILINEAR" if compat.V5 else "NEAREST") and compat.matches_engine(P.FILTER_ENGINE)
+    plane, cam = bpy.data.objects[V.PREVIEW_OBJECT], bpy.data.objects[V.PREVIEW_CAMERA]
+    assert plane.users_collection[0].name == V.PREVIEW_COLLECTION
+    xs = [plane.matrix_world @ v.co for v in plane.data.vertices]
+    width, height = max(v.x for v in xs) - min(v.x for v in xs), max(v.y for v in xs) - min(v.y for v in xs)
+    assert abs(width / height - X.W / X.H) < 1e-6 and max(v.x for v in xs) < 0.0  # left of the canvases
+    assert cam.data.type == "ORTHO" and abs(cam.data.ortho_scale - max(width, height)) < 1e-6
+    assert abs(cam.location.x - (min(v.x for v in xs) + width / 2)) < 1e-6
+    nodes = bpy.data.materials[V.PREVIEW_MATERIAL].node_tree.nodes
+    assert nodes["Edit_Foreground"].image.name == V.mirror_image_name("Foreground")  # the float twins
+    assert nodes["Edit_Background"].image.name == V.mirror_image_name("Background")
+    assert V.FRAME_PAINT_NODE not in nodes
+    assert {nodes[f"Edit_{n}"].interpolation for n in ("Background", "Foreground")} == {"Linear"}
+    scene.neural_atlas.filter_type = P.FILTER_NEAREST  # the panel's Filter: the preview follows
+    assert {nodes[f"Edit_{n}"].interpolation for n in ("Background", "Foreground")} == {"Closest"}
+    scene.neural_atlas.filter_type = P.FILTER_ENGINE
+    bpy.data.images.new(P.FRAME_PAINT_IMAGE, X.W, X.H, alpha=True, float_buffer=True)
+    counts = (len(bpy.data.objects), len(bpy.data.materials), len(bpy.data.images), len(bpy.data.cameras))
+    assert bpy.ops.neural_atlas.live_preview("EXEC_DEFAULT") == {"FINISHED"}  # shown: hides it
+    assert not preview.is_shown(scene)
+    assert bpy.ops.neural_atlas.live_preview("EXEC_DEFAULT") == {"FINISHED"}  # builds again, shows it
+    assert preview.is_shown(scene)
+    assert (len(bpy.data.objects), len(bpy.data.materials), len(bpy.data.images), len(bpy.data.cameras)) == counts
+    nodes = bpy.data.materials[V.PREVIEW_MATERIAL].node_tree.nodes
+    assert nodes[V.FRAME_PAINT_NODE].image.name == P.FRAME_PAINT_IMAGE
+    assert bpy.data.materials[V.PREVIEW_MATERIAL].node_tree.nodes.active.name == V.FRAME_PAINT_NODE
+    # the frame paint lies over the composite by its alpha: an opaque red frame paint shows red
+    fp = bpy.data.images[P.FRAME_PAINT_IMAGE]
+    fp.pixels.foreach_set(np.tile(np.array([1.0, 0.0, 0.0, 1.0], np.float32), X.W * X.H))
+    got = X.read_exr_rgba(Path(preview.render_frame(scene, FRAME_A, str(tmp_path / "fp.exr"))))
+    assert np.abs(got[..., :3] - np.array([1.0, 0.0, 0.0])).max() <= 1e-6
