@@ -28,7 +28,7 @@ bpy = pytest.importorskip("bpy")
 
 import fake_export as X  # noqa: E402
 from helpers import RecordingLayout, drive_modal, engine_python  # noqa: E402
-from neural_atlas.addon import compat, compositor, ui  # noqa: E402
+from neural_atlas.addon import compositor, preview, ui  # noqa: E402
 from neural_atlas.addon.core import frame_paint as FP  # noqa: E402
 from neural_atlas.addon.core import running  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
@@ -118,10 +118,12 @@ def _paint_atlas(layer: str) -> None:
     assert img.is_dirty
 
 
-def _import(blender, manifest: Path) -> None:
+def _import(blender, manifest: Path, setup_paint: bool = False) -> None:
+    """Import Atlas; ``setup_paint``: with the canvases and the live preview plane (``NA_Preview``)."""
     scene = blender.context.scene
     scene.neural_atlas.filter_type = P.FILTER_NEAREST
-    assert blender.ops.neural_atlas.import_run("EXEC_DEFAULT", filepath=str(manifest)) == {"FINISHED"}
+    done = blender.ops.neural_atlas.import_run("EXEC_DEFAULT", filepath=str(manifest), setup_paint=setup_paint)
+    assert done == {"FINISHED"}
 
 
 def _start(blender, frame: int = N):
@@ -165,23 +167,34 @@ def test_paint_on_frame_starts_a_transparent_plate_sized_image(blender, export, 
         blender.ops.neural_atlas.frame_paint_start("EXEC_DEFAULT")
 
 
-def test_the_preview_planes_frame_paint_node_becomes_the_paint_slot(blender, export, tmp_path):
-    """A stand-in of the preview plane: its material's "FramePaint" image node shows the frame paint and is the
-    active paint slot."""
-    _import(blender, export(tmp_path))
-    mesh = bpy.data.meshes.new(P.PREVIEW_OBJECT)
-    mesh.from_pydata([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [], [(0, 1, 2, 3)])
-    obj = bpy.data.objects.new(P.PREVIEW_OBJECT, mesh)
-    bpy.context.scene.collection.objects.link(obj)
-    mat = bpy.data.materials.new("NA_Preview")
-    compat.ensure_material_nodes(mat)
-    other = mat.node_tree.nodes.new("ShaderNodeTexImage")
-    node = mat.node_tree.nodes.new("ShaderNodeTexImage")
-    node.name = fp_ops.PREVIEW_NODE
-    mat.node_tree.nodes.active = other
-    mesh.materials.append(mat)
+def test_the_preview_plane_shows_the_frame_paint_and_paints_it(blender, export, tmp_path):
+    """The live preview built by the import (before any frame paint) gains its "FramePaint" node on Paint on Frame:
+    the node shows the frame paint and is the active paint slot, and a render of the preview at frame N shows the
+    stroke over the composite (its sRGB colour decoded), the plate elsewhere. The viewport shows unsaved strokes from
+    memory (Cycles treats every image as built in for a viewport render), but a final render reads a file image from
+    its file, so the stroke is saved first, as switching frames or Land does."""
+    _import(blender, export(tmp_path), setup_paint=True)
+    obj = bpy.data.objects[P.PREVIEW_OBJECT]
+    mat = obj.material_slots[0].material
+    assert fp_ops.PREVIEW_NODE not in mat.node_tree.nodes
     img = _start(blender)
+    mat = bpy.data.objects[P.PREVIEW_OBJECT].material_slots[0].material
+    node = mat.node_tree.nodes[fp_ops.PREVIEW_NODE]
     assert node.image == img and mat.node_tree.nodes.active == node
+    scene = blender.context.scene
+    before = X.read_exr_rgba(Path(preview.render_frame(scene, N, str(tmp_path / "before.exr"))))
+    _stroke(img)
+    img.save()
+    after = X.read_exr_rgba(Path(preview.render_frame(scene, N, str(tmp_path / "after.exr"))))
+    c = np.float64(STROKE8[:3]) / 255
+    want = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)  # IEC 61966-2-1
+    stroke_err = float(np.abs(after[ROWS, COLS, :3] - want).max())
+    outside = np.ones((H, W), bool)
+    outside[ROWS, COLS] = False
+    rest = float(np.abs(after[outside][:, :3] - before[outside][:, :3]).max())
+    print(f"{TAG} preview with frame paint: stroke vs its colour {stroke_err:.1e}, elsewhere unchanged {rest:.1e}")
+    assert stroke_err <= 2e-3  # an 8-bit sRGB image decoded by Blender
+    assert rest == 0.0
 
 
 def test_land_refuses_an_empty_frame_paint_in_one_line(blender, export, tmp_path, monkeypatch):
