@@ -15,7 +15,7 @@ import bpy
 import numpy as np
 
 from ..engine import contract as C
-from . import compat
+from . import compat, compositor
 from .core import exr_passes
 from .core import preview_plan as V
 from .core import tree_plan as P
@@ -55,7 +55,7 @@ def _image(spec: V.PreviewImage) -> Any:
     else:
         if img is not None:
             bpy.data.images.remove(img)
-        img = bpy.data.images.load(path, check_existing=False)
+        img = bpy.data.images.load(compositor.blend_path(path), check_existing=False)  # relative where it can be
         img.name = spec.name
     img.source = spec.source
     img.colorspace_settings.name = spec.colorspace

@@ -19,7 +19,7 @@ import bpy
 import numpy as np
 
 from ...engine import contract as C
-from .. import paint, preview
+from .. import compositor, paint, preview
 from ..core import engine_process as EP
 from ..core import frame_paint as FP
 from ..core import preview_plan as V
@@ -129,11 +129,11 @@ def start_frame_paint(context: Any, manifest_path: str, frame: int) -> Any:
     if img is None or img.source != "FILE":
         if img is not None:
             bpy.data.images.remove(img)
-        img = bpy.data.images.load(path, check_existing=False)
+        img = bpy.data.images.load(compositor.blend_path(path), check_existing=False)  # relative where it can be
         img.name = P.FRAME_PAINT_IMAGE
         img.colorspace_settings.name = "sRGB"
     elif I.abspath(img.filepath) != path:
-        img.filepath = path
+        img.filepath = compositor.blend_path(path)
     img.reload()  # what the file holds (a frame paint started before stays as it was painted)
     img.alpha_mode = "STRAIGHT"
     img[FP.FRAME_PROP] = frame

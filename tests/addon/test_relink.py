@@ -24,7 +24,7 @@ TAG = f"[bpy {bpy.app.version_string}]"
 
 def _render(out) -> dict[str, np.ndarray]:
     assert bpy.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out), file_format="exr") == {"FINISHED"}
-    return {p.name: X.read_exr_rgba(p) for p in sorted(out.iterdir())}
+    return {p.name: X.read_exr_rgba(p) for p in sorted(out.glob("edit.*"))}
 
 
 def _diff(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> float:
