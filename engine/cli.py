@@ -765,7 +765,8 @@ def _cmd_refine(args: argparse.Namespace, run_dir: Path) -> int:
     """``fit --refine [STEPS] [--preset P]``: a finished fit continued (``engine.fit.refine``); the export its edit
     layers were painted on is recorded once training has run, for ``realign``."""
     from engine.config import apply_overrides, parse_set_args
-    from engine.fit.refine import record_paint_export, refine_config
+    from engine.edit.aligned import record_paint_export
+    from engine.fit.refine import refine_config
     from engine.fit.trainer import FitCancelled, fit
 
     clashing = [flag for flag, given in (("--resume", args.resume), ("--refit", args.refit),

@@ -31,11 +31,11 @@ import cv2
 import numpy as np
 
 from engine import contract as C
+from engine.edit.aligned import aligned_export, published_exports, write_aligned
 from engine.edit.equations import composite_touched, load_edit, sample_texture
 from engine.edit.project_frame import REACH_PX, _Change, _replace_edit_layers, _sample_spacing, owners
 from engine.errors import InputError
 from engine.export.manifest import Manifest
-from engine.fit.refine import aligned_export, published_exports, write_aligned
 
 #: A pixel counts as painted when the paint covers at least this much of it (for the IoU of painted areas).
 PAINTED_COVER = 0.5

@@ -12,21 +12,20 @@ checkpoint was trained with it:
 - any other difference (the model, a loss weight, the sampling) is refused in one line: fit P into a new folder.
 
 Before training continues, the export the edit layers were painted against is recorded in ``edits/aligned.json``
-(unless a record is there): the run's exports are never overwritten, so that export's passes and manifest stay as
-they are, and ``realign`` carries the paint from them onto the refined fit's next export (``engine/edit/realign``).
+(unless a record is there; ``engine/edit/aligned.py``): the run's exports are never overwritten, so that export's
+passes and manifest stay as they are, and ``realign`` carries the paint from them onto the refined fit's next export
+(``engine/edit/realign.py``).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 
 from engine import contract as C
 from engine.config import START_FIELDS, FitConfig, preset_config, resume_changes
 from engine.errors import InputError
 from engine.fit.run_folder import RunFolder
-from engine.io.atomic import atomic_write_text
 
 #: Loss phases measured in steps: a finished phase is kept as the fit ran it (it is in the past of the refine).
 PHASE_FIELDS: tuple[str, ...] = ("bootstrap_steps", "global_rigidity_steps")
@@ -99,56 +98,8 @@ def _with_preset(run: RunFolder, saved: FitConfig, target: FitConfig, done: int)
     return dataclasses.replace(saved, **{key: getattr(target, key) for key in allowed})
 
 
-def aligned_export(run_dir: str | Path) -> str | None:
-    """The export (``vNNN``) the run's edit layers were painted against, as ``edits/aligned.json`` records it;
-    None when nothing is recorded. A file that cannot be read is one line."""
-    path = RunFolder(run_dir).edits / C.EDITS_ALIGNED
-    if not path.exists():
-        return None
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-        version = data["export"] if data.get(C.EDITS_ALIGNED_TAG) == 1 else None
-    except (ValueError, KeyError, TypeError, AttributeError):
-        version = None
-    if not isinstance(version, str):
-        raise InputError(path, "is not an edit-alignment record", "delete it and pass realign --from vNNN")
-    return version
-
-
-def write_aligned(run_dir: str | Path, version: str) -> Path:
-    """Record that the edit layers match export ``version`` (atomically)."""
-    path = RunFolder(run_dir).edits / C.EDITS_ALIGNED
-    atomic_write_text(path, json.dumps({C.EDITS_ALIGNED_TAG: 1, "export": version}, indent=2))
-    return path
-
-
-def published_exports(run_dir: str | Path) -> list[str]:
-    """The run's published exports (``v001``, ``v002``, ...: folders with a manifest), oldest first."""
-    exports = RunFolder(run_dir).exports
-    if not exports.is_dir():
-        return []
-    return sorted(p.name for p in exports.iterdir() if p.name.startswith("v") and (p / C.MANIFEST_NAME).is_file())
-
-
-def record_paint_export(run_dir: str | Path) -> str | None:
-    """Before a refine trains: record the export the edit layers were painted against (the newest one) unless a
-    record is there already. Returns the recorded version (None: no export, so no paint to carry)."""
-    recorded = aligned_export(run_dir)
-    if recorded is not None:
-        return recorded
-    versions = published_exports(run_dir)
-    if not versions:
-        return None
-    write_aligned(run_dir, versions[-1])
-    return versions[-1]
-
-
 __all__ = [
     "PHASE_FIELDS",
     "RefinePlan",
-    "aligned_export",
-    "published_exports",
-    "record_paint_export",
     "refine_config",
-    "write_aligned",
 ]
