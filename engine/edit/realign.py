@@ -149,7 +149,7 @@ def common_frames(old: Manifest, new: Manifest, step: int = 1) -> list[int]:
 def resolve_exports(target: str | Path, source: str | Path | None) -> tuple[Manifest, Manifest]:
     """(old, new) manifests: ``target`` is the new export's manifest (or its folder, or the run folder: its newest
     export); ``source`` the old one as a manifest, an export folder or a version name (``v001``); default the export
-    ``edits/aligned.json`` records, else the export before the new one."""
+    ``edits/aligned.json`` records, else the export before the new one (none: ``new`` itself, nothing to carry)."""
     target = Path(target)
     if (target / C.EXPORTS_DIR).is_dir() and not (target / C.MANIFEST_NAME).exists():
         versions = published_exports(target)
@@ -163,7 +163,7 @@ def resolve_exports(target: str | Path, source: str | Path | None) -> tuple[Mani
         if source is None:
             earlier = [v for v in published_exports(run) if v < new.folder.name]
             if not earlier:
-                raise InputError(new.path, "has no earlier export to carry the paint from", "pass --from vNNN")
+                return new, new  # the run's first export: the paint was made on it (nothing to carry)
             source = earlier[-1]
     src = Path(source)
     if not src.exists() and src.name == str(source):  # a version name

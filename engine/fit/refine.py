@@ -6,8 +6,8 @@ P`` the schedule is P's (its learning rates, evaluation and checkpoint settings:
 without STEPS the fit runs on to P's step budget. Everything else must be what the fit ran with, because the
 checkpoint was trained with it:
 
-- the loss-phase lengths (``bootstrap_steps``, ``global_rigidity_steps``) stay as the fit ran them when their phase
-  is over: the refine continues after them (a preset whose phase would still run is not replayed);
+- the loss-phase lengths (``bootstrap_steps``, ``global_rigidity_steps``) stay as the fit ran them: the refine
+  continues the fit's own phases (a finished fit is past them; a preset's longer bootstrap is not replayed);
 - the fields that decide only how a fit starts (``config.START_FIELDS``) are carried by the checkpoint;
 - any other difference (the model, a loss weight, the sampling) is refused in one line: fit P into a new folder.
 
@@ -27,7 +27,7 @@ from engine.config import START_FIELDS, FitConfig, preset_config, resume_changes
 from engine.errors import InputError
 from engine.fit.run_folder import RunFolder
 
-#: Loss phases measured in steps: a finished phase is kept as the fit ran it (it is in the past of the refine).
+#: Loss phases measured in steps: kept as the fit ran them (a finished fit is past them).
 PHASE_FIELDS: tuple[str, ...] = ("bootstrap_steps", "global_rigidity_steps")
 
 
@@ -63,7 +63,7 @@ def refine_config(run_dir: str | Path, more_steps: int | None, preset: str | Non
     done = int(metrics["steps"])
     cfg = saved
     if preset is not None and preset != saved.preset:
-        cfg = _with_preset(run, saved, preset_config(preset), done)
+        cfg = _with_preset(run, saved, preset_config(preset))
     if more_steps is None:
         if preset is None:
             raise InputError(None, f"{flag} without STEPS or --preset", f"pass {flag} STEPS (e.g. {flag} 1000)")
@@ -80,15 +80,15 @@ def refine_config(run_dir: str | Path, more_steps: int | None, preset: str | Non
     return RefinePlan(dataclasses.replace(cfg, steps=done + more_steps), done)
 
 
-def _with_preset(run: RunFolder, saved: FitConfig, target: FitConfig, done: int) -> FitConfig:
+def _with_preset(run: RunFolder, saved: FitConfig, target: FitConfig) -> FitConfig:
     """``saved`` with ``target``'s schedule, or one line naming the first field the checkpoint was not fitted with.
     Only what the presets themselves differ in counts: the fit's own ``--set`` values (``long_edge``, ...) stay."""
     allowed, others = resume_changes(preset_config(saved.preset), target)
     for key in others:
         if key == "preset" or key in START_FIELDS:
             continue
-        if key in PHASE_FIELDS and getattr(saved, key) <= done:
-            continue  # that phase is over: the refine continues after it
+        if key in PHASE_FIELDS:
+            continue  # the fit's own phases go on as they ran
         raise InputError(
             run.config,
             f"{C.FIT_REFINE_FLAG} --preset {target.preset}: the preset has {key} {getattr(target, key)!r}, this fit "

@@ -141,8 +141,7 @@ def test_refine_continues_a_finished_fit_and_keeps_the_paint(tmp_path):
     realign carries the paint onto the new export. Refusals leave the folder as it was."""
     frames, masks = write_scene(make_scene(SceneSpec(width=32, height=24, frames=3, fg_size=(12, 10))), tmp_path / "c")
     run = tmp_path / "run"
-    phases = ["--set", "bootstrap_steps=1", "--set", "global_rigidity_steps=1"]  # over, as in a finished fit
-    assert run_cli("fit", frames, "--mask", masks, "--out", run, *TINY_FIT, *phases)[0] == C.EXIT_OK
+    assert run_cli("fit", frames, "--mask", masks, "--out", run, *TINY_FIT)[0] == C.EXIT_OK
     assert run_cli(C.VERB_EXPORT, run, "--no-bar")[0] == C.EXIT_OK
     fg = run / C.EDITS_DIR / "Foreground.png"
     edit = np.zeros_like(load_edit(fg))
@@ -152,6 +151,8 @@ def test_refine_continues_a_finished_fit_and_keeps_the_paint(tmp_path):
     v001 = _digest(run / C.EXPORTS_DIR / "v001" / C.MANIFEST_NAME)
 
     before = tree_digest(run)
+    code, lines = run_cli(C.VERB_REALIGN, run)  # the first export: the paint was made on it, nothing to carry
+    assert code == C.EXIT_OK and lines == ["edit layers already match v001: nothing to realign"], lines
     code, lines = run_cli("fit", "--out", run, C.FIT_REFINE_FLAG, "--preset", "final", "--no-bar")
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and "w_mask_prior" in lines[0], lines
     code, lines = run_cli("fit", "--out", run, C.FIT_REFINE_FLAG, "3", "--resume", "--no-bar")
@@ -162,7 +163,8 @@ def test_refine_continues_a_finished_fit_and_keeps_the_paint(tmp_path):
     assert code == C.EXIT_OK, lines
     assert RunFolder(run).read_metrics()["steps"] == 5  # 2 + 3
     cfg = RunFolder(run).read_config()
-    assert cfg.steps == 5 and cfg.preset == "draft" and cfg.batch == 64  # balanced's schedule, the fit's own settings
+    # balanced's schedule; the fit's own settings and loss phases
+    assert (cfg.steps, cfg.preset, cfg.batch, cfg.bootstrap_steps) == (5, "draft", 64, 300)
     assert json.loads((run / C.EDITS_DIR / C.EDITS_ALIGNED).read_text())["export"] == "v001"
     assert _digest(fg) == painted and _digest(run / C.EXPORTS_DIR / "v001" / C.MANIFEST_NAME) == v001
 
