@@ -212,6 +212,9 @@ def realign(
             moved, count = realign_texture(edit, pairs[i])
             if count:
                 changes.append(_Change(new.layers[i], new.edit_file(new.layers[i]), moved))
+            else:
+                name = new.layers[i]["name"]
+                print(f"{name}: no painted texel is seen in both exports; its paint stays as it is", file=sys.stderr)
         _replace_edit_layers(new, changes)
         write_aligned(new.run_root, new.folder.name)
     written = {c.layer["name"]: c.path for c in changes}
