@@ -23,7 +23,17 @@ from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 from neural_atlas.addon.ops import fit as fit_ops  # noqa: E402
 
 #: Operators that change the scene: one undo step each.
-UNDO = {"fit", "find_masks", "layer_add", "layer_remove", "scribble_layers", "import_run", "paint_setup", "float_edits"}
+UNDO = {
+    "fit",
+    "refine",
+    "find_masks",
+    "layer_add",
+    "layer_remove",
+    "scribble_layers",
+    "import_run",
+    "paint_setup",
+    "float_edits",
+}
 #: Operators that write files, run or stop a process, or change the preferences: no undo step (the reason is a
 #: comment beside each one's bl_options).
 NO_UNDO = {
@@ -38,7 +48,7 @@ NO_UNDO = {
     "render",
 }
 #: The engine job operators (ops/driver.py): run modal from their buttons.
-JOBS = ("fit", "find_masks", "estimate", "setup_engine", "submit_farm")
+JOBS = ("fit", "refine", "find_masks", "estimate", "setup_engine", "submit_farm")
 
 
 def _name(cls) -> str:
