@@ -175,3 +175,21 @@ def test_refine_continues_a_finished_fit_and_keeps_the_paint(tmp_path):
     assert [_digest(p) for p in history] == [painted]
     assert json.loads((run / C.EDITS_DIR / C.EDITS_ALIGNED).read_text())["export"] == "v002"
     assert load_edit(fg)[..., 3].sum() > 0.5 * edit[..., 3].sum()  # the paint is carried, not dropped
+
+
+def test_a_float_edit_layer_stays_float(shifted_run):
+    """A float edit layer (``<Layer>.exr`` beside the PNG, linear premultiplied, values over 1) is re-aligned as an
+    EXR, its old self kept in history as an EXR, the PNG untouched."""
+    _, new_path, fg = shifted_run
+    png = _digest(fg)
+    exr = fg.with_suffix(C.EDIT_LAYER_FLOAT_EXT)
+    paint = _paint() * np.float32(3.0)
+    paint[..., 3] = _paint()[..., 3]
+    save_edit_like(exr, paint)
+    _, report = realign_measured(new_path, "v001")
+    assert report["realigned"]["iou"] > 0.93 and report["not_realigned"]["iou"] < 0.75
+    (kept,) = (fg.parent / "history").iterdir()
+    assert kept.suffix == ".exr" and np.array_equal(load_edit(kept), paint)
+    moved = load_edit(exr)
+    assert moved[..., :3].max() == pytest.approx(paint[..., :3].max(), rel=1e-4)  # float values kept, not clipped
+    assert _digest(fg) == png
