@@ -780,7 +780,6 @@ def _cmd_refine(args: argparse.Namespace, run_dir: Path) -> int:
         )
     plan = refine_config(run_dir, args.refine or None, args.preset)
     cfg = apply_overrides(plan.cfg, parse_set_args(args.set))
-    print(f"refining: {plan.done} steps done, {cfg.steps - plan.done} more -> {run_dir}", file=sys.stderr)
     try:
         metrics = fit(
             args.clip,
@@ -800,8 +799,8 @@ def _cmd_refine(args: argparse.Namespace, run_dir: Path) -> int:
     painted_on = record_paint_export(run_dir)
     carry = f"; carry the paint over: export, then {C.VERB_REALIGN} --from {painted_on}" if painted_on else ""
     print(
-        f"fit refined: PSNR {metrics['psnr']:.2f} dB over every pixel, {metrics['steps']} steps in "
-        f"{metrics['train_seconds']:.0f} s -> {run_dir}{carry}",
+        f"fit refined from {plan.done} steps: PSNR {metrics['psnr']:.2f} dB over every pixel, {metrics['steps']} "
+        f"steps in {metrics['train_seconds']:.0f} s -> {run_dir}{carry}",
         file=sys.stderr,
     )
     return C.EXIT_OK

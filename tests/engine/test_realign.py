@@ -157,6 +157,8 @@ def test_refine_continues_a_finished_fit_and_keeps_the_paint(tmp_path):
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and "w_mask_prior" in lines[0], lines
     code, lines = run_cli("fit", "--out", run, C.FIT_REFINE_FLAG, "3", "--resume", "--no-bar")
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and "--resume" in lines[0], lines
+    code, lines = run_cli("fit", "--out", run, C.FIT_REFINE_FLAG, "3", "--set", "batch=32", "--no-bar")
+    assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and "batch" in lines[0], lines
     assert tree_digest(run) == before, "a refused refine changed the run folder"
 
     code, lines = run_cli("fit", "--out", run, C.FIT_REFINE_FLAG, "3", "--preset", "balanced", "--no-bar")
