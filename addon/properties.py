@@ -18,6 +18,9 @@ from . import compat
 from .core import estimate
 from .core import tree_plan as P
 
+#: Refine's preset menu entry for "the schedule the fit ran with" (no ``--preset``).
+REFINE_SAME_PRESET = "FIT"
+
 
 def _forget_estimate(self, context):
     self.estimate_json = ""  # measured for another clip or size
@@ -76,6 +79,20 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
         description="Engine settings for Fit Atlas, Estimate Time and Submit to Farm, space separated KEY=VALUE, "
         "e.g. steps=2000 (advanced; python -m engine fit --help-config lists the keys)",
         update=_forget_estimate,
+    )
+    refine_steps: IntProperty(
+        name="Steps",
+        default=1000,
+        min=0,
+        soft_max=100000,
+        description="Refine: steps to add to the finished fit (0: on to the chosen preset's step budget)",
+    )
+    refine_preset: EnumProperty(
+        name="Refine With",
+        items=[(REFINE_SAME_PRESET, "Fit's Preset", "The schedule the fit ran with"), *estimate.preset_items()],
+        default=REFINE_SAME_PRESET,
+        description="Refine with this preset's learning rates and schedule (a preset the fit was not trained for "
+        "is refused by the engine, saying why)",
     )
     layers: CollectionProperty(type=NEURALATLAS_PG_layer)
     layer_index: IntProperty()

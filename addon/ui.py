@@ -10,6 +10,7 @@ from . import preferences, scribbles
 from .core import estimate, needs, running
 from .core import farm as FM
 from .core import scribble_math as S
+from .ops import refine
 from .ops.render import imported_manifest, passes_file
 
 #: Theme colour-set icons that show the scribble colours in the panel (default theme: red, green, blue, yellow).
@@ -135,6 +136,12 @@ class NEURALATLAS_PT_fit(_SidebarPanel, bpy.types.Panel):
             row.operator("neural_atlas.fit", icon="PLAY")
             if props.can_resume:
                 row.operator("neural_atlas.fit", text="Resume", icon="RECOVER_LAST").resume = True
+            if refine.finished_fit(props):  # the Run Folder holds a finished fit: continue it, keep the paint
+                box = col.box()
+                box.label(text="Refine this fit, keep the paint")
+                box.row(align=True).prop(props, "refine_steps")
+                box.prop(props, "refine_preset")
+                box.operator("neural_atlas.refine", icon="FILE_REFRESH")
             if props.status:
                 col.label(text=props.status)
             if props.log_path:

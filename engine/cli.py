@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import signal
 import sys
 import traceback
@@ -228,6 +229,19 @@ def build_parser(prog: str = "python -m engine") -> argparse.ArgumentParser:
         "checkpoint of this same fit (the clip, masks, frames and --preset given are the recorded ones, --set "
         "changes only the schedule, as for --resume) continues it; with this fit finished does nothing (exit 0)",
     )
+    f.add_argument(
+        C.FIT_REFINE_FLAG,
+        dest="refine",
+        type=int,
+        nargs="?",
+        const=0,
+        default=None,
+        metavar="STEPS",
+        help="continue the FINISHED fit in RUN_DIR for STEPS more steps (with --preset P: P's learning rates and "
+        "schedule, and without STEPS on to P's step budget; a preset the checkpoint was not trained for is refused). "
+        "Edit layers and exports are kept; the export the paint was made on is recorded (edits/aligned.json) so "
+        f"`{C.VERB_REALIGN}` carries the paint onto the next export",
+    )
     f.add_argument("--no-bar", action="store_true", help="no progress bar on stderr (JSON lines only)")
     f.add_argument("--help-config", action="store_true", help="list every config field and exit")
     d = sub.add_parser(
@@ -386,6 +400,39 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
     pf.add_argument("--frame", type=int, required=True, metavar="N", help="plate frame number the paint was made on")
     pf.add_argument("--edit", required=True, metavar="IMAGE", help="RGBA paint, the plate's size")
     pf.add_argument("--layer", action="append", default=None, metavar="NAME", help="only these layers")
+    ra = sub.add_parser(
+        C.VERB_REALIGN,
+        help="carry the edit layers painted on an earlier export onto a later one's mapping (after fit --refine)",
+        description="A refined fit maps the clip onto its atlases a little differently: paint painted against the "
+        "earlier export would drift. Pixels each layer owns in both exports pair every new atlas texel with where "
+        "it was in the old atlas; the old paint is re-sampled there into the edit layers (the old ones are kept in "
+        "edits/history; texels no frame shows in both keep their paint), all together, holding the run folder's lock. "
+        "edits/aligned.json then records the export the paint matches: run again, it does nothing. The last line "
+        "printed is MANIFEST's path.",
+        epilog=EXIT_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    ra.add_argument(
+        "manifest", metavar="MANIFEST", help="the new export's manifest.json (or RUN_DIR: its newest export)"
+    )
+    ra.add_argument(
+        "--from",
+        dest="source",
+        default=None,
+        metavar="vNNN|MANIFEST",
+        help="the export the edit layers were painted on (default: the one edits/aligned.json records, which "
+        "fit --refine writes; else the export before MANIFEST's)",
+    )
+    ra.add_argument("--layer", action="append", default=None, metavar="NAME", help="only these layers")
+    ra.add_argument(
+        "--frame-step", type=int, default=1, metavar="N", help="pair pixels on every N-th shared frame (default: 1)"
+    )
+    ra.add_argument(
+        "--measure",
+        action="store_true",
+        help="also print (one JSON line on stdout) the paint's placement error against the old export, with and "
+        "without re-alignment: mean/max colour difference over painted pixels and the painted areas' IoU",
+    )
     pv = sub.add_parser(
         C.VERB_PREVIEW,
         help="contact sheets and movies to judge an export: atlases, checkerboard, label propagation",
@@ -441,6 +488,17 @@ def _cmd_project_frame(args: argparse.Namespace) -> int:
         print(C.progress_line(C.EVENT_PROGRESS, step=step, total=total), flush=True)
 
     return _print_paths(project_frame(args.manifest, args.frame, args.edit, args.layer, on_stage=stage).values())
+
+
+def _cmd_realign(args: argparse.Namespace) -> int:
+    from engine.edit.realign import realign, realign_measured
+
+    if args.measure:
+        manifest, report = realign_measured(args.manifest, args.source, args.layer, args.frame_step)
+        print(json.dumps(report))
+    else:
+        manifest, _ = realign(args.manifest, args.source, args.layer, args.frame_step)
+    return _print_paths([manifest.path])
 
 
 def _cmd_preview(args: argparse.Namespace) -> int:
@@ -655,6 +713,8 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     from engine.fit.trainer import FitCancelled, fit
 
     run_dir = Path(args.out)
+    if args.refine is not None:
+        return _cmd_refine(args, run_dir)
     if args.resume_if_started and not _start_or_resume(args, run_dir):
         return C.EXIT_OK  # this fit is finished already
     if args.resume:
@@ -701,6 +761,51 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     print(
         f"fit done: PSNR {metrics['psnr']:.2f} dB over every pixel, {metrics['steps']} steps in "
         f"{metrics['train_seconds']:.0f} s -> {run_dir}",
+        file=sys.stderr,
+    )
+    return C.EXIT_OK
+
+
+def _cmd_refine(args: argparse.Namespace, run_dir: Path) -> int:
+    """``fit --refine [STEPS] [--preset P]``: a finished fit continued (``engine.fit.refine``); the export its edit
+    layers were painted on is recorded once training has run, for ``realign``."""
+    from engine.config import apply_overrides, parse_set_args
+    from engine.edit.aligned import record_paint_export
+    from engine.fit.refine import refine_config
+    from engine.fit.trainer import FitCancelled, fit
+
+    clashing = [flag for flag, given in (("--resume", args.resume), ("--refit", args.refit),
+                (C.FIT_RESUME_IF_STARTED_FLAG, args.resume_if_started), (C.FIT_AUTO_MASKS_FLAG, args.auto_masks),
+                ("--frames", args.frames is not None)) if given]  # fmt: skip
+    if clashing:
+        raise InputError(
+            None,
+            f"{C.FIT_REFINE_FLAG} with {clashing[0]}",
+            f"pass {C.FIT_REFINE_FLAG} alone with --out: it continues the finished fit as it was fitted",
+        )
+    plan = refine_config(run_dir, args.refine or None, args.preset)
+    cfg = apply_overrides(plan.cfg, parse_set_args(args.set))
+    try:
+        metrics = fit(
+            args.clip,
+            args.mask,
+            run_dir,
+            cfg,
+            device_name=args.device,
+            resume=True,
+            progress_bar=not args.no_bar,
+            scribble_dir=args.scribbles,
+            colorspace=args.colorspace,
+        )
+    except FitCancelled as exc:
+        record_paint_export(run_dir)
+        print(f"cancelled: {exc}; continue with: python -m engine fit --resume --out {run_dir}", file=sys.stderr)
+        return C.EXIT_CANCELLED
+    painted_on = record_paint_export(run_dir)
+    carry = f"; carry the paint over: export, then {C.VERB_REALIGN} --from {painted_on}" if painted_on else ""
+    print(
+        f"fit refined from {plan.done} steps: PSNR {metrics['psnr']:.2f} dB over every pixel, {metrics['steps']} "
+        f"steps in {metrics['train_seconds']:.0f} s -> {run_dir}{carry}",
         file=sys.stderr,
     )
     return C.EXIT_OK
@@ -766,6 +871,7 @@ def _run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
             C.VERB_EXPORT: _cmd_export,
             C.VERB_RENDER: _cmd_render,
             C.VERB_PROJECT_FRAME: _cmd_project_frame,
+            C.VERB_REALIGN: _cmd_realign,
             C.VERB_PREVIEW: _cmd_preview,
             C.VERB_ESTIMATE: _cmd_estimate,
             C.VERB_MASKS: _cmd_masks,

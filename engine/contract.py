@@ -77,6 +77,9 @@ VERB_PROJECT_FRAME = "project-frame"  # project-frame MANIFEST --frame N --edit 
 VERB_PREVIEW = "preview"  # preview MANIFEST [--out DIR]
 VERB_MASKS = "masks"  # masks CLIP --out FOLDER [--frames FIRST-LAST]; last stdout line = the masks folder
 VERB_NUKE = "nuke"  # nuke MANIFEST [--out FILE.nk] [--filter ...]: a Nuke script of the edit; last line = its path
+#: realign MANIFEST [--from vNNN|OLD_MANIFEST] [--layer NAME ...] [--frame-step N] [--measure]: move the edit layers
+#: painted against an earlier export of the run onto MANIFEST's mapping (after ``fit --refine``); last line = MANIFEST
+VERB_REALIGN = "realign"
 #: ``--frames`` of every verb speaks the plate's frame numbers (plate.1010.exr .. plate.1050.exr: 1010-1050; a movie's
 #: frames count from 0 or ``fit --start-frame``); run folders keep recording positions (clip.json "frame_range").
 
@@ -96,6 +99,10 @@ EXPORT_STAGES: tuple[str, ...] = ("atlases", "passes", "publish")
 #: ``fit ... --resume-if-started``: a retried farm task: continue the checkpoint of this same fit in RUN_DIR, leave
 #: a finished one as it is (exit 0), or start it.
 FIT_RESUME_IF_STARTED_FLAG = "--resume-if-started"
+#: ``fit --out RUN --refine STEPS [--preset P]``: continue a FINISHED fit for STEPS more steps (with preset P's
+#: schedule where the checkpoint allows it), recording first which export the edit layers were painted against
+#: (``EDITS_ALIGNED``) so ``realign`` can carry the paint onto the refined fit's next export.
+FIT_REFINE_FLAG = "--refine"
 #: The shots file (TOML or JSON; docs/farm.md): ``{SHOTS_TAG: SHOTS_VERSION, "defaults": {...}, "shots": [...]}``;
 #: relative paths are relative to the file. A shot's keys are SHOT_KEYS; "defaults" holds any of
 #: SHOT_DEFAULT_KEYS, which a shot may override.
@@ -552,6 +559,10 @@ EXPORT_VERSION_FORMAT = "v{:03d}"
 EXPORT_CHUNKS_SUFFIX = ".chunks"
 EDITS_DIR = "edits"
 EDITS_LAYOUT = "layout.json"
+#: ``edits/aligned.json``: {"neural_atlas_aligned": 1, "export": "vNNN"}, the export whose mapping the edit layers
+#: were painted against (written by ``fit --refine`` when missing, and by ``realign``)
+EDITS_ALIGNED = "aligned.json"
+EDITS_ALIGNED_TAG = "neural_atlas_aligned"
 MANIFEST_NAME = "manifest.json"
 #: Version of manifest.json; the add-on refuses a manifest whose version it does not know.
 MANIFEST_VERSION = 1

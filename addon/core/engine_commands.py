@@ -94,6 +94,18 @@ def resume_argv(python: str, run_dir: str) -> list[str]:
     return engine_argv(python, C.VERB_FIT, "--resume", "--out", run_dir, NO_BAR_FLAG)
 
 
+def refine_argv(python: str, run_dir: str, steps: int, preset: str | None = None) -> list[str]:
+    """``fit --out RUN --refine [STEPS] [--preset P]``: the finished fit continued for ``steps`` more steps (0: on to
+    ``preset``'s step budget), with ``preset``'s schedule (None: the fit's own)."""
+    args = ["--out", run_dir, C.FIT_REFINE_FLAG, *([str(steps)] if steps > 0 else [])]
+    return engine_argv(python, C.VERB_FIT, *args, *(["--preset", preset] if preset else []), NO_BAR_FLAG)
+
+
+def realign_argv(python: str, run_dir: str) -> list[str]:
+    """``realign RUN``: the edit layers carried from the export they were painted on onto the run's newest one."""
+    return engine_argv(python, C.VERB_REALIGN, run_dir)
+
+
 def export_argv(python: str, run_dir: str) -> list[str]:
     return engine_argv(python, C.VERB_EXPORT, run_dir)
 

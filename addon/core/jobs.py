@@ -6,6 +6,7 @@ driven by ``start()`` then ``step()`` until it returns False (from a modal opera
 is then the last command's, as each kind of job reads it:
 
 - ``FitJob``: ``engine fit`` (or ``fit --resume``), then ``engine export``; the result names the manifest.
+- ``RefineJob``: ``engine fit --refine``, ``engine export``, then ``engine realign`` (the paint carried over).
 - ``MasksJob``: ``engine masks`` into a fresh folder; what it found comes from the log's ``masks`` event.
 - ``EstimateJob``: ``engine estimate --json``; the rows per preset come from the log.
 - ``engine_setup.SetupJob``: create the engine's environment, then pip-install its requirements.
@@ -130,7 +131,8 @@ class FitJob(Job):
             fit = EC.resume_argv(python, run_dir)
         else:
             if files.has_fit():
-                raise UserError(f"{run_dir} already holds a fit: Resume it, or choose another Run Folder")
+                again = "Refine it" if files.has_finished_fit() else "Resume it"
+                raise UserError(f"{run_dir} already holds a fit: {again}, or choose another Run Folder")
             fit = EC.fit_argv(python, clip(), run_dir, preset, sets)
         commands = [Command("fit", fit), Command("export", EC.export_argv(python, run_dir))]
         super().__init__(commands, files.fit_log, EC.engine_env(), keep_log=clip is None)
@@ -150,6 +152,39 @@ class FitJob(Job):
             self.manifest = result.manifest
             if not self.manifest:
                 return failed(result, "export wrote no manifest")
+        return result
+
+
+class RefineJob(FitJob):
+    """Refine: ``engine fit --refine`` of the finished fit, ``engine export``, then ``engine realign``, which carries
+    the edit layers from the export they were painted on onto the new one; the result names the new manifest."""
+
+    def __init__(self, python: str, run_dir: str, steps: int, preset: str | None = None):
+        """``steps`` more steps (0: on to ``preset``'s budget); ``preset``: its schedule (None: the fit's own)."""
+        files = RunFiles(run_dir)
+        if not files.has_finished_fit():
+            raise UserError(f"{run_dir} holds no finished fit to refine (Fit Atlas first, or Resume it)")
+        if steps <= 0 and not preset:
+            raise UserError("Refine needs a number of steps, or a preset to refine with")
+        self.run_dir = run_dir
+        commands = [
+            Command("fit", EC.refine_argv(python, run_dir, steps, preset)),
+            Command("export", EC.export_argv(python, run_dir)),
+            Command("realign", EC.realign_argv(python, run_dir)),
+        ]
+        Job.__init__(self, commands, files.fit_log, EC.engine_env(), keep_log=True)
+        self.manifest: str | None = None
+
+    def status_text(self) -> str:
+        if self.label == "realign" and not self.cancelling:
+            return "carrying the paint over to the refined fit…"
+        return super().status_text()
+
+    def finish(self, result: EP.JobResult) -> EP.JobResult:
+        if self.label == "realign" and result.status == EP.STATUS_OK:
+            self.manifest = result.manifest
+            if not self.manifest:
+                return failed(result, "realign printed no manifest")
         return result
 
 

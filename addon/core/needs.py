@@ -46,6 +46,16 @@ NO_FIT_CLIP = "Choose the clip to fit in the Fit Atlas panel"
 NO_MASKS_CLIP = "Choose the clip to find masks in, in the Fit Atlas panel"
 NO_ESTIMATE_CLIP = "Choose the clip to time in the Fit Atlas panel"
 
+#: Refine with a Run Folder that holds no finished fit.
+NO_FINISHED_FIT = "The Run Folder holds no finished fit to refine (Fit Atlas first, or Resume it)"
+
+
+def refine_need(is_running: bool, finished_fit: bool) -> str | None:
+    """Refine continues the Run Folder's finished fit, one engine job at a time."""
+    if is_running:
+        return "An engine job is running for this scene: wait for it or Cancel it"
+    return None if finished_fit else NO_FINISHED_FIT
+
 
 def render_need(
     manifest: str,

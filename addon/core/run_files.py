@@ -49,6 +49,10 @@ class RunFiles:
         """A fit's checkpoint is there (Resume continues it; a new fit would overwrite it)."""
         return os.path.exists(os.path.join(self.run_dir, C.RUN_CHECKPOINT))
 
+    def has_finished_fit(self) -> bool:
+        """The fit has finished (its metrics are written): Refine continues it for more steps."""
+        return self.has_fit() and os.path.exists(os.path.join(self.run_dir, C.RUN_METRICS))
+
     def fresh_auto_masks(self) -> str:
         """Where Find Masks writes: ``RUN/auto_masks``, or a numbered sibling when that already holds masks."""
         return fresh_dir(os.path.join(self.run_dir, C.AUTO_MASKS_DIR))

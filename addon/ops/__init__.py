@@ -4,6 +4,7 @@ each that changes the scene pushes an undo step (docs/addon.md, *Buttons, undo a
 act on:
 
 - ``fit``: engine jobs for a scene: Fit Atlas, Find Masks, Estimate Time, Cancel (driven by ``driver``);
+- ``refine``: Refine, a finished fit continued with the paint carried over (driven by ``driver``);
 - ``layers``: the foreground layer list and the clip's scribble layers;
 - ``import_run``: Import Atlas;
 - ``paint``: paint canvases, Save Edits, Float Edit Layers;
@@ -17,10 +18,11 @@ act on:
 
 from __future__ import annotations
 
-from . import farm, fit, frame_paint, import_run, layers, paint, preview, relink, render, setup
+from . import farm, fit, frame_paint, import_run, layers, paint, preview, refine, relink, render, setup
 
 classes = (
     *fit.classes,
+    *refine.classes,
     *layers.classes,
     *import_run.classes,
     *paint.classes,

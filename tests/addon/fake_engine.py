@@ -55,6 +55,10 @@ def main(argv: list[str]) -> int:
         say(C.EVENT_EXPORTED, manifest=str(manifest))
         print(manifest)
         return 0
+    if verb == C.VERB_REALIGN:  # the edit layers are left as they are; the newest (fake) export is named
+        (Path(out) / "fake_realign_argv.txt").write_text("\n".join(argv))
+        print(Path(out).parent / (Path(out).name + ".fake_export") / "run" / C.EXPORTS_DIR / "v001" / C.MANIFEST_NAME)
+        return 0
     if verb == C.VERB_ESTIMATE:
         import json
 

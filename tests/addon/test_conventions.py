@@ -25,6 +25,7 @@ from neural_atlas.addon.ops import fit as fit_ops  # noqa: E402
 #: Operators that change the scene: one undo step each.
 UNDO = {
     "fit",
+    "refine",
     "find_masks",
     "layer_add",
     "layer_remove",
@@ -51,7 +52,7 @@ NO_UNDO = {
     "frame_paint_land",
 }
 #: The engine job operators (ops/driver.py): run modal from their buttons.
-JOBS = ("fit", "find_masks", "estimate", "setup_engine", "submit_farm", "frame_paint_land")
+JOBS = ("fit", "refine", "find_masks", "estimate", "setup_engine", "submit_farm", "frame_paint_land")
 
 
 def _name(cls) -> str:

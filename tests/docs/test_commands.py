@@ -33,8 +33,9 @@ document (``_assert_outputs``). Parse-only, with the reason (``parse_only_reason
 whole suite take minutes: tests/engine/test_demo.py and CI run them), the bench (``python -m engine.bench``: minutes
 of training by design; tests/bench runs it on budgets of seconds), blocks that tests/docs/test_examples.py
 already runs (``<!-- test -->``: they fail on purpose or build on earlier blocks), ``--device cuda|mps`` (needs that
-hardware) and ``--scribbles`` (needs strokes drawn on the clip; tests/engine/data/test_scribbles.py and the fit
-tests run it).
+hardware), ``--scribbles`` (needs strokes drawn on the clip; tests/engine/data/test_scribbles.py and the fit
+tests run it) and ``fit --refine`` (needs a finished fit in ``--out``, which is a new folder here;
+tests/engine/test_realign.py runs it).
 
 ``test_estimate_without_masks_gives_every_preset_a_row``: ``estimate PLATE`` as a user types it first, with no
 mask, gives every preset a row and says why the paper's does not apply instead of a traceback.
@@ -470,6 +471,8 @@ def parse_only_reason(cmd: Documented, argv: list[str]) -> str | None:
         return "--scribbles needs strokes drawn on the clip (tests/engine/data/test_scribbles.py, the fit tests)"
     if "--resume" in argv:
         return "--resume needs a fit stopped part way (tests/stability/test_faults.py)"
+    if C.FIT_REFINE_FLAG in argv:
+        return "--refine needs a finished fit in --out, a new folder here (tests/engine/test_realign.py runs it)"
     if argv[:2] == [C.VERB_FARM, C.FARM_DASK]:
         return "farm dask needs a Dask scheduler and workers (tests/farm/test_dask.py starts them on 127.0.0.1)"
     if argv[:2] == [C.VERB_FARM, C.FARM_FLAMENCO] and "--manager" in argv:

@@ -1,0 +1,93 @@
+"""Refine: continue the Run Folder's finished fit for more steps (or with a better preset's schedule) and carry the
+artist's paint over to it.
+
+The paint is saved to the edit layer files first (``paint.save_before_reload``: the engine reads those files, and
+the import at the end reloads the images). The job (``core.jobs.RefineJob``) runs ``fit --refine``, ``export`` (a new
+``exports/vNNN``; the earlier exports stay) and ``realign`` (the edit layers moved from the export they were painted
+on onto the new mapping, the old ones kept in ``edits/history``); then the new export is imported like a finished
+Fit Atlas.
+"""
+
+from __future__ import annotations
+
+import bpy
+
+from .. import paint
+from ..core import engine_process as EP
+from ..core import needs, running
+from ..core.errors import UserError
+from ..core.jobs import RefineJob
+from ..core.run_files import RunFiles
+from ..properties import REFINE_SAME_PRESET
+from . import scene_inputs as I
+from .driver import EngineJobOperator
+from .fit import _timeout
+from .import_run import IMPORT_ERRORS, import_manifest
+
+#: What names the refine in refusals of unsaved paint.
+ACTION = "Refine"
+
+
+def finished_fit(props) -> bool:
+    """Whether the panel's Run Folder holds a finished fit (False when no Run Folder can be named yet)."""
+    try:
+        return RunFiles(I.run_dir(props)).has_finished_fit()
+    except UserError:
+        return False
+
+
+class NEURALATLAS_OT_refine(EngineJobOperator, bpy.types.Operator):
+    """Continue the finished fit for more steps (or with the chosen preset's schedule), then carry the edit layers'
+    paint over to the refined atlas and import it"""
+
+    bl_idname = "neural_atlas.refine"
+    bl_label = "Refine"
+    # its import is one undo step, pushed when it finishes (the driver's docstring)
+    bl_options = {"REGISTER", "UNDO"}  # noqa: RUF012 (Blender reads a set)
+
+    timeout: _timeout()
+
+    @classmethod
+    def poll(cls, context) -> bool:
+        if context.scene is None:
+            return False
+        props = context.scene.neural_atlas
+        need = needs.refine_need(running.is_running(cls.job_key(context)), finished_fit(props))
+        if need:
+            cls.poll_message_set(need)
+        return need is None
+
+    def make_job(self, context) -> RefineJob:
+        props = context.scene.neural_atlas
+        python, run_dir = I.engine_python(context), I.run_dir(props)
+        preset = None if props.refine_preset == REFINE_SAME_PRESET else props.refine_preset
+        job = RefineJob(python, run_dir, props.refine_steps, preset)
+        try:
+            paint.save_before_reload(ACTION)  # the engine carries over what is in the files
+        except (ValueError, OSError) as exc:
+            raise UserError(f"{ACTION}: {exc}") from None
+        return job
+
+    def finish(self, context, job: RefineJob, result: EP.JobResult) -> set[str]:
+        props = context.scene.neural_atlas
+        props.log_path = job.log_path
+        if result.status == EP.STATUS_OK and job.manifest:
+            try:
+                plan = import_manifest(context, job.manifest, action=ACTION)
+            except (*IMPORT_ERRORS, RuntimeError) as exc:
+                props.status = f"import failed: {exc}"
+                self.report({"ERROR"}, f"{props.status} (log: {job.log_path})")
+                return {"CANCELLED"}
+            props.progress = 1.0
+            props.can_resume = False
+            props.status = f"refined: {len(plan.layers)} layers, the paint carried over ({job.manifest})"
+            self.report({"INFO"}, f"Refine done; imported {job.manifest}")
+            return {"FINISHED"}
+        props.can_resume = result.status == EP.STATUS_CANCELLED and job.can_resume()
+        props.status = result.message
+        level = "WARNING" if result.status == EP.STATUS_CANCELLED else "ERROR"
+        self.report({level}, f"Refine {result.status}: {result.message} (log: {job.log_path})")
+        return {"CANCELLED"}
+
+
+classes = (NEURALATLAS_OT_refine,)

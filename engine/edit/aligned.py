@@ -1,0 +1,62 @@
+"""Which export of a run the edit layers were painted against: ``edits/aligned.json`` (torch-free).
+
+The run's edit layers are shared by all its exports; their paint matches the mapping of the export the artist
+painted on. ``fit --refine`` records that export before the refined fit is exported (unless a record is there), and
+``realign`` records the export it carried the paint onto, so a second ``realign`` does nothing.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from engine import contract as C
+from engine.errors import InputError
+from engine.io.atomic import atomic_write_text
+
+
+def aligned_export(run_dir: str | Path) -> str | None:
+    """The export (``vNNN``) the run's edit layers were painted against, as ``edits/aligned.json`` records it;
+    None when nothing is recorded. A file that cannot be read is one line."""
+    path = Path(run_dir) / C.EDITS_DIR / C.EDITS_ALIGNED
+    if not path.exists():
+        return None
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        version = data["export"] if data.get(C.EDITS_ALIGNED_TAG) == 1 else None
+    except (ValueError, KeyError, TypeError, AttributeError):
+        version = None
+    if not isinstance(version, str):
+        raise InputError(path, "is not an edit-alignment record", "delete it and pass realign --from vNNN")
+    return version
+
+
+def write_aligned(run_dir: str | Path, version: str) -> Path:
+    """Record that the edit layers match export ``version`` (atomically)."""
+    path = Path(run_dir) / C.EDITS_DIR / C.EDITS_ALIGNED
+    atomic_write_text(path, json.dumps({C.EDITS_ALIGNED_TAG: 1, "export": version}, indent=2))
+    return path
+
+
+def published_exports(run_dir: str | Path) -> list[str]:
+    """The run's published exports (``v001``, ``v002``, ...: folders with a manifest), oldest first."""
+    exports = Path(run_dir) / C.EXPORTS_DIR
+    if not exports.is_dir():
+        return []
+    return sorted(p.name for p in exports.iterdir() if p.name.startswith("v") and (p / C.MANIFEST_NAME).is_file())
+
+
+def record_paint_export(run_dir: str | Path) -> str | None:
+    """Before a refine trains: record the export the edit layers were painted against (the newest one) unless a
+    record is there already. Returns the recorded version (None: no export, so no paint to carry)."""
+    recorded = aligned_export(run_dir)
+    if recorded is not None:
+        return recorded
+    versions = published_exports(run_dir)
+    if not versions:
+        return None
+    write_aligned(run_dir, versions[-1])
+    return versions[-1]
+
+
+__all__ = ["aligned_export", "published_exports", "record_paint_export", "write_aligned"]
