@@ -4,7 +4,7 @@ Blender itself rebases the ``//`` paths of images and clips when the .blend is s
 Remap Relative), but not the add-on's settings, and an import into a .blend never saved yet has nothing to be
 relative to. So, before each save: the imported manifest (a setting) is written relative to the file being saved;
 and on the first save of a .blend the ``NA_`` images and clips, absolute until then, become relative to it (no image
-is reloaded: unsaved paint stays). After a Save Copy the session's own values are put back.
+is reloaded: unsaved paint stays). After a Save Copy the open file's own values are put back.
 """
 
 from __future__ import annotations
@@ -66,7 +66,7 @@ def relative_before_save(filepath: str = "", *_args: Any) -> None:
 
 @bpy.app.handlers.persistent
 def restore_after_copy(filepath: str = "", *_args: Any) -> None:
-    """``save_post``: after a Save Copy (the session's file is another one) the session keeps its own paths."""
+    """``save_post``: after a Save Copy (the file written is another one) the open file keeps its own paths."""
     changed, _changed[:] = list(_changed), []
     if not changed or bpy.data.filepath == filepath:
         return

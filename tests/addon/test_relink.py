@@ -148,7 +148,7 @@ def test_relink_keeps_unsaved_paint(blender, tmp_path):
 def test_an_import_before_the_first_save_becomes_relative_when_saved(blender, tmp_path):
     """Imported into a .blend never saved (absolute paths: nothing to be relative to), then saved into the shot
     folder: the file holds the manifest and every NA_ image and clip relative to it, a Save Copy elsewhere leaves
-    the session's own paths, and the copied folder renders the same."""
+    the open file's own paths, and the copied folder renders the same."""
     shot = tmp_path / "shot"
     manifest = X.make_export(shot)
     bpy.context.scene.neural_atlas.filter_type = P.FILTER_NEAREST
@@ -156,7 +156,7 @@ def test_an_import_before_the_first_save_becomes_relative_when_saved(blender, tm
     assert bpy.context.scene.neural_atlas.manifest == str(manifest)
     assert not any(p.startswith("//") for p in _our_paths().values())
     assert bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "elsewhere.blend"), copy=True) == {"FINISHED"}
-    assert bpy.context.scene.neural_atlas.manifest == str(manifest)  # a copy: the session is unchanged
+    assert bpy.context.scene.neural_atlas.manifest == str(manifest)  # a copy: the open file is unchanged
     assert not any(p.startswith("//") for p in _our_paths().values())
     assert bpy.ops.wm.save_as_mainfile(filepath=str(shot / "scene.blend")) == {"FINISHED"}
     assert bpy.context.scene.neural_atlas.manifest == "//run/exports/v001/manifest.json"

@@ -561,7 +561,8 @@ def _assert_outputs(argv: list[str], proc: subprocess.CompletedProcess, cwd: Pat
     elif verb == C.VERB_EXPORT:
         assert last.endswith(C.MANIFEST_NAME) and (cwd / last).exists(), proc.stdout
     elif verb in (C.VERB_PREVIEW, C.VERB_PROJECT_FRAME):
-        printed = [ln for ln in proc.stdout.splitlines() if ln.strip()]
+        # the written paths; progress messages (one JSON object a line) are the contract's, not paths
+        printed = [ln for ln in proc.stdout.splitlines() if ln.strip() and C.parse_progress_line(ln) is None]
         assert printed and all((cwd / ln).exists() for ln in printed), proc.stdout
     elif verb == C.VERB_RENDER:
         out = cwd / _flag(argv, "--out")
