@@ -10,6 +10,7 @@ from . import preferences, scribbles
 from .core import estimate, running
 from .core import farm as FM
 from .core import scribble_math as S
+from .ops.render import active_render
 
 #: Theme colour-set icons that show the scribble colours in the panel (default theme: red, green, blue, yellow).
 COLOUR_ICONS = {
@@ -155,7 +156,13 @@ class NEURALATLAS_PT_edit(_SidebarPanel, bpy.types.Panel):
         col.operator("neural_atlas.float_edits", icon="IMAGE_DATA")
         col.prop(props, "render_dir")
         col.prop(props, "render_format")
-        col.operator("neural_atlas.render", icon="RENDER_ANIMATION")
+        if active_render(context.scene) is not None:
+            col.progress(factor=props.render_progress, type="BAR", text=props.render_status or "rendering…")
+            col.operator("neural_atlas.render_cancel", icon="CANCEL")
+        else:
+            col.operator("neural_atlas.render", icon="RENDER_ANIMATION")
+            if props.render_status:
+                col.label(text=props.render_status)
 
 
 classes = (NEURALATLAS_UL_layers, NEURALATLAS_PT_fit, NEURALATLAS_PT_edit)

@@ -36,6 +36,7 @@ NO_UNDO = {
     "submit_farm",
     "save_edits",
     "render",
+    "render_cancel",
 }
 #: The engine job operators (ops/driver.py): run modal from their buttons.
 JOBS = ("fit", "find_masks", "estimate", "setup_engine", "submit_farm")
