@@ -39,6 +39,8 @@ class Job:
     #: what the status line says before the first progress message, and once Cancel was pressed
     idle_text = "starting…"
     cancel_text = "cancelling…"
+    #: what the whole-job ETA covers, as the status line names it ("ETA 3m10s for the whole fit")
+    whole = "job"
 
     def __init__(
         self, commands: list[Command], log_path: str, env: dict[str, str] | None = None, keep_log: bool = False
@@ -96,7 +98,8 @@ class Job:
             return self.cancel_text
         if self.process is None:
             return self.idle_text
-        return self.state.summary() if self.state.total else (self.state.message or self.idle_text)
+        st = self.state
+        return st.summary(self.whole) if st.total or st.job_stage else (st.message or self.idle_text)
 
     def finish(self, result: EP.JobResult) -> EP.JobResult:
         """The job's result from its last command's (each kind reads what it needs)."""
@@ -116,6 +119,7 @@ class FitJob(Job):
     """Fit Atlas: ``engine fit`` (or ``fit --resume``), then ``engine export`` of the run."""
 
     cancel_text = "cancelling: writing a checkpoint…"
+    whole = "fit"
 
     def __init__(
         self, python: str, run_dir: str, clip: Callable[[], EC.ClipInputs] | None, preset: str, sets: list[str]
@@ -139,11 +143,31 @@ class FitJob(Job):
     def can_resume(self) -> bool:
         return RunFiles(self.run_dir).has_fit()
 
+    #: the fit command's last whole-job fraction (the engine's, which leaves the export's share to it); None before
+    #: the export starts, or from an engine that sends no whole-job fraction
+    fit_fraction: float | None = None
+
+    @property
+    def fraction(self) -> float:
+        """The whole fit's: the fit command's own, then the export's frames over the share the fit left to it (an
+        engine without whole-job fractions: each command's own steps, as before)."""
+        st = self.state
+        if self.label == "export" and self.fit_fraction is not None and st.job_fraction is not None:
+            return self.fit_fraction + (1.0 - self.fit_fraction) * st.fraction
+        return st.fraction
+
     def status_text(self) -> str:
         if self.label == "export" and not self.cancelling:
             st = self.state
+            if st.job_stage == "export":
+                return st.summary(self.whole)
             return f"exporting passes {st.step}/{st.total}" if st.total else "exporting passes…"
         return super().status_text()
+
+    def _run(self, index: int) -> None:
+        if self.process is not None:
+            self.fit_fraction = self.process.state.job_fraction
+        super()._run(index)
 
     def finish(self, result: EP.JobResult) -> EP.JobResult:
         if self.label == "export" and result.status == EP.STATUS_OK:
@@ -193,6 +217,7 @@ class EstimateJob(Job):
     """Estimate Time: ``engine estimate --json``, a few timed steps of every preset on this clip."""
 
     idle_text = "timing the presets…"
+    whole = "estimate"
 
     def __init__(self, python: str, run_dir: str, clip: EC.ClipInputs, sets: list[str]):
         argv = EC.estimate_argv(python, clip, sets)

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from engine import contract as C
+from engine.fit.eta import JobClock
 
 
 class Reporter:
@@ -16,6 +17,8 @@ class Reporter:
     def __init__(self, log_path: Path | None = None, stream: TextIO | None = None) -> None:
         self.stream: TextIO | None = stream or sys.stdout
         self.log_path = log_path
+        #: the whole job's clock: what ``job_event`` and ``job_fields`` report
+        self.job = JobClock()
 
     @classmethod
     def null(cls) -> Reporter:
@@ -31,6 +34,22 @@ class Reporter:
         if self.log_path is not None:
             with open(self.log_path, "a", encoding="utf-8") as f:
                 f.write(line + "\n")
+
+    def job_fields(self) -> dict[str, Any]:
+        """The whole job's fraction and seconds left, as the ``progress`` and ``job`` messages carry them."""
+        left = self.job.left()
+        return {"job_fraction": round(self.job.fraction(), 4), "job_eta": None if left is None else round(left, 1)}
+
+    def job_event(self, stage: str, done: int, total: int, stage_eta: float | None) -> None:
+        """One ``job`` message: the stage's count and seconds left, and the whole job's (``contract.EVENT_JOB``)."""
+        self.emit(
+            C.EVENT_JOB,
+            stage=stage,
+            done=done,
+            total=total,
+            stage_eta=None if stage_eta is None else round(stage_eta, 1),
+            **self.job_fields(),
+        )
 
 
 __all__ = ["Reporter"]
