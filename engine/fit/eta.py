@@ -64,11 +64,12 @@ PRE_TRAIN_SHARE = 0.05
 #: (``EXPORT_PASS_COST`` each: UV, alpha and STMap written as EXR), its atlas textures every texel of every layer
 #: (``ATLAS_TEXEL_COST`` each: the colour network only, written as PNG and EXR); plus ``EXPORT_START_SECONDS`` to
 #: start the engine and load the fit. Measured 2026-11-25 on a 2-core Xeon, no GPU (a 6-frame 96x64 synthetic
-#: clip, atlas 1000, ``python -m engine export``: start-up 3.0 s, atlas 13.4 s for 2 x 10^6 texels, passes 0.7 s;
-#: the fastest live-PSNR sample there, 4e-6 s per pixel). A rough estimate: the export is a small part of a fit.
+#: clip, atlas 1000, ``python -m engine export``: start-up 3.0 s, atlas 13.4 s for 2 x 10^6 texels, passes 0.7 s,
+#: against 2.2e-5 s per pixel of the fit's evaluation). Rough: on that busy machine a sample's time varied tenfold
+#: between calls; the export is a small part of a real fit.
 EXPORT_START_SECONDS = 3.0
 EXPORT_PASS_COST = 1.0
-ATLAS_TEXEL_COST = 1.0
+ATLAS_TEXEL_COST = 0.3
 
 
 class JobClock:
@@ -115,6 +116,11 @@ class JobClock:
                 self.eval_left = self.eval_pixels * self.per_pixel
             work = self.eval_pixels + self.export_pixels * EXPORT_PASS_COST + self.atlas_texels * ATLAS_TEXEL_COST
             self.export_left = EXPORT_START_SECONDS + work * self.per_pixel
+
+    def resume_from(self, fraction: float) -> None:
+        """A resumed fit's bar starts where the stopped one showed it (``progress.logged_fraction``), whatever the
+        rates measured in this process (a busy machine times a sample tenfold slower or faster)."""
+        self._shown = max(self._shown, min(1.0, fraction))
 
     def train(self, done_seconds: float, left_seconds: float | None) -> None:
         self.train_done, self.train_left = done_seconds, left_seconds

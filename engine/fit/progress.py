@@ -52,4 +52,23 @@ class Reporter:
         )
 
 
-__all__ = ["Reporter"]
+def logged_fraction(log_path: Path, step: int, total: int) -> float | None:
+    """The whole-job fraction a fit's log last showed at or before training step ``step`` of ``total`` (None:
+    none logged, or logged for another number of steps): where a resumed fit's bar continues from."""
+    found = None
+    try:
+        with open(log_path, encoding="utf-8", errors="replace") as f:
+            for line in f:
+                msg = C.parse_progress_line(line)
+                if msg is None or msg.get("job_fraction") is None:
+                    continue
+                training = msg["event"] == C.EVENT_PROGRESS or msg.get("stage") == "train"
+                at = msg.get("step", msg.get("done"))
+                if training and msg.get("total") == total and isinstance(at, int) and at <= step:
+                    found = float(msg["job_fraction"])
+    except OSError:
+        return None
+    return found
+
+
+__all__ = ["Reporter", "logged_fraction"]

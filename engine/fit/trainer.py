@@ -34,7 +34,7 @@ from engine.fit.checkpoint import nonfinite_entries
 from engine.fit.device import select_device, synchronize
 from engine.fit.eta import JobClock, StepClock
 from engine.fit.prepare import PreparedClip, prepare_clip
-from engine.fit.progress import Reporter
+from engine.fit.progress import Reporter, logged_fraction
 from engine.fit.run_folder import FOREIGN_CHECKPOINT_FIX, ClipRecord, RunFolder
 from engine.io.colour import recorded_space, resolve
 from engine.model.atlas_model import AtlasModel, FastModel, motion_regions
@@ -612,6 +612,10 @@ class Trainer:
         # a resumed fit's rate until its clock has one: its training seconds per step so far (the bar continues
         # from the checkpoint's share of the whole job, not from 0)
         resume_rate = self.train_seconds / self.step if self.step > 0 and self.train_seconds > 0 else None
+        if self.step > 0:
+            shown = logged_fraction(run.log, self.step, cfg.steps)
+            if shown is not None:
+                job.resume_from(shown)
         job.atlas_texels = self.model.num_layers * C.ATLAS_SIZE_DEFAULT**2  # the export's atlases (its default size)
         self.evaluate_sample()  # warm-up (allocator, kernels): the first sample of a process is slower than the rest
         for _ in range(START_SAMPLES):

@@ -81,7 +81,7 @@ def test_fit_resume_and_export_report_the_whole_job(tmp_path):
     assert start["done"] == stopped
     shown = start["job_fraction"]
     print(f"whole-job fraction: {at_stop:.3f} when stopped at step {stopped}/{STEPS}, {shown:.3f} on resume")
-    assert start["job_fraction"] >= 0.5 * at_stop and start["job_fraction"] > PRE_TRAIN_SHARE
+    assert start["job_fraction"] >= at_stop > PRE_TRAIN_SHARE  # where the stopped fit's bar was (its log says)
     assert start["job_eta"] is not None and start["job_eta"] > start["stage_eta"] > 0
     fractions = _fractions(resumed)
     assert fractions == sorted(fractions)
