@@ -114,8 +114,10 @@ def test_masks_job_writes_a_fresh_folder_and_reads_its_event(tmp_path):
 
 def test_estimate_job_reads_the_rows_the_engine_printed(tmp_path):
     job = EstimateJob(fake_python(tmp_path), str(tmp_path / "run"), _clip(tmp_path), EC.set_args(768))
-    _drive(job)
+    statuses = _drive(job)
     assert job.result is not None and job.result.status == EP.STATUS_OK
+    # its progress lines move the bar and the line (Estimate Time is modal, with Cancel, as Fit Atlas is)
+    assert statuses[-1] == "timing the presets 1/1 · ETA 0s for the whole estimate" and job.fraction == 1.0
     assert job.rows == {"draft": {"seconds": 61.0, "psnr": 25.7}}
     logged = json.loads(Path(job.log_path).read_text().splitlines()[-2])
     assert logged["argv"][-1] == "--json" and C.SCRIBBLE_ARG not in logged["argv"]

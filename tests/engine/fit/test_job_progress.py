@@ -21,7 +21,7 @@ from tests.engine_cli import progress_until, start_engine
 from tests.paths import ROOT
 
 SPEC = SceneSpec(width=48, height=32, frames=5, fg_size=(16, 12), fg_start=(10.0, 8.0))
-STEPS = 40
+STEPS = 150
 SETS = [f"steps={STEPS}", "batch=256", "eval_every=10", "eval_pixels=4000", "bootstrap_steps=10",
         "global_rigidity_steps=5", "checkpoint_seconds=0.2"]  # fmt: skip
 
@@ -52,7 +52,7 @@ def test_fit_resume_and_export_report_the_whole_job(tmp_path):
 
     # 1. a new fit, stopped mid-training
     proc = start_engine(_argv(frames, masks, run))
-    first = progress_until(proc, lambda ev: ev[-1]["event"] == C.EVENT_PROGRESS and ev[-1]["step"] >= 20)
+    first = progress_until(proc, lambda ev: ev[-1]["event"] == C.EVENT_PROGRESS and ev[-1]["step"] >= STEPS // 2)
     proc.send_signal(signal.SIGTERM)
     rest, err = proc.communicate(timeout=300)
     first += _events(rest)
@@ -64,7 +64,7 @@ def test_fit_resume_and_export_report_the_whole_job(tmp_path):
     assert first.index(flow[-1]) < next(i for i, e in enumerate(first) if e["event"] == C.EVENT_PROGRESS)
     assert flow[-1]["job_fraction"] == pytest.approx(PRE_TRAIN_SHARE) and flow[-1]["job_eta"] is None
     fractions = _fractions(first)
-    assert fractions == sorted(fractions) and 0.0 < fractions[-1] < 1.0
+    assert fractions == sorted(fractions) and PRE_TRAIN_SHARE <= fractions[-1] < 1.0
     trained = [e for e in first if e["event"] == C.EVENT_PROGRESS]
     assert all(
         {"step", "total", "psnr", "elapsed", "eta", "losses", "job_fraction", "job_eta"} <= set(e) for e in trained
@@ -81,7 +81,8 @@ def test_fit_resume_and_export_report_the_whole_job(tmp_path):
     assert start["done"] == stopped
     shown = start["job_fraction"]
     print(f"whole-job fraction: {at_stop:.3f} when stopped at step {stopped}/{STEPS}, {shown:.3f} on resume")
-    assert start["job_fraction"] >= at_stop > PRE_TRAIN_SHARE  # where the stopped fit's bar was (its log says)
+    # where the stopped fit's bar was (its log says), not 0 (nor a value re-estimated from this process's timings)
+    assert start["job_fraction"] >= at_stop >= PRE_TRAIN_SHARE
     assert start["job_eta"] is not None and start["job_eta"] > start["stage_eta"] > 0
     fractions = _fractions(resumed)
     assert fractions == sorted(fractions)
