@@ -60,7 +60,7 @@ def _settings(scene) -> dict:
 
 
 def _animation_render(scene, out, fmt, space):
-    """One animation render with the session's settings: the render as a single call to Blender."""
+    """One animation render with the output settings ``RenderSession.begin`` sets: the render as one call to Blender."""
     session = compositor.RenderSession(scene, str(out), fmt, space)
     try:
         session.begin()
