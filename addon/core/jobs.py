@@ -110,6 +110,18 @@ class Job:
         self.process = EP.EngineJob(self.commands[index].argv, self.log_path, env=self.env).start()
 
 
+def _last_fraction(log_path: str) -> float:
+    """The whole-job fraction of the last training message in a fit's log (0.0: none)."""
+    found = 0.0
+    for line in progress.read_log(log_path).splitlines():
+        msg = C.parse_progress_line(line)
+        if msg is None or msg.get("job_fraction") is None:
+            continue
+        if msg["event"] == C.EVENT_PROGRESS or (msg["event"] == C.EVENT_JOB and msg.get("stage") == "train"):
+            found = float(msg["job_fraction"])
+    return found
+
+
 def failed(result: EP.JobResult, message: str) -> EP.JobResult:
     """``result`` turned into a failure saying ``message`` (the command succeeded but did not do its work)."""
     return EP.JobResult(EP.STATUS_FAILED, result.returncode, message, result.log_path)
@@ -139,6 +151,9 @@ class FitJob(Job):
         commands = [Command("fit", fit), Command("export", EC.export_argv(python, run_dir))]
         super().__init__(commands, files.fit_log, EC.engine_env(), keep_log=clip is None)
         self.manifest: str | None = None
+        #: a resume's bar starts where the stopped fit's was (its last whole-job fraction in the log), before the
+        #: engine has said anything
+        self.resumed_from = 0.0 if clip is not None else _last_fraction(files.fit_log)
 
     def can_resume(self) -> bool:
         return RunFiles(self.run_dir).has_fit()
@@ -152,9 +167,9 @@ class FitJob(Job):
         """The whole fit's: the fit command's own, then the export's frames over the share the fit left to it (an
         engine without whole-job fractions: each command's own steps, as before)."""
         st = self.state
-        if self.label == "export" and self.fit_fraction is not None and st.job_fraction is not None:
-            return self.fit_fraction + (1.0 - self.fit_fraction) * st.fraction
-        return st.fraction
+        if self.label == "export" and self.fit_fraction is not None:
+            return self.fit_fraction + (1.0 - self.fit_fraction) * (st.job_fraction or 0.0)
+        return max(self.resumed_from, st.fraction) if self.label == "fit" else st.fraction
 
     def status_text(self) -> str:
         if self.label == "export" and not self.cancelling:

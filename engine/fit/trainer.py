@@ -612,10 +612,6 @@ class Trainer:
         # a resumed fit's rate until its clock has one: its training seconds per step so far (the bar continues
         # from the checkpoint's share of the whole job, not from 0)
         resume_rate = self.train_seconds / self.step if self.step > 0 and self.train_seconds > 0 else None
-        if self.step > 0:
-            shown = logged_fraction(run.log, self.step, cfg.steps)
-            if shown is not None:
-                job.resume_from(shown)
         job.atlas_texels = self.model.num_layers * C.ATLAS_SIZE_DEFAULT**2  # the export's atlases (its default size)
         self.evaluate_sample()  # warm-up (allocator, kernels): the first sample of a process is slower than the rest
         for _ in range(START_SAMPLES):
@@ -720,6 +716,10 @@ def fit(
             _check_resume_config(run, saved, cfg)
             state = run.load_checkpoint(device)
             run.check_checkpoint_belongs(state, saved, record)
+            # the bar continues where the stopped fit showed it, from the first message (the flow's) on
+            shown = logged_fraction(run.log, int(state["step"]), cfg.steps)
+            if shown is not None:
+                reporter.job.resume_from(shown)
             clip, mask_dirs, frame_range = record.source, list(record.masks), record.frame_range
             scribble_dir, expect = record.scribbles, record.fingerprint
             fps, start_frame = record.exact_rate, record.movie_start
