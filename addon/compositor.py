@@ -14,6 +14,7 @@ import bpy
 from . import compat
 from .core import frames as F
 from .core import relink
+from .core import render_job as RJ
 from .core import tree_plan as P
 
 
@@ -190,45 +191,110 @@ def set_filter(scene: Any, filter_type: str) -> int:
     return count
 
 
-def render(scene: Any, out_dir: str, file_format: str = "exr", exr_colorspace: str = "Linear Rec.709") -> list[str]:
-    """Render the compositor for the scene's frame range into ``out_dir/edit.#####.<ext>`` (or a movie).
+class RenderSession:
+    """One Render Edited Clip, step by step: ``begin`` sets the output up, ``render_step`` renders one frame (or,
+    for a movie, the whole movie), ``end`` puts the artist's settings back. The blocking ``render`` and the modal
+    operator both drive it, so both write the same files; ``end`` belongs in a ``finally`` (a cancel or an error
+    restores the settings too).
 
-    The view transform is Standard and dithering off for the render, so a PNG is the plain sRGB encoding
-    of the linear result (the artist's settings are restored afterwards). An EXR is written in
-    ``exr_colorspace`` (``TreePlan.output_colorspace``: the plate's space when scene-linear, as ``engine render``).
-    The tree's mattes are written beside it, ``out_dir/mattes/<Matte>/matte.#####.exr`` (``point_mattes``).
+    The view transform is Standard and dithering off for the render, so a PNG is the plain sRGB encoding of the
+    linear result. An EXR is written in ``exr_colorspace`` (``TreePlan.output_colorspace``: the plate's space when
+    scene-linear, as ``engine render``). A frame is rendered as a still of that frame with ``write_still``: Blender
+    writes it to the frame's own path (``RenderSettings.frame_path``), the same ``edit.#####.<ext>`` an
+    animation render writes. The tree's mattes are written beside the frames,
+    ``out_dir/mattes/<Matte>/matte.#####.exr`` (``point_mattes``).
     """
-    os.makedirs(out_dir, exist_ok=True)
-    point_mattes(scene, out_dir)
-    r = scene.render
-    s = r.image_settings
-    saved = {
-        "filepath": r.filepath,
-        "dither": r.dither_intensity,
-        "view": scene.view_settings.view_transform,
-        "look": scene.view_settings.look,
-        "extension": r.use_file_extension,
-    }
-    image_settings = compat.image_settings_state(s)
-    try:
+
+    _template = ""
+
+    def __init__(self, scene: Any, out_dir: str, file_format: str = "exr", exr_colorspace: str = "Linear Rec.709"):
+        self.scene = scene
+        self.out_dir = out_dir
+        self.file_format = file_format
+        self.exr_colorspace = exr_colorspace
+        self._saved: dict[str, Any] | None = None
+        self._image_settings: dict[str, Any] | None = None
+
+    def frames(self) -> list[int]:
+        """The scene's frames, as an animation render renders them."""
+        s = self.scene
+        return RJ.frame_list(s.frame_start, s.frame_end, s.frame_step)
+
+    def steps(self) -> list[int | None]:
+        """One step per frame; a movie: one step (None) that renders it all."""
+        return RJ.steps_for(self.file_format, self.frames())
+
+    def begin(self) -> None:
+        os.makedirs(self.out_dir, exist_ok=True)
+        point_mattes(self.scene, self.out_dir)
+        scene = self.scene
+        r = scene.render
+        self._saved = {
+            "filepath": r.filepath,
+            "dither": r.dither_intensity,
+            "view": scene.view_settings.view_transform,
+            "look": scene.view_settings.look,
+            "extension": r.use_file_extension,
+            "frame": scene.frame_current,
+        }
+        self._image_settings = compat.image_settings_state(r.image_settings)
         scene.view_settings.view_transform = "Standard"
         scene.view_settings.look = "None"
         r.dither_intensity = 0.0
         r.compositor_device = "CPU"
         r.compositor_precision = "FULL"
-        compat.set_render_format(scene, file_format, exr_colorspace)
+        compat.set_render_format(scene, self.file_format, self.exr_colorspace)
         r.use_file_extension = True
-        r.filepath = os.path.join(os.path.abspath(out_dir), "edit." if file_format != "movie" else "edit_")
-        if file_format != "movie":
-            r.filepath += "#####"
-        result = bpy.ops.render.render(animation=True, scene=scene.name)
+        movie = self.file_format not in RJ.FRAME_FORMATS
+        self._template = os.path.join(os.path.abspath(self.out_dir), "edit_" if movie else "edit.#####")
+        r.filepath = self._template
+
+    def render_step(self, frame: int | None) -> None:
+        """Render ``frame`` into its file (None: the whole movie); RuntimeError when Blender does not finish."""
+        scene = self.scene
+        if frame is None:
+            result = bpy.ops.render.render(animation=True, scene=scene.name)
+        else:
+            scene.frame_set(frame)
+            # a still is written to the output path as it is: the frame's own path (``#####`` -> the frame number,
+            # the extension added), the name an animation render gives that frame
+            r = scene.render
+            r.filepath = self._template
+            r.filepath = r.frame_path(frame=frame)
+            result = bpy.ops.render.render(write_still=True, scene=scene.name)
         if "FINISHED" not in result:
             raise RuntimeError(f"render returned {result}")
-    finally:
-        compat.restore_image_settings(s, image_settings)
+
+    def end(self) -> None:
+        """The artist's settings back (safe to call twice, and after a ``begin`` that failed half-way)."""
+        saved, image_settings = self._saved, self._image_settings
+        if saved is None:
+            return
+        scene = self.scene
+        r = scene.render
+        if image_settings is not None:
+            compat.restore_image_settings(r.image_settings, image_settings)
         r.filepath = saved["filepath"]
         r.use_file_extension = saved["extension"]
         r.dither_intensity = saved["dither"]
         scene.view_settings.view_transform = saved["view"]
         scene.view_settings.look = saved["look"]
-    return sorted(os.path.join(out_dir, f) for f in os.listdir(out_dir) if f.startswith("edit"))
+        if scene.frame_current != saved["frame"]:
+            scene.frame_set(saved["frame"])
+        self._saved = self._image_settings = None
+
+    def written(self) -> list[str]:
+        return sorted(os.path.join(self.out_dir, f) for f in os.listdir(self.out_dir) if f.startswith("edit"))
+
+
+def render(scene: Any, out_dir: str, file_format: str = "exr", exr_colorspace: str = "Linear Rec.709") -> list[str]:
+    """Render the compositor for the scene's frame range into ``out_dir/edit.#####.<ext>`` (or a movie), blocking:
+    every step of a ``RenderSession`` in turn (the artist's settings are restored afterwards, also on an error)."""
+    session = RenderSession(scene, out_dir, file_format, exr_colorspace)
+    try:
+        session.begin()
+        for frame in session.steps():
+            session.render_step(frame)
+    finally:
+        session.end()
+    return session.written()

@@ -148,6 +148,9 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
         ],
         default="exr",
     )
+    # Render Edited Clip's progress (written by its operator, shown by the Paint & Render panel)
+    render_progress: FloatProperty(default=0.0, min=0.0, max=1.0, subtype="FACTOR")
+    render_status: StringProperty(default="")
     estimate_json: StringProperty(default="", description="The engine's time estimate per preset (JSON)")
     # live state of an engine job (written by the operators, shown by the panel)
     running: BoolProperty(default=False)

@@ -11,7 +11,7 @@ from .core import estimate, needs, running
 from .core import farm as FM
 from .core import scribble_math as S
 from .ops import refine
-from .ops.render import imported_manifest, passes_file
+from .ops.render import active_render, imported_manifest, passes_file
 
 #: Theme colour-set icons that show the scribble colours in the panel (default theme: red, green, blue, yellow).
 COLOUR_ICONS = {
@@ -180,7 +180,13 @@ class NEURALATLAS_PT_edit(_SidebarPanel, bpy.types.Panel):
         col.prop(props, "render_dir")
         col.prop(props, "render_format")
         col.prop(props, "write_mattes")
-        col.operator("neural_atlas.render", icon="RENDER_ANIMATION")
+        if active_render(context.scene) is not None:
+            col.progress(factor=props.render_progress, type="BAR", text=props.render_status or "rendering…")
+            col.operator("neural_atlas.render_cancel", icon="CANCEL")
+        else:
+            col.operator("neural_atlas.render", icon="RENDER_ANIMATION")
+            if props.render_status:
+                col.label(text=props.render_status)
 
 
 classes = (NEURALATLAS_UL_layers, NEURALATLAS_PT_fit, NEURALATLAS_PT_edit)

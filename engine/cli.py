@@ -288,6 +288,7 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
 
     from engine.config import parse_set_args
     from engine.fit.estimate import estimate, format_estimate
+    from engine.fit.progress import Reporter
 
     result = estimate(
         args.clip,
@@ -299,6 +300,8 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
         frame_range=_positions(args.clip, args.frames),
         overrides=parse_set_args(args.set),
         threads=args.threads,
+        # --json is for a program (the add-on): progress lines (``job``) before the result; the table stays plain
+        reporter=Reporter() if args.json else None,
     )
     print(json.dumps(result) if args.json else format_estimate(result))
     return C.EXIT_OK

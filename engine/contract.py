@@ -507,13 +507,20 @@ def _check_scene_record(data: dict[str, Any]) -> None:
 # --- progress protocol: one JSON object per stdout line ---------------------------------------------------
 PROGRESS_TAG = "neural_atlas"  # every machine-readable line carries {"neural_atlas": SCHEMA_VERSION, ...}
 EVENT_STAGE = "stage"  # {"stage": "flow"|"init"|"train"|"evaluate", "message": str}
-EVENT_PROGRESS = "progress"  # step, total, psnr, elapsed, eta, losses{}
+EVENT_PROGRESS = "progress"  # step, total, psnr, elapsed, eta, losses{}; optional job_fraction, job_eta
 EVENT_CHECKPOINT = "checkpoint"  # step, path
 EVENT_DONE = "done"  # metrics{}
 EVENT_CANCELLED = "cancelled"  # step, checkpoint
 EVENT_ERROR = "error"  # message, log
 EVENT_EXPORTED = "exported"  # manifest (absolute path of the manifest.json an export wrote)
 EVENT_MASKS = "masks"  # found (bool: a moving object was found), folder, message: what `engine masks` did
+#: How far the whole command is, at every stage (a reader that does not know it skips it as noise):
+#: stage ("flow", "train", "evaluate", "export", "estimate"), done and total (the stage's pairs, steps or frames),
+#: stage_eta (seconds left in the stage, or null), job_fraction (0..1 of the whole job, never decreasing, a resumed
+#: fit's starting where its checkpoint is) and job_eta (seconds left in the whole job, or null while a stage's cost is
+#: not measured yet). A fit's job is flow, training, evaluation and the export that follows it.
+EVENT_JOB = "job"
+JOB_STAGES = ("flow", "train", "evaluate", "export", "estimate")
 EVENTS = (
     EVENT_STAGE,
     EVENT_PROGRESS,
@@ -523,6 +530,7 @@ EVENTS = (
     EVENT_ERROR,
     EVENT_EXPORTED,
     EVENT_MASKS,
+    EVENT_JOB,
 )
 
 

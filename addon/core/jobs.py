@@ -40,6 +40,8 @@ class Job:
     #: what the status line says before the first progress message, and once Cancel was pressed
     idle_text = "starting…"
     cancel_text = "cancelling…"
+    #: what the whole-job ETA covers, as the status line names it ("ETA 3m10s for the whole fit")
+    whole = "job"
 
     def __init__(
         self, commands: list[Command], log_path: str, env: dict[str, str] | None = None, keep_log: bool = False
@@ -97,7 +99,8 @@ class Job:
             return self.cancel_text
         if self.process is None:
             return self.idle_text
-        return self.state.summary() if self.state.total else (self.state.message or self.idle_text)
+        st = self.state
+        return st.summary(self.whole) if st.total or st.job_stage else (st.message or self.idle_text)
 
     def finish(self, result: EP.JobResult) -> EP.JobResult:
         """The job's result from its last command's (each kind reads what it needs)."""
@@ -106,6 +109,18 @@ class Job:
     def _run(self, index: int) -> None:
         self.index = index
         self.process = EP.EngineJob(self.commands[index].argv, self.log_path, env=self.env).start()
+
+
+def _last_fraction(log_path: str) -> float:
+    """The whole-job fraction of the last training message in a fit's log (0.0: none)."""
+    found = 0.0
+    for line in progress.read_log(log_path).splitlines():
+        msg = C.parse_progress_line(line)
+        if msg is None or msg.get("job_fraction") is None:
+            continue
+        if msg["event"] == C.EVENT_PROGRESS or (msg["event"] == C.EVENT_JOB and msg.get("stage") == "train"):
+            found = float(msg["job_fraction"])
+    return found
 
 
 def failed(result: EP.JobResult, message: str) -> EP.JobResult:
@@ -117,6 +132,7 @@ class FitJob(Job):
     """Fit Atlas: ``engine fit`` (or ``fit --resume``), then ``engine export`` of the run."""
 
     cancel_text = "cancelling: writing a checkpoint…"
+    whole = "fit"
 
     def __init__(
         self, python: str, run_dir: str, clip: Callable[[], EC.ClipInputs] | None, preset: str, sets: list[str]
@@ -137,15 +153,38 @@ class FitJob(Job):
         commands = [Command("fit", fit), Command("export", EC.export_argv(python, run_dir))]
         super().__init__(commands, files.fit_log, EC.engine_env(), keep_log=clip is None)
         self.manifest: str | None = None
+        #: a resume's bar starts where the stopped fit's was (its last whole-job fraction in the log), before the
+        #: engine has said anything
+        self.resumed_from = 0.0 if clip is not None else _last_fraction(files.fit_log)
 
     def can_resume(self) -> bool:
         return RunFiles(self.run_dir).has_fit()
 
+    #: the fit command's last whole-job fraction (the engine's, which leaves the export's share to it); None before
+    #: the export starts, or from an engine that sends no whole-job fraction
+    fit_fraction: float | None = None
+
+    @property
+    def fraction(self) -> float:
+        """The whole fit's: the fit command's own, then the export's frames over the share the fit left to it (an
+        engine without whole-job fractions: each command's own steps, as before)."""
+        st = self.state
+        if self.label == "export" and self.fit_fraction is not None:
+            return self.fit_fraction + (1.0 - self.fit_fraction) * (st.job_fraction or 0.0)
+        return max(self.resumed_from, st.fraction) if self.label == "fit" else st.fraction
+
     def status_text(self) -> str:
         if self.label == "export" and not self.cancelling:
             st = self.state
+            if st.job_stage == "export":
+                return st.summary(self.whole)
             return f"exporting passes {st.step}/{st.total}" if st.total else "exporting passes…"
         return super().status_text()
+
+    def _run(self, index: int) -> None:
+        if self.process is not None:
+            self.fit_fraction = self.process.state.job_fraction
+        super()._run(index)
 
     def finish(self, result: EP.JobResult) -> EP.JobResult:
         if self.label == "export" and result.status == EP.STATUS_OK:
@@ -228,6 +267,7 @@ class EstimateJob(Job):
     """Estimate Time: ``engine estimate --json``, a few timed steps of every preset on this clip."""
 
     idle_text = "timing the presets…"
+    whole = "estimate"
 
     def __init__(self, python: str, run_dir: str, clip: EC.ClipInputs, sets: list[str]):
         argv = EC.estimate_argv(python, clip, sets)

@@ -32,12 +32,24 @@ class JobState:
     manifest: str | None = None
     metrics: dict[str, Any] | None = None
     error: str | None = None
+    #: the whole job (``contract.EVENT_JOB``, and the ``job_*`` fields of ``progress``; None from an engine that
+    #: does not send them): its fraction (never decreasing) and seconds left, and the running stage's count and
+    #: seconds left (flow pairs, training steps, evaluation, export frames)
+    job_fraction: float | None = None
+    job_eta: float | None = None
+    job_stage: str = ""
+    stage_done: int = 0
+    stage_total: int = 0
+    stage_eta: float | None = None
     #: the last stdout line that is no progress message (pip's "Collecting ...", the path `export` prints)
     last_stdout: str = ""
     stderr_tail: list[str] = field(default_factory=list)
 
     @property
     def fraction(self) -> float:
+        """The whole job's fraction where the engine sends it, else the training steps'."""
+        if self.job_fraction is not None:
+            return min(1.0, max(0.0, self.job_fraction))
         return min(1.0, self.step / self.total) if self.total > 0 else 0.0
 
     def apply(self, msg: dict[str, Any]) -> None:
@@ -50,6 +62,16 @@ class JobState:
             self.total = int(msg.get("total", self.total))
             self.psnr = msg.get("psnr", self.psnr)
             self.eta = msg.get("eta", self.eta)
+            self._apply_job(msg)
+        elif event == C.EVENT_JOB:
+            self.job_stage = str(msg.get("stage", self.job_stage))
+            self.stage_done = int(msg.get("done", self.stage_done))
+            self.stage_total = int(msg.get("total", self.stage_total))
+            self.stage_eta = msg.get("stage_eta")
+            if self.job_stage == "train":  # the step count moves between the live-PSNR steps too
+                self.step, self.total = self.stage_done, self.stage_total
+                self.eta = self.stage_eta
+            self._apply_job(msg)
         elif event == C.EVENT_DONE:
             self.metrics = msg.get("metrics")
         elif event == C.EVENT_ERROR:
@@ -57,21 +79,44 @@ class JobState:
         elif event == C.EVENT_EXPORTED:
             self.manifest = msg.get("manifest", self.manifest)
 
+    def _apply_job(self, msg: dict[str, Any]) -> None:
+        if "job_fraction" in msg and msg["job_fraction"] is not None:
+            self.job_fraction = max(float(msg["job_fraction"]), self.job_fraction or 0.0)
+        if "job_eta" in msg:
+            self.job_eta = msg["job_eta"]
+
     def note_stderr(self, line: str) -> None:
         """Keep the last STDERR_TAIL_LINES non-empty stderr lines (a progress bar's ``\\r`` redraws are skipped)."""
         if line.strip() and "\r" not in line:
             self.stderr_tail.append(line.strip())
             del self.stderr_tail[:-STDERR_TAIL_LINES]
 
-    def summary(self) -> str:
-        """One line for the progress bar: step, PSNR and ETA."""
-        if self.total <= 0:
+    def summary(self, whole: str = "job") -> str:
+        """One line for the progress bar: where the job is (flow pairs, training step and PSNR, evaluation, export
+        frames) and its ETA, saying what the ETA covers: ``whole`` ("fit": flow, training, evaluation, export),
+        or only the running stage while the whole job's is not measured yet."""
+        stage = self.job_stage
+        if stage == "flow":
+            text = f"optical flow {self.stage_done}/{self.stage_total}"
+        elif stage == "evaluate":
+            text = "evaluating every pixel"
+        elif stage == "export":
+            text = f"exporting passes {self.stage_done}/{self.stage_total}"
+        elif stage == "estimate":
+            text = f"timing the presets {self.stage_done}/{self.stage_total}"
+        elif self.total > 0:
+            text = f"step {self.step}/{self.total}"
+            if self.psnr is not None:
+                text += f" · {self.psnr:.1f} dB"
+        else:
             return self.message or self.stage or "starting…"
-        text = f"step {self.step}/{self.total}"
-        if self.psnr is not None:
-            text += f" · {self.psnr:.1f} dB"
-        if self.eta is not None:
-            text += f" · ETA {format_seconds(self.eta)}"
+        if self.job_eta is not None:
+            text += f" · ETA {format_seconds(self.job_eta)} for the whole {whole}"
+        elif self.job_fraction is not None and self.stage_eta is not None:
+            what = {"train": "training", "evaluate": "evaluation"}.get(stage, f"the {stage}")
+            text += f" · ETA {format_seconds(self.stage_eta)} for {what}"
+        elif self.job_fraction is None and self.eta is not None:
+            text += f" · ETA {format_seconds(self.eta)}"  # an engine without whole-job estimates: training's
         return text
 
 

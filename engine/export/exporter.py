@@ -23,6 +23,7 @@ import math
 import os
 import shutil
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -507,6 +508,7 @@ def _write_passes(
     ww, wh = clip.working_size
     xy_native = _pixel_grid((nw, nh), (ww / nw, wh / nh), device)
     frame_numbers = list(clip.frame_numbers)
+    started = time.perf_counter()
     for k, t in enumerate(todo):
         uvs, wts = _eval_pixels(model, xy_native, t)
         chans: dict[str, np.ndarray] = {}
@@ -527,6 +529,18 @@ def _write_passes(
             written(path)
         bar.update(1)
         job.reporter.emit(C.EVENT_PROGRESS, step=k + 1, total=len(todo), psnr=None, elapsed=None, eta=None)
+        # the export's own whole job (a fit's reader places it after the fit's share): its frames, at their rate
+        left = (time.perf_counter() - started) / (k + 1) * (len(todo) - k - 1)
+        fraction = round((k + 1) / len(todo), 4)
+        job.reporter.emit(
+            C.EVENT_JOB,
+            stage="export",
+            done=k + 1,
+            total=len(todo),
+            stage_eta=round(left, 1),
+            job_fraction=fraction,
+            job_eta=round(left, 1),
+        )
 
 
 def _export_whole(job: _Job, atlas_size: int, frames: tuple[int, int] | None, version: str | None) -> Path:

@@ -27,7 +27,9 @@ from engine import contract as C
 from engine.config import PRESETS, FitConfig, apply_overrides, preset_config
 from engine.data.video import build_video_tensors, frame_pixels
 from engine.fit.device import select_device, synchronize, torch_threads
+from engine.fit.eta import PRE_TRAIN_SHARE
 from engine.fit.prepare import prepare_clip
+from engine.fit.progress import Reporter
 from engine.fit.trainer import EVAL_CHUNK, Trainer
 from engine.io.images import display_path
 
@@ -128,9 +130,11 @@ def estimate(
     frame_range: tuple[int, int] | None = None,
     overrides: dict[str, str] | None = None,
     threads: int | None = None,
+    reporter: Reporter | None = None,
 ) -> dict[str, Any]:
     """Estimate every preset's fit time on ``clip``. ``work_dir`` holds the flow cache in a run folder's
-    layout (``work_dir/flow_cache``): pass the future run folder and ``fit`` reuses the flow."""
+    layout (``work_dir/flow_cache``): pass the future run folder and ``fit`` reuses the flow. ``reporter``: where
+    the progress goes (``job`` messages: the flow's pairs, then each preset timed; default: nowhere)."""
     with torch_threads(threads):
         return _estimate(
             clip,
@@ -141,6 +145,7 @@ def estimate(
             device_name,
             frame_range,
             overrides or {},
+            reporter or Reporter.null(),
         )
 
 
@@ -153,18 +158,21 @@ def _estimate(
     device_name: str,
     frame_range: tuple[int, int] | None,
     overrides: dict[str, str],
+    reporter: Reporter,
 ) -> dict[str, Any]:
     device = select_device(device_name)
     cfgs = [apply_overrides(preset_config(p), overrides or {}) for p in presets]
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(work_dir) if work_dir else Path(tmp)
         t0 = time.perf_counter()
-        prepared = prepare_clip(clip, list(mask_dirs), cfgs[0], work, frame_range)
+        prepared = prepare_clip(clip, list(mask_dirs), cfgs[0], work, frame_range, reporter)
         prepare_seconds = time.perf_counter() - t0
+    timing = _PresetProgress(reporter, len(cfgs))
     video = build_video_tensors(prepared.frames, prepared.masks, prepared.flow, cfgs[0].mask_prior_margin_px, device)
     t_count, h, w = video.shape
     rows = []
     for cfg in cfgs:
+        timing.next()
         why = preset_unavailable(cfg, prepared.num_foreground)
         if why is not None:
             rows.append(_unavailable_row(cfg, why))
@@ -197,6 +205,7 @@ def _estimate(
                 expected_psnr_note=bench["note"],
             )
         )
+    timing.next()
     return {
         C.ESTIMATE_TAG: C.SCHEMA_VERSION,
         "clip": display_path(prepared.info.source),
@@ -208,6 +217,31 @@ def _estimate(
         "calib_seconds": calib_seconds,
         "presets": [asdict(r) for r in rows],
     }
+
+
+class _PresetProgress:
+    """The estimate's ``job`` messages while it times the presets: one as each preset starts and one at the end,
+    the time left at the mean seconds of the presets timed so far. Reading the clip and its flow (the flow's own
+    messages) are the first ``eta.PRE_TRAIN_SHARE`` of the bar."""
+
+    def __init__(self, reporter: Reporter, total: int) -> None:
+        self.reporter, self.total, self.done = reporter, total, -1
+        self.started = time.perf_counter()
+
+    def next(self) -> None:
+        self.done += 1
+        left = (time.perf_counter() - self.started) / self.done * (self.total - self.done) if self.done else None
+        fraction = PRE_TRAIN_SHARE + (1.0 - PRE_TRAIN_SHARE) * self.done / max(self.total, 1)
+        eta = None if left is None else round(left, 1)
+        self.reporter.emit(
+            C.EVENT_JOB,
+            stage="estimate",
+            done=self.done,
+            total=self.total,
+            stage_eta=eta,
+            job_fraction=round(fraction, 4),
+            job_eta=eta,
+        )
 
 
 def _duration(seconds: float) -> str:

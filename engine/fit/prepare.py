@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import sys
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from fractions import Fraction
@@ -154,14 +155,23 @@ def to_fitting_values(
     return out.astype(np.float32), PlateFaults(bad, absurd)
 
 
-def _fit_flow(frames: np.ndarray, preset: str, threshold_px: float, cache_dir: Path) -> FlowField:
-    """Flow of display-encoded ``frames`` (cached per content); a single frame has none (nothing is cached)."""
+def _fit_flow(
+    frames: np.ndarray,
+    preset: str,
+    threshold_px: float,
+    cache_dir: Path,
+    progress: Callable[[int, int], None] | None = None,
+) -> FlowField:
+    """Flow of display-encoded ``frames`` (cached per content); a single frame has none (nothing is cached).
+    ``progress(done_pairs, total_pairs)`` after each pair (``compute_flow``)."""
     if len(frames) < 2:
         h, w = frames.shape[1:3]
         empty = np.zeros((0, h, w, 2), np.float32)
         ok = np.zeros((0, h, w), bool)
         return FlowField(empty, empty.copy(), ok, ok.copy(), DISFlow(preset).name, threshold_px)
-    return compute_flow(frames.clip(0.0, 1.0), DISFlow(preset), cache_dir=cache_dir, threshold_px=threshold_px)
+    return compute_flow(
+        frames.clip(0.0, 1.0), DISFlow(preset), cache_dir=cache_dir, threshold_px=threshold_px, progress=progress
+    )
 
 
 def prepare_clip(
@@ -231,7 +241,16 @@ def prepare_clip(
         before_writing()
     if len(frames) >= 2:
         reporter.emit(C.EVENT_STAGE, stage="flow", message="optical flow (cached per clip content)")
-    flow = _fit_flow(frames, cfg.flow_preset, cfg.flow_threshold_px, run.flow_cache)
+    # the whole job's clock: what evaluation (working size) and export (native size) will reconstruct
+    reporter.job.eval_pixels = len(frames) * size[0] * size[1]
+    reporter.job.export_pixels = len(frames) * info.width * info.height
+    flow_start = time.perf_counter()
+
+    def flow_progress(done: int, total: int) -> None:
+        left = reporter.job.flow(time.perf_counter() - flow_start, done, total)
+        reporter.job_event("flow", done, total, left)
+
+    flow = _fit_flow(frames, cfg.flow_preset, cfg.flow_threshold_px, run.flow_cache, flow_progress)
     prepared = PreparedClip(
         info,
         size,

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from engine import contract as C
+from engine.fit.eta import JobClock
 
 
 class Reporter:
@@ -16,6 +17,8 @@ class Reporter:
     def __init__(self, log_path: Path | None = None, stream: TextIO | None = None) -> None:
         self.stream: TextIO | None = stream or sys.stdout
         self.log_path = log_path
+        #: the whole job's clock: what ``job_event`` and ``job_fields`` report
+        self.job = JobClock()
 
     @classmethod
     def null(cls) -> Reporter:
@@ -32,5 +35,40 @@ class Reporter:
             with open(self.log_path, "a", encoding="utf-8") as f:
                 f.write(line + "\n")
 
+    def job_fields(self) -> dict[str, Any]:
+        """The whole job's fraction and seconds left, as the ``progress`` and ``job`` messages carry them."""
+        left = self.job.left()
+        return {"job_fraction": round(self.job.fraction(), 4), "job_eta": None if left is None else round(left, 1)}
 
-__all__ = ["Reporter"]
+    def job_event(self, stage: str, done: int, total: int, stage_eta: float | None) -> None:
+        """One ``job`` message: the stage's count and seconds left, and the whole job's (``contract.EVENT_JOB``)."""
+        self.emit(
+            C.EVENT_JOB,
+            stage=stage,
+            done=done,
+            total=total,
+            stage_eta=None if stage_eta is None else round(stage_eta, 1),
+            **self.job_fields(),
+        )
+
+
+def logged_fraction(log_path: Path, step: int, total: int) -> float | None:
+    """The whole-job fraction a fit's log last showed at or before training step ``step`` of ``total`` (None:
+    none logged, or logged for another number of steps): where a resumed fit's bar continues from."""
+    found = None
+    try:
+        with open(log_path, encoding="utf-8", errors="replace") as f:
+            for line in f:
+                msg = C.parse_progress_line(line)
+                if msg is None or msg.get("job_fraction") is None:
+                    continue
+                training = msg["event"] == C.EVENT_PROGRESS or msg.get("stage") == "train"
+                at = msg.get("step", msg.get("done"))
+                if training and msg.get("total") == total and isinstance(at, int) and at <= step:
+                    found = float(msg["job_fraction"])
+    except OSError:
+        return None
+    return found
+
+
+__all__ = ["Reporter", "logged_fraction"]

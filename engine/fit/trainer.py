@@ -32,9 +32,9 @@ from engine.data.video import VideoTensors, build_video_tensors, frame_pixels, s
 from engine.errors import FitDiverged, InputError
 from engine.fit.checkpoint import nonfinite_entries
 from engine.fit.device import select_device, synchronize
-from engine.fit.eta import StepClock
+from engine.fit.eta import JobClock, StepClock
 from engine.fit.prepare import PreparedClip, prepare_clip
-from engine.fit.progress import Reporter
+from engine.fit.progress import Reporter, logged_fraction
 from engine.fit.run_folder import FOREIGN_CHECKPOINT_FIX, ClipRecord, RunFolder
 from engine.io.colour import recorded_space, resolve
 from engine.model.atlas_model import AtlasModel, FastModel, motion_regions
@@ -49,6 +49,11 @@ EVAL_CHUNK = 65536
 EVAL_SEED_OFFSET = 7919
 #: The regime cost probe draws its batches with seed ``cfg.seed + PROBE_SEED_OFFSET`` (the fit's own are untouched).
 PROBE_SEED_OFFSET = 104_729
+#: Seconds between two ``job`` messages while training between the live-PSNR steps (the bar moves between them).
+JOB_EVENT_SECONDS = 1.0
+#: Timed live-PSNR samples before training (the fastest sets the seconds per pixel: the estimate of evaluation and
+#: export, ``JobClock``): on a busy machine one sample's time varies tenfold.
+START_SAMPLES = 3
 #: A foreground alpha above this counts as the layer's when comparing it with its mask (alpha IoU).
 ALPHA_IOU_THRESHOLD = 0.5
 #: The learning rate's decay never goes below this fraction (a zero ratio would stop the decay's logarithm).
@@ -510,6 +515,21 @@ class Trainer:
         """Seconds of training left (None before the clock has a rate)."""
         return None if self.clock is None else self.clock.eta(self.step, self.cfg.steps)
 
+    def _train_left(self, resume_rate: float | None) -> float | None:
+        """Training's seconds left: the clock's, else a resumed fit's rate so far (None: not measured yet)."""
+        eta = self.eta()
+        if eta is None and resume_rate is not None:
+            return resume_rate * max(0, self.cfg.steps - self.step)
+        return eta
+
+    def _timed_sample(self, job: JobClock) -> float:
+        """``evaluate_sample``, timed: its seconds per pixel estimate the evaluation and the export (``JobClock``)."""
+        t0 = time.perf_counter()
+        psnr = self.evaluate_sample()
+        synchronize(self.device)
+        job.pixel_rate(time.perf_counter() - t0, self.cfg.eval_pixels)
+        return psnr
+
     def evaluate_sample(self) -> float:
         """PSNR on the fit's fixed sample of ``eval_pixels`` pixels (the live PSNR of the progress lines)."""
         if self._sample is None:
@@ -588,12 +608,24 @@ class Trainer:
             dynamic_ncols=True,
         )
         last_ckpt = time.monotonic()
+        job = reporter.job
+        # a resumed fit's rate until its clock has one: its training seconds per step so far (the bar continues
+        # from the checkpoint's share of the whole job, not from 0)
+        resume_rate = self.train_seconds / self.step if self.step > 0 and self.train_seconds > 0 else None
+        job.atlas_texels = self.model.num_layers * C.ATLAS_SIZE_DEFAULT**2  # the export's atlases (its default size)
+        self.evaluate_sample()  # warm-up (allocator, kernels): the first sample of a process is slower than the rest
+        for _ in range(START_SAMPLES):
+            self._timed_sample(job)
+        job.train(self.train_seconds, self._train_left(resume_rate))
+        reporter.job_event("train", self.step, cfg.steps, job.train_left)
+        last_job = time.monotonic()
         with _Stop() as stop, contextlib.closing(bar):
             while not self.finished:
                 _, terms = self.train_step()
                 bar.update(1)
+                job.train(self.train_seconds, self._train_left(resume_rate))
                 if self.step % cfg.eval_every == 0 or self.step == cfg.steps or self.step == 1:
-                    psnr = self.evaluate_sample()
+                    psnr = self._timed_sample(job)
                     eta = self.eta()
                     reporter.emit(
                         C.EVENT_PROGRESS,
@@ -603,8 +635,13 @@ class Trainer:
                         elapsed=round(self.train_seconds, 2),
                         eta=None if eta is None else round(eta, 1),
                         losses={k: round(float(v.detach()), 6) for k, v in terms.items()},
+                        **reporter.job_fields(),
                     )
                     bar.set_postfix(psnr=f"{psnr:.2f}")
+                    last_job = time.monotonic()
+                elif time.monotonic() - last_job >= JOB_EVENT_SECONDS:
+                    reporter.job_event("train", self.step, cfg.steps, job.train_left)
+                    last_job = time.monotonic()
                 if stop.signum is not None:
                     self.save(run, reporter)
                     bar.close()
@@ -679,6 +716,10 @@ def fit(
             _check_resume_config(run, saved, cfg)
             state = run.load_checkpoint(device)
             run.check_checkpoint_belongs(state, saved, record)
+            # the bar continues where the stopped fit showed it, from the first message (the flow's) on
+            shown = logged_fraction(run.log, int(state["step"]), cfg.steps)
+            if shown is not None:
+                reporter.job.resume_from(shown)
             clip, mask_dirs, frame_range = record.source, list(record.masks), record.frame_range
             scribble_dir, expect = record.scribbles, record.fingerprint
             fps, start_frame = record.exact_rate, record.movie_start
@@ -762,7 +803,11 @@ def _fit_locked(run: RunFolder, trainer: Trainer, reporter: Reporter, progress_b
         trainer.save(run, reporter)  # step 0: the last good checkpoint even of a fit that diverges at once
     trainer.train(run, reporter, progress_bar)
     reporter.emit(C.EVENT_STAGE, stage="evaluate", message="full-frame PSNR over every pixel")
+    reporter.job_event("evaluate", 0, 1, reporter.job.eval_left)
+    t0 = time.perf_counter()
     ev = trainer.evaluate_full()
+    reporter.job.evaluated(time.perf_counter() - t0)
+    reporter.job_event("evaluate", 1, 1, 0.0)
     metrics = {
         "schema": C.RUN_METRICS_SCHEMA,
         "psnr": ev["psnr"],

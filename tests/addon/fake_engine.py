@@ -64,6 +64,10 @@ def main(argv: list[str]) -> int:
 
         rows = [{"preset": "draft", "total_seconds": 61.0, "expected_psnr": 25.7, "minutes": 1.0}]
         print("timing presets…", flush=True)
+        for done in (0, 1):  # as `estimate --json` reports each preset timed
+            left = None if done == 0 else 0.0
+            say(C.EVENT_JOB, stage="estimate", done=done, total=1, stage_eta=left, job_fraction=0.05 + 0.95 * done,
+                job_eta=left)  # fmt: skip
         print(json.dumps({C.ESTIMATE_TAG: 1, "presets": rows, "argv": argv}), flush=True)
         return 0
     print("tqdm-like noise 10%|#", flush=True)

@@ -50,6 +50,7 @@ NO_UNDO = {
     "save_edits",
     "render",
     "frame_paint_land",
+    "render_cancel",
 }
 #: The engine job operators (ops/driver.py): run modal from their buttons.
 JOBS = ("fit", "refine", "find_masks", "estimate", "setup_engine", "submit_farm", "frame_paint_land")

@@ -114,8 +114,10 @@ def test_masks_job_writes_a_fresh_folder_and_reads_its_event(tmp_path):
 
 def test_estimate_job_reads_the_rows_the_engine_printed(tmp_path):
     job = EstimateJob(fake_python(tmp_path), str(tmp_path / "run"), _clip(tmp_path), EC.set_args(768))
-    _drive(job)
+    statuses = _drive(job)
     assert job.result is not None and job.result.status == EP.STATUS_OK
+    # its progress lines move the bar and the line (Estimate Time is modal, with Cancel, as Fit Atlas is)
+    assert statuses[-1] == "timing the presets 1/1 · ETA 0s for the whole estimate" and job.fraction == 1.0
     assert job.rows == {"draft": {"seconds": 61.0, "psnr": 25.7}}
     logged = json.loads(Path(job.log_path).read_text().splitlines()[-2])
     assert logged["argv"][-1] == "--json" and C.SCRIBBLE_ARG not in logged["argv"]
@@ -128,3 +130,24 @@ def test_a_job_is_started_before_it_is_stepped(tmp_path):
     job = MasksJob("py", str(tmp_path / "run"), "/plate", 0, 5)
     with pytest.raises(AssertionError, match="start"):
         job.step()
+
+
+def test_fit_job_bar_runs_on_through_the_export(tmp_path):
+    """The fit command's whole-job fraction leaves the export's share; the export's frames fill it (the bar
+    never drops back to 0 when the export starts). An engine without whole-job fractions: each command's own."""
+    from types import SimpleNamespace
+
+    from neural_atlas.addon.core.progress import JobState
+
+    job = FitJob(fake_python(tmp_path), str(tmp_path / "run"), lambda: _clip(tmp_path), "draft", [])
+    job.index, job.process = 0, SimpleNamespace(state=JobState(step=2000, total=2000, job_fraction=0.9, job_eta=20.0))
+    assert job.fraction == 0.9
+    job.fit_fraction = job.process.state.job_fraction  # what _run keeps when the export starts
+    job.index = 1
+    job.process = SimpleNamespace(state=JobState(job_stage="export", stage_done=3, stage_total=6, job_fraction=0.5,
+                                                 job_eta=12.0))  # fmt: skip
+    assert job.fraction == pytest.approx(0.95)
+    assert job.status_text() == "exporting passes 3/6 · ETA 12s for the whole fit"
+    job.fit_fraction = None
+    job.process = SimpleNamespace(state=JobState(step=3, total=6))
+    assert job.fraction == 0.5 and job.status_text() == "exporting passes 3/6"

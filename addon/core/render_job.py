@@ -1,0 +1,75 @@
+"""Render Edited Clip frame by frame: which frames, how far it is, how long it still needs. No bpy here.
+
+The operator renders one frame per timer tick (``compositor.RenderSession.render_frame``) so Blender stays
+responsive, the panel shows "frame k/n · ETA", and Cancel stops between two frames. A movie is one file that
+Blender writes in one animation render (a frame cannot be appended to a movie file), so it is one step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from .progress import format_seconds
+
+#: The render formats that write one file per frame (``edit.#####.<ext>``); the others write one movie.
+FRAME_FORMATS = ("exr", "png")
+
+
+def frame_list(start: int, end: int, step: int = 1) -> list[int]:
+    """The frames an animation render of ``start`` .. ``end`` every ``step`` renders (Blender's own order)."""
+    return list(range(start, end + 1, max(1, step)))
+
+
+def steps_for(file_format: str, frames: list[int]) -> list[int | None]:
+    """The render's steps: one per frame for an image sequence, one (None: the whole movie) for a movie."""
+    return list(frames) if file_format in FRAME_FORMATS else [None]
+
+
+@dataclass
+class RenderProgress:
+    """How far a render is: steps done of the total, and the seconds each took (the ETA's rate)."""
+
+    total: int
+    done: int = 0
+    seconds: list[float] = field(default_factory=list)
+    #: True for a movie: one step that renders every frame
+    movie: bool = False
+    frames: int = 0
+    cancelled: bool = False
+
+    @property
+    def fraction(self) -> float:
+        return min(1.0, self.done / self.total) if self.total > 0 else 0.0
+
+    @property
+    def finished(self) -> bool:
+        return self.done >= self.total
+
+    def add(self, seconds: float) -> None:
+        """One step done in ``seconds``."""
+        self.done += 1
+        self.seconds.append(float(seconds))
+
+    def eta(self) -> float | None:
+        """Seconds for the steps left, at the mean rate of the steps so far (None before the first)."""
+        if not self.seconds:
+            return None
+        return (self.total - self.done) * (sum(self.seconds) / len(self.seconds))
+
+    def summary(self) -> str:
+        """The panel's line: ``frame 3/12 · ETA 9s``; a movie: what it is doing in its one step."""
+        if self.movie:
+            return f"rendering the movie ({self.frames} frames) in one go…" if not self.finished else "movie done"
+        text = f"frame {self.done}/{self.total}"
+        eta = self.eta()
+        if eta is not None and not self.finished:
+            text += f" · ETA {format_seconds(eta)}"
+        return text
+
+    def report(self, out_dir: str) -> str:
+        """The line the operator reports at the end: what was written, and for a cancel that the frames stay."""
+        if self.movie:
+            return f"rendered the movie to {out_dir}"
+        if self.cancelled:
+            return f"render cancelled after {self.done}/{self.total} frames; the finished frames stay in {out_dir}"
+        return f"rendered {self.done} frame(s) to {out_dir}"
