@@ -87,7 +87,7 @@ def test_frame_steps_write_what_one_animation_render_writes(blender, tmp_path, f
     assert bpy.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(tmp_path / "steps"), file_format=fmt) == {
         "FINISHED"
     }
-    steps = sorted((tmp_path / "steps").iterdir())
+    steps = sorted((tmp_path / "steps").glob("edit.*"))
     assert [p.name for p in steps] == [f"edit.{f:05d}.{fmt}" for f in FRAMES]
     assert [p.rsplit("/", 1)[-1] for p in whole] == [p.name for p in steps]
     worst = 0.0
@@ -119,7 +119,7 @@ def test_modal_render_shows_progress_and_cancel_keeps_finished_frames(blender, t
     assert props.render_progress == pytest.approx(1 / len(FRAMES))
     assert bpy.ops.neural_atlas.render_cancel() == {"FINISHED"}
     assert op.modal(blender.context, TIMER) == {"CANCELLED"}
-    assert sorted(p.name for p in out.iterdir()) == [f"edit.{FRAMES[0]:05d}.exr"]  # the finished frame stays
+    assert sorted(p.name for p in out.glob("edit.*")) == [f"edit.{FRAMES[0]:05d}.exr"]  # the finished frame stays
     assert _settings(scene) == artist
     assert "cancelled after 1/3 frames" in props.render_status and "stay" in props.render_status
     assert render_ops.active_render(scene) is None and bpy.ops.neural_atlas.render.poll()
@@ -159,5 +159,5 @@ def test_an_error_mid_render_restores_the_settings(blender, tmp_path, monkeypatc
     out = tmp_path / "err"
     with pytest.raises(RuntimeError, match="CANCELLED"):
         bpy.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out), file_format="png")
-    assert sorted(p.name for p in out.iterdir()) == [f"edit.{FRAMES[0]:05d}.png"]
+    assert sorted(p.name for p in out.glob("edit.*")) == [f"edit.{FRAMES[0]:05d}.png"]
     assert _settings(scene) == artist
