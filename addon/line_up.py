@@ -81,10 +81,11 @@ def _jump_frames(scene: Any, run: Any) -> Iterator[int]:
         yield scene.frame_current
 
 
-def shape_key_frames(context: Any, clip: Any, mask: Any) -> list[list[int]]:
-    """The frames of each layer's shape keys of ``mask`` (with any frame the scene itself keys), layer by layer."""
+@contextmanager
+def _mask_operators(context: Any, clip: Any, mask: Any) -> Iterator[Any]:
+    """A Clip Editor showing ``mask`` over ``clip``; yields ``run(op, **kwargs)``, which calls a mask or screen
+    operator there. The mask's active layer and the scene's frame are put back afterwards."""
     scene, frame_before, active_before = context.scene, context.scene.frame_current, mask.layers.active
-    frames = []
     with _clip_editor(context, clip) as (area, region, space):
         space.mask = mask
 
@@ -93,54 +94,49 @@ def shape_key_frames(context: Any, clip: Any, mask: Any) -> list[list[int]]:
                 return op(**kwargs)
 
         try:
-            for layer in mask.layers:
-                mask.layers.active = layer
-                frames.append(list(_jump_frames(scene, run)))
+            yield run
         finally:
             mask.layers.active = active_before
             scene.frame_set(frame_before)
+
+
+def shape_key_frames(context: Any, clip: Any, mask: Any) -> list[list[int]]:
+    """The frames of each layer's shape keys of ``mask`` (with any frame the scene itself keys), layer by layer."""
+    frames = []
+    with _mask_operators(context, clip, mask) as run:
+        for layer in mask.layers:
+            mask.layers.active = layer
+            frames.append(list(_jump_frames(context.scene, run)))
     return frames
 
 
 def shift_shape_keys(context: Any, clip: Any, mask: Any, offset: int) -> int:
     """Move the layer shape keys of ``mask`` ``offset`` frames (the module's docstring); returns how many moved."""
     scene = context.scene
-    frame_before = scene.frame_current
-    active_before = mask.layers.active
     moved = 0
-    with _clip_editor(context, clip) as (area, region, space):
-        space.mask = mask
-
-        def run(op: Any, **kwargs: Any) -> set[str]:
-            with context.temp_override(window=context.window, area=area, region=region, space_data=space):
-                return op(**kwargs)
-
-        try:
-            for layer in mask.layers:
-                mask.layers.active = layer
-                selected = [[p.select for p in spline.points] for spline in layer.splines]
-                for spline in layer.splines:  # Insert Shape Key keys the selected points' layer: select them
-                    for p in spline.points:
-                        p.select = True
-                keys: list[tuple[int, Any]] = []
-                for frame in list(_jump_frames(scene, run)):
-                    scene.frame_set(frame)  # applies the layer's shape at this frame to its points
-                    keys.append((frame, _layer_state(layer)))
-                for frame, _ in keys:
-                    scene.frame_set(frame)
-                    run(bpy.ops.mask.shape_key_clear)
-                for frame, state in keys:
-                    scene.frame_set(frame + offset)
-                    _set_layer_state(layer, state)
-                    if run(bpy.ops.mask.shape_key_insert) != {"FINISHED"}:
-                        raise RuntimeError(f"mask {mask.name!r}: its shape key at frame {frame} could not be moved")
-                    moved += 1
-                for spline, flags in zip(layer.splines, selected, strict=True):
-                    for p, flag in zip(spline.points, flags, strict=True):
-                        p.select = flag
-        finally:
-            mask.layers.active = active_before
-            scene.frame_set(frame_before)
+    with _mask_operators(context, clip, mask) as run:
+        for layer in mask.layers:
+            mask.layers.active = layer
+            selected = [[p.select for p in spline.points] for spline in layer.splines]
+            for spline in layer.splines:  # Insert Shape Key keys the selected points' layer: select them
+                for p in spline.points:
+                    p.select = True
+            keys: list[tuple[int, Any]] = []
+            for frame in list(_jump_frames(scene, run)):
+                scene.frame_set(frame)  # applies the layer's shape at this frame to its points
+                keys.append((frame, _layer_state(layer)))
+            for frame, _ in keys:
+                scene.frame_set(frame)
+                run(bpy.ops.mask.shape_key_clear)
+            for frame, state in keys:
+                scene.frame_set(frame + offset)
+                _set_layer_state(layer, state)
+                if run(bpy.ops.mask.shape_key_insert) != {"FINISHED"}:
+                    raise RuntimeError(f"mask {mask.name!r}: its shape key at frame {frame} could not be moved")
+                moved += 1
+            for spline, flags in zip(layer.splines, selected, strict=True):
+                for p, flag in zip(spline.points, flags, strict=True):
+                    p.select = flag
     return moved
 
 

@@ -25,10 +25,12 @@ from neural_atlas import addon  # noqa: E402
 from engine.data.synthetic import SceneSpec, make_scene, write_scene  # noqa: E402
 
 
-def main(out_png: Path) -> None:
+def fit_synthetic_clip(prefix: str) -> Path:
+    """The add-on registered in a fresh scene, a 192x108, 12-frame synthetic clip written into a new temporary
+    folder (returned) and fitted through Fit Atlas (draft preset, its masks as a folder layer), then imported."""
     addon.register()
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    work = Path(tempfile.mkdtemp(prefix="na_figure_"))
+    work = Path(tempfile.mkdtemp(prefix=prefix))
     write_scene(make_scene(SceneSpec(width=192, height=108, frames=12)), work / "clip")
     os.environ["NEURAL_ATLAS_ENGINE_PYTHON"] = os.environ.get("NEURAL_ATLAS_ENGINE_PYTHON", sys.executable)
     props = bpy.context.scene.neural_atlas
@@ -39,6 +41,11 @@ def main(out_png: Path) -> None:
     props.preset = "draft"
     props.run_dir = str(work / "run")
     assert bpy.ops.neural_atlas.fit("EXEC_DEFAULT") == {"FINISHED"}, props.status
+    return work
+
+
+def main(out_png: Path) -> None:
+    work = fit_synthetic_clip("na_figure_")
     for name, painter in (("NA_Edit_Foreground", _checker), ("NA_Edit_Background", _band)):
         img = bpy.data.images[name]
         w, h = img.size
@@ -55,7 +62,7 @@ def main(out_png: Path) -> None:
     grid = np.concatenate([rows[0], np.full((4, rows[0].shape[1], 4), 255, np.uint8), rows[1]], axis=0)
     grid[..., 3] = 255
     write_png(out_png, grid)
-    print(f"wrote {out_png} ({props.manifest})")
+    print(f"wrote {out_png} ({bpy.context.scene.neural_atlas.manifest})")
     addon.unregister()
 
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import os
 import sys
-import tempfile
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -21,11 +20,9 @@ import bpy  # noqa: E402
 import conftest  # noqa: E402,F401  (imports the checkout as the package neural_atlas)
 import numpy as np  # noqa: E402
 from fake_export import blender_read_rgba8, read_exr_rgba, write_png  # noqa: E402
-from make_figure import _checker  # noqa: E402
+from make_figure import _checker, fit_synthetic_clip  # noqa: E402
 from neural_atlas import addon  # noqa: E402
 from neural_atlas.addon import preview  # noqa: E402
-
-from engine.data.synthetic import SceneSpec, make_scene, write_scene  # noqa: E402
 
 FRAMES = (0, 11)
 
@@ -37,19 +34,7 @@ def _srgb8(linear: np.ndarray) -> np.ndarray:
 
 
 def main(out_png: Path) -> None:
-    addon.register()
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    work = Path(tempfile.mkdtemp(prefix="na_live_figure_"))
-    write_scene(make_scene(SceneSpec(width=192, height=108, frames=12)), work / "clip")
-    os.environ["NEURAL_ATLAS_ENGINE_PYTHON"] = os.environ.get("NEURAL_ATLAS_ENGINE_PYTHON", sys.executable)
-    props = bpy.context.scene.neural_atlas
-    props.clip = bpy.data.movieclips.load(str(work / "clip" / "frames" / "00000.png"))
-    layer = props.layers.add()
-    layer.source = "FOLDER"
-    layer.folder = str(work / "clip" / "masks")
-    props.preset = "draft"
-    props.run_dir = str(work / "run")
-    assert bpy.ops.neural_atlas.fit("EXEC_DEFAULT") == {"FINISHED"}, props.status
+    work = fit_synthetic_clip("na_live_figure_")
     img = bpy.data.images["NA_Edit_Foreground"]
     w, h = img.size
     img.pixels.foreach_set(_checker(w, h).ravel())  # the stroke, unsaved
@@ -64,7 +49,7 @@ def main(out_png: Path) -> None:
     row = np.concatenate([panels[0], gap, panels[1], gap, panels[2]], axis=1)
     row[..., 3] = 255
     write_png(out_png, row)
-    print(f"wrote {out_png} ({props.manifest})")
+    print(f"wrote {out_png} ({bpy.context.scene.neural_atlas.manifest})")
     addon.unregister()
 
 
