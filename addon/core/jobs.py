@@ -213,6 +213,8 @@ class RefineJob(FitJob):
         ]
         Job.__init__(self, commands, files.fit_log, EC.engine_env(), keep_log=True)
         self.manifest: str | None = None
+        # the bar starts at 0: the finished fit's log ends at 1, and the refine's steps are a new stretch of work
+        self.resumed_from = 0.0
 
     def status_text(self) -> str:
         if self.label == "realign" and not self.cancelling:
