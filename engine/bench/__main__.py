@@ -60,6 +60,13 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("clips", nargs="+", metavar="CLIP", help="clip folder (frames/, masks/) or a frame folder")
     b.add_argument("--mask", action="append", default=[], metavar="FOLDER", help="mask folder (single clip only)")
     b.add_argument("--tracks", default=None, metavar="NPZ", help="tracks_tapvid.npz (single clip only)")
+    b.add_argument(
+        "--score-masks",
+        action="append",
+        default=[],
+        metavar="FOLDER",
+        help="precise masks to score the foreground alpha against (single clip only; default: a clip folder's masks/)",
+    )
     b.add_argument("--presets", default="draft,balanced,paper", help="comma-separated (default: draft,balanced,paper)")
     b.add_argument("--budget-seconds", type=float, required=True, help="training seconds per run")
     b.add_argument("--out", default="bench_out", help="output folder (default: bench_out)")
@@ -134,9 +141,11 @@ def _bench(args: argparse.Namespace) -> int:
     from engine.bench.bench import BENCH_JSON, resolve_clip, run_bench, summary_table
     from engine.config import parse_set_args
 
-    if (args.mask or args.tracks) and len(args.clips) != 1:
-        raise InputError(None, "--mask and --tracks need exactly one clip", "bench one clip, or use clip folders")
-    clips = [resolve_clip(c, args.mask or None, args.tracks) for c in args.clips]
+    if (args.mask or args.tracks or args.score_masks) and len(args.clips) != 1:
+        raise InputError(
+            None, "--mask, --tracks and --score-masks need exactly one clip", "bench one clip, or use clip folders"
+        )
+    clips = [resolve_clip(c, args.mask or None, args.tracks, args.score_masks or None) for c in args.clips]
     record = run_bench(
         clips,
         [p.strip() for p in args.presets.split(",") if p.strip()],
