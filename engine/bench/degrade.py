@@ -70,11 +70,11 @@ def _disc(radius: int) -> np.ndarray:
 
 def degrade_mask(mask: np.ndarray, deg: Degradation) -> np.ndarray:
     """One bool [H, W] mask spoilt by ``deg``'s shape steps (simplify, dilate, erode); dropping is per clip."""
-    m = np.asarray(mask, bool).astype(np.uint8)
+    m: np.ndarray = np.asarray(mask, bool).astype(np.uint8)
     if deg.simplify_px > 0 and m.any():
         contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
         poly = [cv2.approxPolyDP(c, deg.simplify_px, True) for c in contours]
-        m = cv2.fillPoly(np.zeros_like(m), poly, 1)
+        m = cv2.fillPoly(np.zeros_like(m), poly, (1,))
     if deg.dilate_px > 0:
         m = cv2.dilate(m, _disc(deg.dilate_px))
     if deg.erode_px > 0:
