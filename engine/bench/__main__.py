@@ -132,7 +132,7 @@ def _add_clips_parser(sub: argparse._SubParsersAction) -> None:
         description="Degrade each clip's masks/ by a named recipe into OUT/masks/RECIPE/CLIP, fit the preset on "
         "every clip with them (one after another, each to its steps) and score the last model against the "
         "clip's own masks/: PSNR, foreground alpha IoU, atlas and chained-flow TAP-Vid delta_avg, training "
-        "seconds. Writes OUT/clips.md, OUT/clips.json and OUT/bench.json; see docs/accuracy-vs-time.md.",
+        "seconds. Writes OUT/clips.md, OUT/clips.json and OUT/runs/CLIP/bench.json; see docs/accuracy-vs-time.md.",
     )
     c.add_argument("root", metavar="CLIPS_ROOT", help="folder of clip folders (frames/, masks/, tracks_tapvid.npz)")
     c.add_argument("--preset", default="draft", help="fit preset (default: draft)")

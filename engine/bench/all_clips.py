@@ -2,10 +2,11 @@
 
 Each clip folder (``frames/`` and ``masks/``, maybe ``tracks_tapvid.npz``) gets its masks degraded by a named
 recipe (``engine.bench.degrade``) into ``OUT/masks/RECIPE/CLIP``; one preset is fitted on each clip with those
-masks by ``run_bench`` (one after another, each to its preset's steps unless a budget ends it first) and
+masks by ``run_bench`` (one clip after another, each to its preset's steps unless a budget ends it first) and
 evaluated once at the end on every frame (by default): PSNR, the foreground alpha's IoU against the clip's own
 precise ``masks/`` (``fg_iou``), TAP-Vid delta_avg of atlas tracking and of chained optical flow. Writes
-``OUT/bench.json`` (the full record), ``OUT/clips.json`` (the table's rows) and ``OUT/clips.md`` (the table).
+``OUT/runs/CLIP/bench.json`` (each clip's full record), ``OUT/clips.json`` (the table's rows) and
+``OUT/clips.md`` (the table).
 """
 
 from __future__ import annotations
@@ -130,33 +131,36 @@ def run_all_clips(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     clips = degraded_clips(root, out, degrade, seed)
-    record = run_bench(
-        clips,
-        [preset],
-        NO_BUDGET_SECONDS if budget_seconds is None else budget_seconds,
-        out,
-        overrides=overrides,
-        evals=1,
-        eval_frames=eval_frames,
-        sequential=True,
-        device_name=device_name,
-        stride=stride,
-        command=command,
-        log=log or sys.stderr,
-        plot=False,
-        threads=threads,
-    )
-    rows = clip_rows(record)
+    rows, benches = [], []
+    for clip in clips:  # one bench per clip: only one clip's frames, flow and model are in memory at a time
+        record = run_bench(
+            [clip],
+            [preset],
+            NO_BUDGET_SECONDS if budget_seconds is None else budget_seconds,
+            out / "runs" / clip.name,
+            overrides=overrides,
+            evals=1,
+            eval_frames=eval_frames,
+            sequential=True,
+            device_name=device_name,
+            stride=stride,
+            command=command,
+            log=log or sys.stderr,
+            plot=False,
+            threads=threads,
+        )
+        rows += clip_rows(record)
+        benches.append(f"runs/{clip.name}/{BENCH_JSON}")
     table = {
         CLIPS_TAG: CLIPS_VERSION,
         "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-        "command": record["command"],
+        "command": command if command is not None else list(sys.argv),
         "preset": preset,
         "degrade": degrade,
         "degradation": asdict(recipe(degrade)),
         "seed": seed,
         "eval_frames": eval_frames,
-        "bench": BENCH_JSON,
+        "benches": benches,
         "rows": rows,
         "mean": mean_row(rows),
     }

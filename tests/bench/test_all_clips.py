@@ -1,6 +1,6 @@
 """``python -m engine.bench clips`` end to end on two tiny synthetic clip folders, a few steps each: degraded masks
 written per clip, every clip fitted and scored against its own precise masks, the markdown table and the JSON
-agree with each other and with the bench record."""
+agree with each other and with each clip's bench record."""
 
 from __future__ import annotations
 
@@ -73,12 +73,14 @@ def test_every_clip_gets_its_degraded_masks(root, result):
 def test_the_table_json_and_bench_record_agree(root, result):
     out, stdout = result
     table = json.loads((out / CLIPS_JSON).read_text())
-    bench = json.loads((out / BENCH_JSON).read_text())
+    assert table["benches"] == [f"runs/{name}/{BENCH_JSON}" for name in SPECS]
+    benches = [json.loads((out / b).read_text()) for b in table["benches"]]
     assert table["preset"] == "draft" and table["degrade"] == RECIPE and table["seed"] == 0
     assert table["degradation"]["dilate_px"] == 10 and table["degradation"]["drop_fraction"] == 0.1
     rows = table["rows"]
     assert [r["clip"] for r in rows] == ["alpha", "beta"]
-    for row, run, clip in zip(rows, bench["runs"], bench["clips"], strict=True):
+    for row, bench in zip(rows, benches, strict=True):
+        (run,), (clip,) = bench["runs"], bench["clips"]
         last = run["curve"][-1]
         assert clip["score_masks"] == [str((root / row["clip"] / "masks").resolve())]
         assert clip["masks"] == [str((out / "masks" / RECIPE / row["clip"]).resolve())]
@@ -88,7 +90,7 @@ def test_the_table_json_and_bench_record_agree(root, result):
         assert row["train_seconds"] == run["train_seconds"] > 0
     alpha, beta = rows
     assert 0.0 <= alpha["atlas_delta_avg"] <= 1.0 and 0.0 <= alpha["flow_delta_avg"] <= 1.0
-    assert alpha["flow_delta_avg"] == bench["clips"][0]["tracking_baseline"]["delta_avg"]
+    assert alpha["flow_delta_avg"] == benches[0]["clips"][0]["tracking_baseline"]["delta_avg"]
     assert beta["atlas_delta_avg"] is None and beta["flow_delta_avg"] is None  # beta has no tracks
     assert table["mean"]["fg_iou"] == pytest.approx((alpha["fg_iou"] + beta["fg_iou"]) / 2, abs=1e-4)
     assert table["mean"]["atlas_delta_avg"] == pytest.approx(alpha["atlas_delta_avg"], abs=1e-4)
