@@ -660,9 +660,9 @@ def plot_bench(record: dict, path: str | Path) -> None:
 
 def summary_table(record: dict) -> str:
     lines = [
-        "| clip | preset | steps | train s | s/step | PSNR (last / best) | consistency (texels) | delta_avg "
-        "| flow delta_avg |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| clip | preset | steps | train s | s/step | PSNR (last / best) | fg IoU | consistency (texels) "
+        "| delta_avg | flow delta_avg |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     base = {c["name"]: c.get("tracking_baseline") for c in record["clips"]}
     for r in record["runs"]:
@@ -676,6 +676,7 @@ def summary_table(record: dict) -> str:
         lines.append(
             f"| {r['clip']} | {r['preset']} | {r['steps']} | {r['train_seconds']:.0f} | {r['seconds_per_step']:.3f} | "
             f"{fmt(last and last['psnr'], '.2f')} / {fmt(last and last['best_psnr'], '.2f')} | "
+            f"{fmt(last and last.get('fg_iou'))} | "
             f"{fmt(last and last['consistency_texels'], '.2f')} | {fmt(trk)} | {fmt(b and b['delta_avg'])} |"
         )
     return "\n".join(lines)

@@ -22,6 +22,7 @@ from engine.bench.bench import (
     foreground,
     resolve_clip,
     run_bench,
+    summary_table,
 )
 from engine.bench.degrade import Degradation, write_degraded
 from engine.config import apply_overrides, preset_config
@@ -105,6 +106,7 @@ def test_the_bench_records_fg_iou_in_every_point(clip, dilated, tmp_path):
     for point in rec["runs"][0]["curve"]:
         assert 0.0 <= point["fg_iou"] <= 1.0
     assert json.loads((tmp_path / BENCH_JSON).read_text())["runs"][0]["curve"][-1]["fg_iou"] == point["fg_iou"]
+    assert f"| {point['fg_iou']:.3f} |" in summary_table(rec).splitlines()[-1]
     bare = run_bench(
         [resolve_clip(clip / "frames", [dilated])], ["draft"], 30.0, tmp_path / "bare",
         overrides={"steps": "2", "batch": "200"}, evals=1, sequential=True, device_name="cpu", threads=1, plot=False,
