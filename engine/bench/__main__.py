@@ -2,6 +2,7 @@
 part of the product (its CLI is ``python -m engine``) and not in the extension zip.
 
     bench        accuracy against training time of several presets, in one process (docs/accuracy-vs-time.md)
+    clips        one preset on every clip of a folder, fitted with degraded masks, scored against the precise ones
     speed        seconds per step of presets, side by side on one clip
     scene-speed  what the scene analysis saves: one clip fitted with components=auto and components=all
     expected-psnr  a finished fit's PSNR as its preset's expected PSNR (engine/fit/expected_psnr.json)
@@ -21,6 +22,7 @@ from engine.cli import frame_range
 from engine.errors import InputError
 
 BENCH = "bench"
+CLIPS = "clips"
 SPEED = "speed"
 SCENE_SPEED = "scene-speed"
 EXPECTED_PSNR = "expected-psnr"
@@ -60,6 +62,13 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("clips", nargs="+", metavar="CLIP", help="clip folder (frames/, masks/) or a frame folder")
     b.add_argument("--mask", action="append", default=[], metavar="FOLDER", help="mask folder (single clip only)")
     b.add_argument("--tracks", default=None, metavar="NPZ", help="tracks_tapvid.npz (single clip only)")
+    b.add_argument(
+        "--score-masks",
+        action="append",
+        default=[],
+        metavar="FOLDER",
+        help="precise masks to score the foreground alpha against (single clip only; default: a clip folder's masks/)",
+    )
     b.add_argument("--presets", default="draft,balanced,paper", help="comma-separated (default: draft,balanced,paper)")
     b.add_argument("--budget-seconds", type=float, required=True, help="training seconds per run")
     b.add_argument("--out", default="bench_out", help="output folder (default: bench_out)")
@@ -110,7 +119,57 @@ def build_parser() -> argparse.ArgumentParser:
     ep.add_argument("--clip", required=True, help="the clip's name, e.g. blackswan")
     ep.add_argument("--note", required=True, help="one line: where the measurement is documented")
     _add_farm_parser(sub)
+    _add_clips_parser(sub)
     return p
+
+
+def _add_clips_parser(sub: argparse._SubParsersAction) -> None:
+    from engine.bench.degrade import DEFAULT_SEED, RECIPES
+
+    c = sub.add_parser(
+        CLIPS,
+        help="one preset on every clip of a folder, fitted with degraded masks, scored against the precise ones",
+        description="Degrade each clip's masks/ by a named recipe into OUT/masks/RECIPE/CLIP, fit the preset on "
+        "every clip with them (one after another, each to its steps) and score the last model against the "
+        "clip's own masks/: PSNR, foreground alpha IoU, atlas and chained-flow TAP-Vid delta_avg, training "
+        "seconds. Writes OUT/clips.md, OUT/clips.json and OUT/runs/CLIP/bench.json; see docs/accuracy-vs-time.md.",
+    )
+    c.add_argument("root", metavar="CLIPS_ROOT", help="folder of clip folders (frames/, masks/, tracks_tapvid.npz)")
+    c.add_argument("--preset", default="draft", help="fit preset (default: draft)")
+    c.add_argument(
+        "--degrade", default="dilated10_dropped10", choices=list(RECIPES), help="mask recipe (default: %(default)s)"
+    )
+    c.add_argument("--seed", type=int, default=DEFAULT_SEED, help="seed of the dropped frames (default: 0)")
+    c.add_argument("--out", default="clips_out", help="output folder (default: clips_out)")
+    c.add_argument("--budget-seconds", type=float, default=None, help="training seconds per clip (default: its steps)")
+    c.add_argument("--eval-frames", type=int, default=0, help="frames evaluated (default: 0 = all)")
+    c.add_argument("--stride", type=int, default=4, help="pixel grid of the consistency and tracking search")
+    c.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
+    c.add_argument("--device", default="auto")
+    c.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+
+
+def _clips(args: argparse.Namespace) -> int:
+    from engine.bench.all_clips import CLIPS_JSON, format_table, run_all_clips
+    from engine.config import parse_set_args
+
+    table = run_all_clips(
+        args.root,
+        args.out,
+        preset=args.preset,
+        degrade=args.degrade,
+        seed=args.seed,
+        overrides=parse_set_args(args.set),
+        budget_seconds=args.budget_seconds,
+        eval_frames=args.eval_frames,
+        device_name=args.device,
+        stride=args.stride,
+        threads=args.threads,
+        command=[PROG, *args.argv],
+    )
+    print(format_table(table))
+    print(str((Path(args.out) / CLIPS_JSON).resolve()))
+    return C.EXIT_OK
 
 
 def _add_farm_parser(sub: argparse._SubParsersAction) -> None:
@@ -134,9 +193,11 @@ def _bench(args: argparse.Namespace) -> int:
     from engine.bench.bench import BENCH_JSON, resolve_clip, run_bench, summary_table
     from engine.config import parse_set_args
 
-    if (args.mask or args.tracks) and len(args.clips) != 1:
-        raise InputError(None, "--mask and --tracks need exactly one clip", "bench one clip, or use clip folders")
-    clips = [resolve_clip(c, args.mask or None, args.tracks) for c in args.clips]
+    if (args.mask or args.tracks or args.score_masks) and len(args.clips) != 1:
+        raise InputError(
+            None, "--mask, --tracks and --score-masks need exactly one clip", "bench one clip, or use clip folders"
+        )
+    clips = [resolve_clip(c, args.mask or None, args.tracks, args.score_masks or None) for c in args.clips]
     record = run_bench(
         clips,
         [p.strip() for p in args.presets.split(",") if p.strip()],
@@ -217,7 +278,14 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
     args.argv = argv  # recorded by bench
-    tools = {BENCH: _bench, SPEED: _speed, SCENE_SPEED: _scene_speed, EXPECTED_PSNR: _expected_psnr, FARM: _farm}
+    tools = {
+        BENCH: _bench,
+        CLIPS: _clips,
+        SPEED: _speed,
+        SCENE_SPEED: _scene_speed,
+        EXPECTED_PSNR: _expected_psnr,
+        FARM: _farm,
+    }
     if args.tool not in tools:
         parser.print_help()
         return C.EXIT_OK

@@ -44,6 +44,7 @@ from engine.fit.prepare import PreparedClip, prepare_clip
 from engine.fit.run_folder import RunFolder
 from engine.fit.trainer import Trainer, render_frame
 from engine.io.atomic import atomic_write_text
+from engine.io.clip import read_masks
 from engine.model.losses import psnr_from_mse
 
 #: Version of bench.json (the tag key is BENCH_TAG).
@@ -62,6 +63,8 @@ FINITE_CHECK_EVERY = 100
 GIT_TIMEOUT_S = 10
 #: Config fields that decide the prepared clip (frames, flow, mask prior); every preset of a bench shares it.
 SHARED_FIELDS: tuple[str, ...] = ("long_edge", "flow_preset", "flow_threshold_px", "mask_prior_margin_px")
+#: A pixel is foreground (``fg_iou``) where the foreground layers' opacity weights sum to at least this.
+FG_ALPHA_THRESHOLD = 0.5
 
 
 @dataclass
@@ -70,14 +73,20 @@ class BenchClip:
     frames: Path
     masks: list[Path]
     tracks: Path | None
+    #: Precise masks the decomposition is scored against (``fg_iou``); empty: not scored.
+    score_masks: list[Path] = field(default_factory=list)
 
 
 def resolve_clip(
-    path: str | Path, masks: list[str | Path] | None = None, tracks: str | Path | None = None
+    path: str | Path,
+    masks: list[str | Path] | None = None,
+    tracks: str | Path | None = None,
+    score_masks: list[str | Path] | None = None,
 ) -> BenchClip:
     """A clip given as ``<clip>/`` with ``frames/``, ``masks/`` and maybe ``tracks_tapvid.npz`` inside (a clip
     folder), or as a frame folder whose masks come from ``masks`` (tracks then default to
-    ``tracks_tapvid.npz`` beside the frame folder)."""
+    ``tracks_tapvid.npz`` beside the frame folder). The decomposition is scored against ``score_masks``, by
+    default against a clip folder's own ``masks/`` (also when the fit is given other masks)."""
     p = Path(path).expanduser().resolve()
     if not p.is_dir():
         raise InputError(p, "is not a folder", "pass a frame folder, or a clip folder holding frames/ and masks/")
@@ -90,7 +99,11 @@ def resolve_clip(
         mask_dirs = [Path(m) for m in masks or []]
     if tracks is None and (home / TRACKS_FILE).is_file():
         tracks = home / TRACKS_FILE
-    return BenchClip(name, frames, mask_dirs, Path(tracks) if tracks else None)
+    if score_masks:
+        score = [Path(m) for m in score_masks]
+    else:
+        score = [p / "masks"] if (p / "frames").is_dir() and (p / "masks").is_dir() else []
+    return BenchClip(name, frames, mask_dirs, Path(tracks) if tracks else None, score)
 
 
 def bench_configs(presets: list[str], overrides: dict[str, str]) -> list[FitConfig]:
@@ -126,6 +139,7 @@ class ClipState:
     to_native: np.ndarray  # [2]: working px -> tracks' px
     prepare_seconds: float
     baseline: dict | None = None
+    score_masks: np.ndarray | None = None  # bool [T, H, W] at working size: the union of the precise masks
 
     def record(self) -> dict:
         info = self.prepared.info
@@ -134,6 +148,7 @@ class ClipState:
             "source": info.source,
             "masks": self.prepared.mask_dirs,
             "tracks": str(self.spec.tracks) if self.spec.tracks else None,
+            "score_masks": [str(Path(m).resolve()) for m in self.spec.score_masks],
             "native_size": [info.width, info.height],
             "working_size": list(self.prepared.size),
             "frames": int(self.video.shape[0]),
@@ -162,6 +177,10 @@ def _prepare(spec: BenchClip, cfg: FitConfig, work: Path, eval_frames: int, devi
         qt = np.rint(tracks.query_txy[:, 0]).astype(int)
         qxy = tracks.query_txy[:, 1:3].astype(np.float64) / scale
     state = ClipState(spec, prepared, video, subset, tracks, n_tr, qxy, qt, scale, time.perf_counter() - t0)
+    if spec.score_masks:
+        state.score_masks = np.logical_or.reduce(
+            [read_masks(m, prepared.info, prepared.size) for m in spec.score_masks]
+        )
     if tracks is not None and len(qt):
         flow = prepared.flow
         pred = chained_flow_tracks(flow.forward, flow.backward, np.c_[qt, qxy], n_tr) * scale
@@ -254,18 +273,32 @@ def _rss_mb() -> tuple[float, float]:
     return round(current, 1), round(peak, 1)
 
 
+def foreground(weights: np.ndarray) -> np.ndarray:
+    """bool [H, W]: where the foreground layers together (every layer but the background, layer 0) hold at least
+    FG_ALPHA_THRESHOLD of the pixel's opacity weights [H, W, L]."""
+    return np.asarray(weights[..., 1:].sum(-1) >= FG_ALPHA_THRESHOLD)
+
+
 @torch.no_grad()
 def evaluate(run: Run, device: torch.device, stride: int) -> dict:
-    """One curve point: PSNR over every pixel of the clip's eval frames, mapping consistency, tracking."""
+    """One curve point: PSNR over every pixel of the clip's eval frames, the decomposition's ``fg_iou`` (pooled
+    over those frames: the ``foreground`` against the precise masks; None without them), mapping
+    consistency, tracking."""
     t0 = time.perf_counter()
     clip = run.clip
     frames = clip.video.frames
     sq, n = 0.0, 0
+    inter, union = 0, 0
     for t in clip.eval_frames:
-        rec, _ = render_frame(run.trainer.model, t, clip.prepared.size, device)
+        rec, wts = render_frame(run.trainer.model, t, clip.prepared.size, device)
         sq += float(((torch.from_numpy(rec).to(frames.device) - frames[t]) ** 2).sum())
         n += rec.size
+        if clip.score_masks is not None:
+            fg, gt = foreground(wts), clip.score_masks[t]
+            inter += int((fg & gt).sum())
+            union += int((fg | gt).sum())
     psnr = psnr_from_mse(sq / max(n, 1))
+    fg_iou = None if clip.score_masks is None else (inter / union if union else 1.0)
     flow = clip.prepared.flow
     cons = mapping_consistency(run.trainer.model, flow.forward, flow.forward_ok, clip.eval_frames, device, stride)
     tracking = None
@@ -281,6 +314,7 @@ def evaluate(run: Run, device: torch.device, stride: int) -> dict:
         "train_seconds": round(run.trainer.train_seconds, 3),
         "step": run.trainer.step,
         "psnr": round(psnr, 4),
+        "fg_iou": None if fg_iou is None else round(fg_iou, 4),
         "best_psnr": round(run.best_psnr, 4) if math.isfinite(run.best_psnr) else None,
         "consistency_texels": None if cons["mean_texels"] is None else round(cons["mean_texels"], 4),
         "consistency_pixels": cons["pixels"],
@@ -511,10 +545,11 @@ def _run_bench(
                 point = evaluate(run, device, stride)
                 run.curve.append(point)
                 trk = point["tracking"]["delta_avg"] if point["tracking"] else None
+                iou = "" if point["fg_iou"] is None else f"fg IoU {point['fg_iou']:.3f}, "
                 print(
                     f"[bench] {run.clip.spec.name} {run.trainer.cfg.preset}: {run.trainer.train_seconds:.1f} s, "
                     f"step {run.trainer.step}, "
-                    f"PSNR {point['psnr']:.2f} dB, consistency {point['consistency_texels']} texels, "
+                    f"PSNR {point['psnr']:.2f} dB, {iou}consistency {point['consistency_texels']} texels, "
                     f"delta_avg {trk if trk is None else round(trk, 3)} (eval {point['eval_seconds']:.1f} s)",
                     file=log,
                     flush=True,
@@ -625,9 +660,9 @@ def plot_bench(record: dict, path: str | Path) -> None:
 
 def summary_table(record: dict) -> str:
     lines = [
-        "| clip | preset | steps | train s | s/step | PSNR (last / best) | consistency (texels) | delta_avg "
-        "| flow delta_avg |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| clip | preset | steps | train s | s/step | PSNR (last / best) | fg IoU | consistency (texels) "
+        "| delta_avg | flow delta_avg |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     base = {c["name"]: c.get("tracking_baseline") for c in record["clips"]}
     for r in record["runs"]:
@@ -641,6 +676,7 @@ def summary_table(record: dict) -> str:
         lines.append(
             f"| {r['clip']} | {r['preset']} | {r['steps']} | {r['train_seconds']:.0f} | {r['seconds_per_step']:.3f} | "
             f"{fmt(last and last['psnr'], '.2f')} / {fmt(last and last['best_psnr'], '.2f')} | "
+            f"{fmt(last and last.get('fg_iou'))} | "
             f"{fmt(last and last['consistency_texels'], '.2f')} | {fmt(trk)} | {fmt(b and b['delta_avg'])} |"
         )
     return "\n".join(lines)

@@ -1,0 +1,181 @@
+"""Every clip under one folder, fitted with degraded masks and judged against the precise ones: one table.
+
+Each clip folder (``frames/`` and ``masks/``, maybe ``tracks_tapvid.npz``) gets its masks degraded by a named
+recipe (``engine.bench.degrade``) into ``OUT/masks/RECIPE/CLIP``; one preset is fitted on each clip with those
+masks by ``run_bench`` (one clip after another, each to its preset's steps unless a budget ends it first) and
+evaluated once at the end on every frame (by default): PSNR, the foreground alpha's IoU against the clip's own
+precise ``masks/`` (``fg_iou``), TAP-Vid delta_avg of atlas tracking and of chained optical flow. Writes
+``OUT/runs/CLIP/bench.json`` (each clip's full record), ``OUT/clips.json`` (the table's rows) and
+``OUT/clips.md`` (the table).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import sys
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from engine.bench.bench import BENCH_JSON, BenchClip, resolve_clip, run_bench
+from engine.bench.degrade import DEFAULT_SEED, recipe, write_degraded
+from engine.errors import InputError
+from engine.io.atomic import atomic_write_text
+
+CLIPS_JSON = "clips.json"
+CLIPS_MD = "clips.md"
+CLIPS_TAG = "neural_atlas_all_clips"
+CLIPS_VERSION = 1
+#: Training seconds per run when no budget is given: far beyond any preset, so the preset's steps end each run.
+NO_BUDGET_SECONDS = 1e7
+#: The table's columns: header and the row key each shows.
+COLUMNS: tuple[tuple[str, str], ...] = (
+    ("clip", "clip"),
+    ("PSNR (dB)", "psnr"),
+    ("fg IoU vs GT", "fg_iou"),
+    ("atlas delta_avg", "atlas_delta_avg"),
+    ("chained-flow delta_avg", "flow_delta_avg"),
+    ("train s", "train_seconds"),
+)
+#: Decimals each number is shown with.
+DECIMALS = {"psnr": 2, "fg_iou": 3, "atlas_delta_avg": 3, "flow_delta_avg": 3, "train_seconds": 0}
+
+
+def find_clips(root: str | Path) -> list[Path]:
+    """The clip folders directly under ``root`` (those holding ``frames/`` and ``masks/``), sorted by name."""
+    base = Path(root).expanduser()
+    if not base.is_dir():
+        raise InputError(base, "is not a folder", "pass the folder that holds the clip folders")
+    found = sorted(p for p in base.iterdir() if (p / "frames").is_dir() and (p / "masks").is_dir())
+    if not found:
+        raise InputError(base, "holds no clip folder (frames/ and masks/)", "pass the folder that holds the clips")
+    return found
+
+
+def degraded_clips(root: str | Path, out: Path, recipe_name: str, seed: int = DEFAULT_SEED) -> list[BenchClip]:
+    """Every clip under ``root`` with its masks degraded into ``out/masks/RECIPE/CLIP``, scored against its own."""
+    recipe(recipe_name)  # an unknown name is refused before anything is written
+    clips = []
+    for folder in find_clips(root):
+        deg = write_degraded(folder / "masks", out / "masks" / recipe_name / folder.name, recipe_name, seed)
+        clips.append(resolve_clip(folder, [deg], score_masks=[folder / "masks"]))
+    return clips
+
+
+def clip_rows(record: dict) -> list[dict]:
+    """One row per run of a bench record: its last evaluation's numbers and the clip's chained-flow baseline."""
+    base = {c["name"]: c.get("tracking_baseline") for c in record["clips"]}
+    rows = []
+    for run in record["runs"]:
+        last = run["curve"][-1] if run["curve"] else {}
+        flow = base.get(run["clip"])
+        rows.append(
+            {
+                "clip": run["clip"],
+                "psnr": last.get("psnr"),
+                "fg_iou": last.get("fg_iou"),
+                "atlas_delta_avg": last["tracking"]["delta_avg"] if last.get("tracking") else None,
+                "flow_delta_avg": flow["delta_avg"] if flow else None,
+                "train_seconds": run["train_seconds"],
+                "steps": run["steps"],
+                "failed": run["failed"],
+            }
+        )
+    return rows
+
+
+def mean_row(rows: list[dict]) -> dict:
+    """The mean of each numeric column over the rows that have it (None where none has)."""
+    out: dict[str, Any] = {"clip": "mean"}
+    for _, key in COLUMNS[1:]:
+        vals = [r[key] for r in rows if r[key] is not None]
+        out[key] = round(sum(vals) / len(vals), 4) if vals else None
+    return out
+
+
+def _cell(row: dict, key: str) -> str:
+    v = row[key]
+    if key == "clip":
+        return str(v)
+    return "–" if v is None else f"{v:.{DECIMALS[key]}f}"
+
+
+def format_table(table: dict) -> str:
+    """The markdown table of a ``clips.json`` record: a line naming the preset, recipe and seed, then the rows
+    and their mean."""
+    head = f"preset `{table['preset']}`, masks degraded by `{table['degrade']}` (seed {table['seed']})"
+    lines = [head, "", "| " + " | ".join(h for h, _ in COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
+    for row in [*table["rows"], table["mean"]]:
+        lines.append("| " + " | ".join(_cell(row, key) for _, key in COLUMNS) + " |")
+    return "\n".join(lines)
+
+
+def run_all_clips(
+    root: str | Path,
+    out_dir: str | Path,
+    preset: str = "draft",
+    degrade: str = "dilated10_dropped10",
+    seed: int = DEFAULT_SEED,
+    overrides: dict[str, str] | None = None,
+    budget_seconds: float | None = None,
+    eval_frames: int = 0,
+    device_name: str = "auto",
+    stride: int = 4,
+    threads: int | None = None,
+    command: list[str] | None = None,
+    log: Any = None,
+) -> dict:
+    """Fit ``preset`` on every clip under ``root`` with masks degraded by ``degrade`` and score it; returns the
+    table record (also ``out_dir/clips.json`` and ``out_dir/clips.md``)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    clips = degraded_clips(root, out, degrade, seed)
+    rows, benches = [], []
+    for clip in clips:  # one bench per clip: only one clip's frames, flow and model are in memory at a time
+        record = run_bench(
+            [clip],
+            [preset],
+            NO_BUDGET_SECONDS if budget_seconds is None else budget_seconds,
+            out / "runs" / clip.name,
+            overrides=overrides,
+            evals=1,
+            eval_frames=eval_frames,
+            sequential=True,
+            device_name=device_name,
+            stride=stride,
+            command=command,
+            log=log or sys.stderr,
+            plot=False,
+            threads=threads,
+        )
+        rows += clip_rows(record)
+        benches.append(f"runs/{clip.name}/{BENCH_JSON}")
+    table = {
+        CLIPS_TAG: CLIPS_VERSION,
+        "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        "command": command if command is not None else list(sys.argv),
+        "preset": preset,
+        "degrade": degrade,
+        "degradation": asdict(recipe(degrade)),
+        "seed": seed,
+        "eval_frames": eval_frames,
+        "benches": benches,
+        "rows": rows,
+        "mean": mean_row(rows),
+    }
+    atomic_write_text(out / CLIPS_JSON, json.dumps(table, indent=1))
+    atomic_write_text(out / CLIPS_MD, format_table(table) + "\n")
+    return table
+
+
+__all__ = [
+    "CLIPS_JSON",
+    "CLIPS_MD",
+    "clip_rows",
+    "degraded_clips",
+    "find_clips",
+    "format_table",
+    "mean_row",
+    "run_all_clips",
+]
