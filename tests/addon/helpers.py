@@ -147,3 +147,17 @@ def polygon_mask(
             for prop in ("co", "handle_left", "handle_right"):
                 mask.keyframe_insert(f'layers["L"].splines[0].points[{i}].{prop}', frame=frame)
     return mask
+
+
+def fit_panel(bpy, clip_file: Path, masks: Path, run_dir: Path, preset: str = "draft", overrides: str = ""):
+    """The Fit Atlas panel filled in as an artist does: the clip opened from ``clip_file``, one foreground layer
+    from the mask folder ``masks``, the preset, the overrides and the Run Folder; returns the panel's properties."""
+    props = bpy.context.scene.neural_atlas
+    props.clip = bpy.data.movieclips.load(str(clip_file))
+    layer = props.layers.add()
+    layer.source = "FOLDER"
+    layer.folder = str(masks)
+    props.preset = preset
+    props.overrides = overrides
+    props.run_dir = str(run_dir)
+    return props

@@ -20,6 +20,7 @@ import bpy  # noqa: E402
 import conftest  # noqa: E402,F401  (imports the checkout as the package neural_atlas)
 import numpy as np  # noqa: E402
 from fake_export import blender_read_rgba8, write_png  # noqa: E402
+from helpers import fit_panel  # noqa: E402
 from neural_atlas import addon  # noqa: E402
 
 from engine.data.synthetic import SceneSpec, make_scene, write_scene  # noqa: E402
@@ -33,13 +34,7 @@ def fit_synthetic_clip(prefix: str) -> Path:
     work = Path(tempfile.mkdtemp(prefix=prefix))
     write_scene(make_scene(SceneSpec(width=192, height=108, frames=12)), work / "clip")
     os.environ["NEURAL_ATLAS_ENGINE_PYTHON"] = os.environ.get("NEURAL_ATLAS_ENGINE_PYTHON", sys.executable)
-    props = bpy.context.scene.neural_atlas
-    props.clip = bpy.data.movieclips.load(str(work / "clip" / "frames" / "00000.png"))
-    layer = props.layers.add()
-    layer.source = "FOLDER"
-    layer.folder = str(work / "clip" / "masks")
-    props.preset = "draft"
-    props.run_dir = str(work / "run")
+    props = fit_panel(bpy, work / "clip" / "frames" / "00000.png", work / "clip" / "masks", work / "run")
     assert bpy.ops.neural_atlas.fit("EXEC_DEFAULT") == {"FINISHED"}, props.status
     return work
 

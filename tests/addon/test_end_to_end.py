@@ -25,7 +25,7 @@ from fake_export import (  # noqa: E402
     read_exr_rgba,
     reference_frame,
 )
-from helpers import engine_python  # noqa: E402
+from helpers import engine_python, fit_panel  # noqa: E402
 from neural_atlas.addon import compat  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 
@@ -76,16 +76,9 @@ def test_fit_paint_render_matches_engine_render(blender, tmp_path, monkeypatch):
         timeout=120,
     )
     monkeypatch.setenv("NEURAL_ATLAS_ENGINE_PYTHON", py)
-    props = blender.context.scene.neural_atlas
     # a float (scene-linear EXR) plate, as in a VFX pipeline: Blender and the engine both read it raw, so the only
     # decode that differs is the one of 8-bit sRGB edit layers (OCIO vs the exact formula), measured below
-    props.clip = bpy.data.movieclips.load(str(clip_dir / "frames_exr" / "00000.exr"))
-    layer = props.layers.add()
-    layer.source = "FOLDER"
-    layer.folder = str(clip_dir / "masks")
-    props.preset = "draft"
-    props.overrides = FAST
-    props.run_dir = str(tmp_path / "run")
+    props = fit_panel(bpy, clip_dir / "frames_exr" / "00000.exr", clip_dir / "masks", tmp_path / "run", overrides=FAST)
     props.filter_type = compat.EXACT_FILTER
 
     assert bpy.ops.neural_atlas.fit("EXEC_DEFAULT") == {"FINISHED"}, props.status

@@ -20,7 +20,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 import fake_export as X  # noqa: E402
-from helpers import RecordingLayout, as_operator, engine_python  # noqa: E402
+from helpers import RecordingLayout, as_operator, engine_python, fit_panel  # noqa: E402
 from neural_atlas.addon import ui  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 from neural_atlas.addon.ops import refine as refine_ops  # noqa: E402
@@ -66,14 +66,7 @@ def test_refine_keeps_and_realigns_the_paint(blender, tmp_path, monkeypatch):
         cwd=ROOT, check=True, timeout=120,
     )  # fmt: skip
     monkeypatch.setenv("NEURAL_ATLAS_ENGINE_PYTHON", py)
-    props = blender.context.scene.neural_atlas
-    props.clip = bpy.data.movieclips.load(str(clip_dir / "frames" / "00000.png"))
-    layer = props.layers.add()
-    layer.source = "FOLDER"
-    layer.folder = str(clip_dir / "masks")
-    props.preset = "draft"
-    props.overrides = FAST
-    props.run_dir = str(tmp_path / "run")
+    props = fit_panel(bpy, clip_dir / "frames" / "00000.png", clip_dir / "masks", tmp_path / "run", overrides=FAST)
     run = tmp_path / "run"
 
     calls = RecordingLayout().draw(ui.NEURALATLAS_PT_fit, blender.context)
