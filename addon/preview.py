@@ -305,45 +305,32 @@ def render_frame(scene: Any, frame: int, path: str) -> str:
     A final Cycles render without a UI reloads every file image from its file afterwards, dropping unsaved paint
     (measured on 4.5 and 5.0, even for an empty scene): the pixels of every image with unsaved changes are kept and
     put back. (A scratch scene holding only the preview would not do: its image sequences do not follow its frame.)"""
-    r, cycles = scene.render, scene.cycles
-    saved = {
-        (r, "engine"): r.engine,
-        (r, "use_compositing"): r.use_compositing,
-        (r, "use_sequencer"): r.use_sequencer,
-        (r, "filter_size"): r.filter_size,
-        (r, "film_transparent"): r.film_transparent,
-        (r, "dither_intensity"): r.dither_intensity,
-        (scene, "camera"): scene.camera,
-        (scene.view_settings, "view_transform"): scene.view_settings.view_transform,
-        (scene.view_settings, "look"): scene.view_settings.look,
-        (scene.view_settings, "exposure"): scene.view_settings.exposure,
-        (scene.view_settings, "gamma"): scene.view_settings.gamma,
-        (cycles, "device"): cycles.device,
-        (cycles, "samples"): cycles.samples,
-        (cycles, "use_denoising"): cycles.use_denoising,
-        (cycles, "pixel_filter_type"): cycles.pixel_filter_type,
-        (cycles, "filter_width"): cycles.filter_width,
-        (cycles, "use_adaptive_sampling"): cycles.use_adaptive_sampling,
-    }
+    r, cycles, view = scene.render, scene.cycles, scene.view_settings
+    # each setting the render needs, with its value; the scene's own values are put back afterwards
+    render_settings = (
+        (r, "engine", "CYCLES"),
+        (r, "use_compositing", False),  # the compositor would replace the picture with its own tree's result
+        (r, "use_sequencer", False),
+        (r, "film_transparent", False),
+        (r, "dither_intensity", 0.0),
+        (scene, "camera", bpy.data.objects[V.PREVIEW_CAMERA]),
+        (view, "view_transform", "Standard"),
+        (view, "look", "None"),
+        (view, "exposure", 0.0),
+        (view, "gamma", 1.0),
+        (cycles, "device", "CPU"),
+        (cycles, "samples", 1),
+        (cycles, "use_adaptive_sampling", False),
+        (cycles, "use_denoising", False),
+        (cycles, "pixel_filter_type", "BOX"),
+        (cycles, "filter_width", 0.01),
+    )
+    saved = [(owner, attr, getattr(owner, attr)) for owner, attr, _ in render_settings]
     current = scene.frame_current
     unsaved = _keep_unsaved()
     try:
-        r.engine = "CYCLES"
-        r.use_compositing = False  # the compositor would replace the picture with its own tree's result
-        r.use_sequencer = False
-        r.film_transparent = False
-        r.dither_intensity = 0.0
-        scene.camera = bpy.data.objects[V.PREVIEW_CAMERA]
-        scene.view_settings.view_transform = "Standard"
-        scene.view_settings.look = "None"
-        scene.view_settings.exposure = 0.0
-        scene.view_settings.gamma = 1.0
-        cycles.device = "CPU"
-        cycles.samples = 1
-        cycles.use_adaptive_sampling = False
-        cycles.use_denoising = False
-        cycles.pixel_filter_type = "BOX"
-        cycles.filter_width = 0.01
+        for owner, attr, value in render_settings:
+            setattr(owner, attr, value)
         scene.frame_set(frame)
         sync()
         bpy.ops.render.render(write_still=False, scene=scene.name)
@@ -357,7 +344,7 @@ def render_frame(scene: Any, frame: int, path: str) -> str:
         finally:
             compat.restore_image_settings(settings, state)
     finally:
-        for (owner, attr), value in saved.items():
+        for owner, attr, value in saved:
             setattr(owner, attr, value)
         _put_back(unsaved)
         scene.frame_set(current)
