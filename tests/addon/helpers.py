@@ -149,6 +149,34 @@ def polygon_mask(
     return mask
 
 
+def shape_key_mask(
+    bpy, clip: Any, corners_by_frame: list[tuple[int, list[tuple[float, float]]]], width: int, height: int
+):
+    """A Mask "RotoKeys" with one cyclic polygon keyed with layer shape keys, as the Clip Editor's mask tools key it:
+    at each frame of ``corners_by_frame`` the points (pixels, origin bottom-left) are placed and Insert Shape Key runs
+    in a Clip Editor showing ``clip`` (the first area of the window becomes one)."""
+    from mask_reference import px_to_mask
+
+    mask = bpy.data.masks.new("RotoKeys")
+    spline = mask.layers.new(name="L").splines.new()
+    spline.points.add(len(corners_by_frame[0][1]) - 1)
+    spline.use_cyclic = True
+    window = bpy.context.window
+    area = window.screen.areas[0]
+    area.type = "CLIP_EDITOR"
+    space = area.spaces.active
+    space.mode, space.clip, space.mask = "MASK", clip, mask
+    for frame, corners in corners_by_frame:
+        bpy.context.scene.frame_set(frame)  # before editing: a frame change re-applies existing keys
+        for p, (x, y) in zip(spline.points, corners, strict=True):
+            p.handle_left_type = p.handle_right_type = "VECTOR"
+            p.co = p.handle_left = p.handle_right = px_to_mask(x, y, width, height)
+            p.select = True
+        with bpy.context.temp_override(window=window, area=area, region=area.regions[-1], space_data=space):
+            assert bpy.ops.mask.shape_key_insert() == {"FINISHED"}
+    return mask
+
+
 def fit_panel(bpy, clip_file: Path, masks: Path, run_dir: Path, preset: str = "draft", overrides: str = ""):
     """The Fit Atlas panel filled in as an artist does: the clip opened from ``clip_file``, one foreground layer
     from the mask folder ``masks``, the preset, the overrides and the Run Folder; returns the panel's properties."""

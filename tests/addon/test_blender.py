@@ -15,8 +15,8 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 import fake_export as X  # noqa: E402
-from helpers import RecordingLayout, drive_modal, fake_python, polygon_mask, stand_in_pip  # noqa: E402
-from mask_reference import px_to_mask, rasterize_polygon  # noqa: E402
+from helpers import RecordingLayout, drive_modal, fake_python, polygon_mask, shape_key_mask, stand_in_pip  # noqa: E402
+from mask_reference import rasterize_polygon  # noqa: E402
 from neural_atlas.addon import compat, preferences  # noqa: E402
 from neural_atlas.addon.core import engine_setup as ES  # noqa: E402
 from neural_atlas.addon.core import needs, running  # noqa: E402
@@ -241,24 +241,7 @@ def test_mask_shape_keys_rasterize_exactly(blender, tmp_path):
     black[..., 3] = 255
     X.write_png(tmp_path / "clip" / "0001.png", black)
     clip = bpy.data.movieclips.load(str(tmp_path / "clip" / "0001.png"))
-    mask = bpy.data.masks.new("RotoKeys")
-    spline = mask.layers.new(name="L").splines.new()
-    spline.points.add(3)
-    spline.use_cyclic = True
-    window = bpy.context.window
-    area = window.screen.areas[0]
-    area.type = "CLIP_EDITOR"
-    space = area.spaces.active
-    space.mode, space.clip, space.mask = "MASK", clip, mask
-    scene = bpy.context.scene
-    for frame, corners in frames:
-        scene.frame_set(frame)  # before editing: a frame change re-applies existing keys
-        for p, (x, y) in zip(spline.points, corners, strict=True):
-            p.handle_left_type = p.handle_right_type = "VECTOR"
-            p.co = p.handle_left = p.handle_right = px_to_mask(x, y, w, h)
-            p.select = True
-        with bpy.context.temp_override(window=window, area=area, region=area.regions[-1], space_data=space):
-            assert bpy.ops.mask.shape_key_insert() == {"FINISHED"}
+    mask = shape_key_mask(bpy, clip, frames, w, h)
     names = [f"{f:05d}.png" for f, _ in frames]
     paths = masks.rasterize(mask, w, h, [f for f, _ in frames], str(tmp_path / "m"), names)
     for (_frame, corners), path in zip(frames, paths, strict=True):

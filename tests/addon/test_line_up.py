@@ -13,8 +13,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 import fake_export as X  # noqa: E402
-from helpers import polygon_mask  # noqa: E402
-from mask_reference import px_to_mask  # noqa: E402
+from helpers import polygon_mask, shape_key_mask  # noqa: E402
 from neural_atlas.addon import compat, line_up, masks  # noqa: E402
 from neural_atlas.addon.ops.import_run import clip_note  # noqa: E402
 
@@ -30,24 +29,7 @@ CORNERS = [
 
 def _shape_key_mask(clip):
     """A mask keyed with layer shape keys as the Clip Editor's mask tools key it (Insert Shape Key on each frame)."""
-    mask = bpy.data.masks.new("RotoKeys")
-    spline = mask.layers.new(name="L").splines.new()
-    spline.points.add(3)
-    spline.use_cyclic = True
-    window = bpy.context.window
-    area = window.screen.areas[0]
-    area.type = "CLIP_EDITOR"
-    space = area.spaces.active
-    space.mode, space.clip, space.mask = "MASK", clip, mask
-    for frame, corners in CORNERS:
-        bpy.context.scene.frame_set(frame)
-        for p, (x, y) in zip(spline.points, corners, strict=True):
-            p.handle_left_type = p.handle_right_type = "VECTOR"
-            p.co = p.handle_left = p.handle_right = px_to_mask(x, y, W, H)
-            p.select = True
-        with bpy.context.temp_override(window=window, area=area, region=area.regions[-1], space_data=space):
-            assert bpy.ops.mask.shape_key_insert() == {"FINISHED"}
-    return mask
+    return shape_key_mask(bpy, clip, CORNERS, W, H)
 
 
 def _raster(mask, frames, folder) -> np.ndarray:
