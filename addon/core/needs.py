@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Iterable
+from typing import Any
 
 from ...engine import contract as C  # type: ignore[import-not-found]
 
@@ -155,3 +156,11 @@ def esc_text(label: str, where: str) -> str:
     """What ESC says while an engine job runs: ESC also stops playback and leaves modes in every editor, so it
     never ends a job that may have run for an hour; Cancel (``where``) does."""
     return f"{label} keeps running (ESC does not stop it): press Cancel in {where} to stop it"
+
+
+def poll(cls: Any, need: str | None) -> bool:
+    """An operator's poll from its need (None: nothing missing): greyed out, with the line as the button's tooltip
+    (``poll_message_set``), when something is missing."""
+    if need:
+        cls.poll_message_set(need)
+    return need is None

@@ -32,10 +32,7 @@ def _clip_poll(cls: Any, context: Any, has_clip: bool, line: str) -> bool:
     choose the clip, instead of a button that refuses when pressed."""
     if not EngineJobOperator.poll.__func__(cls, context):  # type: ignore[attr-defined]
         return False
-    need = needs.clip_need(has_clip, line)
-    if need:
-        cls.poll_message_set(need)
-    return need is None
+    return needs.poll(cls, needs.clip_need(has_clip, line))
 
 
 def _timeout() -> Any:
@@ -202,10 +199,7 @@ class NEURALATLAS_OT_cancel(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context) -> bool:
-        need = needs.cancel_need(context.scene is not None and running.is_running(context.scene.name))
-        if need:
-            cls.poll_message_set(need)
-        return need is None
+        return needs.poll(cls, needs.cancel_need(context.scene is not None and running.is_running(context.scene.name)))
 
     def execute(self, context):
         job = running.get(context.scene.name)

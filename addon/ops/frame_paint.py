@@ -22,8 +22,8 @@ from ...engine import contract as C
 from .. import compositor, paint, preview
 from ..core import engine_process as EP
 from ..core import frame_paint as FP
+from ..core import needs, running, unsaved_paint
 from ..core import preview_plan as V
-from ..core import running, unsaved_paint
 from ..core import tree_plan as P
 from ..core.errors import UserError
 from ..core.project_job import ProjectFrameJob
@@ -195,10 +195,7 @@ class NEURALATLAS_OT_frame_paint_start(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        need = _need_start(context)
-        if need:
-            cls.poll_message_set(need)
-        return need is None
+        return needs.poll(cls, _need_start(context))
 
     def execute(self, context):
         props = context.scene.neural_atlas
@@ -235,10 +232,7 @@ class NEURALATLAS_OT_frame_paint_land(EngineJobOperator, bpy.types.Operator):
         if not super().poll(context):
             cls.poll_message_set(JOB_RUNNING)
             return False
-        need = _need_land(context)
-        if need:
-            cls.poll_message_set(need)
-        return need is None
+        return needs.poll(cls, _need_land(context))
 
     def make_job(self, context) -> ProjectFrameJob:
         props = context.scene.neural_atlas

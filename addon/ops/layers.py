@@ -34,10 +34,7 @@ class NEURALATLAS_OT_layer_remove(bpy.types.Operator):
     @classmethod
     def poll(cls, context):
         props = getattr(context.scene, "neural_atlas", None)
-        need = needs.layer_remove_need(len(props.layers) if props is not None else 0)
-        if need:
-            cls.poll_message_set(need)
-        return need is None
+        return needs.poll(cls, needs.layer_remove_need(len(props.layers) if props is not None else 0))
 
     def execute(self, context):
         props = context.scene.neural_atlas
@@ -60,10 +57,7 @@ class NEURALATLAS_OT_scribble_layers(bpy.types.Operator):
     @classmethod
     def poll(cls, context):
         props = getattr(context.scene, "neural_atlas", None)
-        need = needs.scribble_layers_need(props is not None and props.clip is not None)
-        if need:
-            cls.poll_message_set(need)
-        return need is None
+        return needs.poll(cls, needs.scribble_layers_need(props is not None and props.clip is not None))
 
     def execute(self, context):
         clip = context.scene.neural_atlas.clip

@@ -23,13 +23,6 @@ def edit_images() -> list:
     return [img for img in bpy.data.images if img.name.startswith(prefix)]
 
 
-def _poll(cls, need: str | None) -> bool:
-    """An operator's poll from its need: greyed, with the line as the tooltip, when something is missing."""
-    if need:
-        cls.poll_message_set(need)
-    return need is None
-
-
 class NEURALATLAS_OT_float_edits(bpy.types.Operator):
     """Paint in float: each layer's edit becomes a linear, premultiplied EXR beside its PNG (the engine uses it too)"""
 
@@ -43,7 +36,7 @@ class NEURALATLAS_OT_float_edits(bpy.types.Operator):
     def poll(cls, context):
         props = getattr(context.scene, "neural_atlas", None)
         manifest = abspath(props.manifest) if props is not None and props.manifest else ""
-        return _poll(cls, needs.float_edits_need(manifest, (img.filepath for img in edit_images())))
+        return needs.poll(cls, needs.float_edits_need(manifest, (img.filepath for img in edit_images())))
 
     def execute(self, context):
         props = context.scene.neural_atlas
@@ -90,7 +83,7 @@ class NEURALATLAS_OT_save_edits(bpy.types.Operator):
     @classmethod
     def poll(cls, context):
         images = edit_images()
-        return _poll(cls, needs.save_edits_need(len(images), sum(1 for img in images if img.is_dirty)))
+        return needs.poll(cls, needs.save_edits_need(len(images), sum(1 for img in images if img.is_dirty)))
 
     def execute(self, context):
         try:
@@ -111,7 +104,7 @@ class NEURALATLAS_OT_paint_setup(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return _poll(cls, needs.paint_setup_need(len(edit_images())))
+        return needs.poll(cls, needs.paint_setup_need(len(edit_images())))
 
     def execute(self, context):
         prefix = P.edit_image_name("")

@@ -19,10 +19,7 @@ class NEURALATLAS_OT_live_preview(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        need = None if context.scene.neural_atlas.manifest else needs.NO_IMPORT
-        if need is not None:
-            cls.poll_message_set(need)
-        return need is None
+        return needs.poll(cls, None if context.scene.neural_atlas.manifest else needs.NO_IMPORT)
 
     def execute(self, context):
         scene = context.scene

@@ -52,10 +52,7 @@ class NEURALATLAS_OT_refine(EngineJobOperator, bpy.types.Operator):
         if context.scene is None:
             return False
         props = context.scene.neural_atlas
-        need = needs.refine_need(running.is_running(cls.job_key(context)), finished_fit(props))
-        if need:
-            cls.poll_message_set(need)
-        return need is None
+        return needs.poll(cls, needs.refine_need(running.is_running(cls.job_key(context)), finished_fit(props)))
 
     def make_job(self, context) -> RefineJob:
         props = context.scene.neural_atlas

@@ -89,10 +89,7 @@ class NEURALATLAS_OT_relink(bpy.types.Operator):
     @classmethod
     def poll(cls, context):
         props = getattr(context.scene, "neural_atlas", None)
-        need = needs.relink_need(props.manifest if props is not None else "")
-        if need:
-            cls.poll_message_set(need)
-        return need is None
+        return needs.poll(cls, needs.relink_need(props.manifest if props is not None else ""))
 
     def execute(self, context):
         old = imported_manifest(context)

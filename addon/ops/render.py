@@ -131,10 +131,7 @@ class NEURALATLAS_OT_render(bpy.types.Operator):
         if active_render(context.scene) is not None:
             cls.poll_message_set("a render of this scene is running: Cancel it or wait")
             return False
-        need = _need(context)
-        if need:
-            cls.poll_message_set(need)
-        return need is None
+        return needs.poll(cls, _need(context))
 
     def _session(self, context) -> compositor.RenderSession | None:
         """The render's session, the paint saved first; None (reported) when it cannot start."""

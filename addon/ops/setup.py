@@ -93,10 +93,7 @@ class NEURALATLAS_OT_cancel_setup(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context: Any) -> bool:
-        need = needs.cancel_need(running.is_running(SETUP_KEY), needs.SETUP_NOT_RUNNING)
-        if need:
-            cls.poll_message_set(need)
-        return need is None
+        return needs.poll(cls, needs.cancel_need(running.is_running(SETUP_KEY), needs.SETUP_NOT_RUNNING))
 
     def execute(self, context):
         job = running.get(SETUP_KEY)
