@@ -7,6 +7,7 @@ part of the product (its CLI is ``python -m engine``) and not in the extension z
     scene-speed  what the scene analysis saves: one clip fitted with components=auto and components=all
     expected-psnr  a finished fit's PSNR as its preset's expected PSNR (engine/fit/expected_psnr.json)
     farm         shots one after another against the same shots through `farm dask` with local workers
+    motion-scenes  synthetic clip folders (turning, deforming, small_fast, thin) with ground-truth tracks
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ SPEED = "speed"
 SCENE_SPEED = "scene-speed"
 EXPECTED_PSNR = "expected-psnr"
 FARM = "farm"
+MOTION_SCENES = "motion-scenes"
 PROG = "python -m engine.bench"
 
 BENCH_EPILOG = """\
@@ -120,6 +122,18 @@ def build_parser() -> argparse.ArgumentParser:
     ep.add_argument("--note", required=True, help="one line: where the measurement is documented")
     _add_farm_parser(sub)
     _add_clips_parser(sub)
+    ms = sub.add_parser(
+        MOTION_SCENES,
+        help="synthetic clip folders (turning, deforming, small_fast, thin) with ground-truth tracks",
+        description="Write OUT/KIND/ for each scene: frames/, masks/, tracks_tapvid.npz and gt_uv.npz (the surface "
+        "coordinate of every pixel), ready for `clips OUT`; see docs/accuracy-vs-time.md.",
+    )
+    ms.add_argument("out", metavar="OUT", help="folder for the clip folders")
+    ms.add_argument("--width", type=int, default=480, help="frame width (default: 480)")
+    ms.add_argument("--height", type=int, default=272, help="frame height (default: 272)")
+    ms.add_argument("--frames", type=int, default=36, help="frames per clip (default: 36)")
+    ms.add_argument("--seed", type=int, default=0, help="texture seed (default: 0)")
+    ms.add_argument("--kinds", default=None, metavar="K,K,...", help="scenes to write (default: all four)")
     return p
 
 
@@ -273,6 +287,19 @@ def _farm(args: argparse.Namespace) -> int:
     return C.EXIT_OK
 
 
+def _motion_scenes(args: argparse.Namespace) -> int:
+    from engine.bench.motion_scenes import KINDS, write_motion_clips
+
+    kinds = tuple(k.strip() for k in args.kinds.split(",") if k.strip()) if args.kinds else KINDS
+    unknown = [k for k in kinds if k not in KINDS]
+    if unknown or args.width < 16 or args.height < 16 or args.frames < 2:
+        problem = f"unknown scene {unknown[0]!r}" if unknown else "a motion scene needs 16x16 pixels and 2 frames"
+        raise InputError(None, problem, f"choose from {', '.join(KINDS)}; --width/--height >= 16, --frames >= 2")
+    for folder in write_motion_clips(args.out, args.width, args.height, args.frames, args.seed, kinds):
+        print(str(folder.resolve()))
+    return C.EXIT_OK
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -285,6 +312,7 @@ def main(argv: list[str] | None = None) -> int:
         SCENE_SPEED: _scene_speed,
         EXPECTED_PSNR: _expected_psnr,
         FARM: _farm,
+        MOTION_SCENES: _motion_scenes,
     }
     if args.tool not in tools:
         parser.print_help()
