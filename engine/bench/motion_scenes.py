@@ -384,12 +384,13 @@ _BUILDERS: dict[str, Callable[[MotionSpec], tuple[_Model, SceneSpec]]] = {
     THIN: _thin,
 }
 DESCRIPTIONS: dict[str, str] = {
-    TURNING: "a textured cylinder turning 200 degrees about its vertical axis while it drifts: its visible side "
-    "changes (texture turns away, new texture comes round)",
-    DEFORMING: "a textured body bending under a travelling wave (6 px), leaning, squashing and stretching while "
-    "it drifts: a non-rigid motion no similarity explains",
-    SMALL_FAST: "a small object (2% of the frame) on a curving path at 12 px/frame or more, spinning",
-    THIN: "a propeller-like cross of 3 px wide bars, turning 0.1 rad/frame while it drifts",
+    TURNING: f"a textured cylinder turning {TURN_DEGREES:g} degrees about its vertical axis while it drifts: its "
+    "visible side changes (texture turns away, new texture comes round)",
+    DEFORMING: f"a textured body bending under a travelling wave ({BEND_PX:g} px), leaning, squashing and "
+    "stretching while it drifts: a non-rigid motion no similarity explains",
+    SMALL_FAST: f"a small object ({SMALL_AREA:.0%} of the frame) on a curving path at {SMALL_SPEED:g} px/frame or "
+    "more, spinning",
+    THIN: f"a propeller-like cross of {BAR_WIDTH:g} px wide bars, turning {BAR_SPIN:g} rad/frame while it drifts",
 }
 
 

@@ -12,12 +12,16 @@ import numpy as np
 import pytest
 
 from engine import contract as C
+from engine.bench.__main__ import build_parser
 from engine.bench.__main__ import main as bench_main
 from engine.bench.all_clips import run_all_clips
 from engine.bench.degrade import read_gt
 from engine.bench.motion_scenes import (
     ARM_LENGTH,
     BAR_WIDTH,
+    DEFAULT_FRAMES,
+    DEFAULT_SIZE,
+    DESCRIPTIONS,
     GT_UV_NPZ,
     KINDS,
     SMALL_AREA,
@@ -214,6 +218,8 @@ def test_the_cli_writes_the_chosen_scenes(tmp_path, capsys):
     assert sorted(p.name for p in out.iterdir()) == ["small_fast", "thin"]
     assert capsys.readouterr().out.split() == [str((out / k).resolve()) for k in ("thin", "small_fast")]
     assert len(list((out / "thin" / "frames").iterdir())) == 4
+    defaults = build_parser().parse_args(["motion-scenes", str(out)])
+    assert (defaults.width, defaults.height, defaults.frames) == (*DEFAULT_SIZE, DEFAULT_FRAMES)
     assert bench_main([*args, "--kinds", "spinning"]) == C.EXIT_BAD_INPUT
     assert "unknown scene 'spinning'" in capsys.readouterr().err
 
@@ -237,6 +243,12 @@ def test_clips_bench_scores_a_motion_clip(tmp_path):
     assert 0.0 <= row["atlas_delta_avg"] <= 1.0 and 0.0 <= row["flow_delta_avg"] <= 1.0
     assert 0.0 <= row["fg_iou"] <= 1.0 and np.isfinite(row["psnr"])
     assert (tmp_path / "out" / "clips.md").is_file()
+
+
+def test_descriptions_name_the_numbers():
+    assert DESCRIPTIONS["turning"].startswith("a textured cylinder turning 200 degrees")
+    assert "(2% of the frame)" in DESCRIPTIONS["small_fast"] and "12 px/frame" in DESCRIPTIONS["small_fast"]
+    assert "3 px wide bars, turning 0.1 rad/frame" in DESCRIPTIONS["thin"] and "(6 px)" in DESCRIPTIONS["deforming"]
 
 
 def test_unknown_kind_is_refused():
