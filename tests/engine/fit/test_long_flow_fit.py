@@ -3,21 +3,29 @@ folder and reused, switched on in the scene analysis, and its term falls as the 
 
 from __future__ import annotations
 
+import dataclasses
 import io
+import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
+import pytest
+import torch
 
 from engine import contract as C
-from engine.config import apply_overrides, preset_config
+from engine.config import LATER_FIELDS, FitConfig, apply_overrides, config_help, preset_config
 from engine.data.long_flow import long_flow_pairs
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
+from engine.data.video import build_video_tensors
+from engine.errors import InputError
 from engine.fit.prepare import prepare_clip
 from engine.fit.progress import Reporter
 from engine.fit.run_folder import RunFolder
-from engine.fit.trainer import fit
+from engine.fit.trainer import Trainer, fit
 
 SPEC = SceneSpec(width=64, height=48, frames=6, bg_velocity=(2.0, 0.5), fg_start=(16.0, 12.0), fg_size=(20, 14))
+CPU = torch.device("cpu")
 SETS = {
     "steps": "160",
     "batch": "1000",
@@ -78,3 +86,39 @@ def test_off_prepares_nothing_extra(tmp_path: Path) -> None:
     assert not list(RunFolder(tmp_path / "run").flow_cache.glob("long-*.npz"))
     assert "long_flow" not in prepared.analyse(cfg).active_terms
     assert prepared.analyse(cfg).reasons["long_flow"] == "off: long_flow_max_gap < 2 in this config"
+
+
+def test_runs_from_before_the_long_range_fields_still_load(tmp_path: Path) -> None:
+    """A config.json and a checkpoint written before the fields existed: the defaults reproduce that fit (off),
+    so the checkpoint belongs to the run; one fitted with long-range correspondences does not belong to a config
+    without them."""
+    cfg = preset_config("draft")
+    old = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in LATER_FIELDS}
+    text = json.dumps({"schema": C.SCHEMA_VERSION, "config": old})
+    loaded = FitConfig.from_json(text, tmp_path / "config.json")
+    assert loaded == cfg and loaded.long_flow_max_gap == 0
+    assert all(getattr(loaded, k) == v for k, v in LATER_FIELDS.items())
+    record = SimpleNamespace(fingerprint="abc")
+    folder = RunFolder(tmp_path)
+    folder.check_checkpoint_belongs({"fingerprint": "abc", "config": old}, loaded, record)  # type: ignore[arg-type]
+    on = dict(old, long_flow_max_gap=4)
+    with pytest.raises(InputError, match="long_flow_max_gap 4, not 0"):
+        folder.check_checkpoint_belongs({"fingerprint": "abc", "config": on}, loaded, record)  # type: ignore[arg-type]
+    with pytest.raises(InputError, match="long_flow_max_gap"):
+        apply_overrides(cfg, {"long_flow_max_gap": "-1"})
+    assert "long_flow_max_gap (int, default 0, an int >= 0)" in config_help()
+
+
+def test_shared_tensors_must_hold_the_configs_correspondences(tmp_path: Path) -> None:
+    """The bench and ``estimate`` share one clip's tensors between configs: a config asking for other long-range
+    correspondences than the clip was prepared with is refused, not fitted without them."""
+    frames_dir, masks_dir = write_scene(make_scene(SPEC), tmp_path / "clip")
+    cfg = apply_overrides(preset_config("draft"), {"long_flow_max_gap": "4"})
+    prepared = prepare_clip(frames_dir, [masks_dir], cfg, tmp_path / "run", None)
+    video = build_video_tensors(prepared.frames, prepared.masks, prepared.flow, 2.0, CPU, long_flow=prepared.long_flow)
+    Trainer(cfg, prepared, prepared.analyse(cfg), CPU, video=video)  # the same settings: fine
+    off = preset_config("draft")
+    Trainer(off, prepared, prepared.analyse(off), CPU, video=video)  # off: the tensors are not used
+    other = apply_overrides(cfg, {"long_flow_max_gap": "2"})
+    with pytest.raises(InputError, match="long-range correspondences"):
+        Trainer(other, prepared, prepared.analyse(other), CPU, video=video)
