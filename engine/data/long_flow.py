@@ -8,8 +8,8 @@ DIS alone finds displacements up to a few tens of pixels; over k frames an objec
 gap's flow therefore starts from the half gap's flow chained twice (the adjacent flow for k = 2): DIS refines
 that start (``DISFlow``'s ``init``) rather than searching from zero. Only correspondences that pass the
 forward-backward check (``consistency_mask``, the fit's threshold) are kept, and of those only the pixels on a
-grid of ``stride`` (memory: a 768x432 clip of 50 frames keeps about 10^7 at stride 2 with gaps 2..8), stored as
-flat source indices and float target positions. Results are cached on disk like the adjacent flow.
+grid of ``stride`` (memory: a 768x432 clip of 50 frames keeps 1.5e7, 200 MiB, at stride 2 with gaps 2..8),
+stored as flat source indices and float target positions. Results are cached on disk like the adjacent flow.
 """
 
 from __future__ import annotations

@@ -13,6 +13,7 @@ import torch
 
 from engine.data.flow import DISFlow, FlowField, compute_flow
 from engine.data.long_flow import (
+    LONG_FLOW_CACHE_VERSION,
     LongFlow,
     chain,
     compute_long_flow,
@@ -201,9 +202,17 @@ def test_corrupt_or_foreign_cache_is_a_miss(tmp_path: Path, garbage: bytes | str
     frames, adj = _tiny()
     backend = CountingDIS("ultrafast")
     path = tmp_path / f"long-{long_content_key(frames, adj, (2,), backend, 2)}.npz"
-    if garbage == "foreign":  # loadable, but out of this clip's range
+    if garbage == "foreign":  # this key's settings, but a source beyond this clip's pixels
         np.savez(
-            path, src=np.array([10**9], np.int32), dst_xy=np.zeros((1, 2), np.float32), dst_t=np.zeros(1, np.int16)
+            path,
+            src=np.array([10**9], np.int32),
+            dst_xy=np.zeros((1, 2), np.float32),
+            dst_t=np.zeros(1, np.int16),
+            gaps=np.array([2]),
+            stride=np.array(2),
+            backend=np.array(backend.name),
+            threshold_px=np.array(1.0),
+            version=np.array(LONG_FLOW_CACHE_VERSION),
         )
     else:
         path.write_bytes(garbage)
