@@ -76,6 +76,17 @@ class FitConfig:
     """Flow consistency of the mappings (alpha-weighted per layer), in pixels."""
     w_alpha_flow: float = 49.0
     """Flow consistency of alpha."""
+    long_flow_max_gap: int = 0
+    """Long-range correspondences: flow between frames 2, 4, 8, ... (powers of two up to this) apart, kept where
+    it survives the forward-backward check, ties mappings that far apart directly, so small per-pair errors cannot
+    add up to a drift over the clip (0 or 1: off; computed with the flow and cached)."""
+    long_flow_samples: int = 1024
+    """Long-range correspondences drawn per step (``object_sample_share`` of them on the objects)."""
+    w_long_flow: float = 5.0
+    """Flow consistency of the mappings over the long-range correspondences (as ``w_flow``: atlas distance in
+    pixels, alpha-weighted per layer at the source pixel)."""
+    long_flow_stride: int = 2
+    """Long-range correspondences are kept on a pixel grid of this stride (memory: 1/stride^2 of the pixels)."""
     w_rigidity: float = 1.0
     """Local rigidity: symmetric Dirichlet energy of the mapping Jacobian (delta = rigidity_delta)."""
     rigidity_delta: float = 1.0
@@ -278,6 +289,10 @@ VALID: dict[str, Valid] = {
     "atlas_sparsity_samples": _AT_LEAST_ONE,
     "w_flow": _NON_NEGATIVE,
     "w_alpha_flow": _NON_NEGATIVE,
+    "long_flow_max_gap": _NON_NEGATIVE,
+    "long_flow_samples": _AT_LEAST_ONE,
+    "w_long_flow": _NON_NEGATIVE,
+    "long_flow_stride": _AT_LEAST_ONE,
     "w_rigidity": _NON_NEGATIVE,
     "rigidity_delta": _POSITIVE,
     "w_global_rigidity_fg": _NON_NEGATIVE,
@@ -332,6 +347,15 @@ RESUMABLE_FIELDS: tuple[str, ...] = (
 #: model's calibration): a checkpoint carries their result, so a run loaded from its folder never reads them,
 #: and a checkpoint and a config.json that differ only there still belong together.
 START_FIELDS: tuple[str, ...] = ("init_motion", "atlas_margin_fg", "atlas_box_full_mask", "pretrain_iters")
+#: Fields added since checkpoints record their config, each with the value that computes what the engine did
+#: before it: a checkpoint saved without the field was fitted with that value (``check_checkpoint_belongs``), so
+#: the runs made before it still load, resume and export.
+LATER_FIELDS: dict[str, Any] = {
+    "long_flow_max_gap": 0,
+    "long_flow_samples": 1024,
+    "w_long_flow": 5.0,
+    "long_flow_stride": 2,
+}
 #: The learning rates (``fit`` names them when a fit diverges).
 LR_FIELDS: tuple[str, ...] = ("lr", "lr_grid", "lr_warp")
 
@@ -350,6 +374,7 @@ def loss_weights(cfg: FitConfig, step: int) -> dict[str, float]:
         "global_rigidity_fg": cfg.w_global_rigidity_fg if glob else 0.0,
         "flow": cfg.w_flow,
         "alpha_flow": cfg.w_alpha_flow,
+        "long_flow": cfg.w_long_flow,
         "sparsity": cfg.w_sparsity,
         "mask": cfg.w_mask if boot else 0.0,
         "mask_prior": 0.0 if boot else cfg.w_mask_prior,
@@ -562,6 +587,7 @@ def config_help() -> str:
 
 
 __all__ = [
+    "LATER_FIELDS",
     "LR_FIELDS",
     "PRESETS",
     "RESUMABLE_FIELDS",

@@ -163,7 +163,9 @@ class ClipState:
 def _prepare(spec: BenchClip, cfg: FitConfig, work: Path, eval_frames: int, device: torch.device) -> ClipState:
     t0 = time.perf_counter()
     prepared = prepare_clip(spec.frames, list(spec.masks), cfg, work, None)
-    video = build_video_tensors(prepared.frames, prepared.masks, prepared.flow, cfg.mask_prior_margin_px, device)
+    video = build_video_tensors(
+        prepared.frames, prepared.masks, prepared.flow, cfg.mask_prior_margin_px, device, long_flow=prepared.long_flow
+    )
     t_count = int(video.shape[0])
     count = t_count if eval_frames <= 0 else min(eval_frames, t_count)  # 0: every frame
     subset = sorted({round(float(x)) for x in np.linspace(0, t_count - 1, count)})

@@ -45,7 +45,14 @@ def measure_step_times(
     device = select_device(device_name)
     cfgs = [preset_config(p) for p in presets]
     prepared = prepare_clip(clip, mask_dirs, cfgs[0], work_dir, None)
-    video = build_video_tensors(prepared.frames, prepared.masks, prepared.flow, cfgs[0].mask_prior_margin_px, device)
+    video = build_video_tensors(
+        prepared.frames,
+        prepared.masks,
+        prepared.flow,
+        cfgs[0].mask_prior_margin_px,
+        device,
+        long_flow=prepared.long_flow,
+    )
     trainers = [Trainer(cfg, prepared, prepared.analyse(cfg), device, video=video) for cfg in cfgs]
     times: dict[str, list[float]] = {c.preset: [] for c in cfgs}
 

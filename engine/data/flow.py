@@ -95,15 +95,29 @@ class DISFlow:
     def name(self) -> str:
         return f"dis-{self.preset}"
 
-    def __call__(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    def __call__(self, a: np.ndarray, b: np.ndarray, init: np.ndarray | None = None) -> np.ndarray:
+        """``init``: float32 [H, W, 2], a flow to start from: OpenCV's DIS takes a float32 two-channel flow of the
+        frames' size passed as ``calc``'s output as its initial flow (taken down to its coarsest scale and refined
+        from there), so a displacement far beyond DIS's own search is followed when ``init`` is close to it (the
+        chained flow of ``engine.data.long_flow``)."""
         if a.shape != b.shape or a.ndim != 3 or a.shape[2] != 3:
             raise ValueError(f"DISFlow needs two [H, W, 3] frames of equal size, got {a.shape} and {b.shape}")
         # A fresh instance per call: DIS objects are stateful and not thread-safe; creation is cheap.
         dis = cv2.DISOpticalFlow.create(_DIS_PRESETS[self.preset])
         h, w = a.shape[:2]
         ga, gb = _pad_min(_to_grey_u8(a)), _pad_min(_to_grey_u8(b))
-        # None: OpenCV allocates the output (its stubs list only an array there)
-        flow = dis.calc(ga, gb, None)[:h, :w]  # type: ignore[call-overload]
+        if init is None:
+            # None: OpenCV allocates the output (its stubs list only an array there)
+            flow = dis.calc(ga, gb, None)  # type: ignore[call-overload]
+        else:
+            if init.shape != (h, w, 2):
+                raise ValueError(f"initial flow must be {(h, w, 2)}, got {init.shape}")
+            start = np.nan_to_num(np.asarray(init, dtype=np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+            ph, pw = ga.shape
+            if (ph, pw) != (h, w):
+                start = np.asarray(cv2.copyMakeBorder(start, 0, ph - h, 0, pw - w, cv2.BORDER_REPLICATE))
+            flow = dis.calc(ga, gb, np.ascontiguousarray(start))  # a copy of init: DIS writes its result into it
+        flow = flow[:h, :w]
         return np.nan_to_num(np.asarray(flow, dtype=np.float32), nan=0.0, posinf=0.0, neginf=0.0)
 
 
@@ -262,11 +276,7 @@ def _reserve(f: BinaryIO, size: int) -> None:
 
 
 def _save_cache(path: Path, field: FlowField) -> None:
-    """Atomic write (``io.atomic``: a temp file in the same folder, then a rename): a kill, a cancel or a full disk
-    never leaves a half file under the cache's name, and the temp file is removed whatever stopped the write.
-    The cache is only an optimisation: a disk without room for it skips it (logged at INFO: the fit goes on, and
-    a disk too full for the fit's own files says so in one line then), any other failure is logged as a warning;
-    a cancel (KeyboardInterrupt) still stops the command."""
+    """The flow of ``compute_flow`` written to ``path`` (``_save_arrays``)."""
     arrays = {
         "forward": field.forward,
         "backward": field.backward,
@@ -276,6 +286,15 @@ def _save_cache(path: Path, field: FlowField) -> None:
         "threshold_px": np.array(field.threshold_px, dtype=np.float64),
         "version": np.array(FLOW_CACHE_VERSION),
     }
+    _save_arrays(path, arrays, "flow cache")
+
+
+def _save_arrays(path: Path, arrays: dict[str, np.ndarray], what: str) -> None:
+    """Atomic write (``io.atomic``: a temp file in the same folder, then a rename): a kill, a cancel or a full disk
+    never leaves a half file under the cache's name, and the temp file is removed whatever stopped the write.
+    The cache is only an optimisation: a disk without room for it skips it (logged at INFO: the fit goes on, and
+    a disk too full for the fit's own files says so in one line then), any other failure is logged as a warning;
+    a cancel (KeyboardInterrupt) still stops the command. ``what`` names the file in the log."""
     need = sum(a.nbytes for a in arrays.values()) + NPZ_OVERHEAD_PER_ARRAY * len(arrays)
 
     def write(tmp: str) -> None:
@@ -287,9 +306,9 @@ def _save_cache(path: Path, field: FlowField) -> None:
     try:
         atomic_write(path, write, need=need)
     except DiskFullError as exc:
-        log.info("no room for the flow cache %s (%s); continuing without it", path, exc)
+        log.info("no room for the %s %s (%s); continuing without it", what, path, exc)
     except (OSError, InputError) as exc:
-        log.warning("could not write flow cache %s (%s); continuing without it", path, exc)
+        log.warning("could not write %s %s (%s); continuing without it", what, path, exc)
 
 
 def _checked_flow(flow: np.ndarray, h: int, w: int, backend: FlowBackend) -> np.ndarray:

@@ -25,6 +25,7 @@ import numpy as np
 from engine import contract as C
 from engine.config import FitConfig, weight_ever_on
 from engine.data.flow import FlowField
+from engine.data.long_flow import long_flow_gaps
 from engine.errors import InputError
 
 #: A background whose median flow magnitude (working px per frame) stays under this in (almost) every frame
@@ -59,6 +60,7 @@ ALL_TERMS: tuple[str, ...] = (
     "global_rigidity_bg",
     "global_rigidity_fg",
     "flow",
+    "long_flow",
     "alpha_flow",
     "sparsity",
     "mask",
@@ -68,7 +70,7 @@ ALL_TERMS: tuple[str, ...] = (
     "anchor",
 )
 #: Terms a background-only clip has: reconstruction, and the background mapping's rigidity and flow.
-_BACKGROUND_TERMS = ("rgb", "gradient", "rigidity", "global_rigidity_bg", "flow")
+_BACKGROUND_TERMS = ("rgb", "gradient", "rigidity", "global_rigidity_bg", "flow", "long_flow")
 #: Terms that exist only for foreground layers (they act on alpha or on a foreground atlas).
 FOREGROUND_TERMS: tuple[str, ...] = tuple(t for t in ALL_TERMS if t not in _BACKGROUND_TERMS)
 
@@ -234,6 +236,7 @@ def analyse_scene(
         reasons["layers"] = f"background only: {why}{note}; no foreground or alpha networks, alpha = 1"
 
     has_flow = frames >= 2 and flow is not None and flow.pairs > 0
+    long_gaps = long_flow_gaps(cfg.long_flow_max_gap, frames)
     reasons["flow"] = "flow between adjacent frames" if has_flow else "a single frame: no flow is computed"
     measure = measure_background_motion(flow, masks) if has_flow and flow is not None else None
     motion, reasons["background_motion"] = classify_background(measure, frames)
@@ -245,8 +248,14 @@ def analyse_scene(
     for term in ALL_TERMS:
         if term in FOREGROUND_TERMS and not fg:
             reasons[term] = "off: no foreground layer"
-        elif term in ("flow", "alpha_flow") and not has_flow:
+        elif term in ("flow", "long_flow", "alpha_flow") and not has_flow:
             reasons[term] = "off: no flow (single frame)"
+        elif term == "long_flow" and not long_gaps:
+            reasons[term] = (
+                "off: long_flow_max_gap < 2 in this config"
+                if cfg.long_flow_max_gap < 2
+                else "off: the clip has too few frames for a gap of 2"
+            )
         elif term == "sparsity" and fg > 1:
             reasons[term] = "off: several foreground layers use the atlas l1 instead (paper Sec. 4.3)"
         elif term == "atlas_sparsity" and fg < 2:

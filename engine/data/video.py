@@ -9,6 +9,7 @@ import numpy as np
 import torch
 
 from engine.data.flow import FlowField
+from engine.data.long_flow import LongFlow
 
 #: Prior label meaning "no opinion" (near a mask boundary, or a frame without a mask).
 PRIOR_IGNORE = -1
@@ -35,6 +36,14 @@ class VideoTensors:
     #: int32/int64 [R]: flat indices t*H*W + y*W + x of every pixel on or within the prior's margin of a mask (any
     #: layer, frames with a mask only), the pool ``sample_batch`` oversamples objects from.
     object_region: torch.Tensor | None = None
+    #: Long-range correspondences (``engine.data.long_flow``; None: off), those whose source pixel is in the
+    #: ``object_region`` first (``long_objects`` of them), so ``sample_long_flow`` draws from either part by index.
+    long_src: torch.Tensor | None = None  # int32/int64 [N]: flat source index t*H*W + y*W + x
+    long_dst: torch.Tensor | None = None  # float32 [N, 2]: target (x, y), pixel centres at integers
+    long_dst_t: torch.Tensor | None = None  # int16/int32 [N]: target frame
+    long_objects: int = 0
+    #: (gaps, stride, threshold) the long-range correspondences were computed with; None: off
+    long_settings: tuple[tuple[int, ...], int, float] | None = None
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -76,7 +85,9 @@ def build_video_tensors(
     device: torch.device,
     scribbles: np.ndarray | None = None,
     mask_layers: tuple[tuple[int, ...], ...] | None = None,
+    long_flow: LongFlow | None = None,
 ) -> VideoTensors:
+    """The clip's tensors on ``device``; ``long_flow``: its long-range correspondences (None: off)."""
     t = frames.shape[0]
     fl = masks.shape[0]
     valid = masks.reshape(fl, t, -1).any(-1) if fl else np.zeros((0, t), dtype=bool)
@@ -86,7 +97,8 @@ def build_video_tensors(
         return torch.from_numpy(np.ascontiguousarray(a)).to(device)
 
     prior = mask_prior(masks, margin_px)
-    return VideoTensors(
+    region = object_region(prior, valid)
+    video = VideoTensors(
         frames=dev(np.asarray(frames, dtype=np.float32)),
         masks=dev(masks),
         mask_valid=dev(valid),
@@ -98,8 +110,21 @@ def build_video_tensors(
         mask_layers=mask_layers,
         scribble_xyt=None if scribbles is None else dev(np.argwhere(scribbles >= 0)[:, ::-1].astype(np.int64)),
         scribble_label=None if scribbles is None else dev(scribbles[scribbles >= 0].astype(np.int64)),
-        object_region=dev(object_region(prior, valid)),
+        object_region=dev(region),
     )
+    if long_flow is not None:
+        # objects first: a boolean over the clip's pixels says which sources lie in the region
+        inside = np.zeros(int(np.prod(frames.shape[:3])), dtype=bool)
+        inside[region] = True
+        on_object = inside[long_flow.src]
+        del inside
+        order = np.concatenate((np.flatnonzero(on_object), np.flatnonzero(~on_object)))
+        video.long_src = dev(long_flow.src[order])
+        video.long_dst = dev(long_flow.dst_xy[order])
+        video.long_dst_t = dev(long_flow.dst_t[order])
+        video.long_objects = int(on_object.sum())
+        video.long_settings = (long_flow.gaps, long_flow.stride, long_flow.threshold_px)
+    return video
 
 
 def object_region(prior: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -152,3 +177,17 @@ def sample_batch(
         torch.cat((uy, (rem // w).to(device))),
         torch.cat((ut, rt.to(device))),
     )
+
+
+def sample_long_flow(video: VideoTensors, n: int, share: float, gen: torch.Generator) -> torch.Tensor:
+    """Indices of ``n`` long-range correspondences (``video.long_src``; on ``gen``'s device): ``round(share * n)``
+    of them with their source in the objects' region, the rest uniform over all (as ``sample_batch``: a uniform
+    draw gives a small object almost none, and its mapping is the one that drifts). None there: all uniform."""
+    assert video.long_src is not None, "the clip has no long-range correspondences"
+    total = int(video.long_src.shape[0])
+    k = min(max(round(float(share) * n), 0), n) if video.long_objects else 0
+    uniform = torch.randint(0, total, (n - k,), generator=gen, device=gen.device)
+    if k == 0:
+        return uniform
+    on_objects = torch.randint(0, video.long_objects, (k,), generator=gen, device=gen.device)
+    return torch.cat((uniform, on_objects))

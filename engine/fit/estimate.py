@@ -168,7 +168,14 @@ def _estimate(
         prepared = prepare_clip(clip, list(mask_dirs), cfgs[0], work, frame_range, reporter)
         prepare_seconds = time.perf_counter() - t0
     timing = _PresetProgress(reporter, len(cfgs))
-    video = build_video_tensors(prepared.frames, prepared.masks, prepared.flow, cfgs[0].mask_prior_margin_px, device)
+    video = build_video_tensors(
+        prepared.frames,
+        prepared.masks,
+        prepared.flow,
+        cfgs[0].mask_prior_margin_px,
+        device,
+        long_flow=prepared.long_flow,
+    )
     t_count, h, w = video.shape
     rows = []
     for cfg in cfgs:

@@ -23,6 +23,7 @@ from engine import contract as C
 from engine.config import FitConfig
 from engine.data.auto_masks import AutoMaskConfig, auto_masks, mask_folder, resize_masks, write_mask_files
 from engine.data.flow import DISFlow, FlowField, compute_flow
+from engine.data.long_flow import LongFlow, compute_long_flow, long_flow_gaps, long_flow_pairs
 from engine.data.scene_analysis import SceneAnalysis, analyse_scene
 from engine.data.scribbles import read_scribbles, scribble_layers
 from engine.errors import InputError
@@ -51,6 +52,7 @@ class PreparedClip:
     frame_range: tuple[int, int] | None = None  # inclusive positions in the source; None: the whole clip
     layers_source: str | None = None  # contract SCENE_LAYERS_*; None: given masks (or none)
     masks_note: str | None = None  # what --auto-masks found, for the scene record
+    long_flow: LongFlow | None = None  # long-range correspondences (``long_flow_max_gap``); None: off
 
     @property
     def mask_layers(self) -> tuple[tuple[int, ...], ...] | None:
@@ -246,11 +248,29 @@ def prepare_clip(
     reporter.job.export_pixels = len(frames) * info.width * info.height
     flow_start = time.perf_counter()
 
-    def flow_progress(done: int, total: int) -> None:
-        left = reporter.job.flow(time.perf_counter() - flow_start, done, total)
-        reporter.job_event("flow", done, total, left)
+    # the long-range pairs are part of the flow stage: one progress count over both, so its fraction only grows
+    gaps = long_flow_gaps(cfg.long_flow_max_gap, len(frames))
+    adjacent_pairs, long_pairs = max(len(frames) - 1, 0), long_flow_pairs(gaps, len(frames))
+    total_pairs = adjacent_pairs + long_pairs
+
+    def flow_progress(done: int, total: int, offset: int = 0) -> None:
+        done = offset + done
+        left = reporter.job.flow(time.perf_counter() - flow_start, done, total_pairs)
+        reporter.job_event("flow", done, total_pairs, left)
 
     flow = _fit_flow(frames, cfg.flow_preset, cfg.flow_threshold_px, run.flow_cache, flow_progress)
+    long_flow = None
+    if gaps:
+        long_flow = compute_long_flow(
+            frames.clip(0.0, 1.0),
+            flow,
+            gaps,
+            DISFlow(cfg.flow_preset),
+            cache_dir=run.flow_cache,
+            threshold_px=cfg.flow_threshold_px,
+            stride=cfg.long_flow_stride,
+            progress=lambda done, total: flow_progress(done, total, adjacent_pairs),
+        )
     prepared = PreparedClip(
         info,
         size,
@@ -262,6 +282,7 @@ def prepare_clip(
         scribbles,
         None if scribble_dir is None else str(Path(scribble_dir).resolve()),
         frame_range,
+        long_flow=long_flow,
     )
     if finder is not None:
         finder.find(prepared, cfg, analysis_raw if analysis_raw is not raw else None, reporter)

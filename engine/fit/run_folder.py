@@ -24,7 +24,7 @@ from typing import Any
 import torch
 
 from engine import contract as C
-from engine.config import RESUMABLE_FIELDS, START_FIELDS, FitConfig
+from engine.config import LATER_FIELDS, RESUMABLE_FIELDS, START_FIELDS, FitConfig
 from engine.data.scene_analysis import SceneAnalysis
 from engine.errors import InputError
 from engine.fit.checkpoint import CHECKPOINT_DAMAGED_FIX, load_checkpoint, nonfinite_entries, save_checkpoint
@@ -370,7 +370,9 @@ class RunFolder:
             return
         ours = dataclasses.asdict(cfg)
         free = (*RESUMABLE_FIELDS, *START_FIELDS)
-        differ = [k for k in ours if k not in free and (k not in saved or saved[k] != ours[k])]
+        # a field the checkpoint predates (LATER_FIELDS): it was fitted with the value that reproduces the old engine
+        missing = object()
+        differ = [k for k in ours if k not in free and saved.get(k, LATER_FIELDS.get(k, missing)) != ours[k]]
         if differ:
             raise InputError(
                 self.checkpoint,

@@ -26,6 +26,7 @@ from tqdm import tqdm
 
 from engine import contract as C
 from engine.config import LR_FIELDS, PRESETS, RESUMABLE_FIELDS, FitConfig, check_config, resume_changes
+from engine.data.long_flow import long_flow_gaps
 from engine.data.scene_analysis import SceneAnalysis
 from engine.data.scribbles import propagate_labels
 from engine.data.video import VideoTensors, build_video_tensors, frame_pixels, sample_batch, sample_pixels
@@ -409,6 +410,21 @@ def motion_from_state(rec: dict[str, Any]) -> LayerMotion:
     )
 
 
+def _check_long_flow(video: VideoTensors, cfg: FitConfig) -> None:
+    """Pixel tensors shared by several configs (the bench, ``estimate``) hold the long-range correspondences of the
+    config the clip was prepared with: one that asks for others would silently fit without them."""
+    gaps = long_flow_gaps(cfg.long_flow_max_gap, video.shape[0])
+    if not gaps:
+        return
+    want = (gaps, cfg.long_flow_stride, float(cfg.flow_threshold_px))
+    if video.long_settings != want:
+        raise InputError(
+            None,
+            f"the clip was prepared with long-range correspondences {video.long_settings}, this config needs {want}",
+            "give every config of one run the same long_flow_max_gap, long_flow_stride and flow_threshold_px",
+        )
+
+
 # --- the training loop --------------------------------------------------------------------------------------
 
 
@@ -446,8 +462,16 @@ class Trainer:
         self.model = model.to(device)
         if video is None:
             video = build_video_tensors(
-                clip.frames, clip.masks, clip.flow, cfg.mask_prior_margin_px, device, clip.scribbles, clip.mask_layers
+                clip.frames,
+                clip.masks,
+                clip.flow,
+                cfg.mask_prior_margin_px,
+                device,
+                clip.scribbles,
+                clip.mask_layers,
+                long_flow=clip.long_flow,
             )
+        _check_long_flow(video, cfg)
         self.video = video
         self.optim = make_optimizer(self.model, cfg, device)
         self.sched = make_scheduler(self.optim, cfg)

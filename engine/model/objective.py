@@ -11,7 +11,7 @@ from collections.abc import Callable
 import torch
 
 from engine.config import FitConfig, loss_weights
-from engine.data.video import PRIOR_IGNORE, VideoTensors
+from engine.data.video import PRIOR_IGNORE, VideoTensors, sample_long_flow
 from engine.model import losses as L
 from engine.model.atlas_model import AtlasModel
 
@@ -23,11 +23,28 @@ TARGET_RANGE = (0.0, 1.0)
 #: The per-step generator's seed is ``seed * SEED_STRIDE + step``: a prime above any step count, so no two
 #: (seed, step) pairs share a stream.
 SEED_STRIDE = 1_000_003
+#: The long-range correspondences' per-step stream is the step's stream plus this: above any ``seed * SEED_STRIDE
+#: + step`` (seeds are at most 2**31), so it is its own stream and the other draws do not change with it.
+LONG_FLOW_SEED_OFFSET = 2**62
 
 
 def _step_generator(cfg: FitConfig, step: int, device: torch.device) -> torch.Generator:
     """Random atlas points and scribble samples depend on (seed, step) only, so a resumed fit draws the same."""
     return torch.Generator(device=device).manual_seed(cfg.seed * SEED_STRIDE + step)
+
+
+def _long_flow_points(
+    video: VideoTensors, cfg: FitConfig, step: int, device: torch.device
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """This step's long-range correspondences (``sample_long_flow``, from (seed, step) only: a resumed fit
+    draws the same): source points and frames, target points and frames, as continuous pixel coordinates."""
+    gen = torch.Generator(device=device).manual_seed(LONG_FLOW_SEED_OFFSET + cfg.seed * SEED_STRIDE + step)
+    pick = sample_long_flow(video, cfg.long_flow_samples, cfg.object_sample_share, gen)
+    assert video.long_src is not None and video.long_dst is not None and video.long_dst_t is not None
+    _, h, w = video.shape
+    src = video.long_src[pick].long()
+    p = torch.stack((src % w, (src // w) % h), -1).float() + 0.5
+    return p, src // (h * w), video.long_dst[pick] + 0.5, video.long_dst_t[pick].long()
 
 
 def mask_alphas(weights: torch.Tensor, mask_layers: tuple[tuple[int, ...], ...] | None) -> torch.Tensor:
@@ -96,6 +113,12 @@ def compute_losses(
         if sel.numel():
             flow_parts.append((sel, xy[sel] + vec[sel], t[sel] + direction))
 
+    # long-range correspondences (t -> t +- k): their source and target points join each layer's one call
+    want_long = (
+        on("long_flow") and video.long_src is not None and cfg.long_flow_max_gap >= 2 and video.long_src.shape[0] > 0
+    )
+    long_pts = _long_flow_points(video, cfg, step, xy.device) if want_long else None
+
     glob_bg = on("global_rigidity_bg") and (active is None or wts["global_rigidity_bg"] > 0)
     glob_fg = on("global_rigidity_fg") and (active is None or wts["global_rigidity_fg"] > 0)
     glob_on = (wts["global_rigidity_fg"] > 0 or wts["global_rigidity_bg"] > 0) and (glob_bg or glob_fg)
@@ -119,8 +142,12 @@ def compute_losses(
         flow_at.append(len(chunks))
         if want_flow:
             chunks += [(q, tq) for _, q, tq in flow_parts]
+        if long_pts is not None:
+            chunks += [(long_pts[0], long_pts[1]), (long_pts[2], long_pts[3])]
         uv_parts.append(_evaluate(lambda a, b, _i=i: model.uv(_i, a, b), chunks))
     alpha_chunks = [(xy3, t3)] + ([(q, tq) for _, q, tq in flow_parts] if want_alpha_flow else [])
+    if long_pts is not None:
+        alpha_chunks.append((long_pts[0], long_pts[1]))
     alpha_parts = _evaluate(model.alpha, alpha_chunks)
 
     weights3 = alpha_parts[0]  # [3N, L]
@@ -179,6 +206,13 @@ def compute_losses(
         terms["flow"] = 0.5 * sum(flow_terms) if flow_terms else zero
     if on("alpha_flow"):
         terms["alpha_flow"] = 0.5 * sum(alpha_terms) if alpha_terms else zero
+
+    if long_pts is not None:
+        # the source's alpha (the last alpha chunk) weighs each layer, as in the adjacent term
+        alpha_long = alpha_parts[-1]
+        terms["long_flow"] = sum(
+            L.flow_loss(uv_parts[i][-2], uv_parts[i][-1], alpha_long[:, i], None, model.uv_per_px(i)) for i in range(nl)
+        )
 
     gen = None
     if nl > 2:
