@@ -9,8 +9,9 @@ An object's outline is where the image has edges, so the offset at which the mas
 edges says how loose the mask is. For each offset d (pixels, negative inside) the mean image-gradient magnitude
 along the mask's level line at signed distance d is averaged over every frame of the layer; a mask drawn on the
 object peaks at the layers next to its own outline (d = -1 or +1), a mask dilated by 10 px peaks near d = -9. When
-the peak is clearly stronger than the edges along the mask's own outline (``SNAP_CONTRAST``), the mask is moved to
-it: shrunk to the pixels within d of the inside, or grown by d. A clip-wide offset (per mask layer) is robust
+a line is clearly stronger than the edges along the mask's own outline (``SNAP_CONTRAST``), the mask is moved to the
+first such edge met going inward (or outward; ``best_offset``): shrunk to the pixels within d of the inside, or grown
+by d. A clip-wide offset (per mask layer) is robust
 where a per-frame one would chase texture: one frame's background edges cannot move it.
 
 Measured at 768x432 against the precise DAVIS masks (docs/accuracy-vs-time.md): masks dilated by 10 px go from
@@ -29,6 +30,9 @@ import numpy as np
 #: (the level lines at -1 and +1) for the mask to move: a dilated mask's peak is about 3x, a precise mask's own
 #: outline is the peak itself.
 SNAP_CONTRAST = 1.5
+#: Level lines, from the first one strong enough on, among which the outline goes to the strongest: an object's
+#: edge, blurred by motion and resampling, rises over a few pixels to its peak.
+PEAK_WINDOW = 3
 
 
 @dataclass
@@ -80,16 +84,29 @@ def edge_profile(frames: np.ndarray, masks: np.ndarray, reach_px: int) -> tuple[
 
 
 def best_offset(offsets: list[int], strength: np.ndarray) -> int:
-    """The level line with the strongest edges, when it is clearly stronger (``SNAP_CONTRAST``) than the mask's own
-    outline; 0 otherwise (a precise mask, a clip without edges, no mask)."""
+    """The offset the outline moves by: 0 (a precise mask, a clip without edges, no mask) unless some level line
+    is at least ``SNAP_CONTRAST`` times as strong as the mask's own outline (the lines at -1 and +1).
+
+    Scanning from the outline inward (and, separately, outward), the first line that strong is where the object's
+    edge begins: between a loose mask's outline and the object lies only background, and the object's own texture
+    lies beyond its edge. So the outline moves to the strongest of the ``PEAK_WINDOW`` lines from that first one on,
+    not to the profile's global maximum, which a textured object's interior can hold. When both directions find an
+    edge, the nearer wins (the stronger, if as near)."""
     if not len(offsets) or not np.isfinite(strength).all():
         return 0
-    own = 0.5 * (strength[offsets.index(-1)] + strength[offsets.index(1)])
-    i = int(np.argmax(strength))
-    d = offsets[i]
-    if abs(d) <= 1 or strength[i] <= 0 or strength[i] < SNAP_CONTRAST * own:
-        return 0
-    return d
+    at = {d: float(v) for d, v in zip(offsets, strength, strict=True)}
+    own = 0.5 * (at.get(-1, 0.0) + at.get(1, 0.0))
+    found: list[tuple[int, float, int]] = []
+    for step in (-1, 1):
+        d = 2 * step
+        while d in at:
+            if at[d] > 0 and at[d] >= SNAP_CONTRAST * own:
+                window = [d + k * step for k in range(PEAK_WINDOW) if d + k * step in at]
+                peak = max(window, key=lambda x: at[x])
+                found.append((abs(peak), -at[peak], peak))
+                break
+            d += step
+    return min(found)[2] if found else 0
 
 
 def snap_masks(frames: np.ndarray, masks: np.ndarray, reach_px: int) -> tuple[np.ndarray, list[MaskSnap]]:
@@ -118,4 +135,13 @@ def snap_masks(frames: np.ndarray, masks: np.ndarray, reach_px: int) -> tuple[np
     return out, snaps
 
 
-__all__ = ["SNAP_CONTRAST", "MaskSnap", "best_offset", "edge_profile", "edge_strength", "signed_distance", "snap_masks"]
+__all__ = [
+    "PEAK_WINDOW",
+    "SNAP_CONTRAST",
+    "MaskSnap",
+    "best_offset",
+    "edge_profile",
+    "edge_strength",
+    "signed_distance",
+    "snap_masks",
+]

@@ -106,6 +106,23 @@ def test_signed_distance_and_contrast_guard():
     assert best_offset(offsets, np.array([SNAP_CONTRAST * 1.01, 1.0, 1.0, 0.5])) == -2
     assert best_offset(offsets, np.array([np.nan, 1.0, 1.0, 0.5])) == 0
     assert best_offset([], np.array([])) == 0
+    # a textured interior stronger than the object's edge: the first strong line met going in wins, not the maximum
+    deep = [-6, -5, -4, -3, -2, -1, 1, 2]
+    assert best_offset(deep, np.array([9.0, 9.0, 2.0, 3.0, 2.0, 1.0, 1.0, 1.0])) == -3
+    # edges both ways: the nearer
+    assert best_offset(deep, np.array([1.0, 1.0, 1.0, 3.0, 1.0, 1.0, 1.0, 2.0])) == 2
+
+
+def test_a_small_textured_object_is_not_eaten_by_its_own_texture(tmp_path):
+    """A 24x18 sprite whose stripes and spots are stronger edges than its outline, masks grown by 2 px: the outline
+    moves 2 px in, not to the strongest texture line in the middle of the sprite."""
+    tiny = make_scene(SceneSpec(width=64, height=48, frames=6, fg_size=(24, 18), fg_start=(12.0, 10.0)))
+    loose = _dilate(tiny.masks, 2)
+    out, snaps = snap_masks(tiny.frames, loose[None], 16)
+    strength = dict(zip(snaps[0].offsets, snaps[0].strength, strict=True))
+    assert max(strength, key=strength.get) < -5  # the profile's maximum is deep inside
+    assert snaps[0].offset_px in (-3, -2, -1)
+    assert _iou(out[0], tiny.masks) > _iou(loose, tiny.masks)
 
 
 def test_hdr_and_nan_frames_do_not_move_the_outline(scene):
