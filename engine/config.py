@@ -112,6 +112,11 @@ class FitConfig:
     """After the bootstrap, a weak BCE far from the mask boundary keeps alpha from drifting (0 = paper)."""
     mask_prior_margin_px: float = 12.0
     """The mask prior ignores pixels closer than this to a mask boundary (masks are coarse hints)."""
+    mask_snap_px: int = 0
+    """Loose masks: find, per mask layer, the offset (up to this many working pixels in or out) at which the masks'
+    outline meets the clip's strongest edges, and move the masks there before fitting (engine/data/mask_snap.py;
+    0 = fit the masks as drawn). A mask drawn 10 px wide otherwise teaches the foreground a ring of background;
+    precise masks are left as they are."""
 
     w_anchor: float = 0.0
     """Fast model: squared pixels of a foreground mapping's mean drift (over the layer's mask pixels) from its
@@ -305,6 +310,7 @@ VALID: dict[str, Valid] = {
     "scribble_samples": _AT_LEAST_ONE,
     "w_mask_prior": _NON_NEGATIVE,
     "mask_prior_margin_px": _NON_NEGATIVE,
+    "mask_snap_px": _NON_NEGATIVE,
     "w_anchor": _NON_NEGATIVE,
     "uv_mapping_scale": Valid(low=0, high=1, above=True),
     "pretrain_iters": _NON_NEGATIVE,
@@ -355,6 +361,7 @@ LATER_FIELDS: dict[str, Any] = {
     "long_flow_samples": 1024,
     "w_long_flow": 5.0,
     "long_flow_stride": 2,
+    "mask_snap_px": 0,
 }
 #: The learning rates (``fit`` names them when a fit diverges).
 LR_FIELDS: tuple[str, ...] = ("lr", "lr_grid", "lr_warp")
@@ -510,9 +517,16 @@ def _fast(**kw: Any) -> FitConfig:
     background (water, foliage) gains its PSNR, and it needs a faster rate than the MLPs to get there; decaying
     it towards zero gives the gain back (docs/engine.md). object_sample_share: a quarter of each batch on the
     objects lets a small object's mapping follow it, at little cost to the background
-    (docs/accuracy-vs-time.md)."""
+    (docs/accuracy-vs-time.md). mask_snap_px: masks drawn up to 16 px loose are moved to the object's edges;
+    precise ones stay (docs/accuracy-vs-time.md, *All clips, degraded masks*)."""
     fast = FitConfig(
-        model="fast", w_mask_prior=20.0, w_anchor=10.0, atlas_box_full_mask=True, lr_warp=0.05, object_sample_share=0.25
+        model="fast",
+        w_mask_prior=20.0,
+        w_anchor=10.0,
+        atlas_box_full_mask=True,
+        lr_warp=0.05,
+        object_sample_share=0.25,
+        mask_snap_px=16,
     )
     return dataclasses.replace(fast, **kw)
 

@@ -62,7 +62,13 @@ FINITE_CHECK_EVERY = 100
 #: Seconds ``git`` may take to name the checkout's commit for the record.
 GIT_TIMEOUT_S = 10
 #: Config fields that decide the prepared clip (frames, flow, mask prior); every preset of a bench shares it.
-SHARED_FIELDS: tuple[str, ...] = ("long_edge", "flow_preset", "flow_threshold_px", "mask_prior_margin_px")
+SHARED_FIELDS: tuple[str, ...] = (
+    "long_edge",
+    "flow_preset",
+    "flow_threshold_px",
+    "mask_prior_margin_px",
+    "mask_snap_px",
+)
 #: A pixel is foreground (``fg_iou``) where the foreground layers' opacity weights sum to at least this.
 FG_ALPHA_THRESHOLD = 0.5
 
@@ -147,6 +153,7 @@ class ClipState:
             "name": self.spec.name,
             "source": info.source,
             "masks": self.prepared.mask_dirs,
+            "mask_snap_px": [snap.offset_px for snap in self.prepared.mask_snaps],
             "tracks": str(self.spec.tracks) if self.spec.tracks else None,
             "score_masks": [str(Path(m).resolve()) for m in self.spec.score_masks],
             "native_size": [info.width, info.height],

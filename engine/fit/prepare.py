@@ -24,6 +24,7 @@ from engine.config import FitConfig
 from engine.data.auto_masks import AutoMaskConfig, auto_masks, mask_folder, resize_masks, write_mask_files
 from engine.data.flow import DISFlow, FlowField, compute_flow
 from engine.data.long_flow import LongFlow, compute_long_flow, long_flow_gaps, long_flow_pairs
+from engine.data.mask_snap import MaskSnap, snap_masks
 from engine.data.scene_analysis import SceneAnalysis, analyse_scene
 from engine.data.scribbles import read_scribbles, scribble_layers
 from engine.errors import InputError
@@ -53,6 +54,8 @@ class PreparedClip:
     layers_source: str | None = None  # contract SCENE_LAYERS_*; None: given masks (or none)
     masks_note: str | None = None  # what --auto-masks found, for the scene record
     long_flow: LongFlow | None = None  # long-range correspondences (``long_flow_max_gap``); None: off
+    #: what ``mask_snap_px`` did to each given mask layer (engine.data.mask_snap); empty: nothing was searched
+    mask_snaps: tuple[MaskSnap, ...] = ()
 
     @property
     def mask_layers(self) -> tuple[tuple[int, ...], ...] | None:
@@ -231,6 +234,16 @@ def prepare_clip(
         if mask_dirs
         else np.zeros((0, len(frames), size[1], size[0]), dtype=bool)
     )
+    snaps: list[MaskSnap] = []
+    if mask_dirs and cfg.mask_snap_px >= 2:
+        masks, snaps = snap_masks(frames, masks, cfg.mask_snap_px)
+        for folder, snap in zip(mask_dirs, snaps, strict=True):
+            if snap.offset_px:
+                print(
+                    f"note: masks {folder}: outline moved {snap.offset_px:+d} px to the clip's edges "
+                    "(--set mask_snap_px=0 fits them as drawn)",
+                    file=sys.stderr,
+                )
     scribbles = None if scribble_dir is None else _read_scribbles(scribble_dir, info, size)
     if scribbles is not None and finder is None:
         _check_one_mask(scribble_dir, len(mask_dirs))  # type: ignore[arg-type]
@@ -283,6 +296,7 @@ def prepare_clip(
         None if scribble_dir is None else str(Path(scribble_dir).resolve()),
         frame_range,
         long_flow=long_flow,
+        mask_snaps=tuple(snaps),
     )
     if finder is not None:
         finder.find(prepared, cfg, analysis_raw if analysis_raw is not raw else None, reporter)
