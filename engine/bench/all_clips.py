@@ -4,7 +4,8 @@ Each clip folder (``frames/`` and ``masks/``, maybe ``tracks_tapvid.npz``) gets 
 recipe (``engine.bench.degrade``) into ``OUT/masks/RECIPE/CLIP``; one preset is fitted on each clip with those
 masks by ``run_bench`` (one clip after another, each to its preset's steps unless a budget ends it first) and
 evaluated once at the end on every frame (by default): PSNR, the foreground alpha's IoU against the clip's own
-precise ``masks/`` (``fg_iou``), TAP-Vid delta_avg of atlas tracking and of chained optical flow. Writes
+precise ``masks/`` (``fg_iou``, next to the given masks' own IoU against them), TAP-Vid delta_avg of atlas
+tracking and of chained optical flow. Writes
 ``OUT/runs/CLIP/bench.json`` (each clip's full record), ``OUT/clips.json`` (the table's rows) and
 ``OUT/clips.md`` (the table).
 """
@@ -19,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from engine.bench.bench import BENCH_JSON, BenchClip, resolve_clip, run_bench
-from engine.bench.degrade import DEFAULT_SEED, recipe, write_degraded
+from engine.bench.degrade import DEFAULT_SEED, masks_iou, recipe, write_degraded
 from engine.errors import InputError
 from engine.io.atomic import atomic_write_text
 
@@ -32,6 +33,8 @@ NO_BUDGET_SECONDS = 1e7
 #: The table's columns: header and the row key each shows.
 COLUMNS: tuple[tuple[str, str], ...] = (
     ("clip", "clip"),
+    ("given masks IoU", "mask_iou"),
+    ("snap px", "snap_px"),
     ("PSNR (dB)", "psnr"),
     ("fg IoU vs GT", "fg_iou"),
     ("atlas delta_avg", "atlas_delta_avg"),
@@ -39,7 +42,15 @@ COLUMNS: tuple[tuple[str, str], ...] = (
     ("train s", "train_seconds"),
 )
 #: Decimals each number is shown with.
-DECIMALS = {"psnr": 2, "fg_iou": 3, "atlas_delta_avg": 3, "flow_delta_avg": 3, "train_seconds": 0}
+DECIMALS = {
+    "mask_iou": 3,
+    "snap_px": 0,
+    "psnr": 2,
+    "fg_iou": 3,
+    "atlas_delta_avg": 3,
+    "flow_delta_avg": 3,
+    "train_seconds": 0,
+}
 
 
 def find_clips(root: str | Path) -> list[Path]:
@@ -64,8 +75,17 @@ def degraded_clips(root: str | Path, out: Path, recipe_name: str, seed: int = DE
 
 
 def clip_rows(record: dict) -> list[dict]:
-    """One row per run of a bench record: its last evaluation's numbers and the clip's chained-flow baseline."""
+    """One row per run of a bench record: the masks it was given (their IoU against the precise ones, and how far
+    the fit's mask snap moved them; ``engine.data.mask_snap``), its last evaluation's numbers and the clip's
+    chained-flow baseline."""
     base = {c["name"]: c.get("tracking_baseline") for c in record["clips"]}
+    given = {}
+    for c in record["clips"]:
+        iou = None
+        if len(c.get("masks") or []) == 1 and len(c.get("score_masks") or []) == 1:
+            iou = masks_iou(c["masks"][0], c["score_masks"][0])
+        snaps = c.get("mask_snap_px") or []
+        given[c["name"]] = (iou, float(snaps[0]) if len(snaps) == 1 else None)
     rows = []
     for run in record["runs"]:
         last = run["curve"][-1] if run["curve"] else {}
@@ -73,6 +93,8 @@ def clip_rows(record: dict) -> list[dict]:
         rows.append(
             {
                 "clip": run["clip"],
+                "mask_iou": given.get(run["clip"], (None, None))[0],
+                "snap_px": given.get(run["clip"], (None, None))[1],
                 "psnr": last.get("psnr"),
                 "fg_iou": last.get("fg_iou"),
                 "atlas_delta_avg": last["tracking"]["delta_avg"] if last.get("tracking") else None,

@@ -104,6 +104,21 @@ def read_gt(path: Path) -> np.ndarray:
     return np.asarray(image > GT_THRESHOLD)
 
 
+def masks_iou(masks_dir: str | Path, gt_dir: str | Path) -> float | None:
+    """IoU of the masks of ``masks_dir`` against those of ``gt_dir`` (same stems), pooled over the frames whose
+    mask is not empty (an empty one is "no mask", not "no object"): how good the masks a fit is given are. None
+    when none has a mask."""
+    inter = union = 0
+    for path in mask_files(Path(masks_dir)):
+        m = read_gt(path)
+        if not m.any():
+            continue
+        gt = read_gt(Path(gt_dir) / path.name)
+        inter += int((m & gt).sum())
+        union += int((m | gt).sum())
+    return inter / union if union else None
+
+
 def write_degraded(gt_dir: str | Path, out_dir: str | Path, deg: Degradation | str, seed: int = DEFAULT_SEED) -> Path:
     """Every mask of ``gt_dir`` spoilt by ``deg`` (a ``Degradation`` or a recipe name) as an 8-bit 0/255 PNG of
     the same stem in ``out_dir`` (created; files of the same name replaced). Same input and seed, same bytes."""
@@ -131,6 +146,7 @@ __all__ = [
     "degrade_mask",
     "dropped_frames",
     "mask_files",
+    "masks_iou",
     "read_gt",
     "recipe",
     "write_degraded",

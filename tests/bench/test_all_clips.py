@@ -88,6 +88,13 @@ def test_the_table_json_and_bench_record_agree(root, result):
         assert row["psnr"] == last["psnr"] and np.isfinite(row["psnr"])
         assert row["fg_iou"] == last["fg_iou"] and 0.0 <= row["fg_iou"] <= 1.0
         assert row["train_seconds"] == run["train_seconds"] > 0
+        # the masks the fit was given, scored like the fit: their IoU against the precise ones, and the snap
+        deg = np.stack([read_gt(p) for p in sorted((out / "masks" / RECIPE / row["clip"]).iterdir())])
+        gt = make_scene(SPECS[row["clip"]]).masks
+        has = deg.any((1, 2))
+        assert row["mask_iou"] == pytest.approx((deg & gt)[has].sum() / (deg | gt)[has].sum(), abs=1e-9)
+        assert row["mask_iou"] < 0.9  # the recipe's 10 px on a small object
+        assert row["snap_px"] == clip["mask_snap_px"][0] <= 0
     alpha, beta = rows
     assert 0.0 <= alpha["atlas_delta_avg"] <= 1.0 and 0.0 <= alpha["flow_delta_avg"] <= 1.0
     assert alpha["flow_delta_avg"] == benches[0]["clips"][0]["tracking_baseline"]["delta_avg"]
@@ -102,7 +109,8 @@ def test_the_table_json_and_bench_record_agree(root, result):
     cells = {ln.split(" | ")[0][2:]: [c.strip(" |") for c in ln.split(" | ")[1:]] for ln in lines[1:]}
     assert list(cells) == ["alpha", "beta", "mean"]
     for row in rows:
-        psnr, iou, atlas, flow, secs = cells[row["clip"]]
+        given, snap, psnr, iou, atlas, flow, secs = cells[row["clip"]]
+        assert float(given) == pytest.approx(row["mask_iou"], abs=0.0005) and int(snap) == row["snap_px"]
         assert float(psnr) == pytest.approx(row["psnr"], abs=0.005)
         assert float(iou) == pytest.approx(row["fg_iou"], abs=0.0005)
         assert float(secs) == pytest.approx(row["train_seconds"], abs=0.5)
