@@ -112,7 +112,7 @@ class FitConfig:
     """After the bootstrap, a weak BCE far from the mask boundary keeps alpha from drifting (0 = paper)."""
     mask_prior_margin_px: float = 12.0
     """The mask prior ignores pixels closer than this to a mask boundary (masks are coarse hints)."""
-    mask_snap_px: int = 0
+    mask_snap_px: int = 16
     """Loose masks: find, per mask layer, the offset (up to this many working pixels in or out) at which the masks'
     outline meets the clip's strongest edges, and move the masks there before fitting (engine/data/mask_snap.py;
     0 = fit the masks as drawn). A mask drawn 10 px wide otherwise teaches the foreground a ring of background;
@@ -517,8 +517,7 @@ def _fast(**kw: Any) -> FitConfig:
     background (water, foliage) gains its PSNR, and it needs a faster rate than the MLPs to get there; decaying
     it towards zero gives the gain back (docs/engine.md). object_sample_share: a quarter of each batch on the
     objects lets a small object's mapping follow it, at little cost to the background
-    (docs/accuracy-vs-time.md). mask_snap_px: masks drawn up to 16 px loose are moved to the object's edges;
-    precise ones stay (docs/accuracy-vs-time.md, *All clips, degraded masks*)."""
+    (docs/accuracy-vs-time.md)."""
     fast = FitConfig(
         model="fast",
         w_mask_prior=20.0,
@@ -526,7 +525,6 @@ def _fast(**kw: Any) -> FitConfig:
         atlas_box_full_mask=True,
         lr_warp=0.05,
         object_sample_share=0.25,
-        mask_snap_px=16,
     )
     return dataclasses.replace(fast, **kw)
 

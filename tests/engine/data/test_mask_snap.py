@@ -138,7 +138,7 @@ def test_hdr_and_nan_frames_do_not_move_the_outline(scene):
 
 
 def test_the_fit_prepares_snapped_masks_and_says_so(scene, tmp_path, capsys):
-    """Every fast preset snaps (``mask_snap_px``); ``--set mask_snap_px=0`` fits the masks as drawn."""
+    """Every preset snaps (``mask_snap_px``); ``--set mask_snap_px=0`` fits the masks as drawn."""
     from engine.config import apply_overrides, preset_config
     from engine.data.synthetic import write_pngs
     from engine.fit.prepare import prepare_clip
@@ -149,7 +149,7 @@ def test_the_fit_prepares_snapped_masks_and_says_so(scene, tmp_path, capsys):
     masks_dir.mkdir()
     write_pngs(scene.frames, frames_dir, {masks_dir: loose})
     cfg = preset_config("draft")
-    assert cfg.mask_snap_px >= REACH
+    assert all(preset_config(p).mask_snap_px >= REACH for p in ("draft", "balanced", "final", "paper"))
     snapped = prepare_clip(frames_dir, [masks_dir], cfg, tmp_path / "run", None)
     assert snapped.mask_snaps[0].offset_px < 0
     assert _iou(snapped.masks[0], scene.masks) > 0.95
