@@ -8,6 +8,7 @@ part of the product (its CLI is ``python -m engine``) and not in the extension z
     expected-psnr  a finished fit's PSNR as its preset's expected PSNR (engine/fit/expected_psnr.json)
     farm         shots one after another against the same shots through `farm dask` with local workers
     motion-scenes  synthetic clip folders (turning, deforming, small_fast, thin) with ground-truth tracks
+    masks        the mask snap alone on every clip of a folder: degraded masks' IoU before and after
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ SCENE_SPEED = "scene-speed"
 EXPECTED_PSNR = "expected-psnr"
 FARM = "farm"
 MOTION_SCENES = "motion-scenes"
+MASKS = "masks"
 PROG = "python -m engine.bench"
 
 BENCH_EPILOG = """\
@@ -122,6 +124,7 @@ def build_parser() -> argparse.ArgumentParser:
     ep.add_argument("--note", required=True, help="one line: where the measurement is documented")
     _add_farm_parser(sub)
     _add_clips_parser(sub)
+    _add_masks_parser(sub)
     ms = sub.add_parser(
         MOTION_SCENES,
         help="synthetic clip folders (turning, deforming, small_fast, thin) with ground-truth tracks",
@@ -161,6 +164,32 @@ def _add_clips_parser(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
     c.add_argument("--device", default="auto")
     c.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+
+
+def _add_masks_parser(sub: argparse._SubParsersAction) -> None:
+    from engine.bench.degrade import DEFAULT_SEED, RECIPES
+
+    m = sub.add_parser(
+        MASKS,
+        help="the mask snap alone on every clip: degraded masks' IoU against the precise ones, before and after",
+        description="Degrade each clip's masks/ by a named recipe into OUT/masks/RECIPE/CLIP, read them at the "
+        "fit's working size, snap them as fit does (engine/data/mask_snap.py) and print their IoU against the "
+        "precise masks before and after, the offset and the snap's seconds. Nothing is fitted.",
+    )
+    m.add_argument("root", metavar="CLIPS_ROOT", help="folder of clip folders (frames/, masks/)")
+    m.add_argument(
+        "--degrade", default="dilated10_dropped10", choices=list(RECIPES), help="mask recipe (default: %(default)s)"
+    )
+    m.add_argument("--seed", type=int, default=DEFAULT_SEED, help="seed of the dropped frames (default: 0)")
+    m.add_argument("--reach", type=int, default=16, help="the snap's search in working pixels (default: 16)")
+    m.add_argument("--out", default="masks_out", help="output folder (default: masks_out)")
+
+
+def _masks(args: argparse.Namespace) -> int:
+    from engine.bench.mask_check import check_all, format_rows
+
+    print(format_rows(check_all(args.root, args.out, args.degrade, args.seed, args.reach), args.degrade))
+    return C.EXIT_OK
 
 
 def _clips(args: argparse.Namespace) -> int:
@@ -313,6 +342,7 @@ def main(argv: list[str] | None = None) -> int:
         EXPECTED_PSNR: _expected_psnr,
         FARM: _farm,
         MOTION_SCENES: _motion_scenes,
+        MASKS: _masks,
     }
     if args.tool not in tools:
         parser.print_help()
