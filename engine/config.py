@@ -194,8 +194,9 @@ class FitConfig:
     def from_json(cls, text: str, path: str | Path | None = None) -> FitConfig:
         """A config as ``to_json`` wrote it; anything else (not JSON, not an object, another schema, an unknown
         field, a field of the wrong type or out of its range) is a one-line ``InputError`` naming ``path``. A field
-        missing takes its default (a config.json of an earlier engine holds no later field); a run's checkpoint
-        records the config it was fitted with, so a default that differs from it is refused when the run loads."""
+        missing takes its ``LATER_FIELDS`` value, the one that computes what the engine that wrote the file did (a
+        config.json of an earlier engine holds no later field), or else its default; a run's checkpoint records
+        the config it was fitted with, so a value that differs from it is refused when the run loads."""
         try:
             data = json.loads(text)
         except json.JSONDecodeError:
@@ -211,7 +212,9 @@ class FitConfig:
         values = data.get("config")
         if not isinstance(values, dict):
             raise InputError(path, "config has no 'config' object", CONFIG_FILE_FIX)
-        return apply_overrides(cls(), values, source=path)
+        # a field the file predates was fitted with the value that reproduces the engine that wrote it
+        earlier = {k: v for k, v in LATER_FIELDS.items() if k not in values}
+        return apply_overrides(cls(), {**earlier, **values}, source=path)
 
 
 #: The fix for a config.json that is damaged or was edited into something the engine cannot fit with.

@@ -37,7 +37,7 @@ from engine.bench.tracking import (
     tapvid_scores,
 )
 from engine.config import FitConfig, apply_overrides, preset_config
-from engine.data.video import VideoTensors, build_video_tensors
+from engine.data.video import VideoTensors
 from engine.errors import InputError
 from engine.fit.device import select_device, torch_threads
 from engine.fit.prepare import PreparedClip, prepare_clip
@@ -170,9 +170,7 @@ class ClipState:
 def _prepare(spec: BenchClip, cfg: FitConfig, work: Path, eval_frames: int, device: torch.device) -> ClipState:
     t0 = time.perf_counter()
     prepared = prepare_clip(spec.frames, list(spec.masks), cfg, work, None)
-    video = build_video_tensors(
-        prepared.frames, prepared.masks, prepared.flow, cfg.mask_prior_margin_px, device, long_flow=prepared.long_flow
-    )
+    video = prepared.tensors(cfg, device)
     t_count = int(video.shape[0])
     count = t_count if eval_frames <= 0 else min(eval_frames, t_count)  # 0: every frame
     subset = sorted({round(float(x)) for x in np.linspace(0, t_count - 1, count)})

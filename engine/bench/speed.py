@@ -13,7 +13,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from engine.config import preset_config
-from engine.data.video import build_video_tensors
 from engine.fit.device import select_device, synchronize
 from engine.fit.prepare import prepare_clip
 from engine.fit.trainer import Trainer
@@ -45,14 +44,7 @@ def measure_step_times(
     device = select_device(device_name)
     cfgs = [preset_config(p) for p in presets]
     prepared = prepare_clip(clip, mask_dirs, cfgs[0], work_dir, None)
-    video = build_video_tensors(
-        prepared.frames,
-        prepared.masks,
-        prepared.flow,
-        cfgs[0].mask_prior_margin_px,
-        device,
-        long_flow=prepared.long_flow,
-    )
+    video = prepared.tensors(cfgs[0], device)
     trainers = [Trainer(cfg, prepared, prepared.analyse(cfg), device, video=video) for cfg in cfgs]
     times: dict[str, list[float]] = {c.preset: [] for c in cfgs}
 

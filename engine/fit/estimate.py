@@ -25,7 +25,7 @@ import torch
 
 from engine import contract as C
 from engine.config import PRESETS, FitConfig, apply_overrides, preset_config
-from engine.data.video import build_video_tensors, frame_pixels
+from engine.data.video import frame_pixels
 from engine.fit.device import select_device, synchronize, torch_threads
 from engine.fit.eta import PRE_TRAIN_SHARE
 from engine.fit.prepare import prepare_clip
@@ -168,14 +168,7 @@ def _estimate(
         prepared = prepare_clip(clip, list(mask_dirs), cfgs[0], work, frame_range, reporter)
         prepare_seconds = time.perf_counter() - t0
     timing = _PresetProgress(reporter, len(cfgs))
-    video = build_video_tensors(
-        prepared.frames,
-        prepared.masks,
-        prepared.flow,
-        cfgs[0].mask_prior_margin_px,
-        device,
-        long_flow=prepared.long_flow,
-    )
+    video = prepared.tensors(cfgs[0], device)
     t_count, h, w = video.shape
     rows = []
     for cfg in cfgs:

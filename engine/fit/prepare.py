@@ -18,6 +18,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import torch
 
 from engine import contract as C
 from engine.config import FitConfig
@@ -27,6 +28,7 @@ from engine.data.long_flow import LongFlow, compute_long_flow, long_flow_gaps, l
 from engine.data.mask_snap import MaskSnap, snap_masks
 from engine.data.scene_analysis import SceneAnalysis, analyse_scene
 from engine.data.scribbles import read_scribbles, scribble_layers
+from engine.data.video import VideoTensors, build_video_tensors
 from engine.errors import InputError
 from engine.fit.progress import Reporter
 from engine.fit.run_folder import ClipRecord, RunFolder
@@ -67,6 +69,20 @@ class PreparedClip:
     @property
     def num_foreground(self) -> int:
         return self.masks.shape[0] if self.scribbles is None else scribble_layers(self.scribbles)
+
+    def tensors(self, cfg: FitConfig, device: torch.device) -> VideoTensors:
+        """The clip as training tensors on ``device`` under ``cfg`` (its mask prior's margin): what ``fit``, the
+        bench, the estimate and the speed table train on, one set shared by every config tried on the clip."""
+        return build_video_tensors(
+            self.frames,
+            self.masks,
+            self.flow,
+            cfg.mask_prior_margin_px,
+            device,
+            self.scribbles,
+            self.mask_layers,
+            long_flow=self.long_flow,
+        )
 
     def analyse(self, cfg: FitConfig) -> SceneAnalysis:
         """The scene analysis of this clip under ``cfg``: what the model computes (engine.data.scene_analysis)."""

@@ -29,7 +29,7 @@ from engine.config import LR_FIELDS, PRESETS, RESUMABLE_FIELDS, FitConfig, check
 from engine.data.long_flow import long_flow_gaps
 from engine.data.scene_analysis import SceneAnalysis
 from engine.data.scribbles import propagate_labels
-from engine.data.video import VideoTensors, build_video_tensors, frame_pixels, sample_batch, sample_pixels
+from engine.data.video import VideoTensors, frame_pixels, sample_batch, sample_pixels
 from engine.errors import FitDiverged, InputError
 from engine.fit.checkpoint import nonfinite_entries
 from engine.fit.device import select_device, synchronize
@@ -461,16 +461,7 @@ class Trainer:
                 model = assemble_model(cfg, clip.size, clip.frames.shape[0], 1 + clip.num_foreground, scene, motions)
         self.model = model.to(device)
         if video is None:
-            video = build_video_tensors(
-                clip.frames,
-                clip.masks,
-                clip.flow,
-                cfg.mask_prior_margin_px,
-                device,
-                clip.scribbles,
-                clip.mask_layers,
-                long_flow=clip.long_flow,
-            )
+            video = clip.tensors(cfg, device)
         _check_long_flow(video, cfg)
         self.video = video
         self.optim = make_optimizer(self.model, cfg, device)

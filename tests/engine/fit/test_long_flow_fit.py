@@ -96,8 +96,9 @@ def test_runs_from_before_the_long_range_fields_still_load(tmp_path: Path) -> No
     old = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in LATER_FIELDS}
     text = json.dumps({"schema": C.SCHEMA_VERSION, "config": old})
     loaded = FitConfig.from_json(text, tmp_path / "config.json")
-    assert loaded == cfg and loaded.long_flow_max_gap == 0
+    assert loaded == dataclasses.replace(cfg, **LATER_FIELDS) and loaded.long_flow_max_gap == 0
     assert all(getattr(loaded, k) == v for k, v in LATER_FIELDS.items())
+    assert loaded.mask_snap_px == 0 < cfg.mask_snap_px  # fitted before the snap: its masks as drawn
     record = SimpleNamespace(fingerprint="abc")
     folder = RunFolder(tmp_path)
     folder.check_checkpoint_belongs({"fingerprint": "abc", "config": old}, loaded, record)  # type: ignore[arg-type]
