@@ -56,7 +56,10 @@ class MaskSnap:
 
 def signed_distance(mask: np.ndarray) -> np.ndarray:
     """float32 [H, W]: distance to the mask's outline, negative inside (the pixels next to the outline are -1 and
-    +1; no pixel is 0)."""
+    +1; no pixel is 0). A mask without an outline (empty, or covering the whole frame) is +inf / -inf everywhere:
+    the distance transform has no zero pixel to measure from there."""
+    if not mask.any() or mask.all():
+        return np.full(mask.shape, -np.inf if mask.any() else np.inf, dtype=np.float32)
     m = mask.astype(np.uint8)
     return cv2.distanceTransform(1 - m, cv2.DIST_L2, 5) - cv2.distanceTransform(m, cv2.DIST_L2, 5)
 
@@ -78,8 +81,8 @@ def edge_profile(frames: np.ndarray, masks: np.ndarray, reach_px: int) -> tuple[
     total = np.zeros(2 * reach_px + 1)
     count = np.zeros(2 * reach_px + 1)
     for t in range(masks.shape[0]):
-        if not masks[t].any():
-            continue
+        if not masks[t].any() or masks[t].all():
+            continue  # no outline: no mask, or one covering the frame
         # the level line at d is the pixels whose signed distance rounds to d: one bincount for every line
         line = np.rint(signed_distance(masks[t])).astype(np.int64).ravel()
         near = np.abs(line) <= reach_px

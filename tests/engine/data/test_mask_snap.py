@@ -178,3 +178,19 @@ def test_the_fit_prepares_snapped_masks_and_says_so(scene, tmp_path, capsys):
     assert "outline moved" in capsys.readouterr().err
     drawn = prepare_clip(frames_dir, [masks_dir], apply_overrides(cfg, {"mask_snap_px": "0"}), tmp_path / "run2", None)
     assert np.array_equal(drawn.masks[0], loose) and drawn.mask_snaps == ()
+
+
+def test_a_mask_covering_the_whole_frame_has_no_outline_to_move(scene):
+    """A full-frame mask (every pixel foreground) in some frames or all: those frames have no outline; they add
+    nothing to the profile and stay full; the other frames are snapped as usual."""
+    full = np.ones_like(scene.masks)
+    out, snaps = snap_masks(scene.frames, full[None], REACH)
+    assert snaps[0].offset_px == 0 and out.all()
+    assert np.isnan(snaps[0].strength).all()
+    sd = signed_distance(full[0])
+    assert np.isneginf(sd).all() and np.isposinf(signed_distance(~full[0])).all()
+    loose = _dilate(scene.masks, 6)
+    loose[1] = True
+    out, snaps = snap_masks(scene.frames, loose[None], REACH)
+    assert snaps[0].offset_px < 0 and out[0, 1].all()
+    assert _iou(out[0, [0, 2, 3, 4]], scene.masks[[0, 2, 3, 4]]) > 0.95
