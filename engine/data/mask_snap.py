@@ -11,8 +11,9 @@ along the mask's level line at signed distance d is averaged over every frame of
 object peaks at the layers next to its own outline (d = -1 or +1), a mask dilated by 10 px peaks near d = -9. When
 a line is clearly stronger than the edges along the mask's own outline (``SNAP_CONTRAST``), the mask is moved to the
 first such edge met going inward (or outward; ``best_offset``): shrunk to the pixels within d of the inside, or grown
-by d. A clip-wide offset (per mask layer) is robust
-where a per-frame one would chase texture: one frame's background edges cannot move it.
+by d. It moves only when its own outline runs through what lies beyond it (a precise outline is itself an edge),
+so neither a precise mask nor a small textured object's interior lines can move it. A clip-wide offset (per mask
+layer) is robust where a per-frame one would chase texture: one frame's background edges cannot move it.
 
 Measured at 768x432 against the precise DAVIS masks (docs/accuracy-vs-time.md): masks dilated by 10 px go from
 IoU 0.72 / 0.44 / 0.53 / 0.83 (blackswan, bmx-trees, libby, car-roundabout) to 0.97 / 0.73 / 0.90 / 0.99, and the
