@@ -112,6 +112,12 @@ class FitConfig:
     """After the bootstrap, a weak BCE far from the mask boundary keeps alpha from drifting (0 = paper)."""
     mask_prior_margin_px: float = 12.0
     """The mask prior ignores pixels closer than this to a mask boundary (masks are coarse hints)."""
+    mask_hold_coverage: float = 0.4
+    """After the bootstrap the mask prior holds only the pixels deeper inside a mask than ``mask_prior_margin_px``.
+    A thin object (a dog's legs, a bike, a rider) has few such pixels, and its alpha then leaves the parts nothing
+    holds. A mask layer whose prior keeps less than this share of its mask pixels as inside keeps the bootstrap's
+    mask term (``w_mask``) for the whole fit (term ``mask_hold``; 0 = never). Thick objects (a swan, a car) are
+    fitted as before."""
     mask_snap_px: int = 16
     """Loose masks: find, per mask layer, the offset (up to this many working pixels in or out) at which the masks'
     outline meets the clip's strongest edges, and move the masks there before fitting (engine/data/mask_snap.py;
@@ -148,6 +154,13 @@ class FitConfig:
     """Fast model: features per alpha grid level."""
     alpha_density: float = 0.25
     """Fast model: finest alpha grid cells per working pixel."""
+    alpha_atlas_density: float = 0.0
+    """Fast model: an opacity grid in each foreground layer's atlas, at this many finest cells per reference pixel,
+    added to the (x, y, t) alpha's logit (0 = none). The (x, y, t) grid learns a thin part (a leg, a bike frame)
+    separately in every frame, from the few samples that land on it there; in atlas space every frame's samples of
+    that part train the same cells, so an object's shape is learned once and moves with its mapping."""
+    alpha_atlas_levels: int = 3
+    """Fast model: resolution levels of the atlas-space opacity grid (``alpha_atlas_density`` > 0)."""
     decoder_hidden: int = 64
     """Fast model: width of the colour and alpha decoder MLPs."""
     warp_levels: int = 2
@@ -313,6 +326,7 @@ VALID: dict[str, Valid] = {
     "scribble_samples": _AT_LEAST_ONE,
     "w_mask_prior": _NON_NEGATIVE,
     "mask_prior_margin_px": _NON_NEGATIVE,
+    "mask_hold_coverage": _FRACTION,
     "mask_snap_px": _NON_NEGATIVE,
     "w_anchor": _NON_NEGATIVE,
     "uv_mapping_scale": Valid(low=0, high=1, above=True),
@@ -325,6 +339,8 @@ VALID: dict[str, Valid] = {
     "alpha_levels": _AT_LEAST_ONE,
     "alpha_features": _AT_LEAST_ONE,
     "alpha_density": _POSITIVE,
+    "alpha_atlas_density": _NON_NEGATIVE,
+    "alpha_atlas_levels": _AT_LEAST_ONE,
     "decoder_hidden": _AT_LEAST_ONE,
     "warp_levels": _NON_NEGATIVE,
     "warp_foreground": _ANY,
@@ -365,6 +381,9 @@ LATER_FIELDS: dict[str, Any] = {
     "w_long_flow": 5.0,
     "long_flow_stride": 2,
     "mask_snap_px": 0,
+    "alpha_atlas_density": 0.0,
+    "alpha_atlas_levels": 3,
+    "mask_hold_coverage": 0.0,
 }
 #: The learning rates (``fit`` names them when a fit diverges).
 LR_FIELDS: tuple[str, ...] = ("lr", "lr_grid", "lr_warp")
@@ -372,8 +391,9 @@ LR_FIELDS: tuple[str, ...] = ("lr", "lr_grid", "lr_warp")
 
 def loss_weights(cfg: FitConfig, step: int) -> dict[str, float]:
     """Every loss term's weight at ``step``: global rigidity and the mask bootstrap (with the scribbles that
-    refine it) end at their step counts, where the mask prior takes over from the bootstrap. The weights change
-    only at those two steps."""
+        refine it) end at their step counts, where the mask prior takes over from the bootstrap (and the mask term goes
+    on for thin objects' layers: ``mask_hold``). The weights change
+        only at those two steps."""
     boot = step < cfg.bootstrap_steps
     glob = step < cfg.global_rigidity_steps
     return {
@@ -388,6 +408,7 @@ def loss_weights(cfg: FitConfig, step: int) -> dict[str, float]:
         "sparsity": cfg.w_sparsity,
         "mask": cfg.w_mask if boot else 0.0,
         "mask_prior": 0.0 if boot else cfg.w_mask_prior,
+        "mask_hold": 0.0 if boot else cfg.w_mask,
         "atlas_sparsity": cfg.w_atlas_sparsity,
         "scribble": cfg.w_scribble if boot else 0.0,
         "anchor": cfg.w_anchor,
@@ -534,7 +555,14 @@ def _fast(**kw: Any) -> FitConfig:
 
 #: Named presets; their step budgets are the contract's (``PRESET_STEPS``: the add-on's menu reads them too).
 PRESETS: dict[str, FitConfig] = {
-    "draft": _fast(preset="draft", steps=PRESET_STEPS["draft"], bootstrap_steps=300, global_rigidity_steps=150),
+    # draft: the masks (snapped) are fitted for all of its steps; let go after 300, the alpha dropped the parts the
+    # prior does not hold (a swan's neck, a dog's legs) and tracking on them with it (docs/accuracy-vs-time.md)
+    "draft": _fast(
+        preset="draft",
+        steps=PRESET_STEPS["draft"],
+        bootstrap_steps=PRESET_STEPS["draft"],
+        global_rigidity_steps=150,
+    ),
     "balanced": _fast(
         preset="balanced", steps=PRESET_STEPS["balanced"], bootstrap_steps=2000, global_rigidity_steps=1000
     ),
@@ -559,6 +587,7 @@ PRESETS: dict[str, FitConfig] = {
         bootstrap_steps=10000,
         global_rigidity_steps=5000,
         w_mask_prior=0.0,
+        mask_hold_coverage=0.0,
         init_motion=False,
     ),
 }

@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import signal
 import subprocess
 import sys
 from collections.abc import Callable
@@ -26,9 +27,17 @@ def run_cli(*args: str | os.PathLike[str]) -> tuple[int, list[str]]:
 
 
 def start_engine(args: list[str]) -> subprocess.Popen[str]:
-    """``python -m engine ARGS`` as a child process from the checkout, stdout and stderr piped as text."""
+    """``python -m engine ARGS`` as a child process from the checkout, stdout and stderr piped as text.
+
+    The child starts with SIGINT at its default action, as a command typed in a terminal does: a test suite started
+    in the background (``cmd &``, ``nohup``) passes SIGINT on as ignored, and Python then leaves Ctrl-C ignored."""
     return subprocess.Popen(
-        [sys.executable, "-m", "engine", *args], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        [sys.executable, "-m", "engine", *args],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
 
 

@@ -35,6 +35,7 @@ COLUMNS: tuple[tuple[str, str], ...] = (
     ("clip", "clip"),
     ("given masks IoU", "mask_iou"),
     ("snap px", "snap_px"),
+    ("prior holds", "prior_coverage"),
     ("PSNR (dB)", "psnr"),
     ("fg IoU vs GT", "fg_iou"),
     ("atlas delta_avg", "atlas_delta_avg"),
@@ -45,6 +46,7 @@ COLUMNS: tuple[tuple[str, str], ...] = (
 DECIMALS = {
     "mask_iou": 3,
     "snap_px": 0,
+    "prior_coverage": 2,
     "psnr": 2,
     "fg_iou": 3,
     "atlas_delta_avg": 3,
@@ -75,8 +77,9 @@ def degraded_clips(root: str | Path, out: Path, recipe_name: str, seed: int = DE
 
 
 def clip_rows(record: dict) -> list[dict]:
-    """One row per run of a bench record: the masks it was given (their IoU against the precise ones, and how far
-    the fit's mask snap moved them; ``engine.data.mask_snap``), its last evaluation's numbers and the clip's
+    """One row per run of a bench record: the masks it was given (their IoU against the precise ones, how far
+    the fit's mask snap moved them, ``engine.data.mask_snap``, and the share of them its mask prior holds,
+    ``video.prior_coverage``), its last evaluation's numbers and the clip's
     chained-flow baseline."""
     base = {c["name"]: c.get("tracking_baseline") for c in record["clips"]}
     given = {}
@@ -85,7 +88,12 @@ def clip_rows(record: dict) -> list[dict]:
         if len(c.get("masks") or []) == 1 and len(c.get("score_masks") or []) == 1:
             iou = masks_iou(c["masks"][0], c["score_masks"][0])
         snaps = c.get("mask_snap_px") or []
-        given[c["name"]] = (iou, float(snaps[0]) if len(snaps) == 1 else None)
+        cover = c.get("prior_coverage") or []
+        given[c["name"]] = (
+            iou,
+            float(snaps[0]) if len(snaps) == 1 else None,
+            cover[0] if len(cover) == 1 else None,
+        )
     rows = []
     for run in record["runs"]:
         last = run["curve"][-1] if run["curve"] else {}
@@ -93,8 +101,9 @@ def clip_rows(record: dict) -> list[dict]:
         rows.append(
             {
                 "clip": run["clip"],
-                "mask_iou": given.get(run["clip"], (None, None))[0],
-                "snap_px": given.get(run["clip"], (None, None))[1],
+                "mask_iou": given.get(run["clip"], (None, None, None))[0],
+                "snap_px": given.get(run["clip"], (None, None, None))[1],
+                "prior_coverage": given.get(run["clip"], (None, None, None))[2],
                 "psnr": last.get("psnr"),
                 "fg_iou": last.get("fg_iou"),
                 "atlas_delta_avg": last["tracking"]["delta_avg"] if last.get("tracking") else None,

@@ -154,6 +154,8 @@ class ClipState:
             "source": info.source,
             "masks": self.prepared.mask_dirs,
             "mask_snap_px": [snap.offset_px for snap in self.prepared.mask_snaps],
+            # per mask layer: the share of it the mask prior holds (under mask_hold_coverage it is held)
+            "prior_coverage": [None if c is None else round(c, 3) for c in self.video.prior_coverage],
             "tracks": str(self.spec.tracks) if self.spec.tracks else None,
             "score_masks": [str(Path(m).resolve()) for m in self.spec.score_masks],
             "native_size": [info.width, info.height],

@@ -65,6 +65,7 @@ ALL_TERMS: tuple[str, ...] = (
     "sparsity",
     "mask",
     "mask_prior",
+    "mask_hold",
     "atlas_sparsity",
     "scribble",
     "anchor",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -31,6 +32,9 @@ class VideoTensors:
     #: Foreground layers (1-based model layers) each mask covers; None = mask f is layer f+1 alone. A mask
     #: split by scribbles covers several layers, and its BCE applies to the sum of their alphas (Sec. 4.4).
     mask_layers: tuple[tuple[int, ...], ...] | None = None
+    #: per mask layer, the share of its mask pixels the prior holds as inside (``prior_coverage``): under a config's
+    #: ``mask_hold_coverage`` the layer's mask term goes on after the bootstrap (``mask_hold_layers``)
+    prior_coverage: tuple[float | None, ...] = ()
     scribble_xyt: torch.Tensor | None = None  # long [S, 3]: x, y, t of every scribbled pixel
     scribble_label: torch.Tensor | None = None  # long [S]: its 0-based foreground layer
     #: int32/int64 [R]: flat indices t*H*W + y*W + x of every pixel on or within the prior's margin of a mask (any
@@ -77,6 +81,21 @@ def mask_prior(masks: np.ndarray, margin_px: float) -> np.ndarray:
     return out
 
 
+def prior_coverage(masks: np.ndarray, prior: np.ndarray) -> list[float | None]:
+    """Per mask layer, the share of its mask pixels that the prior holds as inside (``mask_prior``), over every
+    frame; None for a layer without a mask pixel (nothing to hold)."""
+    out: list[float | None] = []
+    for f in range(masks.shape[0]):
+        area = int(np.count_nonzero(masks[f]))
+        out.append(float(np.count_nonzero(prior[f] == 1)) / area if area else None)
+    return out
+
+
+def mask_hold_layers(coverage: Sequence[float | None], hold_below: float) -> np.ndarray:
+    """bool [F]: the layers whose prior holds less than ``hold_below`` of their mask (0: none is held)."""
+    return np.array([c is not None and c < hold_below for c in coverage], dtype=bool)
+
+
 def build_video_tensors(
     frames: np.ndarray,
     masks: np.ndarray,
@@ -111,6 +130,7 @@ def build_video_tensors(
         scribble_xyt=None if scribbles is None else dev(np.argwhere(scribbles >= 0)[:, ::-1].astype(np.int64)),
         scribble_label=None if scribbles is None else dev(scribbles[scribbles >= 0].astype(np.int64)),
         object_region=dev(region),
+        prior_coverage=tuple(prior_coverage(masks, prior)),
     )
     if long_flow is not None:
         # objects first: a boolean over the clip's pixels says which sources lie in the region

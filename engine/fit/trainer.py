@@ -29,7 +29,7 @@ from engine.config import LR_FIELDS, PRESETS, RESUMABLE_FIELDS, FitConfig, check
 from engine.data.long_flow import long_flow_gaps
 from engine.data.scene_analysis import SceneAnalysis
 from engine.data.scribbles import propagate_labels
-from engine.data.video import VideoTensors, frame_pixels, sample_batch, sample_pixels
+from engine.data.video import VideoTensors, frame_pixels, mask_hold_layers, sample_batch, sample_pixels
 from engine.errors import FitDiverged, InputError
 from engine.fit.checkpoint import nonfinite_entries
 from engine.fit.device import select_device, synchronize
@@ -410,6 +410,20 @@ def motion_from_state(rec: dict[str, Any]) -> LayerMotion:
     )
 
 
+def _note_held_masks(video: VideoTensors, cfg: FitConfig, mask_dirs: list[str]) -> None:
+    """One ``note:`` line per mask layer whose mask term stays on after the bootstrap (``mask_hold_coverage``)."""
+    if cfg.bootstrap_steps >= cfg.steps:
+        return  # the bootstrap lasts the whole fit: every mask is fitted throughout anyway
+    for f in np.flatnonzero(mask_hold_layers(video.prior_coverage, cfg.mask_hold_coverage)):
+        name = mask_dirs[f] if f < len(mask_dirs) else f"mask layer {f + 1}"
+        share = video.prior_coverage[f] or 0.0
+        print(
+            f"note: masks {name}: the mask prior holds only {share:.0%} of them (a small or thin object), so they "
+            "are fitted for the whole fit, not only during the bootstrap (--set mask_hold_coverage=0 lets them go)",
+            file=sys.stderr,
+        )
+
+
 def _check_long_flow(video: VideoTensors, cfg: FitConfig) -> None:
     """Pixel tensors shared by several configs (the bench, ``estimate``) hold the long-range correspondences of the
     config the clip was prepared with: one that asks for others would silently fit without them."""
@@ -463,6 +477,8 @@ class Trainer:
         if video is None:
             video = clip.tensors(cfg, device)
         _check_long_flow(video, cfg)
+        if state is None:
+            _note_held_masks(video, cfg, clip.mask_dirs)
         self.video = video
         self.optim = make_optimizer(self.model, cfg, device)
         self.sched = make_scheduler(self.optim, cfg)

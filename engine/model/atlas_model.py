@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from engine import contract as C
@@ -25,6 +26,8 @@ ALPHA_FLOOR = 0.001
 ALPHA_SPAN = 0.99
 #: The finest alpha grid has at least this many cells along the long edge (all pixels if the clip is smaller).
 ALPHA_MIN_CELLS = 128
+#: The atlas-space opacity's coarsest level, in cells along the atlas's long side: a coarse object silhouette.
+ALPHA_ATLAS_COARSEST = 8
 #: Pan/zoom background (engine.data.scene_analysis): the per-frame similarity carries the camera; a residual MLP this
 #: narrow and shallow only absorbs lens distortion and rolling shutter, at a fraction of the default's cost.
 PANZOOM_MAPPING_HIDDEN = 16
@@ -46,6 +49,8 @@ class AtlasModel(nn.Module):
     #: every term. It lives on the model because the model was built for that scene: a term for a component
     #: the model does not have (sparsity without a foreground) has nothing to act on.
     active_terms: frozenset[str] | None = None
+    #: Whether ``alpha`` reads the layers' atlas coordinates (then a caller that has them passes them).
+    alpha_reads_uv: bool = False
 
     def uv(self, layer: int, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         """Atlas coordinates [N, 2] (roughly in [-1, 1]) of working pixels ``xy`` [N, 2] at frames ``t`` [N]."""
@@ -63,8 +68,9 @@ class AtlasModel(nn.Module):
         """The layer's initial (flow-fitted) mapping, if the model has one: the gauge the atlas is drawn in."""
         return None
 
-    def alpha(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-        """Per-layer opacity weights [N, L], summing to one."""
+    def alpha(self, xy: torch.Tensor, t: torch.Tensor, uvs: list[torch.Tensor] | None = None) -> torch.Tensor:
+        """Per-layer opacity weights [N, L], summing to one. ``uvs``: each layer's ``uv(layer, xy, t)`` when the
+        caller has already computed them (an alpha that reads atlas coordinates then need not map again)."""
         raise NotImplementedError
 
     def atlas_extent(self, layer: int) -> tuple[float, float]:
@@ -197,6 +203,27 @@ class FastAtlas(nn.Module):
         return torch.sigmoid(self.decoder(self.grid(g)).float()) * inside
 
 
+class AtlasOpacity(nn.Module):
+    """One foreground layer's opacity logit as a texture in its atlas: multi-resolution scalar grids over the layer's
+    atlas rectangle, summed (no decoder: a logit texture needs none, and it costs one bilinear lookup per level).
+
+    Every frame's samples of a part of the object train the same cells, once the mapping carries the part there; a
+    thin part that the (x, y, t) grid sees a few pixels of per frame is learned from all of them. It starts at zero,
+    so a fit starts from the same alpha as without it. Outside the rectangle the border cells extend outwards
+    (``grid_sample``'s border padding): the object's atlas ends there, and the (x, y, t) alpha decides."""
+
+    def __init__(self, motion: LayerMotion, cfg: FitConfig) -> None:
+        super().__init__()
+        ax, ay = motion.aspect
+        finest = math.ceil(2.0 * motion.half_extent * max(ax, ay) * cfg.alpha_atlas_density)
+        res = level_resolutions(finest, cfg.alpha_atlas_levels, coarsest=ALPHA_ATLAS_COARSEST)
+        self.register_buffer("inv_aspect", torch.tensor([1.0 / ax, 1.0 / ay], dtype=torch.float32))
+        self.grid = Grid2D([(max(2, round(r * ax)), max(2, round(r * ay))) for r in res], 1, init_std=0.0)
+
+    def forward(self, uv: torch.Tensor) -> torch.Tensor:
+        return self.grid(uv * self.inv_aspect).float().sum(-1, keepdim=True)
+
+
 class FastModel(AtlasModel):
     """The default: quality per CPU-second. Same inputs, outputs and losses as the paper's model."""
 
@@ -232,6 +259,7 @@ class FastModel(AtlasModel):
         self.atlases = nn.ModuleList(FastAtlas(m, cfg) for m in motions)
         self.alpha_grid: Grid3D | None = None
         self.alpha_decoder: MLP | None = None
+        self.alpha_atlas: nn.ModuleList | None = None
         if not alpha_network:
             return
         # small clips keep a usable alpha resolution: at least ALPHA_MIN_CELLS on the long edge (or every pixel)
@@ -247,6 +275,9 @@ class FastModel(AtlasModel):
         self.alpha_grid = Grid3D(sorted(set(res3)), cfg.alpha_features)
         n_out = 1 if self.num_layers == 2 else self.num_layers
         self.alpha_decoder = MLP(self.alpha_grid.out_dim, n_out, cfg.decoder_hidden, 2)
+        if cfg.alpha_atlas_density > 0:  # built last: the other fields start as they do without it
+            self.alpha_atlas = nn.ModuleList(AtlasOpacity(m, cfg) for m in motions[1:])
+            self.alpha_reads_uv = True
 
     def uv(self, layer: int, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         return self.mappings[layer](xy, t)
@@ -264,13 +295,19 @@ class FastModel(AtlasModel):
         inv = self.atlases[layer].inv_aspect
         return 1.0 / float(inv[0]), 1.0 / float(inv[1])
 
-    def alpha(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    def alpha(self, xy: torch.Tensor, t: torch.Tensor, uvs: list[torch.Tensor] | None = None) -> torch.Tensor:
         if self.alpha_grid is None or self.alpha_decoder is None:
             return torch.ones((xy.shape[0], 1), dtype=torch.float32, device=xy.device)
         xn = xy[:, 0:1] / (self.width / 2.0) - 1.0
         yn = xy[:, 1:2] / (self.height / 2.0) - 1.0
         tn = (t.to(xy.dtype)[:, None] / max(self.frames - 1, 1)) * 2.0 - 1.0
         logits = self.alpha_decoder(self.alpha_grid(torch.cat((xn, yn, tn), -1))).float()
+        if self.alpha_atlas is not None:
+            # each foreground's atlas opacity at where its mapping sends the pixel (gradients reach the mapping
+            # too: a part the opacity holds is a part the mapping must keep in place)
+            at = [self.mappings[i](xy, t) if uvs is None else uvs[i] for i in range(1, self.num_layers)]
+            own = torch.cat([op(uv) for op, uv in zip(self.alpha_atlas, at, strict=True)], -1)
+            logits = logits + own if self.num_layers == 2 else logits + F.pad(own, (1, 0))
         if self.num_layers == 2:
             a = _alpha_from_logit(logits)
             return torch.cat((1.0 - a, a), -1)
@@ -278,6 +315,7 @@ class FastModel(AtlasModel):
 
     def param_groups(self, cfg: FitConfig) -> list[dict]:
         alpha_grid = [] if self.alpha_grid is None else list(self.alpha_grid.parameters())
+        alpha_grid += [] if self.alpha_atlas is None else list(self.alpha_atlas.parameters())
         alpha_mlp = [] if self.alpha_decoder is None else list(self.alpha_decoder.parameters())
         grids = alpha_grid + [p for a in self.atlases for p in a.grid.parameters()]
         mlps = alpha_mlp + [p for a in self.atlases for p in a.decoder.parameters()]

@@ -11,7 +11,7 @@ from collections.abc import Callable
 import torch
 
 from engine.config import FitConfig, loss_weights
-from engine.data.video import PRIOR_IGNORE, VideoTensors, sample_long_flow
+from engine.data.video import PRIOR_IGNORE, VideoTensors, mask_hold_layers, sample_long_flow
 from engine.model import losses as L
 from engine.model.atlas_model import AtlasModel
 
@@ -148,7 +148,26 @@ def compute_losses(
     alpha_chunks = [(xy3, t3)] + ([(q, tq) for _, q, tq in flow_parts] if want_alpha_flow else [])
     if long_pts is not None:
         alpha_chunks.append((long_pts[0], long_pts[1]))
-    alpha_parts = _evaluate(model.alpha, alpha_chunks)
+    # the alpha's points are among the mappings' (the samples, their flow targets, the long-range sources): an
+    # alpha that reads atlas coordinates takes those uvs instead of mapping the same points again
+    if model.alpha_reads_uv and (want_flow or not want_alpha_flow):
+
+        def alpha_uvs(i: int) -> torch.Tensor:
+            picked = [uv_parts[i][0]]
+            if want_alpha_flow:
+                picked += uv_parts[i][flow_at[i] : flow_at[i] + len(flow_parts)]
+            if long_pts is not None:
+                picked.append(uv_parts[i][-2])
+            return torch.cat(picked)
+
+        joined = model.alpha(
+            torch.cat([c[0] for c in alpha_chunks]),
+            torch.cat([c[1] for c in alpha_chunks]),
+            [alpha_uvs(i) for i in range(nl)],
+        )
+        alpha_parts = list(joined.split([c[0].shape[0] for c in alpha_chunks]))
+    else:
+        alpha_parts = _evaluate(model.alpha, alpha_chunks)
 
     weights3 = alpha_parts[0]  # [3N, L]
     uvs = [parts[0] for parts in uv_parts]
@@ -250,13 +269,18 @@ def compute_losses(
         if anchor:
             terms["anchor"] = sum(anchor)
 
-    if nl > 1 and (on("mask") or on("mask_prior")) and (wts["mask"] > 0 or wts["mask_prior"] > 0):
+    hold = mask_hold_layers(video.prior_coverage, cfg.mask_hold_coverage)
+    held = bool(hold.any()) and on("mask_hold") and wts["mask_hold"] > 0
+    if nl > 1 and (on("mask") or on("mask_prior") or held) and (wts["mask"] > 0 or wts["mask_prior"] > 0 or held):
         fg_alpha = mask_alphas(wts0, video.mask_layers)
         m = video.masks[:, t, iy, ix].t()  # [N, F]
         valid = video.mask_valid[:, t].t()
         terms["mask"] = L.mask_bce(fg_alpha, m, valid)
         prior = video.prior[:, t, iy, ix].t()
         terms["mask_prior"] = L.mask_bce(fg_alpha, prior.clamp(min=0), prior != PRIOR_IGNORE)
+        if held:
+            # thin objects' layers: the bootstrap's term on their masks alone, after the bootstrap
+            terms["mask_hold"] = L.mask_bce(fg_alpha, m, valid & torch.as_tensor(hold, device=valid.device)[None, :])
 
     total = sum(wts[k] * v for k, v in terms.items() if wts.get(k, 0.0) != 0.0)
     return total, terms

@@ -55,7 +55,7 @@ class PaperModel(AtlasModel):
         quadrant = uv * 0.5 + (0.5 if layer == 1 else -0.5)
         return (torch.tanh(self.atlas(self.pe_atlas(quadrant))) + 1.0) * 0.5
 
-    def alpha(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    def alpha(self, xy: torch.Tensor, t: torch.Tensor, uvs: list[torch.Tensor] | None = None) -> torch.Tensor:
         raw = torch.tanh(self.alpha_mlp(self.pe_alpha(self.normalized_xyt(xy, t))))
         a = ALPHA_FLOOR + ALPHA_SPAN * 0.5 * (raw + 1.0)
         return torch.cat((1.0 - a, a), -1)

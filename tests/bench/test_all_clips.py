@@ -95,6 +95,7 @@ def test_the_table_json_and_bench_record_agree(root, result):
         assert row["mask_iou"] == pytest.approx((deg & gt)[has].sum() / (deg | gt)[has].sum(), abs=1e-9)
         assert row["mask_iou"] < 0.9  # the recipe's 10 px on a small object
         assert row["snap_px"] == clip["mask_snap_px"][0] <= 0
+        assert row["prior_coverage"] == clip["prior_coverage"][0] and 0.0 <= row["prior_coverage"] <= 1.0
     alpha, beta = rows
     assert 0.0 <= alpha["atlas_delta_avg"] <= 1.0 and 0.0 <= alpha["flow_delta_avg"] <= 1.0
     assert alpha["flow_delta_avg"] == benches[0]["clips"][0]["tracking_baseline"]["delta_avg"]
@@ -109,8 +110,9 @@ def test_the_table_json_and_bench_record_agree(root, result):
     cells = {ln.split(" | ")[0][2:]: [c.strip(" |") for c in ln.split(" | ")[1:]] for ln in lines[1:]}
     assert list(cells) == ["alpha", "beta", "mean"]
     for row in rows:
-        given, snap, psnr, iou, atlas, flow, secs = cells[row["clip"]]
+        given, snap, cover, psnr, iou, atlas, flow, secs = cells[row["clip"]]
         assert float(given) == pytest.approx(row["mask_iou"], abs=0.0005) and int(snap) == row["snap_px"]
+        assert float(cover) == pytest.approx(row["prior_coverage"], abs=0.005)
         assert float(psnr) == pytest.approx(row["psnr"], abs=0.005)
         assert float(iou) == pytest.approx(row["fg_iou"], abs=0.0005)
         assert float(secs) == pytest.approx(row["train_seconds"], abs=0.5)

@@ -40,6 +40,9 @@ def test_a_dilated_mask_is_snapped_back_and_a_precise_one_kept(root, tmp_path):
     (exact,) = check_all(root, tmp_path / "out", "exact")
     assert exact["clip"] == "sprite" and exact["snap_px"] == 0
     assert exact["given_iou"] == exact["snapped_iou"] == pytest.approx(1.0)
+    # the 60x44 sprite: the prior holds what lies deeper than 0.4 of its 22 px depth, about 42 x 26 px of it
+    assert exact["prior_coverage"] == pytest.approx(42.4 * 26.4 / (60 * 44), abs=0.03)
+    assert exact["held"] is False  # above the 0.4 under which a fit holds the masks for all its steps
     assert (tmp_path / "out" / "masks" / "exact" / "sprite").is_dir()
 
 
