@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from engine import contract as C
+from engine.config import PRESETS
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.edit.equations import load_edit
 from engine.edit.project_frame import save_edit_like
@@ -166,7 +167,8 @@ def test_refine_continues_a_finished_fit_and_keeps_the_paint(tmp_path):
     assert RunFolder(run).read_metrics()["steps"] == 5  # 2 + 3
     cfg = RunFolder(run).read_config()
     # balanced's schedule; the fit's own settings and loss phases
-    assert (cfg.steps, cfg.preset, cfg.batch, cfg.bootstrap_steps) == (5, "draft", 64, 300)
+    assert (cfg.steps, cfg.preset, cfg.batch) == (5, "draft", 64)
+    assert cfg.bootstrap_steps == PRESETS["draft"].bootstrap_steps != PRESETS["balanced"].bootstrap_steps
     assert json.loads((run / C.EDITS_DIR / C.EDITS_ALIGNED).read_text())["export"] == "v001"
     assert _digest(fg) == painted and _digest(run / C.EXPORTS_DIR / "v001" / C.MANIFEST_NAME) == v001
 
