@@ -391,9 +391,8 @@ LR_FIELDS: tuple[str, ...] = ("lr", "lr_grid", "lr_warp")
 
 def loss_weights(cfg: FitConfig, step: int) -> dict[str, float]:
     """Every loss term's weight at ``step``: global rigidity and the mask bootstrap (with the scribbles that
-        refine it) end at their step counts, where the mask prior takes over from the bootstrap (and the mask term goes
-    on for thin objects' layers: ``mask_hold``). The weights change
-        only at those two steps."""
+    refine it) end at their step counts, where the mask prior takes over from the bootstrap (and, for small and thin
+    objects' mask layers, the mask term goes on: ``mask_hold``). The weights change only at those two steps."""
     boot = step < cfg.bootstrap_steps
     glob = step < cfg.global_rigidity_steps
     return {
