@@ -89,11 +89,12 @@ def clip_rows(record: dict) -> list[dict]:
             iou = masks_iou(c["masks"][0], c["score_masks"][0])
         snaps = c.get("mask_snap_px") or []
         cover = c.get("prior_coverage") or []
-        given[c["name"]] = (
-            iou,
-            float(snaps[0]) if len(snaps) == 1 else None,
-            cover[0] if len(cover) == 1 else None,
-        )
+        given[c["name"]] = {
+            "mask_iou": iou,
+            "snap_px": float(snaps[0]) if len(snaps) == 1 else None,
+            "prior_coverage": cover[0] if len(cover) == 1 else None,
+        }
+    unknown = {"mask_iou": None, "snap_px": None, "prior_coverage": None}
     rows = []
     for run in record["runs"]:
         last = run["curve"][-1] if run["curve"] else {}
@@ -101,9 +102,7 @@ def clip_rows(record: dict) -> list[dict]:
         rows.append(
             {
                 "clip": run["clip"],
-                "mask_iou": given.get(run["clip"], (None, None, None))[0],
-                "snap_px": given.get(run["clip"], (None, None, None))[1],
-                "prior_coverage": given.get(run["clip"], (None, None, None))[2],
+                **given.get(run["clip"], unknown),
                 "psnr": last.get("psnr"),
                 "fg_iou": last.get("fg_iou"),
                 "atlas_delta_avg": last["tracking"]["delta_avg"] if last.get("tracking") else None,

@@ -269,18 +269,22 @@ def compute_losses(
         if anchor:
             terms["anchor"] = sum(anchor)
 
-    hold = mask_hold_layers(video.prior_coverage, cfg.mask_hold_coverage)
-    held = bool(hold.any()) and on("mask_hold") and wts["mask_hold"] > 0
-    if nl > 1 and (on("mask") or on("mask_prior") or held) and (wts["mask"] > 0 or wts["mask_prior"] > 0 or held):
+    # bool [F]: the mask layers held after the bootstrap (only looked up once the hold's weight is on)
+    held: torch.Tensor | None = None
+    if wts["mask_hold"] > 0 and on("mask_hold"):
+        hold = mask_hold_layers(video.prior_coverage, cfg.mask_hold_coverage)
+        held = torch.as_tensor(hold, device=xy.device) if hold.any() else None
+    on_masks = on("mask") or on("mask_prior") or held is not None
+    if nl > 1 and on_masks and (wts["mask"] > 0 or wts["mask_prior"] > 0 or held is not None):
         fg_alpha = mask_alphas(wts0, video.mask_layers)
         m = video.masks[:, t, iy, ix].t()  # [N, F]
         valid = video.mask_valid[:, t].t()
         terms["mask"] = L.mask_bce(fg_alpha, m, valid)
         prior = video.prior[:, t, iy, ix].t()
         terms["mask_prior"] = L.mask_bce(fg_alpha, prior.clamp(min=0), prior != PRIOR_IGNORE)
-        if held:
-            # thin objects' layers: the bootstrap's term on their masks alone, after the bootstrap
-            terms["mask_hold"] = L.mask_bce(fg_alpha, m, valid & torch.as_tensor(hold, device=valid.device)[None, :])
+        if held is not None:
+            # small and thin objects' layers: the bootstrap's term on their masks alone, after the bootstrap
+            terms["mask_hold"] = L.mask_bce(fg_alpha, m, valid & held[None, :])
 
     total = sum(wts[k] * v for k, v in terms.items() if wts.get(k, 0.0) != 0.0)
     return total, terms

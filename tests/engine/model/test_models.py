@@ -27,6 +27,21 @@ def _xyt(n=50, seed=0):
     return xy, torch.randint(0, T, (n,), generator=g)
 
 
+def _square_video(flow_px: float):
+    """Random frames with a 20x20 square mask in every frame and a uniform flow of ``flow_px`` (forward-backward
+    consistent everywhere): the tiny clip the objective tests evaluate the terms on."""
+    from engine.data.flow import FlowField
+    from engine.data.video import build_video_tensors
+
+    w, h = SIZE
+    frames = np.random.default_rng(0).random((T, h, w, 3), dtype=np.float32)
+    masks = np.zeros((1, T, h, w), bool)
+    masks[0, :, 10:30, 20:40] = True
+    fwd = np.full((T - 1, h, w, 2), flow_px, np.float32)
+    ok = np.ones((T - 1, h, w), bool)
+    return build_video_tensors(frames, masks, FlowField(fwd, -fwd, ok, ok, "none", 1.0), 2.0, torch.device("cpu"))
+
+
 def test_fast_mapping_starts_at_the_initial_motion():
     model = FastModel(preset_config("draft"), SIZE, T, [_motion(2.0), _motion(-1.0, 20.0)])
     xy, t = _xyt()
@@ -39,18 +54,11 @@ def test_fast_mapping_starts_at_the_initial_motion():
 def test_anchor_term_sees_a_whole_mapping_slide_and_only_that():
     """The gauge term of the objective: a uniform slide of a foreground mapping costs its squared length in
     pixels; the starting mapping costs nothing. (Blackswan's mapping slid 147 px without it.)"""
-    from engine.data.flow import FlowField
-    from engine.data.video import build_video_tensors
     from engine.model.objective import compute_losses
 
     model = FastModel(preset_config("draft"), SIZE, T, [_motion(), _motion(-1.0, 20.0)])
     w, h = SIZE
-    frames = np.random.default_rng(0).random((T, h, w, 3), dtype=np.float32)
-    masks = np.zeros((1, T, h, w), bool)
-    masks[0, :, 10:30, 20:40] = True
-    zeros = np.zeros((T - 1, h, w, 2), np.float32)
-    ok = np.ones((T - 1, h, w), bool)
-    video = build_video_tensors(frames, masks, FlowField(zeros, zeros, ok, ok, "none", 1.0), 2.0, torch.device("cpu"))
+    video = _square_video(0.0)
     ix, iy, t = torch.randint(0, w, (500,)), torch.randint(0, h, (500,)), torch.randint(0, T, (500,))
     cfg = preset_config("draft")
     _, terms = compute_losses(model, video, cfg, 0, ix, iy, t)
@@ -215,8 +223,6 @@ def test_objective_gives_the_atlas_opacity_the_mappings_uvs():
     alpha gives when it maps the points itself."""
     import dataclasses
 
-    from engine.data.flow import FlowField
-    from engine.data.video import build_video_tensors
     from engine.model.objective import compute_losses
 
     cfg = dataclasses.replace(preset_config("draft"), alpha_atlas_density=1.0)
@@ -226,12 +232,7 @@ def test_objective_gives_the_atlas_opacity_the_mappings_uvs():
         for g in model.alpha_atlas[0].grid.grids:
             g.normal_(0.0, 2.0)
     w, h = SIZE
-    frames = np.random.default_rng(0).random((T, h, w, 3), dtype=np.float32)
-    masks = np.zeros((1, T, h, w), bool)
-    masks[0, :, 10:30, 20:40] = True
-    fwd = np.full((T - 1, h, w, 2), 1.0, np.float32)
-    ok = np.ones((T - 1, h, w), bool)
-    video = build_video_tensors(frames, masks, FlowField(fwd, -fwd, ok, ok, "none", 1.0), 2.0, torch.device("cpu"))
+    video = _square_video(1.0)
     ix, iy, t = torch.randint(0, w, (500,)), torch.randint(0, h, (500,)), torch.randint(0, T, (500,))
     total, terms = compute_losses(model, video, cfg, 0, ix, iy, t)
     model.alpha_reads_uv = False
