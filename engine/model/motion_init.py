@@ -91,6 +91,26 @@ def _extent(points: np.ndarray, margin: float) -> tuple[np.ndarray, float, tuple
     return center, half, (float(halves[0] / half), float(halves[1] / half))
 
 
+def _first_regions(region_masks: np.ndarray) -> list[np.ndarray | None]:
+    """Each frame's region, None where a frame has none; the frames before the first region take the first one
+    (nothing earlier to carry it from)."""
+    regions: list[np.ndarray | None] = [m if m.any() else None for m in region_masks]
+    first = next((r for r in regions if r is not None), None)
+    for t, r in enumerate(regions):
+        if r is not None:
+            break
+        regions[t] = first
+    return regions
+
+
+def _carried(region: np.ndarray, pair: np.ndarray, size: tuple[int, int]) -> np.ndarray | None:
+    """``region`` moved by the pair motion ``pair`` (2x3, frame t -> t+1 pixels); None once it has left the
+    frame."""
+    w, h = size
+    moved = cv2.warpAffine(region.astype(np.uint8), pair, (w, h), flags=cv2.INTER_NEAREST).astype(bool)
+    return moved if moved.any() else None
+
+
 def estimate_layer_motion(
     flow: FlowField | None,
     region_masks: np.ndarray | None,
@@ -104,17 +124,26 @@ def estimate_layer_motion(
     ``region_masks`` (bool [T, H, W]) selects the layer's pixels (None = whole frame); the atlas extent
     covers where those pixels land (the whole frame when a mask frame is empty), or where ``extent_masks``
     land when given (a scribbled part: its motion from its scribbles, its extent from the whole object's).
+    A frame without a region (a mask left out) fits its pair inside the previous region carried by the layer's
+    own motion; frames before the first region use the first one.
     """
     w, h = size
     t_count = 1 if flow is None else flow.forward.shape[0] + 1
     if region_masks is not None:
         t_count = region_masks.shape[0]
     pairs = []
+    regions: list[np.ndarray | None] = [None] * t_count if region_masks is None else _first_regions(region_masks)
     for t in range(t_count - 1):
         if not fit_motion or flow is None:
             pairs.append(np.eye(2, 3))
             continue
-        region = None if region_masks is None else (region_masks[t] if region_masks[t].any() else None)
+        region, last = regions[t], regions[t - 1] if t else None
+        if region is None and region_masks is not None and last is not None:
+            # a frame without a mask (skipped in the roto, dropped by a detector): the object is where its own
+            # motion carried the last region. Without it that pair fitted the whole frame, which is the camera's
+            # motion, and every later frame of the object's atlas was displaced by it.
+            region = _carried(last, pairs[-1], (w, h))
+            regions[t] = region
         pairs.append(_pair_similarity(flow.forward[t], flow.forward_ok[t], region))
     to_ref = chain_motion(pairs)
     pts = []
