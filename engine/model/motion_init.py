@@ -138,7 +138,7 @@ def estimate_layer_motion(
             pairs.append(np.eye(2, 3))
             continue
         region, last = regions[t], regions[t - 1] if t else None
-        if region is None and region_masks is not None and last is not None:
+        if region is None and last is not None:
             # a frame without a mask (skipped in the roto, dropped by a detector): the object is where its own
             # motion carried the last region. Without it that pair fitted the whole frame, which is the camera's
             # motion, and every later frame of the object's atlas was displaced by it.
