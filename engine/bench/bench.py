@@ -34,6 +34,7 @@ from engine.bench.tracking import (
     load_tracks,
     mapping_consistency,
     scored_positions,
+    scores_by_gap,
     tapvid_scores,
 )
 from engine.config import FitConfig, apply_overrides, preset_config
@@ -206,6 +207,7 @@ def _track_scores(pred_native: np.ndarray, tracks: Tracks) -> dict:
     )
     out = {**native, "coords": "native", "delta_avg_256": s256["delta_avg"]}
     out["per_point"] = _per_point(pred_native, tracks)
+    out["by_gap"] = scores_by_gap(pred_native, tracks.xy, tracks.occluded, qt)
     if tracks.on_mask is not None:  # where an atlas falls short: on the masked object or in the background
         out["by_query_mask"] = {
             name: tapvid_scores(pred_native[sel], tracks.xy[sel], tracks.occluded[sel], qt[sel])

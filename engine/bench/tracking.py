@@ -24,6 +24,9 @@ TAPVID_EVAL_SIZE = (256, 256)
 #: A sub-pixel refinement step of the nearest-UV search is ignored when the mapping's 2x2 Jacobian is
 #: this close to singular (the UV barely moves with the pixel there: no direction to refine in).
 JACOBIAN_MIN_DET = 1e-12
+#: Frame-gap bands of ``scores_by_gap`` (frames between the query and the scored position): [1, 3), [3, 8), [8, 16),
+#: [16, 32), [32, ...). Short gaps show the mapping's local precision, long ones drift.
+GAP_EDGES: tuple[int, ...] = (1, 3, 8, 16, 32)
 #: Pixels per forward chunk of the tracking and consistency evaluations.
 CHUNK = 65536
 
@@ -117,6 +120,34 @@ def tapvid_scores(
         fractions[f"{thr:g}"] = float(hit.sum() / count) if count else None
     avg = float(np.mean([fractions[f"{thr:g}"] for thr in thresholds])) if count else None
     return {"delta_avg": avg, "delta": fractions, "scored_points": count}
+
+
+def scores_by_gap(
+    pred_xy: np.ndarray,
+    gt_xy: np.ndarray,
+    occluded: np.ndarray,
+    query_t: np.ndarray,
+    edges: tuple[int, ...] = GAP_EDGES,
+) -> list[dict]:
+    """``tapvid_scores`` per band of frames between each position and its track's query (``edges``), with each
+    band's median error in pixels: an aggregate hides whether a tracker is imprecise from one frame to the next
+    (short gaps) or drifts over the clip (long gaps), and the two call for different cures. Bands with nothing to
+    score report ``delta_avg`` and ``median_px`` None."""
+    occ = np.asarray(occluded, dtype=bool)
+    qt = np.asarray(query_t, dtype=np.int64)
+    gap = np.abs(np.arange(occ.shape[1])[None, :] - qt[:, None])
+    err = np.linalg.norm(np.asarray(pred_xy, np.float64) - np.asarray(gt_xy, np.float64), axis=-1)
+    scored = scored_positions(occ, qt)
+    out = []
+    for lo, hi in zip(edges, (*edges[1:], None), strict=True):
+        band = (gap >= lo) if hi is None else (gap >= lo) & (gap < hi)
+        s = tapvid_scores(pred_xy, gt_xy, occ | ~band, qt)
+        sel = scored & band
+        median = round(float(np.median(err[sel])), 3) if sel.any() else None
+        out.append(
+            {"gap": [lo, hi], "delta_avg": s["delta_avg"], "scored_points": s["scored_points"], "median_px": median}
+        )
+    return out
 
 
 def _sample_bilinear(field: np.ndarray, xy: np.ndarray) -> np.ndarray:
@@ -315,6 +346,7 @@ def mapping_consistency(
 
 
 __all__ = [
+    "GAP_EDGES",
     "TAPVID_THRESHOLDS",
     "Tracks",
     "atlas_tracks",
@@ -324,5 +356,6 @@ __all__ = [
     "owners",
     "save_tracks",
     "scored_positions",
+    "scores_by_gap",
     "tapvid_scores",
 ]

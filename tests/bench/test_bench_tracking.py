@@ -212,3 +212,37 @@ def test_per_point_scores_weighted_by_their_counts_give_the_aggregate():
     assert total == s["scored_points"]
     weighted = sum(p["delta_avg"] * p["scored_points"] for p in pts if p["scored_points"]) / total
     assert weighted == pytest.approx(s["delta_avg"])
+
+
+def test_scores_by_frame_gap_tell_imprecision_from_drift():
+    """A tracker that drifts 0.5 px a frame is exact one frame away and lost 32 frames away: ``by_gap`` shows
+    where it goes wrong. Each band scores only its own positions (query frame and occluded ones left out), and
+    the bands together are the aggregate."""
+    from engine.bench.bench import _track_scores
+
+    t = 40
+    gt = np.zeros((2, t, 2), np.float32)
+    frames = np.arange(t)
+    occ = np.zeros((2, t), bool)
+    occ[1, 20:] = True  # the second track is hidden from frame 20 on
+    qt = np.array([0, 10])
+    pred = gt.copy()
+    pred[:, :, 0] = 0.5 * np.abs(frames[None, :] - qt[:, None])
+    s = _track_scores(pred, Tracks(gt, occ, np.c_[qt, np.zeros((2, 2))].astype(np.float32), (64, 48)))
+    bands = {tuple(b["gap"]): b for b in s["by_gap"]}
+    assert list(bands) == [(1, 3), (3, 8), (8, 16), (16, 32), (32, None)]
+    # gaps 1 and 2: track 0 at frames 1, 2; track 1 at 8, 9, 11, 12 -> three positions 0.5 px off, three 1.0 px
+    assert bands[(1, 3)]["scored_points"] == 6 and bands[(1, 3)]["median_px"] == pytest.approx(0.75)
+    assert bands[(1, 3)]["delta_avg"] == pytest.approx((3 / 6 + 1 + 1 + 1 + 1) / 5)  # 1.0 px is not within 1
+    # 32 frames or more: track 0's frames 32-39 only (track 1 is hidden), 16-19.5 px off: outside every threshold
+    assert bands[(32, None)]["scored_points"] == 8 and bands[(32, None)]["delta_avg"] == 0.0
+    assert bands[(32, None)]["median_px"] == pytest.approx(17.75)
+    assert sum(b["scored_points"] for b in s["by_gap"]) == s["scored_points"]
+    # a band nothing falls in
+    empty = _track_scores(pred[:, :3], Tracks(gt[:, :3], occ[:, :3], np.zeros((2, 3), np.float32), (64, 48)))
+    assert {tuple(b["gap"]): b for b in empty["by_gap"]}[(8, 16)] == {
+        "gap": [8, 16],
+        "delta_avg": None,
+        "scored_points": 0,
+        "median_px": None,
+    }
