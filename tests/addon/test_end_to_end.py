@@ -183,14 +183,17 @@ def test_fit_paint_render_matches_engine_render(blender, tmp_path, monkeypatch):
     for f in frames:
         a = read_exr_rgba(out_b / f"edit.{f:05d}.exr")[..., :3]
         b = read_exr_rgba(out_e / f"edit.{f:05d}.exr")[..., :3]
-        # relative to the values: float32 rounds paint at 2.0 twice as coarsely as at 1.0 (Bilinear on 5.0)
-        errs.append(float(np.abs(a - b).max() / max(1.0, float(np.abs(b).max()))))
+        errs.append(float(np.abs(a - b).max()))
         assert a.max() > 1.0  # the float paint above 1 (no plate value is) went through both
     errors["float_" + exact] = max(errs)
     print(f"{TAG} end to end: fit+export+import {t_fit:.1f} s, total {time.monotonic() - t0:.1f} s, errors {errors}")
-    # float edit layers on a float plate: nothing is decoded, Blender and the engine agree to float precision
-    # (relative: the paint reaches 2.0)
-    assert errors["float_" + exact] <= 1e-5, errors
+    # float edit layers on a float plate: nothing is decoded, Blender and the engine agree to float precision.
+    # Bilinear (5.0) places each sample in float32, and its result varies by ~1e-5 from run to run: a texel
+    # position rounded by an ulp of the atlas width moves the sample across a paint edge (a jump of up to 2.0
+    # here) by that much
+    atlas_w = max(bpy.data.images[P.edit_image_name(n)].size[0] for n in ("Foreground", "Background"))
+    float_tol = max(1e-5, atlas_w * 2.0**-24 * 2.0)
+    assert errors["float_" + exact] <= float_tol, (errors, float_tol)
     # the tree is exact, and 8-bit sRGB PNG edit layers and plates are decoded by the same OCIO transform on both
     # sides (docs/colour.md): 0 with Nearest (4.x), Bilinear's float rounding on 5.0
     assert errors["tree_vs_equation"] <= 1e-5, errors
