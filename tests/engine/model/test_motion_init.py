@@ -16,21 +16,22 @@ CAMERA_STEP = -3.0  # the background moves left by 3 px a frame (the camera pans
 SIDE = 16
 
 
-def _object_box(t: int) -> tuple[int, int, int, int]:
-    x0 = 20 + round(OBJECT_STEP * t)
+def _object_box(t: int, start: int = 20, step: float = OBJECT_STEP) -> tuple[int, int, int, int]:
+    x0 = start + round(step * t)
     return x0, 24, x0 + SIDE, 24 + SIDE
 
 
-def _clip(dropped: tuple[int, ...]) -> tuple[FlowField, np.ndarray]:
-    """Flow with the object and the background moving apart, and the object's masks with ``dropped`` frames
-    empty."""
+def _clip(dropped: tuple[int, ...], start: int = 20, step: float = OBJECT_STEP) -> tuple[FlowField, np.ndarray]:
+    """Flow with the object (left edge at ``start``, ``step`` px a frame to the right) and the background moving
+    apart, and the object's masks with ``dropped`` frames empty. Once the object has left the frame, its masks
+    and its flow are cut off at the edge."""
     fwd = np.zeros((T - 1, H, W, 2), np.float32)
     fwd[..., 0] = CAMERA_STEP
     masks = np.zeros((T, H, W), bool)
     for t in range(T):
-        x0, y0, x1, y1 = _object_box(t)
+        x0, y0, x1, y1 = _object_box(t, start, step)
         if t < T - 1:
-            fwd[t, y0:y1, x0:x1, 0] = OBJECT_STEP
+            fwd[t, y0:y1, x0:x1, 0] = step
         if t not in dropped:
             masks[t, y0:y1, x0:x1] = True
     ok = np.ones((T - 1, H, W), bool)
@@ -68,13 +69,20 @@ def test_without_any_mask_the_layer_follows_the_whole_frame() -> None:
 
 
 def test_an_object_that_leaves_the_frame_falls_back_to_the_whole_frame() -> None:
-    """A region carried out of the frame has no pixel left to fit: that pair is the whole frame's (the camera's),
-    as a layer without a mask is, and nothing fails."""
-    flow, masks = _clip(tuple(range(2, T)))
-    far = np.zeros((2, 3))
-    far[0, 0] = far[1, 1] = 1.0
-    far[0, 2] = 10 * W  # a pair that throws the region out of the frame
+    """A fast object with masks in its first two frames only: its region is carried out of the frame (12 px a frame
+    from x = 60 in a 96 px frame: half out at frame 2, gone at frame 3). While any of it is in the frame each pair
+    follows the object; once the carried region has no pixel left, the pairs are the whole frame's (the camera's),
+    as for a layer without a mask, and nothing fails."""
+    step = 12.0
+    flow, masks = _clip(tuple(range(2, T)), start=60, step=step)
+    assert masks[:2].any(axis=(1, 2)).all() and not masks[2:].any()
 
-    assert motion_init._carried(masks[1], far, (W, H)) is None
     motion = estimate_layer_motion(flow, masks, (W, H), True, 0.06)
+
     assert np.isfinite(motion.to_ref).all() and motion.half_extent > 0
+    shift = np.diff(motion.to_ref[:, 0, 2])  # -(each pair's translation)
+    np.testing.assert_allclose(shift[:3], -step, atol=1e-3)  # pairs 0-2: the object, the last one half out
+    np.testing.assert_allclose(shift[3:], -CAMERA_STEP, atol=1e-3)  # pairs 3..: its region has left, the camera
+    far = np.eye(2, 3)
+    far[0, 2] = 10 * W
+    assert motion_init._carried(masks[1], far, (W, H)) is None
