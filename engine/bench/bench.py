@@ -29,6 +29,7 @@ from engine import contract as C
 from engine.bench.tracking import (
     TAPVID_EVAL_SIZE,
     Tracks,
+    anchor_spread,
     atlas_tracks,
     chained_flow_tracks,
     load_tracks,
@@ -318,6 +319,7 @@ def evaluate(run: Run, device: torch.device, stride: int) -> dict:
             run.trainer.model, clip.query_xy, clip.query_t, clip.track_frames, clip.prepared.size, device, stride
         )
         tracking = _track_scores(pred * clip.to_native, clip.tracks)
+        tracking["anchor_spread"] = anchor_spread(run.trainer.model, clip.tracks, clip.to_native, device)
     if math.isfinite(psnr):
         run.best_psnr = max(run.best_psnr, psnr)
     rss, peak = _rss_mb()

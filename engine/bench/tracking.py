@@ -345,10 +345,48 @@ def mapping_consistency(
     }
 
 
+@torch.no_grad()
+def anchor_spread(model: AtlasModel, tracks: Tracks, to_native: np.ndarray, device: torch.device) -> dict | None:
+    """How far each track's true positions land from its query's in the starting mapping (``uv_anchor``: the
+    motion fitted to the flow before any training, the gauge the atlas is drawn in) of the foreground layer most
+    opaque at the query: a starting motion that loses the object (an occluder's flow taken for it) puts the object
+    in a second place in its atlas, and training seldom brings it back. Native pixels (atlas distance /
+    ``uv_per_px``, times the mean scale ``to_native`` [2]); points queried on the mask only when the tracks say.
+    None for a model without a starting motion or without a foreground layer."""
+    qt = np.rint(tracks.query_txy[:, 0]).astype(int)
+    keep = np.ones(len(qt), bool) if tracks.on_mask is None else tracks.on_mask.astype(bool)
+    scored = scored_positions(tracks.occluded, qt) & keep[:, None]
+    if not scored.any() or model.num_layers < 2:
+        return None
+    frames = scored.shape[1]
+    per_px = float(np.sqrt(np.prod(np.asarray(to_native, np.float64))))
+    qxy = torch.as_tensor(tracks.query_txy[:, 1:3] / to_native, dtype=torch.float32, device=device)
+    layer_of = (model.alpha(qxy, torch.as_tensor(qt, device=device))[:, 1:].argmax(-1) + 1).cpu().numpy()
+    dist: list[np.ndarray] = []
+    for layer in np.unique(layer_of[keep]).tolist():
+        idx = np.nonzero(keep & (layer_of == layer))[0]
+        xy = torch.as_tensor(tracks.xy[idx] / to_native, dtype=torch.float32, device=device).reshape(-1, 2)
+        uv = model.uv_anchor(int(layer), xy, torch.arange(frames, device=device).repeat(len(idx)))
+        if uv is None:
+            return None
+        uv = uv.float().reshape(len(idx), frames, 2)
+        at_query = uv[torch.arange(len(idx), device=device), torch.as_tensor(qt[idx], device=device)]
+        d = ((uv - at_query[:, None]).norm(dim=-1) / model.uv_per_px(int(layer)) * per_px).cpu().numpy()
+        dist.append(d[scored[idx]])
+    every = np.concatenate(dist)
+    return {
+        "mean_px": round(float(every.mean()), 3),
+        "median_px": round(float(np.median(every)), 3),
+        "positions": int(every.size),
+        "on_mask_only": tracks.on_mask is not None,
+    }
+
+
 __all__ = [
     "GAP_EDGES",
     "TAPVID_THRESHOLDS",
     "Tracks",
+    "anchor_spread",
     "atlas_tracks",
     "chained_flow_tracks",
     "load_tracks",

@@ -94,7 +94,13 @@ def build_model(cfg: FitConfig, clip: PreparedClip, scene: SceneAnalysis | None 
             region = carried == k
             motions.append(
                 estimate_layer_motion(
-                    flow, region, clip.size, cfg.init_motion, margin=cfg.atlas_margin_fg, extent_masks=fg_regions[0]
+                    flow,
+                    region,
+                    clip.size,
+                    cfg.init_motion,
+                    margin=cfg.atlas_margin_fg,
+                    extent_masks=fg_regions[0],
+                    background=motions[0],
                 )
             )
     else:
@@ -109,6 +115,7 @@ def build_model(cfg: FitConfig, clip: PreparedClip, scene: SceneAnalysis | None 
                     cfg.init_motion,
                     margin=cfg.atlas_margin_fg,
                     extent_masks=full if cfg.atlas_box_full_mask else None,
+                    background=motions[0],
                 )
             )
     return assemble_model(cfg, clip.size, t, len(motions), scene, motions)

@@ -8,6 +8,7 @@ the first step and the networks only learn the residual deformation.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -27,6 +28,22 @@ RANSAC_ITERATIONS = 500
 RANSAC_CONFIDENCE = 0.99
 #: Similarity scales outside [1/MAX_SCALE_STEP, MAX_SCALE_STEP] per frame are rejected as outliers.
 MAX_SCALE_STEP = 1.25
+#: A second and third consensus motion are fitted to the flow vectors the ones before leave out while those are at
+#: least this share of a region's vectors; a motion holding less never replaces the larger consensus.
+OTHER_MOTION_SHARE = 0.15
+#: Consensus motions fitted per frame pair where the larger one may be an occluder's.
+MAX_MOTIONS = 3
+#: Occluders are looked for only in a layer whose pairs move its region at least this far (pixels, the median over
+#: pairs) from the background's motion: an object that moves with the background (a parked car, a static shot's
+#: still object) has nothing that tells it from a tree in front of it.
+MIN_SEPARATION_PX = 2.0
+#: A pair whose larger consensus moves the region less than this fraction of the layer's median separation from
+#: the background's motion has the background's (or an occluder's) flow, not the object's ...
+BACKGROUND_LIKE = 0.25
+#: ... and is replaced by the next consensus that is at least this fraction of the separation away from the
+#: background's (or, with none, by the object's previous motion relative to the background), when the whole
+#: masks' boxes agree.
+OBJECT_LIKE = 0.5
 #: Reference pixels added on every side of a layer's content box beyond its relative margin, so that even a
 #: one-pixel object gets a box with room around it.
 EXTENT_PAD_PX = 2.0
@@ -43,7 +60,9 @@ class LayerMotion:
     aspect: tuple[float, float] = (1.0, 1.0)  # the content spans [-ax, ax] x [-ay, ay]; max(ax, ay) == 1
 
 
-def _pair_similarity(flow: np.ndarray, ok: np.ndarray, region: np.ndarray | None) -> np.ndarray:
+def _flow_vectors(flow: np.ndarray, ok: np.ndarray, region: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Reliable flow vectors (pixel centres and where they land, float32 [N, 2] each) inside ``region``, on a
+    stride that gives about ``TARGET_POINTS`` of them."""
     h, w = ok.shape
     area = float(region.sum()) if region is not None else float(h * w)
     stride = int(np.clip(np.floor(np.sqrt(area / TARGET_POINTS)), 1, STRIDE))
@@ -51,10 +70,14 @@ def _pair_similarity(flow: np.ndarray, ok: np.ndarray, region: np.ndarray | None
     sel = ok[ys, xs]
     if region is not None:
         sel &= region[ys, xs]
-    if sel.sum() < MIN_POINTS:
-        return np.eye(2, 3)
     src = np.stack((xs[sel] + 0.5, ys[sel] + 0.5), -1).astype(np.float32)
-    dst = src + flow[ys[sel], xs[sel]].astype(np.float32)
+    return src, src + flow[ys[sel], xs[sel]].astype(np.float32)
+
+
+def _fit_similarity(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """RANSAC similarity ``src`` -> ``dst`` and its inlier flags; None for too few inliers or an implausible scale."""
+    if len(src) < MIN_POINTS:
+        return None
     m, inliers = cv2.estimateAffinePartial2D(
         src,
         dst,
@@ -64,11 +87,69 @@ def _pair_similarity(flow: np.ndarray, ok: np.ndarray, region: np.ndarray | None
         confidence=RANSAC_CONFIDENCE,
     )
     if m is None or inliers is None or int(inliers.sum()) < MIN_POINTS:
-        return np.eye(2, 3)
+        return None
     scale = float(np.sqrt(abs(np.linalg.det(m[:, :2]))))
     if not (1.0 / MAX_SCALE_STEP <= scale <= MAX_SCALE_STEP):
-        return np.eye(2, 3)
-    return m.astype(np.float64)
+        return None
+    return m.astype(np.float64), inliers.reshape(-1).astype(bool)
+
+
+@dataclass
+class _PairFit:
+    """The consensus motions of one frame pair's flow inside a region (frame t -> t+1 pixels, largest consensus
+    first, each with its share of the region's flow vectors) and the region's sampled pixels."""
+
+    motions: list[tuple[np.ndarray, float]]
+    points: np.ndarray
+
+    @property
+    def first(self) -> np.ndarray:
+        """The larger consensus: the pair's motion unless an occluder's flow outvotes the object's; identity when the
+        flow gives none."""
+        return self.motions[0][0] if self.motions else np.eye(2, 3)
+
+
+def _pair_fit(flow: np.ndarray, ok: np.ndarray, region: np.ndarray | None, count: int = 1) -> _PairFit:
+    """Up to ``count`` consensus motions, each fitted (RANSAC) to the vectors the ones before leave out, while those
+    are at least ``OTHER_MOTION_SHARE`` of the region's: a loose mask over an object and the tree it passes behind
+    holds two motions, and the larger one can be the tree's."""
+    src, dst = _flow_vectors(flow, ok, region)
+    motions: list[tuple[np.ndarray, float]] = []
+    rest = np.ones(len(src), bool)
+    while len(motions) < count and rest.sum() >= max(MIN_POINTS, OTHER_MOTION_SHARE * len(src)):
+        fitted = _fit_similarity(src[rest], dst[rest])
+        if fitted is None:
+            break
+        m, inliers = fitted
+        motions.append((m, float(inliers.sum()) / len(src)))
+        rest[np.nonzero(rest)[0][inliers]] = False
+    return _PairFit(motions, src)
+
+
+def _pair_similarity(flow: np.ndarray, ok: np.ndarray, region: np.ndarray | None) -> np.ndarray:
+    return _pair_fit(flow, ok, region).first
+
+
+def _apart(a: np.ndarray, b: np.ndarray, points: np.ndarray) -> float:
+    """Median distance (pixels) between where the motions ``a`` and ``b`` (2x3) move ``points``; nan without points."""
+    if not len(points):
+        return float("nan")
+    d = points.astype(np.float64) @ (a[:, :2] - b[:, :2]).T + (a[:, 2] - b[:, 2])
+    return float(np.median(np.linalg.norm(d, axis=-1)))
+
+
+def _box_centre(mask: np.ndarray | None) -> np.ndarray | None:
+    """Centre of a mask's bounding box (pixels); None for no mask. The box of a whole mask follows the object even
+    where a trunk cuts through it, and stays put when the object stops."""
+    if mask is None or not mask.any():
+        return None
+    ys, xs = np.nonzero(mask)
+    return np.array([(xs.min() + xs.max() + 1) / 2.0, (ys.min() + ys.max() + 1) / 2.0])
+
+
+def pair_motions(to_ref: np.ndarray) -> list[np.ndarray]:
+    """The pair motions S_t (frame t -> t+1 pixels) of a chain ``to_ref`` [T, 2, 3]: ``chain_motion``'s inverse."""
+    return [(np.linalg.inv(_h(to_ref[t + 1])) @ _h(to_ref[t]))[:2] for t in range(to_ref.shape[0] - 1)]
 
 
 def _h(m: np.ndarray) -> np.ndarray:
@@ -111,6 +192,94 @@ def _carried(region: np.ndarray, pair: np.ndarray, size: tuple[int, int]) -> np.
     return moved if moved.any() else None
 
 
+def _regions_and_fits(
+    flow: FlowField,
+    regions: list[np.ndarray | None],
+    choose: Callable[[int, _PairFit, list[np.ndarray]], np.ndarray],
+    size: tuple[int, int],
+    count: int = 1,
+    known: list[_PairFit] | None = None,
+) -> tuple[list[np.ndarray], list[_PairFit]]:
+    """Each pair's motion (``choose(t, fit, pairs so far)``) and its ``count`` consensus motions, in order. A frame
+    without a region (a mask left out) takes the previous region carried by the motion chosen for the previous pair.
+    ``known``: fits already made, reused for the frames that have a region of their own."""
+    regions = list(regions)
+    pairs: list[np.ndarray] = []
+    fits: list[_PairFit] = []
+    for t in range(len(regions) - 1):
+        region = regions[t]
+        if known is not None and region is not None:
+            fit = known[t]
+        else:
+            last = regions[t - 1] if t else None
+            if region is None and last is not None:
+                # a frame without a mask (skipped in the roto, dropped by a detector): the object is where its own
+                # motion carried the last region. Without it that pair fitted the whole frame, which is the
+                # camera's motion, and every later frame of the object's atlas was displaced by it.
+                region = _carried(last, pairs[-1], size)
+                regions[t] = region
+            fit = _pair_fit(flow.forward[t], flow.forward_ok[t], region, count)
+        fits.append(fit)
+        pairs.append(choose(t, fit, pairs))
+    return pairs, fits
+
+
+def _larger(t: int, fit: _PairFit, done: list[np.ndarray]) -> np.ndarray:
+    return fit.first
+
+
+def _past_occluders(
+    flow: FlowField,
+    regions: list[np.ndarray | None],
+    fits: list[_PairFit],
+    boxes: list[np.ndarray | None],
+    background: list[np.ndarray],
+    size: tuple[int, int],
+) -> list[np.ndarray] | None:
+    """The pair motions with an occluder's flow set aside (``fits``: each pair's consensus motions in ``regions``,
+    frames without a mask in the regions the larger consensus carried); None when the layer does not move apart from
+    the background.
+
+    A loose mask over an object that passes behind a tree trunk (or a bush, a post) holds the trunk's flow too, and
+    behind the trunk that is the larger consensus: the pair follows the background, and every later frame of the
+    object's atlas is displaced by the difference (bmx-trees: 20-28 px in each of three pairs behind the trees). Such
+    a pair stands out against the layer's own pairs: its larger consensus moves the region with the background
+    (``BACKGROUND_LIKE``) where the layer's pairs typically move it apart. Its motion is then the next consensus
+    that moves apart from the background (``OBJECT_LIKE``), or with none, the object's previous motion relative to
+    the background; kept only when it carries the whole mask's box onto the next frame's no worse than the larger
+    consensus, so an object that stops is not driven on.
+    """
+    apart = [_apart(fit.first, background[t], fit.points) if fit.motions else np.nan for t, fit in enumerate(fits)]
+    if np.all(np.isnan(apart)) or not float(np.nanmedian(apart)) >= MIN_SEPARATION_PX:
+        return None
+    typical = float(np.nanmedian(apart))
+
+    def choose(t: int, fit: _PairFit, done: list[np.ndarray]) -> np.ndarray:
+        first = fit.first
+        if not fit.motions or not _apart(first, background[t], fit.points) < BACKGROUND_LIKE * typical:
+            return first
+        others = [
+            m
+            for m, share in fit.motions[1:]
+            if share >= OTHER_MOTION_SHARE and _apart(m, background[t], fit.points) >= OBJECT_LIKE * typical
+        ]
+        if others:
+            option = others[0]
+        elif t:  # the object keeps its motion relative to the camera through the frames the occluder hides it in
+            option = (_h(background[t]) @ np.linalg.inv(_h(background[t - 1])) @ _h(done[-1]))[:2]
+        else:
+            return first
+        here, there = boxes[t], boxes[t + 1]
+        if here is not None and there is not None:
+            miss = [float(np.linalg.norm(m[:, :2] @ here + m[:, 2] - there)) for m in (first, option)]
+            if miss[1] > miss[0]:
+                return first
+        return option
+
+    chosen, _ = _regions_and_fits(flow, regions, choose, size, MAX_MOTIONS, fits)
+    return chosen
+
+
 def estimate_layer_motion(
     flow: FlowField | None,
     region_masks: np.ndarray | None,
@@ -118,6 +287,7 @@ def estimate_layer_motion(
     fit_motion: bool = True,
     margin: float = 0.06,
     extent_masks: np.ndarray | None = None,
+    background: LayerMotion | None = None,
 ) -> LayerMotion:
     """Per-frame similarity to the reference frame for one layer.
 
@@ -125,26 +295,25 @@ def estimate_layer_motion(
     covers where those pixels land (the whole frame when a mask frame is empty), or where ``extent_masks``
     land when given (a scribbled part: its motion from its scribbles, its extent from the whole object's).
     A frame without a region (a mask left out) fits its pair inside the previous region carried by the layer's
-    own motion; frames before the first region use the first one.
+    own motion; frames before the first region use the first one. ``background`` (the background layer's motion):
+    pairs whose flow follows the background where the layer's pairs typically do not (an occluder inside a loose
+    mask) take the object's motion instead (``_past_occluders``).
     """
     w, h = size
     t_count = 1 if flow is None else flow.forward.shape[0] + 1
     if region_masks is not None:
         t_count = region_masks.shape[0]
-    pairs = []
     regions: list[np.ndarray | None] = [None] * t_count if region_masks is None else _first_regions(region_masks)
-    for t in range(t_count - 1):
-        if not fit_motion or flow is None:
-            pairs.append(np.eye(2, 3))
-            continue
-        region, last = regions[t], regions[t - 1] if t else None
-        if region is None and last is not None:
-            # a frame without a mask (skipped in the roto, dropped by a detector): the object is where its own
-            # motion carried the last region. Without it that pair fitted the whole frame, which is the camera's
-            # motion, and every later frame of the object's atlas was displaced by it.
-            region = _carried(last, pairs[-1], (w, h))
-            regions[t] = region
-        pairs.append(_pair_similarity(flow.forward[t], flow.forward_ok[t], region))
+    if not fit_motion or flow is None:
+        pairs = [np.eye(2, 3) for _ in range(t_count - 1)]
+    else:
+        occluders = background is not None and region_masks is not None
+        pairs, fits = _regions_and_fits(flow, regions, _larger, (w, h), MAX_MOTIONS if occluders else 1)
+        if occluders and background is not None and region_masks is not None:
+            whole = region_masks if extent_masks is None else extent_masks
+            boxes = [_box_centre(m) for m in whole]
+            chosen = _past_occluders(flow, regions, fits, boxes, pair_motions(background.to_ref), (w, h))
+            pairs = pairs if chosen is None else chosen
     to_ref = chain_motion(pairs)
     pts = []
     corners = np.array([[0, 0], [w, 0], [0, h], [w, h]], dtype=np.float64)

@@ -10,6 +10,7 @@ import torch
 
 from engine.bench.tracking import (
     Tracks,
+    anchor_spread,
     atlas_tracks,
     chained_flow_tracks,
     load_tracks,
@@ -139,6 +140,41 @@ def test_atlas_tracks_report_a_known_slip(scene):
     np.testing.assert_allclose(np.abs(pred[:, 1:] - gt[:, 1:])[..., 0], 3.0, atol=1e-2)
     s = tapvid_scores(pred, gt, np.zeros((2, SPEC.frames), bool), np.zeros(2, int))
     assert s["delta_avg"] == pytest.approx(0.6)
+
+
+class AnchoredModel(PerfectModel):
+    """The perfect mapping, started from a motion that slips ``anchor_shift`` px in frames >= 1."""
+
+    def __init__(self, scene: SyntheticScene, anchor_shift: float) -> None:
+        super().__init__(scene)
+        self.anchor = PerfectModel(scene, shift=anchor_shift)
+
+    def uv_anchor(self, layer, xy, t):
+        return self.anchor.uv(layer, xy, t)
+
+
+def test_anchor_spread_reports_a_known_slip_of_the_starting_motion(scene):
+    """Tracks in native pixels at twice the working size; the starting motion slips 3 working px in frames >= 1,
+    so every scored on-mask position lands 6 native px from its query; the background point (off the mask) is not
+    counted, and a model without a starting motion reports none."""
+    tex = np.array([[12.0, 9.0], [8.0, 8.0]])
+    fg = np.stack([np.stack([scene.fg_point_in_frame(p, f) for f in range(SPEC.frames)]) for p in tex]) + 0.5
+    bg = np.stack([scene.bg_point_in_frame(np.array([3.0, 40.0]), f) for f in range(SPEC.frames)])[None] + 0.5
+    native = np.array([2.0, 2.0])
+    tracks = Tracks(
+        xy=(np.concatenate([fg, bg]) * native).astype(np.float32),
+        occluded=np.zeros((3, SPEC.frames), bool),
+        query_txy=np.array([[0, *fg[0, 0] * native], [2, *fg[1, 2] * native], [0, *bg[0, 0] * native]], np.float32),
+        image_size=(2 * SPEC.width, 2 * SPEC.height),
+        on_mask=np.array([True, True, False]),
+    )
+    spread = anchor_spread(AnchoredModel(scene, 3.0), tracks, native, torch.device("cpu"))
+    # point 0 (queried in frame 0): 5 positions, all 6 px off; point 1 (queried in frame 2): frame 0 only
+    assert spread is not None and spread["positions"] == 10 and spread["on_mask_only"]
+    assert spread["mean_px"] == pytest.approx(6.0 * 6 / 10, abs=1e-3)
+    assert spread["median_px"] == pytest.approx(6.0, abs=1e-3)
+    assert anchor_spread(AnchoredModel(scene, 0.0), tracks, native, torch.device("cpu"))["mean_px"] == 0.0
+    assert anchor_spread(PerfectModel(scene), tracks, native, torch.device("cpu")) is None
 
 
 def test_consistency_of_a_perfect_mapping_is_zero(scene):

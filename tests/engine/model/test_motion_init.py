@@ -8,7 +8,7 @@ import pytest
 
 from engine.data.flow import FlowField
 from engine.model import motion_init
-from engine.model.motion_init import estimate_layer_motion
+from engine.model.motion_init import LayerMotion, estimate_layer_motion
 
 W, H, T = 96, 64, 8
 OBJECT_STEP = 2.0  # the object moves right by 2 px a frame
@@ -86,3 +86,95 @@ def test_an_object_that_leaves_the_frame_falls_back_to_the_whole_frame() -> None
     far = np.eye(2, 3)
     far[0, 2] = 10 * W
     assert motion_init._carried(masks[1], far, (W, H)) is None
+
+
+# --- an occluder inside the mask ---------------------------------------------------------------------------------
+
+PAD = 2  # the mask is the object's box grown by this much: a little background inside it, as in any real mask
+TRUNK_X = 44  # a trunk, 10 px wide in frame 3 and moving with the background, passes in front of the object
+
+
+def _occluded_clip(cover: int, dropped: tuple[int, ...] = ()) -> tuple[FlowField, np.ndarray]:
+    """The moving object of ``_clip`` in a slightly loose mask, passing behind a trunk that moves with the camera;
+    in frames 3 and 4 the trunk covers ``cover`` of the object's 16 columns (16: all of it), so inside the mask the
+    trunk's flow and the background's outvote the object's there."""
+    fwd = np.zeros((T - 1, H, W, 2), np.float32)
+    fwd[..., 0] = CAMERA_STEP
+    masks = np.zeros((T, H, W), bool)
+    for t in range(T):
+        x0, y0, x1, y1 = _object_box(t)
+        if t < T - 1:
+            fwd[t, y0:y1, x0:x1, 0] = OBJECT_STEP
+            if t in (3, 4):
+                fwd[t, :, x0 : x0 + cover, 0] = CAMERA_STEP
+        if t not in dropped:
+            masks[t, y0 - PAD : y1 + PAD, x0 - PAD : x1 + PAD] = True
+    ok = np.ones((T - 1, H, W), bool)
+    return FlowField(fwd, -fwd, ok, ok.copy(), "test", 1.0), masks
+
+
+def _centre_spread(flow: FlowField, masks: np.ndarray, background: bool) -> float:
+    """How far the object's centre in every frame lands from frame 0's in the layer's reference frame (pixels)."""
+    camera = estimate_layer_motion(flow, None, (W, H), True, 0.0) if background else None
+    motion = estimate_layer_motion(flow, masks, (W, H), True, 0.06, background=camera)
+    centres = []
+    for t in range(T):
+        x0, y0, x1, y1 = _object_box(t)
+        centres.append(motion.to_ref[t] @ np.array([(x0 + x1) / 2, (y0 + y1) / 2, 1.0]))
+    return float(np.abs(np.array(centres) - centres[0]).max())
+
+
+@pytest.mark.parametrize("dropped", [(), (4,)], ids=str)
+@pytest.mark.parametrize("cover", [10, 16], ids=["partly", "wholly"])
+def test_the_object_stays_put_in_its_atlas_behind_an_occluder(cover: int, dropped: tuple[int, ...]) -> None:
+    """Behind the trunk the larger consensus inside the mask moves with the background, unlike the layer's other
+    pairs: the object's own consensus is taken instead (partly hidden), or its motion relative to the camera from
+    the pair before (wholly hidden), also when the frame behind the trunk has no mask."""
+    flow, masks = _occluded_clip(cover, dropped)
+    assert _centre_spread(flow, masks, background=True) < 0.25
+
+
+def test_without_the_background_the_occluder_displaces_the_object() -> None:
+    """The case above is a real one: the larger consensus alone moves the object 5 px in each pair behind the trunk,
+    10 px in its atlas from frame 5 on."""
+    flow, masks = _occluded_clip(10)
+    assert _centre_spread(flow, masks, background=False) > 9.0
+
+
+def _stopping_clip() -> tuple[FlowField, np.ndarray]:
+    """A locked-off shot: the object moves 4 px a frame to the right, then stops at frame 4 (its flow, like the
+    background's, is zero from there)."""
+    fwd = np.zeros((T - 1, H, W, 2), np.float32)
+    masks = np.zeros((T, H, W), bool)
+    x = [20 + 4 * min(t, 4) for t in range(T)]
+    for t in range(T):
+        if t < T - 1:
+            fwd[t, 24 : 24 + SIDE, x[t] : x[t] + SIDE, 0] = x[t + 1] - x[t]
+        masks[t, 24 - PAD : 24 + SIDE + PAD, x[t] - PAD : x[t] + SIDE + PAD] = True
+    ok = np.ones((T - 1, H, W), bool)
+    return FlowField(fwd, -fwd, ok, ok.copy(), "test", 1.0), masks
+
+
+def test_an_object_that_stops_is_not_driven_on(monkeypatch: pytest.MonkeyPatch) -> None:
+    """After it stops, the object's pairs move with the background, unlike its earlier ones, and there is no other
+    consensus: carrying on at its earlier speed would be the occluder's answer. The masks' boxes, which stop too,
+    keep the pairs still; without them (the check switched off) the object would drift 12 px in its atlas."""
+    flow, masks = _stopping_clip()
+    still = LayerMotion(np.tile(np.eye(2, 3), (T, 1, 1)), np.zeros(2), 1.0)
+    motion = estimate_layer_motion(flow, masks, (W, H), True, 0.06, background=still)
+    np.testing.assert_allclose(motion.to_ref[:, 0, 2], [-4.0 * min(t, 4) for t in range(T)], atol=1e-3)
+
+    monkeypatch.setattr(motion_init, "_box_centre", lambda mask: None)
+    drifted = estimate_layer_motion(flow, masks, (W, H), True, 0.06, background=still)
+    assert drifted.to_ref[-1, 0, 2] == pytest.approx(-28.0, abs=1e-3)
+
+
+def test_no_reliable_flow_with_a_background_gives_the_identity() -> None:
+    """Every flow vector unreliable (a blown-out plate): no consensus anywhere, nothing to compare with the
+    background, and the layer starts still rather than failing."""
+    flow, masks = _occluded_clip(10)
+    none_ok = np.zeros_like(flow.forward_ok)
+    blind = FlowField(flow.forward, flow.backward, none_ok, none_ok.copy(), "test", 1.0)
+    camera = estimate_layer_motion(flow, None, (W, H), True, 0.0)
+    motion = estimate_layer_motion(blind, masks, (W, H), True, 0.06, background=camera)
+    np.testing.assert_allclose(motion.to_ref, np.tile(np.eye(2, 3), (T, 1, 1)))
