@@ -178,3 +178,110 @@ def test_no_reliable_flow_with_a_background_gives_the_identity() -> None:
     camera = estimate_layer_motion(flow, None, (W, H), True, 0.0)
     motion = estimate_layer_motion(blind, masks, (W, H), True, 0.06, background=camera)
     np.testing.assert_allclose(motion.to_ref, np.tile(np.eye(2, 3), (T, 1, 1)))
+
+
+# --- a deforming object: the body's motion, not its largest part's -----------------------------------------------
+
+
+def _deforming_pair() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One frame pair: a 20 px object whose rows move 2 px (three rows in five) or 5.5 px (the other two: limbs that
+    swing; no motion is within 1.5 px of both), inside a mask 2 px too wide whose background ring moves 6 px the
+    other way."""
+    flow = np.zeros((H, W, 2), np.float32)
+    region = np.zeros((H, W), bool)
+    region[20:44, 30:54] = True
+    flow[20:44, 30:54, 0] = -6.0
+    for y in range(22, 42):
+        flow[y, 32:52, 0] = 2.0 if (y - 22) % 5 < 3 else 5.5
+    return flow, np.ones((H, W), bool), region
+
+
+def test_a_deforming_object_moves_as_a_whole_not_as_its_largest_part(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The RANSAC consensus at 1.5 px is the rows that move 2 px; refitted to every vector within 5 px of it and
+    nearer it than the background's motion, the motion is the object's mean, 3.4 px; the ring stays out."""
+    flow, ok, region = _deforming_pair()
+    centre = np.array([42.0, 32.0, 1.0])
+    ring = np.array([[1.0, 0.0, -6.0], [0.0, 1.0, 0.0]])
+    fit = motion_init._pair_fit(flow, ok, region)
+    assert (fit.first @ centre)[0] - 42.0 == pytest.approx(2.0, abs=0.05)
+    refined = motion_init._refined(fit.first, fit.points, fit.targets, ring)
+    assert (refined @ centre)[0] - 42.0 == pytest.approx(3.4, abs=0.05)
+    monkeypatch.setattr(motion_init, "REFINE_ROUNDS", 0)
+    assert (motion_init._refined(fit.first, fit.points, fit.targets, ring) @ centre)[0] - 42.0 == pytest.approx(2.0)
+
+
+def test_a_slow_object_is_refined_apart_from_the_background() -> None:
+    """A locked-off shot: rows of the object moving 1 and 2 px inside a mask whose ring is still. Every vector is
+    within 5 px of the consensus; the ring's, nearer the background's (still) motion, stay out of the refit, which
+    is the object's mean (1.6 px); the RANSAC consensus takes the ring in and is pulled towards it."""
+    flow = np.zeros((H, W, 2), np.float32)
+    region = np.zeros((H, W), bool)
+    region[20:44, 30:54] = True
+    for y in range(22, 42):
+        flow[y, 32:52, 0] = 2.0 if (y - 22) % 5 < 3 else 1.0
+    centre = np.array([42.0, 32.0, 1.0])
+    fit = motion_init._pair_fit(flow, np.ones((H, W), bool), region)
+    assert (fit.first @ centre)[0] - 42.0 < 1.5
+    refined = motion_init._refined(fit.first, fit.points, fit.targets, np.eye(2, 3))
+    assert (refined @ centre)[0] - 42.0 == pytest.approx(1.6, abs=0.05)
+
+
+@pytest.mark.parametrize("background", [True, False], ids=["with the background", "alone"])
+def test_a_deforming_object_over_a_clip(background: bool) -> None:
+    """End to end: the object of ``_deforming_pair`` in every frame (the camera panning 3 px a frame the other way).
+    A layer that knows the background's motion starts at the object's mean motion, 3.4 px a frame, so the object's
+    centre stays put in its atlas (within the half pixel its box is rounded to); alone (no background to keep apart
+    from, as the background layer itself) at its largest part's, 2 px a frame, and the object drifts 10 px."""
+    fwd = np.zeros((T - 1, H, W, 2), np.float32)
+    fwd[..., 0] = CAMERA_STEP
+    masks = np.zeros((T, H, W), bool)
+    for t in range(T):
+        x0 = 10 + round(3.4 * t)
+        masks[t, 20:44, x0 - 2 : x0 + 22] = True
+        if t < T - 1:
+            for y in range(22, 42):
+                fwd[t, y, x0 : x0 + 20, 0] = 2.0 if (y - 22) % 5 < 3 else 5.5
+    ok = np.ones((T - 1, H, W), bool)
+    flow = FlowField(fwd, -fwd, ok, ok.copy(), "test", 1.0)
+    camera = estimate_layer_motion(flow, None, (W, H), True, 0.0) if background else None
+    motion = estimate_layer_motion(flow, masks, (W, H), True, 0.06, background=camera)
+    centres = np.array([motion.to_ref[t] @ np.array([20 + round(3.4 * t), 32.0, 1.0]) for t in range(T)])
+    drift = float(np.abs(centres - centres[0]).max())
+    assert drift < 0.6 if background else drift > 9.0
+
+
+def test_a_rigid_object_keeps_its_consensus_motion() -> None:
+    """A rigid object (a car) whose flow is one similarity but for a window where reflections move 3 px further:
+    its consensus holds most of the mask's vectors (``RIGID_SHARE``), so it is not refitted towards the window's
+    (which a refit within 5 px would take in), and the car stays put in its atlas."""
+    fwd = np.zeros((T - 1, H, W, 2), np.float32)
+    fwd[..., 0] = CAMERA_STEP
+    masks = np.zeros((T, H, W), bool)
+    for t in range(T):
+        x0 = 10 + 3 * t
+        masks[t, 20:44, x0 : x0 + 24] = True
+        if t < T - 1:
+            fwd[t, 20:44, x0 : x0 + 24, 0] = 3.0
+            fwd[t, 22:28, x0 + 14 : x0 + 22, 0] = 6.0  # the window: 48 of 576 vectors
+    ok = np.ones((T - 1, H, W), bool)
+    flow = FlowField(fwd, -fwd, ok, ok.copy(), "test", 1.0)
+    camera = estimate_layer_motion(flow, None, (W, H), True, 0.0)
+    motion = estimate_layer_motion(flow, masks, (W, H), True, 0.06, background=camera)
+    centres = np.array([motion.to_ref[t] @ np.array([22.0 + 3 * t, 32.0, 1.0]) for t in range(T)])
+    assert np.abs(centres - centres[0]).max() < 1e-3
+
+
+def test_the_least_squares_similarity_is_exact_and_refuses_degenerate_points() -> None:
+    """A known similarity is recovered exactly; fewer than two distinct points fix none (no division by a zero
+    spread), and the RANSAC motion is kept."""
+    rng = np.random.default_rng(0)
+    src = rng.uniform(0, 50, (30, 2))
+    angle, scale = 0.1, 1.05
+    known = np.array(
+        [[scale * np.cos(angle), -scale * np.sin(angle), 3.0], [scale * np.sin(angle), scale * np.cos(angle), -2.0]]
+    )
+    fitted = motion_init._least_squares_similarity(src, src @ known[:, :2].T + known[:, 2])
+    assert fitted is not None
+    np.testing.assert_allclose(fitted, known, atol=1e-9)
+    assert motion_init._least_squares_similarity(src[:1], src[:1]) is None
+    assert motion_init._least_squares_similarity(np.repeat(src[:1], 5, 0), src[:5]) is None
