@@ -174,10 +174,6 @@ def _pair_fit(flow: np.ndarray, ok: np.ndarray, region: np.ndarray | None, count
     return _PairFit(motions, src, dst)
 
 
-def _pair_similarity(flow: np.ndarray, ok: np.ndarray, region: np.ndarray | None) -> np.ndarray:
-    return _pair_fit(flow, ok, region).first
-
-
 def _apart(a: np.ndarray, b: np.ndarray, points: np.ndarray) -> float:
     """Median distance (pixels) between where the motions ``a`` and ``b`` (2x3) move ``points``; nan without points."""
     if not len(points):
@@ -363,10 +359,9 @@ def estimate_layer_motion(
     if not fit_motion or flow is None:
         pairs = [np.eye(2, 3) for _ in range(t_count - 1)]
     else:
-        behind = None if background is None else pair_motions(background.to_ref)
-        occluders = behind is not None and region_masks is not None
-        pairs, fits = _regions_and_fits(flow, regions, _larger, (w, h), MAX_MOTIONS if occluders else 1)
-        if occluders and behind is not None and region_masks is not None:
+        behind = None if background is None or region_masks is None else pair_motions(background.to_ref)
+        pairs, fits = _regions_and_fits(flow, regions, _larger, (w, h), 1 if behind is None else MAX_MOTIONS)
+        if behind is not None and region_masks is not None:
             whole = region_masks if extent_masks is None else extent_masks
             boxes = [_box_centre(m) for m in whole]
             chosen = _object_pairs(flow, regions, fits, boxes, behind, (w, h))
