@@ -210,6 +210,25 @@ def test_a_deforming_object_moves_as_a_whole_not_as_its_largest_part(monkeypatch
     assert (motion_init._refined(fit.first, fit.points, fit.targets, ring) @ centre)[0] - 42.0 == pytest.approx(2.0)
 
 
+def test_the_refit_keeps_the_consensus_scale() -> None:
+    """Legs that spread as they swing (their rows' flow 2 px plus a quarter of each pixel's distance from the body's
+    centre line) read as a zoom to a least-squares similarity: the refit takes its rotation and the translation,
+    and keeps the consensus's scale, so a chain of pairs cannot shrink or grow an object that does not."""
+    flow = np.zeros((H, W, 2), np.float32)
+    region = np.zeros((H, W), bool)
+    region[20:44, 30:54] = True
+    flow[20:44, 30:54, 0] = -6.0  # the background ring of the mask
+    xs = np.arange(32, 52, dtype=np.float32)
+    for y in range(22, 42):
+        flow[y, 32:52, 0] = 2.0 if (y - 22) % 5 < 3 else 2.0 + 0.25 * (xs + 0.5 - 42.0)
+    fit = motion_init._pair_fit(flow, np.ones((H, W), bool), region)
+    zoom = motion_init._least_squares_similarity(fit.points, fit.targets)
+    assert zoom is not None and motion_init._scale(zoom) > 1.02  # 2% a frame: 1.8 times the size in 30 frames
+    refined = motion_init._refined(fit.first, fit.points, fit.targets, np.array([[1.0, 0.0, -6.0], [0.0, 1.0, 0.0]]))
+    assert motion_init._scale(refined) == pytest.approx(motion_init._scale(fit.first), abs=1e-9)
+    assert (refined @ np.array([42.0, 32.0, 1.0]))[0] - 42.0 == pytest.approx(2.0, abs=0.1)
+
+
 def test_a_slow_object_is_refined_apart_from_the_background() -> None:
     """A locked-off shot: rows of the object moving 1 and 2 px inside a mask whose ring is still. Every vector is
     within 5 px of the consensus; the ring's, nearer the background's (still) motion, stay out of the refit, which
@@ -248,6 +267,67 @@ def test_a_deforming_object_over_a_clip(background: bool) -> None:
     centres = np.array([motion.to_ref[t] @ np.array([20 + round(3.4 * t), 32.0, 1.0]) for t in range(T)])
     drift = float(np.abs(centres - centres[0]).max())
     assert drift < 0.6 if background else drift > 9.0
+
+
+def test_the_size_error_compares_the_motion_with_the_masks() -> None:
+    """The size a chained motion gives the object against the size its masks show, from the first frame with a
+    mask: 0 where they agree, the median |log| ratio where they do not; frames without a mask count for nothing,
+    and fewer than two frames with one give 0 (nothing to compare, no division by an empty mask's area)."""
+    grow = np.array([1.0, 1.1, 1.2, 1.3])  # frame pixels per reference pixel
+    to_ref = np.stack([np.eye(2, 3) / g for g in grow])
+    assert motion_init._size_error(to_ref, [int(100 * g * g) for g in grow]) == pytest.approx(0.0, abs=0.01)
+    assert motion_init._size_error(to_ref, [100, 100, 0, 100]) == pytest.approx(np.log(1.3 / 1.0) / 2 + np.log(1.1) / 2)
+    assert motion_init._size_error(to_ref, [0, 100, 0, 0]) == 0.0
+    assert motion_init._size_error(to_ref, [0, 0, 0, 0]) == 0.0
+
+
+def test_a_deforming_object_keeps_its_size_where_its_masks_do() -> None:
+    """Legs that spread as they swing (their rows' flow 2 px plus half of each pixel's distance from the body's centre
+    line) in every frame of a clip whose masks keep one size: the least-squares scale would grow the object 6% a
+    frame (1.5 times by the last), the masks say it does not, so the layer keeps its consensus's scale (0.4% a frame:
+    RANSAC's at 1.5 px)."""
+    fwd = np.zeros((T - 1, H, W, 2), np.float32)
+    fwd[..., 0] = CAMERA_STEP
+    masks = np.zeros((T, H, W), bool)
+    xs = np.arange(20, dtype=np.float32)
+    for t in range(T):
+        x0 = 10 + 2 * t
+        masks[t, 20:44, x0 - 2 : x0 + 22] = True
+        if t < T - 1:
+            for y in range(22, 42):
+                legs = 2.0 + 0.5 * (xs + 0.5 - 10.0)
+                fwd[t, y, x0 : x0 + 20, 0] = 2.0 if (y - 22) % 5 < 3 else legs
+    ok = np.ones((T - 1, H, W), bool)
+    flow = FlowField(fwd, -fwd, ok, ok.copy(), "test", 1.0)
+    camera = estimate_layer_motion(flow, None, (W, H), True, 0.0)
+    motion = estimate_layer_motion(flow, masks, (W, H), True, 0.06, background=camera)
+    sizes = [1.0 / motion_init._scale(m) for m in motion.to_ref]
+    assert max(abs(s - 1.0) for s in sizes) < 0.03
+
+
+def test_a_deforming_object_takes_the_least_squares_scale_where_its_masks_grow() -> None:
+    """Spreading legs like ``test_a_deforming_object_keeps_its_size_where_its_masks_do``'s in every other row of an
+    object whose masks grow 6% a frame, as the least-squares scale does (a dog coming towards the camera, whose
+    largest rigid part says little of its size): the layer takes that scale, and the object's size in the last frame
+    is near the masks' (1.5 times the first)."""
+    fwd = np.zeros((T - 1, H, W, 2), np.float32)
+    fwd[..., 0] = CAMERA_STEP
+    masks = np.zeros((T, H, W), bool)
+    for t in range(T):
+        centre = 20.0 + 2 * t
+        half = 10.0 * 1.061**t
+        y0, y1, x0, x1 = round(32 - half), round(32 + half), round(centre - half), round(centre + half)
+        masks[t, y0:y1, x0:x1] = True
+        if t < T - 1:
+            for y in range(y0, y1):
+                legs = 2.0 + 0.5 * (np.arange(x0, x1) + 0.5 - centre)
+                fwd[t, y, x0:x1, 0] = 2.0 if (y - y0) % 2 == 0 else legs
+    ok = np.ones((T - 1, H, W), bool)
+    flow = FlowField(fwd, -fwd, ok, ok.copy(), "test", 1.0)
+    camera = estimate_layer_motion(flow, None, (W, H), True, 0.0)
+    motion = estimate_layer_motion(flow, masks, (W, H), True, 0.06, background=camera)
+    # the masks' 1.5 times; the consensus's scale would leave it at 1.03
+    assert 1.0 / motion_init._scale(motion.to_ref[-1]) == pytest.approx(1.5, abs=0.15)
 
 
 def test_a_rigid_object_keeps_its_consensus_motion() -> None:
