@@ -245,6 +245,15 @@ def test_a_slow_object_is_refined_apart_from_the_background() -> None:
     assert (refined @ centre)[0] - 42.0 == pytest.approx(1.6, abs=0.05)
 
 
+def _layer_motion(fwd: np.ndarray, masks: np.ndarray, background: bool = True) -> LayerMotion:
+    """The starting motion of the object layer of ``masks`` under the forward flow ``fwd`` (reliable everywhere,
+    the backward flow its negative), knowing the background layer's motion, or alone without ``background``."""
+    ok = np.ones(fwd.shape[:3], bool)
+    flow = FlowField(fwd, -fwd, ok, ok.copy(), "test", 1.0)
+    camera = estimate_layer_motion(flow, None, (W, H), True, 0.0) if background else None
+    return estimate_layer_motion(flow, masks, (W, H), True, 0.06, background=camera)
+
+
 @pytest.mark.parametrize("background", [True, False], ids=["with the background", "alone"])
 def test_a_deforming_object_over_a_clip(background: bool) -> None:
     """End to end: the object of ``_deforming_pair`` in every frame (the camera panning 3 px a frame the other way).
@@ -260,10 +269,7 @@ def test_a_deforming_object_over_a_clip(background: bool) -> None:
         if t < T - 1:
             for y in range(22, 42):
                 fwd[t, y, x0 : x0 + 20, 0] = 2.0 if (y - 22) % 5 < 3 else 5.5
-    ok = np.ones((T - 1, H, W), bool)
-    flow = FlowField(fwd, -fwd, ok, ok.copy(), "test", 1.0)
-    camera = estimate_layer_motion(flow, None, (W, H), True, 0.0) if background else None
-    motion = estimate_layer_motion(flow, masks, (W, H), True, 0.06, background=camera)
+    motion = _layer_motion(fwd, masks, background)
     centres = np.array([motion.to_ref[t] @ np.array([20 + round(3.4 * t), 32.0, 1.0]) for t in range(T)])
     drift = float(np.abs(centres - centres[0]).max())
     assert drift < 0.6 if background else drift > 9.0
@@ -297,10 +303,7 @@ def test_a_deforming_object_keeps_its_size_where_its_masks_do() -> None:
             for y in range(22, 42):
                 legs = 2.0 + 0.5 * (xs + 0.5 - 10.0)
                 fwd[t, y, x0 : x0 + 20, 0] = 2.0 if (y - 22) % 5 < 3 else legs
-    ok = np.ones((T - 1, H, W), bool)
-    flow = FlowField(fwd, -fwd, ok, ok.copy(), "test", 1.0)
-    camera = estimate_layer_motion(flow, None, (W, H), True, 0.0)
-    motion = estimate_layer_motion(flow, masks, (W, H), True, 0.06, background=camera)
+    motion = _layer_motion(fwd, masks)
     sizes = [1.0 / motion_init._scale(m) for m in motion.to_ref]
     assert max(abs(s - 1.0) for s in sizes) < 0.03
 
@@ -322,10 +325,7 @@ def test_a_deforming_object_takes_the_least_squares_scale_where_its_masks_grow()
             for y in range(y0, y1):
                 legs = 2.0 + 0.5 * (np.arange(x0, x1) + 0.5 - centre)
                 fwd[t, y, x0:x1, 0] = 2.0 if (y - y0) % 2 == 0 else legs
-    ok = np.ones((T - 1, H, W), bool)
-    flow = FlowField(fwd, -fwd, ok, ok.copy(), "test", 1.0)
-    camera = estimate_layer_motion(flow, None, (W, H), True, 0.0)
-    motion = estimate_layer_motion(flow, masks, (W, H), True, 0.06, background=camera)
+    motion = _layer_motion(fwd, masks)
     # the masks' 1.5 times; the consensus's scale would leave it at 1.03
     assert 1.0 / motion_init._scale(motion.to_ref[-1]) == pytest.approx(1.5, abs=0.15)
 
@@ -343,10 +343,7 @@ def test_a_rigid_object_keeps_its_consensus_motion() -> None:
         if t < T - 1:
             fwd[t, 20:44, x0 : x0 + 24, 0] = 3.0
             fwd[t, 22:28, x0 + 14 : x0 + 22, 0] = 6.0  # the window: 48 of 576 vectors
-    ok = np.ones((T - 1, H, W), bool)
-    flow = FlowField(fwd, -fwd, ok, ok.copy(), "test", 1.0)
-    camera = estimate_layer_motion(flow, None, (W, H), True, 0.0)
-    motion = estimate_layer_motion(flow, masks, (W, H), True, 0.06, background=camera)
+    motion = _layer_motion(fwd, masks)
     centres = np.array([motion.to_ref[t] @ np.array([22.0 + 3 * t, 32.0, 1.0]) for t in range(T)])
     assert np.abs(centres - centres[0]).max() < 1e-3
 
