@@ -52,17 +52,22 @@ def write_movie(path: Path, frames: Sequence[np.ndarray], rate: int = 24) -> Pat
 
     Encoded in a fresh interpreter: in a process that has loaded torch, libx264 gives different bytes from run to
     run, and the damaged copies' messages count the packets the encoder made; a fresh process gives the same bytes
-    every time."""
+    every time. ``X264_PARAMS`` and the muxer's bitexact flag give the same bytes on every machine too."""
     with tempfile.TemporaryDirectory() as tmp:
         source = Path(tmp) / "frames.npy"
         np.save(source, np.stack([np.ascontiguousarray(f) for f in frames]))
         subprocess.run(
-            [sys.executable, "-c", _ENCODE, str(source), str(path), str(rate)],
+            [sys.executable, "-c", _ENCODE, str(source), str(path), str(rate), X264_PARAMS],
             cwd=Path(__file__).resolve().parents[1],
             check=True,
         )
     return path
 
+
+#: libx264 picks SIMD code paths by the CPU (with rounding that differs) and a thread count by its cores; either
+#: changes the bytes, so a damaged copy's frame counts would change from machine to machine. One thread and the
+#: CPU-independent paths give the same bytes everywhere (the muxer's bitexact flag drops its version string).
+X264_PARAMS = "threads=1:cpu-independent=1"
 
 #: The encoder ``write_movie`` runs in a fresh interpreter (PyAV and numpy only).
 _ENCODE = """\
@@ -70,8 +75,9 @@ import sys
 import av, numpy as np
 frames, path, rate = np.load(sys.argv[1]), sys.argv[2], int(sys.argv[3])
 codec = "libx264" if "libx264" in av.codecs_available else "mpeg4"
-with av.open(path, "w") as container:
-    stream = container.add_stream(codec, rate=rate)
+options = {"x264-params": sys.argv[4]} if codec == "libx264" else {}
+with av.open(path, "w", options={"fflags": "+bitexact"}) as container:
+    stream = container.add_stream(codec, rate=rate, options=options)
     stream.width, stream.height, stream.pix_fmt = frames.shape[2], frames.shape[1], "yuv420p"
     for rgb in frames:
         container.mux(stream.encode(av.VideoFrame.from_ndarray(rgb, format="rgb24")))

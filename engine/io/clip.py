@@ -8,12 +8,14 @@ Pixel values are returned in the file's own encoding (integers scaled to [0, 1],
 colour management and sanitising are the caller's decision, not the loader's. One clip has one encoding: a
 sequence that mixes float (scene-linear) and integer (display-encoded) frames is refused, naming the first frame
 that differs, since decoding every frame as frame 0's colour space would silently give the others the wrong
-colours in the fit and in the composite.
+colours in the fit and in the composite. So is a DPX sequence whose frames' headers declare different transfers
+(log, linear, other) when the headers choose the colour space (no ``--colorspace``).
 
 A movie whose decoder stops early or skips frames is refused, naming the file: a fit of the frames that did
-decode would be the wrong frames, or too few, without a word. An image is decoded only when its header declares a
-size within ``engine.io.images.MAX_DECODED_BYTES``; a path that is not valid UTF-8 reads like any other
-(``engine.io.images.native_path``).
+decode would be the wrong frames, or too few, without a word. Movies are decoded on one thread
+(``DECODER_THREADS``), so a damaged one is refused with the same message on every machine. An image is decoded
+only when its header declares a size within ``engine.io.images.MAX_DECODED_BYTES``; a path that is not valid UTF-8
+reads like any other (``engine.io.images.native_path``).
 """
 
 from __future__ import annotations
@@ -62,6 +64,11 @@ _MAX_LISTED = 3  # files named in a message before "and N more"
 #: less than this fraction of the frames its duration declares (less one frame, for rounding), frames are
 #: missing: the file is truncated or corrupt.
 MOVIE_DURATION_COVERAGE = 0.95
+#: Movies are decoded on one thread. With frame threads (FFmpeg's default picks one per core, up to 16) a corrupt
+#: packet's error surfaces packets later, or not at all when it lands in the final flush, so one damaged file would
+#: be refused with "cannot decode frame N" on a small machine and "the decoder gave N frames" on a large one.
+#: Decoding is a small part of reading a frame (the RGB conversion costs more), so the threads buy little.
+DECODER_THREADS = 1
 
 
 class NumberedFrames:
@@ -527,8 +534,9 @@ def _open_sequence(source: str, frame_range: tuple[int, int] | None, plate: _Pla
     # Decode the first frame fully (a truncated export is caught now, not hours into a fit); for the
     # rest, headers are enough to check sizes cheaply.
     head = _read_image(selected[0].path, _FRAME)
+    head_colour = colour.file_colour(head.spec, head.path)
     for f in selected[1:]:
-        width, height, is_float = _read_header(f.path, _FRAME)
+        width, height, is_float, facts = _read_header(f.path, _FRAME)
         if (width, height) != (head.width, head.height):
             raise InputError(
                 f.path,
@@ -537,6 +545,8 @@ def _open_sequence(source: str, frame_range: tuple[int, int] | None, plate: _Pla
             )
         if is_float != head.is_float:
             raise _mixed_encoding(f.path, selected[0].name, is_float)
+        if plate.asked is None and colour.dpx_encoding(facts) != colour.dpx_encoding(head_colour):
+            raise _mixed_transfer(f.path, selected[0].name, facts, head_colour)
     # Unnumbered files (all or none, see _list_images) are numbered by their position.
     numbers = [f.number for f in selected]
     frame_numbers = tuple(n if n is not None else first + i for i, n in enumerate(numbers))
@@ -549,7 +559,7 @@ def _open_sequence(source: str, frame_range: tuple[int, int] | None, plate: _Pla
         width=head.width,
         height=head.height,
         fps=float(rate) if rate else None,
-        colorspace=plate.space(head.path, colour.file_colour(head.spec, head.path)),
+        colorspace=plate.space(head.path, head_colour),
         channels=head.channels,
         is_float=head.is_float,
         colour_config=plate.config,
@@ -586,6 +596,19 @@ def _mixed_encoding(path: str, first_name: str, is_float: bool) -> InputError:
     )
 
 
+def _mixed_transfer(path: str, first_name: str, facts: colour.FileColour, first: colour.FileColour) -> InputError:
+    """A DPX whose header declares another transfer than the first frame's: the first frame's header chooses the
+    clip's colour space, which would decode this frame with the wrong curve (a log frame as sRGB)."""
+    return InputError(
+        path,
+        f"{os.path.basename(path)}'s header declares the transfer {facts.dpx_transfer!r} "
+        f"({colour.dpx_encoding(facts)}) but {first_name}'s declares {first.dpx_transfer!r} "
+        f"({colour.dpx_encoding(first)}); one clip has one encoding",
+        "re-export the plate with the same transfer in every frame's header, or name its colour space, "
+        "e.g. --colorspace ACEScct",
+    )
+
+
 def _check_gaps(folder: str, files: list[_NumberedFile], first: int, last: int) -> None:
     """A hole in the numbering inside the selected range means a frame failed to render or copy."""
     for pos in range(first, last):
@@ -617,6 +640,7 @@ def _open_movie(path: str, frame_range: tuple[int, int] | None, plate: _PlateCol
         count = stream.frames
         only_stream = len(container.streams) == 1
         duration = container.duration / av.time_base if container.duration else None
+        _one_decoder_thread(stream)
         try:
             frame = next(container.decode(stream), None)
         except av.FFmpegError as exc:
@@ -701,6 +725,12 @@ def _count_packets(path: str, rate: float | None = None, duration: float | None 
     return count
 
 
+def _one_decoder_thread(stream: av.VideoStream) -> None:
+    """Give ``stream`` the decoder threading every read uses (``DECODER_THREADS``), before its first packet."""
+    stream.thread_type = "SLICE"
+    stream.codec_context.thread_count = DECODER_THREADS
+
+
 def _decoded_frames(
     container: av.container.InputContainer, stream: av.VideoStream, path: str
 ) -> Iterator[av.VideoFrame]:
@@ -732,7 +762,7 @@ def _decode_movie(info: ClipInfo) -> Iterator[np.ndarray]:
     produced = 0
     with _open_container(info.source) as container:
         stream = _video_stream(container, info.source)
-        stream.thread_type = "AUTO"
+        _one_decoder_thread(stream)
         try:
             for index, frame in enumerate(_decoded_frames(container, stream, info.source)):
                 if not first <= index <= last:
@@ -867,13 +897,15 @@ def _open_image(path: str, role: _Role) -> oiio.ImageInput:
     return inp
 
 
-def _read_header(path: str, role: _Role) -> tuple[int, int, bool]:
-    """(width, height) of the display window and whether the pixels are floats, from the header only."""
+def _read_header(path: str, role: _Role) -> tuple[int, int, bool, colour.FileColour]:
+    """(width, height) of the display window, whether the pixels are floats and the colour facts, from the header
+    only."""
     with _quiet_codec_stderr():
         inp = _open_image(path, role)
     try:
         spec = inp.spec()
-        return spec.full_width or spec.width, spec.full_height or spec.height, spec.format.basetype in _FLOAT_TYPES
+        is_float = spec.format.basetype in _FLOAT_TYPES
+        return spec.full_width or spec.width, spec.full_height or spec.height, is_float, colour.file_colour(spec, path)
     finally:
         inp.close()
 

@@ -55,6 +55,12 @@ REC709_CHROMATICITIES: tuple[float, ...] = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 
 #: DPX transfer characteristics that mean a log (printing density) encoding, not the sRGB curve.
 LOG_DPX_TRANSFERS = ("Printing density", "Logarithmic")
 _CONFIG_FIX = "point $OCIO at a valid OCIO config, or unset it to use the built-in ACES config"
+_CONFIG_PARSE_FIX = (
+    "correct the config where the error says, point $OCIO at a valid one, or unset $OCIO to use the "
+    "built-in ACES config"
+)
+#: Where OCIO's "Loading the OCIO profile '<path>' failed. " ends and the parser's reason begins.
+_OCIO_PREAMBLE_END = "failed. "
 
 
 def active_config() -> str:
@@ -64,10 +70,19 @@ def active_config() -> str:
 
 @functools.lru_cache(maxsize=8)
 def _load(name: str) -> oiio.ColorConfig:
+    """The config ``name``. OpenImageIO answers a config it cannot parse with its own minimal built-in one and an
+    error it keeps to itself: taking that would convert with the wrong spaces while the run records ``name``."""
     config = oiio.ColorConfig(name)
-    if config.getNumColorSpaces() < 1:
-        raise InputError(name, f"cannot load this OCIO config ({config.geterror() or 'no colour spaces'})", _CONFIG_FIX)
+    error = config.geterror()
+    if error or config.getNumColorSpaces() < 1:
+        raise InputError(name, f"cannot load this OCIO config ({_config_reason(error)})", _CONFIG_PARSE_FIX)
     return config
+
+
+def _config_reason(error: str) -> str:
+    """The parser's own words (a YAML error names its line) without OCIO's preamble, which repeats the path."""
+    reason = error.rsplit(_OCIO_PREAMBLE_END, 1)[-1] if error else "no colour spaces"
+    return " ".join(reason.split())
 
 
 def load_config(name: str | None = None) -> oiio.ColorConfig:
@@ -255,6 +270,16 @@ def file_colour(spec: oiio.ImageSpec, path: str) -> FileColour:
     )
 
 
+def dpx_encoding(facts: FileColour) -> str:
+    """What a DPX header's transfer says of its code values: "log", "linear", or "sRGB" (any other transfer, which
+    the default colour space reads with the sRGB curve); "" for a file that is not a DPX. One clip has one."""
+    if facts.extension != ".dpx":
+        return ""
+    if facts.dpx_transfer in LOG_DPX_TRANSFERS:
+        return "log"
+    return "linear" if facts.dpx_transfer == "Linear" else "sRGB"
+
+
 def _same_chromaticities(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
     return len(a) == len(b) == 8 and all(abs(x - y) < 1e-3 for x, y in zip(a, b, strict=True))
 
@@ -299,6 +324,7 @@ __all__ = [
     "chromaticities",
     "convert",
     "default_colorspace",
+    "dpx_encoding",
     "file_colour",
     "from_linear",
     "is_data",

@@ -18,7 +18,7 @@ import json
 import os
 import sys
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -52,6 +52,8 @@ class Case:
     watch: Callable[[Path], Path] | None = None
     """The folder that must stay byte-identical (or not be created) given the case's folder; default: the
     argv's --out."""
+    env: Callable[[Path], dict[str, str]] | None = None
+    """Environment variables the command runs with (``$OCIO``), given the case's folder; restored after it."""
 
 
 def _clip(d: Path) -> tuple[Path, Path]:
@@ -258,9 +260,29 @@ def run_case(case: Case, folder: Path) -> Outcome:
     run = case.watch(folder) if case.watch is not None else Path(argv[argv.index("--out") + 1])
     existed, before = run.exists(), tree_digest(run)
     err = io.StringIO()
-    with _native_stderr() as native, contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+    with (
+        _environment(case.env(folder) if case.env is not None else {}),
+        _native_stderr() as native,
+        contextlib.redirect_stdout(io.StringIO()),
+        contextlib.redirect_stderr(err),
+    ):
         code = cli.main(argv)
     return Outcome(code, err.getvalue() + native[0], existed, before, tree_digest(run), run.exists())
+
+
+@contextlib.contextmanager
+def _environment(values: dict[str, str]) -> Iterator[None]:
+    """``values`` set in ``os.environ`` for the block, the previous values (or their absence) restored after."""
+    saved = {name: os.environ.get(name) for name in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for name, old in saved.items():
+            if old is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = old
 
 
 @contextlib.contextmanager

@@ -1,7 +1,8 @@
 """Bad input a loader could take without a word, refused in one line (exit 2) before anything is written, by
-``fit``, ``estimate`` and ``masks``: a sequence mixing float and integer frames, a movie cut short or garbled in the
-middle, a frame whose header declares a gigantic image, and a mask folder that already holds the masks. The
-loaders' own tests (tests/engine/io/test_clip.py) cover more variants of each.
+``fit``, ``estimate`` and ``masks``: a sequence mixing float and integer frames, a DPX sequence whose frames declare
+different transfers, a movie cut short or garbled in the middle, a frame whose header declares a gigantic image, an
+``$OCIO`` config that does not parse, and a mask folder that already holds the masks. The loaders' own tests
+(tests/engine/io/) cover more variants of each.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+import OpenImageIO as oiio
 
 from engine import contract as C
 from tests.media_files import garble_movie, textured_frames, write_blank_png, write_image, write_movie
@@ -36,6 +38,52 @@ def _mixed_encodings(d: Path) -> list[str]:
         pixels = np.full((H, W, 3), 0.5, np.float32) if i == 2 else np.full((H, W, 3), 128, np.uint8)
         write_image(folder / f"{i:05d}.tif", pixels)
     return _fit(folder, d)
+
+
+def _write_dpx(path: Path, transfer: str | None) -> None:
+    """A 10-bit DPX frame of mid grey; ``transfer`` None leaves the header's transfer undefined."""
+    spec = oiio.ImageSpec(W, H, 3, oiio.UINT16)
+    spec.attribute("oiio:BitsPerSample", 10)
+    if transfer is not None:
+        spec.attribute("dpx:Transfer", transfer)
+    out = oiio.ImageOutput.create("dpx")
+    assert out is not None and out.open(str(path), spec), oiio.geterror()
+    assert out.write_image(np.full((H, W, 3), 32768, np.uint16)), out.geterror()
+    out.close()
+
+
+def _log_dpx_after_a_plain_first_frame(d: Path) -> list[str]:
+    """A log scan whose first frame's header lost its transfer: that frame alone would make the clip sRGB."""
+    folder = d / "scan"
+    folder.mkdir()
+    for i in range(FRAMES):
+        _write_dpx(folder / f"{i:05d}.dpx", None if i == 0 else "Printing density")
+    return _fit(folder, d)
+
+
+#: A studio config with one typo (a flow sequence never closed): OpenImageIO would fall back to its own minimal
+#: built-in config without a word.
+BROKEN_OCIO_CONFIG = """ocio_profile_version: 2.1
+roles:
+  default: lin_rec709
+  scene_linear: [lin_rec709
+colorspaces:
+  - !<ColorSpace>
+    name: lin_rec709
+"""
+
+
+def _broken_ocio(d: Path) -> list[str]:
+    (d / "studio.ocio").write_text(BROKEN_OCIO_CONFIG, encoding="utf-8")
+    folder = d / "frames"
+    folder.mkdir()
+    for i in range(FRAMES):
+        write_image(folder / f"{i:05d}.png", np.full((H, W, 3), 40 * i, np.uint8))
+    return _fit(folder, d)
+
+
+def _ocio_env(d: Path) -> dict[str, str]:
+    return {"OCIO": str(d / "studio.ocio")}
 
 
 def _damaged(d: Path, container: str, how: str) -> Path:
@@ -100,12 +148,25 @@ CASES: tuple[Case, ...] = (
         _mixed_encodings,
         ("00002.tif", "float (scene-linear)", "00000.tif is integer", "one format"),
     ),
+    Case(
+        "dpx_log_after_a_plain_first_frame",
+        "a DPX scan whose first frame's header has no transfer, the rest printing density",
+        _log_dpx_after_a_plain_first_frame,
+        ("00001.dpx", "'Printing density' (log)", "00000.dpx's declares 'Undefined' (sRGB)", "--colorspace"),
+    ),
+    Case(
+        "ocio_config_does_not_parse",
+        "$OCIO names a config with a YAML error",
+        _broken_ocio,
+        ("studio.ocio", "line 5", "$OCIO"),
+        env=_ocio_env,
+    ),
     Case("movie_cut_short", "an .mkv cut at half its bytes", _fit_movie("mkv", "cut"), ("cut.mkv", "truncated")),
     Case(
         "movie_zeroed_in_the_middle",
         "an .mkv whose middle third is zeros",
         _fit_movie("mkv", "zeroed"),
-        ("zeroed.mkv", "20", "40"),
+        ("zeroed.mkv", "only 21 frames", "span 40"),
     ),
     Case(
         "movie_frames_dropped_by_the_decoder",

@@ -21,7 +21,7 @@ import os
 import signal
 import subprocess
 import sys
-import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -162,8 +162,6 @@ FLOW_SPEC = SceneSpec(width=640, height=360, frames=24, fg_size=(120, 90), fg_st
 #: A clip whose full-frame evaluation takes a few seconds after a 2-step fit.
 EVAL_SPEC = SceneSpec(width=256, height=144, frames=24, fg_size=(48, 36), fg_start=(40.0, 30.0))
 QUICK_SETS = ["steps=2", "batch=256", "eval_pixels=500"]
-#: How long after the flow stage starts the signal is sent (well inside the flow's seconds).
-FLOW_SIGNAL_DELAY_S = 0.5
 
 
 def _quick_args(frames: Path, masks: Path, run: Path) -> list[str]:
@@ -171,13 +169,23 @@ def _quick_args(frames: Path, masks: Path, run: Path) -> list[str]:
     return ["fit", str(frames), "--mask", str(masks), "--out", str(run), "--preset", "draft", "--no-bar", *sets]
 
 
+def _at_stage(stage: str) -> Callable[[list[dict]], bool]:
+    return lambda ev: ev[-1]["event"] == C.EVENT_STAGE and ev[-1]["stage"] == stage
+
+
+def _mid_flow(events: list[dict]) -> bool:
+    """The flow has done a pair and has pairs left: a signal now lands inside it on any machine (a fixed delay
+    after the stage began would land after it on a machine fast enough)."""
+    last = events[-1]
+    return last["event"] == C.EVENT_JOB and last["stage"] == "flow" and 0 < last["done"] < last["total"]
+
+
 def _sigterm_at(
-    args: list[str], stage: str, delay_s: float = 0.0, sig: signal.Signals = signal.SIGTERM
+    args: list[str], when: Callable[[list[dict]], bool], sig: signal.Signals = signal.SIGTERM
 ) -> tuple[subprocess.CompletedProcess, list[dict]]:
-    """Run ``python -m engine ARGS``, send ``sig`` ``delay_s`` after its ``stage`` event; the exit, its events."""
+    """Run ``python -m engine ARGS``, send ``sig`` once ``when(events)`` holds; the exit, its events."""
     proc = start_engine(args)
-    events = progress_until(proc, lambda ev: ev[-1]["event"] == C.EVENT_STAGE and ev[-1]["stage"] == stage)
-    time.sleep(delay_s)
+    events = progress_until(proc, when)
     proc.send_signal(sig)
     rest, err = proc.communicate(timeout=300)
     events += [m for m in map(C.parse_progress_line, rest.splitlines()) if m]
@@ -203,7 +211,7 @@ def test_sigterm_while_the_flow_is_computed_leaves_nothing_partial_and_the_fit_r
     frames, masks = write_scene(make_scene(FLOW_SPEC), tmp_path / "clip")
     run = tmp_path / "run"
     args = _quick_args(frames, masks, run)
-    out, events = _sigterm_at(args, "flow", FLOW_SIGNAL_DELAY_S, sig)
+    out, events = _sigterm_at(args, _mid_flow, sig)
     assert "run the same command again" in _cancelled_line(out, sig)
     assert not any(e["event"] == C.EVENT_STAGE and e["stage"] == "scene" for e in events), "flow had finished"
     _no_partial_files(run)
@@ -219,7 +227,7 @@ def test_sigterm_while_the_flow_is_computed_leaves_nothing_partial_and_the_fit_r
 def test_sigterm_during_the_final_evaluation_keeps_the_checkpoint_and_resume_finishes(tmp_path):
     frames, masks = write_scene(make_scene(EVAL_SPEC), tmp_path / "clip")
     run = tmp_path / "run"
-    out, events = _sigterm_at(_quick_args(frames, masks, run), "evaluate")
+    out, events = _sigterm_at(_quick_args(frames, masks, run), _at_stage("evaluate"))
     assert f"continue with: python -m engine fit --resume --out {run}" in _cancelled_line(out)
     assert not any(e["event"] == C.EVENT_DONE for e in events), "the evaluation had finished"
     _no_partial_files(run)

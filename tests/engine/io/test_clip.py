@@ -298,7 +298,7 @@ def test_whole_movies_of_every_container_read_every_frame(tmp_path: Path, contai
 @pytest.mark.parametrize("container", ["mp4", "mkv", "avi"])
 def test_damaged_movie_is_refused_naming_the_file(tmp_path: Path, container: str, how: str) -> None:
     """A movie cut short or zeroed in the middle: an mkv's demuxer resynchronises past the damage and
-    yields 20 of its 40 frames without an error. Now the frames it holds are checked against what it declares
+    yields 21 of its 40 frames without an error. Now the frames it holds are checked against what it declares
     (its header's count, or its duration and the span of its timestamps) and against what its decoder gives,
     and whatever the container, opening or reading it is one line naming the file."""
     whole = write_movie_frames(tmp_path / f"whole.{container}", textured_frames(DAMAGED_MOVIE_FRAMES))
