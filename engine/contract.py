@@ -786,6 +786,11 @@ MANIFEST_QUOTE_PATH_CHARS = 120
 MANIFEST_UV_CHANNEL_COUNT = len(UV_CHANNELS)
 #: An atlas box is four numbers: u0, v0, u1, v1.
 MANIFEST_BOX_NUMBERS = 4
+#: A layer's name is a plain identifier (what ``layer_name`` makes): it becomes file names (``edits/<name>.png``),
+#: channel names and node names in Blender and Nuke, where a bracket, quote or newline would be code or a path.
+MANIFEST_LAYER_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+#: The longest layer name a manifest may give (a file name and a node name are made of it).
+MANIFEST_LAYER_NAME_MAX = 64
 
 
 class ManifestError(ValueError):
@@ -872,6 +877,11 @@ def _check_passes(passes: dict[str, Any], clip: dict[str, Any]) -> None:
         raise ManifestError("manifest 'passes' has an empty dir or exr_layer")
 
 
+def is_layer_name(name: str) -> bool:
+    """Whether ``name`` may name a layer (``MANIFEST_LAYER_NAME``): the engine's own names always do."""
+    return len(name) <= MANIFEST_LAYER_NAME_MAX and MANIFEST_LAYER_NAME.fullmatch(name) is not None
+
+
 def _check_layer(i: int, layer: Any) -> dict[str, Any]:
     where = f"layer {i}"
     _check_fields(where, layer, MANIFEST_LAYER_FIELDS, MANIFEST_OPTIONAL_LAYER_FIELDS)
@@ -884,6 +894,11 @@ def _check_layer(i: int, layer: Any) -> dict[str, Any]:
     texts = [layer[k] for k in ("name", "uv_pass", "alpha_pass", "atlas_exr", "atlas_png", "edit_layer")]
     if not all(texts) or not all(layer["uv_channels"] + layer["alpha_channels"]):
         raise ManifestError(f"manifest {where} has an empty name, pass, channel or path")
+    if not is_layer_name(layer["name"]):
+        raise ManifestError(
+            f"manifest {where} name {_quote(layer['name'])} is not a plain name (letters, digits and _, "
+            f"at most {MANIFEST_LAYER_NAME_MAX})"
+        )
     if len(layer["uv_channels"]) != MANIFEST_UV_CHANNEL_COUNT or not layer["alpha_channels"]:
         raise ManifestError(f"manifest {where} does not name {MANIFEST_UV_CHANNEL_COUNT} UV channels and an alpha one")
     _check_size(f"{where} atlas_size", layer["atlas_size"])
@@ -1088,6 +1103,61 @@ class RunLocked(Exception):
         super().__init__(f"{folder}: this run folder is in use by {who} — {RUN_LOCKED_FIX}")
 
 
+#: The fix printed when a file the engine writes in place (the lock, the fit's log) is a link or not a plain file.
+IN_PLACE_UNSAFE_FIX = "delete it (the engine makes a new one): the engine never writes through a link"
+
+
+def in_place_problem(st: os.stat_result) -> str | None:
+    """Why a file opened to be written in place (not through a temp file and a rename) must not be written, or
+    None: a hard link (truncating or appending would change the other name's file too, outside the run folder
+    perhaps) or not a plain file (a pipe, a device). A symbolic link never gets this far: it is opened with
+    O_NOFOLLOW."""
+    import stat
+
+    if not stat.S_ISREG(st.st_mode):
+        return "not a plain file"
+    if st.st_nlink > 1:
+        return f"a hard link ({st.st_nlink} names for one file)"
+    return None
+
+
+#: Open flags of a file written in place: a symbolic link at the name fails (ELOOP) rather than being followed;
+#: non-blocking so a pipe planted there cannot hang the open (no effect on a plain file).
+IN_PLACE_FLAGS = getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
+
+
+def open_in_place(path: str, flags: int, unsafe: type[Exception], *args: Any) -> int:
+    """``os.open(path, flags)`` for a file written in place, never through a link: a symbolic link, a hard link,
+    a folder or anything but a plain file at ``path`` raises ``unsafe(*args, path, what_it_is)`` (one line) and
+    nothing is written."""
+    import errno
+
+    try:
+        fd = os.open(path, flags | IN_PLACE_FLAGS, 0o666)
+    except OSError as exc:
+        if os.path.islink(path) or exc.errno in (errno.ELOOP, errno.EMLINK):
+            raise unsafe(*args, path, "a symbolic link") from None
+        if os.path.isdir(path):
+            raise unsafe(*args, path, "a folder") from None
+        raise
+    problem = in_place_problem(os.fstat(fd))
+    if problem is not None:
+        os.close(fd)
+        raise unsafe(*args, path, problem)
+    return fd
+
+
+class RunLockUnsafe(RunLocked):
+    """RUN_DIR/RUN_LOCK is a symbolic link, a hard link or not a plain file: writing the holder into it would
+    truncate and write another file (outside the run folder, perhaps). A ``RunLocked``, so every writer that
+    refuses a folder in use in one line (the CLI, exit 2; the add-on's operators) refuses this one the same way."""
+
+    def __init__(self, folder: str, path: str, what: str) -> None:
+        Exception.__init__(self, f"{path}: the run folder's lock file is {what} — {IN_PLACE_UNSAFE_FIX}")
+        self.folder = folder
+        self.holder: dict[str, Any] = {}
+
+
 #: Run folders this process holds, and how many times (a verb that calls another verb re-enters its lock).
 _HELD_LOCKS: dict[str, list[Any]] = {}
 
@@ -1140,7 +1210,7 @@ def run_lock(folder: str | os.PathLike[str], what: str) -> Iterator[None]:
             held[1] -= 1
         return
     path = os.path.join(folder, RUN_LOCK)
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    fd = open_in_place(path, os.O_RDWR | os.O_CREAT, RunLockUnsafe, folder)
     try:
         if not _try_lock(fd):
             raise RunLocked(folder, _read_holder(path))

@@ -10,6 +10,11 @@ every file it reads exists and every channel it names is in the pass files) and 
 Paths are relative to the script's folder (the Root's project directory is set to it), so the export folder can
 move with its run folder.
 
+Nothing from the manifest reaches Nuke's Tcl as code: knob values are written quoted with every Tcl special
+character escaped (``quote``), the stack variables are named by the layer's index, the header comment holds only
+plain names, and a path a Read would misread (a frame token, Tcl Nuke evaluates in file names, bytes that are not
+UTF-8) is refused in one line (``file_knob_path``).
+
 Nuke's EXR reader names channels by the rule of its NDK example ``ExrChannelNameToNuke``: split at dots (three
 parts at most), drop leading digits, turn other non-alphanumerics into "_", join all but the last part with "_" as
 the layer, and rename R/G/B/A (and r, Red, RED ...) to red/green/blue/alpha. ``nuke_channel_name`` is that rule.
@@ -46,7 +51,23 @@ _RGBA = {"R": "red", "G": "green", "B": "blue", "A": "alpha"}
 _RGBA_SPELLINGS = {
     spelling: name for c, name in _RGBA.items() for spelling in (c, c.lower(), name.title(), name.upper())
 }
-_BARE = re.compile(r"^[A-Za-z0-9_./%#:+-]+$")
+#: A knob value written as it is (one plain word); anything else is quoted and escaped.
+_BARE = re.compile(r"[A-Za-z0-9_./%:+-]+")
+#: Characters escaped with a backslash inside a quoted knob value: Tcl's substitutions, word and command ends.
+_TCL_SPECIAL = frozenset('\\"[]${};')
+#: Control characters Tcl writes as named escapes; the other ones are written as ``\uXXXX``.
+_TCL_NAMED_ESCAPES = {"\n": "\\n", "\r": "\\r", "\t": "\\t"}
+#: Characters a Read's file knob gives a meaning, with no escape for them: runs of ``#`` and printf ``%d``,
+#: ``%0Nd`` (``%V``, ``%v``: the view) are frame tokens; ``[...]``, ``$name`` and ``\`` are Tcl, which Nuke
+#: evaluates in a file name each time it reads one. A path holding one is refused, never rewritten.
+FILE_KNOB_SPECIAL = "#%[]$\\"
+#: The fix of a path a Read cannot hold: the folder's name, or where the script is (its paths are relative to it).
+FILE_KNOB_FIX = (
+    "rename the folder or file (or write the script with `engine nuke --out` in a folder from which the path does not "
+    "pass through it)"
+)
+#: What header comments may hold: a newline or a trailing backslash would end or extend a Tcl comment.
+_COMMENT_UNSAFE = re.compile(r"[^A-Za-z0-9_ ,.:;'()=+*/-]")
 
 
 class NukeScriptError(ValueError):
@@ -106,12 +127,52 @@ class Node:
 
 
 def quote(value: str) -> str:
-    """A knob value as the script writes it: bare when it is one plain word, else in quotes with Tcl's special
-    characters escaped (a path with a space or a bracket stays one literal value)."""
-    if _BARE.match(value):
+    """A knob value as the script writes it: bare when it is one plain word, else in double quotes with every Tcl
+    special character backslash-escaped and control characters as escapes, so Tcl reads back exactly ``value``
+    (no substitution, no second command, no line break inside the node's body)."""
+    if _BARE.fullmatch(value):
         return value
-    escaped = "".join("\\" + ch if ch in '\\"[]${}' else ch for ch in value)
-    return f'"{escaped}"'
+    out = []
+    for ch in value:
+        if ch in _TCL_SPECIAL:
+            out.append("\\" + ch)
+        elif ch in _TCL_NAMED_ESCAPES:
+            out.append(_TCL_NAMED_ESCAPES[ch])
+        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
+            out.append(f"\\u{ord(ch):04x}")
+        elif 0xD800 <= ord(ch) <= 0xDFFF:  # a byte that was not UTF-8 (surrogateescape): no text can hold it
+            raise NukeScriptError(f"the value {value!r} holds bytes that are not UTF-8 — rename what it names")
+        else:
+            out.append(ch)
+    return '"' + "".join(out) + '"'
+
+
+def file_knob_path(path: str, what: str, knob: str | None = None) -> str:
+    """The file knob ``knob`` (default: ``path`` itself; else ``path``'s sequence with the frame token written in)
+    after checking ``path``, one concrete file: raises NukeScriptError (what and the fix) when Nuke would read part
+    of it as a frame token or as Tcl, or when it is not UTF-8 text. A relative knob starting with ``~`` gets ``./``
+    (Nuke expands a leading ``~`` to a home folder)."""
+    try:
+        path.encode("utf-8")
+    except UnicodeEncodeError:
+        raise NukeScriptError(
+            f"the {what} path {path!r} holds bytes that are not UTF-8, which a Nuke script cannot name — "
+            + FILE_KNOB_FIX
+        ) from None
+    special = "".join(sorted({ch for ch in path if ch in FILE_KNOB_SPECIAL}))
+    if special:
+        raise NukeScriptError(
+            f"the {what} path {path!r} holds {special!r}, which a Nuke Read takes as a frame token or as Tcl (it "
+            f"has no escape for them) — {FILE_KNOB_FIX}"
+        )
+    knob = path if knob is None else knob
+    return f"./{knob}" if knob.startswith("~") else knob
+
+
+def _comment(text: str) -> str:
+    """One Tcl comment line of ``text``: anything that could end it (a newline) or extend it (a backslash) is
+    replaced, so the comment stays a comment."""
+    return "# " + _COMMENT_UNSAFE.sub("_", text)
 
 
 def _format(size: list[int], pixel_aspect: float = 1.0) -> str:
@@ -135,6 +196,11 @@ def nuke_script(
     if filter not in STMAP_FILTERS:
         raise NukeScriptError(f"STMap filter {filter!r} is not one of {', '.join(STMAP_FILTERS)}")
     layers = manifest["layers"]
+    for layer in layers:  # load_manifest refuses them too; a manifest given as a dict may not have been loaded
+        if not C.is_layer_name(layer["name"]):
+            raise NukeScriptError(
+                f"layer name {layer['name']!r} is not a plain name (letters, digits and _) — export the run again"
+            )
     missing = [layer["name"] for layer in layers if "stmap_pass" not in layer]
     if missing:
         raise NukeScriptError(
@@ -146,7 +212,11 @@ def nuke_script(
     first, last = min(frames), max(frames)
     fmt = _format(clip["resolution"], float(clip.get("pixel_aspect", 1.0)))
     nodes = [_root(first, last, clip["fps"], fmt)]
-    pass_file = relocate(f"{passes['dir']}/{passes['pattern'].replace('{frame:05d}', f'%0{C.PASS_FILE_DIGITS}d')}")
+    # the pass files' names are the engine's own (``Manifest.pass_path``), whatever the manifest's pattern says
+    pass_pattern = f"{C.PASS_FILE_PREFIX}%0{C.PASS_FILE_DIGITS}d{C.PASS_FILE_EXT}"
+    pass_file = file_knob_path(
+        relocate(f"{passes['dir']}/{C.pass_file_name(first)}"), "pass file", relocate(f"{passes['dir']}/{pass_pattern}")
+    )
     range_knobs = [("first", str(first)), ("last", str(last)), ("origfirst", str(first)), ("origlast", str(last))]
     passes_read = _read(
         f"{PREFIX}Passes", pass_file, [("format", fmt), *range_knobs, ("origset", "true"), ("raw", "true")], 0, 0
@@ -181,13 +251,15 @@ def _layer_nodes(
         before=[f"push ${PREFIX}passes"] if i else [],
     )
     shuffle.knobs += [("xpos", str(x)), ("ypos", str(ROW))]
-    shuffle.after += [f"set {PREFIX}st_{name} [stack 0]", f"push ${PREFIX}st_{name}"]
+    # the Tcl variable is named by the index: a name never becomes code, whatever it holds
+    shuffle.after += [f"set {PREFIX}st_{i} [stack 0]", f"push ${PREFIX}st_{i}"]
     # the float twin when it exists, as the engine and Blender read it (the script is written for what exists now)
     twin = C.float_edit_layer(layer["edit_layer"])
     is_float = os.path.exists(C.resolve_manifest_path(manifest_path, twin))
     edit = twin if is_float else layer["edit_layer"]
     colour = [("colorspace", "linear")] if is_float else [("colorspace", "sRGB"), ("premultiplied", "false")]
-    nodes = [shuffle, _read(f"{PREFIX}Edit_{name}", relocate(edit), colour, x + COLUMN // 2, ROW)]
+    edit_file = file_knob_path(relocate(edit), f"{name} edit layer")
+    nodes = [shuffle, _read(f"{PREFIX}Edit_{name}", edit_file, colour, x + COLUMN // 2, ROW)]
     if not is_float:  # a PNG edit layer is straight alpha: premultiply after the sRGB decode, as Blender does
         nodes.append(Node("Premult", [("name", f"{PREFIX}Premult_{name}"), ("xpos", str(x + COLUMN // 2))]))
         nodes[-1].knobs.append(("ypos", str(ROW * 2)))
@@ -217,11 +289,15 @@ def _plate_read(clip: dict[str, Any], relocate: Callable[[str], str], fmt: str, 
     first, last = numbers[0], numbers[-1]
     colour = [("colorspace", COLORSPACES.get(clip["colorspace"], clip["colorspace"]))]
     if clip["kind"] == C.CLIP_KINDS[0]:
-        file = relocate(sequence_pattern(clip["frame_files"], numbers))
+        for frame_file in clip["frame_files"]:  # every frame: the token replaces digits that differ between them
+            file_knob_path(relocate(frame_file), "plate frame")
+        file = file_knob_path(
+            relocate(clip["frame_files"][0]), "plate", relocate(sequence_pattern(clip["frame_files"], numbers))
+        )
         frame_knobs: list[tuple[str, str]] = []
         file_first, file_last = first, last
     else:  # a movie: Nuke numbers its frames from 1, the manifest from its start frame (0 unless fit --start-frame)
-        file = relocate(clip["source"])
+        file = file_knob_path(relocate(clip["source"]), "plate movie")
         shift = 1 - int(clip.get("start_frame", 0))
         frame_knobs = [("frame_mode", "expression"), ("frame", f"frame{shift:+d}")]
         file_first, file_last = first + shift, last + shift
@@ -233,8 +309,8 @@ def _plate_read(clip: dict[str, Any], relocate: Callable[[str], str], fmt: str, 
 def _text(nodes: list[Node], manifest: dict[str, Any]) -> str:
     names = ", ".join(layer["name"] for layer in manifest["layers"])
     lines = [
-        f"#! written by neural-atlas {C.ENGINE_VERSION} from an export's manifest (layers: {names})",
-        "# the paper's edit: plate * (1 - sum Z_i a_i) + sum Z_i P_i; structure-tested, not run in Nuke",
+        "#!" + _comment(f"written by neural-atlas {C.ENGINE_VERSION} from an export's manifest (layers: {names})")[1:],
+        _comment("the paper's edit: plate * (1 - sum Z_i a_i) + sum Z_i P_i; structure-tested, not run in Nuke"),
         f"version {NUKE_VERSION}",
     ]
     for node in nodes:
@@ -288,8 +364,10 @@ def write_nuke_script(
 
 __all__ = [
     "DEFAULT_FILTER",
+    "FILE_KNOB_SPECIAL",
     "STMAP_FILTERS",
     "NukeScriptError",
+    "file_knob_path",
     "nuke_channel_name",
     "nuke_layer",
     "nuke_script",

@@ -9,6 +9,7 @@ Blender's view of the same pass files (its Image node's layers and sockets) is c
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -18,7 +19,15 @@ import pytest
 
 from engine import contract as C
 from engine.export.manifest import Manifest
-from engine.export.nuke import NukeScriptError, nuke_channel_name, nuke_script, quote, sequence_pattern
+from engine.export.nuke import (
+    NukeScriptError,
+    _comment,
+    file_knob_path,
+    nuke_channel_name,
+    nuke_script,
+    quote,
+    sequence_pattern,
+)
 from engine.io.images import read_exr, write_exr, write_png
 from tests.engine.export import nk_script as NK
 from tests.engine.export.blender_probe import blender_pythons, probe_image_node
@@ -315,3 +324,49 @@ def test_export_warns_and_writes_no_script_for_a_plate_nuke_cannot_read_as_one_s
     assert not (tmp_path / C.NUKE_SCRIPT_NAME).exists()
     (line,) = capsys.readouterr().err.splitlines()
     assert line.startswith(f"warning: no {C.NUKE_SCRIPT_NAME}: plate frame 'shot_a.png' is not named with its frame")
+
+
+def test_stack_variables_are_named_by_the_layer_index_and_comments_stay_comments():
+    """A layer's name never becomes part of Tcl code: the stack variables are numbered, the header is comments."""
+    manifest = _movie_manifest()
+    manifest["layers"].append(dict(manifest["layers"][0], name="Foreground", stmap_pass="STMapForeground"))
+    lines = nuke_script(manifest, "/shots/a/run/exports/v001/manifest.json").splitlines()
+    stack = [line for line in lines if line.startswith(("set ", "push "))]
+    assert stack == [
+        "set NA_passes [stack 0]",
+        "set NA_st_0 [stack 0]",
+        "push $NA_st_0",
+        "push $NA_passes",
+        "set NA_st_1 [stack 0]",
+        "push $NA_st_1",
+    ]
+    assert (
+        lines[0]
+        == f"#! written by neural-atlas {C.ENGINE_VERSION} from an export's manifest (layers: Background, Foreground)"
+    )
+    assert lines[1].startswith("# ") and lines[2] == "version 13.0 v1"
+    assert _comment("a\nb [c] \\") == "# a_b _c_ _"  # a newline would end it, a trailing backslash extend it
+
+
+def test_export_warns_and_writes_no_script_for_a_plate_folder_holding_a_frame_token(tmp_path, capsys):
+    from engine.export.exporter import _write_nuke_script
+
+    manifest = _movie_manifest()
+    frames = [f"../../../shot#2/plate.{n:04d}.exr" for n in manifest["clip"]["frame_numbers"]]
+    manifest["clip"].update(kind="sequence", frame_files=frames)
+    _write_nuke_script(tmp_path, manifest)
+    assert not (tmp_path / C.NUKE_SCRIPT_NAME).exists()
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith(
+        f"warning: no {C.NUKE_SCRIPT_NAME}: the plate frame path '../../../shot#2/plate.0010.exr' holds '#', which a "
+        "Nuke Read takes as a frame token or as Tcl (it has no escape for them) — rename the folder or file"
+    )
+
+
+def test_file_knob_paths():
+    assert file_knob_path("../plates/p.0001.exr", "plate") == "../plates/p.0001.exr"
+    assert file_knob_path("~p/p.0001.exr", "plate", "~p/p.%04d.exr") == "./~p/p.%04d.exr"  # not a home folder
+    assert file_knob_path("/abs/~p/p.0001.exr", "plate") == "/abs/~p/p.0001.exr"
+    for bad, said in (("a#/p.exr", "'#'"), ("a%d/p.exr", "'%'"), ("[x]$y\\", "'$[\\\\]'"), ("a\udcff/p", "UTF-8")):
+        with pytest.raises(NukeScriptError, match=re.escape(said)):
+            file_knob_path(bad, "plate")
