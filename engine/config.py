@@ -282,8 +282,15 @@ def _number(value: float, kind: str) -> str:
     return str(int(value)) if kind == "int" or float(value).is_integer() else repr(value)
 
 
+#: The largest a loss weight (``w_*``) may be: 200 times the paper's largest (``w_rgb`` 5000). Adam divides each step
+#: by the gradient's running size, so no balance of terms needs a larger one; far beyond it a weight overflows
+#: float32 (1e308 is Inf there: the first loss is Inf and the fit diverges whatever its learning rate).
+MAX_LOSS_WEIGHT = 1e6
+
 _POSITIVE = Valid(low=0, above=True)
 _NON_NEGATIVE = Valid(low=0)
+#: A loss weight: finite, >= 0 (0 turns its term off) and at most MAX_LOSS_WEIGHT.
+_WEIGHT = Valid(low=0, high=MAX_LOSS_WEIGHT)
 _AT_LEAST_ONE = Valid(low=1)
 _FRACTION = Valid(low=0, high=1)
 _ANY = Valid()
@@ -303,32 +310,32 @@ VALID: dict[str, Valid] = {
     "lr": _POSITIVE,
     "lr_grid": _POSITIVE,
     "lr_final_ratio": Valid(low=0, high=1, above=True),
-    "w_rgb": _NON_NEGATIVE,
-    "w_gradient": _NON_NEGATIVE,
-    "w_sparsity": _NON_NEGATIVE,
-    "w_atlas_sparsity": _NON_NEGATIVE,
+    "w_rgb": _WEIGHT,
+    "w_gradient": _WEIGHT,
+    "w_sparsity": _WEIGHT,
+    "w_atlas_sparsity": _WEIGHT,
     "atlas_sparsity_samples": _AT_LEAST_ONE,
-    "w_flow": _NON_NEGATIVE,
-    "w_alpha_flow": _NON_NEGATIVE,
+    "w_flow": _WEIGHT,
+    "w_alpha_flow": _WEIGHT,
     "long_flow_max_gap": _NON_NEGATIVE,
     "long_flow_samples": _AT_LEAST_ONE,
-    "w_long_flow": _NON_NEGATIVE,
+    "w_long_flow": _WEIGHT,
     "long_flow_stride": _AT_LEAST_ONE,
-    "w_rigidity": _NON_NEGATIVE,
+    "w_rigidity": _WEIGHT,
     "rigidity_delta": _POSITIVE,
-    "w_global_rigidity_fg": _NON_NEGATIVE,
-    "w_global_rigidity_bg": _NON_NEGATIVE,
+    "w_global_rigidity_fg": _WEIGHT,
+    "w_global_rigidity_bg": _WEIGHT,
     "global_rigidity_delta": _POSITIVE,
     "global_rigidity_steps": _NON_NEGATIVE,
-    "w_mask": _NON_NEGATIVE,
+    "w_mask": _WEIGHT,
     "bootstrap_steps": _NON_NEGATIVE,
-    "w_scribble": _NON_NEGATIVE,
+    "w_scribble": _WEIGHT,
     "scribble_samples": _AT_LEAST_ONE,
-    "w_mask_prior": _NON_NEGATIVE,
+    "w_mask_prior": _WEIGHT,
     "mask_prior_margin_px": _NON_NEGATIVE,
     "mask_hold_coverage": _FRACTION,
     "mask_snap_px": _NON_NEGATIVE,
-    "w_anchor": _NON_NEGATIVE,
+    "w_anchor": _WEIGHT,
     "uv_mapping_scale": Valid(low=0, high=1, above=True),
     "pretrain_iters": _NON_NEGATIVE,
     "mapping_hidden": _AT_LEAST_ONE,

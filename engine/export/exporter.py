@@ -35,6 +35,8 @@ from tqdm import tqdm
 
 from engine import contract as C
 from engine.errors import InputError
+from engine.export.stage_record import STAGE_RECORD, STAGE_SCHEMA, changed_since, fit_source, other_fit_error
+from engine.export.stage_record import read_stage as _read_stage
 from engine.fit.progress import Reporter
 from engine.fit.run_folder import ClipRecord, RunFolder
 from engine.fit.trainer import EVAL_CHUNK, FittedRun, load_fitted
@@ -66,11 +68,9 @@ STAGING_SUFFIX = ".partial"
 STAGED_EDITS = ".edits"
 #: A staged export (``export --into vNNN --stage ...``) is assembled in ``exports/.vNNN.chunks``: its atlases, the
 #: passes its chunks write (no lock: several hosts at once) and its record (``STAGE_RECORD``: frames, atlas size,
-#: each layer's atlas frame), until ``--stage publish`` renames it to ``vNNN``. A whole export never removes it and
-#: never takes its number.
+#: each layer's atlas frame, the fit it was made from: ``engine.export.stage_record``), until ``--stage publish``
+#: renames it to ``vNNN``. A whole export never removes it and never takes its number.
 CHUNKS_SUFFIX = C.EXPORT_CHUNKS_SUFFIX
-STAGE_RECORD = "stage.json"
-STAGE_SCHEMA = "neural_atlas.export_stage/1"
 #: A layer's pass channels (UV X, Y, Z, alpha and the STMap copy) and their bytes uncompressed: the disk-full
 #: estimate of a frame of passes before any is written.
 PASS_CHANNELS_PER_LAYER = len(C.UV_CHANNELS) + len(C.ALPHA_CHANNELS) + len(C.STMAP_CHANNELS)
@@ -265,12 +265,26 @@ def _next_version(exports: Path) -> tuple[Path, Path]:
     removed."""
     exports.mkdir(parents=True, exist_ok=True)
     for leftover in exports.glob(f".*{STAGING_SUFFIX}"):
-        shutil.rmtree(leftover, ignore_errors=True)
+        _remove_leftover(leftover)
+    final = exports / C.EXPORT_VERSION_FORMAT.format(_first_free(exports))
+    return final, _fresh_staging(exports, final.name)
+
+
+def _first_free(exports: Path) -> int:
+    """The lowest version number neither published nor held by a staged export."""
     n = 1
     while _taken(exports, C.EXPORT_VERSION_FORMAT.format(n)):
         n += 1
-    final = exports / C.EXPORT_VERSION_FORMAT.format(n)
-    return final, _fresh_staging(exports, final.name)
+    return n
+
+
+def _remove_leftover(path: Path) -> None:
+    """Remove a killed export's hidden staging entry: a symbolic link planted under its name is removed itself (never
+    the folder it points to, which rmtree would refuse and the next mkdir trip over)."""
+    if path.is_symlink() or not path.is_dir():
+        path.unlink(missing_ok=True)
+    else:
+        shutil.rmtree(path, ignore_errors=True)
 
 
 def _taken(exports: Path, version: str) -> bool:
@@ -282,7 +296,7 @@ def _fresh_staging(exports: Path, version: str) -> Path:
     """``exports/.vNNN.partial``, created empty (a killed export's leftover of that name is removed first)."""
     exports.mkdir(parents=True, exist_ok=True)
     staging = exports / f".{version}{STAGING_SUFFIX}"
-    shutil.rmtree(staging, ignore_errors=True)
+    _remove_leftover(staging)
     staging.mkdir()
     return staging
 
@@ -421,16 +435,17 @@ class _Plan:
     def numbers(self, clip: ClipRecord) -> list[int]:
         return [clip.frame_numbers[t] for t in self.selected]
 
-    def to_record(self, clip: ClipRecord) -> dict[str, Any]:
+    def to_record(self, clip: ClipRecord, source: dict[str, str]) -> dict[str, Any]:
         """The staged export's record (``STAGE_RECORD``): JSON keeps each float exactly, so every pass a chunk
-        writes from it is the whole export's."""
+        writes from it is the whole export's; ``source`` (``stage_record.fit_source``) is the fit it is made from,
+        which every later stage checks."""
         numbers = self.numbers(clip)
         layers = [
             {"name": n, "atlas_box": list(fr.box), "atlas_size": list(fr.size)}
             for n, fr in zip(self.names, self.frames_by_layer, strict=True)
         ]
         return {"schema": STAGE_SCHEMA, "frames": [numbers[0], numbers[-1]], "atlas_size": self.atlas_size,
-                "layers": layers}  # fmt: skip
+                "layers": layers, "source": source}  # fmt: skip
 
     @classmethod
     def from_record(cls, data: dict[str, Any], clip: ClipRecord) -> _Plan:
@@ -626,28 +641,6 @@ def _published(
     return manifest_path
 
 
-def _read_stage(chunks: Path) -> dict[str, Any] | None:
-    """A staged export's record (None: no atlases stage finished there)."""
-    path = chunks / STAGE_RECORD
-    if not path.is_file():
-        return None
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-        if data.get("schema") != STAGE_SCHEMA:
-            raise ValueError
-        int(data["atlas_size"])
-        [int(n) for n in data["frames"][:2]]
-        [
-            (str(r["name"]), [float(b) for b in r["atlas_box"]], [int(s) for s in r["atlas_size"]])
-            for r in data["layers"]
-        ]
-        return data  # type: ignore[no-any-return]
-    except (OSError, ValueError, KeyError, TypeError):
-        raise InputError(
-            path, "staged export record is damaged", "delete its folder and stage the export again"
-        ) from None
-
-
 def _no_stage(version: str, chunks: Path) -> InputError:
     return InputError(
         chunks,
@@ -656,12 +649,41 @@ def _no_stage(version: str, chunks: Path) -> InputError:
     )
 
 
+def _own_chunks_folder(run_dir: Path, version: str) -> Path:
+    """``exports/.vNNN.chunks``, refused in one line when it or a folder the stages write into is a symbolic link:
+    the staging folders are the engine's own (``exports/`` itself may be a link), and the passes stage writes without
+    the lock, so a link planted there would take its files out of the run's exports."""
+    chunks = _chunks_folder(run_dir / C.EXPORTS_DIR, version)
+    for path in (chunks, chunks / C.PASSES_DIR, chunks / C.ATLASES_DIR):
+        if path.is_symlink():
+            raise InputError(
+                path,
+                "is a symbolic link, and a staged export's folders are the engine's own (never written through a link)",
+                f"delete the link, then run `export {C.EXPORT_INTO_ARG} {version} {C.EXPORT_STAGE_ARG} "
+                f"{C.EXPORT_STAGES[0]}` again",
+            )
+    return chunks
+
+
+def _require_same_fit(
+    run_dir: Path, chunks: Path, version: str, record: dict[str, Any], source: dict[str, str] | None = None
+) -> None:
+    """One line unless the fit in ``run_dir`` now (``source``, default: read now) is the one the staged ``record``
+    was made from: a version never mixes passes, atlases and a manifest of two fits."""
+    changed = changed_since(record, fit_source(run_dir) if source is None else source)
+    if changed:
+        exports = run_dir / C.EXPORTS_DIR
+        raise other_fit_error(chunks, version, changed, C.EXPORT_VERSION_FORMAT.format(_first_free(exports)))
+
+
 def _export_atlases(job: _Job, version: str, atlas_size: int, frames: tuple[int, int] | None) -> Path:
     """Under the lock: the layer frames and atlas textures into ``exports/.vNNN.chunks``, its record written last
     (a killed stage leaves no record, and is redone). Already staged with these parameters: nothing to do."""
-    chunks = _chunks_folder(job.run_dir / C.EXPORTS_DIR, version)
+    chunks = _own_chunks_folder(job.run_dir, version)
     record = _read_stage(chunks)
+    source = fit_source(job.run_dir)  # under the lock: the fit loaded below is this one
     if record is not None:
+        _require_same_fit(job.run_dir, chunks, version, record, source)
         clip = RunFolder(job.run_dir).read_clip()
         numbers = [clip.frame_numbers[t] for t in _selected(clip, frames)]
         if [numbers[0], numbers[-1]] != list(record["frames"]) or atlas_size != record["atlas_size"]:
@@ -682,7 +704,7 @@ def _export_atlases(job: _Job, version: str, atlas_size: int, frames: tuple[int,
     try:
         _write_atlases(fitted, plan, cov, chunks)
         (chunks / C.PASSES_DIR).mkdir()
-        atomic_write_text(chunks / STAGE_RECORD, json.dumps(plan.to_record(fitted.clip), indent=2))
+        atomic_write_text(chunks / STAGE_RECORD, json.dumps(plan.to_record(fitted.clip, source), indent=2))
     except BaseException:
         shutil.rmtree(chunks, ignore_errors=True)
         raise
@@ -693,8 +715,7 @@ def _export_passes(job: _Job, version: str, frames: tuple[int, int] | None) -> P
     """Without the lock: the passes of ``frames`` (default: the staged range) that the staging folder lacks, each
     file atomic, so a chunk cancelled or killed keeps its finished frames and its retry writes only the rest.
     Returns the staging folder (the manifest, once published)."""
-    exports = job.run_dir / C.EXPORTS_DIR
-    chunks = _chunks_folder(exports, version)
+    chunks = _own_chunks_folder(job.run_dir, version)
     record = _read_stage(chunks)
     clip = RunFolder(job.run_dir).read_clip()
     if record is None:
@@ -719,7 +740,11 @@ def _export_passes(job: _Job, version: str, frames: tuple[int, int] | None) -> P
     chunk = plan.selected if frames is None else _selected(clip, frames)
     todo = [t for t in chunk if not _pass_file(chunks, clip.frame_numbers[t]).exists()]
     if todo:
+        # no lock here (a refine may replace the checkpoint meanwhile): the fit is checked before and after loading,
+        # so the model that writes these passes is the one the atlases were made from
+        _require_same_fit(job.run_dir, chunks, version, record)
         fitted = job.load()
+        _require_same_fit(job.run_dir, chunks, version, record)
         bar = job.bar(len(todo))
         _write_passes(job, fitted, plan, todo, chunks, bar)
         bar.close()
@@ -729,10 +754,11 @@ def _export_passes(job: _Job, version: str, frames: tuple[int, int] | None) -> P
 def _export_publish(job: _Job, version: str, atlas_size: int | None, frames: tuple[int, int] | None) -> Path:
     """Under the lock, once every chunk is done: what a whole export writes after its passes, then the staging
     folder becomes ``exports/vNNN``. A frame without its pass is a one-line refusal naming the chunk to run."""
-    chunks = _chunks_folder(job.run_dir / C.EXPORTS_DIR, version)
+    chunks = _own_chunks_folder(job.run_dir, version)
     record = _read_stage(chunks)
     if record is None:
         raise _no_stage(version, chunks)
+    _require_same_fit(job.run_dir, chunks, version, record)
     clip = RunFolder(job.run_dir).read_clip()
     plan = _Plan.from_record(record, clip)
     numbers = plan.numbers(clip)

@@ -9,6 +9,7 @@ from typing import Any, TextIO
 
 from engine import contract as C
 from engine.fit.eta import JobClock
+from engine.io.atomic import append_text
 
 
 class Reporter:
@@ -32,8 +33,7 @@ class Reporter:
         if self.stream is not None:
             print(line, file=self.stream, flush=True)
         if self.log_path is not None:
-            with open(self.log_path, "a", encoding="utf-8") as f:
-                f.write(line + "\n")
+            append_text(self.log_path, line + "\n")  # refuses a link: the log is the one file appended to
 
     def job_fields(self) -> dict[str, Any]:
         """The whole job's fraction and seconds left, as the ``progress`` and ``job`` messages carry them."""

@@ -62,6 +62,9 @@ MIN_LR_RATIO = 1e-6
 #: A diverged fit's message suggests the preset's rate, or this fraction of the rate it diverged with when that
 #: was no higher than the preset's.
 LR_RETRY_FACTOR = 0.1
+#: A loss weight more than this many times its preset's (or than this, where the preset's is below 1) is named as a
+#: diverged fit's likely cause: a resume keeps the weights, so lower rates alone would diverge again.
+WEIGHT_SUSPECT_FACTOR = 100.0
 #: Characters of a torch error kept in the one-line message of a checkpoint that does not fit the model.
 ERROR_DETAIL_CHARS = 160
 
@@ -352,10 +355,35 @@ def nonfinite_groups(optim: torch.optim.Optimizer, grads: bool) -> list[str]:
     return names
 
 
-def diverged_message(error: NonFinite, cfg: FitConfig, run: RunFolder, checkpoint_step: int | None) -> str:
-    """The one line of a diverged fit: the step, what went non-finite, the likely cause (its learning rates, or
-    the plate's values) and the command that continues from the last good checkpoint with lower rates."""
+def suspect_weights(error: NonFinite, cfg: FitConfig) -> list[str]:
+    """The loss weights (``w_*``) far above their preset's (``WEIGHT_SUSPECT_FACTOR``), the furthest first; those
+    of the terms that went non-finite before the rest."""
     preset = PRESETS.get(cfg.preset, FitConfig())
+
+    def ratio(name: str) -> float:
+        return float(getattr(cfg, name)) / max(float(getattr(preset, name)), 1.0)
+
+    names = [f.name for f in dataclasses.fields(cfg) if f.name.startswith("w_")]
+    high = sorted((n for n in names if ratio(n) > WEIGHT_SUSPECT_FACTOR), key=ratio, reverse=True)
+    named = [n for n in high if error.quantity == "loss" and n.removeprefix("w_") in error.where]
+    return named + [n for n in high if n not in named]
+
+
+def diverged_message(error: NonFinite, cfg: FitConfig, run: RunFolder, checkpoint_step: int | None) -> str:
+    """The one line of a diverged fit: the step, what went non-finite, the likely cause (a loss weight far above
+    its preset's, else its learning rates or the plate's values) and the command that continues from the last good
+    checkpoint with lower rates, or, for a weight (a resume keeps the weights), the fit again with the preset's."""
+    preset = PRESETS.get(cfg.preset, FitConfig())
+    weights = suspect_weights(error, cfg)
+    if weights:
+        shown = ", ".join(f"{w}={getattr(cfg, w):g}" for w in weights)
+        theirs = ", ".join(f"{getattr(preset, w):g}" for w in weights)
+        sets = " ".join(f"--set {w}={getattr(preset, w):g}" for w in weights)
+        return (
+            f"{run.path}: the fit diverged at {error} — likely cause: the loss weight {shown}, far above the "
+            f"{cfg.preset} preset's ({theirs}); a resume keeps the weights, so fit again with --refit {sets} "
+            "(edit layers and exports are kept)"
+        )
     high = [k for k in LR_FIELDS if getattr(cfg, k) > getattr(preset, k)]
     lower = {k: getattr(preset, k) for k in high} or {k: getattr(cfg, k) * LR_RETRY_FACTOR for k in LR_FIELDS}
     rates = ", ".join(f"{k}={getattr(cfg, k):g}" for k in (high or LR_FIELDS))

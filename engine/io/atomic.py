@@ -4,6 +4,10 @@ staged set of files (``move_into_place`` under ``signals_held``): all of it or n
 A kill or a full disk never leaves a half-written file under the real name. Torch-free, so the export,
 render and project-frame writers and the checkpoints share one mechanism. The temp name keeps the real
 suffix (``.name.XXXX.tmp.exr``): image writers pick their format from it.
+
+Links: the rename replaces whatever entry has the name, a symbolic or hard link included, and never writes the
+file a link points to, so no write follows a link out of its folder. The one write in place, an append
+(``append_text``: the fit's log), refuses a link instead.
 """
 
 from __future__ import annotations
@@ -19,7 +23,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from engine.errors import DiskFullError
+from engine import contract as C
+from engine.errors import DiskFullError, InputError
 
 #: OS errors that mean "the disk is full" (no space, quota, file too large).
 DISK_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
@@ -167,6 +172,23 @@ def signals_held() -> Iterator[None]:
             signal.raise_signal(pending)
 
 
+class LinkedFileError(InputError):
+    """A file the engine writes in place (appends to) is a symbolic or hard link, a folder or not a plain file: one
+    line, nothing written (``contract.open_in_place``)."""
+
+    def __init__(self, path: str, what: str) -> None:
+        super().__init__(path, f"is {what}", C.IN_PLACE_UNSAFE_FIX)
+
+
+def append_text(path: Path, text: str) -> None:
+    """Append ``text`` to ``path`` (created if missing). An append cannot go through a temp file and a rename, so it
+    is the one write that could follow a link: a symbolic link, a hard link or anything but a plain file at ``path``
+    is refused (``LinkedFileError``) rather than written through."""
+    fd = C.open_in_place(os.fspath(path), os.O_WRONLY | os.O_APPEND | os.O_CREAT, LinkedFileError)
+    with os.fdopen(fd, "a", encoding="utf-8") as f:
+        f.write(text)
+
+
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     def write(tmp: str) -> None:
         with open(tmp, "wb") as f:
@@ -182,6 +204,8 @@ def atomic_write_text(path: Path, text: str) -> None:
 __all__ = [
     "DISK_ERRNOS",
     "DISK_ERRORS",
+    "LinkedFileError",
+    "append_text",
     "as_disk_full",
     "atomic_write",
     "atomic_write_bytes",

@@ -1,0 +1,119 @@
+"""A staged export's record (``exports/.vNNN.chunks/stage.json``) and what it was made from. Torch-free: the farm's
+plan reads it too, on a submitting machine without the GPU stack.
+
+The stages of one staged export run at different times, on different hosts, and a fit can change between them
+(``fit --refine`` or ``--refit`` between the passes of frames 0-3 and those of 4-7). The atlases stage records the
+fit it was made from (the SHA-256 of ``checkpoint.pt`` and of ``config.json``); the passes and publish stages check
+the fit they load against it and refuse another in one line, so a version never mixes frames of two fits, and the
+farm's plan starts a new version rather than continuing one staged from another fit.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+from typing import Any
+
+from engine import contract as C
+from engine.errors import InputError
+
+#: The record's name in the staging folder (removed when the version is published).
+STAGE_RECORD = "stage.json"
+#: The record's schema: frames, atlas size, each layer's atlas frame and ``source`` (what it was made from).
+STAGE_SCHEMA = "neural_atlas.export_stage/2"
+#: The schema of records written before they said what they were made from: such a stage cannot be continued.
+STAGE_SCHEMA_WITHOUT_SOURCE = "neural_atlas.export_stage/1"
+#: The run files a stage is made from, by the key their digest has in the record's ``source``.
+SOURCE_FILES: dict[str, str] = {"checkpoint_sha256": C.RUN_CHECKPOINT, "config_sha256": C.RUN_CONFIG}
+#: Bytes read at a time while hashing (a checkpoint is tens of MB: never read whole).
+HASH_BLOCK = 1 << 20
+#: The fix of a record that cannot be read.
+DAMAGED_FIX = "delete its folder and stage the export again"
+
+
+def file_sha256(path: Path) -> str:
+    """The SHA-256 of the file at ``path``, hex."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        while block := f.read(HASH_BLOCK):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def fit_source(run_dir: Path) -> dict[str, str]:
+    """What an export of ``run_dir`` is made from now: the digest of each of ``SOURCE_FILES``."""
+    try:
+        return {key: file_sha256(run_dir / name) for key, name in SOURCE_FILES.items()}
+    except OSError as exc:
+        raise InputError(exc.filename, "cannot be read", "pass the --out folder of a finished `fit`") from None
+
+
+def read_stage(chunks: Path) -> dict[str, Any] | None:
+    """A staged export's record (None: no atlases stage finished there), every field checked; a damaged one, or one
+    that does not say what it was made from, is one line."""
+    path = chunks / STAGE_RECORD
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        if isinstance(data, dict) and data.get("schema") == STAGE_SCHEMA_WITHOUT_SOURCE:
+            raise InputError(
+                path,
+                "this staged export does not record the fit it was made from (an earlier engine staged it)",
+                DAMAGED_FIX,
+            )
+        if data.get("schema") != STAGE_SCHEMA:
+            raise ValueError
+        int(data["atlas_size"])
+        [int(n) for n in data["frames"][:2]]
+        [
+            (str(r["name"]), [float(b) for b in r["atlas_box"]], [int(s) for s in r["atlas_size"]])
+            for r in data["layers"]
+        ]
+        if {k: str(v) for k, v in data["source"].items()} != data["source"] or set(data["source"]) != set(SOURCE_FILES):
+            raise ValueError
+        return dict(data)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        raise InputError(path, "staged export record is damaged", DAMAGED_FIX) from None
+
+
+def changed_since(record: dict[str, Any], source: dict[str, str]) -> list[str]:
+    """The run files (``SOURCE_FILES``) whose digest in ``source`` is not the one ``record`` was made from."""
+    return [SOURCE_FILES[key] for key in SOURCE_FILES if record["source"][key] != source[key]]
+
+
+def other_fit_error(chunks: Path, version: str, changed: list[str], free: str) -> InputError:
+    """The one line of a stage asked to continue ``version`` after the fit changed (``changed``: its files that
+    did); ``free`` is the version a new staged export would take."""
+    return InputError(
+        chunks,
+        f"{version} was staged from another fit ({' and '.join(changed)} changed since its atlases were made: "
+        "a fit --refine or --refit), and one version never mixes frames of two fits",
+        f"stage this fit as a new version ({C.EXPORT_INTO_ARG} {free} {C.EXPORT_STAGE_ARG} "
+        f"{C.EXPORT_STAGES[0]}; a farm job submitted again takes a new version itself), or delete {chunks.name} "
+        f"to stage {version} again from this fit",
+    )
+
+
+def continues_fit(run_dir: Path, chunks: Path) -> bool:
+    """Whether the staged export in ``chunks`` may be continued by the fit ``run_dir`` holds now: no atlases stage
+    finished there (its atlases stage starts it from this fit), or its record says it was made from this fit. A
+    damaged record, or one of another fit, is not continued (the plan leaves it and takes a new version)."""
+    try:
+        record = read_stage(chunks)
+        return record is None or not changed_since(record, fit_source(run_dir))
+    except InputError:
+        return False
+
+
+__all__ = [
+    "STAGE_RECORD",
+    "STAGE_SCHEMA",
+    "changed_since",
+    "continues_fit",
+    "file_sha256",
+    "fit_source",
+    "other_fit_error",
+    "read_stage",
+]
