@@ -269,8 +269,28 @@ def _connect(address: str, timeout: float) -> Any:
         ) from None
 
 
-def _failure(task_id: str, key: Any, exc: BaseException) -> dict[str, Any]:
-    """A task's outcome from the exception Dask handed its future: its own failure, or a dependency's."""
+#: The fix for a scheduler or worker whose Python cannot import the engine (Dask unpickles each task's function,
+#: ``engine.farm.dask_backend.run_task``, on the scheduler and on the worker that runs it).
+ENGINE_IMPORT_FIX = (
+    'install the engine into the Python of the Dask scheduler and of every worker (pip install "neural-atlas[farm]"), '
+    "or start them with PYTHONPATH set to the folder holding engine/ (docs/farm.md, Dask)"
+)
+
+
+def _exception_text(exc: BaseException) -> str:
+    """The whole message of ``exc`` and of what caused it, on one line (Dask's own messages span lines)."""
+    parts: list[str] = []
+    seen: BaseException | None = exc
+    while seen is not None and len(parts) < 3:
+        text = " ".join(str(seen).split()) or type(seen).__name__
+        parts.append(text if text.startswith(type(seen).__name__) else f"{type(seen).__name__}: {text}")
+        seen = seen.__cause__ or seen.__context__
+    return "; caused by ".join(parts)
+
+
+def _failure(task_id: str, key: Any, exc: BaseException, dependencies_done: bool) -> dict[str, Any]:
+    """A task's outcome from the exception Dask handed its future: its own failure, or a dependency's.
+    ``dependencies_done``: every task it waits for finished (so the exception can only be its own)."""
     from distributed.scheduler import KilledWorker
 
     if isinstance(exc, KilledWorker):
@@ -278,11 +298,37 @@ def _failure(task_id: str, key: Any, exc: BaseException) -> dict[str, Any]:
             return {"state": STATE_SKIPPED, "error": f"a task before it lost {exc.allowed_failures + 1} workers"}
         error = f"{exc.allowed_failures + 1} workers died while running it (the engine's log: its run folder)"
         return {"state": STATE_FAILED, "error": error}
-    text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-    if isinstance(exc, TaskFailed) and text.startswith(f"{task_id}: "):
-        # its own engine failed and the retries are spent: "exit N: <the engine's last stderr line>"
-        return {"state": STATE_FAILED, "error": text[len(task_id) + 2 :]}
-    return {"state": STATE_SKIPPED, "error": text}  # a dependency's failure, handed on by Dask
+    text = _exception_text(exc)
+    if isinstance(exc, TaskFailed):
+        own = str(exc).startswith(f"{task_id}: ")
+        if own:  # its own engine failed and the retries are spent: "exit N: <the engine's last stderr line>"
+            return {"state": STATE_FAILED, "error": " ".join(str(exc).split())[len(task_id) + 2 :]}
+        return {"state": STATE_SKIPPED, "error": text}  # a dependency's failure, handed on by Dask
+    if not dependencies_done:
+        return {"state": STATE_SKIPPED, "error": text}
+    if "deserializ" in text.lower() or isinstance(exc, ImportError):
+        text = f"{text} — {ENGINE_IMPORT_FIX}"
+    return {"state": STATE_FAILED, "error": text}
+
+
+def _check_environment(client: Any, address: str) -> None:
+    """The scheduler and the connected workers can import the engine (Dask unpickles ``run_task`` on both): else
+    every task would fail at once with Dask's own words. One line naming the process and the fix instead."""
+    probe = "import engine.farm.dask_backend"
+    try:
+        client.run_on_scheduler(exec, probe, {})
+    except Exception as exc:
+        raise InputError(
+            address, f"the Dask scheduler cannot import the engine ({_exception_text(exc)})", ENGINE_IMPORT_FIX
+        ) from None
+    answers = client.run(exec, probe, {}, on_error="return")
+    for worker, answer in sorted(answers.items()):
+        if isinstance(answer, BaseException):
+            raise InputError(
+                address,
+                f"the Dask worker {worker} cannot import the engine ({_exception_text(answer)})",
+                ENGINE_IMPORT_FIX,
+            )
 
 
 def _emit(stream: TextIO, event: str, **fields: Any) -> None:
@@ -311,6 +357,7 @@ def run_plan(
     result = FarmResult()
     client = _connect(scheduler_address, connect_timeout)
     try:
+        _check_environment(client, scheduler_address)
         _check_resources(client, scheduler_address, fit_resources or {})
         futures: dict[str, Any] = {}
         tasks = {t.id: t for t in plan.tasks}
@@ -334,7 +381,8 @@ def run_plan(
             try:
                 record = future.result()
             except Exception as exc:  # retries spent, or a dependency's failure: Dask hands on the exception
-                record = {"id": task.id, **_failure(task.id, future.key, exc)}
+                done = all(result.results.get(d, {}).get("state") == STATE_DONE for d in task.depends)
+                record = {"id": task.id, **_failure(task.id, future.key, exc, done)}
             result.results[task.id] = record
             finished[task.shot] += 1
             total = len(plan.shot_tasks(task.shot))

@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import getpass
 import json
+import re
 import sys
 import urllib.error
 import urllib.request
@@ -125,26 +126,56 @@ def submitter_platform(platform: str = sys.platform) -> str:
     return platform
 
 
-def _norm_path(text: str) -> str:
-    return text.replace("\\", "/").lower()
+#: Platforms whose file systems ignore case (NTFS, APFS by default): a path there matches a two-way variable's
+#: value in any case. Linux's do not: ``/mnt/Shots`` is not under ``/mnt/shots``.
+CASE_INSENSITIVE_PLATFORMS: frozenset[str] = frozenset({"windows", "darwin"})
+#: What the Manager replaces in a task's arguments when it hands the task out: ``{name}`` of any of its variables.
+#: Flamenco has no escape for it, so a plan argument holding one is refused.
+_VARIABLE_REFERENCE = re.compile(r"\{[^{}]*\}")
 
 
-def to_variables(arg: str, two_way: Mapping[str, str]) -> str:
+def _norm_path(text: str, fold_case: bool) -> str:
+    text = text.replace("\\", "/")
+    return text.lower() if fold_case else text
+
+
+def to_variables(arg: str, two_way: Mapping[str, str], platform: str | None = None) -> str:
     """ARG with a leading two-way variable value replaced by ``{name}``; unchanged when none matches.
 
-    As Flamenco: case-insensitive, Windows values also matched with forward slashes; the longest value wins,
-    and only a whole path component matches (``/mnt/a`` is not a prefix of ``/mnt/ab``)."""
-    norm = _norm_path(arg)
+    As Flamenco: Windows values also matched with forward slashes; the longest value wins, and only a whole path
+    component matches (``/mnt/a`` is not a prefix of ``/mnt/ab``). Case is ignored only where the submitting
+    PLATFORM's file systems ignore it (``CASE_INSENSITIVE_PLATFORMS``; default: this machine's)."""
+    fold = (platform or submitter_platform()) in CASE_INSENSITIVE_PLATFORMS
+    norm = _norm_path(arg, fold)
     for name, value in sorted(two_way.items(), key=lambda item: -len(item[1])):
-        prefix = _norm_path(value).rstrip("/")
+        prefix = _norm_path(value, fold).rstrip("/")
         if prefix and (norm == prefix or norm.startswith(prefix + "/")):
             return "{" + name + "}" + arg[len(prefix) :]
     return arg
 
 
-def plan_setting(shot: str, tasks: Sequence[PlanTask], two_way: Mapping[str, str] | None = None) -> str:
-    """The ``plan`` setting of SHOT's job: its tasks as JSON, paths mapped to two-way variables."""
+def _check_literal(shot: str, task_id: str, arg: str) -> None:
+    """Refuse an argument the Manager would rewrite: ``{name}`` in it is replaced by the variable ``name`` (when
+    the Manager or a later configuration defines one) and cannot be escaped."""
+    found = _VARIABLE_REFERENCE.search(arg)
+    if found:
+        raise InputError(
+            None,
+            f"shot {shot}: task {task_id}: the argument {arg!r} holds {found.group(0)}, which a Flamenco Manager "
+            "replaces with its variable of that name (Flamenco has no escape for it)",
+            "rename that file or folder without {...}, or submit with `farm openjd` or `farm dask`",
+        )
+
+
+def plan_setting(
+    shot: str, tasks: Sequence[PlanTask], two_way: Mapping[str, str] | None = None, platform: str | None = None
+) -> str:
+    """The ``plan`` setting of SHOT's job: its tasks as JSON, paths mapped to two-way variables (as PLATFORM's
+    paths; default: this machine's)."""
     ids = {task.id for task in tasks}
+    for task in tasks:
+        for arg in task.args:
+            _check_literal(shot, task.id, arg)
     for task in tasks:
         outside = [dep for dep in task.depends if dep not in ids]
         if outside:
@@ -161,7 +192,7 @@ def plan_setting(shot: str, tasks: Sequence[PlanTask], two_way: Mapping[str, str
             {
                 "id": task.id,
                 "kind": task.kind,
-                "args": [to_variables(arg, mapping) for arg in task.args],
+                "args": [to_variables(arg, mapping, platform) for arg in task.args],
                 "depends": list(task.depends),
                 "accelerator": bool(task.accelerator),
             }
@@ -189,12 +220,13 @@ def submitted_job(
 ) -> dict[str, Any]:
     """Flamenco's ``SubmittedJob`` for one shot (name, type, priority, settings, metadata, submitter_platform,
     type_etag when known)."""
+    platform = platform or submitter_platform()
     job: dict[str, Any] = {
         "name": shot,
         "type": C.FLAMENCO_JOB_TYPE,
         "priority": int(priority),
-        "submitter_platform": platform or submitter_platform(),
-        "settings": {SHOT_SETTING: shot, PLAN_SETTING: plan_setting(shot, tasks, two_way)},
+        "submitter_platform": platform,
+        "settings": {SHOT_SETTING: shot, PLAN_SETTING: plan_setting(shot, tasks, two_way, platform)},
         "metadata": {"user.name": _user_name(), "neural_atlas.shot": shot, "neural_atlas.tasks": str(len(tasks))},
     }
     if type_etag:
@@ -355,6 +387,10 @@ def submit_plan(
     One progress line per shot and step through EMIT."""
     if not 0 <= priority <= 100:
         raise InputError(None, f"--priority {priority} is outside 0..100", "give a Flamenco priority from 0 to 100")
+    for shot in plan.shots:  # before the Manager is asked anything: a refused name submits nothing
+        for task in plan.shot_tasks(shot):
+            for arg in task.args:
+                _check_literal(shot, task.id, arg)
     manager = Manager(manager_url, timeout)
     platform = platform or submitter_platform()
     job_type = fetch_job_type(manager)

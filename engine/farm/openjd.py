@@ -18,6 +18,13 @@ A bundle is a folder of three files (JSON, which every OpenJD and Deadline Cloud
 The step commands are the plan's command lines with each path replaced by its parameter (``farm plan`` shows
 them); the task parameter substitutes the chunk's frames. ``openjd run`` does not look at host requirements, so a
 bundle with GPU requirements still runs on a CPU host locally.
+
+OpenJD evaluates ``{{...}}`` in every string of a template and has no escape for it, but never evaluates a
+parameter's value. So a literal of the plan that holds a brace (a file named ``{{x}}.####.exr``, a colour space,
+the job's name) is not written into the template: it becomes a STRING job parameter (``Text1``, ...) whose value is
+that literal, and the template names the parameter. Every template is checked with the OpenJD model library (what
+``openjd check`` and Deadline Cloud run) together with its parameter values before anything is written, so a bundle
+they would refuse is never written.
 """
 
 from __future__ import annotations
@@ -25,6 +32,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import unicodedata
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -50,6 +58,15 @@ FRAMES_PARAMETER = "Frames"
 GPU_AMOUNT = "amount.worker.gpu"
 DEFAULT_PYTHON = "python3"
 _IDENTIFIER_MAX = 64
+#: The job parameters that carry the plan's literals holding a brace: Text1, Text2, ...
+TEXT_PARAMETER_PREFIX = "Text"
+#: OpenJD's limits (jobtemplate-2023-09): tasks of a step's list-form task parameter, characters of a
+#: parameter's value, characters of a job name.
+MAX_STEP_TASKS = 1024
+MAX_PARAMETER_VALUE = 1024
+MAX_JOB_NAME = 128
+#: What OpenJD would read as the start or end of an expression in a template string.
+_BRACES = re.compile(r"[{}]")
 
 
 @dataclass
@@ -74,9 +91,22 @@ class _PathParameter:
 
 @dataclass
 class _Parameters:
-    """The job's PATH parameters, and how to write a path of the plan through them."""
+    """The job's PATH parameters and its literal-carrying STRING parameters, and how to write an argument of the
+    plan through them."""
 
     paths: list[_PathParameter] = field(default_factory=list)
+    texts: dict[str, str] = field(default_factory=dict)
+    """Literal value -> its STRING parameter's name, in order of first use."""
+
+    def literal(self, text: str) -> str:
+        """``text`` as a template string that resolves to exactly ``text``: itself, or, when it holds a brace
+        (which OpenJD would read as an expression and has no escape for), a parameter holding it."""
+        if not _BRACES.search(text):
+            return text
+        name = self.texts.get(text)
+        if name is None:
+            name = self.texts[text] = f"{TEXT_PARAMETER_PREFIX}{len(self.texts) + 1}"
+        return f"{{{{Param.{name}}}}}"
 
     def add(self, prefix: str, shot: str, value: str, object_type: str, data_flow: str, description: str) -> None:
         name = _identifier(f"{prefix}_{shot}")
@@ -92,8 +122,8 @@ class _Parameters:
                 return f"{{{{Param.{p.name}}}}}"
             if arg.startswith(p.value.rstrip(os.sep) + os.sep):
                 rest = arg[len(p.value.rstrip(os.sep)) + 1 :]
-                return f"{{{{Param.{p.name}}}}}/{rest.replace(os.sep, '/')}"
-        return arg
+                return f"{{{{Param.{p.name}}}}}/{self.literal(rest.replace(os.sep, '/'))}"
+        return self.literal(arg)
 
 
 def write_bundle(
@@ -113,7 +143,13 @@ def write_bundle(
         raise InputError(folder, "is a file, not a folder", "pass a folder for the bundle with --out")
     params = _parameters(shot_plans)
     template = job_template(plan, params, name=name, gpu=gpu, python=python, engine_path=engine_path)
-    values = {PYTHON_PARAMETER: python, ENGINE_PATH_PARAMETER: engine_path, **{p.name: p.value for p in params.paths}}
+    values = {
+        PYTHON_PARAMETER: python,
+        ENGINE_PATH_PARAMETER: engine_path,
+        **{p.name: p.value for p in params.paths},
+        **{parameter: text for text, parameter in params.texts.items()},
+    }
+    check_bundle(template, values)
     folder.mkdir(parents=True, exist_ok=True)
     files = []
     for file, data in (
@@ -133,6 +169,8 @@ def job_template(
 ) -> dict[str, Any]:
     """The job template: the parameters, an environment that puts the engine on PYTHONPATH, and the steps."""
     steps = {task.id: step_name(task) for task in plan.tasks}
+    job_name = params.literal(_job_name(name))
+    built = [_step(step, tasks, steps, params, gpu) for step, tasks in steps_of(plan)]
     definitions: list[dict[str, Any]] = [
         {
             "name": PYTHON_PARAMETER,
@@ -148,10 +186,19 @@ def job_template(
             "description": "the folder holding engine/ on the workers (PYTHONPATH); empty when the engine is installed",
         },
         *(p.definition() for p in params.paths),
+        *(
+            {
+                "name": parameter,
+                "type": "STRING",
+                "minLength": 0,
+                "description": "a literal of the plan (it holds a brace)",
+            }
+            for parameter in params.texts.values()
+        ),
     ]
     return {
         "specificationVersion": SPECIFICATION_VERSION,
-        "name": name[:128],
+        "name": job_name,
         "parameterDefinitions": definitions,
         "jobEnvironments": [
             {
@@ -160,8 +207,62 @@ def job_template(
                 "variables": {"PYTHONPATH": f"{{{{Param.{ENGINE_PATH_PARAMETER}}}}}"},
             }
         ],
-        "steps": [_step(step, tasks, steps, params, gpu) for step, tasks in steps_of(plan)],
+        "steps": built,
     }
+
+
+def _job_name(name: str) -> str:
+    """The job's name, at most MAX_JOB_NAME characters; a control character (a newline) is refused: OpenJD and
+    Deadline Cloud take none in a name."""
+    if any(unicodedata.category(c) == "Cc" for c in name):
+        raise InputError(
+            None,
+            f"the job name {name!r} holds a control character (a newline or a tab)",
+            "give --name a name on one line (the default is the shots file's name)",
+        )
+    return name[:MAX_JOB_NAME]
+
+
+def check_bundle(template: dict[str, Any], values: dict[str, str]) -> None:
+    """Check ``template`` with ``values`` as ``openjd check`` and ``openjd run`` do (the OpenJD model library):
+    a bundle the farm would refuse is refused here, in one line, before it is written."""
+    try:
+        from openjd.model import (
+            DecodeValidationError,
+            ParameterValue,
+            ParameterValueType,
+            create_job,
+            decode_job_template,
+        )
+    except ImportError as exc:
+        raise InputError(
+            None,
+            f"farm openjd needs the OpenJD model library ({exc})",
+            'install the farm extra: pip install "neural-atlas[farm]"',
+        ) from None
+    for name, value in values.items():
+        if len(value) > MAX_PARAMETER_VALUE:
+            raise InputError(
+                value[:80] + "...",
+                f"is {len(value)} characters: OpenJD takes at most {MAX_PARAMETER_VALUE} in the value of {name}",
+                "move the plate, masks, run or render folder to a shorter path",
+            )
+    kinds = {p["name"]: p["type"] for p in template["parameterDefinitions"]}
+    try:
+        job_template = decode_job_template(template=template)
+        create_job(
+            job_template=job_template,
+            job_parameter_values={
+                k: ParameterValue(type=ParameterValueType(kinds[k]), value=v) for k, v in values.items()
+            },
+        )
+    except (DecodeValidationError, ValueError) as exc:
+        problem = " ".join(str(exc).split())
+        raise InputError(
+            None,
+            f"the OpenJD bundle would be refused ({problem[:400]})",
+            "rename what the message names, or report it with the shots file",
+        ) from None
 
 
 def step_name(task: Task) -> str:
@@ -184,6 +285,15 @@ def _step(step: str, tasks: list[Task], steps: dict[str, str], params: _Paramete
     body: dict[str, Any] = {"name": step}
     if first.kind in CHUNKED_KINDS:
         ranges = [f"{t.frames[0]}-{t.frames[1]}" for t in tasks if t.frames is not None]
+        if len(ranges) > MAX_STEP_TASKS:
+            key = "export_chunk" if first.kind != "render" else "render_chunk"
+            frames = sum(t.frames[1] - t.frames[0] + 1 for t in tasks if t.frames is not None)
+            raise InputError(
+                None,
+                f"shot {first.shot}: {len(ranges)} {first.kind} chunks, more than the {MAX_STEP_TASKS} tasks OpenJD "
+                "takes in a step",
+                f"give the shot {key} = {-(-frames // MAX_STEP_TASKS)} or more",
+            )
         body["parameterSpace"] = {
             "taskParameterDefinitions": [{"name": FRAMES_PARAMETER, "type": "STRING", "range": ranges}]
         }

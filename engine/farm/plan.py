@@ -23,12 +23,14 @@ from __future__ import annotations
 
 import os
 import re
+import shlex
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
 from engine import contract as C
 from engine.errors import InputError
+from engine.export.stage_record import continues_fit
 from engine.farm.shots import Shot, ShotsFile, load_shots
 
 MASKS, FIT, ATLASES, PASSES, PUBLISH = "masks", "fit", "atlases", "passes", "publish"
@@ -230,7 +232,9 @@ def next_version(run: str | Path) -> str:
         pass
     newest = max(taken)
     published = (folder / C.EXPORT_VERSION_FORMAT.format(newest)).exists()
-    if newest in chunked and not published:
+    # one staged from another fit (a refine since) is left: its stages refuse to mix two fits into one version
+    chunks = folder / f".{C.EXPORT_VERSION_FORMAT.format(newest)}{C.EXPORT_CHUNKS_SUFFIX}"
+    if newest in chunked and not published and continues_fit(Path(run), chunks):
         return C.EXPORT_VERSION_FORMAT.format(newest)
     return C.EXPORT_VERSION_FORMAT.format(newest + 1)
 
@@ -276,7 +280,9 @@ def _option(flag: str, value: object) -> list[str]:
 
 
 def task_graph_text(plan: Plan) -> str:
-    """The plan as indented text, one task per line with what it waits for (``farm plan`` without --json)."""
+    """The plan as indented text, one task per line with what it waits for (``farm plan`` without --json); each
+    command as a POSIX shell would run it (quoted where a name has spaces, quotes, ``$`` or newlines), so a line
+    pasted into a shell runs exactly that task."""
     lines = []
     for shot in plan.shots:
         lines.append(f"{shot}:")
@@ -284,7 +290,7 @@ def task_graph_text(plan: Plan) -> str:
             gpu = " [gpu]" if t.accelerator else ""
             after = f"  <- {', '.join(t.depends)}" if t.depends else ""
             lines.append(f"  {t.id}{gpu}{after}")
-            lines.append(f"      python -m {C.CLI_MODULE} {' '.join(t.args)}")
+            lines.append(f"      {shlex.join(t.argv('python'))}")
     return "\n".join(lines)
 
 

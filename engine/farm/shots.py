@@ -28,7 +28,9 @@ import difflib
 import json
 import os
 import re
+import reprlib
 import tomllib
+import unicodedata
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -42,7 +44,8 @@ DEFAULT_EXPORT_CHUNK = 50
 DEFAULT_RENDER_CHUNK = 50
 #: render --format's choices.
 RENDER_FORMATS: tuple[str, ...] = ("exr", "png", "plate")
-#: --device's choices (cuda:N too).
+#: --device's choices: exactly what the engine's fit and export take (engine/fit/device.py), so the plan refuses
+#: what a worker would (a GPU of several is chosen with CUDA_VISIBLE_DEVICES on the worker, not cuda:N).
 DEVICES: tuple[str, ...] = ("auto", "cpu", "cuda", "mps")
 #: A shot's name becomes task ids, OpenJD step names and a folder name: a portable, short identifier.
 NAME_PATTERN = re.compile(rf"^[A-Za-z0-9][A-Za-z0-9_-]{{0,{C.SHOT_NAME_MAX - 1}}}$")
@@ -91,8 +94,15 @@ class ShotsFile:
 def load_shots(path: str | Path) -> ShotsFile:
     """Read and validate a shots file; ``InputError`` (one line: the file, the shot, the key, the fix) otherwise."""
     file = Path(os.path.abspath(os.path.expanduser(os.fspath(path))))
-    data = _parse(file)
-    return ShotsFile(file, parse_shots(data, file))
+    try:
+        data = _parse(file)
+        return ShotsFile(file, parse_shots(data, file))
+    except RecursionError:  # the decoders (and a repr of the value) recurse once per level: one line, no traceback
+        raise InputError(
+            file,
+            "nests lists or tables too deeply to be a shots file",
+            f"write {C.SHOTS_TAG}, a [{C.SHOTS_DEFAULTS_KEY}] table and one table per shot (docs/farm.md)",
+        ) from None
 
 
 def parse_shots(data: Any, file: Path) -> tuple[Shot, ...]:
@@ -130,6 +140,7 @@ def parse_shots(data: Any, file: Path) -> tuple[Shot, ...]:
         _check_keys(file, where, entry, C.SHOT_KEYS)
         shots.append(_shot(file, where, {**defaults, **entry}))
     _check_unique(file, shots)
+    _check_folders(file, shots)
     return tuple(shots)
 
 
@@ -205,13 +216,22 @@ def _shot(file: Path, where: str, entry: dict[str, Any]) -> Shot:
     overrides = tuple(v.text_list("set"))
     _check_overrides(file, where, preset, overrides)
     device = v.optional_text("device")
-    if device is not None and device not in DEVICES and not re.fullmatch(r"cuda:\d+", device):
-        raise InputError(file, f"{where}: 'device' is {device!r}", f"use one of {', '.join(DEVICES)} or cuda:N")
+    if device is not None and device not in DEVICES:
+        raise InputError(
+            file,
+            f"{where}: 'device' is {device!r}",
+            f"use one of {', '.join(DEVICES)} (pick one GPU of several with CUDA_VISIBLE_DEVICES on the worker)",
+        )
     fps = v.rate("fps")
-    run = v.optional_path("run", folder) or os.path.join(folder, RUNS_DIR, name)
+    colorspace = v.optional_text("colorspace")
+    if colorspace is not None:
+        _check_colorspace(file, where, colorspace)
+    low, high = C.ATLAS_SIZE_RANGE
+    atlas_size = v.count("atlas_size", None, low)
+    if atlas_size is not None and atlas_size > high:
+        raise InputError(file, f"{where}: 'atlas_size' is {atlas_size}", f"give atlas_size {low}..{high} (paper: 1000)")
+    run = v.optional_path("run", folder) or _utf8_path(file, where, "run", os.path.join(folder, RUNS_DIR, name))
     render = v.optional_path("render", folder)
-    if render is not None:
-        _check_render(file, where, render, run, plate)
     return Shot(
         name=name,
         plate=plate,
@@ -219,14 +239,14 @@ def _shot(file: Path, where: str, entry: dict[str, Any]) -> Shot:
         masks=masks,
         auto_masks=auto,
         frames=v.frames("frames"),
-        colorspace=v.optional_text("colorspace"),
+        colorspace=colorspace,
         fps=fps,
         start_frame=v.count("start_frame", None, 0),
         render=render,
         preset=preset,
         set=overrides,
         device=device,
-        atlas_size=v.count("atlas_size", None, 1),
+        atlas_size=atlas_size,
         export_chunk=v.count("export_chunk", DEFAULT_EXPORT_CHUNK, 1) or DEFAULT_EXPORT_CHUNK,
         render_chunk=v.count("render_chunk", DEFAULT_RENDER_CHUNK, 1) or DEFAULT_RENDER_CHUNK,
         render_format=v.choice("render_format", RENDER_FORMATS, None),
@@ -259,13 +279,67 @@ def _check_overrides(file: Path, where: str, preset: str, overrides: tuple[str, 
         raise InputError(file, f"{where}: 'set': {exc.problem}", exc.fix) from None
 
 
-def _check_render(file: Path, where: str, render: str, run: str, plate: str) -> None:
-    """render --out may be neither inside the run folder nor the plate's folder (the render verb refuses both)."""
-    out = Path(render)
-    plate_folder = Path(plate) if os.path.isdir(plate) else Path(plate).parent
-    if out == Path(run) or Path(run) in out.parents or out == plate_folder:
-        what = "inside the run folder" if out != plate_folder else "the plate's folder"
-        raise InputError(file, f"{where}: 'render' {render} is {what}", "choose a folder of its own for the frames")
+def _check_colorspace(file: Path, where: str, name: str) -> None:
+    """The colour space as the workers' fit resolves it (the OCIO config in ``$OCIO``, else the built-in one):
+    a name the config does not know fails here, not an hour into the farm."""
+    from engine.io.colour import resolve
+
+    try:
+        resolve(name, option="colorspace")
+    except InputError as exc:
+        raise InputError(file, f"{where}: 'colorspace' {_shown(name)}: {exc.path}: {exc.problem}", exc.fix) from None
+
+
+def plate_input(plate: str) -> str:
+    """What a plate reads: the folder of frames, the folder a sequence pattern lists, or the movie file (what an
+    output folder may not be, nor be inside, nor hold)."""
+    return plate if os.path.exists(plate) else os.path.dirname(plate)
+
+
+def _real(path: str) -> str:
+    """``path`` with every link resolved, as the file system sees it: two names of one folder compare equal."""
+    return os.path.normcase(os.path.realpath(path))
+
+
+def _check_folders(file: Path, shots: list[Shot]) -> None:
+    """No shot writes where any shot reads or writes: every run and render folder (by real path, through links)
+    is neither equal to, inside, nor around another shot's (or its own) plate folder, mask folders, run folder
+    or render folder. A render folder that is another plate's folder would put ``edit.*`` frames among that
+    plate's frames; a run folder inside another would be fitted over."""
+    places: list[tuple[Shot, str, str]] = []  # (shot, what, path); outputs first, in shot order
+    for shot in shots:
+        places.append((shot, "'run' folder", shot.run))
+        if shot.render is not None:
+            places.append((shot, "'render' folder", shot.render))
+    outputs = len(places)
+    for shot in shots:
+        places.append((shot, "'plate'", plate_input(shot.plate)))
+        places.extend((shot, f"'masks' folder {i + 1}", mask) for i, mask in enumerate(shot.masks))
+    real = [_real(path) for _s, _w, path in places]
+    for i in range(outputs):
+        shot, what, path = places[i]
+        for j, (other, other_what, other_path) in enumerate(places):
+            if j == i or (j < outputs and j < i):  # each pair of outputs once
+                continue
+            mine, theirs = real[i], real[j]
+            if mine == theirs:
+                relation = "is"
+            elif mine.startswith(theirs.rstrip(os.sep) + os.sep):
+                relation = "is inside"
+            elif theirs.startswith(mine.rstrip(os.sep) + os.sep):
+                relation = "holds"
+            else:
+                continue
+            whose = "its own" if other is shot else f"shot {other.name!r}'s"
+            plain = os.path.normcase(path) == mine and os.path.normcase(other_path) == theirs
+            seen = "" if plain else f" (through links: {_shown(mine)} and {_shown(theirs)})"
+            raise InputError(
+                file,
+                f"shot {shot.name!r}: the {what} {_shown(path)} {relation} {whose} {other_what} "
+                f"{_shown(other_path)}{seen}",
+                "give every run and render folder a place of its own, outside every plate, mask, run and render "
+                "folder of the shots file",
+            )
 
 
 def _check_unique(file: Path, shots: list[Shot]) -> None:
@@ -293,7 +367,7 @@ class _Values:
         value = self.table[key]
         return InputError(
             self.file,
-            f"{self.where}: '{key}' is {type(value).__name__} {value!r}, not {wanted}",
+            f"{self.where}: '{key}' is {type(value).__name__} {_SHORT.repr(value)}, not {wanted}",
             f"write e.g. {key} = {example}",
         )
 
@@ -301,6 +375,7 @@ class _Values:
         value = self.table[key]
         if not isinstance(value, str) or not value.strip():
             raise self._bad(key, "a non-empty string", '"..."')
+        _utf8(self.file, self.where, key, value)
         return value
 
     def optional_text(self, key: str) -> str | None:
@@ -313,13 +388,15 @@ class _Values:
         return value
 
     def path(self, key: str, folder: Path) -> str:
-        return _absolute(self.text(key), folder)
+        return _utf8_path(self.file, self.where, key, _absolute(self.text(key), folder))
 
     def optional_path(self, key: str, folder: Path) -> str | None:
         return self.path(key, folder) if key in self.table else None
 
     def path_list(self, key: str, folder: Path) -> list[str]:
-        return [_absolute(p, folder) for p in self.text_list(key)]
+        for item in self.text_list(key):
+            _utf8(self.file, self.where, key, item)
+        return [_utf8_path(self.file, self.where, key, _absolute(p, folder)) for p in self.text_list(key)]
 
     def flag(self, key: str, default: bool) -> bool:
         value = self.table.get(key, default)
@@ -358,9 +435,13 @@ class _Values:
         from engine.io.timing import parse_rate
 
         try:
-            parse_rate(text)
+            rate = parse_rate(text)
         except ValueError as exc:
             raise InputError(self.file, f"{self.where}: 'fps': {exc}", 'write e.g. fps = "24000/1001"') from None
+        if rate <= 0:  # a tiny rate rounds to 0 fps: the fit takes it, then divides by it
+            raise InputError(
+                self.file, f"{self.where}: 'fps' {text} is 0 frames per second", 'write e.g. fps = "24000/1001"'
+            )
         return text
 
     def frames(self, key: str) -> tuple[int, int] | None:
@@ -386,6 +467,36 @@ class _Values:
                 self.file, f"{self.where}: 'frames' {value!r} is reversed", f'write frames = "{last}-{first}"'
             )
         return first, last
+
+
+#: Values in messages: long or deeply nested ones cut short, so the message stays one short line.
+_SHORT = reprlib.Repr()
+_SHORT.maxlevel, _SHORT.maxstring, _SHORT.maxother = 3, 80, 80
+
+
+def _shown(text: str) -> str:
+    """``text`` for a one-line message: control characters (a newline in a folder's name) and bytes that are not
+    UTF-8 written as escapes, everything else as it is."""
+    text = text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    return "".join(f"\\x{ord(c):02x}" if unicodedata.category(c) == "Cc" else c for c in text)
+
+
+def _utf8(file: Path, where: str, key: str, text: str) -> None:
+    """Refuse text that is not UTF-8 (a name read from a non-UTF-8 file system): the farm's job files (JSON,
+    OpenJD templates, Flamenco's settings) are UTF-8 text and cannot carry it."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        raise InputError(
+            file,
+            f"{where}: '{key}' {_shown(text)} is not UTF-8 text",
+            "rename the file or folder with UTF-8 characters (farm job files are UTF-8 text)",
+        ) from None
+
+
+def _utf8_path(file: Path, where: str, key: str, path: str) -> str:
+    _utf8(file, where, key, path)
+    return path
 
 
 def _absolute(path: str, folder: Path) -> str:
