@@ -79,6 +79,54 @@ def test_an_exports_folder_linked_to_another_disk_takes_the_export(root):
     assert digest_outside(root.parent, run, disk) == before
 
 
+def _project_paint(manifest_path: Path, folder: Path) -> tuple[int, list[str], Path]:
+    """project-frame of a red rectangle on frame 1 through ``manifest_path``: (exit code, stderr lines, paint file)."""
+    import numpy as np
+
+    from engine.io.images import write_png
+
+    width, height = Manifest(manifest_path).data["clip"]["resolution"]
+    paint = np.zeros((height, width, 4), np.float32)
+    paint[1:-1, 1:-1] = (1.0, 0.2, 0.1, 1.0)
+    paint_file = write_png(folder / "paint.png", paint, 8)
+    code, err = run_cli(C.VERB_PROJECT_FRAME, manifest_path, "--frame", "1", "--edit", paint_file)
+    return code, err, paint_file
+
+
+def test_paint_lands_in_a_run_folder_that_is_a_link_to_another_disk(root):
+    """The whole run folder moved to another disk and linked back: painting through the link writes its ``edits/``
+    (a changed layer, its history copy) and nothing else outside the run changes."""
+    run = root / "run"
+    disk = root.parent / "other_disk" / "sh010_run"
+    disk.parent.mkdir()
+    shutil.move(run, disk)
+    run.symlink_to(disk, target_is_directory=True)
+    edits_before = {p.name: p.read_bytes() for p in (disk / C.EDITS_DIR).glob("*.png")}
+    before = digest_outside(root.parent, disk / C.EDITS_DIR, disk / C.RUN_LOCK, root.parent / "paint.png")
+    code, err, _ = _project_paint(run / C.EXPORTS_DIR / "v001" / C.MANIFEST_NAME, root.parent)
+    assert code == C.EXIT_OK, err
+    changed = {p.name for p in (disk / C.EDITS_DIR).glob("*.png") if p.read_bytes() != edits_before.get(p.name)}
+    assert changed, "the paint reached no edit layer of the run"
+    assert digest_outside(root.parent, disk / C.EDITS_DIR, disk / C.RUN_LOCK, root.parent / "paint.png") == before
+
+
+def test_painting_through_an_exports_folder_linked_elsewhere_is_one_line_and_writes_nothing(root):
+    """``exports/`` linked to another disk: export, preview and render read through it, but the export found there
+    is not under its run folder, so its edit paths lead out of the folders a manifest may write (the run's
+    ``edits/`` is found from where the manifest really is): project-frame refuses in one line, nothing changes."""
+    run = root / "run"
+    disk = root.parent / "other_disk" / "sh010_exports"
+    disk.parent.mkdir()
+    shutil.move(run / C.EXPORTS_DIR, disk)
+    (run / C.EXPORTS_DIR).symlink_to(disk, target_is_directory=True)
+    lock = disk / "v001" / C.RUN_LOCK  # the export is taken for its own run, and locked as one
+    before = digest_outside(root.parent, root.parent / "paint.png", lock)
+    code, err, _ = _project_paint(run / C.EXPORTS_DIR / "v001" / C.MANIFEST_NAME, root.parent)
+    assert code == C.EXIT_BAD_INPUT and len(err) == 1, err
+    assert "leaves the run folder's edits/ and this export" in err[0]
+    assert digest_outside(root.parent, root.parent / "paint.png", lock) == before
+
+
 def test_run_files_linked_out_are_replaced_by_a_refine_and_their_targets_are_untouched(root):
     """config, clip record, scene analysis, metrics and checkpoint, each a link to a file outside: the refine reads
     them through the links and writes its own config, metrics and checkpoint in their place (temp file + rename):
