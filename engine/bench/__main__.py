@@ -9,6 +9,9 @@ part of the product (its CLI is ``python -m engine``) and not in the extension z
     farm         shots one after another against the same shots through `farm dask` with local workers
     motion-scenes  synthetic clip folders (turning, deforming, small_fast, thin) with ground-truth tracks
     masks        the mask snap alone on every clip of a folder: degraded masks' IoU before and after
+    paint-tracks where paint on the exported atlases shows in each frame, scored against TAP-Vid tracks
+    flow-tracks  the baseline: chained DIS optical flow on the native plate, scored the same way
+    sharpness    the plate re-rendered from the exported atlas textures and passes: PSNR inside the mask
 """
 
 from __future__ import annotations
@@ -31,6 +34,9 @@ EXPECTED_PSNR = "expected-psnr"
 FARM = "farm"
 MOTION_SCENES = "motion-scenes"
 MASKS = "masks"
+PAINT_TRACKS = "paint-tracks"
+FLOW_TRACKS = "flow-tracks"
+SHARPNESS = "sharpness"
 PROG = "python -m engine.bench"
 
 BENCH_EPILOG = """\
@@ -125,6 +131,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_farm_parser(sub)
     _add_clips_parser(sub)
     _add_masks_parser(sub)
+    _add_scoring_parsers(sub)
     ms = sub.add_parser(
         MOTION_SCENES,
         help="synthetic clip folders (turning, deforming, small_fast, thin) with ground-truth tracks",
@@ -183,6 +190,88 @@ def _add_masks_parser(sub: argparse._SubParsersAction) -> None:
     m.add_argument("--seed", type=int, default=DEFAULT_SEED, help="seed of the dropped frames (default: 0)")
     m.add_argument("--reach", type=int, default=16, help="the snap's search in working pixels (default: 16)")
     m.add_argument("--out", default="masks_out", help="output folder (default: masks_out)")
+
+
+def _add_scoring_parsers(sub: argparse._SubParsersAction) -> None:
+    pt = sub.add_parser(
+        PAINT_TRACKS,
+        help="where paint on the exported atlases shows in each frame, scored against TAP-Vid tracks",
+        description="Read an export's native UV + alpha passes; each query takes the UV of the layer most opaque at "
+        "it, and in every other frame the pixel that layer covers (Z > 0.5) whose UV is nearest (sub-pixel). Prints "
+        "TAP-Vid delta_avg (native pixels and at 256x256); a frame where the layer covers nothing is a miss.",
+    )
+    pt.add_argument("manifest", metavar="EXPORT_MANIFEST", help="an export's manifest.json (or its folder)")
+    pt.add_argument("--tracks", required=True, metavar="NPZ", help="tracks_tapvid.npz of the exported clip")
+    pt.add_argument("--json", default=None, metavar="OUT", help="also write the full scores to this file")
+    ft = sub.add_parser(
+        FLOW_TRACKS,
+        help="the baseline: chained DIS optical flow on the native plate, scored against TAP-Vid tracks",
+        description="Chain OpenCV DIS flow (preset MEDIUM) on the native greyscale frames, forward and backward "
+        "from each query; prints TAP-Vid delta_avg as paint-tracks does.",
+    )
+    ft.add_argument("frames", metavar="FRAMES_DIR", help="the plate (its frames in order are the tracks' frames)")
+    ft.add_argument("--tracks", required=True, metavar="NPZ", help="tracks_tapvid.npz of the clip")
+    ft.add_argument("--json", default=None, metavar="OUT", help="also write the full scores to this file")
+    sh = sub.add_parser(
+        SHARPNESS,
+        help="the plate re-rendered from the exported atlas textures and passes: PSNR inside the mask",
+        description="Sample each exported atlas texture at the exported UVs (bilinear, as Map UV does), sum the "
+        "layers by their coverage and compare with the plate inside the mask: PSNR per frame, mean and pooled.",
+    )
+    sh.add_argument("manifest", metavar="EXPORT_MANIFEST", help="an export's manifest.json (or its folder)")
+    sh.add_argument("--plate", required=True, metavar="FRAMES", help="the plate the export was made from")
+    sh.add_argument("--masks", action="append", required=True, metavar="FOLDER", help="the object's masks")
+    sh.add_argument("--json", default=None, metavar="OUT", help="also write the full scores to this file")
+
+
+def _tracking_line(tool: str, report: dict) -> str:
+    def fmt(v: float | None) -> str:
+        return "–" if v is None else f"{v:.3f}"
+
+    return (
+        f"{tool}: delta_avg {fmt(report['delta_avg'])} (native px), {fmt(report['delta_avg_256'])} (256x256), "
+        f"{report['scored_points']} positions"
+    )
+
+
+def _paint_tracks(args: argparse.Namespace) -> int:
+    from engine.bench.paint_tracking import score_export
+    from engine.bench.report_file import read_tracks, write_report
+
+    report = score_export(args.manifest, read_tracks(args.tracks))
+    print(_tracking_line(PAINT_TRACKS, report) + f", {report['misses']} misses (layer covers nothing)")
+    if args.json:
+        print(str(write_report(args.json, PAINT_TRACKS, {**report, "tracks": str(args.tracks)}).resolve()))
+    return C.EXIT_OK
+
+
+def _flow_tracks(args: argparse.Namespace) -> int:
+    from engine.bench.flow_tracks import score_clip
+    from engine.bench.report_file import read_tracks, write_report
+
+    report = score_clip(args.frames, read_tracks(args.tracks))
+    print(_tracking_line(FLOW_TRACKS, report))
+    if args.json:
+        print(str(write_report(args.json, FLOW_TRACKS, {**report, "tracks": str(args.tracks)}).resolve()))
+    return C.EXIT_OK
+
+
+def _sharpness(args: argparse.Namespace) -> int:
+    from engine.bench.report_file import write_report
+    from engine.bench.sharpness import atlas_sharpness
+
+    report = atlas_sharpness(args.manifest, args.plate, args.masks)
+
+    def fmt(v: float | None) -> str:
+        return "–" if v is None else f"{v:.2f} dB"
+
+    print(
+        f"{SHARPNESS}: masked PSNR mean {fmt(report['psnr_mean'])}, pooled {fmt(report['psnr_pooled'])}, "
+        f"{report['frames_scored']} frames"
+    )
+    if args.json:
+        print(str(write_report(args.json, SHARPNESS, report).resolve()))
+    return C.EXIT_OK
 
 
 def _masks(args: argparse.Namespace) -> int:
@@ -343,6 +432,9 @@ def main(argv: list[str] | None = None) -> int:
         FARM: _farm,
         MOTION_SCENES: _motion_scenes,
         MASKS: _masks,
+        PAINT_TRACKS: _paint_tracks,
+        FLOW_TRACKS: _flow_tracks,
+        SHARPNESS: _sharpness,
     }
     if args.tool not in tools:
         parser.print_help()

@@ -5,7 +5,8 @@ recipe (``engine.bench.degrade``) into ``OUT/masks/RECIPE/CLIP``; one preset is 
 masks by ``run_bench`` (one clip after another, each to its preset's steps unless a budget ends it first) and
 evaluated once at the end on every frame (by default): PSNR, the foreground alpha's IoU against the clip's own
 precise ``masks/`` (``fg_iou``, next to the given masks' own IoU against them), TAP-Vid delta_avg of atlas
-tracking and of chained optical flow. Writes
+tracking and of chained optical flow (and, in each row of ``clips.json``, of DIS flow on the native plate:
+``flow_tracks``). Writes
 ``OUT/runs/CLIP/bench.json`` (each clip's full record), ``OUT/clips.json`` (the table's rows) and
 ``OUT/clips.md`` (the table).
 """
@@ -21,6 +22,8 @@ from typing import Any
 
 from engine.bench.bench import BENCH_JSON, BenchClip, resolve_clip, run_bench
 from engine.bench.degrade import DEFAULT_SEED, masks_iou, recipe, write_degraded
+from engine.bench.flow_tracks import score_clip
+from engine.bench.report_file import read_tracks
 from engine.errors import InputError
 from engine.io.atomic import atomic_write_text
 
@@ -115,6 +118,16 @@ def clip_rows(record: dict) -> list[dict]:
     return rows
 
 
+def dis_flow_fields(clip: BenchClip) -> dict[str, float | None]:
+    """The clip's DIS-flow baseline on its native plate (``flow_tracks``), a stronger one than the working-resolution
+    chained flow of the table's column: row fields ``dis_flow_delta_avg`` (native px) and ``dis_flow_delta_avg_256``,
+    None without tracks."""
+    if clip.tracks is None:
+        return {"dis_flow_delta_avg": None, "dis_flow_delta_avg_256": None}
+    report = score_clip(clip.frames, read_tracks(clip.tracks))
+    return {"dis_flow_delta_avg": report["delta_avg"], "dis_flow_delta_avg_256": report["delta_avg_256"]}
+
+
 def mean_row(rows: list[dict]) -> dict:
     """The mean of each numeric column over the rows that have it (None where none has)."""
     out: dict[str, Any] = {"clip": "mean"}
@@ -179,7 +192,7 @@ def run_all_clips(
             plot=False,
             threads=threads,
         )
-        rows += clip_rows(record)
+        rows += [{**row, **dis_flow_fields(clip)} for row in clip_rows(record)]
         benches.append(f"runs/{clip.name}/{BENCH_JSON}")
     table = {
         CLIPS_TAG: CLIPS_VERSION,
@@ -204,6 +217,7 @@ __all__ = [
     "CLIPS_MD",
     "clip_rows",
     "degraded_clips",
+    "dis_flow_fields",
     "find_clips",
     "format_table",
     "mean_row",

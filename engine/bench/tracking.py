@@ -150,7 +150,42 @@ def scores_by_gap(
     return out
 
 
-def _sample_bilinear(field: np.ndarray, xy: np.ndarray) -> np.ndarray:
+def track_report(pred_native: np.ndarray, tracks: Tracks) -> dict:
+    """A tracker's TAP-Vid scores against ``tracks``: ``delta_avg`` in native pixels, ``delta_avg_256`` at TAP-Vid's
+    own 256x256 (the two differ a lot on a wide plate: 1 px at 256 is 3.3 native px across 854), ``by_gap`` and,
+    when the tracks know it, ``by_query_mask``. An infinite prediction (no position) counts as a miss."""
+    qt = np.rint(tracks.query_txy[:, 0]).astype(int)
+    w, h = tracks.image_size
+    native = tapvid_scores(pred_native, tracks.xy, tracks.occluded, qt)
+    s256 = tapvid_scores(
+        pred_native, tracks.xy, tracks.occluded, qt, scale=(TAPVID_EVAL_SIZE[0] / w, TAPVID_EVAL_SIZE[1] / h)
+    )
+    by_gap = scores_by_gap(pred_native, tracks.xy, tracks.occluded, qt)
+    for band in by_gap:  # a band whose median is a miss has no finite error to show
+        if band["median_px"] is not None and not np.isfinite(band["median_px"]):
+            band["median_px"] = None
+    out = {**native, "coords": "native", "delta_avg_256": s256["delta_avg"], "delta_256": s256["delta"]}
+    out["by_gap"] = by_gap
+    if tracks.on_mask is not None:
+        out["by_query_mask"] = {
+            name: {
+                "delta_avg": tapvid_scores(pred_native[sel], tracks.xy[sel], tracks.occluded[sel], qt[sel])[
+                    "delta_avg"
+                ],
+                "delta_avg_256": tapvid_scores(
+                    pred_native[sel],
+                    tracks.xy[sel],
+                    tracks.occluded[sel],
+                    qt[sel],
+                    scale=(TAPVID_EVAL_SIZE[0] / w, TAPVID_EVAL_SIZE[1] / h),
+                )["delta_avg"],
+            }
+            for name, sel in (("on_mask", tracks.on_mask), ("off_mask", ~tracks.on_mask))
+        }
+    return out
+
+
+def sample_bilinear(field: np.ndarray, xy: np.ndarray) -> np.ndarray:
     """``field`` [H, W, C] at continuous points ``xy`` [N, 2] (pixel centre i + 0.5), edge-clamped."""
     h, w = field.shape[:2]
     x = np.clip(xy[:, 0] - 0.5, 0.0, w - 1.0)
@@ -180,12 +215,12 @@ def chained_flow_tracks(
         sel = tq <= t
         if sel.any():
             p = out[sel, t]
-            out[sel, t + 1] = p + _sample_bilinear(forward[t], p)
+            out[sel, t + 1] = p + sample_bilinear(forward[t], p)
     for t in range(num_frames - 1, 0, -1):  # backward: frames before the query
         sel = tq >= t
         if sel.any():
             p = out[sel, t]
-            out[sel, t - 1] = p + _sample_bilinear(backward[t - 1], p)
+            out[sel, t - 1] = p + sample_bilinear(backward[t - 1], p)
     return out
 
 
@@ -392,8 +427,10 @@ __all__ = [
     "load_tracks",
     "mapping_consistency",
     "owners",
+    "sample_bilinear",
     "save_tracks",
     "scored_positions",
     "scores_by_gap",
     "tapvid_scores",
+    "track_report",
 ]
