@@ -7,7 +7,8 @@ part of the product (its CLI is ``python -m engine``) and not in the extension z
     scene-speed  what the scene analysis saves: one clip fitted with components=auto and components=all
     expected-psnr  a finished fit's PSNR as its preset's expected PSNR (engine/fit/expected_psnr.json)
     farm         shots one after another against the same shots through `farm dask` with local workers
-    motion-scenes  synthetic clip folders (turning, deforming, small_fast, thin) with ground-truth tracks
+    motion-scenes  synthetic clip folders with ground-truth tracks (turning, deforming, small_fast, thin,
+                   turning_depth, limbs_jump)
     masks        the mask snap alone on every clip of a folder: degraded masks' IoU before and after
     paint-tracks where paint on the exported atlases shows in each frame, scored against TAP-Vid tracks
     flow-tracks  the baseline: chained DIS optical flow on the native plate, scored the same way
@@ -134,7 +135,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_scoring_parsers(sub)
     ms = sub.add_parser(
         MOTION_SCENES,
-        help="synthetic clip folders (turning, deforming, small_fast, thin) with ground-truth tracks",
+        help="synthetic clip folders with ground-truth tracks (turning, deforming, small_fast, thin, turning_depth, "
+        "limbs_jump)",
         description="Write OUT/KIND/ for each scene: frames/, masks/, tracks_tapvid.npz and gt_uv.npz (the surface "
         "coordinate of every pixel), ready for `clips OUT`; see docs/accuracy-vs-time.md.",
     )
@@ -143,7 +145,7 @@ def build_parser() -> argparse.ArgumentParser:
     ms.add_argument("--height", type=int, default=272, help="frame height (default: 272)")
     ms.add_argument("--frames", type=int, default=36, help="frames per clip (default: 36)")
     ms.add_argument("--seed", type=int, default=0, help="texture seed (default: 0)")
-    ms.add_argument("--kinds", default=None, metavar="K,K,...", help="scenes to write (default: all four)")
+    ms.add_argument("--kinds", default=None, metavar="K,K,...", help="scenes to write (default: all six)")
     return p
 
 

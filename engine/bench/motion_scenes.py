@@ -1,6 +1,6 @@
 """Synthetic clips of the motions real clips show and a sliding sprite does not, with ground truth.
 
-Four scenes, each one kind of foreground motion over a textured plate under a mild camera pan (so optical flow has
+Six scenes, each one kind of foreground motion over a textured plate under a mild camera pan (so optical flow has
 texture everywhere to lock on to):
 
     turning     a textured cylinder spinning about its vertical axis while it drifts: texture on one side turns
@@ -9,15 +9,22 @@ texture everywhere to lock on to):
                 stretch): no similarity explains its motion
     small_fast  a small object (about 2% of the frame) on a curving path, 12 px or more per frame, spinning
     thin        a propeller-like cross of 3 px wide bars, turning while it drifts
+    turning_depth  an elongated textured body turning 180 degrees about its vertical axis under a pinhole camera:
+                from side-on through end-on to its other side, near parts larger, its two sides unlike each other
+    limbs_jump  a torso with two limbs swinging across it in opposite phase (one in front of it, one behind)
+                while the body jumps: parts hide each other and come back (``engine.bench.motion_bodies``)
 
 Every scene is a forward model with an exact inverse: ``surface(t, x, y)`` gives the surface coordinate (the
 object's texture coordinate, in texture pixels) and the anti-aliased coverage at any frame point, and
-``position(t, uv)`` where a surface point is in frame ``t`` and whether it faces the camera. Frames are rendered
+``position(t, uv)`` where a surface point is in frame ``t`` and whether the camera sees it. Frames are rendered
 by sampling the analytic textures (``engine.data.synthetic``'s plate and sprite, a periodic one for the cylinder)
 at the exact surface coordinate of every pixel, so a surface point has the same colour in every frame that shows
-it. The ground truth is the surface-coordinate field (``gt_uv.npz``: NaN where the object is not visible) and
-TAP-Vid tracks of points spread over the object (``tracks_tapvid.npz``), solved from the forward model, so
-``python -m engine.bench clips`` scores atlas tracking on them against chained optical flow with no other code.
+it. The ground truth is the surface-coordinate field (``gt_uv.npz``: NaN where the object is not visible), the
+texture itself (``texture.png``, one texel per surface unit: re-sampled through the field it gives the object's
+pixels) and TAP-Vid tracks of points spread over the object's parts (``tracks_tapvid.npz``), solved from the forward
+model, so ``python -m engine.bench clips`` scores atlas tracking on them against chained optical flow with no other
+code. ``masks/`` holds the exact visible object, ``masks_rough/`` the rough roto the ``clips`` bench makes of it by
+default (``engine.bench.degrade``), for fitting a clip by hand as the bench does.
 
 Conventions: a scene's own functions use points with pixel ``[y, x]`` at ``(x, y)`` (as ``engine.data.synthetic``);
 tracks, ``colour_at`` and ``uv_at`` use the tracks' convention, pixel ``i``'s centre at ``i + 0.5``.
@@ -37,6 +44,16 @@ from typing import Any
 import cv2
 import numpy as np
 
+from engine.bench.degrade import write_degraded
+from engine.bench.motion_bodies import (
+    Capsule,
+    LimbsJump,
+    TurningDepth,
+    atlas_texture,
+    solid_texture,
+)
+from engine.bench.motion_bodies import rotate as _rotate
+from engine.bench.motion_bodies import smooth_coverage as _smooth_coverage
 from engine.bench.tracking import Tracks, save_tracks
 from engine.data.synthetic import (
     _FG_SPOTS,
@@ -50,18 +67,22 @@ from engine.data.synthetic import (
     _textures,
     write_pngs,
 )
+from engine.io.images import cv2_write
 
 TURNING = "turning"
 DEFORMING = "deforming"
 SMALL_FAST = "small_fast"
 THIN = "thin"
-KINDS: tuple[str, ...] = (TURNING, DEFORMING, SMALL_FAST, THIN)
+TURNING_DEPTH = "turning_depth"
+LIMBS_JUMP = "limbs_jump"
+KINDS: tuple[str, ...] = (TURNING, DEFORMING, SMALL_FAST, THIN, TURNING_DEPTH, LIMBS_JUMP)
 #: Real-clip scale: the ``clips`` bench fits one of these in a few minutes with ``draft``.
 DEFAULT_SIZE = (480, 272)
 DEFAULT_FRAMES = 36
 #: Camera pan, px per frame (x, y): frame t shows the plate shifted by t * PAN.
 PAN = (1.0, 0.3)
-#: Tracks per scene, their query frames spread evenly over the clip (TRACKS / QUERY_FRAMES points each).
+#: Tracks per part of the object (one part but for limbs_jump), their query frames spread evenly over the clip
+#: (TRACKS / QUERY_FRAMES points of each part each).
 TRACKS = 16
 QUERY_FRAMES = 4
 #: A query point lies where the object covers its pixel fully (not on the anti-aliased rim).
@@ -69,8 +90,15 @@ FULL_COVERAGE = 0.999
 #: ...at least this far inside the object's mask (px), or half its thickness for a thinner object: a point on the
 #: rim is half background.
 QUERY_MARGIN_PX = 4.0
+#: Of an object in several parts, half of each query frame's points are ones hidden within this many frames of it
+#: (when there are such points): the tracks then ask for a point through its disappearance and return.
+NEIGHBOUR_FRAMES = 3
 GT_UV_NPZ = "gt_uv.npz"
 TRACKS_NPZ = "tracks_tapvid.npz"
+TEXTURE_PNG = "texture.png"
+#: The rough roto written beside the exact masks: the ``clips`` bench's default recipe, with its default seed.
+ROUGH_MASKS = "masks_rough"
+ROUGH_RECIPE = "dilated10_dropped10"
 #: Zip members get this timestamp, so a rewritten clip's .npz files are byte-identical.
 ZIP_DATE = (1980, 1, 1, 0, 0, 0)
 _FRAME_NAME = re.compile(r"^\d{5}\.png$")
@@ -105,6 +133,30 @@ BAR_WIDTH = 3.0
 ARM_LENGTH = 0.3
 BAR_SPIN = 0.1
 BAR_DRIFT = (2.5, 0.4)
+#: turning_depth: the body's cross-section half axes and height (fractions of the frame height; at the axis' depth),
+#: the camera's distance from the axis (in half lengths: 3 makes the near end 1.5 times and the far end 0.75 times
+#: the scale of the axis when end-on), the turn over the whole clip and the axis' drift (px/frame).
+DEPTH_HALF_LENGTH = 0.3
+DEPTH_HALF_WIDTH = 0.15
+DEPTH_HEIGHT = 0.42
+CAMERA_DISTANCE = 3.0
+DEPTH_TURN_DEGREES = 180.0
+DEPTH_DRIFT = 1.5
+#: limbs_jump: the torso's and the limbs' segment lengths and radii (fractions of the frame height), the hinges
+#: (x in torso radii either side of its axis, y in torso lengths from its centre, up negative), the swing's
+#: amplitude either side of hanging down and its period (frames), the jump's height (fraction of the frame height)
+#: and period (frames), the drift (px/frame), and the texels between the parts' texture regions.
+TORSO_LENGTH = 0.3
+TORSO_RADIUS = 0.12
+LIMB_LENGTH = 0.36
+LIMB_RADIUS = 0.045
+HINGE = (0.35, -0.35)
+SWING_DEGREES = 35.0
+SWING_PERIOD = 24.0
+JUMP_HEIGHT = 0.12
+JUMP_PERIOD = 18.0
+LIMBS_DRIFT = 1.5
+ATLAS_GAP_PX = 8.0
 
 
 @dataclass(frozen=True)
@@ -126,18 +178,7 @@ class MotionSpec:
             raise ValueError(f"a motion scene needs at least 16x16 pixels and 2 frames: {self}")
 
 
-def _smooth_coverage(signed_distance: np.ndarray) -> np.ndarray:
-    """Anti-aliased coverage from a signed distance in px (> 0 inside): above one half exactly inside."""
-    c = np.clip(signed_distance + 0.5, 0.0, 1.0)
-    return c * c * (3.0 - 2.0 * c)
-
-
-def _rotate(x: np.ndarray, y: np.ndarray, angle: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    c, s = np.cos(angle), np.sin(angle)
-    return c * x - s * y, s * x + c * y
-
-
-# --- the four forward models -------------------------------------------------------------------------------
+# --- the first four scenes' forward models (the last two are engine.bench.motion_bodies') ------------------
 
 
 @dataclass(frozen=True)
@@ -174,6 +215,15 @@ class _Turning:
     drift: tuple[float, float]
     spin: float
     texture: _WrappedTexture
+    n_parts: int = 1
+
+    @property
+    def u_period(self) -> float:
+        return 2.0 * np.pi * self.radius
+
+    @property
+    def texture_size(self) -> tuple[int, int]:
+        return int(np.ceil(self.u_period)), int(np.ceil(self.height)) + 1
 
     def _centre(self, t: float) -> tuple[float, float]:
         return self.centre0[0] + self.drift[0] * t, self.centre0[1] + self.drift[1] * t
@@ -218,6 +268,12 @@ class _Deforming:
     lean: float
     squash: float
     squash_period: float
+    n_parts: int = 1
+    u_period: float | None = None
+
+    @property
+    def texture_size(self) -> tuple[int, int]:
+        return self.sprite.size
 
     def _pose(self, t: float) -> tuple[float, float, float, float, float]:
         cx, cy = self.centre0[0] + self.drift[0] * t, self.centre0[1] + self.drift[1] * t
@@ -261,6 +317,12 @@ class _Rigid:
     path: Callable[[float], tuple[float, float]]
     spin: float
     shape: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+    n_parts: int = 1
+    u_period: float | None = None
+
+    @property
+    def texture_size(self) -> tuple[int, int]:
+        return self.sprite.size
 
     def surface(self, t: float, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         cx, cy = self.path(t)
@@ -283,7 +345,7 @@ class _Rigid:
         return np.ones(np.shape(x), bool)
 
 
-_Model = _Turning | _Deforming | _Rigid
+_Model = _Turning | _Deforming | _Rigid | TurningDepth | LimbsJump
 
 
 def _plate_spec(spec: MotionSpec, fg_size: tuple[int, int]) -> SceneSpec:
@@ -377,11 +439,56 @@ def _thin(spec: MotionSpec) -> tuple[_Model, SceneSpec]:
     return _Rigid(_textures(plate)[1], path, BAR_SPIN, cross), plate
 
 
+def _turning_depth(spec: MotionSpec) -> tuple[_Model, SceneSpec]:
+    w, h, t_last = spec.width, spec.height, spec.frames - 1
+    a, b, height = DEPTH_HALF_LENGTH * h, DEPTH_HALF_WIDTH * h, DEPTH_HEIGHT * h
+    texture = solid_texture(np.random.default_rng([spec.seed, 0xDE97]), a, b, height)
+    model = TurningDepth(
+        a,
+        b,
+        height,
+        CAMERA_DISTANCE * a,
+        -DEPTH_DRIFT * t_last / 2.0,  # world x = px from the optical axis at the axis' depth: centred mid-clip
+        DEPTH_DRIFT,
+        np.radians(DEPTH_TURN_DEGREES) / t_last,
+        ((w - 1) / 2.0, (h - 1) / 2.0),
+        texture,
+    )
+    return model, _plate_spec(spec, model.texture_size)
+
+
+def _limbs_jump(spec: MotionSpec) -> tuple[_Model, SceneSpec]:
+    w, h, t_last = spec.width, spec.height, spec.frames - 1
+    lt, rt, ll, rl, gap = TORSO_LENGTH * h, TORSO_RADIUS * h, LIMB_LENGTH * h, LIMB_RADIUS * h, ATLAS_GAP_PX
+    parts = (
+        Capsule(lt, rt, (gap, gap)),
+        Capsule(ll, rl, (2.0 * gap + 2.0 * rt, gap)),
+        Capsule(ll, rl, (3.0 * gap + 2.0 * rt + 2.0 * rl, gap)),
+    )
+    size = (int(np.ceil(4.0 * gap + 2.0 * rt + 4.0 * rl)), int(np.ceil(2.0 * gap + max(lt + 2 * rt, ll + 2 * rl))))
+    jump = JUMP_HEIGHT * h
+    model = LimbsJump(
+        parts,
+        (0.5 * w - LIMBS_DRIFT * t_last / 2.0, 0.5 * h + jump / 2.0),  # the arcs centred on the frame
+        LIMBS_DRIFT,
+        jump,
+        JUMP_PERIOD,
+        (HINGE[0] * rt, HINGE[1] * lt),
+        np.radians(SWING_DEGREES),
+        SWING_PERIOD,
+        atlas_texture(np.random.default_rng([spec.seed, 0x11B5]), parts, spots_per_part=4),
+        size,
+    )
+    return model, _plate_spec(spec, size)
+
+
 _BUILDERS: dict[str, Callable[[MotionSpec], tuple[_Model, SceneSpec]]] = {
     TURNING: _turning,
     DEFORMING: _deforming,
     SMALL_FAST: _small_fast,
     THIN: _thin,
+    TURNING_DEPTH: _turning_depth,
+    LIMBS_JUMP: _limbs_jump,
 }
 DESCRIPTIONS: dict[str, str] = {
     TURNING: f"a textured cylinder turning {TURN_DEGREES:g} degrees about its vertical axis while it drifts: its "
@@ -391,6 +498,11 @@ DESCRIPTIONS: dict[str, str] = {
     SMALL_FAST: f"a small object ({SMALL_AREA:.0%} of the frame) on a curving path at {SMALL_SPEED:g} px/frame or "
     "more, spinning",
     THIN: f"a propeller-like cross of {BAR_WIDTH:g} px wide bars, turning {BAR_SPIN:g} rad/frame while it drifts",
+    TURNING_DEPTH: f"an elongated textured body turning {DEPTH_TURN_DEGREES:g} degrees about its vertical axis under "
+    "a pinhole camera, from side-on through end-on to its other side: near parts larger, its front half leaves the "
+    "view and its back half enters",
+    LIMBS_JUMP: f"a torso with two limbs swinging {SWING_DEGREES:g} degrees either way in opposite phase, one in "
+    "front of it and one behind, while the body jumps: the limbs hide the torso and each other, and it comes back",
 }
 
 
@@ -408,6 +520,7 @@ class MotionScene:
     tracks: Tracks  # TAP-Vid tracks of points on the object, native pixels, centres at i + 0.5
     model: _Model
     background: _Background
+    texture: np.ndarray  # float32 [Ht, Wt, 3]: texel [j, i] is the surface's colour at uv (i, j)
 
     @property
     def name(self) -> str:
@@ -435,6 +548,8 @@ def _composite(
     model: _Model, t: int, x: np.ndarray, y: np.ndarray, plate: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The object over ``plate`` [..., 3] at frame points ``x``, ``y``: colour, surface coordinate, coverage."""
+    if isinstance(model, LimbsJump):  # parts over parts: each blends with its own coverage
+        return model.composite(t, x, y, plate)
     uv, cov = model.surface(t, x, y)
     img = plate.copy()
     inside = cov > 0.0
@@ -445,7 +560,8 @@ def _composite(
 
 
 def _render(spec: MotionSpec, model: _Model, background: _Background) -> tuple[np.ndarray, ...]:
-    """Frames, masks, the surface-coordinate field (NaN off the mask) and the coverage of every frame."""
+    """Frames, masks, the surface-coordinate field (NaN off the mask), the coverage and the part each pixel shows
+    (-1 off the mask) of every frame."""
     t_n, h, w = spec.frames, spec.height, spec.width
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
     xv, yv = np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)
@@ -453,13 +569,15 @@ def _render(spec: MotionSpec, model: _Model, background: _Background) -> tuple[n
     masks = np.empty((t_n, h, w), bool)
     uv_field = np.full((t_n, h, w, 2), np.nan, np.float32)
     cov_field = np.empty((t_n, h, w), np.float32)
+    part_field = np.empty((t_n, h, w), np.int8)
     for t in range(t_n):
         plate = background.grid(xv + spec.pan[0] * t, yv + spec.pan[1] * t)  # = background(xs + ..., ys + ...)
         frames[t], uv, cov = _composite(model, t, xs, ys, plate)
         masks[t] = cov > 0.5
         uv_field[t][masks[t]] = uv[masks[t]]
         cov_field[t] = cov
-    return frames, masks, uv_field, cov_field
+        part_field[t] = model.visible_part(t, xs, ys) if isinstance(model, LimbsJump) else np.where(masks[t], 0, -1)
+    return frames, masks, uv_field, cov_field, part_field
 
 
 def _spread(points: np.ndarray, k: int) -> np.ndarray:
@@ -476,26 +594,45 @@ def _spread(points: np.ndarray, k: int) -> np.ndarray:
     return np.asarray(chosen)
 
 
-def _ground_truth_tracks(spec: MotionSpec, model: _Model, cov: np.ndarray) -> Tracks:
-    """TRACKS points on the object, QUERY_FRAMES query frames spread over the clip, each query at a fully covered
-    pixel centre inside the object's mask by QUERY_MARGIN_PX; in every frame the point's exact position from the
-    forward model, occluded where it faces away, leaves the frame or falls off the object's coverage."""
+def _query_points(
+    spec: MotionSpec, model: _Model, tq: int, cov: np.ndarray, part: np.ndarray, p: int, count: int
+) -> list[np.ndarray]:
+    """``count`` query pixels [2] (x, y) of part ``p`` in frame ``tq``, spread over it: fully covered pixel centres
+    inside the part's visible region by QUERY_MARGIN_PX (or half its thickness). Of an object in several parts,
+    half of them among those hidden within NEIGHBOUR_FRAMES of ``tq``, where there are such."""
+    inside = (part == p).astype(np.uint8)
+    depth = cv2.distanceTransform(np.pad(inside, 1), cv2.DIST_L2, 5)[1:-1, 1:-1]
+    margin = min(QUERY_MARGIN_PX, 0.5 * float(depth.max()))
+    ys, xs = np.nonzero((cov >= FULL_COVERAGE) & (depth >= margin) & (inside > 0))
+    ok = model.query_ok(float(tq), xs.astype(np.float64), ys.astype(np.float64))
+    if isinstance(model, LimbsJump):  # a part seen in a sliver has no margin: no rim of a part in front either
+        ok &= model.unblended(float(tq), xs.astype(np.float64), ys.astype(np.float64))
+    pts = np.stack((xs[ok], ys[ok]), -1).astype(np.float64)
+    if model.n_parts == 1 or not len(pts):
+        return [pts[i] for i in _spread(pts, count)]
+    uv = model.surface(float(tq), pts[:, 0], pts[:, 1])[0]
+    hidden = np.zeros(len(pts), bool)
+    for t in range(max(0, tq - NEIGHBOUR_FRAMES), min(spec.frames, tq + NEIGHBOUR_FRAMES + 1)):
+        hidden |= ~model.position(float(t), uv)[1]
+    first = [pts[hidden][i] for i in _spread(pts[hidden], count // 2)]
+    return first + [pts[~hidden][i] for i in _spread(pts[~hidden], count - len(first))]
+
+
+def _ground_truth_tracks(spec: MotionSpec, model: _Model, cov: np.ndarray, part: np.ndarray) -> Tracks:
+    """TRACKS points on each part of the object, QUERY_FRAMES query frames spread over the clip (``_query_points``);
+    in every frame the point's exact position from the forward model, occluded where the camera does not see it
+    (it faces away, or a part in front hides it), it leaves the frame or falls off the object's coverage."""
     t_n, h, w = spec.frames, spec.height, spec.width
     query_frames = np.unique(np.rint(np.linspace(0, t_n - 1, QUERY_FRAMES)).astype(int))
     per = -(-TRACKS // len(query_frames))
     queries, uvs = [], []
     for tq in query_frames:
-        inside = (cov[tq] > 0.5).astype(np.uint8)
-        depth = cv2.distanceTransform(np.pad(inside, 1), cv2.DIST_L2, 5)[1:-1, 1:-1]
-        margin = min(QUERY_MARGIN_PX, 0.5 * float(depth.max()))
-        ys, xs = np.nonzero((cov[tq] >= FULL_COVERAGE) & (depth >= margin))
-        ok = model.query_ok(float(tq), xs.astype(np.float64), ys.astype(np.float64))
-        pts = np.stack((xs[ok], ys[ok]), -1).astype(np.float64)
-        for i in _spread(pts, per):
-            queries.append((tq, pts[i, 0] + 0.5, pts[i, 1] + 0.5))
-            uvs.append(model.surface(float(tq), pts[i, 0], pts[i, 1])[0])
-    query = np.asarray(queries, np.float64)[:TRACKS]
-    uv = np.asarray(uvs, np.float64)[:TRACKS]
+        for k in range(model.n_parts):
+            for x, y in _query_points(spec, model, int(tq), cov[tq], part[tq], k, per):
+                queries.append((tq, x + 0.5, y + 0.5))
+                uvs.append(model.surface(float(tq), x, y)[0])
+    query = np.asarray(queries, np.float64)[: TRACKS * model.n_parts]
+    uv = np.asarray(uvs, np.float64)[: TRACKS * model.n_parts]
     xy = np.empty((len(query), t_n, 2), np.float64)
     occluded = np.empty((len(query), t_n), bool)
     for t in range(t_n):
@@ -507,13 +644,21 @@ def _ground_truth_tracks(spec: MotionSpec, model: _Model, cov: np.ndarray) -> Tr
     return Tracks(xy.astype(np.float32), occluded, query.astype(np.float32), (w, h), np.ones(len(query), dtype=bool))
 
 
+def texture_image(model: _Model) -> np.ndarray:
+    """The object's texture, float32 [Ht, Wt, 3]: texel [j, i] is the colour of surface coordinate (i, j)."""
+    tw, th = model.texture_size
+    u, v = np.meshgrid(np.arange(tw, dtype=np.float64), np.arange(th, dtype=np.float64))
+    return np.clip(model.color(np.stack((u, v), -1)), 0.0, 1.0).astype(np.float32)
+
+
 def make_motion_scene(spec: MotionSpec | str, **kw: Any) -> MotionScene:
     """Render one motion scene: a ``MotionSpec``, or a kind name and ``MotionSpec`` fields (width=..., ...)."""
     spec = MotionSpec(spec, **kw) if isinstance(spec, str) else spec
     model, plate = _BUILDERS[spec.kind](spec)
     background = _textures(plate)[0]
-    frames, masks, uv, cov = _render(spec, model, background)
-    return MotionScene(spec, frames, masks, uv, _ground_truth_tracks(spec, model, cov), model, background)
+    frames, masks, uv, cov, part = _render(spec, model, background)
+    tracks = _ground_truth_tracks(spec, model, cov, part)
+    return MotionScene(spec, frames, masks, uv, tracks, model, background, texture_image(model))
 
 
 # --- files -------------------------------------------------------------------------------------------------
@@ -538,17 +683,21 @@ def _repack_fixed_date(path: Path) -> None:
 
 def write_motion_clip(scene: MotionScene, folder: str | Path) -> Path:
     """Write ``scene`` as a clip folder the ``clips`` bench reads: ``frames/00000.png ...`` (8-bit sRGB),
-    ``masks/00000.png ...`` (0/255), ``tracks_tapvid.npz`` and ``gt_uv.npz`` (``uv`` float32 [T, H, W, 2], NaN off
+    ``masks/00000.png ...`` (0/255), ``masks_rough/`` (the same masks degraded by ROUGH_RECIPE), ``texture.png``
+    (8-bit, the object's texture), ``tracks_tapvid.npz`` and ``gt_uv.npz`` (``uv`` float32 [T, H, W, 2], NaN off
     the object; ``kind``). Frame files of an earlier, longer clip there are removed; the same scene gives the
     same bytes. Returns the folder."""
     out = Path(folder)
-    frames_dir, masks_dir = out / "frames", out / "masks"
-    for d in (frames_dir, masks_dir):
+    frames_dir, masks_dir, rough_dir = out / "frames", out / "masks", out / ROUGH_MASKS
+    for d in (frames_dir, masks_dir, rough_dir):
         d.mkdir(parents=True, exist_ok=True)
         for old in d.iterdir():
             if _FRAME_NAME.match(old.name):
                 old.unlink()
     write_pngs(scene.frames, frames_dir, {masks_dir: scene.masks})
+    write_degraded(masks_dir, rough_dir, ROUGH_RECIPE)
+    texture8 = np.clip(np.rint(scene.texture * 255.0), 0, 255).astype(np.uint8)
+    cv2_write(out / TEXTURE_PNG, cv2.cvtColor(texture8, cv2.COLOR_RGB2BGR))
     save_tracks(out / TRACKS_NPZ, scene.tracks)
     np.savez_compressed(out / GT_UV_NPZ, uv=scene.uv, kind=np.asarray(scene.spec.kind))
     for name in (TRACKS_NPZ, GT_UV_NPZ):
@@ -575,9 +724,12 @@ __all__ = [
     "DESCRIPTIONS",
     "GT_UV_NPZ",
     "KINDS",
+    "ROUGH_MASKS",
+    "TEXTURE_PNG",
     "MotionScene",
     "MotionSpec",
     "make_motion_scene",
+    "texture_image",
     "write_motion_clip",
     "write_motion_clips",
 ]

@@ -1,5 +1,6 @@
 """The synthetic motion scenes: their ground truth agrees with their pixels, each shows the motion it is named for,
-the clip folders are byte-identical on rewrite, and the ``clips`` bench scores one end to end."""
+the clip folders are byte-identical on rewrite, and the ``clips`` bench scores one end to end. The two bodies of
+``engine.bench.motion_bodies`` have their own motion checked in tests/bench/test_motion_bodies.py."""
 
 from __future__ import annotations
 
@@ -15,7 +16,8 @@ from engine import contract as C
 from engine.bench.__main__ import build_parser
 from engine.bench.__main__ import main as bench_main
 from engine.bench.all_clips import run_all_clips
-from engine.bench.degrade import read_gt
+from engine.bench.degrade import RECIPES, degrade_mask, dropped_frames, read_gt
+from engine.bench.motion_bodies import LimbsJump, TurningDepth
 from engine.bench.motion_scenes import (
     ARM_LENGTH,
     BAR_WIDTH,
@@ -24,8 +26,12 @@ from engine.bench.motion_scenes import (
     DESCRIPTIONS,
     GT_UV_NPZ,
     KINDS,
+    ROUGH_MASKS,
+    ROUGH_RECIPE,
     SMALL_AREA,
     SMALL_SPEED,
+    TEXTURE_PNG,
+    TRACKS,
     TRACKS_NPZ,
     ZIP_DATE,
     MotionScene,
@@ -36,6 +42,8 @@ from engine.bench.motion_scenes import (
 from engine.bench.tracking import load_tracks
 
 SIZE = {"width": 128, "height": 96, "frames": 8}
+#: The texture re-sampled through the exact UV field (bicubic) matches the frames' unblended object pixels to this.
+TEXTURE_MIN_PSNR_DB = 40.0
 
 
 @pytest.fixture(scope="module")
@@ -49,10 +57,10 @@ def _centres(h: int, w: int) -> np.ndarray:
 
 
 def _wrapped(scene: MotionScene, duv: np.ndarray) -> np.ndarray:
-    """A difference of surface coordinates; the cylinder's arc length wraps round its circumference."""
-    if scene.spec.kind != "turning":
+    """A difference of surface coordinates; a turning body's u wraps round it."""
+    period = scene.model.u_period
+    if period is None:
         return duv
-    period = 2.0 * np.pi * scene.model.radius  # type: ignore[union-attr]
     out = duv.copy()
     out[..., 0] = (out[..., 0] + period / 2.0) % period - period / 2.0
     return out
@@ -64,6 +72,28 @@ def _px_error(scene: MotionScene, t: int, p: np.ndarray, duv: np.ndarray) -> flo
     eps = 1e-3
     cols = [(scene.uv_at(t, p + d)[0] - scene.uv_at(t, p - d)[0]) / (2 * eps) for d in np.eye(2) * eps]
     return float(np.hypot(*np.linalg.solve(np.stack(cols, -1), _wrapped(scene, duv))))
+
+
+def _unblended(scene: MotionScene, t: int, p: np.ndarray) -> np.ndarray:
+    """Where frame points ``p`` [..., 2] (centres at i + 0.5) show one surface's own colour: fully covered, and of
+    a body in parts, by the visible part alone (no part in front reaches them)."""
+    x, y = p[..., 0] - 0.5, p[..., 1] - 0.5
+    if isinstance(scene.model, LimbsJump):
+        return scene.model.unblended(t, x, y)
+    return np.asarray(scene.model.surface(t, x, y)[1] >= 0.999)
+
+
+def _one_surface_round(scene: MotionScene, t: int, p: np.ndarray) -> bool:
+    """The four pixels round ``p`` show one smooth piece of surface: bilinear interpolation of the field bends on a
+    turning body's foreshortened sides and mixes two parts' texture regions where parts meet."""
+    model = scene.model
+    if isinstance(model, TurningDepth):
+        return bool(model.facing_cos(t, scene.uv_at(t, p)[0]) > 0.5)
+    if isinstance(model, LimbsJump):
+        x0, y0 = np.floor(p - 0.5)
+        corners = np.array([[x0, y0], [x0 + 1, y0], [x0, y0 + 1], [x0 + 1, y0 + 1]])
+        return len(set(model.visible_part(t, corners[:, 0], corners[:, 1]).tolist())) == 1
+    return True
 
 
 def _bilinear(field: np.ndarray, xy: np.ndarray) -> np.ndarray:
@@ -101,7 +131,10 @@ def test_tracks_follow_the_surface_point(scenes, kind):
     scene = scenes[kind]
     tr = scene.tracks
     t_n = scene.spec.frames
-    assert tr.xy.shape == (16, t_n, 2) and tr.on_mask is not None and tr.on_mask.all()
+    n_tracks = len(tr.xy)
+    assert tr.xy.shape == (n_tracks, t_n, 2) and tr.on_mask is not None and tr.on_mask.all()
+    # TRACKS per part; a limb seen in a sliver at a query frame may have fewer unblended pixels than its share
+    assert n_tracks == TRACKS if scene.model.n_parts == 1 else 0.9 * TRACKS * scene.model.n_parts <= n_tracks
     assert len(np.unique(tr.query_txy[:, 0])) == 4 and tr.query_txy[:, 0].max() == t_n - 1
     checked_field = 0
     for n in range(len(tr.xy)):
@@ -114,10 +147,12 @@ def test_tracks_follow_the_surface_point(scenes, kind):
         assert qcov == pytest.approx(1.0, abs=1e-3)
         for t in np.flatnonzero(~tr.occluded[n]):
             p = tr.xy[n, t].astype(np.float64)
-            uv, cov = scene.uv_at(int(t), p)
+            uv = scene.uv_at(int(t), p)[0]
             assert _px_error(scene, int(t), p, uv - quv) < 1e-3  # the float32 of the stored position
-            if cov >= 0.999:
+            if _unblended(scene, int(t), p):
                 assert np.abs(scene.colour_at(int(t), p) - qcol).max() < 1e-3
+            if not _one_surface_round(scene, int(t), p):
+                continue
             if kind == "turning" and abs(p[0] - 0.5 - scene.model._centre(t)[0]) > 0.7 * scene.model.radius:  # type: ignore[union-attr]
                 continue  # the foreshortened limb: bilinear interpolation of the field bends there
             field_uv = _bilinear(scene.uv[t].astype(np.float64), p)
@@ -126,6 +161,27 @@ def test_tracks_follow_the_surface_point(scenes, kind):
             assert _px_error(scene, int(t), p, field_uv - quv) < 0.05
             checked_field += 1
     assert checked_field >= 30
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_the_texture_through_the_uv_field_gives_the_frames(scenes, kind):
+    """The true texture, sampled (bicubic) at the ground-truth UV of every unblended object pixel, is the frame
+    there: the atlas a perfect fit would hold, and the mapping that would show it."""
+    scene = scenes[kind]
+    tw, th = scene.model.texture_size
+    assert scene.texture.shape == (th, tw, 3)
+    pts = _centres(scene.spec.height, scene.spec.width)
+    for t in range(scene.spec.frames):
+        uv = np.nan_to_num(scene.uv[t], nan=-10.0)
+        resampled = cv2.remap(scene.texture, uv[..., 0], uv[..., 1], cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
+        # bicubic reads texels -1..+2 round the point: inside the texture only
+        keep = _unblended(scene, t, pts) & (uv[..., 0] >= 1) & (uv[..., 0] <= tw - 3)
+        keep &= (uv[..., 1] >= 1) & (uv[..., 1] <= th - 3)
+        assert keep.sum() > 100
+        mse = float(((resampled[keep] - scene.frames[t][keep]) ** 2).mean())
+        assert -10.0 * np.log10(mse) > TEXTURE_MIN_PSNR_DB
+        off = ~scene.masks[t]
+        assert np.abs(resampled[off] - scene.frames[t][off]).max() > 0.1  # the plate is not the texture
 
 
 def test_turning_hides_and_reveals_texture(scenes):
@@ -191,8 +247,8 @@ def test_clip_folder_is_written_byte_identical(tmp_path):
     scene = make_motion_scene(MotionSpec("thin", 64, 48, 5))
     a, b = write_motion_clip(scene, tmp_path / "a"), write_motion_clip(scene, tmp_path / "b")
     names = sorted(str(p.relative_to(a)) for p in a.rglob("*") if p.is_file())
-    pngs = [f"{d}/{t:05d}.png" for d in ("frames", "masks") for t in range(5)]
-    assert names == sorted([*pngs, GT_UV_NPZ, TRACKS_NPZ])
+    pngs = [f"{d}/{t:05d}.png" for d in ("frames", "masks", ROUGH_MASKS) for t in range(5)]
+    assert names == sorted([*pngs, GT_UV_NPZ, TRACKS_NPZ, TEXTURE_PNG])
     for n in names:
         assert (a / n).read_bytes() == (b / n).read_bytes(), n
     for npz in (GT_UV_NPZ, TRACKS_NPZ):
@@ -202,6 +258,8 @@ def test_clip_folder_is_written_byte_identical(tmp_path):
         np.testing.assert_array_equal(read_gt(a / "masks" / f"{t:05d}.png"), scene.masks[t])
         png = cv2.cvtColor(cv2.imread(str(a / "frames" / f"{t:05d}.png")), cv2.COLOR_BGR2RGB)
         np.testing.assert_array_equal(png, np.rint(scene.frames[t] * 255).astype(np.uint8))
+    texture = cv2.cvtColor(cv2.imread(str(a / TEXTURE_PNG)), cv2.COLOR_BGR2RGB)
+    np.testing.assert_array_equal(texture, np.rint(scene.texture * 255).astype(np.uint8))
     tracks = load_tracks(a / TRACKS_NPZ)
     visible = ~scene.tracks.occluded
     np.testing.assert_array_equal(tracks.occluded, scene.tracks.occluded)
@@ -209,6 +267,30 @@ def test_clip_folder_is_written_byte_identical(tmp_path):
     with np.load(a / GT_UV_NPZ) as d:
         np.testing.assert_array_equal(d["uv"], scene.uv)
         assert str(d["kind"]) == "thin"
+
+
+def test_rough_masks_are_the_clips_bench_default_recipe(tmp_path):
+    """masks_rough/ is the exact masks grown by 10 px with a tenth of the frames dropped (empty), the frames
+    ``clips`` drops with its default seed: what the bench fits, ready for a fit by hand."""
+    assert ROUGH_RECIPE == "dilated10_dropped10"
+    scene = make_motion_scene(MotionSpec("limbs_jump", 96, 64, 20))
+    folder = write_motion_clip(scene, tmp_path / "clip")
+    dropped = dropped_frames(20, RECIPES[ROUGH_RECIPE].drop_fraction, 0)
+    assert len(dropped) == 2 and 0 not in dropped
+    for t in range(20):
+        rough = read_gt(folder / ROUGH_MASKS / f"{t:05d}.png")
+        if t in dropped:
+            assert not rough.any()
+            continue
+        np.testing.assert_array_equal(rough, degrade_mask(scene.masks[t], RECIPES[ROUGH_RECIPE]))
+        assert rough[scene.masks[t]].all() and rough.sum() > 1.5 * scene.masks[t].sum()
+
+
+def test_a_shorter_rewrite_leaves_no_stale_frames(tmp_path):
+    write_motion_clip(make_motion_scene(MotionSpec("thin", 32, 24, 6)), tmp_path / "clip")
+    write_motion_clip(make_motion_scene(MotionSpec("thin", 32, 24, 4)), tmp_path / "clip")
+    for d in ("frames", "masks", ROUGH_MASKS):
+        assert sorted(p.name for p in (tmp_path / "clip" / d).iterdir()) == [f"{t:05d}.png" for t in range(4)]
 
 
 def test_the_cli_writes_the_chosen_scenes(tmp_path, capsys):
@@ -249,6 +331,8 @@ def test_descriptions_name_the_numbers():
     assert DESCRIPTIONS["turning"].startswith("a textured cylinder turning 200 degrees")
     assert "(2% of the frame)" in DESCRIPTIONS["small_fast"] and "12 px/frame" in DESCRIPTIONS["small_fast"]
     assert "3 px wide bars, turning 0.1 rad/frame" in DESCRIPTIONS["thin"] and "(6 px)" in DESCRIPTIONS["deforming"]
+    assert DESCRIPTIONS["turning_depth"].startswith("an elongated textured body turning 180 degrees")
+    assert "swinging 35 degrees either way" in DESCRIPTIONS["limbs_jump"]
 
 
 def test_unknown_kind_is_refused():
