@@ -54,12 +54,17 @@ def engine_python(verb: str, needs: str) -> str:
     return py
 
 
-def stand_in_pip(venv) -> None:
-    """``venv/bin/python``: prints pip's first line, then fails as pip does offline."""
+def stand_in_pip(venv, release: Path | None = None) -> None:
+    """``venv/bin/python``: prints pip's first line, then fails as pip does offline. With ``release``, it fails
+    only once that file exists (the test makes it when it has seen the first line), so the first line is on
+    screen until the test has seen it however loaded the machine is; after 300 s it fails anyway."""
     (venv / "bin").mkdir(parents=True)
     pip = venv / "bin" / "python"
+    hold = "" if release is None else f"while not os.path.exists({str(release)!r}) and time.monotonic() < end:\n"
     pip.write_text(
-        f"#!{sys.executable}\nimport sys, time\nprint('Collecting torch==2.13.0', flush=True)\ntime.sleep(0.3)\n"
+        f"#!{sys.executable}\nimport os, sys, time\nend = time.monotonic() + 300\n"
+        "print('Collecting torch==2.13.0', flush=True)\n"
+        f"{hold}{'    ' if hold else ''}time.sleep(0.01)\n"
         "print('ERROR: Could not find a version that satisfies the requirement torch==2.13.0', flush=True)\n"
         "sys.exit(1)\n"
     )

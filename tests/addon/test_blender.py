@@ -15,6 +15,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 import fake_export as X  # noqa: E402
+from cancel_at import cancel_at_step  # noqa: E402
 from helpers import RecordingLayout, drive_modal, fake_python, polygon_mask, shape_key_mask, stand_in_pip  # noqa: E402
 from mask_reference import rasterize_polygon  # noqa: E402
 from neural_atlas.addon import compat, preferences  # noqa: E402
@@ -350,8 +351,11 @@ def test_fit_operator_traceback_and_bad_input(fit_scene, monkeypatch):
 def test_fit_operator_cancel_then_resume(fit_scene, monkeypatch):
     props, _ = fit_scene
     monkeypatch.setenv("FAKE_ENGINE_MODE", "hang")
-    assert _fit(timeout=0.5) == {"CANCELLED"}
-    assert props.status.startswith("cancelled at step") and props.can_resume
+    with monkeypatch.context() as m:
+        pressed = cancel_at_step(m, 3)  # once the engine said step 3: its SIGTERM handler is in place
+        assert _fit() == {"CANCELLED"}
+    stopped = re.fullmatch(r"cancelled at step (\d+); Resume continues from the checkpoint", props.status)
+    assert pressed and stopped and int(stopped[1]) >= pressed[0] >= 3 and props.can_resume, props.status
     assert 0.0 < props.progress < 1.0  # the bar moved with the engine's progress lines (hang mode: total 1000)
     _fit_error("already holds a fit")  # a second plain fit refuses to overwrite the run
     assert "already holds a fit" in props.status
@@ -487,13 +491,16 @@ def test_setup_engine_modal_path_reports_progress_and_offline(blender, tmp_path)
     """The GUI path of Set up engine, driven by hand-made TIMER events; pip is a stand-in that fails offline."""
     blender.context.preferences.system.use_online_access = True  # factory settings have it off: no download
     venv = tmp_path / "venv"
-    stand_in_pip(venv)
+    seen = tmp_path / "seen"
+    stand_in_pip(venv, release=seen)  # pip's first line stays until the panel has shown it
     statuses = []
     cancel = []  # (Cancel's poll, the preferences draw Cancel) while it runs
 
     def events(tick, job):
         assert len(job.commands) == 1  # the environment exists: only the install runs
         statuses.append(job.status_text())
+        if "Collecting torch" in statuses[-1]:
+            seen.touch()
         cancel.append((bpy.ops.neural_atlas.cancel_setup.poll(), "neural_atlas.cancel_setup" in _preference_ops()))
         return "ESC" if tick == 1 else "TIMER"  # ESC does not stop it: pip goes on to its offline error
 

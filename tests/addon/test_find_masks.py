@@ -18,6 +18,7 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
+from cancel_at import cancel_at_step  # noqa: E402
 from helpers import drive_modal, engine_python, fake_python  # noqa: E402
 from neural_atlas.addon.core import needs, running  # noqa: E402
 from neural_atlas.addon.ops import fit as fit_ops  # noqa: E402
@@ -134,10 +135,14 @@ def test_find_masks_errors_name_the_fix_and_the_log(masks_scene, tmp_path, monke
     ):
         bpy.ops.neural_atlas.find_masks("EXEC_DEFAULT")
     monkeypatch.setenv("FAKE_ENGINE_MODE", "hang")
-    assert bpy.ops.neural_atlas.find_masks("EXEC_DEFAULT", timeout=0.3) == {"CANCELLED"}  # cancelled
+    with monkeypatch.context() as m:
+        pressed = cancel_at_step(m, 1)  # Cancel once the engine is under way: its first progress line
+        assert bpy.ops.neural_atlas.find_masks("EXEC_DEFAULT") == {"CANCELLED"}
+    assert len(pressed) == 1, pressed  # pressed once: the job stopped on it
     assert props.status == "Find Masks: cancelled. The layers are unchanged"
     assert len(props.layers) == 0 and running.jobs() == {}
     assert props.log_path == str(tmp_path / "run") + ".masks.log"
+    assert "cancel requested: SIGTERM" in Path(props.log_path).read_text()
 
 
 def test_find_masks_modal_path_with_timer_events(masks_scene, tmp_path):

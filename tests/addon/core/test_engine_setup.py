@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import sys
+import time
 
 from helpers import HERE, fake_python, stand_in_pip
 from neural_atlas.addon.core import engine_commands as EC
@@ -61,13 +62,17 @@ def test_setup_engine_offline_error_is_clear(tmp_path, monkeypatch):
 
 def test_setup_job_status_shows_pips_latest_line(tmp_path):
     venv = tmp_path / "venv"
-    stand_in_pip(venv)
+    seen = tmp_path / "seen"
+    stand_in_pip(venv, release=seen)  # pip's first line stays until this test has seen it
     job = ES.SetupJob(str(venv), ES.torch_choice(ES.TORCH_CPU, "linux"))
     assert [c.label for c in job.commands] == ["installing torch (CPU build) and the engine's packages (about 0.5 GB)"]
     job.start()
     statuses = []
     while job.step():
         statuses.append(job.status_text())
+        if statuses[-1].endswith(": Collecting torch==2.13.0"):
+            seen.touch()
+        time.sleep(0.01)
     assert any(s.startswith("1/1 installing torch") and s.endswith(": Collecting torch==2.13.0") for s in statuses)
     assert job.result is not None and "offline" in job.result.message and "setup.log" in job.result.message
 

@@ -5,10 +5,12 @@ stand-in engine cancelled (the line says the edit layers are as they were)."""
 
 from __future__ import annotations
 
+import datetime
 import os
 import re
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import fake_export as X
 import numpy as np
@@ -16,6 +18,7 @@ import pytest
 from helpers import engine_python, fake_python
 from neural_atlas.addon.core import engine_process as EP
 from neural_atlas.addon.core import frame_paint as FP
+from neural_atlas.addon.core import progress
 from neural_atlas.addon.core.needs import NO_IMPORT
 from neural_atlas.addon.core.project_job import ProjectFrameJob
 
@@ -39,13 +42,19 @@ def test_a_manifest_cannot_send_the_paint_outside_its_run_folder(tmp_path):
     assert "\n" not in str(exc.value)
 
 
-def test_a_landed_paint_is_kept_under_a_new_name_each_time():
+def test_a_landed_paint_is_kept_under_a_new_name_each_time(monkeypatch):
     path = "/run/edits/frames/frame.01002.png"
     assert FP.landed_file(path, "20261125-021500-000001") == (
         "/run/edits/frames/landed/frame.01002.20261125-021500-000001.png"
     )
-    a, b = FP.landed_file(path), (time.sleep(0.001), FP.landed_file(path))[1]
-    assert a != b and os.path.dirname(a) == "/run/edits/frames/landed"
+    # the stamp is the clock's, to the microsecond: a clock that ticks 1 us between two landings (not a sleep,
+    # whose new timestamp a coarse or stepped clock would not guarantee) gives two names
+    ticks = iter([datetime.datetime(2026, 11, 25, 2, 15, 0, 7), datetime.datetime(2026, 11, 25, 2, 15, 0, 8)])
+    monkeypatch.setattr(FP, "datetime", SimpleNamespace(datetime=SimpleNamespace(now=lambda: next(ticks))))
+    assert [FP.landed_file(path), FP.landed_file(path)] == [
+        "/run/edits/frames/landed/frame.01002.20261125-021500-000007.png",
+        "/run/edits/frames/landed/frame.01002.20261125-021500-000008.png",
+    ]
 
 
 def test_frames_without_passes_are_refused_in_one_line():
@@ -92,16 +101,37 @@ def test_the_engine_command_and_what_it_says_it_landed():
     assert FP.log_file("/shots/run/exports/v001/manifest.json") == "/shots/run.frame-paint.log"
 
 
-def _drive(job, limit: int = 3000) -> list[tuple[float, str]]:
+#: Seconds a job may take before the test gives up on it: a guard against a hang only (the real engine starts in
+#: seconds; a loaded 2-core machine can take ten times as long), never a measure of speed.
+HANG_SECONDS = 300.0
+
+
+def _drive(job) -> list[dict]:
+    """Start and step the job to its end as the modal timer does; every progress message it read, in order."""
     job.start()
-    seen = []
-    for _ in range(limit):
+    read = []
+    deadline = time.monotonic() + HANG_SECONDS
+    while time.monotonic() < deadline:
         more = job.step()
-        seen.append((job.fraction, job.status_text()))
+        read += job.process.messages
         if not more:
-            return seen
+            return read
         time.sleep(0.01)
-    raise AssertionError("the job never finished")
+    raise AssertionError(f"the job did not finish in {HANG_SECONDS:.0f} s")
+
+
+def _panel(job: ProjectFrameJob, messages: list[dict]) -> list[tuple[float, str]]:
+    """The bar and the line the panel shows once each stage is said (its stage line, then its progress line),
+    replayed on a job like ``job``: a timer tick sees only the latest of the messages that came since the last
+    tick, and how many came between two ticks depends on how loaded the machine is."""
+    replay = ProjectFrameJob("py", job.manifest, job.frame, job.paint)
+    replay.process = SimpleNamespace(state=progress.JobState())
+    shown = []
+    for msg in messages:
+        replay.state.apply(msg)
+        if msg["event"] == C.EVENT_PROGRESS:
+            shown.append((replay.fraction, replay.status_text()))
+    return shown
 
 
 def test_the_job_lands_paint_with_the_real_engine_and_shows_its_stages(tmp_path):
@@ -113,13 +143,16 @@ def test_the_job_lands_paint_with_the_real_engine_and_shows_its_stages(tmp_path)
     edit = tmp_path / "run" / "edits" / "Foreground.png"
     before = edit.read_bytes()
     job = ProjectFrameJob(python, str(manifest), 3, str(tmp_path / "paint.png"))
-    seen = _drive(job)
+    shown = _panel(job, _drive(job))
     assert job.result is not None and job.result.status == EP.STATUS_OK, job.result
     assert job.landed["Foreground"] == str(edit) and edit.read_bytes() != before
     assert len(list((edit.parent / "history").glob("Foreground.*.png"))) == 1
-    stages = [text for _, text in seen if text.startswith(FP.LAND_LABEL)]
-    assert any(" 1/3: reading" in t for t in stages) and any(" 3/3: writing" in t for t in stages), stages
-    assert max(f for f, _ in seen) == 2 / 3  # the last stage started: two of three done
+    assert shown == [
+        (0.0, f"{FP.LAND_LABEL} 1/3: reading the paint and the passes of frame 3"),
+        (1 / 3, f"{FP.LAND_LABEL} 2/3: projecting the paint into the atlases of the layers that own it"),
+        (2 / 3, f"{FP.LAND_LABEL} 3/3: writing {len(job.landed)} edit layer(s), the previous ones kept in history/"),
+    ]  # the last stage started: two of three done
+    assert (job.fraction, job.status_text()) == shown[-1]  # what the panel shows once the job has ended
     assert Path(job.log_path).read_text().count(C.VERB_PROJECT_FRAME) >= 1
 
 

@@ -42,6 +42,7 @@ from engine.errors import InputError
 from engine.io.clip import open_clip, read_masks
 from tests.folders import non_utf8_folder
 from tests.full_disk import PAGE_BYTES, run_on_full_disk
+from tests.media_files import write_movie
 from tests.paths import CLIPS, NO_CLIPS, ROOT
 
 DATA = CLIPS
@@ -237,18 +238,9 @@ def test_cli_no_foreground_writes_empty_masks(tmp_path, capsys):
 
 
 def test_cli_movie_masks_named_by_frame_number(tmp_path, capsys):
-    import av
-
     scene = make_scene(SMALL)
-    movie = tmp_path / "clip.mp4"
-    codec = "libx264" if "libx264" in av.codecs_available else "mpeg4"
-    with av.open(str(movie), "w") as container:
-        stream = container.add_stream(codec, rate=24)
-        stream.width, stream.height, stream.pix_fmt = SMALL.width, SMALL.height, "yuv420p"
-        for rgb in scene.frames:
-            frame = av.VideoFrame.from_ndarray(np.rint(rgb * 255).astype(np.uint8), format="rgb24")
-            container.mux(stream.encode(frame))
-        container.mux(stream.encode())
+    # write_movie's encoder gives the same bytes on every CPU, so the masks found in the decoded frames do too.
+    movie = write_movie(tmp_path / "clip.mp4", [np.rint(rgb * 255).astype(np.uint8) for rgb in scene.frames])
     out = tmp_path / "auto"
     assert main([C.VERB_MASKS, str(movie), "--out", str(out), "--frames", "1:4"]) == C.EXIT_OK
     assert sorted(p.name for p in out.iterdir()) == ["00001.png", "00002.png", "00003.png", "00004.png"]
@@ -301,10 +293,6 @@ def test_shared_clips_iou(clip, tmp_path, capsys):
 
 # --- faults: a full disk, a cancel, a name taken meanwhile, names that are not UTF-8 -------------------------
 
-#: A clip whose analysis takes more than a second after the verb says it started (1.4 s measured on 2 cores),
-#: so a SIGTERM sent when the stage line appears lands in the middle of it.
-SLOW = SceneSpec(width=384, height=288, frames=24)
-
 
 def _masks_argv(clip: Path, out: Path, *extra: str) -> list[str]:
     return [sys.executable, "-m", "engine", C.VERB_MASKS, str(clip), "--out", str(out), *extra]
@@ -338,29 +326,53 @@ def test_full_disk_is_one_line_exit_2_and_leaves_nothing(small_clip, tmp_path):
     assert sorted(roomy.left) == ["masks/", *sorted(f"masks/{p.name}" for p in frames_dir.iterdir())]
 
 
-@pytest.fixture(scope="module")
-def slow_clip(tmp_path_factory):
-    return write_scene(make_scene(SLOW), tmp_path_factory.mktemp("slow"))[0]
+#: A real ``masks`` child (``engine.cli.main`` on argv[1:]) that stops in the middle of its analysis, once the flow
+#: is computed, says so on stdout and waits there for the test's SIGTERM: the signal lands inside the analysis on
+#: every machine, however loaded (an analysis left to run on could end before a racing signal).
+_PAUSED_IN_THE_ANALYSIS = """
+import sys, time
+import engine.data.auto_masks as A
+from engine.cli import main
+
+real = A.compute_flow
+
+def compute_flow(*args, **kwargs):
+    flow = real(*args, **kwargs)
+    print("paused", flush=True)
+    time.sleep(600)  # the SIGTERM handler raises out of the sleep
+    return flow
+
+A.compute_flow = compute_flow
+sys.exit(main(sys.argv[1:]))
+"""
 
 
-def test_sigterm_during_the_analysis_exits_3_and_a_rerun_writes_the_set(slow_clip, tmp_path):
-    """SIGTERM to a real child once it says it is finding what moves: exit 3 with one line, no mask folder and
-    no staging folder; the same command again writes every mask."""
+def test_sigterm_during_the_analysis_exits_3_and_a_rerun_writes_the_set(small_clip, tmp_path):
+    """SIGTERM to a real child in the middle of finding what moves (after it said so): exit 3 with one line, no
+    mask folder and no staging folder; the same command again writes every mask."""
+    frames_dir, _ = small_clip
     out = tmp_path / "auto"
-    child = subprocess.Popen(
-        _masks_argv(slow_clip, out), cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-    )
+    argv = [sys.executable, "-c", _PAUSED_IN_THE_ANALYSIS, *_masks_argv(frames_dir, out)[3:]]
+    child = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert child.stdout is not None
-    stage = C.parse_progress_line(child.stdout.readline())
-    assert stage is not None and stage["stage"] == C.VERB_MASKS, stage
-    child.send_signal(signal.SIGTERM)
-    _, err = child.communicate(timeout=120)
+    said = []
+    try:
+        for line in child.stdout:
+            if line.strip() == "paused":
+                break
+            said.append(C.parse_progress_line(line))
+        else:
+            pytest.fail(f"the analysis ended without pausing: {child.communicate(timeout=300)}")
+        assert said and said[0] is not None and said[0]["stage"] == C.VERB_MASKS, said
+    finally:
+        child.send_signal(signal.SIGTERM)  # on a failed assertion too: the child never sits out its sleep
+    _, err = child.communicate(timeout=300)
     assert child.returncode == C.EXIT_CANCELLED, err
     _cancel_lines(err)
     assert not out.exists() and _staging_left(tmp_path) == []
-    again = subprocess.run(_masks_argv(slow_clip, out), cwd=ROOT, capture_output=True, text=True, timeout=300)
+    again = subprocess.run(_masks_argv(frames_dir, out), cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert again.returncode == C.EXIT_OK, again.stderr
-    assert sorted(p.name for p in out.iterdir()) == sorted(p.name for p in slow_clip.iterdir())
+    assert sorted(p.name for p in out.iterdir()) == sorted(p.name for p in frames_dir.iterdir())
 
 
 #: A real child that sends itself SIGTERM at a chosen point of the writing (argv[1]: "write" after that many

@@ -10,7 +10,6 @@ import math
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -122,27 +121,58 @@ def test_render_on_a_really_full_disk_leaves_nothing(tmp_path, size_kb):
     assert result.left == {}
 
 
+#: A real render (``engine.cli.main`` on argv[2:]) that stops once argv[1] frames are in its staging folder, says
+#: so on stdout and waits there for the test's SIGTERM: the signal lands in the middle of the frames at the same
+#: point on every machine, however loaded (a render left to run on could end before a racing signal).
+_RENDER_PAUSED = """
+import sys, time
+import engine.edit.render as R
+from engine.cli import main
+
+real, written = R.write_png, []
+
+def write_png(path, *args, **kwargs):
+    done = real(path, *args, **kwargs)
+    written.append(path)
+    if len(written) == int(sys.argv[1]):
+        print("paused", flush=True)
+        time.sleep(600)  # the SIGTERM handler raises out of the sleep
+    return done
+
+R.write_png = write_png
+sys.exit(main(sys.argv[2:]))
+"""
+
+
 def test_sigterm_during_a_render_exits_3_and_leaves_the_output_as_it_was(tmp_path):
-    """SIGTERM to a real render in the middle of its frames: exit 3, one line, no staging, the earlier render in
+    """SIGTERM to a real render with 3 of its 8 frames staged: exit 3, one line, no staging, the earlier render in
     --out byte-identical; the same command again writes every frame."""
-    manifest = _export(tmp_path, frames=120, size=(320, 240))
+    manifest = _export(tmp_path, frames=8, size=(64, 48))
     out = tmp_path / "out"
     earlier = _earlier_render(manifest, out)
-    argv = [sys.executable, "-m", "engine", "render", str(manifest), "--out", str(out), "--format", "png", "--no-bar"]
-    proc = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and proc.poll() is None and not list(out.glob(".edit.partial-*/*.png")):
-        time.sleep(0.005)
-    assert proc.poll() is None, "the render ended before it could be cancelled"
-    proc.send_signal(signal.SIGTERM)
-    _, err = proc.communicate(timeout=120)
+    args = ["render", str(manifest), "--out", str(out), "--format", "png", "--no-bar"]
+    paused = [sys.executable, "-c", _RENDER_PAUSED, "3", *args]
+    proc = subprocess.Popen(paused, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    try:
+        for line in proc.stdout:
+            if line.strip() == "paused":
+                break
+        else:
+            pytest.fail(f"the render ended before its third frame: {proc.communicate(timeout=300)}")
+        staged = sorted(p.name for p in out.glob(".edit.partial-*/*.png"))
+        assert staged == ["edit.00000.png", "edit.00001.png", "edit.00002.png"], staged
+    finally:
+        proc.send_signal(signal.SIGTERM)  # on a failed assertion too: the child never sits out its sleep
+    _, err = proc.communicate(timeout=300)
     lines = [line for line in err.splitlines() if line.strip()]
     assert proc.returncode == C.EXIT_CANCELLED and len(lines) == 1, err
     assert lines[0].startswith("cancelled: render stopped by SIGTERM"), lines
     assert tree_digest(out) == earlier
-    again = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    again = subprocess.run([sys.executable, "-m", "engine", *args], cwd=ROOT, capture_output=True, text=True,
+                           timeout=300)  # fmt: skip
     assert again.returncode == C.EXIT_OK, again.stderr
-    assert len(list(out.glob("edit.*.png"))) == 120 and not list(out.glob(".*"))
+    assert len(list(out.glob("edit.*.png"))) == 8 and not list(out.glob(".*"))
 
 
 def test_preview_failing_at_its_last_file_leaves_no_preview(tmp_path, monkeypatch):
