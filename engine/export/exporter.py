@@ -9,7 +9,9 @@ for a result. The manifest records every path relative to itself (``relative_pat
 mounted elsewhere with its plate keeps working.
 
 Atlas frame: each layer's texture covers the bounding box of the atlas cells the layer covers (aggregated
-alpha > ``BOX_COVERAGE``: median over frames for foregrounds, maximum for the background), plus a margin.
+alpha > ``BOX_COVERAGE``: median over frames for foregrounds, maximum for the background) and, for a foreground,
+of the atlas points of the pixels it owns in any frame (a limb's cells are owned in a few frames only), plus a
+margin.
 Once an edit layer exists, the box it was painted in is recorded in ``edits/layout.json`` and reused by
 every later export, so paint never shifts against the object.
 """
@@ -50,6 +52,11 @@ from engine.model.atlas_model import AtlasModel
 BOX_COVERAGE = 0.5
 #: Fallback when no cell is covered: the pixels whose layer alpha exceeds this.
 BOX_ALPHA = 0.25
+#: A foreground's box also holds the atlas points of the pixels it owns (alpha > BOX_COVERAGE) in any frame, but
+#: for this share at each end of each axis: a limb whose atlas cells are covered in a few frames only (a swinging
+#: leg, a foot) has a median coverage below BOX_COVERAGE, and outside the box its pixels get no paint (Z = 0); the
+#: trimmed share keeps a few stray pixels from stretching the texture.
+BOX_OWNED_TRIM = 0.001
 #: The box grows by this fraction of its extent on each side (plus BOX_MARGIN_CELLS cells), so soft
 #: edges and slightly off-box pixels still land inside the texture.
 BOX_MARGIN = 0.03
@@ -124,6 +131,7 @@ class _Coverage:
         n = self.cells * self.cells
         if foreground:
             self.stack = np.full((frames, n), np.nan, dtype=np.float16)
+            self.owned = np.zeros(n, dtype=np.float64)
         else:
             self.max = np.full(n, -1.0, dtype=np.float32)
         self.lo = np.array([np.inf, np.inf])
@@ -149,6 +157,7 @@ class _Coverage:
         grid = _fill_holes(total.reshape(self.cells, self.cells), count.reshape(self.cells, self.cells))
         if self.foreground:
             self.stack[t] = grid.reshape(-1).astype(np.float16)
+            self.owned += np.bincount(idx[alpha[ok] > BOX_COVERAGE], minlength=n)
         else:
             g = grid.reshape(-1)
             hit = np.isfinite(g)
@@ -160,8 +169,12 @@ class _Coverage:
         margin."""
         rows, cols = np.nonzero(self.grid() > BOX_COVERAGE)
         if len(rows):
-            lo = np.array([cols.min(), rows.min()]) / self.scale - COVERAGE_DOMAIN
-            hi = (np.array([cols.max(), rows.max()]) + 1.0) / self.scale - COVERAGE_DOMAIN
+            lo_cell, hi_cell = np.array([cols.min(), rows.min()]), np.array([cols.max(), rows.max()])
+            owned = self._owned_cells()
+            if owned is not None:
+                lo_cell, hi_cell = np.minimum(lo_cell, owned[0]), np.maximum(hi_cell, owned[1])
+            lo = lo_cell / self.scale - COVERAGE_DOMAIN
+            hi = (hi_cell + 1.0) / self.scale - COVERAGE_DOMAIN
         elif np.isfinite(self.lo).all():
             lo, hi = self.lo, self.hi
         elif np.isfinite(self.any_lo).all():
@@ -173,6 +186,23 @@ class _Coverage:
         pad = (hi - lo) * BOX_MARGIN + BOX_MARGIN_CELLS / self.scale
         lo, hi = lo - pad, hi + pad
         return float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])
+
+    def _owned_cells(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(lowest, highest) cell (column, row) of the atlas points a foreground owns in any frame, each axis
+        trimmed by BOX_OWNED_TRIM of them at both ends; None for the background or a layer that owns nothing."""
+        if not self.foreground or self.owned.sum() <= 0:
+            return None
+        counts = self.owned.reshape(self.cells, self.cells)
+        ends = []
+        for marginal in (counts.sum(0), counts.sum(1)):  # per column (u), per row (v)
+            cum = np.cumsum(marginal) / marginal.sum()
+            ends.append(
+                (
+                    int(np.searchsorted(cum, BOX_OWNED_TRIM, side="right")),
+                    min(int(np.searchsorted(cum, 1.0 - BOX_OWNED_TRIM)), self.cells - 1),
+                )
+            )
+        return np.array([ends[0][0], ends[1][0]]), np.array([ends[0][1], ends[1][1]])
 
     def grid(self) -> np.ndarray:
         """Coverage alpha over the domain grid [cells, cells] (row = v), 0 where nothing ever landed."""

@@ -62,3 +62,50 @@ def test_coverage_of_a_layer_that_never_shows():
     u0, v0, u1, v1 = cov.box()  # nothing owned, nothing faintly visible: the model's whole atlas square
     assert np.allclose([u0, v0], [-u1, -v1]) and 1.0 < u1 < 1.3
     assert np.isfinite(cov.box()).all() and cov.grid().max() == 0.0
+
+
+def _body_and_limb(frames: int, limb_frames: set[int], stray: bool = False) -> _Coverage:
+    """A foreground whose body (u, v in [-0.2, 0.2]) is owned in every frame and whose limb (u in [0.4, 0.6]) is
+    owned only in ``limb_frames`` (a leg swinging through atlas cells that are background in the other frames);
+    ``stray``: a pixel far out at u = 1.2, owned in one frame only."""
+    rng = np.random.default_rng(0)
+    cov = _Coverage(uv_per_px=0.01, frames=frames, foreground=True)
+    for t in range(frames):
+        body = rng.uniform(-0.2, 0.2, (4000, 2))
+        limb = np.c_[rng.uniform(0.4, 0.6, 1000), rng.uniform(-0.1, 0.1, 1000)]
+        uv = np.concatenate((body, limb))
+        alpha = np.concatenate((np.ones(4000), np.full(1000, 1.0 if t in limb_frames else 0.0)))
+        if stray:  # background maps there in the other frames, so the cell's median coverage is 0
+            uv, alpha = np.concatenate((uv, [[1.2, 0.0]])), np.concatenate((alpha, [1.0 if t == 0 else 0.0]))
+        cov.add(t, uv, alpha)
+    return cov
+
+
+def test_a_limb_owned_in_a_few_frames_is_inside_the_box():
+    """Median coverage alone drops a limb owned in 3 of 10 frames (its pixels would get Z = 0: no paint there);
+    the box holds every atlas point the layer owns, but for BOX_OWNED_TRIM at each end."""
+    cov = _body_and_limb(10, {1, 4, 7})
+    cell = cov.cells // 2 + int(0.5 * cov.scale)
+    assert cov.grid()[cov.cells // 2, cell] == 0.0  # the limb's cells: median says not object
+    u0, v0, u1, v1 = cov.box()
+    assert u1 >= 0.6 and u0 <= -0.2 and v0 <= -0.2 and v1 >= 0.2
+    assert u1 < 0.6 + 0.1  # the limb's end plus the margin, not the whole atlas square
+    frame = layer_frame_for(cov.box(), 64)
+    limb_uv = np.array([[0.45, 0.0], [0.59, 0.09], [0.59, -0.09]])
+    assert frame.to_texture_uv(limb_uv)[1].all()
+
+
+def test_one_stray_owned_pixel_does_not_stretch_the_box():
+    """One owned pixel far from the body (a fleck of mis-fitted alpha) is within the trimmed share: the box is the
+    body's and limb's, as without it."""
+    with_stray, without = _body_and_limb(10, {1, 4, 7}, stray=True).box(), _body_and_limb(10, {1, 4, 7}).box()
+    assert np.allclose(with_stray, without, atol=0.02) and with_stray[2] < 0.7  # a cell or two of the trim, not 1.2
+
+
+def test_the_background_box_is_unchanged_by_the_owned_points():
+    """The background's box is its maximum coverage's (it owns every cell it ever shows): no owned-point rule."""
+    cov = _Coverage(uv_per_px=0.01, frames=2, foreground=False)
+    for t in range(2):
+        cov.add(t, np.array([[0.0, 0.0], [0.5, 0.5]]), np.array([1.0, 0.0]))
+    _, _, u1, v1 = cov.box()
+    assert u1 < 0.1 and v1 < 0.1
