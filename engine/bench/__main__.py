@@ -203,8 +203,7 @@ def _add_scoring_parsers(sub: argparse._SubParsersAction) -> None:
         "TAP-Vid delta_avg (native pixels and at 256x256); a frame where the layer covers nothing is a miss.",
     )
     pt.add_argument("manifest", metavar="EXPORT_MANIFEST", help="an export's manifest.json (or its folder)")
-    pt.add_argument("--tracks", required=True, metavar="NPZ", help="tracks_tapvid.npz of the exported clip")
-    pt.add_argument("--json", default=None, metavar="OUT", help="also write the full scores to this file")
+    _tracks_and_json(pt)
     ft = sub.add_parser(
         FLOW_TRACKS,
         help="the baseline: chained DIS optical flow on the native plate, scored against TAP-Vid tracks",
@@ -212,8 +211,7 @@ def _add_scoring_parsers(sub: argparse._SubParsersAction) -> None:
         "from each query; prints TAP-Vid delta_avg as paint-tracks does.",
     )
     ft.add_argument("frames", metavar="FRAMES_DIR", help="the plate (its frames in order are the tracks' frames)")
-    ft.add_argument("--tracks", required=True, metavar="NPZ", help="tracks_tapvid.npz of the clip")
-    ft.add_argument("--json", default=None, metavar="OUT", help="also write the full scores to this file")
+    _tracks_and_json(ft)
     sh = sub.add_parser(
         SHARPNESS,
         help="the plate re-rendered from the exported atlas textures and passes: PSNR inside the mask",
@@ -223,7 +221,14 @@ def _add_scoring_parsers(sub: argparse._SubParsersAction) -> None:
     sh.add_argument("manifest", metavar="EXPORT_MANIFEST", help="an export's manifest.json (or its folder)")
     sh.add_argument("--plate", required=True, metavar="FRAMES", help="the plate the export was made from")
     sh.add_argument("--masks", action="append", required=True, metavar="FOLDER", help="the object's masks")
-    sh.add_argument("--json", default=None, metavar="OUT", help="also write the full scores to this file")
+    _tracks_and_json(sh, tracks=False)
+
+
+def _tracks_and_json(parser: argparse.ArgumentParser, tracks: bool = True) -> None:
+    """The scorers' shared options: the clip's tracks and the report file."""
+    if tracks:
+        parser.add_argument("--tracks", required=True, metavar="NPZ", help="tracks_tapvid.npz of the clip")
+    parser.add_argument("--json", default=None, metavar="OUT", help="also write the full scores to this file")
 
 
 def _tracking_line(tool: str, report: dict) -> str:

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from engine.bench.report_file import cut_tracks, to_plate_scale
-from engine.bench.tracking import Tracks, sample_bilinear, track_report
+from engine.bench.tracking import Tracks, chain_flow, track_report
 from engine.data.flow import DISFlow
 from engine.io.clip import iter_frames, open_clip
 from engine.io.colour import to_working
@@ -41,25 +41,14 @@ def dis_flow(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def dis_flow_tracks(frames: Sequence[np.ndarray], query_txy: np.ndarray, num_frames: int) -> np.ndarray:
     """Chained DIS flow from each query (t, x, y) (pixel centre i + 0.5), forward and backward: [N, num_frames, 2].
-    The same chaining as ``tracking.chained_flow_tracks`` (its twin, the test oracle), with each frame pair's flow
-    computed when the chain reaches it, so a long native plate's flow is never all in memory; pairs no query
-    needs are skipped."""
-    q = np.asarray(query_txy, dtype=np.float64)
-    n = q.shape[0]
-    tq = np.rint(q[:, 0]).astype(np.int64)
-    out = np.zeros((n, num_frames, 2), dtype=np.float64)
-    out[np.arange(n), np.clip(tq, 0, num_frames - 1)] = q[:, 1:3]
-    for t in range(num_frames - 1):  # forward: frames after the query
-        sel = tq <= t
-        if sel.any():
-            p = out[sel, t]
-            out[sel, t + 1] = p + sample_bilinear(dis_flow(frames[t], frames[t + 1]), p)
-    for t in range(num_frames - 1, 0, -1):  # backward: frames before the query
-        sel = tq >= t
-        if sel.any():
-            p = out[sel, t]
-            out[sel, t - 1] = p + sample_bilinear(dis_flow(frames[t], frames[t - 1]), p)
-    return out
+    ``tracking.chain_flow`` with each frame pair's flow computed when the chain reaches it, so a long native plate's
+    flow is never all in memory; pairs no query needs are skipped."""
+    return chain_flow(
+        query_txy,
+        num_frames,
+        lambda t: dis_flow(frames[t], frames[t + 1]),
+        lambda t: dis_flow(frames[t], frames[t - 1]),
+    )
 
 
 def clip_flow_tracks(frames_dir: str | Path, tracks: Tracks) -> tuple[np.ndarray, Tracks]:

@@ -9,6 +9,7 @@ converting is a pure scale per axis; scores are computed back in NATIVE pixels, 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -206,6 +207,19 @@ def chained_flow_tracks(
     query frame, sampling the flow bilinearly. ``forward[t]``: frame t -> t+1, ``backward[t]``: t+1 -> t
     (``FlowField`` layout); query and result in the same continuous pixel frame. Returns [N, num_frames, 2].
     """
+    return chain_flow(query_txy, num_frames, lambda t: forward[t], lambda t: backward[t - 1])
+
+
+def chain_flow(
+    query_txy: np.ndarray,
+    num_frames: int,
+    flow_ahead: Callable[[int], np.ndarray],
+    flow_back: Callable[[int], np.ndarray],
+) -> np.ndarray:
+    """Each query (t, x, y) followed frame by frame, forward and backward from its query frame, by adding the
+    bilinearly sampled flow: ``flow_ahead(t)`` moves frame t to t+1, ``flow_back(t)`` frame t to t-1, each asked
+    for only when some query's chain reaches it (a caller may compute flow on demand). Returns [N, num_frames, 2].
+    """
     q = np.asarray(query_txy, dtype=np.float64)
     n = q.shape[0]
     tq = np.rint(q[:, 0]).astype(np.int64)
@@ -215,12 +229,12 @@ def chained_flow_tracks(
         sel = tq <= t
         if sel.any():
             p = out[sel, t]
-            out[sel, t + 1] = p + sample_bilinear(forward[t], p)
+            out[sel, t + 1] = p + sample_bilinear(flow_ahead(t), p)
     for t in range(num_frames - 1, 0, -1):  # backward: frames before the query
         sel = tq >= t
         if sel.any():
             p = out[sel, t]
-            out[sel, t - 1] = p + sample_bilinear(backward[t - 1], p)
+            out[sel, t - 1] = p + sample_bilinear(flow_back(t), p)
     return out
 
 
