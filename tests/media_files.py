@@ -36,6 +36,25 @@ def write_image(path: Path, pixels: np.ndarray, fmt: str | None = None) -> Path:
     return path
 
 
+#: Mid grey in a 16-bit DPX buffer (OpenImageIO scales it to the file's 10 bits).
+DPX_MID_GREY = 32768
+
+
+def write_dpx(path: Path, size: tuple[int, int], transfer: str | None) -> Path:
+    """A 10-bit DPX frame of mid grey whose header declares ``transfer`` (``dpx:Transfer``; None leaves it
+    undefined)."""
+    width, height = size
+    spec = oiio.ImageSpec(width, height, 3, oiio.UINT16)
+    spec.attribute("oiio:BitsPerSample", 10)
+    if transfer is not None:
+        spec.attribute("dpx:Transfer", transfer)
+    out = oiio.ImageOutput.create("dpx")
+    assert out is not None and out.open(str(path), spec), oiio.geterror()
+    assert out.write_image(np.full((height, width, 3), DPX_MID_GREY, np.uint16)), out.geterror()
+    out.close()
+    return path
+
+
 def write_audio_only_movie(path: Path) -> Path:
     """An .mp4 holding one AAC stream and no video stream."""
     with av.open(str(path), "w") as container:

@@ -301,15 +301,14 @@ def default_colorspace(path: str, facts: FileColour | None, config: str | None =
             if _same_chromaticities(facts.chromaticities, chroma) and name.lower() in _names(config):
                 return _names(config)[name.lower()]
         return role_space(SCENE_LINEAR, config)
-    if facts.extension == ".dpx" and facts.dpx_transfer in LOG_DPX_TRANSFERS:
+    encoding = dpx_encoding(facts)
+    if encoding == "log":
         raise InputError(
             path,
             f"this DPX declares a log transfer ({facts.dpx_transfer}); decoding it with the sRGB curve would be wrong",
             "name its colour space, e.g. --colorspace ACEScct, or set $OCIO to a config with a Cineon log space",
         )
-    if facts.extension == ".dpx" and facts.dpx_transfer == "Linear":
-        return role_space(SCENE_LINEAR, config)
-    return role_space(SRGB, config)
+    return role_space(SCENE_LINEAR if encoding == "linear" else SRGB, config)
 
 
 __all__ = [

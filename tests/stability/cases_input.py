@@ -11,10 +11,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-import OpenImageIO as oiio
 
 from engine import contract as C
-from tests.media_files import garble_movie, textured_frames, write_blank_png, write_image, write_movie
+from tests.media_files import garble_movie, textured_frames, write_blank_png, write_dpx, write_image, write_movie
 from tests.stability.bad_inputs import TINY_FIT, Case
 
 #: A movie long enough that damage to the middle of its bytes lands on frames in the middle.
@@ -40,24 +39,12 @@ def _mixed_encodings(d: Path) -> list[str]:
     return _fit(folder, d)
 
 
-def _write_dpx(path: Path, transfer: str | None) -> None:
-    """A 10-bit DPX frame of mid grey; ``transfer`` None leaves the header's transfer undefined."""
-    spec = oiio.ImageSpec(W, H, 3, oiio.UINT16)
-    spec.attribute("oiio:BitsPerSample", 10)
-    if transfer is not None:
-        spec.attribute("dpx:Transfer", transfer)
-    out = oiio.ImageOutput.create("dpx")
-    assert out is not None and out.open(str(path), spec), oiio.geterror()
-    assert out.write_image(np.full((H, W, 3), 32768, np.uint16)), out.geterror()
-    out.close()
-
-
 def _log_dpx_after_a_plain_first_frame(d: Path) -> list[str]:
     """A log scan whose first frame's header lost its transfer: that frame alone would make the clip sRGB."""
     folder = d / "scan"
     folder.mkdir()
     for i in range(FRAMES):
-        _write_dpx(folder / f"{i:05d}.dpx", None if i == 0 else "Printing density")
+        write_dpx(folder / f"{i:05d}.dpx", (W, H), None if i == 0 else "Printing density")
     return _fit(folder, d)
 
 

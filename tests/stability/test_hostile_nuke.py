@@ -10,11 +10,9 @@ tree before and after).
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import shutil
-import stat
 import subprocess
 from pathlib import Path
 
@@ -25,6 +23,7 @@ from engine import contract as C
 from engine.export.nuke import FILE_KNOB_SPECIAL, SCRIPT_DIRECTORY, NukeScriptError, nuke_script, quote
 from tests.engine.fake_export import make_fake_export
 from tests.engine_cli import run_cli
+from tests.untouched import digest_outside
 
 TCLSH = shutil.which("tclsh")
 pytestmark = pytest.mark.skipif(TCLSH is None, reason="tclsh is not installed (apt-get install tcl): it loads the .nk")
@@ -90,21 +89,6 @@ def _load_in_tcl(script: Path, cwd: Path) -> tuple[list[tuple[str, dict[str, byt
             events.append(f"{kind} {bytes.fromhex(rest[-1]).decode('utf-8', 'replace')}")
     assert done.stderr == b"", done.stderr
     return nodes, events
-
-
-def _digest(root: Path) -> dict[bytes, str]:
-    """Every path under ``root`` (bytes, so any name) -> its kind and content hash."""
-    out: dict[bytes, str] = {}
-    for folder, dirs, files in os.walk(root):
-        for name in dirs + files:
-            path = os.path.join(folder, name)
-            st = os.lstat(path)
-            rel = os.fsencode(os.path.relpath(path, root))
-            if stat.S_ISREG(st.st_mode):
-                out[rel] = hashlib.sha256(Path(path).read_bytes()).hexdigest()
-            else:
-                out[rel] = f"mode {stat.S_IFMT(st.st_mode)}"
-    return out
 
 
 @pytest.fixture(scope="module")
@@ -176,11 +160,11 @@ LITERAL_FOLDERS = {
 def test_a_hostile_folder_is_read_literally_and_runs_nothing(template, tmp_path, folder):
     manifest = _case(template, tmp_path, folder)
     script = tmp_path / "comp" / "shot.nk"
-    before = _digest(tmp_path)
+    before = digest_outside(tmp_path)
     assert run_cli(C.VERB_NUKE, manifest, "--out", script) == (0, [])
     _check_loaded(script, tmp_path, _expected_reads(f"../{folder}"))
-    after = _digest(tmp_path)
-    assert set(after) - set(before) == {b"comp", b"comp/shot.nk"} and set(before) <= set(after)
+    after = digest_outside(tmp_path)
+    assert set(after) - set(before) == {"comp", "comp/shot.nk"} and set(before) <= set(after)
     assert all(after[k] == v for k, v in before.items())
 
 
@@ -220,13 +204,13 @@ REFUSED_FOLDERS = {
 def test_a_folder_nuke_would_misread_is_refused_in_one_line(template, tmp_path, folder, said):
     manifest = _case(template, tmp_path, folder)
     script = tmp_path / "comp" / "shot.nk"
-    before = _digest(tmp_path)
+    before = digest_outside(tmp_path)
     code, err = run_cli(C.VERB_NUKE, manifest, "--out", script)
     assert code == C.EXIT_BAD_INPUT and len(err) == 1, err
     line = err[0]
     assert line.startswith(f"error: {manifest.resolve()}: the pass file path ") and said in line
     assert line.endswith("does not pass through it)") and "rename the folder or file" in line
-    assert _digest(tmp_path) == before  # no script, no folder for it, nothing else touched
+    assert digest_outside(tmp_path) == before  # no script, no folder for it, nothing else touched
     assert not (tmp_path / CANARY).exists()
 
 
@@ -273,12 +257,12 @@ def test_a_layer_name_that_is_not_plain_is_refused_at_load(template, tmp_path, n
     data["layers"][1]["name"] = name
     manifest.write_text(json.dumps(data))
     script = tmp_path / "shot.nk"
-    before = _digest(tmp_path)
+    before = digest_outside(tmp_path)
     code, err = run_cli(C.VERB_NUKE, manifest, "--out", script)
     assert code == C.EXIT_BAD_INPUT and len(err) == 1, err
     assert err[0].startswith(f"error: {manifest.resolve()}: manifest layer 1 name ")
     assert "is not a plain name (letters, digits and _" in err[0] and err[0].endswith("export RUN_DIR` again")
-    assert _digest(tmp_path) == before
+    assert digest_outside(tmp_path) == before
     with pytest.raises(C.ManifestError, match="not a plain name"):
         C.validate_manifest(data)
     with pytest.raises(NukeScriptError, match="not a plain name"):  # a manifest handed over as a dict, unchecked

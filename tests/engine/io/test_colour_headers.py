@@ -8,19 +8,17 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import OpenImageIO as oiio
 import pytest
 
 from engine import contract as C
 from engine.errors import InputError
 from engine.io import colour
 from engine.io.clip import open_clip, read_frames
-from tests.media_files import write_image
+from tests.media_files import write_dpx, write_image
 from tests.stability.cases_input import BROKEN_OCIO_CONFIG
 
 W, H = 8, 6
-#: Mid grey in the 16-bit array OpenImageIO takes; the DPX keeps its top 10 bits (code 512 of 1023).
-MID_GREY = 32768
+#: ``DPX_MID_GREY`` in a 10-bit DPX: its top 10 bits (code 512 of 1023).
 TEN_BIT_GREY, TEN_BIT_TOP = 512, 1023
 HALF_TEN_BIT_STEP = 0.5 / TEN_BIT_TOP
 #: A config that parses: BROKEN_OCIO_CONFIG with its flow sequence closed, and the spaces it names.
@@ -36,22 +34,10 @@ GOOD_OCIO_CONFIG = BROKEN_OCIO_CONFIG.replace("[lin_rec709\n", "lin_rec709\n") +
 )
 
 
-def _write_dpx(path: Path, transfer: str | None) -> Path:
-    spec = oiio.ImageSpec(W, H, 3, oiio.UINT16)
-    spec.attribute("oiio:BitsPerSample", 10)
-    if transfer is not None:
-        spec.attribute("dpx:Transfer", transfer)
-    out = oiio.ImageOutput.create("dpx")
-    assert out is not None and out.open(str(path), spec), oiio.geterror()
-    assert out.write_image(np.full((H, W, 3), MID_GREY, np.uint16)), out.geterror()
-    out.close()
-    return path
-
-
 def _scan(folder: Path, transfers: list[str | None]) -> Path:
     folder.mkdir()
     for i, transfer in enumerate(transfers):
-        _write_dpx(folder / f"{i:05d}.dpx", transfer)
+        write_dpx(folder / f"{i:05d}.dpx", (W, H), transfer)
     return folder
 
 
