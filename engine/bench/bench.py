@@ -180,11 +180,9 @@ def _prepare(spec: BenchClip, cfg: FitConfig, work: Path, eval_frames: int, devi
     subset = sorted({round(float(x)) for x in np.linspace(0, t_count - 1, count)})
     tracks, qxy, qt, scale, n_tr = None, np.zeros((0, 2)), np.zeros(0, int), np.ones(2), 0
     if spec.tracks is not None:
-        tracks = load_tracks(spec.tracks)
-        n_tr = min(tracks.num_frames, t_count)
+        tracks = load_tracks(spec.tracks).cut(t_count)
+        n_tr = tracks.num_frames
         scale = np.array(tracks.image_size, dtype=np.float64) / np.array(prepared.size, dtype=np.float64)
-        keep = np.rint(tracks.query_txy[:, 0]).astype(int) < n_tr
-        tracks = tracks.subset(keep, n_tr)
         qt = np.rint(tracks.query_txy[:, 0]).astype(int)
         qxy = tracks.query_txy[:, 1:3].astype(np.float64) / scale
     state = ClipState(spec, prepared, video, subset, tracks, n_tr, qxy, qt, scale, time.perf_counter() - t0)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from engine.bench.report_file import cut_tracks, to_plate_scale
+from engine.bench.report_file import to_plate_scale
 from engine.bench.tracking import Tracks, chain_flow, track_report
 from engine.data.flow import DISFlow
 from engine.io.clip import iter_frames, open_clip
@@ -55,7 +55,7 @@ def clip_flow_tracks(frames_dir: str | Path, tracks: Tracks) -> tuple[np.ndarray
     """DIS tracks of ``tracks``' queries on the plate in ``frames_dir`` (its frames in order are the tracks'
     frames): (positions [N, T, 2] in the tracks' pixels, the tracks cut to the plate's length)."""
     codes, size = plate_codes(frames_dir)
-    tracks = cut_tracks(tracks, len(codes))
+    tracks = tracks.cut(len(codes))
     scale = to_plate_scale(tracks, size)
     q = tracks.query_txy.astype(np.float64).copy()
     q[:, 1:3] *= scale

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from engine.bench.report_file import cut_tracks, to_plate_scale
+from engine.bench.report_file import to_plate_scale
 from engine.bench.tracking import Tracks, sample_bilinear, scored_positions, track_report
 from engine.errors import InputError
 from engine.export.manifest import LayerPasses, Manifest
@@ -116,7 +116,7 @@ def nearest_positions(uv: np.ndarray, owned: np.ndarray, targets: np.ndarray) ->
 def paint_tracks(manifest: Manifest, tracks: Tracks) -> tuple[np.ndarray, np.ndarray]:
     """Where paint at each query point shows in every frame of the export: (positions [N, T, 2] in the tracks'
     pixels, ``MISS`` where its layer covers no pixel; the owner layer of each query [N]). ``tracks`` must already
-    fit the export's frames (``cut_tracks``)."""
+    fit the export's frames (``Tracks.cut``)."""
     numbers = track_frame_numbers(manifest, tracks.num_frames)
     scale = to_plate_scale(tracks, manifest.resolution)
     qt = np.rint(tracks.query_txy[:, 0]).astype(np.int64)
@@ -138,7 +138,7 @@ def score_export(manifest_path: str | Path, tracks: Tracks) -> dict:
     """``paint_tracks`` scored: ``track_report`` plus the queries each layer owns and the scored positions that
     missed because their layer covered no pixel in that frame."""
     manifest = Manifest(manifest_path)
-    tracks = cut_tracks(tracks, len(manifest.clip["frame_numbers"]))
+    tracks = tracks.cut(len(manifest.clip["frame_numbers"]))
     pred, owner = paint_tracks(manifest, tracks)
     report = track_report(pred, tracks)
     scored = scored_positions(tracks.occluded, np.rint(tracks.query_txy[:, 0]).astype(np.int64))

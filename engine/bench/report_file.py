@@ -55,16 +55,9 @@ def read_tracks(path: str | Path) -> Tracks:
         raise InputError(src, problem, "pass a tracks_tapvid.npz with tracks_xy, occluded, query_points_txy") from None
 
 
-def cut_tracks(tracks: Tracks, frames: int) -> Tracks:
-    """The tracks cut to a clip of ``frames`` frames: queries beyond it dropped (as the fitting bench does)."""
-    n = min(tracks.num_frames, frames)
-    keep = np.rint(tracks.query_txy[:, 0]).astype(int) < n
-    return tracks.subset(keep, n)
-
-
 def to_plate_scale(tracks: Tracks, size: tuple[int, int]) -> np.ndarray:
     """[2]: multiplies the tracks' pixels into a ``size`` (W, H) image's (1, 1 when the tracks were made on it)."""
     return np.asarray(size, np.float64) / np.asarray(tracks.image_size, np.float64)
 
 
-__all__ = ["REPORT_TAG", "REPORT_VERSION", "cut_tracks", "read_tracks", "to_plate_scale", "write_report"]
+__all__ = ["REPORT_TAG", "REPORT_VERSION", "read_tracks", "to_plate_scale", "write_report"]

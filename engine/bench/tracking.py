@@ -56,6 +56,11 @@ class Tracks:
             self.xy[keep, :frames], self.occluded[keep, :frames], self.query_txy[keep], self.image_size, on_mask
         )
 
+    def cut(self, frames: int) -> Tracks:
+        """The tracks of a clip of ``frames`` frames: cut to them, queries beyond them dropped."""
+        n = min(self.num_frames, frames)
+        return self.subset(np.rint(self.query_txy[:, 0]).astype(int) < n, n)
+
 
 def load_tracks(path: str | Path) -> Tracks:
     """``tracks_tapvid.npz``: ``tracks_xy`` [N, T, 2] and ``occluded`` [N, T] (native pixels), ``query_points_txy``

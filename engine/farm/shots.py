@@ -324,9 +324,9 @@ def _check_folders(file: Path, shots: list[Shot]) -> None:
             mine, theirs = real[i], real[j]
             if mine == theirs:
                 relation = "is"
-            elif mine.startswith(theirs.rstrip(os.sep) + os.sep):
+            elif C.is_within(mine, theirs):
                 relation = "is inside"
-            elif theirs.startswith(mine.rstrip(os.sep) + os.sep):
+            elif C.is_within(theirs, mine):
                 relation = "holds"
             else:
                 continue
