@@ -5,10 +5,11 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import os
 import signal
 import sys
 import traceback
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -69,11 +70,14 @@ def _cancellable() -> Iterator[None]:
         signal.signal(signal.SIGTERM, old)
 
 
-def _print_paths(paths: Iterable[Path]) -> int:
-    """A verb's last lines: the files it wrote, one per line (what the add-on and scripts read)."""
+def _print_paths(paths: Iterable[Path | str]) -> int:
+    """A verb's last lines: one ``written`` message listing what it wrote (a program reads that), then the same
+    paths one per line (what the add-on and shell scripts read: the last line is the path when there is one)."""
     from engine.io.images import display_path  # a name that is not UTF-8 would stop a strict stdout
 
-    for path in paths:
+    written = [os.fspath(path) for path in paths]
+    print(C.progress_line(C.EVENT_WRITTEN, paths=written))  # JSON escapes what is not UTF-8
+    for path in written:
         print(display_path(path))
     return C.EXIT_OK
 
@@ -197,9 +201,10 @@ def build_parser(prog: str = "python -m engine") -> argparse.ArgumentParser:
         "--colorspace",
         default=None,
         metavar="NAME",
-        help="the plate's OCIO colour space (a name or alias of $OCIO's config, else of the built-in ACES config: "
-        "ACEScg, ACEScct, 'sRGB Encoded Rec.709 (sRGB)', 'Linear Rec.709 (sRGB)', ...; default: the config's file "
-        "rules, else float files scene-linear Rec.709, integer files and movies sRGB; see docs/colour.md)",
+        help="the plate's OCIO colour space (a name or alias of $OCIO's config, else of the built-in ACES CG config: "
+        "ACEScg, ACEScct, 'sRGB Encoded Rec.709 (sRGB)', 'Linear Rec.709 (sRGB)', ...; default: what the file's header "
+        "says (an EXR's oiio:ColorSpace, ACES chromaticities), the config's file rules, else float files scene-linear "
+        "Rec.709, integer files and movies sRGB, said in a note: line and recorded as assumed; see docs/colour.md)",
     )
     f.add_argument(
         "--set",
@@ -259,6 +264,7 @@ def build_parser(prog: str = "python -m engine") -> argparse.ArgumentParser:
     _add_masks_parser(sub)
     _add_nuke_parser(sub)
     _add_farm_parser(sub)
+    _add_output_options(p)
     return p
 
 
@@ -369,7 +375,18 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
     r.add_argument("manifest", metavar="MANIFEST", help="manifest.json of an export (or its folder)")
     r.add_argument("--edit", action="append", default=[], metavar="LAYER=IMAGE", help="use IMAGE as LAYER's edit")
     r.add_argument(
-        "--out", required=True, metavar="DIR", help="folder for the frames (edit.00012.exr ...), outside the run folder"
+        "--out",
+        required=True,
+        metavar="DIR",
+        help="folder for the frames (edit.1001.exr ...: numbered as the plate's frames, padded as its files are), "
+        "outside the run folder",
+    )
+    r.add_argument(
+        "--name",
+        default=None,
+        metavar="PATTERN",
+        help="the frames' file name, with one frame token: #### (a digit each) or %%04d, and the format's extension "
+        "(e.g. shot_v001.####.exr; default: edit. + the plate's padding)",
     )
     r.add_argument(
         "--format",
@@ -377,6 +394,13 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
         choices=["exr", "png", "plate"],
         help="exr (float: the plate's colour space when scene-linear, else scene-linear Rec.709; default), png "
         "(8-bit sRGB) or plate (the plate's file type, bit depth and colour space: an empty edit gives the plate back)",
+    )
+    r.add_argument(
+        "--depth",
+        default=None,
+        choices=["16", "32"],
+        help="bits per channel of --format exr frames: 16 (half float) or 32 (float); default: the plate's own when it "
+        "is an EXR (a half plate gives half frames), else 32",
     )
     r.add_argument("--filter", default="bilinear", choices=["bilinear", "nearest"], help="texture filter")
     r.add_argument(
@@ -478,6 +502,8 @@ def _cmd_render(args: argparse.Namespace) -> int:
         movie=args.movie,
         progress_bar=not args.no_bar,
         frames=args.frames,
+        name=args.name,
+        depth=args.depth,
     )
     return _print_paths([Path(out).resolve()])
 
@@ -511,7 +537,7 @@ def _cmd_preview(args: argparse.Namespace) -> int:
 
 
 def _add_nuke_parser(sub: argparse._SubParsersAction) -> None:
-    from engine.export.nuke import DEFAULT_FILTER, STMAP_FILTERS
+    from engine.export.nuke import DEFAULT_FILTER, OCIO_CONFIG_ARG, STMAP_FILTERS
 
     n = sub.add_parser(
         C.VERB_NUKE,
@@ -531,12 +557,20 @@ def _add_nuke_parser(sub: argparse._SubParsersAction) -> None:
         choices=STMAP_FILTERS,
         help=f"STMap's filter (default: {DEFAULT_FILTER}; Impulse matches `render --filter nearest` exactly)",
     )
+    n.add_argument(
+        OCIO_CONFIG_ARG,
+        dest="ocio_config",
+        default=None,
+        metavar="CONFIG",
+        help="the OCIO config (a file or an ocio:// URI) the script sets on its Root and names every Read's colour "
+        "space in (default: the one the export was made in); it must know the plate's colour space",
+    )
 
 
 def _cmd_nuke(args: argparse.Namespace) -> int:
     from engine.export.nuke import write_nuke_script
 
-    return _print_paths([write_nuke_script(args.manifest, args.out, args.filter)])
+    return _print_paths([write_nuke_script(args.manifest, args.out, args.filter, args.ocio_config)])
 
 
 def _add_masks_parser(sub: argparse._SubParsersAction) -> None:
@@ -567,9 +601,9 @@ def _add_masks_parser(sub: argparse._SubParsersAction) -> None:
 
 def _cmd_masks(args: argparse.Namespace) -> int:
     """Progress goes to stdout as a JSON stage line, so stderr holds nothing but a failure's one line; the folder
-    is printed as text any terminal takes (``display_path``: a name that is not UTF-8 shows its bytes as \\xNN)."""
+    is printed last (``_print_paths``: as text any terminal takes, a name that is not UTF-8 showing its bytes as
+    \\xNN)."""
     from engine.data.auto_masks import write_auto_masks
-    from engine.io.images import display_path
 
     def say(message: str) -> None:
         print(C.progress_line(C.EVENT_STAGE, stage=C.VERB_MASKS, message=message), flush=True)
@@ -582,8 +616,7 @@ def _cmd_masks(args: argparse.Namespace) -> int:
         print(line)
     print(C.progress_line(C.EVENT_MASKS, found=bool(report.result.found), folder=str(report.folder),
                           message=report.result.message))  # fmt: skip
-    print(display_path(report.folder))
-    return C.EXIT_OK
+    return _print_paths([report.folder])
 
 
 def _add_farm_parser(sub: argparse._SubParsersAction) -> None:
@@ -853,11 +886,76 @@ def _cancelled_line(args: argparse.Namespace, exc: KeyboardInterrupt) -> str:
 def main(argv: list[str] | None = None, prog: str = "python -m engine") -> int:
     parser = build_parser(prog)
     args = parser.parse_args(argv)
-    if args.verb is None:
-        parser.print_help()
-        return C.EXIT_OK
-    with _cancellable():
-        return _run(parser, args)
+    if args.verb is None:  # nothing was asked: the help, on stderr (stdout is for what a verb reports), and 2
+        parser.print_help(sys.stderr)
+        return C.EXIT_BAD_INPUT
+    if args.quiet and args.verbose:
+        parser.error("-q and -v ask for less and more output: pass one of them")
+    with _cancellable(), _output(args) as finished:
+        code = _run(parser, args)
+        finished(code)
+        return code
+
+
+#: -q and -v, on the engine and on every verb (``python -m engine -q fit ...`` or ``... fit ... -q``).
+QUIET_HELP = "only what needs attention on stderr: errors, warnings, a cancellation (no bar, notes or summaries)"
+VERBOSE_HELP = "also each stage as a line on stderr, with the whole job's percent where known"
+
+
+def _add_output_options(parser: argparse.ArgumentParser) -> None:
+    """-q and -v on ``parser`` and on every verb below it; a verb's own copy leaves the engine's value alone unless
+    given (its default is SUPPRESS), so either place works."""
+    for at, default in ((parser, False), *((sub, argparse.SUPPRESS) for sub in _verb_parsers(parser))):
+        at.add_argument("-q", "--quiet", action="store_true", default=default, help=QUIET_HELP)
+        at.add_argument("-v", "--verbose", action="store_true", default=default, help=VERBOSE_HELP)
+
+
+def _verb_parsers(parser: argparse.ArgumentParser) -> Iterator[argparse.ArgumentParser]:
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in dict.fromkeys(action.choices.values()):  # an alias names the same parser
+                yield sub
+                yield from _verb_parsers(sub)
+
+
+@contextlib.contextmanager
+def _output(args: argparse.Namespace) -> Iterator[Callable[[int], None]]:
+    """stdout and stderr as -q, -v and an OpenJD task (``contract.OPENJD_PROGRESS_ENV``) ask, for the verb's run;
+    yields what to call with its exit code (an OpenJD task's 100 % once it succeeded). Without them: untouched."""
+    from engine.fit.progress import LineTap, OpenJDProgress, quiet_lines, verbose_lines
+
+    openjd = OpenJDProgress() if os.environ.get(C.OPENJD_PROGRESS_ENV, "") else None
+    echo = verbose_lines(sys.stderr) if args.verbose else None
+    if args.quiet and hasattr(args, "no_bar"):
+        args.no_bar = True
+    stdout, stderr = sys.stdout, sys.stderr
+
+    def on_stdout(line: str) -> str:
+        if echo is not None:
+            echo(line)
+        return line if openjd is None else openjd(line)
+
+    taps = []
+    if openjd is not None or echo is not None:
+        sys.stdout = tap = LineTap(stdout, on_stdout)  # type: ignore[assignment]
+        taps.append(tap)
+    if args.quiet:
+        sys.stderr = tap = LineTap(stderr, quiet_lines())  # type: ignore[assignment]
+        taps.append(tap)
+
+    def finished(code: int) -> None:
+        for each in taps:
+            each.close()
+        if openjd is not None and code == C.EXIT_OK:
+            stdout.write(openjd.finished())
+            stdout.flush()
+
+    try:
+        yield finished
+    finally:
+        for each in taps:
+            each.close()
+        sys.stdout, sys.stderr = stdout, stderr
 
 
 def console_main() -> int:

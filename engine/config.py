@@ -547,8 +547,8 @@ def _fast(**kw: Any) -> FitConfig:
     background (water, foliage) gains its PSNR, and it needs a faster rate than the MLPs to get there; decaying
     it towards zero gives the gain back (docs/engine.md). object_sample_share: a quarter of each batch on the
     objects lets a small object's mapping follow it, at little cost to the background
-    (docs/accuracy-vs-time.md). w_anchor 2: it still holds a mapping in its atlas box (the swan's drift), and
-    it holds a start that loose masks put off less firmly than 10 did (docs/accuracy-vs-time.md)."""
+    (docs/bench/experiments.md). w_anchor 2: it still holds a mapping in its atlas box (the swan's drift), and
+    it holds a start that loose masks put off less firmly than 10 did (docs/bench/experiments.md)."""
     fast = FitConfig(
         model="fast",
         w_mask_prior=20.0,
@@ -563,7 +563,7 @@ def _fast(**kw: Any) -> FitConfig:
 #: Named presets; their step budgets are the contract's (``PRESET_STEPS``: the add-on's menu reads them too).
 PRESETS: dict[str, FitConfig] = {
     # draft: the masks (snapped) are fitted for all of its steps; let go after 300, the alpha dropped the parts the
-    # prior does not hold (a swan's neck, a dog's legs) and tracking on them with it (docs/accuracy-vs-time.md)
+    # prior does not hold (a swan's neck, a dog's legs) and tracking on them with it (docs/bench/experiments.md)
     "draft": _fast(
         preset="draft",
         steps=PRESET_STEPS["draft"],

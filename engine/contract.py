@@ -210,7 +210,8 @@ AUTO_MASKS_DIR = "auto_masks"
 #                 "frame_files": [str] (absolute; [] for a movie), "native_size": [W, H], "working_size": [W, H],
 #                 "fps": float|null, "colorspace": str (the plate's OCIO colour space; "sRGB"|"linear" in runs made
 #                 before colour management), "colour_config": str (optional: the OCIO config that names it, $OCIO's
-#                 path or "ocio://default"; absent in older runs, see LEGACY_COLORSPACES),
+#                 path or "ocio://default"; absent in older runs, see LEGACY_COLORSPACES), "colour_source": str
+#                 (optional: how "colorspace" was decided, one of COLOUR_SOURCES; "assumed": nothing said it),
 #                 "masks": [str] (absolute folders),
 #                 "scribbles": str|null, "layers": int (background + foreground layers of the model),
 #                 "fingerprint": str (hash of the fitted frames: a resume refuses a changed clip),
@@ -305,6 +306,7 @@ RUN_CLIP_OPTIONAL_FIELDS: dict[str, str] = {
     "pixel_aspect": "number",
     "timecode": "str or null",
     "start_frame": "int",
+    "colour_source": "str",  # how "colorspace" was decided: one of COLOUR_SOURCES
     # the paths relative to the run folder ("/" separated; null: none, another drive), beside the absolute ones: a
     # run folder moved or mounted elsewhere with its plate reads the plate there (engine/fit/run_folder.py)
     "source_relative": "str or null",
@@ -350,6 +352,23 @@ LEGACY_COLORSPACES: dict[str, str] = {"sRGB": COLOUR_SRGB, "linear": COLOUR_SCEN
 EXR_COLORSPACE_ATTRIBUTE = "oiio:ColorSpace"
 #: The longest colour-space or config name a record may hold (a path to a config file included).
 COLOUR_NAME_MAX = 4096
+#: How the plate's colour space was decided, recorded beside it as "colour_source" (clip.json and the manifest's
+#: clip; absent from runs made before it was kept): named (``--colorspace``), stated by the file's header (an EXR's
+#: oiio:ColorSpace tag, ACES or Rec.709 chromaticities, a DPX's linear transfer), chosen by $OCIO's file rules, given
+#: by a file type that defines its colour (PNG, JPEG: sRGB), or assumed: nothing said it (a float file read as
+#: scene-linear Rec.709; a TIFF, an undeclared DPX or a movie as sRGB), and the fit printed one ``note:`` line.
+COLOUR_SOURCE_ASKED = "asked"
+COLOUR_SOURCE_FILE = "file"
+COLOUR_SOURCE_RULES = "rules"
+COLOUR_SOURCE_FORMAT = "format"
+COLOUR_SOURCE_ASSUMED = "assumed"
+COLOUR_SOURCES: tuple[str, ...] = (
+    COLOUR_SOURCE_ASKED,
+    COLOUR_SOURCE_FILE,
+    COLOUR_SOURCE_RULES,
+    COLOUR_SOURCE_FORMAT,
+    COLOUR_SOURCE_ASSUMED,
+)
 
 
 def valid_colour_record(colorspace: Any, config: Any) -> bool:
@@ -473,6 +492,8 @@ def _check_clip_record(data: dict[str, Any]) -> None:
         problem = f"clip record lists {len(data['frame_files'])} frame files for {count} frames"
     elif data["kind"] not in CLIP_KINDS or not valid_colour_record(data["colorspace"], data.get("colour_config")):
         problem = f"clip record: unknown kind or colour space {data['kind']!r}, {data['colorspace']!r}"
+    elif data.get("colour_source", COLOUR_SOURCE_ASKED) not in COLOUR_SOURCES:
+        problem = f"clip record: unknown colour_source {data['colour_source'][:MANIFEST_QUOTE_CHARS]!r}"
     elif data["layers"] < 1 or min(data["native_size"] + data["working_size"]) < 1:
         problem = "clip record: layers and sizes must be positive"
     elif any(len(data.get(f"{k}_relative", data[k])) != len(data[k]) for k in ("frame_files", "masks")):
@@ -509,16 +530,21 @@ PROGRESS_TAG = "neural_atlas"  # every machine-readable line carries {"neural_at
 EVENT_STAGE = "stage"  # {"stage": "flow"|"init"|"train"|"evaluate", "message": str}
 EVENT_PROGRESS = "progress"  # step, total, psnr, elapsed, eta, losses{}; optional job_fraction, job_eta
 EVENT_CHECKPOINT = "checkpoint"  # step, path
-EVENT_DONE = "done"  # metrics{}
+EVENT_DONE = "done"  # metrics{}; job_fraction 1.0 and job_eta 0.0 (the fit's last message: its job is done)
 EVENT_CANCELLED = "cancelled"  # step, checkpoint
 EVENT_ERROR = "error"  # message, log
 EVENT_EXPORTED = "exported"  # manifest (absolute path of the manifest.json an export wrote)
 EVENT_MASKS = "masks"  # found (bool: a moving object was found), folder, message: what `engine masks` did
+#: paths: [str], what a verb wrote (export: the manifest; render: the folder; preview: the files; ...), its last
+#: message. The same paths follow it as plain lines, one per line, the last lines of stdout (a shell's `tail -n 1`).
+EVENT_WRITTEN = "written"
 #: How far the whole command is, at every stage (a reader that does not know it skips it as noise):
 #: stage ("flow", "train", "evaluate", "export", "estimate"), done and total (the stage's pairs, steps or frames),
 #: stage_eta (seconds left in the stage, or null), job_fraction (0..1 of the whole job, never decreasing, a resumed
 #: fit's starting where its checkpoint is) and job_eta (seconds left in the whole job, or null while a stage's cost is
-#: not measured yet). A fit's job is flow, training, evaluation and the export that follows it.
+#: not measured yet). A fit's job is flow, training, evaluation and the export that follows it: its ``progress`` and
+#: ``job`` messages leave the export's share (the add-on shows fit and export as one bar), and its ``done`` closes it
+#: at 1.0. Every command that sends fractions ends at 1.0: a fit's ``done``, an export's last ``job``.
 EVENT_JOB = "job"
 JOB_STAGES = ("flow", "train", "evaluate", "export", "estimate")
 EVENTS = (
@@ -531,7 +557,14 @@ EVENTS = (
     EVENT_EXPORTED,
     EVENT_MASKS,
     EVENT_JOB,
+    EVENT_WRITTEN,
 )
+#: Set (to anything but "") in the environment of every task of an OpenJD bundle (``farm openjd``'s job environment):
+#: each verb then also prints its progress as the stdout messages an Open Job Description runner reads (Deadline
+#: Cloud's task progress and status): ``openjd_progress: <0..100>`` from the messages' job_fraction (or the command's
+#: own steps), ``openjd_status: <message>`` per stage, and ``openjd_progress: 100.0`` as the last line of a verb that
+#: succeeded (after the paths it prints).
+OPENJD_PROGRESS_ENV = "NEURAL_ATLAS_OPENJD_PROGRESS"
 
 
 def progress_line(event: str, **fields: Any) -> str:
@@ -578,7 +611,10 @@ MANIFEST_TAG = "neural_atlas_manifest"  # {"neural_atlas_manifest": MANIFEST_VER
 
 PASSES_DIR = "passes"
 ATLASES_DIR = "atlases"
-#: Pass files are named by the plate's frame number: passes/atlas.00012.exr (Blender reads the last digits).
+#: Pass files are named by the plate's frame number, padded as the plate's frame files are (``frame_padding``): a
+#: plate.1001.exr gives passes/atlas.1001.exr (Blender reads the last digits). A plate with no padding of its own (a
+#: movie, frames whose digits vary) gives PASS_FILE_DIGITS digits. The manifest's "pattern" names them: readers
+#: take it from there (exports made before the padding followed the plate have five digits).
 PASS_FILE_PREFIX = "atlas."
 PASS_FILE_DIGITS = 5
 PASS_FILE_EXT = ".exr"
@@ -586,16 +622,21 @@ PASS_FILE_EXT = ".exr"
 #: The single EXR layer of every pass file; Blender's multilayer convention is <layer>.<pass>.<channel>,
 #: so one Image node exposes one socket per pass.
 EXR_LAYER = "Atlas"
-UV_PASS_PREFIX = "UV"  # UV<Layer>: channels X, Y, Z = u, v (0..1, origin bottom-left), the layer's alpha
+UV_PASS_PREFIX = "UV"  # UV<Layer>: channels U, V, A = u, v (0..1, origin bottom-left), the layer's alpha
 ALPHA_PASS_PREFIX = "Alpha"  # Alpha<Layer>: one channel V, the layer's alpha (opacity weight; sums to 1)
-UV_CHANNELS: tuple[str, ...] = ("X", "Y", "Z")
+#: A UV pass's channels in the order u, v, coverage: Blender's own name for its UV render pass (``UV.U``, ``UV.V``,
+#: ``UV.A``), which its Image node gives Map UV as one vector (it orders U, V, A by letter). OpenImageIO takes a channel
+#: named "Z" or "*.Z" as depth (its z_channel) and one named "A" or "*.A" as alpha: the coverage is an alpha.
+#: Each manifest layer records its "uv_channels" in this order, so an export of either naming reads the same.
+UV_CHANNELS: tuple[str, ...] = ("U", "V", "A")
+#: The UV pass's channels in exports made before it took Blender's naming (OpenImageIO read their Z as depth).
+LEGACY_UV_CHANNELS: tuple[str, ...] = ("X", "Y", "Z")
 ALPHA_CHANNELS: tuple[str, ...] = ("V",)
 #: The same UV pass for Nuke, Flame and Natron, in the same pass files: per layer a layer with ONE dot in its channel
-#: names, STMap<Layer>.R/G/B/A = u, v, 0 and the coverage (the UV pass's Z), float32 copies of the same values.
-#: Nuke's EXR reader turns every dot but the last into "_" (Atlas.UVForeground.X shows as Atlas_UVForeground.X) and
+#: names, STMap<Layer>.R/G/B/A = u, v, 0 and the coverage (the UV pass's A), float32 copies of the same values.
+#: Nuke's EXR reader turns every dot but the last into "_" (Atlas.UVForeground.U shows as Atlas_UVForeground.U) and
 #: R/G/B/A into red/green/blue/alpha, so these show as STMap<Layer>.red/green/blue/alpha: an RGBA layer whose rg is
-#: what STMap reads and whose alpha is the coverage. OpenImageIO takes a channel named "Z" or "*.Z" as depth (its
-#: z_channel), which the STMap layer avoids too. Blender's Image node skips one-dot names: its passes are unchanged.
+#: what STMap reads and whose alpha is the coverage. Blender's Image node skips one-dot names: its passes are unchanged.
 STMAP_PASS_PREFIX = "STMap"
 STMAP_CHANNELS: tuple[str, ...] = ("R", "G", "B", "A")
 #: The Nuke script an export writes next to its manifest (``engine nuke`` writes one anywhere).
@@ -678,13 +719,41 @@ def stmap_channel_name(layer: str, channel: str) -> str:
 
 
 def channel_name(pass_name: str, channel: str) -> str:
-    """Full EXR channel name, e.g. ``Atlas.UVForeground.X``."""
+    """Full EXR channel name, e.g. ``Atlas.UVForeground.U``."""
     return f"{EXR_LAYER}.{pass_name}.{channel}"
 
 
-def pass_file_name(frame_number: int) -> str:
-    """``atlas.00012.exr`` for plate frame 12."""
-    return f"{PASS_FILE_PREFIX}{frame_number:0{PASS_FILE_DIGITS}d}{PASS_FILE_EXT}"
+def pass_file_name(frame_number: int, padding: int = PASS_FILE_DIGITS) -> str:
+    """``atlas.00012.exr`` for plate frame 12 (``padding`` digits at least)."""
+    return pass_pattern(padding).format(frame=frame_number)
+
+
+def pass_pattern(padding: int) -> str:
+    """The manifest's "pattern" of pass files padded to ``padding`` digits: ``atlas.{frame:04d}.exr``."""
+    return f"{PASS_FILE_PREFIX}{{frame:0{padding}d}}{PASS_FILE_EXT}"
+
+
+def blender_pattern(padding: int) -> str:
+    """The same pattern as Blender and most compositors write it: ``atlas.####.exr``."""
+    return f"{PASS_FILE_PREFIX}{'#' * padding}{PASS_FILE_EXT}"
+
+
+def frame_padding(frame_files: list[str] | tuple[str, ...], frame_numbers: list[int] | tuple[int, ...]) -> int:
+    """The digits a plate's frame files pad their numbers to: 4 for ``plate.1001.exr`` .. (and for ``plate.0998.exr``
+    .. ``plate.1001.exr``), 1 for ``f9.png``, ``f10.png``; PASS_FILE_DIGITS for a movie (no files) or names that are
+    not the frame number padded one way. What the outputs numbered by the plate's frames follow."""
+    digits = []
+    for path, number in zip(frame_files, frame_numbers, strict=False):
+        m = FRAME_FILE_DIGITS.search(os.path.basename(path))
+        if m is None or int(m.group(1)) != number:
+            return PASS_FILE_DIGITS
+        digits.append(m.group(1))
+    if not digits:
+        return PASS_FILE_DIGITS
+    padding = min(len(d) for d in digits)
+    if any(d != f"{n:0{padding}d}" for d, n in zip(digits, frame_numbers, strict=False)):
+        return PASS_FILE_DIGITS
+    return padding
 
 
 #: Keys every manifest has (validated by ``validate_manifest``, types included). Paths inside are relative to the
@@ -697,19 +766,22 @@ def pass_file_name(frame_number: int) -> str:
 #:           [int] (ascending), "first_frame": int, "last_frame": int, "fps": float|None, "resolution": [W, H],
 #:           "working_resolution": [W, H], "colorspace": str (the plate's OCIO colour space; "sRGB"|"linear" in
 #:           older manifests), "colour_config": str (optional: its OCIO config; absent = LEGACY_COLORSPACES),
+#:           "colour_source": str (optional: how the colour space was decided, one of COLOUR_SOURCES),
 #:           "masks": [str] (the fit's mask folders; optional), and optional, the plate's timing
 #:           (MANIFEST_OPTIONAL_FIELDS; absent: none stated): "rate": [num, den]|None (the exact frame rate, 24000/1001
 #:           for 23.976; "fps" is its float), "pixel_aspect": number (2.0: 2x anamorphic), "timecode": str|None (SMPTE
 #:           "HH:MM:SS:FF" of first_frame), "start_frame": int (a movie's number of its first frame: frame_numbers are
 #:           start_frame + the frame's index)},
-#:  "passes": {"dir": str, "pattern": "atlas.{frame:05d}.exr", "blender_pattern": "atlas.#####.exr",
+#:  "passes": {"dir": str, "pattern": "atlas.{frame:04d}.exr" (padded as the plate's frames: ``pass_pattern``),
+#:             "blender_pattern": "atlas.####.exr" (the same for Blender: ``blender_pattern``),
 #:             "frames": [int] (plate frame numbers exported, each one of the clip's), "exr_layer": "Atlas",
 #:             "resolution": [W, H] (the clip's)},
 #:  "layers": [{"name": str (unique), "index": int (its position; 0 is the background), "role":
-#:              "background"|"foreground", "uv_pass": str, "alpha_pass": str, "uv_channels": [3 str],
+#:              "background"|"foreground", "uv_pass": str, "alpha_pass": str, "uv_channels": [3 str] (u, v,
+#:              coverage: UV_CHANNELS, or LEGACY_UV_CHANNELS in older exports),
 #:              "alpha_channels": [str], "atlas_exr": str, "atlas_png": str, "atlas_size": [W, H], "edit_layer": str,
 #:              "atlas_box": [u0, v0, u1, v1],
-#:              "channels": [full EXR channel names, e.g. "Atlas.UVForeground.X"] (optional: derivable),
+#:              "channels": [full EXR channel names, e.g. "Atlas.UVForeground.U"] (optional: derivable),
 #:              "stmap_pass": "STMap<Layer>", "stmap_channels": [4 full EXR channel names] (optional: exports made
 #:              before the STMap layers have neither, and their pass files have no STMap layers)}],
 #:  "fit": {"preset": str, "model": str, "steps": int, "train_seconds": float, "psnr": float|None,
@@ -745,6 +817,7 @@ MANIFEST_OPTIONAL_FIELDS: dict[str, dict[str, str]] = {
         "working_resolution": "int pair",
         "masks": "str list",
         "colour_config": "str",
+        "colour_source": "str",
         "rate": "int pair or null",
         "pixel_aspect": "number",
         "timecode": "str or null",
@@ -837,6 +910,8 @@ def _check_clip(clip: dict[str, Any]) -> None:
         raise ManifestError(
             f"manifest 'clip' has unknown kind or colour space {_quote([clip['kind'], clip['colorspace']])}"
         )
+    if clip.get("colour_source", COLOUR_SOURCE_ASKED) not in COLOUR_SOURCES:
+        raise ManifestError(f"manifest 'clip' has unknown colour_source {_quote(clip['colour_source'])}")
     if not numbers or numbers[0] < 0 or numbers != sorted(set(numbers)):
         raise ManifestError("manifest 'clip' frame_numbers are not ascending frame numbers >= 0")
     if (clip["first_frame"], clip["last_frame"]) != (numbers[0], numbers[-1]):

@@ -15,7 +15,7 @@ by d. It moves only when its own outline runs through what lies beyond it (a pre
 so neither a precise mask nor a small textured object's interior lines can move it. A clip-wide offset (per mask
 layer) is robust where a per-frame one would chase texture: one frame's background edges cannot move it.
 
-Measured at 768x432 against the precise DAVIS masks (docs/accuracy-vs-time.md): masks dilated by 10 px go from
+Measured at 768x432 against the precise DAVIS masks (docs/bench/experiments.md): masks dilated by 10 px go from
 IoU 0.72 / 0.44 / 0.53 / 0.83 (blackswan, bmx-trees, libby, car-roundabout) to 0.97 / 0.73 / 0.90 / 0.99, and the
 precise masks themselves are left as they are.
 """

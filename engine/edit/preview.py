@@ -16,7 +16,6 @@ all are written, or none does.
 from __future__ import annotations
 
 import contextlib
-import sys
 from pathlib import Path
 
 import cv2
@@ -163,9 +162,7 @@ def write_previews(manifest_path: str | Path, out_dir: str | Path | None = None,
         if full is None:
             raise
         raise full from None
-    for p in written:
-        print(f"preview: {p}", file=sys.stderr)
-    return written
+    return written  # the caller says them (the preview verb: once, on stdout)
 
 
 def _write_previews_into(manifest: Manifest, staged: StagedFolder, movies: bool) -> None:

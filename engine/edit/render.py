@@ -19,15 +19,18 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import shutil
 import sys
 from collections.abc import Iterator
+from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
 from types import TracebackType
 from typing import Any
 
 import numpy as np
+import OpenEXR
 import OpenImageIO as oiio
 from tqdm import tqdm
 
@@ -35,7 +38,14 @@ from engine import contract as C
 from engine.edit.equations import FILTERS, composite_edits, composite_touched, edit_is_empty, load_edit
 from engine.errors import DiskFullError, InputError
 from engine.export.manifest import Manifest
-from engine.io.atomic import DISK_ERRORS, as_disk_full, disk_full_as_one_line, disk_full_error, signals_held
+from engine.io.atomic import (
+    DISK_ERRORS,
+    as_disk_full,
+    atomic_write,
+    disk_full_as_one_line,
+    disk_full_error,
+    signals_held,
+)
 from engine.io.clip import iter_frames, open_clip
 from engine.io.colour import (
     SCENE_LINEAR,
@@ -48,11 +58,20 @@ from engine.io.colour import (
     role_space,
     to_linear,
 )
-from engine.io.images import exr_timing, read_spec, write_like, write_png, write_rgba_exr
+from engine.io.images import exr_timing, native_path, read_spec, write_like, write_png, write_rgba_exr
 from engine.io.timing import exact_rate, timecode_at
 
 FORMATS = ("exr", "png", "plate")
+#: The frames' default name: ``edit.`` + the plate's frame number padded as the plate's files are + the extension
+#: (``edit.1001.exr`` for a plate.1001.exr; ``--name`` names them otherwise).
 OUTPUT_PREFIX = "edit."
+#: ``--name``'s frame token: one run of ``#`` (one per digit, as Blender and Nuke write it) or printf ``%0Nd``/``%d``.
+NAME_TOKEN = re.compile(r"#+|%0?(\d*)d")
+NAME_ARG = "--name"
+#: ``--depth``: the bits of each channel of an EXR frame: 16 (half float) or 32 (float). Default: the plate's own
+#: when it is an EXR (a half plate gives half frames), else 32.
+EXR_DEPTHS = ("16", "32")
+DEPTH_ARG = "--depth"
 #: Frames per second of the movie when the plate has no rate (image sequences).
 DEFAULT_FPS = 25.0
 #: The movie's colour tags (ISO/IEC 23091-2 codes: primaries BT.709 = 1, transfer IEC 61966-2-1 sRGB = 13, matrix
@@ -190,6 +209,63 @@ def _plate_file(manifest: Manifest) -> tuple[oiio.ImageSpec | None, str]:
         if ext in PLATE_FORMATS:
             return read_spec(first), ext
     return None, ".png"
+
+
+def frame_name_pattern(name: str | None, ext: str, padding: int) -> str:
+    """The frames' file name as a format pattern (``shot_v001.{frame:04d}.exr``) from ``--name``
+    (``shot_v001.####.exr``, ``shot_v001.%04d.exr``), or by default ``edit.`` + ``padding`` digits + ``ext``. A name
+    that is a path, holds no frame token or two, or ends in another extension than the frames' ``ext`` is one line."""
+    if name is None:
+        return f"{OUTPUT_PREFIX}{{frame:0{padding}d}}{ext}"
+    example = f"e.g. {NAME_ARG} shot_v001.{'#' * padding}{ext}"
+    tokens = list(NAME_TOKEN.finditer(name))
+    if "/" in name or "\\" in name or name.startswith(".") or not name.isprintable():
+        raise InputError(
+            None, f"{NAME_ARG} {name!r} is not a plain file name", f"give the folder to --out and {example}"
+        )
+    if len(tokens) != 1:
+        problem = "has no frame number token" if not tokens else "has more than one frame number token"
+        raise InputError(None, f"{NAME_ARG} {name!r} {problem} (#### or %04d)", example)
+    if os.path.splitext(name)[1].lower() != ext:
+        raise InputError(None, f"{NAME_ARG} {name!r} does not end in {ext}, the extension of these frames", example)
+    token = tokens[0]
+    digits = len(token.group()) if token.group().startswith("#") else int(token.group(1) or 1)
+    head, tail = (part.replace("{", "{{").replace("}", "}}") for part in (name[: token.start()], name[token.end() :]))
+    return f"{head}{{frame:0{digits}d}}{tail}"
+
+
+def exr_half(manifest: Manifest, depth: str | None) -> bool:
+    """Whether EXR frames are written as half floats: ``--depth 16``, or by default when every channel of the
+    plate's first frame is half (a half EXR plate gives half frames, as the plate's own bit depth)."""
+    if depth is not None:
+        return depth == EXR_DEPTHS[0]
+    clip = manifest.clip
+    if clip["kind"] != C.CLIP_KINDS[0] or os.path.splitext(clip["frame_files"][0])[1].lower() != ".exr":
+        return False
+    manifest.plate_source()  # a plate that is not there: the one line naming it, as the render itself would give
+    spec = read_spec(str(manifest.plate_frame_file(0)))
+    formats = list(spec.channelformats) or [spec.format]
+    return all(f == oiio.HALF for f in formats)
+
+
+def write_half_rgba_exr(
+    path: Path, rgba: np.ndarray, chromaticities: tuple[float, ...] | None, colorspace: str, attributes: dict[str, Any]
+) -> Path:
+    """``write_rgba_exr``'s file with half-float channels (what a half plate's frames are): the same header, ZIP
+    compression, written atomically. Values beyond half's range become infinite, as in any half EXR writer."""
+    header: dict[str, Any] = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    if chromaticities is not None:
+        header["chromaticities"] = tuple(float(v) for v in chromaticities)
+    header[C.EXR_COLORSPACE_ATTRIBUTE] = colorspace
+    header.update(attributes)
+    with np.errstate(over="ignore"):  # beyond half's range: infinite, without a warning past the one-line output
+        data = {c: np.ascontiguousarray(rgba[..., i], dtype=np.float16) for i, c in enumerate("RGBA"[: rgba.shape[2]])}
+
+    def write(tmp: str) -> None:
+        with OpenEXR.File(header, data) as f:
+            f.write(native_path(tmp))
+
+    return atomic_write(path, write)
 
 
 def to_display_u8(frame_linear: np.ndarray) -> np.ndarray:
@@ -520,16 +596,25 @@ def render_manifest(
     movie: str | Path | None = None,
     progress_bar: bool = True,
     frames: tuple[int, int] | None = None,
+    name: str | None = None,
+    depth: str | None = None,
 ) -> Path:
     """Render every exported frame (``frames``: those of that inclusive range of plate frame numbers) with the
     edits into ``out_dir``; returns the folder (or the movie). All frames (and the movie) appear together, or none
     does. A render of a range is one chunk of a render several processes share: its frames join those the others
     committed into ``out_dir`` (the same files one whole render writes), and run again it writes the same files
-    again; its movie is of that range."""
+    again; its movie is of that range. ``name``: the frames' file name with a frame token (``shot.####.exr``;
+    default ``edit.`` and the number padded as the plate's frames); ``depth`` (EXR only): "16" or "32" bits a
+    channel (default: the plate's, when it is an EXR; else 32)."""
     if fmt not in FORMATS:
         raise InputError(None, f"unknown --format {fmt!r}", f"use one of {', '.join(FORMATS)}")
     if filter not in FILTERS:
         raise InputError(None, f"unknown --filter {filter!r}", f"use one of {', '.join(FILTERS)}")
+    if depth is not None and (depth not in EXR_DEPTHS or fmt != FORMATS[0]):
+        problem = f"{DEPTH_ARG} {depth!r} is not one of {', '.join(EXR_DEPTHS)}"
+        if depth in EXR_DEPTHS:
+            problem = f"{DEPTH_ARG} is for --format exr, not {fmt} (png is 8-bit, plate keeps the plate's own depth)"
+        raise InputError(None, problem, f"use {DEPTH_ARG} {' or '.join(EXR_DEPTHS)} with --format exr, or leave it out")
     manifest = Manifest(manifest_path)
     chosen = manifest.frames if frames is None else chunk_frames(manifest, frames)
     out = Path(out_dir)
@@ -542,9 +627,13 @@ def render_manifest(
     sizes = _Sizes(len(chosen), w * h * FRAME_BYTES_PER_PIXEL[fmt])
     what = OUTPUT_PREFIX.rstrip(".") if frames is None else f"{OUTPUT_PREFIX.rstrip('.')}-{frames[0]}-{frames[1]}"
     staged = StagedFolder(out, what, "--out", shared=frames is not None)
+    like, ext = _plate_file(manifest) if fmt == "plate" else (None, f".{fmt}")
+    clip = manifest.clip
+    output = _Output(like, frame_name_pattern(name, ext, C.frame_padding(clip["frame_files"], clip["frame_numbers"])),
+                     fmt == FORMATS[0] and exr_half(manifest, depth))  # fmt: skip
     try:
         with staged:
-            _render_into(manifest, staged, edits, fmt, filter, movie_path, progress_bar, sizes, chosen)
+            _render_into(manifest, staged, edits, output, filter, movie_path, progress_bar, sizes, chosen)
     except DISK_ERRORS as exc:
         full = _disk_full_needing(exc, staged, sizes.need())
         if full is None:
@@ -553,11 +642,25 @@ def render_manifest(
     return movie_path if movie_path is not None else out
 
 
+@dataclass(frozen=True)
+class _Output:
+    """How each frame is written: like a plate frame's header (``--format plate``; None: EXR or PNG), named by
+    ``pattern`` (a format pattern of ``frame``), EXR channels as half floats (``half``) or float32."""
+
+    like: oiio.ImageSpec | None
+    pattern: str
+    half: bool
+
+    @property
+    def png(self) -> bool:
+        return self.like is None and self.pattern.lower().endswith(".png")
+
+
 def _render_into(
     manifest: Manifest,
     staged: StagedFolder,
     edits: list[np.ndarray | None],
-    fmt: str,
+    output: _Output,
     filter: str,
     movie: Path | None,
     progress_bar: bool,
@@ -572,21 +675,20 @@ def _render_into(
             writer = movie_writer(manifest, movie, first_frame=frames[0])
         bar = tqdm(total=len(frames), disable=not progress_bar, file=sys.stderr, unit="frame")
         space, config = plate_colour(manifest)
-        like, ext = _plate_file(manifest) if fmt == "plate" else (None, f".{fmt}")
         plate_is_srgb = space == role_space(SRGB, config)
         exr_space = space if is_linear(space, config) else role_space(SCENE_LINEAR, config)
         clip = manifest.clip
         for number, in_plate, frame in render_plate_frames(manifest, edits, frames, filter=filter):
-            path = staged.path(f"{OUTPUT_PREFIX}{number:05d}{ext}")
-            if like is not None:
-                write_like(path, in_plate, like)
-            elif fmt == "exr":
+            path = staged.path(output.pattern.format(frame=number))
+            if output.like is not None:
+                write_like(path, in_plate, output.like)
+            elif not output.png:
                 timing = exr_timing(C.clip_rate(clip), clip.get("pixel_aspect", 1.0), clip.get("timecode"),
                                     number - clip["first_frame"])  # fmt: skip
                 rgb = in_plate if exr_space == space else frame
-                alpha = np.ones((*frame.shape[:2], 1), np.float32)
-                write_rgba_exr(path, np.concatenate((rgb, alpha), -1), chromaticities(exr_space, config), exr_space,
-                               attributes=timing)  # fmt: skip
+                rgba = np.concatenate((rgb, np.ones((*frame.shape[:2], 1), np.float32)), -1)
+                write = write_half_rgba_exr if output.half else write_rgba_exr
+                write(path, rgba, chromaticities(exr_space, config), exr_space, attributes=timing)
             else:
                 write_png(path, np.clip(in_plate if plate_is_srgb else linear_to_srgb(frame), 0.0, 1.0), 8)
             sizes.frames += 1
@@ -609,12 +711,15 @@ def _render_into(
 
 
 __all__ = [
+    "EXR_DEPTHS",
     "FORMATS",
     "MovieWriter",
     "StagedFolder",
     "check_movie",
     "check_output",
     "chunk_frames",
+    "exr_half",
+    "frame_name_pattern",
     "load_edits",
     "movie_writer",
     "parse_edit_args",
@@ -622,4 +727,5 @@ __all__ = [
     "render_frames",
     "render_manifest",
     "to_display_u8",
+    "write_half_rgba_exr",
 ]

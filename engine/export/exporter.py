@@ -537,8 +537,13 @@ def _write_atlases(fitted: FittedRun, plan: _Plan, cov: list[_Coverage], dest: P
         )
 
 
-def _pass_file(dest: Path, number: int) -> Path:
-    return dest / C.PASSES_DIR / C.pass_file_name(number)
+def _padding(clip: ClipRecord) -> int:
+    """The digits of the pass files' frame numbers: the plate's own padding (``contract.frame_padding``)."""
+    return C.frame_padding(clip.frame_files, clip.frame_numbers)
+
+
+def _pass_file(dest: Path, number: int, clip: ClipRecord) -> Path:
+    return dest / C.PASSES_DIR / C.pass_file_name(number, _padding(clip))
 
 
 def _write_passes(
@@ -561,15 +566,16 @@ def _write_passes(
             tex_uv, inside = plan.frames_by_layer[i].to_texture_uv(uvs[i])
             a = wts[:, i]
             uv_pass, alpha_pass = C.uv_pass(name), C.alpha_pass(name)
-            chans[C.channel_name(uv_pass, "X")] = tex_uv[:, 0].reshape(nh, nw)
-            chans[C.channel_name(uv_pass, "Y")] = tex_uv[:, 1].reshape(nh, nw)
-            chans[C.channel_name(uv_pass, "Z")] = (a * inside).reshape(nh, nw)
+            u_name, v_name, coverage_name = (C.channel_name(uv_pass, c) for c in C.UV_CHANNELS)
+            chans[u_name] = tex_uv[:, 0].reshape(nh, nw)
+            chans[v_name] = tex_uv[:, 1].reshape(nh, nw)
+            chans[coverage_name] = (a * inside).reshape(nh, nw)
             chans[C.channel_name(alpha_pass, C.ALPHA_CHANNELS[0])] = a.reshape(nh, nw)
             for channel, values in zip(C.STMAP_CHANNELS, stmap_values(chans, uv_pass), strict=True):
                 chans[C.stmap_channel_name(name, channel)] = values
         timing = exr_timing(clip.rate, clip.pixel_aspect, clip.timecode, frame_numbers[t] - frame_numbers[0])
         tags = {C.EXR_COLORSPACE_ATTRIBUTE: RAW, **timing}  # data, with the plate's timing
-        path = write_exr(_pass_file(dest, frame_numbers[t]), chans, attributes=tags)
+        path = write_exr(_pass_file(dest, frame_numbers[t], clip), chans, attributes=tags)
         if written is not None:
             written(path)
         bar.update(1)
@@ -768,7 +774,7 @@ def _export_passes(job: _Job, version: str, frames: tuple[int, int] | None) -> P
             f"choose a range inside {staged[0]}-{staged[-1]}",
         )
     chunk = plan.selected if frames is None else _selected(clip, frames)
-    todo = [t for t in chunk if not _pass_file(chunks, clip.frame_numbers[t]).exists()]
+    todo = [t for t in chunk if not _pass_file(chunks, clip.frame_numbers[t], clip).exists()]
     if todo:
         # no lock here (a refine may replace the checkpoint meanwhile): the fit is checked before and after loading,
         # so the model that writes these passes is the one the atlases were made from
@@ -799,10 +805,10 @@ def _export_publish(job: _Job, version: str, atlas_size: int | None, frames: tup
             f"{version} is staged with frames {numbers[0]}-{numbers[-1]} and atlas size {plan.atlas_size}",
             f"publish it without --frames and --atlas-size, or stage another {C.EXPORT_INTO_ARG} version",
         )
-    missing = [n for n in numbers if not _pass_file(chunks, n).is_file()]
+    missing = [n for n in numbers if not _pass_file(chunks, n, clip).is_file()]
     if missing:
         raise InputError(
-            _pass_file(chunks, missing[0]),
+            _pass_file(chunks, missing[0], clip),
             f"frame {missing[0]} has no pass yet ({len(missing)} of {len(numbers)} frames missing)",
             f"run `export {job.run_dir} {C.EXPORT_INTO_ARG} {version} {C.EXPORT_STAGE_ARG} passes --frames "
             f"{missing[0]}-{missing[-1]}`, then publish again",
@@ -823,12 +829,15 @@ def _export_publish(job: _Job, version: str, atlas_size: int | None, frames: tup
 
 def _write_nuke_script(staging: Path, manifest: dict[str, Any]) -> None:
     """The Nuke script of the edit beside the manifest (its paths are the manifest's, relative to the same folder);
-    a plate Nuke cannot read as one sequence gets a warning instead (`engine nuke` says the same)."""
+    a plate Nuke cannot read as one sequence, or an OCIO config that is gone, gets a warning instead (`engine nuke`
+    says the same)."""
     from engine.export.nuke import NukeScriptError, nuke_script
 
     try:
         atomic_write_text(staging / C.NUKE_SCRIPT_NAME, nuke_script(manifest, str(staging / C.MANIFEST_NAME)))
-    except NukeScriptError as exc:
+    except (NukeScriptError, InputError) as exc:
+        if isinstance(exc, DISK_ERRORS):  # a full disk fails the export, as any other file it writes would
+            raise
         print(f"warning: no {C.NUKE_SCRIPT_NAME}: {exc}", file=sys.stderr)
 
 
@@ -909,7 +918,7 @@ class _Output:
 
 
 def stmap_values(chans: dict[str, np.ndarray], uv_pass: str) -> tuple[np.ndarray, ...]:
-    """A layer's STMap copy (contract.STMAP_CHANNELS: R, G, B, A) from its UV pass: u, v, zeros and the coverage Z,
+    """A layer's STMap copy (contract.STMAP_CHANNELS: R, G, B, A) from its UV pass: u, v, zeros and the coverage,
     the same float32 values (not half: on a 1000-texel atlas half floats round u, v by up to a quarter texel)."""
     u, v, z = (chans[C.channel_name(uv_pass, c)] for c in C.UV_CHANNELS)
     return u, v, np.zeros_like(u), z
@@ -976,7 +985,6 @@ def _manifest(
         layer_record(name, i, fr.size, fr.box, f"{rel_edits}/{name}{C.EDIT_LAYER_EXT}")
         for i, (name, fr) in enumerate(zip(names, frames_by_layer, strict=True))
     ]
-    ext = C.PASS_FILE_EXT
     return {
         C.MANIFEST_TAG: C.MANIFEST_VERSION,
         "engine_version": C.ENGINE_VERSION,
@@ -994,13 +1002,14 @@ def _manifest(
             "working_resolution": list(clip.working_size),
             "colorspace": clip.colorspace,
             **({"colour_config": clip.colour_config} if clip.colour_config is not None else {}),
+            **({"colour_source": clip.colour_source} if clip.colour_source is not None else {}),
             "masks": [relative_path(m, final) for m in clip.masks],
             **clip_timing(clip),
         },
         "passes": {
             "dir": C.PASSES_DIR,
-            "pattern": f"{C.PASS_FILE_PREFIX}{{frame:0{C.PASS_FILE_DIGITS}d}}{ext}",
-            "blender_pattern": f"{C.PASS_FILE_PREFIX}{'#' * C.PASS_FILE_DIGITS}{ext}",
+            "pattern": C.pass_pattern(_padding(clip)),
+            "blender_pattern": C.blender_pattern(_padding(clip)),
             "frames": [numbers[t] for t in selected],
             "exr_layer": C.EXR_LAYER,
             "resolution": list(clip.native_size),

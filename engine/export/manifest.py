@@ -118,7 +118,9 @@ class Manifest:
         return png
 
     def pass_path(self, frame: int) -> Path:
-        return self.resolve(self.data["passes"]["dir"]) / C.pass_file_name(frame)
+        """The pass file of plate frame ``frame``, named by the manifest's pattern (its padding is the plate's;
+        exports made before it followed the plate's padding have five digits)."""
+        return self.resolve(self.data["passes"]["dir"]) / self.data["passes"]["pattern"].format(frame=frame)
 
     def check_frame(self, frame: int) -> None:
         if frame not in self.frames:

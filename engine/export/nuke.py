@@ -3,7 +3,9 @@
 Per layer: the pass files' ``STMap<Layer>`` layer shuffled into rgba (u, v, 0, coverage), an STMap of the layer's
 edit image (premultiplied), masked by the coverage (Merge mask: ``Z * P``); the layers summed (Merge plus) and put
 over the plate with one premultiplied Merge over: ``plate * (1 - sum Z_i a_i) + sum Z_i P_i``, the paper's edit
-equation as ``engine.edit.equations`` computes it. The frame range, fps and format are the export's.
+equation as ``engine.edit.equations`` computes it. The frame range, fps and format are the export's. The Root sets
+OCIO colour management with ONE config, the export's (or a studio's, ``engine nuke --ocio-config``), and every
+``colorspace`` knob is a name of that config (``script_colour``), so no Read depends on another config's names.
 
 The test suite has no Nuke to run it in: it parses the script back (node classes, knobs, the input wiring, that
 every file it reads exists and every channel it names is in the pass files) and evaluates a model of its nodes.
@@ -40,8 +42,14 @@ STMAP_FILTERS: tuple[str, ...] = ("Cubic", "Impulse", "Keys", "Simon", "Rifman",
 DEFAULT_FILTER = "Cubic"
 #: The Root's project directory: the script's own folder, so the relative paths below are relative to it.
 SCRIPT_DIRECTORY = "[python {nuke.script_directory()}]"
-#: Nuke's colour space names for the manifest's (its default OCIO config); other names are passed as they are.
-COLORSPACES = {"sRGB": "sRGB", "linear": "linear"}
+#: The Root's colour knobs: OCIO colour management with the config named by its path (or an ``ocio://`` URI, which
+#: Nuke hands to OCIO as it is), so every Read's ``colorspace`` is a name of that one config.
+OCIO_MANAGEMENT = "OCIO"
+OCIO_CUSTOM = "custom"
+#: ``engine nuke``'s option naming a studio's OCIO config to write the script in.
+OCIO_CONFIG_ARG = "--ocio-config"
+#: Where the pass files' frame number stands in the manifest's pattern (``atlas.{frame:04d}.exr``).
+_PATTERN_FRAME = re.compile(r"\{frame(?::0?(\d*)d)?\}")
 #: Node names carry this prefix, so the script's nodes are recognisable once pasted into a comp.
 PREFIX = "NA_"
 #: Node graph spacing (pixels) between the layers' columns and the rows of a column.
@@ -114,6 +122,64 @@ def sequence_pattern(files: list[str], numbers: list[int]) -> str:
         )
     head, tail = heads.pop()
     return f"{head}{f'%0{widths.pop()}d' if len(widths) == 1 else '%d'}{tail}"
+
+
+@dataclass(frozen=True)
+class ScriptColour:
+    """The colour of a script: one OCIO config and the names in it that the Reads and the Root use."""
+
+    config: str  # the config's path or ``ocio://`` URI, set on the Root
+    plate: str  # the plate's colour space
+    srgb: str  # PNG edit layers: sRGB-encoded Rec.709
+    linear: str  # float edit layers, and the Root's working space: scene-linear Rec.709 (Blender's, the engine's)
+
+
+def script_colour(clip: dict[str, Any], ocio_config: str | None = None) -> ScriptColour:
+    """The names a script of ``clip`` (a manifest's) uses: those of the config the export was made in, or of
+    ``ocio_config`` (a studio's), which must know the plate's colour space (a name, an alias or a role). Raises
+    InputError naming the config when it cannot be loaded or lacks a space."""
+    from engine.io.colour import SCENE_LINEAR, SRGB, load_config, recorded_space, resolve, role_space
+
+    plate, config = recorded_space(clip["colorspace"], clip.get("colour_config"))
+    if ocio_config is not None and ocio_config != config:
+        if not ocio_config.startswith("ocio://") and not os.path.isfile(ocio_config):
+            fix = f"give {OCIO_CONFIG_ARG} the path of an OCIO config file (or an ocio:// URI)"
+            raise InputError(ocio_config, "OCIO config does not exist", fix)
+        load_config(ocio_config)
+        try:
+            plate, config = resolve(plate, ocio_config), ocio_config
+        except InputError as exc:
+            same = _same_role(plate, config, ocio_config)
+            if same is None:
+                fix = f"give {OCIO_CONFIG_ARG} a config that has it, or leave it out to use the export's ({config})"
+                raise InputError(ocio_config, f"has no colour space {plate!r} (the plate's)", fix) from exc
+            plate, config = same, ocio_config
+    return ScriptColour(config, plate, role_space(SRGB, config), role_space(SCENE_LINEAR, config))
+
+
+def _same_role(space: str, config: str, other: str) -> str | None:
+    """``other``'s space for the fixed role (sRGB, scene-linear Rec.709, raw) that ``space`` plays in ``config``
+    (configs name them differently: "sRGB Encoded Rec.709 (sRGB)", "sRGB"); None when it plays none, or ``config``
+    cannot be loaded here."""
+    from engine.io.colour import RAW, SCENE_LINEAR, SRGB, role_space
+
+    for role in (SRGB, SCENE_LINEAR, RAW):
+        try:
+            if role_space(role, config) == space:
+                return role_space(role, other)
+        except InputError:
+            return None
+    return None
+
+
+def pass_sequence_pattern(pattern: str) -> str:
+    """The printf pattern of a manifest's pass pattern (``atlas.{frame:04d}.exr`` -> ``atlas.%04d.exr``), which is
+    how a Read names a sequence; raises NukeScriptError for a pattern the engine does not write."""
+    found = _PATTERN_FRAME.findall(pattern)
+    if len(found) != 1 or "%" in pattern or "#" in pattern:
+        raise NukeScriptError(f"the manifest's pass pattern {pattern!r} is not one the engine writes")
+    width = found[0]
+    return _PATTERN_FRAME.sub(f"%0{width}d" if width and int(width) > 1 else "%d", pattern)
 
 
 @dataclass
@@ -189,10 +255,12 @@ def nuke_script(
     manifest_path: str,
     relocate: Callable[[str], str] = lambda path: path,
     filter: str = DEFAULT_FILTER,
+    ocio_config: str | None = None,
 ) -> str:
     """The script's text for a validated manifest at ``manifest_path`` (which says where an edit layer's float twin
     would be). ``relocate`` turns a manifest path (relative to the manifest's folder) into the path the script
-    writes (relative to the script's folder, "/" separated): the identity for a script next to the manifest."""
+    writes (relative to the script's folder, "/" separated): the identity for a script next to the manifest.
+    ``ocio_config``: the OCIO config the script names its colour spaces in (default: the export's)."""
     if filter not in STMAP_FILTERS:
         raise NukeScriptError(f"STMap filter {filter!r} is not one of {', '.join(STMAP_FILTERS)}")
     layers = manifest["layers"]
@@ -211,11 +279,14 @@ def nuke_script(
     frames = passes["frames"]
     first, last = min(frames), max(frames)
     fmt = _format(clip["resolution"], float(clip.get("pixel_aspect", 1.0)))
-    nodes = [_root(first, last, clip["fps"], fmt)]
-    # the pass files' names are the engine's own (``Manifest.pass_path``), whatever the manifest's pattern says
-    pass_pattern = f"{C.PASS_FILE_PREFIX}%0{C.PASS_FILE_DIGITS}d{C.PASS_FILE_EXT}"
+    colour = script_colour(clip, ocio_config)
+    nodes = [_root(first, last, clip["fps"], fmt, colour)]
+    # the pass files are named by the manifest's pattern (``Manifest.pass_path``), padded as the plate's frames
+    pass_pattern = pass_sequence_pattern(passes["pattern"])
     pass_file = file_knob_path(
-        relocate(f"{passes['dir']}/{C.pass_file_name(first)}"), "pass file", relocate(f"{passes['dir']}/{pass_pattern}")
+        relocate(f"{passes['dir']}/{passes['pattern'].format(frame=first)}"),
+        "pass file",
+        relocate(f"{passes['dir']}/{pass_pattern}"),
     )
     range_knobs = [("first", str(first)), ("last", str(last)), ("origfirst", str(first)), ("origlast", str(last))]
     passes_read = _read(
@@ -224,24 +295,33 @@ def nuke_script(
     passes_read.after.append(f"set {PREFIX}passes [stack 0]")
     nodes.append(passes_read)
     for i, layer in enumerate(layers):
-        nodes.extend(_layer_nodes(i, layer, manifest_path, relocate, filter))
-    nodes.append(_plate_read(clip, relocate, fmt, x=-COLUMN, y=ROW * 6))
+        nodes.extend(_layer_nodes(i, layer, manifest_path, relocate, filter, colour))
+    nodes.append(_plate_read(clip, relocate, fmt, colour.plate, x=-COLUMN, y=ROW * 6))
     over = [("inputs", "2"), ("operation", "over"), ("name", f"{PREFIX}Over_plate")]
     nodes.append(Node("Merge2", [*over, ("xpos", "0"), ("ypos", str(ROW * 7))]))
     return _text(nodes, manifest)
 
 
-def _root(first: int, last: int, fps: float | None, fmt: str) -> Node:
+def _root(first: int, last: int, fps: float | None, fmt: str, colour: ScriptColour) -> Node:
     knobs = [("inputs", "0"), ("project_directory", SCRIPT_DIRECTORY), ("frame", str(first))]
     knobs += [("first_frame", str(first)), ("last_frame", str(last)), ("lock_range", "true")]
     if fps:
         knobs.append(("fps", f"{fps:.6g}"))
     knobs.append(("format", fmt))
+    # one config for every Read: the export's (or the studio's), working in Blender's and the engine's linear space
+    config = file_knob_path(colour.config, "OCIO config")
+    knobs += [("colorManagement", OCIO_MANAGEMENT), ("OCIO_config", OCIO_CUSTOM), ("customOCIOConfigPath", config)]
+    knobs.append(("workingSpaceLUT", colour.linear))
     return Node("Root", knobs)
 
 
 def _layer_nodes(
-    i: int, layer: dict[str, Any], manifest_path: str, relocate: Callable[[str], str], filter: str
+    i: int,
+    layer: dict[str, Any],
+    manifest_path: str,
+    relocate: Callable[[str], str],
+    filter: str,
+    colour: ScriptColour,
 ) -> list[Node]:
     """Shuffle -> STMap -> Merge (mask) of one layer; from the second layer on, a Merge (plus) into the sum."""
     name, x = layer["name"], i * COLUMN
@@ -257,9 +337,9 @@ def _layer_nodes(
     twin = C.float_edit_layer(layer["edit_layer"])
     is_float = os.path.exists(C.resolve_manifest_path(manifest_path, twin))
     edit = twin if is_float else layer["edit_layer"]
-    colour = [("colorspace", "linear")] if is_float else [("colorspace", "sRGB"), ("premultiplied", "false")]
+    knobs = [("colorspace", colour.linear)] if is_float else [("colorspace", colour.srgb), ("premultiplied", "false")]
     edit_file = file_knob_path(relocate(edit), f"{name} edit layer")
-    nodes = [shuffle, _read(f"{PREFIX}Edit_{name}", edit_file, colour, x + COLUMN // 2, ROW)]
+    nodes = [shuffle, _read(f"{PREFIX}Edit_{name}", edit_file, knobs, x + COLUMN // 2, ROW)]
     if not is_float:  # a PNG edit layer is straight alpha: premultiply after the sRGB decode, as Blender does
         nodes.append(Node("Premult", [("name", f"{PREFIX}Premult_{name}"), ("xpos", str(x + COLUMN // 2))]))
         nodes[-1].knobs.append(("ypos", str(ROW * 2)))
@@ -284,10 +364,12 @@ def nuke_layer(stmap_pass: str) -> str:
     return nuke_channel_name(f"{stmap_pass}.{C.STMAP_CHANNELS[0]}").split(".")[0]
 
 
-def _plate_read(clip: dict[str, Any], relocate: Callable[[str], str], fmt: str, x: int, y: int) -> Node:
+def _plate_read(
+    clip: dict[str, Any], relocate: Callable[[str], str], fmt: str, colorspace: str, x: int, y: int
+) -> Node:
     numbers = clip["frame_numbers"]
     first, last = numbers[0], numbers[-1]
-    colour = [("colorspace", COLORSPACES.get(clip["colorspace"], clip["colorspace"]))]
+    colour = [("colorspace", colorspace)]
     if clip["kind"] == C.CLIP_KINDS[0]:
         for frame_file in clip["frame_files"]:  # every frame: the token replaces digits that differ between them
             file_knob_path(relocate(frame_file), "plate frame")
@@ -338,10 +420,14 @@ def relocator(manifest_path: str, script_path: str) -> Callable[[str], str]:
 
 
 def write_nuke_script(
-    manifest_path: str | os.PathLike[str], out: str | os.PathLike[str], filter: str = DEFAULT_FILTER
+    manifest_path: str | os.PathLike[str],
+    out: str | os.PathLike[str],
+    filter: str = DEFAULT_FILTER,
+    ocio_config: str | None = None,
 ) -> Path:
     """``engine nuke``: write the script of the export at ``manifest_path`` to ``out`` (a new file: an existing one,
-    maybe the artist's comp, is never overwritten); returns its path. Errors are one line naming the file and the fix.
+    maybe the artist's comp, is never overwritten), its colour spaces named in ``ocio_config`` (default: the
+    export's config); returns its path. Errors are one line naming the file and the fix.
     """
     from engine.export.manifest import Manifest
     from engine.io.atomic import atomic_write_text
@@ -353,7 +439,8 @@ def write_nuke_script(
     if target.exists():
         raise InputError(target, "exists (a Nuke script may hold the artist's work)", "choose a new --out FILE.nk")
     try:
-        text = nuke_script(manifest.data, str(manifest.path), relocator(str(manifest.path), str(target)), filter)
+        relocate = relocator(str(manifest.path), str(target))
+        text = nuke_script(manifest.data, str(manifest.path), relocate, filter, ocio_config)
     except NukeScriptError as exc:
         problem, _, fix = str(exc).partition(" — ")
         raise InputError(manifest.path, problem, fix or "export the run again") from None
@@ -367,12 +454,15 @@ __all__ = [
     "FILE_KNOB_SPECIAL",
     "STMAP_FILTERS",
     "NukeScriptError",
+    "ScriptColour",
     "file_knob_path",
     "nuke_channel_name",
     "nuke_layer",
     "nuke_script",
+    "pass_sequence_pattern",
     "quote",
     "relocator",
+    "script_colour",
     "sequence_pattern",
     "write_nuke_script",
 ]

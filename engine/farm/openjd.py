@@ -5,11 +5,14 @@ A bundle is a folder of three files (JSON, which every OpenJD and Deadline Cloud
 - ``template.json``: one step per task kind per shot (``sh010-fit``, ``sh010-passes``, ...), the chunks of a kind as
   the step's tasks over a ``Frames`` task parameter, the plan's dependencies as step dependencies, and, on the
   steps that want one, a host requirement of a GPU (``amount.worker.gpu``; ``--no-gpu`` leaves it out for a
-  farm of CPU hosts). Every path is a job parameter of type PATH: plates and mask folders ``dataFlow: IN``, run and
-  render folders ``OUT``, so Deadline Cloud maps them onto each worker's mounts and its job attachments upload the
-  inputs and download the outputs. The worker's engine Python is the ``EnginePython`` parameter, and
-  ``EnginePath`` (the folder holding ``engine/``, empty when the engine is installed into that Python) becomes
-  ``PYTHONPATH`` for the job's commands.
+  farm of CPU hosts). Every path is a job parameter of type PATH: plates and mask folders ``dataFlow: IN``, run
+  folders ``INOUT`` (the fit writes them, every later step reads them), render folders ``OUT``, so Deadline Cloud maps
+  them onto each worker's mounts and its job attachments upload the inputs and download the outputs. The worker's
+  engine Python is the ``EnginePython`` parameter, and ``EnginePath`` (the folder holding ``engine/``, empty when the
+  engine is installed into that Python) is put in front of the worker's ``PYTHONPATH`` (an ``openjd_env`` message of
+  the job environment's onEnter: a template's variables can only replace a value). The same environment sets
+  ``contract.OPENJD_PROGRESS_ENV``, so every task prints ``openjd_progress`` and ``openjd_status`` messages: the
+  farm's monitor shows each task's progress and stage.
 - ``parameter_values.json``: those parameters' values on the submitting machine (Deadline Cloud's format).
 - ``asset_references.json``: the same inputs and outputs as Deadline Cloud's asset references.
 - ``job_parameters.json``: the parameter values again, as ``openjd run -p file://BUNDLE/job_parameters.json``
@@ -54,6 +57,13 @@ PYTHON_PARAMETER = "EnginePython"
 ENGINE_PATH_PARAMETER = "EnginePath"
 #: The task parameter of a chunked step: its tasks' frame ranges ("1001-1050").
 FRAMES_PARAMETER = "Frames"
+#: The job environment's onEnter: prints ``openjd_env: PYTHONPATH=<EnginePath><pathsep><the worker's PYTHONPATH>``
+#: (nothing when EnginePath is empty), run by the engine's Python so the separator is the worker's. No braces: OpenJD
+#: would read them as an expression.
+PREPEND_PYTHONPATH = (
+    "import os, sys; new, old = sys.argv[1], os.environ.get('PYTHONPATH', ''); "
+    "print('openjd_env: PYTHONPATH=' + os.pathsep.join(p for p in (new, old) if p)) if new else None"
+)
 #: The host requirement of the fit, atlases and passes steps.
 GPU_AMOUNT = "amount.worker.gpu"
 DEFAULT_PYTHON = "python3"
@@ -74,7 +84,7 @@ class _PathParameter:
     name: str
     value: str
     object_type: str  # FILE | DIRECTORY
-    data_flow: str  # IN | OUT
+    data_flow: str  # IN | OUT | INOUT
     description: str
 
     def definition(self) -> dict[str, Any]:
@@ -203,8 +213,16 @@ def job_template(
         "jobEnvironments": [
             {
                 "name": "NeuralAtlasEngine",
-                "description": "the engine's package on the workers' Python path",
-                "variables": {"PYTHONPATH": f"{{{{Param.{ENGINE_PATH_PARAMETER}}}}}"},
+                "description": "the engine's package in front of the workers' Python path; progress for the farm",
+                "script": {
+                    "actions": {
+                        "onEnter": {
+                            "command": f"{{{{Param.{PYTHON_PARAMETER}}}}}",
+                            "args": ["-c", PREPEND_PYTHONPATH, f"{{{{Param.{ENGINE_PATH_PARAMETER}}}}}"],
+                        }
+                    }
+                },
+                "variables": {C.OPENJD_PROGRESS_ENV: "1"},
             }
         ],
         "steps": built,
@@ -340,22 +358,23 @@ def _parameters(shot_plans: Iterable[ShotPlan]) -> _Parameters:
         params.add("Plate", shot.name, plate, kind, "IN", f"shot {shot.name}: the plate")
         for i, mask in enumerate(shot.masks):
             params.add(f"Mask{i + 1}", shot.name, mask, "DIRECTORY", "IN", f"shot {shot.name}: mask folder {i + 1}")
-        params.add("Run", shot.name, shot.run, "DIRECTORY", "OUT", f"shot {shot.name}: the run folder")
+        params.add("Run", shot.name, shot.run, "DIRECTORY", "INOUT", f"shot {shot.name}: the run folder")
         if shot.render is not None:
             params.add("Render", shot.name, shot.render, "DIRECTORY", "OUT", f"shot {shot.name}: rendered frames")
     return params
 
 
 def asset_references(params: _Parameters) -> dict[str, Any]:
-    """Deadline Cloud's asset references: the input files and folders to upload, the output folders to fetch."""
-    inputs = [p for p in params.paths if p.data_flow == "IN"]
+    """Deadline Cloud's asset references: the input files and folders to upload (a run folder that exists already,
+    e.g. a fit to continue, among them), the output folders to fetch (run and render folders)."""
+    inputs = [p for p in params.paths if p.data_flow == "IN" or (p.data_flow == "INOUT" and os.path.isdir(p.value))]
     return {
         "assetReferences": {
             "inputs": {
                 "filenames": [p.value for p in inputs if p.object_type == "FILE"],
                 "directories": [p.value for p in inputs if p.object_type == "DIRECTORY"],
             },
-            "outputs": {"directories": [p.value for p in params.paths if p.data_flow == "OUT"]},
+            "outputs": {"directories": [p.value for p in params.paths if p.data_flow in ("OUT", "INOUT")]},
             "referencedPaths": [],
         }
     }

@@ -113,6 +113,7 @@ class PreparedClip:
             fps=info.fps,
             colorspace=info.colorspace,
             colour_config=info.colour_config,
+            colour_source=info.colour_source,
             masks=tuple(self.mask_dirs),
             scribbles=self.scribble_dir,
             layers=1 + self.num_foreground,
@@ -268,6 +269,8 @@ def prepare_clip(
         raise InputError(
             info.source, "the clip changed since this run started", "fit it into a new --out instead of --resume"
         )
+    if info.colour_note:  # the colour space was assumed: said once, once the input is accepted (bad input: one line)
+        print(info.colour_note, file=sys.stderr)
     if before_writing is not None:
         before_writing()
     if len(frames) >= 2:

@@ -62,6 +62,9 @@ class ClipRecord(NumberedFrames):
     """SMPTE timecode of the first fitted frame."""
     start_frame: int = 0
     """A movie's number of its first frame (``fit --start-frame``)."""
+    colour_source: str | None = dataclasses.field(default=None, compare=False)
+    """How ``colorspace`` was decided (``contract.COLOUR_SOURCES``; "assumed": nothing in the file said it); None in
+    records written before it was kept."""
     source_relative: str | None = dataclasses.field(default=None, compare=False)
     """``source`` relative to the run folder ("/" separated; None where there is none, another drive): a run folder
     moved or mounted elsewhere together with its plate finds it there (``located``). The same for the frame files,
@@ -93,15 +96,22 @@ class ClipRecord(NumberedFrames):
         )
 
     def located(self, run_dir: str | Path) -> ClipRecord:
-        """This record with each path where it is now: as given (absolute) when it exists there, else its relative
-        form resolved against where the run folder ``run_dir`` is now when that exists (the run folder was moved or
-        mounted elsewhere with its plate), else as given (``missing_input`` names what is missing)."""
+        """This record with each path where it is now (``_locate``): its relative form resolved against where the
+        run folder ``run_dir`` is now when the run folder moved or was copied with it, else as given
+        (``missing_input`` names what is missing)."""
         ff = self.frame_files_relative or (None,) * len(self.frame_files)
         mr = self.masks_relative or (None,) * len(self.masks)
+        source = _locate(self.source, self.source_relative, run_dir)
+        if source != self.source:  # the plate's frames go where the plate went: one plate, never a mix of two
+            frames = tuple(_relocated(f, r, run_dir) for f, r in zip(self.frame_files, ff, strict=False))
+        else:  # the plate stayed: a frame moves to its relative place only where it is missing
+            frames = tuple(
+                f if _exists(f) else _locate(f, r, run_dir) for f, r in zip(self.frame_files, ff, strict=False)
+            )
         return dataclasses.replace(
             self,
-            source=_locate(self.source, self.source_relative, run_dir),
-            frame_files=tuple(_locate(f, r, run_dir) for f, r in zip(self.frame_files, ff, strict=False)),
+            source=source,
+            frame_files=frames,
             masks=tuple(_locate(m, r, run_dir) for m, r in zip(self.masks, mr, strict=False)),
             scribbles=None if self.scribbles is None else _locate(self.scribbles, self.scribbles_relative, run_dir),
         )
@@ -132,6 +142,8 @@ class ClipRecord(NumberedFrames):
                 data[key] = list(value)
         if data["colour_config"] is None:
             del data["colour_config"]
+        if data["colour_source"] is None:
+            del data["colour_source"]
         if self.frame_files_relative is None:  # a record from before the relative paths were kept
             for key in RELATIVE_FIELDS:
                 del data[key]
@@ -155,6 +167,7 @@ class ClipRecord(NumberedFrames):
             layers=data["layers"],
             fingerprint=data["fingerprint"],
             colour_config=data.get("colour_config"),
+            colour_source=data.get("colour_source"),
             # the plate's timing: absent from records written before it was kept (square pixels, movies from 0)
             rate=(data["rate"][0], data["rate"][1]) if data.get("rate") else None,
             pixel_aspect=data.get("pixel_aspect", 1.0),
@@ -192,13 +205,56 @@ def _exists(path: str) -> bool:
     return os.path.exists(path) or (is_sequence_pattern(path) and os.path.isdir(os.path.dirname(path) or "."))
 
 
+#: Bytes of a file compared to tell a copy of an input from another input (``_same_input``).
+SAME_INPUT_BYTES = 1 << 16
+
+
 def _locate(given: str, relative: str | None, run_dir: str | Path) -> str:
-    """``given`` when it is there, else ``relative`` resolved against the run folder when that is there, else
-    ``given``."""
-    if _exists(given) or relative is None:
+    """Where an input of the run is now. ``relative`` resolved against the run folder when the run folder is no
+    longer where it was fitted and that place holds the input: where only it exists (moved or mounted elsewhere
+    with its plate), or where both do and it is a copy of the input (a shot folder copied whole keeps to its own
+    plate and masks, so a refine there never reaches back to the original). Else ``given``."""
+    if relative is None:
         return given
-    moved = os.path.normpath(os.path.join(os.path.abspath(run_dir), relative))
-    return moved if _exists(moved) else given
+    here = os.path.normpath(os.path.join(os.path.abspath(run_dir), relative))
+    if here == os.path.normpath(os.path.abspath(given)) or not _exists(here):
+        return given
+    if not _exists(given) or _same_input(given, here):
+        return here
+    return given  # another input at the same place relative to the run: the run was copied beside it, not with it
+
+
+def _relocated(given: str, relative: str | None, run_dir: str | Path) -> str:
+    """``relative`` resolved against the run folder (``given`` when there is no relative form)."""
+    return given if relative is None else os.path.normpath(os.path.join(os.path.abspath(run_dir), relative))
+
+
+def _same_input(a: str, b: str) -> bool:
+    """Whether ``b`` looks like a copy of ``a``: the same file names in a folder (a sequence pattern: its folder)
+    and, for the first file, the same size and first SAME_INPUT_BYTES bytes. Cheap, and enough to tell a copied
+    plate from another shot's: anything more is the fingerprint's job on a resume."""
+    from engine.io.clip import is_sequence_pattern
+
+    if is_sequence_pattern(a) and is_sequence_pattern(b):
+        a, b = os.path.dirname(a) or ".", os.path.dirname(b) or "."
+    if os.path.isdir(a) != os.path.isdir(b):
+        return False
+    if os.path.isdir(a):
+        try:
+            names_a, names_b = sorted(os.listdir(a)), sorted(os.listdir(b))
+        except OSError:
+            return False
+        files = [n for n in names_a if os.path.isfile(os.path.join(a, n))]
+        if names_a != names_b or not files:
+            return names_a == names_b
+        a, b = os.path.join(a, files[0]), os.path.join(b, files[0])
+    try:
+        if os.path.getsize(a) != os.path.getsize(b):
+            return False
+        with open(a, "rb") as fa, open(b, "rb") as fb:
+            return fa.read(SAME_INPUT_BYTES) == fb.read(SAME_INPUT_BYTES)
+    except OSError:
+        return False
 
 
 def _entry(name: str) -> property:

@@ -115,6 +115,12 @@ class ClipInfo(NumberedFrames):
     """SMPTE timecode of the first selected frame (``HH:MM:SS:FF``; ``;`` before the frames: drop-frame)."""
     start_frame: int = 0
     """A movie's number of its first frame (its frames are numbered ``start_frame + index``); 0 for a sequence."""
+    colour_source: str | None = dataclasses.field(default=None, compare=False)
+    """How ``colorspace`` was decided (``contract.COLOUR_SOURCES``): asked, the file's header, $OCIO's rules, the
+    file type, or assumed; None where it is not known (a clip described by hand). Not what the clip is: clips that
+    differ only in it are equal."""
+    colour_note: str = dataclasses.field(default="", compare=False)
+    """The one ``note:`` line a fit prints when the colour space was assumed ("" otherwise)."""
 
 
 # --- public API ---------------------------------------------------------------------------------------
@@ -137,8 +143,8 @@ def open_clip(
     INCLUSIVE, as positions 0..N-1 in the sorted sequence (not file numbers: ``frame_positions`` turns the
     plate's numbers into these). ``None`` selects every frame. ``colorspace``: the plate's colour space (a name
     or alias in ``colour_config``, default ``$OCIO`` or the built-in config); ``None``:
-    ``colour.default_colorspace``. ``fps`` is the rate of a plate whose files state none (and overrides one that
-    does); ``start_frame`` numbers a movie's frames from it (default 0).
+    ``colour.decide_colorspace`` (``ClipInfo.colour_source`` says how). ``fps`` is the rate of a plate whose files
+    state none (and overrides one that does); ``start_frame`` numbers a movie's frames from it (default 0).
     """
     source = os.path.abspath(os.path.expanduser(os.fspath(path)))
     space = _PlateColour(colorspace, colour_config or colour.active_config())
@@ -510,12 +516,13 @@ class _PlateColour:
     asked: str | None
     config: str
 
-    def space(self, path: str, facts: colour.FileColour | None) -> str:
-        """The plate's colour space: the one asked for, resolved in the config, else the default for ``path``
-        (``facts``: its first frame's header; None for a movie)."""
+    def decide(self, path: str, facts: colour.FileColour | None) -> colour.PlateColour:
+        """The plate's colour space and how it was decided: the one asked for, resolved in the config, else what
+        ``path``'s header, the config's rules or its file type say (``facts``: its first frame's header; None for a
+        movie)."""
         if self.asked is not None:
-            return colour.resolve(self.asked, self.config)
-        return colour.default_colorspace(path, facts, self.config)
+            return colour.PlateColour(colour.resolve(self.asked, self.config), C.COLOUR_SOURCE_ASKED)
+        return colour.decide_colorspace(path, facts, self.config)
 
 
 def _open_sequence(source: str, frame_range: tuple[int, int] | None, plate: _PlateColour) -> ClipInfo:
@@ -551,6 +558,7 @@ def _open_sequence(source: str, frame_range: tuple[int, int] | None, plate: _Pla
     numbers = [f.number for f in selected]
     frame_numbers = tuple(n if n is not None else first + i for i, n in enumerate(numbers))
     rate, aspect, timecode = _image_timing(head.spec)
+    decided = plate.decide(head.path, head_colour)
     return ClipInfo(
         source=folder,
         kind=_SEQUENCE,
@@ -559,10 +567,12 @@ def _open_sequence(source: str, frame_range: tuple[int, int] | None, plate: _Pla
         width=head.width,
         height=head.height,
         fps=float(rate) if rate else None,
-        colorspace=plate.space(head.path, head_colour),
+        colorspace=decided.space,
         channels=head.channels,
         is_float=head.is_float,
         colour_config=plate.config,
+        colour_source=decided.source,
+        colour_note=decided.note,
         rate=rate,
         pixel_aspect=aspect,
         timecode=timecode,
@@ -652,6 +662,7 @@ def _open_movie(path: str, frame_range: tuple[int, int] | None, plate: _PlateCol
     first, last = _check_range(path, frame_range, count)
     exact = exact_rate(Fraction(rate)) if rate else None
     timecode = timecode_at(stamp, exact, first)
+    decided = plate.decide(path, None)
     return ClipInfo(
         source=path,
         kind=_MOVIE,
@@ -660,9 +671,11 @@ def _open_movie(path: str, frame_range: tuple[int, int] | None, plate: _PlateCol
         width=frame.width,
         height=frame.height,
         fps=float(rate) if rate else None,
-        colorspace=plate.space(path, None),
+        colorspace=decided.space,
         channels=len(frame.format.components),
         colour_config=plate.config,
+        colour_source=decided.source,
+        colour_note=decided.note,
         rate=exact,
         pixel_aspect=pixel_aspect(float(aspect)) if aspect else 1.0,
         timecode=None if timecode is None else str(timecode),

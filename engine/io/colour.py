@@ -3,9 +3,15 @@
 Every conversion is an OCIO transform run by the pinned OpenImageIO (``ImageBufAlgo.colorconvert``), so the engine
 decodes a file exactly as any OCIO application with the same config does (Blender included). The config is
 ``$OCIO`` when it is set (its file rules give a plate's default colour space), else OpenImageIO's built-in one
-(``ocio://default``: the ACES studio names "ACEScg", "ACEScct", "sRGB Encoded Rec.709 (sRGB)", "Linear Rec.709
-(sRGB)", "Raw", ...). A name the user gives is resolved through the config, aliases included (``srgb_tx``,
-``lin_ap1``); a typo is a one-line error listing the close names.
+(``ocio://default``: the ACES CG config, ``cg-config-v2.2.0_aces-v1.3_ocio-v2.4`` in the pinned OpenImageIO's
+OpenColorIO 2.4, with "ACEScg", "ACEScct", "sRGB Encoded Rec.709 (sRGB)", "Linear Rec.709 (sRGB)", "Raw", ...). A
+name the user gives is resolved through the config, aliases included (``srgb_tx``, ``lin_ap1``); a typo is a
+one-line error listing the close names.
+
+Without ``--colorspace`` the plate's own header decides where it can (``decide_colorspace``): an EXR's
+``oiio:ColorSpace`` tag, $OCIO's file rules, ACES chromaticities, a DPX's transfer. What nothing in the file says is
+assumed by file type, and said: the decision carries its source (``contract.COLOUR_SOURCES``, recorded in the run
+and its manifests) and, when assumed, one ``note:`` line for the fit to print.
 
 Three spaces have fixed roles (see docs/colour.md):
 
@@ -27,12 +33,14 @@ import os
 from dataclasses import dataclass
 
 import numpy as np
+import OpenEXR
 import OpenImageIO as oiio
 
 from engine import contract as C
 from engine.errors import InputError
+from engine.io.images import native_path
 
-#: OpenImageIO's built-in config (the ACES studio config), used when ``$OCIO`` is not set.
+#: OpenImageIO's built-in config (the ACES CG config), used when ``$OCIO`` is not set.
 BUILTIN_CONFIG = C.COLOUR_BUILTIN_CONFIG
 SCENE_LINEAR = C.COLOUR_SCENE_LINEAR
 WORKING_ENCODING = C.COLOUR_SRGB
@@ -284,23 +292,83 @@ def _same_chromaticities(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
     return len(a) == len(b) == 8 and all(abs(x - y) < 1e-3 for x, y in zip(a, b, strict=True))
 
 
-def default_colorspace(path: str, facts: FileColour | None, config: str | None = None) -> str:
-    """A plate's colour space when ``--colorspace`` is not given: the config's file rules when they match the
-    path; else by file type: float files are scene-linear (ACEScg/ACES2065-1 when their EXR chromaticities say so,
-    else Rec.709), integer files and movies sRGB. A DPX that declares a log transfer is refused: the sRGB curve
-    would be wrong, and the right log space is the user's to name."""
+#: EXR header attributes that name the file's colour space, in the order they are read: OpenImageIO's tag (what
+#: this engine's renders and OIIO-based tools write) and OpenEXR's standard ``colorInteropID`` (``lin_ap1_scene``).
+#: OpenImageIO itself reports "lin_rec709" for every EXR that has neither, so the header is read as written.
+EXR_TAG_ATTRIBUTES: tuple[str, ...] = (C.EXR_COLORSPACE_ATTRIBUTE, "colorInteropID")
+#: File types whose own specification makes untagged pixels sRGB (PNG, JPEG/JFIF): no assumption is made there.
+SRGB_BY_FORMAT: tuple[str, ...] = (".png", ".jpg", ".jpeg")
+#: DPX transfers that say nothing of the code values (read with the sRGB curve, as assumed).
+_UNDECLARED_DPX_TRANSFERS = ("", "Undefined", "User defined", "Unspecified video")
+
+
+@dataclass(frozen=True)
+class PlateColour:
+    """A plate's colour space as decided, and how (``contract.COLOUR_SOURCES``); ``note`` is the one ``note:`` line
+    a fit prints when it was assumed ("" otherwise)."""
+
+    space: str
+    source: str
+    note: str = ""
+
+
+def header_tag(path: str) -> str:
+    """The colour space an EXR's header names (``EXR_TAG_ATTRIBUTES``), as written; "" for none or another type."""
+    if os.path.splitext(path)[1].lower() != ".exr":
+        return ""
+    try:
+        with OpenEXR.File(native_path(path), header_only=True) as f:
+            # read inside the block: OpenEXR empties the header's dict when the file closes
+            values = [f.header().get(name) for name in EXR_TAG_ATTRIBUTES]
+    except Exception:  # an unreadable header: the clip's own checks name the file
+        return ""
+    for value in values:
+        if isinstance(value, str) and value.strip() and value.isprintable():
+            return value.strip()[: C.COLOUR_NAME_MAX]
+    return ""
+
+
+def _tagged_space(tag: str, config: str) -> str | None:
+    """The config's space for a header's tag: its name, alias or role in the config; else, where the built-in config
+    knows the tag as one of the fixed-role spaces (scene-linear Rec.709, sRGB, data), the config's space for that
+    role; None when neither (the tag is then said in the note, and not used)."""
+    try:
+        return resolve(tag, config, "the file's oiio:ColorSpace")
+    except InputError:
+        pass
+    if config == BUILTIN_CONFIG:
+        return None
+    try:
+        builtin = resolve(tag, BUILTIN_CONFIG)
+    except InputError:
+        return None
+    cfg = load_config(BUILTIN_CONFIG)
+    for role in (SCENE_LINEAR, SRGB, RAW):
+        if cfg.equivalent(builtin, role):
+            return role_space(role, config)
+    return None
+
+
+def decide_colorspace(path: str, facts: FileColour | None, config: str | None = None) -> PlateColour:
+    """A plate's colour space when ``--colorspace`` is not given, and how it was decided, in this order: the EXR
+    header's tag (``header_tag``); the config's file rules when they match the path; a float file's ACES
+    chromaticities; then by file type: float files scene-linear Rec.709, integer files and movies sRGB. Only what a
+    header states, a rule, or a file type that defines its colour (PNG, JPEG) counts as known; the rest is assumed,
+    with a ``note`` saying so. A DPX that declares a log transfer is refused: the sRGB curve would be wrong, and the
+    right log space is the user's to name."""
     config = config or active_config()
     cfg = load_config(config)
+    tag = header_tag(path) if facts is not None else ""
+    tagged = _tagged_space(tag, config) if tag else None
+    if tagged is not None:
+        return PlateColour(tagged, C.COLOUR_SOURCE_FILE)
     ruled = cfg.getColorSpaceFromFilepath(path) if config != BUILTIN_CONFIG else ""
     if ruled:
-        return resolve(ruled, config, "the config's file rules")
+        return PlateColour(resolve(ruled, config, "the config's file rules"), C.COLOUR_SOURCE_RULES)
     if facts is None:  # a movie
-        return role_space(SRGB, config)
+        return _assumed(path, role_space(SRGB, config), "a movie states no colour space the engine reads")
     if facts.is_float:
-        for name, chroma in _ACES_CHROMATICITIES.items():
-            if _same_chromaticities(facts.chromaticities, chroma) and name.lower() in _names(config):
-                return _names(config)[name.lower()]
-        return role_space(SCENE_LINEAR, config)
+        return _float_space(path, facts, config, tag)
     encoding = dpx_encoding(facts)
     if encoding == "log":
         raise InputError(
@@ -308,7 +376,45 @@ def default_colorspace(path: str, facts: FileColour | None, config: str | None =
             f"this DPX declares a log transfer ({facts.dpx_transfer}); decoding it with the sRGB curve would be wrong",
             "name its colour space, e.g. --colorspace ACEScct, or set $OCIO to a config with a Cineon log space",
         )
-    return role_space(SCENE_LINEAR if encoding == "linear" else SRGB, config)
+    if encoding == "linear":
+        return PlateColour(role_space(SCENE_LINEAR, config), C.COLOUR_SOURCE_FILE)
+    srgb = role_space(SRGB, config)
+    if facts.extension in SRGB_BY_FORMAT:
+        return PlateColour(srgb, C.COLOUR_SOURCE_FORMAT)
+    if encoding and facts.dpx_transfer not in _UNDECLARED_DPX_TRANSFERS:
+        why = f"its DPX transfer {facts.dpx_transfer!r} is read with the sRGB curve"
+    else:
+        why = "an integer file whose header names no colour space"
+    return _assumed(path, srgb, why)
+
+
+def _float_space(path: str, facts: FileColour, config: str, tag: str) -> PlateColour:
+    """A float file's space from its chromaticities: ACES AP1/AP0 (known), Rec.709 (known: scene-linear Rec.709),
+    none or others (assumed scene-linear Rec.709)."""
+    names = _names(config)
+    for name, chroma in _ACES_CHROMATICITIES.items():
+        if _same_chromaticities(facts.chromaticities, chroma) and name.lower() in names:
+            return PlateColour(names[name.lower()], C.COLOUR_SOURCE_FILE)
+    linear = role_space(SCENE_LINEAR, config)
+    if _same_chromaticities(facts.chromaticities, REC709_CHROMATICITIES):
+        return PlateColour(linear, C.COLOUR_SOURCE_FILE)
+    said = "other chromaticities" if facts.chromaticities else "no chromaticities"
+    tagged = f"a tag {tag!r} that {config} does not know" if tag else "no colour-space tag"
+    return _assumed(path, linear, f"a float file with {tagged} and {said}")
+
+
+def _assumed(path: str, space: str, why: str) -> PlateColour:
+    """An assumed space and its one ``note:`` line: what was assumed, why, and how to say otherwise."""
+    note = (
+        f"note: {path}: colour space assumed {space!r} ({why}) — if the plate is in another, name it with "
+        "--colorspace, e.g. ACEScg"
+    )
+    return PlateColour(space, C.COLOUR_SOURCE_ASSUMED, note)
+
+
+def default_colorspace(path: str, facts: FileColour | None, config: str | None = None) -> str:
+    """A plate's colour space when ``--colorspace`` is not given (``decide_colorspace``'s space)."""
+    return decide_colorspace(path, facts, config).space
 
 
 __all__ = [
@@ -319,13 +425,16 @@ __all__ = [
     "SRGB",
     "WORKING_ENCODING",
     "FileColour",
+    "PlateColour",
     "active_config",
     "chromaticities",
     "convert",
+    "decide_colorspace",
     "default_colorspace",
     "dpx_encoding",
     "file_colour",
     "from_linear",
+    "header_tag",
     "is_data",
     "is_linear",
     "legacy_linear_to_srgb",

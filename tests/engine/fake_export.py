@@ -39,9 +39,10 @@ def make_fake_export(
         for name, (fn, _) in zip(names, layers, strict=True):
             u, v, a = fn(t, xs, ys)
             inside = (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1)
-            chans[C.channel_name(C.uv_pass(name), "X")] = np.clip(u, 0, 1)
-            chans[C.channel_name(C.uv_pass(name), "Y")] = np.clip(v, 0, 1)
-            chans[C.channel_name(C.uv_pass(name), "Z")] = a * inside
+            u_name, v_name, coverage_name = (C.channel_name(C.uv_pass(name), c) for c in C.UV_CHANNELS)
+            chans[u_name] = np.clip(u, 0, 1)
+            chans[v_name] = np.clip(v, 0, 1)
+            chans[coverage_name] = a * inside
             chans[C.channel_name(C.alpha_pass(name), "V")] = a
             for channel, values in zip(C.STMAP_CHANNELS, stmap_values(chans, C.uv_pass(name)), strict=True):
                 chans[C.stmap_channel_name(name, channel)] = values

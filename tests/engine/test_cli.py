@@ -18,6 +18,10 @@ from tests.paths import ROOT
 SMALL = SceneSpec(width=96, height=64, frames=6, fg_size=(28, 20), fg_start=(20.0, 20.0))
 
 
+#: The limit of a long engine run in these tests: a hang guard, far above what a loaded machine needs.
+RESUME_HANG_S = 1800
+
+
 def run_engine(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
     return subprocess.run(
         [sys.executable, "-m", "engine", *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout
@@ -116,7 +120,9 @@ def test_sigterm_checkpoints_and_resume_finishes(tmp_path, small_clip):
     _one_line_error(run_engine(*_fit_args(frames, masks, run, "--set", "steps=400")), "--resume")
     assert (run / C.RUN_CHECKPOINT).read_bytes() == before
 
-    out = run_engine("fit", "--resume", "--out", str(run), "--no-bar")
+    # the rest of the 400 steps: about 40 s on an idle 2-core machine, 7.5 min at a load average of 13; the limit
+    # only guards against a hang, so it is sized for the loaded machine
+    out = run_engine("fit", "--resume", "--out", str(run), "--no-bar", timeout=RESUME_HANG_S)
     assert out.returncode == 0, out.stderr
     steps = [m["step"] for m in map(C.parse_progress_line, out.stdout.splitlines()) if m and m["event"] == "progress"]
     assert steps and steps[0] > stopped_at and steps[-1] == 400

@@ -81,10 +81,10 @@ def test_paths_are_parameters_in_and_out_and_gpu_steps_ask_for_a_gpu(seq, tmp_pa
         "EnginePath": ("STRING", None, None),
         "Plate_sh010": ("PATH", "DIRECTORY", "IN"),
         "Mask1_sh010": ("PATH", "DIRECTORY", "IN"),
-        "Run_sh010": ("PATH", "DIRECTORY", "OUT"),
+        "Run_sh010": ("PATH", "DIRECTORY", "INOUT"),
         "Render_sh010": ("PATH", "DIRECTORY", "OUT"),
         "Plate_sh020": ("PATH", "DIRECTORY", "IN"),
-        "Run_sh020": ("PATH", "DIRECTORY", "OUT"),
+        "Run_sh020": ("PATH", "DIRECTORY", "INOUT"),
     }
     gpu = {s["name"] for s in template["steps"] if "hostRequirements" in s}
     assert gpu == {f"{shot}-{kind}" for shot in ("sh010", "sh020") for kind in ("fit", "atlases", "passes")}
@@ -234,7 +234,9 @@ def test_farm_openjd_prints_a_progress_line_per_shot_then_the_templates_path(seq
     lines = out.getvalue().splitlines()
     assert lines[-1] == str(tmp_path / "b" / "template.json")
     progress = [C.parse_progress_line(line) for line in lines[:-1]]
-    assert [(p["shot"], p["tasks"], p["stage"]) for p in progress if p] == [("sh010", 8, "farm"), ("sh020", 6, "farm")]
+    stages = [(p["shot"], p["tasks"], p["stage"]) for p in progress if p and p["event"] == C.EVENT_STAGE]
+    assert stages == [("sh010", 8, "farm"), ("sh020", 6, "farm")]
+    assert progress[-1] == {"neural_atlas": 1, "event": "written", "paths": [lines[-1]]}
     assert sorted(p.name for p in (tmp_path / "b").iterdir()) == [
         "asset_references.json", "job_parameters.json", "parameter_values.json", "template.json"]  # fmt: skip
     # the defaults: this Python, this engine's folder on PYTHONPATH

@@ -135,7 +135,7 @@ def test_pip_install_gives_the_neural_atlas_command_with_the_engines_verbs(insta
     command = installed / "bin" / CONSOLE_SCRIPT
     helped = _run(installed, str(command), "--help")
     assert helped.returncode == 0, helped.stderr
-    assert helped.stdout.startswith(f"usage: {CONSOLE_SCRIPT} [-h] [--version] VERB ...")
+    assert helped.stdout.startswith(f"usage: {CONSOLE_SCRIPT} [-h] [--version] [-q] [-v] VERB ...")
     # the same verbs, options and text as `python -m engine` from the checkout, under the command's name
     module = _run(installed, sys.executable, "-m", C.CLI_MODULE, "--help", cwd=ROOT)
     assert helped.stdout == module.stdout.replace("python -m engine", CONSOLE_SCRIPT)

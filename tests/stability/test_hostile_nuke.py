@@ -127,7 +127,9 @@ def _expected_reads(prefix: str) -> dict[str, bytes]:
     }
 
 
-def _check_loaded(script: Path, cwd: Path, expected: dict[str, bytes], colorspace: str = "sRGB") -> None:
+def _check_loaded(
+    script: Path, cwd: Path, expected: dict[str, bytes], colorspace: str = "sRGB Encoded Rec.709 (sRGB)"
+) -> None:
     nodes, events = _load_in_tcl(script, cwd)
     assert events == []  # no exec, open, unknown command or error
     assert not (cwd / CANARY).exists()

@@ -196,7 +196,8 @@ def test_cli_writes_one_png_per_frame(small_clip, tmp_path, capsys):
     assert lines[-1] == str(out.resolve())
     assert lines[0].startswith("auto masks: foreground in 6/6 frames")
     assert "IoU against the given masks: mean 0.9" in lines[1]  # measured 0.95
-    event = C.parse_progress_line(lines[-2])  # what the add-on reads (Find Masks)
+    assert C.parse_progress_line(lines[-2]) == {"neural_atlas": 1, "event": "written", "paths": [str(out.resolve())]}
+    event = C.parse_progress_line(lines[-3])  # what the add-on reads (Find Masks)
     assert event["event"] == C.EVENT_MASKS and event["found"] is True and event["folder"] == str(out.resolve())
     names = sorted(p.name for p in out.iterdir())
     assert names == sorted(p.name for p in frames_dir.iterdir())

@@ -28,12 +28,12 @@ def test_an_empty_edit_renders_the_plate_back_exactly(tmp_path, kind):
     out = render_manifest(manifest, tmp_path / "out", fmt="plate", progress_bar=False)
     ext = KINDS[kind][0]
     for t in range(T):
-        plate, render = tmp_path / "clip" / f"plate.{t:04d}{ext}", out / f"edit.{t:05d}{ext}"
+        plate, render = tmp_path / "clip" / f"plate.{t:04d}{ext}", out / f"edit.{t:04d}{ext}"
         got, want = _read(render), _read(plate)
         assert got.dtype == want.dtype and np.array_equal(got, want)  # bit for bit / every code value
     if kind == "acescg":  # the EXR output of a float plate is in the plate's space: the same bits, as float32
         exr = render_manifest(manifest, tmp_path / "exr", progress_bar=False)
-        assert np.array_equal(_read(exr / "edit.00001.exr", native=False), _read(plate, native=False))
+        assert np.array_equal(_read(exr / "edit.0001.exr", native=False), _read(plate, native=False))
 
 
 @pytest.mark.parametrize("kind", list(KINDS))
@@ -47,7 +47,7 @@ def test_a_painted_colour_lands_with_its_value(tmp_path, kind):
     ext, _, space = KINDS[kind]
     linear = load_edit(edit)[0, 0, :3]
     expected = colour.from_linear(linear[None, None], space, C.COLOUR_BUILTIN_CONFIG)[0, 0]
-    got = _read(out / f"edit.00001{ext}", native=False)
+    got = _read(out / f"edit.0001{ext}", native=False)
     if kind == "acescg":  # written as half, like the plate
         np.testing.assert_array_equal(got[:, : W // 2], np.broadcast_to(expected.astype(np.float16), (H, W // 2, 3)))
     else:  # the code value of the colour, exactly
@@ -66,7 +66,7 @@ def test_a_painted_colour_lands_with_its_value(tmp_path, kind):
 def test_render_exr_of_an_integer_plate_is_scene_linear_rec709_and_tagged(tmp_path):
     manifest, _ = export_plate(tmp_path, "srgb")
     render_manifest(manifest, tmp_path / "exr", progress_bar=False, movie=tmp_path / "edit.mp4")
-    inp = oiio.ImageInput.open(str(tmp_path / "exr" / "edit.00000.exr"))
+    inp = oiio.ImageInput.open(str(tmp_path / "exr" / "edit.0000.exr"))
     spec = inp.spec()
     got = np.asarray(inp.read_image(0, 0, 0, 3, "float"))
     inp.close()

@@ -12,12 +12,13 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import OpenImageIO as oiio
 
 from engine.export.nuke import nuke_channel_name
-from engine.io.colour import srgb_to_linear
+from engine.io.colour import convert
 
 
 @dataclass(eq=False)
@@ -120,15 +121,20 @@ def read_channels(path: Path) -> dict[str, np.ndarray]:
     return out
 
 
-def evaluate(node: NkNode, script_dir: Path, frame: int) -> dict[str, np.ndarray]:
+def evaluate(node: NkNode, script_dir: Path, frame: int, root: dict[str, str] | None = None) -> dict[str, np.ndarray]:
+    """The node's image at ``frame``; a Read that is not raw converts from its ``colorspace`` to the Root's working
+    space (``root``: its knobs) in the config the Root declares, by OCIO as Nuke does (and as `render` decodes)."""
     cls, k = node.cls, node.knobs
     if cls == "Read":
         chans = read_channels(file_for(node, script_dir, frame))
-        if k.get("raw") != "true" and k.get("colorspace") == "sRGB":
-            for c in RGBA[:3]:
-                chans[c] = srgb_to_linear(chans[c])  # the decode `render` applies (OCIO's), so only the graph differs
+        if k.get("raw") != "true":
+            assert root is not None, "a Read with a colour space needs the Root's config"
+            rgb = np.stack([chans[c] for c in RGBA[:3]], -1)
+            rgb = convert(rgb, k["colorspace"], root["workingSpaceLUT"], root["customOCIOConfigPath"])
+            for i, c in enumerate(RGBA[:3]):
+                chans[c] = np.ascontiguousarray(rgb[..., i])
         return chans
-    ins = [evaluate(i, script_dir, frame) for i in node.inputs]
+    ins = [evaluate(i, script_dir, frame, root) for i in node.inputs]
     shape = next(iter(ins[0].values())).shape
     zero = np.zeros(shape, np.float32)
     if cls == "Shuffle":
@@ -158,3 +164,29 @@ def evaluate(node: NkNode, script_dir: Path, frame: int) -> dict[str, np.ndarray
         if op == "over":
             return {c: a.get(c, zero) + b.get(c, zero) * (1.0 - a["rgba.alpha"]) for c in RGBA}
     raise AssertionError(f"no model of {cls} {k.get('operation', '')}")
+
+
+def pyocio() -> Any:
+    """PyOpenColorIO, the OCIO library Nuke and Blender load configs with: Blender ships it beside bpy (in the
+    test venv); None where no bpy is installed."""
+    import importlib.util
+    import sys
+
+    spec = importlib.util.find_spec("bpy")
+    if spec is None or spec.origin is None:
+        return None
+    found = sorted(Path(spec.origin).parent.glob("*/python/lib/python3.*/site-packages/PyOpenColorIO"))
+    if not found:
+        return None
+    if str(found[-1].parent) not in sys.path:
+        sys.path.append(str(found[-1].parent))
+    import PyOpenColorIO
+
+    return PyOpenColorIO
+
+
+def colour_knobs(nk: NkScript) -> dict[str, str]:
+    """Every colour-space name the script gives: each Read's ``colorspace`` and the Root's working space, by where."""
+    found = {f"{n.name}.colorspace": n.knobs["colorspace"] for n in nk.nodes if "colorspace" in n.knobs}
+    found["Root.workingSpaceLUT"] = nk.root["workingSpaceLUT"]
+    return found

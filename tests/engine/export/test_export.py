@@ -78,11 +78,11 @@ def test_pass_files_follow_the_contract(exported):
     assert m.resolution == (w, h) and m.frames == list(range(scene.spec.frames))
     expected = set()
     for layer in m.layers:
-        expected |= {C.channel_name(layer["uv_pass"], c) for c in ("X", "Y", "Z")}
+        expected |= {C.channel_name(layer["uv_pass"], c) for c in ("U", "V", "A")}
         expected.add(C.channel_name(layer["alpha_pass"], "V"))
     assert expected == {
-        "Atlas.UVBackground.X", "Atlas.UVBackground.Y", "Atlas.UVBackground.Z", "Atlas.AlphaBackground.V",
-        "Atlas.UVForeground.X", "Atlas.UVForeground.Y", "Atlas.UVForeground.Z", "Atlas.AlphaForeground.V",
+        "Atlas.UVBackground.U", "Atlas.UVBackground.V", "Atlas.UVBackground.A", "Atlas.AlphaBackground.V",
+        "Atlas.UVForeground.U", "Atlas.UVForeground.V", "Atlas.UVForeground.A", "Atlas.AlphaForeground.V",
     }  # fmt: skip
     # and the same UV passes as RGBA layers for Nuke, Flame and Natron (tests/engine/export/test_nuke.py)
     expected |= {f"STMap{layer['name']}.{c}" for layer in m.layers for c in "RGBA"}
@@ -134,12 +134,10 @@ def test_manifest_and_files(exported):
     assert (data["clip"]["colorspace"], data["clip"]["colour_config"]) == (C.COLOUR_SRGB, C.COLOUR_BUILTIN_CONFIG)
     assert data["clip"]["resolution"] == [192, 108]
     # the passes are data: OCIO readers take them raw
-    assert (
-        _header(m.resolve(data["passes"]["dir"]) / C.pass_file_name(m.frames[0]), C.EXR_COLORSPACE_ATTRIBUTE) == "Raw"
-    )
+    assert _header(m.pass_path(m.frames[0]), C.EXR_COLORSPACE_ATTRIBUTE) == "Raw"
     for layer in m.layers:
         n = layer["name"]
-        assert layer["channels"] == [f"Atlas.UV{n}.X", f"Atlas.UV{n}.Y", f"Atlas.UV{n}.Z", f"Atlas.Alpha{n}.V"]
+        assert layer["channels"] == [f"Atlas.UV{n}.U", f"Atlas.UV{n}.V", f"Atlas.UV{n}.A", f"Atlas.Alpha{n}.V"]
         w, h = layer["atlas_size"]
         assert max(w, h) == 256
         exr = read_exr(m.resolve(layer["atlas_exr"]))

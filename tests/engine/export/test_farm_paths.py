@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 
 from engine import contract as C
 from tests.engine.export.tiny_run import ATLAS_SIZE, TINY, make_run
@@ -68,3 +69,35 @@ def test_a_run_moved_with_its_plate_and_without_it(tmp_path):
     code, lines = run_cli("fit", "--resume", "--out", alone, "--no-bar", "--set", "steps=14")
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and lines[0].startswith(f"error: {plate}: "), lines
     assert "move the plate to this path" in lines[0] and "../clip/frames" in lines[0]
+
+
+def test_a_shot_folder_copied_whole_keeps_to_its_own_plate(tmp_path):
+    """Copied whole (run, plate, masks) and refined there, the shot's export names its own plate, so it still
+    renders once the original is gone; a run copied alone beside ANOTHER plate at the same relative place keeps to
+    the plate it was fitted on."""
+    first = tmp_path / "a"
+    make_run(first)
+    copy = tmp_path / "copy"
+    shutil.copytree(first, copy)
+    record = json.loads((copy / "run" / C.RUN_CLIP).read_text())
+    assert record["source"] == str(first / "clip" / "frames")  # the copy's clip.json names the original
+    code, lines = run_cli("fit", C.FIT_REFINE_FLAG, "2", "--out", copy / "run", "--no-bar")
+    assert code == C.EXIT_OK, lines
+    assert _export(copy / "run") == (0, [])
+    manifest = json.loads(Path(_latest(copy / "run")).read_text())
+    assert manifest["clip"]["source"] == "../../../clip/frames"
+    assert [f.split("/clip/")[0] for f in manifest["clip"]["frame_files"]] == ["../../.."] * 4
+
+    # the original run alone, copied beside another shot whose plate has the same layout but other pixels
+    other = tmp_path / "other"
+    shutil.copytree(first / "clip", other / "clip")
+    frame0 = other / "clip" / "frames" / "00000.png"
+    frame0.write_bytes(frame0.read_bytes()[:-16] + bytes(16))  # another plate's first frame (same name, size)
+    shutil.copytree(first / "run", other / "run")
+    assert _export(other / "run") == (0, [])
+    manifest = json.loads(Path(_latest(other / "run")).read_text())
+    assert manifest["clip"]["source"] == "../../../../a/clip/frames"  # the plate it was fitted on
+
+    shutil.rmtree(first)
+    assert _render(copy / "run", tmp_path / "rendered") == (0, [])
+    assert len(list((tmp_path / "rendered").iterdir())) == 4

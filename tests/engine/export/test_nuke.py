@@ -39,12 +39,12 @@ from tests.engine_cli import run_cli
 OIIO_CHANNELS = (
     "Atlas.AlphaBackground.V",
     "Atlas.AlphaForeground.V",
-    "Atlas.UVBackground.X",
-    "Atlas.UVBackground.Y",
-    "Atlas.UVBackground.Z",
-    "Atlas.UVForeground.X",
-    "Atlas.UVForeground.Y",
-    "Atlas.UVForeground.Z",
+    "Atlas.UVBackground.A",
+    "Atlas.UVBackground.U",
+    "Atlas.UVBackground.V",
+    "Atlas.UVForeground.A",
+    "Atlas.UVForeground.U",
+    "Atlas.UVForeground.V",
     "STMapBackground.R",
     "STMapBackground.G",
     "STMapBackground.B",
@@ -58,12 +58,12 @@ OIIO_CHANNELS = (
 NUKE_CHANNELS = (
     "Atlas_AlphaBackground.V",
     "Atlas_AlphaForeground.V",
-    "Atlas_UVBackground.X",
-    "Atlas_UVBackground.Y",
-    "Atlas_UVBackground.Z",
-    "Atlas_UVForeground.X",
-    "Atlas_UVForeground.Y",
-    "Atlas_UVForeground.Z",
+    "Atlas_UVBackground.alpha",
+    "Atlas_UVBackground.U",
+    "Atlas_UVBackground.V",
+    "Atlas_UVForeground.alpha",
+    "Atlas_UVForeground.U",
+    "Atlas_UVForeground.V",
     "STMapBackground.red",
     "STMapBackground.green",
     "STMapBackground.blue",
@@ -105,14 +105,15 @@ def test_pass_files_hold_the_stmap_layers_as_copies_of_the_uv_passes(exported):
     spec = _oiio_spec(path)
     assert tuple(spec.channelnames) == OIIO_CHANNELS
     assert all(spec.channelformat(i) == oiio.FLOAT for i in range(spec.nchannels))  # float32: exact copies
-    # OpenImageIO takes a "*.Z" channel as depth: the Blender pass's Z, which the STMap layers do not use
-    assert spec.channelnames[spec.z_channel] == "Atlas.UVBackground.Z"
+    # no channel is named Z, so OpenImageIO sees no depth; every "*.A" it may take as alpha is a coverage
+    assert spec.z_channel == -1
+    assert spec.channelnames[spec.alpha_channel].endswith(".A")
     chans = read_exr(path)
     for layer in m.layers:
         name = layer["name"]
         assert layer["stmap_pass"] == f"STMap{name}"
         assert layer["stmap_channels"] == [f"STMap{name}.{c}" for c in "RGBA"]
-        uv = [chans[f"Atlas.UV{name}.{c}"] for c in "XYZ"]
+        uv = [chans[f"Atlas.UV{name}.{c}"] for c in "UVA"]
         st = [chans[f"STMap{name}.{c}"] for c in "RGBA"]
         assert np.array_equal(st[0], uv[0]) and np.array_equal(st[1], uv[1]) and np.array_equal(st[3], uv[2])
         assert not st[2].any()
@@ -192,7 +193,9 @@ def _check_wiring(nk: NK.NkScript, m: Manifest, script_dir: Path) -> None:
         assert NK.file_for(edit, script_dir, frames[0]).samefile(edit_file)
         png = edit_file.suffix == C.EDIT_LAYER_EXT
         assert (src.cls == "Premult") == png
-        assert edit.knobs["colorspace"] == ("sRGB" if png else "linear")
+        # the config's own names (tests/export_td/test_nuke_colour.py opens the config the Root declares)
+        want = "sRGB Encoded Rec.709 (sRGB)" if png else "Linear Rec.709 (sRGB)"
+        assert nk.root["customOCIOConfigPath"] == "ocio://default" and edit.knobs["colorspace"] == want
 
 
 def _paint(path: Path, size: tuple[int, int], seed: int, as_exr: bool) -> None:
@@ -242,7 +245,7 @@ def test_the_script_computes_what_engine_render_does(painted, tmp_path):
     (result,) = nk.leftover
     worst = 0.0
     for frame in m.data["passes"]["frames"]:
-        got = NK.evaluate(result, out.parent, frame)
+        got = NK.evaluate(result, out.parent, frame, nk.root)
         want = read_exr(rendered / f"edit.{frame:05d}.exr")
         for c in "RGB":
             nuke = got[f"rgba.{dict(R='red', G='green', B='blue')[c]}"]

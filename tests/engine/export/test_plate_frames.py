@@ -114,18 +114,20 @@ def test_passes_and_manifest_carry_plate_numbers_rate_aspect_and_timecode(export
     assert (clip["first_frame"], clip["last_frame"]) == (1001, 1003)
     assert clip["rate"] == [24000, 1001] and C.clip_rate(clip) == RATE
     assert clip["pixel_aspect"] == 2.0 and clip["timecode"] == "01:00:00:00" and clip["start_frame"] == 0
-    assert sorted(p.name for p in (exported.parent / C.PASSES_DIR).iterdir()) == ["atlas.01002.exr", "atlas.01003.exr"]
+    # padded as the plate's frames are (slap.1001.exr: four digits)
+    assert (passes["pattern"], passes["blender_pattern"]) == ("atlas.{frame:04d}.exr", "atlas.####.exr")
+    assert sorted(p.name for p in (exported.parent / C.PASSES_DIR).iterdir()) == ["atlas.1002.exr", "atlas.1003.exr"]
     for number, timecode in ((1002, "01:00:00:01"), (1003, "01:00:00:02")):
-        assert _timing(exported.parent / C.PASSES_DIR / C.pass_file_name(number)) == (RATE, 2.0, timecode)
+        assert _timing(exported.parent / C.PASSES_DIR / C.pass_file_name(number, 4)) == (RATE, 2.0, timecode)
 
 
 def test_render_frames_and_movie_carry_them_too(exported, tmp_path):
     out, movie = tmp_path / "render", tmp_path / "edited.mov"
     code, lines = run_cli("render", exported, "--out", out, "--movie", movie, "--no-bar")
     assert code == C.EXIT_OK, lines
-    assert sorted(p.name for p in out.iterdir()) == ["edit.01002.exr", "edit.01003.exr"]
-    assert _timing(out / "edit.01002.exr") == (RATE, 2.0, "01:00:00:01")
-    assert _timing(out / "edit.01003.exr") == (RATE, 2.0, "01:00:00:02")
+    assert sorted(p.name for p in out.iterdir()) == ["edit.1002.exr", "edit.1003.exr"]
+    assert _timing(out / "edit.1002.exr") == (RATE, 2.0, "01:00:00:01")
+    assert _timing(out / "edit.1003.exr") == (RATE, 2.0, "01:00:00:02")
     with av.open(str(movie)) as container:
         stream = container.streams.video[0]
         assert stream.average_rate == Fraction(24000, 1001) and stream.sample_aspect_ratio == Fraction(2)
@@ -149,7 +151,7 @@ def test_a_manifest_without_timing_still_renders_at_the_default_rate(exported, t
     try:
         out, movie = tmp_path / "render", tmp_path / "old.mp4"
         render.render_manifest(old, out, movie=movie, progress_bar=False)
-        spec = _spec_of(out / "edit.01002.exr")
+        spec = _spec_of(out / "edit.1002.exr")
         assert spec.getattribute("FramesPerSecond") is None and spec.getattribute("smpte:TimeCode") is None
         with av.open(str(movie)) as container:
             stream = container.streams.video[0]
@@ -160,7 +162,8 @@ def test_a_manifest_without_timing_still_renders_at_the_default_rate(exported, t
 
 def test_a_movie_numbered_from_its_start_frame_renders_its_own_frames(tmp_path):
     """``fit --start-frame 1001 --frames 1002-1003`` of a movie: the render reads movie frames 1 and 2 (not the
-    1002nd) and writes them as edit.01002 and edit.01003; an empty edit gives back those frames of the movie."""
+    1002nd) and writes them as edit.01002 and edit.01003 (a movie has no padding of its own: five digits); an empty
+    edit gives back those frames of the movie."""
     from tests.media_files import textured_frames, write_movie
 
     movie = write_movie(tmp_path / "plate.mp4", textured_frames(4, (48, 32)))

@@ -111,7 +111,7 @@ def test_export_has_three_layers_that_sum_to_one(fitted):
     assert C.validate_manifest(data) is data
     for layer in m.layers:
         n = layer["name"]
-        assert layer["channels"] == [f"Atlas.UV{n}.X", f"Atlas.UV{n}.Y", f"Atlas.UV{n}.Z", f"Atlas.Alpha{n}.V"]
+        assert layer["channels"] == [f"Atlas.UV{n}.U", f"Atlas.UV{n}.V", f"Atlas.UV{n}.A", f"Atlas.Alpha{n}.V"]
     for f in m.frames:
         passes = m.read_passes(f)
         assert len(passes) == 3

@@ -28,6 +28,7 @@ RECORD = ClipRecord(
     scribbles=None,
     layers=2,
     fingerprint="0123abcd",
+    colour_source=C.COLOUR_SOURCE_ASSUMED,
 )
 METRICS = {
     "psnr": 27.5,
