@@ -13,6 +13,8 @@ part of the product (its CLI is ``python -m engine``) and not in the extension z
     paint-tracks where paint on the exported atlases shows in each frame, scored against TAP-Vid tracks
     flow-tracks  the baseline: chained DIS optical flow on the native plate, scored the same way
     sharpness    the plate re-rendered from the exported atlas textures and passes: PSNR inside the mask
+    paint-table  one preset fitted and exported on every clip of a folder, scored on the export: paint, flow,
+                 IoU, sharpness, PSNR, training seconds; with a picture per clip
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ MASKS = "masks"
 PAINT_TRACKS = "paint-tracks"
 FLOW_TRACKS = "flow-tracks"
 SHARPNESS = "sharpness"
+PAINT_TABLE = "paint-table"
 PROG = "python -m engine.bench"
 
 BENCH_EPILOG = """\
@@ -133,6 +136,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_clips_parser(sub)
     _add_masks_parser(sub)
     _add_scoring_parsers(sub)
+    _add_paint_table_parser(sub)
     ms = sub.add_parser(
         MOTION_SCENES,
         help="synthetic clip folders with ground-truth tracks (turning, deforming, small_fast, thin, turning_depth, "
@@ -222,6 +226,51 @@ def _add_scoring_parsers(sub: argparse._SubParsersAction) -> None:
     sh.add_argument("--plate", required=True, metavar="FRAMES", help="the plate the export was made from")
     sh.add_argument("--masks", action="append", required=True, metavar="FOLDER", help="the object's masks")
     _tracks_and_json(sh, tracks=False)
+
+
+def _add_paint_table_parser(sub: argparse._SubParsersAction) -> None:
+    from engine.bench.degrade import DEFAULT_SEED, RECIPES
+
+    pt = sub.add_parser(
+        PAINT_TABLE,
+        help="one preset fitted and exported on every clip of a folder, scored on the export (paint, flow, IoU, "
+        "sharpness, PSNR, train s)",
+        description="For each clip folder (frames/, masks/, tracks_tapvid.npz; a motion scene's gt_uv.npz and "
+        "texture.png too): degrade its masks by RECIPE, `fit` the preset into OUT/runs/CLIP (a finished fit is "
+        "kept), `export` it, and score the export: paint-tracks, flow-tracks, their ratio, the exported foreground "
+        "alpha's IoU against masks/, sharpness (and a scene's true-texture sharpness), PSNR and training seconds. "
+        "Writes OUT/paint.md and OUT/paint.json; --pictures also OUT/pictures/CLIP.png (a checkerboard painted once, "
+        "first / middle / last frame, above the same colours carried by chained flow).",
+    )
+    pt.add_argument("root", metavar="CLIPS_ROOT", help="folder of clip folders")
+    pt.add_argument("--preset", default="draft", help="fit preset (default: draft)")
+    pt.add_argument("--degrade", default="exact", choices=list(RECIPES), help="mask recipe (default: %(default)s)")
+    pt.add_argument("--seed", type=int, default=DEFAULT_SEED, help="seed of the dropped frames (default: 0)")
+    pt.add_argument("--out", default="paint_out", help="output folder (default: paint_out)")
+    pt.add_argument("--only", default=None, metavar="CLIP,CLIP", help="these clips only (default: every clip)")
+    pt.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="fit config override")
+    pt.add_argument("--threads", type=int, default=None, help="CPU threads of each fit (default: torch's choice)")
+    pt.add_argument("--pictures", action="store_true", help="also write OUT/pictures/CLIP.png")
+
+
+def _paint_table(args: argparse.Namespace) -> int:
+    from engine.bench.paint_table import PAINT_JSON, format_table, run_paint_table
+
+    table = run_paint_table(
+        args.root,
+        args.out,
+        preset=args.preset,
+        degrade=args.degrade,
+        seed=args.seed,
+        sets=args.set,
+        threads=args.threads,
+        only=[c for c in args.only.split(",") if c] if args.only else None,
+        pictures=args.pictures,
+        command=[PROG, *args.argv],
+    )
+    print(format_table(table))
+    print(str((Path(args.out) / PAINT_JSON).resolve()))
+    return C.EXIT_OK
 
 
 def _tracks_and_json(parser: argparse.ArgumentParser, tracks: bool = True) -> None:
@@ -442,6 +491,7 @@ def main(argv: list[str] | None = None) -> int:
         PAINT_TRACKS: _paint_tracks,
         FLOW_TRACKS: _flow_tracks,
         SHARPNESS: _sharpness,
+        PAINT_TABLE: _paint_table,
     }
     if args.tool not in tools:
         parser.print_help()

@@ -1,10 +1,12 @@
 """A seconds-long ``bench`` (``python -m engine.bench bench``) and ``estimate`` on a tiny synthetic clip: the
 JSON schema, monotone best-so-far PSNR, scores in range, the recorded ETA, the plot; how clips and per-preset
-overrides are resolved; the measurement tools stay out of the product. No timed assertions."""
+overrides are resolved; the measurement tools stay out of the product. No timed assertions, and no outcome that
+depends on the machine's speed: the bench's run reads a steady training clock (``SteadyClock``)."""
 
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +29,7 @@ from engine.bench.tracking import Tracks, save_tracks
 from engine.cli import main
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.errors import InputError
+from engine.fit import trainer as trainer_module
 from engine.fit.estimate import BENCHMARK_TABLE
 from engine.fit.eta import StepClock
 from engine.fit.run_folder import RunFolder
@@ -50,12 +53,32 @@ def clip(tmp_path_factory) -> Path:
     return root
 
 
+class SteadyClock:
+    """The trainer's ``time`` module with a ``perf_counter`` that advances TICK seconds per reading, so a step
+    (read at its start and end) costs TICK training seconds on any machine under any load: whether a run ends by
+    its steps or by the budget is then the bench's logic alone, not the machine's speed."""
+
+    TICK = 0.025
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def perf_counter(self) -> float:
+        self.now += self.TICK
+        return self.now
+
+    def __getattr__(self, name: str):
+        return getattr(time, name)
+
+
 @pytest.fixture(scope="module")
 def bench_record(clip, tmp_path_factory) -> tuple[dict, Path, str]:
     out = tmp_path_factory.mktemp("bench_out")
     args = ["bench", str(clip), "--presets", "draft,paper", "--budget-seconds", "2", "--out", str(out)]
     args += ["--evals", "3", "--eval-frames", "2", "--slice-seconds", "0.5", "--set", "draft.steps=12", *TINY]
-    assert bench_main(args) == C.EXIT_OK
+    with pytest.MonkeyPatch.context() as mp:  # draft: 12 steps = 0.3 training s; paper: stopped at 2 s = 80 steps
+        mp.setattr(trainer_module, "time", SteadyClock())
+        assert bench_main(args) == C.EXIT_OK
     return json.loads((out / BENCH_JSON).read_text()), out, " ".join(args)
 
 

@@ -1,0 +1,308 @@
+"""`bench paint-table`: one preset fitted on every clip of a folder the way a user fits it (``fit``, then
+``export``), judged only on what the user gets, the export.
+
+Per clip (a folder with ``frames/``, ``masks/`` and maybe ``tracks_tapvid.npz``; a synthetic scene of
+``bench motion-scenes`` also has ``gt_uv.npz`` and ``texture.png``), with its masks degraded by a named recipe
+(``engine.bench.degrade``: ``exact`` or a rough roto):
+
+* **paint**: where a dot painted on the exported atlases shows in every frame (``paint_tracking``), TAP-Vid
+  delta_avg in native pixels;
+* **flow**: the baseline, chained DIS flow on the native plate (``flow_tracks``), and ``ratio`` = paint / flow;
+* **IoU**: the exported foreground alpha (> 0.5, layers after the background together) against the clip's own
+  precise ``masks/``, pooled over every frame: the decomposition, whatever masks the fit was given;
+* **sharpness**: the plate re-rendered from the discretized atlases through the passes, PSNR inside the precise
+  masks (``sharpness``); on a scene also **true sharpness**, the same for the scene's true texture through its
+  true surface coordinates, the most an atlas can reach;
+* **PSNR** and **train s**: the fit's ``metrics.json``.
+
+Every step keeps what it made (``OUT/runs/CLIP`` is an ordinary run folder, exported into ``exports/v001``;
+the flow baseline is cached in ``OUT/flow/CLIP.json``), so the command run again after a stop continues where it
+was and costs nothing once done. Writes ``OUT/paint.json`` and ``OUT/paint.md`` (one table), and with
+``--pictures`` ``OUT/pictures/CLIP.png`` (``paint_picture``).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import os
+import subprocess
+import sys
+from collections.abc import Callable
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from engine import contract as C
+from engine.bench.all_clips import find_clips
+from engine.bench.degrade import DEFAULT_SEED, masks_iou, recipe, write_degraded
+from engine.bench.flow_tracks import score_clip
+from engine.bench.motion_scenes import GT_UV_NPZ, TEXTURE_PNG
+from engine.bench.paint_tracking import score_export
+from engine.bench.report_file import read_tracks
+from engine.bench.sharpness import MSE_FLOOR, atlas_sharpness
+from engine.errors import InputError
+from engine.export.manifest import Manifest
+from engine.io.atomic import atomic_write_text
+from engine.io.clip import iter_frames, open_clip, read_masks
+from engine.io.images import read_image
+
+PAINT_JSON = "paint.json"
+PAINT_MD = "paint.md"
+PAINT_TAG = "neural_atlas_paint_table"
+PAINT_VERSION = 1
+TRACKS_NPZ = "tracks_tapvid.npz"
+#: The export every clip is scored on (``export --into``): run again, it is reused when it holds the same frames.
+EXPORT_VERSION = "v001"
+#: The recipe that leaves the masks as they are.
+EXACT = "exact"
+#: A pixel is the object in the exported passes where the foreground layers' alpha together exceeds this.
+FG_ALPHA = 0.5
+#: The table's columns: header and the row key each shows, and the decimals.
+COLUMNS: tuple[tuple[str, str, int], ...] = (
+    ("clip", "clip", 0),
+    ("paint", "paint", 3),
+    ("flow", "flow", 3),
+    ("paint / flow", "ratio", 2),
+    ("fg IoU", "fg_iou", 3),
+    ("sharpness dB", "sharpness", 2),
+    ("true texture dB", "true_sharpness", 2),
+    ("PSNR dB", "psnr", 2),
+    ("train s", "train_seconds", 0),
+)
+
+Log = Callable[[str], None]
+
+
+def _engine(args: list[str], log_path: Path, threads: int | None) -> str:
+    """Run ``python -m engine ARGS`` (the product's own command, as a user runs it) with its stderr appended to
+    ``log_path``; returns its stdout. A failure is one line naming the log."""
+    env = dict(os.environ)
+    if threads is not None:
+        env["OMP_NUM_THREADS"] = str(threads)
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    with log_path.open("a", encoding="utf-8") as err:
+        done = subprocess.run(
+            [sys.executable, "-m", "engine", *args], stdout=subprocess.PIPE, stderr=err, text=True, env=env
+        )
+    if done.returncode != 0:
+        tail = log_path.read_text(encoding="utf-8", errors="replace").strip().splitlines()[-1:] or ["no output"]
+        raise InputError(
+            log_path, f"engine {args[0]} failed (exit {done.returncode}): {tail[0]}", "fix what the log says, run again"
+        )
+    return done.stdout
+
+
+def fit_and_export(
+    frames: Path, masks: Path, run: Path, preset: str, sets: list[str], threads: int | None, log_path: Path
+) -> Path:
+    """Fit (or continue, or leave a finished fit: ``--resume-if-started``) and export into ``EXPORT_VERSION``;
+    returns the manifest's path."""
+    set_args = [a for kv in sets for a in ("--set", kv)]
+    _engine(
+        [C.VERB_FIT, str(frames), "--mask", str(masks), "--out", str(run), "--preset", preset,
+         C.FIT_RESUME_IF_STARTED_FLAG, "--no-bar", *set_args],
+        log_path, threads,
+    )  # fmt: skip
+    out = _engine([C.VERB_EXPORT, str(run), C.EXPORT_INTO_ARG, EXPORT_VERSION, "--no-bar"], log_path, threads)
+    lines = [line for line in out.strip().splitlines() if line.strip()]
+    if not lines:
+        raise InputError(log_path, "engine export printed no manifest path", "read the log, run again")
+    return Path(lines[-1].strip())
+
+
+def export_fg_iou(manifest_path: str | Path, plate: str | Path, masks: str | Path) -> float | None:
+    """IoU of the exported foreground (the alpha of every layer after the background, summed, > FG_ALPHA) against
+    the precise masks, intersection and union pooled over the exported frames; None without foreground layers or
+    mask pixels."""
+    manifest = Manifest(manifest_path)
+    if len(manifest.layers) < 2:
+        return None
+    info = open_clip(plate)
+    gt = read_masks(masks, info, manifest.resolution)
+    numbers = list(info.frame_numbers)
+    inter = union = 0
+    for frame in manifest.frames:
+        fg = sum(p.alpha for p in manifest.read_passes(frame)[1:]) > FG_ALPHA
+        m = gt[numbers.index(frame)]
+        inter += int((fg & m).sum())
+        union += int((fg | m).sum())
+    return inter / union if union else None
+
+
+def true_sharpness(folder: str | Path) -> float | None:
+    """A synthetic scene's own ceiling for ``sharpness``: its true texture sampled (bilinear) at its true surface
+    coordinates, PSNR against the plate over the pixels where the coordinate is known, pooled over frames; None
+    for a clip without ``gt_uv.npz`` and ``texture.png``."""
+    base = Path(folder)
+    if not (base / GT_UV_NPZ).is_file() or not (base / TEXTURE_PNG).is_file():
+        return None
+    texture, _ = read_image(base / TEXTURE_PNG)
+    with np.load(base / GT_UV_NPZ) as f:
+        uv = f["uv"]
+    info = open_clip(base / "frames")
+    sq, count = 0.0, 0
+    for t, rgb in enumerate(iter_frames(info)):
+        known = np.isfinite(uv[t]).all(-1)
+        if not known.any():
+            continue
+        field = np.nan_to_num(uv[t]).astype(np.float32)
+        # texel [j, i] holds the colour at surface point (i, j): remap's pixel centres are at integer coordinates
+        sampled = cv2.remap(texture[..., :3], field[..., 0], field[..., 1], cv2.INTER_LINEAR, cv2.BORDER_REPLICATE)
+        plate = np.clip(rgb[..., :3], 0.0, 1.0)  # both 8-bit codes read as 0..1: compared as the frames are written
+        diff = sampled[known].astype(np.float64) - plate[known]
+        sq += float((diff * diff).sum())
+        count += diff.size
+    return None if count == 0 else 10.0 * math.log10(1.0 / max(sq / count, MSE_FLOOR))
+
+
+def flow_baseline(frames: Path, tracks_path: Path, cache: Path) -> dict:
+    """The clip's chained-DIS report (``flow_tracks``), cached in ``cache``: it depends on the plate alone."""
+    if cache.is_file():
+        return json.loads(cache.read_text(encoding="utf-8"))
+    report = score_clip(frames, read_tracks(tracks_path))
+    cache.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(cache, json.dumps(report))
+    return report
+
+
+def score_clip_export(folder: Path, manifest: Path, out: Path) -> dict:
+    """Every export score of one clip (the row's numbers but PSNR and train s)."""
+    frames, precise = folder / "frames", folder / "masks"
+    row: dict[str, Any] = {"paint": None, "paint_256": None, "flow": None, "flow_256": None, "ratio": None}
+    if (folder / TRACKS_NPZ).is_file():
+        paint = score_export(manifest, read_tracks(folder / TRACKS_NPZ))
+        flow = flow_baseline(frames, folder / TRACKS_NPZ, out / "flow" / f"{folder.name}.json")
+        row.update(
+            paint=paint["delta_avg"],
+            paint_256=paint["delta_avg_256"],
+            paint_by_gap=paint.get("by_gap"),
+            paint_misses=paint["misses"],
+            flow=flow["delta_avg"],
+            flow_256=flow["delta_avg_256"],
+            flow_by_gap=flow.get("by_gap"),
+        )
+        if row["flow"]:
+            row["ratio"] = row["paint"] / row["flow"]
+    sharp = atlas_sharpness(manifest, frames, [precise])
+    row.update(
+        fg_iou=export_fg_iou(manifest, frames, precise),
+        sharpness=sharp["psnr_pooled"],
+        true_sharpness=true_sharpness(folder),
+    )
+    return row
+
+
+def run_paint_table(
+    root: str | Path,
+    out_dir: str | Path,
+    preset: str = "draft",
+    degrade: str = EXACT,
+    seed: int = DEFAULT_SEED,
+    sets: list[str] | None = None,
+    threads: int | None = None,
+    only: list[str] | None = None,
+    pictures: bool = False,
+    command: list[str] | None = None,
+    log: Log | None = None,
+) -> dict:
+    """Fit, export and score ``preset`` on every clip under ``root`` (or the ``only`` ones); returns the table
+    record, also written to ``out_dir/paint.json`` and ``out_dir/paint.md``."""
+    say = log or (lambda line: print(line, file=sys.stderr, flush=True))
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    recipe(degrade)  # an unknown name is refused before anything runs
+    folders = find_clips(root)
+    if only:
+        unknown = sorted(set(only) - {f.name for f in folders})
+        if unknown:
+            raise InputError(Path(root), f"holds no clip {unknown[0]}", "name clip folders that are under it")
+        folders = [f for f in folders if f.name in only]
+    rows = []
+    for folder in folders:
+        masks = folder / "masks"  # exact: the clip's own masks, as a user passes them
+        if recipe(degrade) != recipe(EXACT):
+            masks = write_degraded(masks, out / "masks" / degrade / folder.name, degrade, seed)
+        run = out / "runs" / folder.name
+        say(f"paint-table: {folder.name}: fit {preset} + export -> {run}")
+        manifest = fit_and_export(folder / "frames", masks, run, preset, sets or [], threads, out / "logs" /
+                                  f"{folder.name}.log")  # fmt: skip
+        say(f"paint-table: {folder.name}: scoring the export")
+        metrics = json.loads((run / C.RUN_METRICS).read_text(encoding="utf-8"))
+        row = {
+            "clip": folder.name,
+            "given_masks_iou": masks_iou(masks, folder / "masks"),
+            **score_clip_export(folder, manifest, out),
+            "psnr": metrics.get("psnr"),
+            "train_seconds": metrics.get("train_seconds"),
+            "steps": metrics.get("steps"),
+            "manifest": str(manifest),
+        }
+        if pictures and (folder / "masks").is_dir():
+            from engine.bench.paint_picture import paint_picture
+
+            row["picture"] = str(paint_picture(manifest, folder / "frames", folder / "masks",
+                                               out / "pictures" / f"{folder.name}.png"))  # fmt: skip
+        rows.append(row)
+        say(f"paint-table: {folder.name}: " + ", ".join(f"{key} {_cell(row, key, d)}" for _, key, d in COLUMNS[1:]))
+    table = {
+        PAINT_TAG: PAINT_VERSION,
+        "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        "command": command if command is not None else list(sys.argv),
+        "preset": preset,
+        "degrade": degrade,
+        "degradation": asdict(recipe(degrade)),
+        "seed": seed,
+        "sets": sets or [],
+        "rows": rows,
+        "mean": mean_row(rows),
+    }
+    atomic_write_text(out / PAINT_JSON, json.dumps(table, indent=1))
+    atomic_write_text(out / PAINT_MD, format_table(table) + "\n")
+    return table
+
+
+def mean_row(rows: list[dict]) -> dict:
+    """The mean of each numeric column over the rows that have it (None where none has)."""
+    mean: dict[str, Any] = {"clip": "mean"}
+    for _, key, _ in COLUMNS[1:]:
+        vals = [r[key] for r in rows if r.get(key) is not None]
+        mean[key] = float(np.mean(vals)) if vals else None
+    return mean
+
+
+def _cell(row: dict, key: str, decimals: int) -> str:
+    v = row.get(key)
+    if key == "clip":
+        return str(v)
+    return "–" if v is None else f"{v:.{decimals}f}"
+
+
+def format_table(table: dict) -> str:
+    """The markdown table of a ``paint.json`` record: a line naming the preset and masks, then rows and mean."""
+    sets = "".join(f" `--set {kv}`" for kv in table.get("sets") or [])
+    head = f"preset `{table['preset']}`{sets}, masks `{table['degrade']}` (seed {table['seed']})"
+    lines = [head, "", "| " + " | ".join(h for h, _, _ in COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
+    for row in [*table["rows"], table["mean"]]:
+        lines.append("| " + " | ".join(_cell(row, key, d) for _, key, d in COLUMNS) + " |")
+    return "\n".join(lines)
+
+
+__all__ = [
+    "COLUMNS",
+    "EXPORT_VERSION",
+    "PAINT_JSON",
+    "PAINT_MD",
+    "export_fg_iou",
+    "fit_and_export",
+    "flow_baseline",
+    "format_table",
+    "mean_row",
+    "run_paint_table",
+    "score_clip_export",
+    "true_sharpness",
+]

@@ -1,0 +1,148 @@
+"""`bench paint-table`: a tiny turning scene fitted, exported and scored through the product's own commands. Its
+numbers are the scorers' own on that export, the exported foreground's IoU is the fit's (same resolution), a
+second run fits nothing, and the picture shows the checkerboard above the flow's dots. The IoU and the
+true-texture ceiling are also checked on inputs whose answer is known by hand."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from engine import contract as C
+from engine.bench.__main__ import main as bench_main
+from engine.bench.flow_tracks import score_clip
+from engine.bench.motion_scenes import TEXTURE_PNG, write_motion_clips
+from engine.bench.paint_picture import draw_dots, grid_points, picture_frames
+from engine.bench.paint_table import PAINT_JSON, PAINT_MD, export_fg_iou, run_paint_table, true_sharpness
+from engine.bench.paint_tracking import score_export
+from engine.bench.report_file import read_tracks
+from engine.bench.sharpness import atlas_sharpness
+from engine.edit.preview import TILE_W
+from engine.io.images import read_image, write_png
+from tests.engine.fake_export import make_fake_export
+
+STEPS = ["steps=100", "bootstrap_steps=100", "global_rigidity_steps=20"]
+
+
+@pytest.fixture(scope="module")
+def scene_root(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("scenes")
+    write_motion_clips(root, width=96, height=64, frames=6, kinds=("turning_depth",))
+    return root
+
+
+@pytest.fixture(scope="module")
+def table(scene_root, tmp_path_factory) -> tuple[dict, Path]:
+    out = tmp_path_factory.mktemp("paint")
+    return run_paint_table(scene_root, out, sets=STEPS, threads=1, pictures=True, log=lambda _: None), out
+
+
+def test_the_rows_are_the_scorers_on_the_export(scene_root, table):
+    record, out = table
+    (row,) = record["rows"]
+    clip = scene_root / "turning_depth"
+    tracks = read_tracks(clip / "tracks_tapvid.npz")
+    paint = score_export(row["manifest"], tracks)
+    flow = score_clip(clip / "frames", tracks)
+    sharp = atlas_sharpness(row["manifest"], clip / "frames", [clip / "masks"])
+    assert row["paint"] == paint["delta_avg"] and row["paint_256"] == paint["delta_avg_256"]
+    assert row["flow"] == flow["delta_avg"]
+    assert row["ratio"] == pytest.approx(paint["delta_avg"] / flow["delta_avg"])
+    assert row["sharpness"] == sharp["psnr_pooled"]
+    metrics = json.loads((out / "runs" / "turning_depth" / C.RUN_METRICS).read_text())
+    assert row["psnr"] == metrics["psnr"] and row["train_seconds"] == metrics["train_seconds"]
+    assert row["steps"] == 100
+    # 96x64 is fitted at its own size, so the exported alpha is the fit's: the same IoU against the same masks
+    assert row["fg_iou"] == pytest.approx(metrics["alpha_iou"][0], abs=2e-3)
+    assert row["true_sharpness"] == pytest.approx(true_sharpness(clip))
+    assert row["given_masks_iou"] == 1.0  # exact masks
+    md = (out / PAINT_MD).read_text()
+    assert "| turning_depth | " in md and "| mean | " in md
+    assert json.loads((out / PAINT_JSON).read_text())["rows"][0]["paint"] == row["paint"]
+
+
+def test_a_second_run_fits_and_exports_nothing(scene_root, table):
+    record, out = table
+    run = out / "runs" / "turning_depth"
+    before = {p: p.stat().st_mtime_ns for p in (run / "checkpoint.pt", Path(record["rows"][0]["manifest"]))}
+    again = run_paint_table(scene_root, out, sets=STEPS, threads=1, log=lambda _: None)
+    assert {p: p.stat().st_mtime_ns for p in before} == before
+    keep = ("paint", "flow", "fg_iou", "sharpness", "psnr", "train_seconds")
+    assert [{k: r[k] for k in keep} for r in again["rows"]] == [{k: r[k] for k in keep} for r in record["rows"]]
+
+
+def test_the_picture_is_two_rows_of_the_first_middle_and_last_frame(table):
+    record, _ = table
+    picture, _ = read_image(record["rows"][0]["picture"])
+    tile_h = round(64 * TILE_W / 96)
+    assert picture.shape[:2] == (2 * tile_h, 3 * TILE_W)
+    assert picture_frames([10, 11, 12, 13, 14, 15]) == [10, 12, 15]
+    assert picture_frames([7]) == [7]
+
+
+def test_the_exported_foreground_iou_is_pooled_over_frames(tmp_path):
+    """Foreground alpha 0.8 on a 10x10 square that moves 2 px a frame; the masks are the same square one pixel
+    lower: per frame 90 pixels shared, 110 in the union; frame 1's mask is empty (all 100 foreground pixels in
+    the union). Pooled: 180 / 320."""
+    w, h, t_count = 32, 24, 3
+    plate = np.full((t_count, h, w, 3), 0.5, np.float32)
+
+    def square(t: int, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+        return (xs >= 4 + 2 * t) & (xs < 14 + 2 * t) & (ys >= 5) & (ys < 15)
+
+    def bg(t, xs, ys):
+        return xs / w, 1 - ys / h, np.where(square(t, xs, ys), 0.2, 1.0)
+
+    def fg(t, xs, ys):
+        return xs / w, 1 - ys / h, np.where(square(t, xs, ys), 0.8, 0.0)
+
+    manifest = make_fake_export(tmp_path, plate, [(bg, (w, h)), (fg, (w, h))])
+    ys, xs = np.mgrid[0:h, 0:w] + 0.5
+    for t in range(t_count):
+        m = square(t, xs, ys - 1) if t != 1 else np.zeros((h, w), bool)
+        write_png(tmp_path / "masks" / f"{t:05d}.png", m[..., None].astype(np.float32), 8, srgb=False)
+    assert export_fg_iou(manifest, tmp_path / "clip", tmp_path / "masks") == pytest.approx(180 / 320)
+
+
+def test_the_true_texture_is_the_ceiling_and_a_wrong_one_scores_far_below(scene_root, tmp_path):
+    clip = scene_root / "turning_depth"
+    ceiling = true_sharpness(clip)
+    assert ceiling is not None and ceiling > 30.0  # only the plate's anti-aliased edges and 8-bit codes differ
+    wrong = tmp_path / "turning_depth"
+    shutil.copytree(clip, wrong)
+    texture = cv2.imread(str(clip / TEXTURE_PNG))
+    cv2.imwrite(str(wrong / TEXTURE_PNG), texture[:, ::-1])
+    assert true_sharpness(wrong) < ceiling - 10.0
+    (wrong / TEXTURE_PNG).unlink()
+    assert true_sharpness(wrong) is None  # a real clip has no true texture
+
+
+def test_grid_points_lie_in_the_mask_and_dots_take_their_colour():
+    mask = np.zeros((40, 60), bool)
+    mask[10:30, 20:50] = True
+    pts, step = grid_points(mask)
+    assert step == 2.0  # 30 px / DOTS_ACROSS is under the 2 px floor
+    assert len(pts) > 20
+    assert mask[pts[:, 1].astype(int), pts[:, 0].astype(int)].all()
+    assert grid_points(np.zeros((5, 5), bool))[0].shape == (0, 2)
+    frame = np.zeros((40, 60, 3), np.uint8)
+    out = draw_dots(frame, np.array([[30.5, 20.5], [1e6, 5.0]]), np.array([[200, 10, 20], [1, 2, 3]]), 3.0)
+    assert out[20, 30].tolist() == [200, 10, 20]
+    assert out[0:2].sum() == 0 and frame.sum() == 0  # the off-frame dot is skipped; the input is not drawn on
+
+
+def test_an_unknown_clip_is_one_line(scene_root, tmp_path):
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        rc = bench_main(["paint-table", str(scene_root), "--only", "dog", "--out", str(tmp_path / "o")])
+    assert rc == C.EXIT_BAD_INPUT
+    assert err.getvalue().strip().splitlines() == [
+        f"error: {scene_root}: holds no clip dog — name clip folders that are under it"
+    ]
