@@ -31,26 +31,25 @@ _NODE_TYPES = {
     P.SET_ALPHA: "CompositorNodeSetAlpha",
     P.ALPHA_OVER: "CompositorNodeAlphaOver",
     P.OUTPUT: "NodeGroupOutput" if V5 else "CompositorNodeComposite",
+    P.VIEWER: "CompositorNodeViewer",
     P.FRAME: "NodeFrame",
     P.REROUTE: "NodeReroute",
     P.FILE_OUTPUT: "CompositorNodeOutputFile",
+    # the 4.x bilinear group's (``tree_plan.bilinear_group``; 5.0 samples bilinearly in Map UV itself)
+    P.GROUP: "CompositorNodeGroup",
+    P.GROUP_INPUT: "NodeGroupInput",
+    P.GROUP_OUTPUT: "NodeGroupOutput",
+    P.MATH: "ShaderNodeMath" if V5 else "CompositorNodeMath",
+    P.SEPARATE_XYZ: "CompositorNodeSeparateXYZ",
+    P.COMBINE_XYZ: "CompositorNodeCombineXYZ",
+    P.SWITCH: "CompositorNodeSwitch",
 }
 
 #: the name of the 5.0 compositing node group the add-on creates when the scene has none
 TREE_NAME = f"{P.PREFIX}Compositing"
-#: The Map UV filter whose result ``engine render`` reproduces to float precision: 5.0's Bilinear, or Nearest on
-#: 4.x (its smooth filter is EWA, which differs from bilinear at hard texel edges).
-EXACT_FILTER = P.FILTER_SMOOTH if V5 else P.FILTER_NEAREST
-
-
-def map_uv_filter(filter_type: str) -> str:
-    """The Map UV filter a panel choice means here: "Match engine" is ``EXACT_FILTER``."""
-    return EXACT_FILTER if filter_type == P.FILTER_ENGINE else filter_type
-
-
-def matches_engine(filter_type: str) -> bool:
-    """Does a render with this Map UV filter match ``engine render`` (nearest or bilinear) to float precision?"""
-    return map_uv_filter(filter_type) in (P.FILTER_NEAREST, EXACT_FILTER)
+#: 4.x's Map UV has no bilinear filter (its smooth one, EWA, is up to 0.2 off bilinear at hard texel edges): the tree
+#: samples bilinearly with ``tree_plan.BILINEAR_GROUP``'s nearest taps there, and its Map UV nodes stay Nearest.
+BILINEAR_TAPS = not V5
 
 
 def node_type(kind: str) -> str:
@@ -90,7 +89,7 @@ def _ensure_output_interface(tree: Any) -> None:
 def setup_node(node: Any, kind: str, params: dict[str, Any]) -> None:
     """Per-kind settings that differ between versions."""
     if kind == P.MAP_UV:
-        set_map_uv_filter(node, params.get("filter", P.FILTER_ENGINE))
+        set_map_uv_filter(node, params.get("filter", P.FILTER_DEFAULT))
     elif kind == P.ADD_COLOR:
         node.blend_type = "ADD"
         if V5:
@@ -131,6 +130,28 @@ def setup_node(node: Any, kind: str, params: dict[str, Any]) -> None:
         node.label_size = 16
     elif kind == P.FILE_OUTPUT:
         setup_matte_output(node)
+    elif kind == P.MATH:
+        node.operation = params["operation"]
+        node.use_clamp = False
+        for key, value in params.get("values", {}).items():
+            _math_input(node, key).default_value = value
+    elif kind == P.SWITCH:
+        set_switch(node, params["on"])
+    elif kind == P.GROUP:
+        node.node_tree = bpy.data.node_groups[params["group"]]
+
+
+def set_switch(node: Any, on: bool) -> None:
+    """A Switch node's choice: 4.5 has a Switch input socket; 4.2 only the ``check`` property."""
+    socket = node.inputs.get("Switch")
+    if socket is not None:
+        socket.default_value = on
+    if hasattr(node, "check"):
+        node.check = on
+
+
+def _math_input(node: Any, key: str) -> Any:
+    return node.inputs["abc".index(key)]
 
 
 def setup_matte_output(node: Any) -> None:
@@ -171,13 +192,14 @@ def set_file_output_dir(node: Any, directory: str) -> None:
 
 
 def set_map_uv_filter(node: Any, filter_type: str) -> None:
-    filter_type = map_uv_filter(filter_type)
+    """The Map UV node's own filter for ``filter_type`` (``tree_plan.FILTERS``): 5.0's Nearest or Bilinear; always
+    Nearest on 4.x, where bilinear is ``tree_plan.BILINEAR_GROUP`` chosen by the layer's Switch."""
     if V5:
         node.inputs["Interpolation"].default_value = "Nearest" if filter_type == P.FILTER_NEAREST else "Bilinear"
         node.inputs["Extension X"].default_value = "Clip"
         node.inputs["Extension Y"].default_value = "Clip"
     else:
-        node.filter_type = "NEAREST" if filter_type == P.FILTER_NEAREST else "ANISOTROPIC"
+        node.filter_type = "NEAREST"
 
 
 def _enabled(sockets: Any, name: str) -> Any:
@@ -201,8 +223,18 @@ def input_socket(node: Any, kind: str, key: str) -> Any:
         if V5:
             return node.inputs["Background" if key == "bg" else "Foreground"]
         return node.inputs[1 if key == "bg" else 2]  # both are called "Image" on 4.x
-    if kind in (P.OUTPUT, P.REROUTE, P.FILE_OUTPUT):
+    if kind in (P.OUTPUT, P.VIEWER, P.REROUTE, P.FILE_OUTPUT):
         return node.inputs[0]
+    if kind in (P.GROUP, P.GROUP_OUTPUT):
+        return node.inputs[key]
+    if kind == P.MATH:
+        return _math_input(node, key)
+    if kind == P.SEPARATE_XYZ:
+        return node.inputs[0]
+    if kind == P.COMBINE_XYZ:
+        return node.inputs[key.upper()]
+    if kind == P.SWITCH:
+        return node.inputs[key.title()]
     raise KeyError(f"{kind} has no input {key!r}")
 
 
@@ -215,8 +247,12 @@ def output_socket(node: Any, kind: str, key: str) -> Any:
         return node.outputs["Alpha"]
     if kind == P.ADD_COLOR:
         return _enabled(node.outputs, "Result") if V5 else node.outputs[0]
-    if kind in (P.ADD_VALUE, P.REROUTE):
+    if kind in (P.ADD_VALUE, P.REROUTE, P.MATH, P.COMBINE_XYZ, P.SWITCH):
         return node.outputs[0]
+    if kind in (P.GROUP, P.GROUP_INPUT):
+        return node.outputs[key]
+    if kind == P.SEPARATE_XYZ:
+        return node.outputs[key.upper()]
     raise KeyError(f"{kind} has no output {key!r}")
 
 
@@ -231,15 +267,23 @@ def make_output_active(tree: Any, node: Any) -> None:
     node.is_active_output = True
 
 
+#: The file formats whose image settings have a linear colour space (``linear_colorspace_settings``).
+LINEAR_FORMATS = frozenset({"OPEN_EXR", "OPEN_EXR_MULTILAYER", "HDR"})
+
+
 def image_settings_state(settings: Any) -> dict[str, Any]:
-    """What ``set_render_format`` changes of the render's image settings, to restore after a render."""
+    """What ``set_render_format`` changes of the render's image settings, to restore after a render. The linear colour
+    space only of a format that has one: reading it for another (a PNG, Blender's default) prints Blender's warning
+    "current value '-1' matches no enum"."""
     return {
         "media_type": settings.media_type if V5 else None,
         "file_format": settings.file_format,
         "color_depth": settings.color_depth,
         "color_mode": settings.color_mode,
         "color_management": settings.color_management,
-        "linear_colorspace": settings.linear_colorspace_settings.name,
+        "linear_colorspace": (
+            settings.linear_colorspace_settings.name if settings.file_format in LINEAR_FORMATS else None
+        ),
     }
 
 
@@ -248,8 +292,9 @@ def restore_image_settings(settings: Any, state: dict[str, Any]) -> None:
         settings.media_type = state["media_type"]  # first: it decides which file formats exist
     settings.file_format = state["file_format"]
     settings.color_management = state["color_management"]
-    with contextlib.suppress(TypeError, ValueError):  # a format without a linear space (PNG) keeps its own
-        settings.linear_colorspace_settings.name = state["linear_colorspace"]
+    if state["linear_colorspace"] is not None:  # a format without a linear space (PNG) keeps its own
+        with contextlib.suppress(TypeError, ValueError):
+            settings.linear_colorspace_settings.name = state["linear_colorspace"]
     try:
         settings.color_depth = state["color_depth"]
         settings.color_mode = state["color_mode"]

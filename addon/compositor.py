@@ -11,6 +11,7 @@ from typing import Any
 
 import bpy
 
+from ..engine import contract as C
 from . import compat
 from .core import frames as F
 from .core import relink
@@ -23,6 +24,20 @@ def blend_path(path: str) -> str:
     clip) where it can be, so a shot folder copied with its .blend keeps working; absolute in an unsaved .blend or
     on another drive (``core.relink.relative_path``)."""
     return relink.relative_path(path, bpy.data.filepath)
+
+
+def known_plate(scene: Any, manifest_path: str) -> str | None:
+    """The file of the scene's plate clip when ``manifest_path`` belongs to the run the scene imported from (its
+    manifest, or a later export of the same run folder): where that run's plate is, even after the run folder was
+    relinked without it (``tree_plan.plate_path``). None otherwise: another run's plate is where its manifest says."""
+    props = getattr(scene, "neural_atlas", None)
+    clip = bpy.data.movieclips.get(P.PLATE_CLIP)
+    if props is None or not props.manifest or clip is None or not clip.filepath:
+        return None
+    imported = bpy.path.abspath(props.manifest)
+    if C.manifest_run_root(imported) != C.manifest_run_root(os.path.abspath(manifest_path)):
+        return None
+    return os.path.normpath(bpy.path.abspath(clip.filepath))
 
 
 def _ours(collection: Any, spec: P.ImageSpec) -> tuple[Any, bool]:
@@ -70,6 +85,43 @@ def remove_ours(tree: Any) -> int:
     return len(ours)
 
 
+def build_group(group: P.GroupPlan) -> Any:
+    """The node group ``group`` plans (``NA_...``: emptied and filled again when it exists)."""
+    tree = bpy.data.node_groups.get(group.name)
+    if tree is None or tree.bl_idname != "CompositorNodeTree":
+        tree = bpy.data.node_groups.new(group.name, "CompositorNodeTree")
+    tree.nodes.clear()
+    tree.interface.clear()
+    for name, socket_type in group.inputs:
+        tree.interface.new_socket(name=name, in_out="INPUT", socket_type=socket_type)
+    for name, socket_type in group.outputs:
+        tree.interface.new_socket(name=name, in_out="OUTPUT", socket_type=socket_type)
+    nodes: dict[str, Any] = {}
+    kinds: dict[str, str] = {}
+    for spec in group.nodes:
+        node = compat.new_node(tree, spec.kind)
+        node.name = node.label = spec.name
+        node.location = spec.location
+        compat.setup_node(node, spec.kind, spec.params)
+        nodes[spec.name], kinds[spec.name] = node, spec.kind
+    _link(tree, group.links, nodes, kinds)
+    return tree
+
+
+def _link(tree: Any, links: list[P.LinkSpec], nodes: dict[str, Any], kinds: dict[str, str]) -> None:
+    for link in links:
+        src = compat.output_socket(nodes[link.from_node], kinds[link.from_node], link.from_socket)
+        dst = compat.input_socket(nodes[link.to_node], kinds[link.to_node], link.to_socket)
+        tree.links.new(src, dst)
+
+
+def _atlas_size(spec: P.NodeSpec, images: dict[str, Any]) -> tuple[int, int]:
+    """The texels a bilinear group samples: its edit image's (the atlas size the manifest says until it loads)."""
+    img = images.get(spec.params["image"])
+    size = tuple(img.size) if img is not None else (0, 0)
+    return (int(size[0]), int(size[1])) if size[0] and size[1] else tuple(spec.params["size"])
+
+
 def build(scene: Any, plan: P.TreePlan, set_range: bool = False) -> dict[str, Any]:
     """Create (or recreate) the plan's nodes in the scene's compositor; returns them by name. ``set_range``: the
     scene's range becomes the imported frames even where the artist's lies within them (``configure_scene``)."""
@@ -77,6 +129,8 @@ def build(scene: Any, plan: P.TreePlan, set_range: bool = False) -> dict[str, An
     clip = _load_plate(plan.plate)
     tree = compat.scene_tree(scene)
     remove_ours(tree)
+    for group in plan.groups:
+        build_group(group)
     nodes: dict[str, Any] = {}
     kinds: dict[str, str] = {}
     mattes_root = os.path.join(render_dir(scene), P.MATTES_DIR)
@@ -96,6 +150,8 @@ def build(scene: Any, plan: P.TreePlan, set_range: bool = False) -> dict[str, An
                 node.use_auto_refresh = True
                 node.layer = spec.params["layer"]
         compat.setup_node(node, spec.kind, spec.params)
+        if spec.kind == P.GROUP:
+            node.inputs["Width"].default_value, node.inputs["Height"].default_value = _atlas_size(spec, images)
         if spec.kind == P.FILE_OUTPUT:
             compat.set_file_output_dir(node, os.path.join(mattes_root, spec.params["matte"]))
             node.mute = not writes_mattes(scene)
@@ -104,10 +160,7 @@ def build(scene: Any, plan: P.TreePlan, set_range: bool = False) -> dict[str, An
     for spec in plan.nodes:
         if spec.parent:
             nodes[spec.name].parent = nodes[spec.parent]
-    for link in plan.links:
-        src = compat.output_socket(nodes[link.from_node], kinds[link.from_node], link.from_socket)
-        dst = compat.input_socket(nodes[link.to_node], kinds[link.to_node], link.to_socket)
-        tree.links.new(src, dst)
+    _link(tree, plan.links, nodes, kinds)
     out = next(n for name, n in nodes.items() if kinds[name] == P.OUTPUT)
     compat.make_output_active(tree, out)
     configure_scene(scene, plan, set_range)
@@ -167,12 +220,16 @@ def add_output(tree: Any, socket: Any) -> Any:
 
 def configure_scene(scene: Any, plan: P.TreePlan, set_range: bool = False) -> None:
     """The scene as the plate is: its range the exported frames' numbers (handles included: every imported frame)
-    unless the artist's lies within them (``frames.scene_range``; ``set_range``: always), its resolution, pixel
-    aspect ratio and exact frame rate (a plate that states no rate keeps the scene's)."""
+    unless the artist's lies within them (``frames.scene_range``; ``set_range``: always), the current frame one of
+    them (``frames.frame_inside``), its resolution, pixel aspect ratio and exact frame rate (a plate that states no
+    rate keeps the scene's)."""
     first, last = F.scene_range(
         (scene.frame_start, scene.frame_end), (plan.frame_start, plan.frame_end), force=set_range
     )
     scene.frame_start, scene.frame_end = first, last  # a start past the old end moves the end there first: no clamp
+    current = F.frame_inside(scene.frame_current, plan.frame_start, plan.frame_end)
+    if current != scene.frame_current:
+        scene.frame_set(current)  # the first imported frame, not Blender's frame 1 the export lacks
     r = scene.render
     r.resolution_x, r.resolution_y = plan.resolution
     r.resolution_percentage = 100
@@ -182,12 +239,16 @@ def configure_scene(scene: Any, plan: P.TreePlan, set_range: bool = False) -> No
 
 
 def set_filter(scene: Any, filter_type: str) -> int:
+    """The tree's layers sampled with ``filter_type`` (``tree_plan.FILTERS``): each Map UV's own filter, and on
+    4.x each layer's Switch between its nearest Map UV and its bilinear group; returns the layers set."""
     tree = compat.scene_tree(scene, create=False)
     count = 0
     for node in tree.nodes if tree is not None else ():
         if node.name.startswith(P.PREFIX + "MapUV_"):
             compat.set_map_uv_filter(node, filter_type)
             count += 1
+        elif node.name.startswith(P.filter_switch_name("")):
+            compat.set_switch(node, filter_type == P.FILTER_BILINEAR)
     return count
 
 
@@ -203,22 +264,44 @@ class RenderSession:
     writes it to the frame's own path (``RenderSettings.frame_path``), the same ``edit.#####.<ext>`` an
     animation render writes. The tree's mattes are written beside the frames,
     ``out_dir/mattes/<Matte>/matte.#####.exr`` (``point_mattes``).
+
+    ``exported``: the export's first and last frame; the scene's frames outside them are not rendered
+    (``render_job.exported_only``: they have no passes). A movie's animation render is given the scene range of the
+    frames rendered, and the artist's range is put back by ``end``.
     """
 
     _template = ""
 
-    def __init__(self, scene: Any, out_dir: str, file_format: str = "exr", exr_colorspace: str = "Linear Rec.709"):
+    def __init__(
+        self,
+        scene: Any,
+        out_dir: str,
+        file_format: str = "exr",
+        exr_colorspace: str = "Linear Rec.709",
+        exported: tuple[int, int] | None = None,
+    ):
         self.scene = scene
         self.out_dir = out_dir
         self.file_format = file_format
         self.exr_colorspace = exr_colorspace
+        self.exported = exported
         self._saved: dict[str, Any] | None = None
         self._image_settings: dict[str, Any] | None = None
 
-    def frames(self) -> list[int]:
+    def scene_frames(self) -> list[int]:
         """The scene's frames, as an animation render renders them."""
         s = self.scene
         return RJ.frame_list(s.frame_start, s.frame_end, s.frame_step)
+
+    def frames(self) -> list[int]:
+        """The frames rendered: the scene's that the export has passes for (all of them without ``exported``)."""
+        frames = self.scene_frames()
+        return frames if self.exported is None else RJ.exported_only(frames, self.exported)[0]
+
+    def skipped(self) -> list[int]:
+        """The scene's frames left out (outside the export)."""
+        frames = self.scene_frames()
+        return [] if self.exported is None else RJ.exported_only(frames, self.exported)[1]
 
     def steps(self) -> list[int | None]:
         """One step per frame; a movie: one step (None) that renders it all."""
@@ -236,6 +319,7 @@ class RenderSession:
             "look": scene.view_settings.look,
             "extension": r.use_file_extension,
             "frame": scene.frame_current,
+            "range": (scene.frame_start, scene.frame_end),
         }
         self._image_settings = compat.image_settings_state(r.image_settings)
         scene.view_settings.view_transform = "Standard"
@@ -248,6 +332,9 @@ class RenderSession:
         movie = self.file_format not in RJ.FRAME_FORMATS
         self._template = os.path.join(os.path.abspath(self.out_dir), "edit_" if movie else "edit.#####")
         r.filepath = self._template
+        frames = self.frames()
+        if movie and self.skipped() and frames:  # the animation render covers the rendered frames only
+            _set_range(scene, frames[0], frames[-1])
 
     def render_step(self, frame: int | None) -> None:
         """Render ``frame`` into its file (None: the whole movie); RuntimeError when Blender does not finish."""
@@ -279,12 +366,21 @@ class RenderSession:
         r.dither_intensity = saved["dither"]
         scene.view_settings.view_transform = saved["view"]
         scene.view_settings.look = saved["look"]
+        if (scene.frame_start, scene.frame_end) != saved["range"]:
+            _set_range(scene, *saved["range"])
         if scene.frame_current != saved["frame"]:
             scene.frame_set(saved["frame"])
         self._saved = self._image_settings = None
 
     def written(self) -> list[str]:
         return sorted(os.path.join(self.out_dir, f) for f in os.listdir(self.out_dir) if f.startswith("edit"))
+
+
+def _set_range(scene: Any, first: int, last: int) -> None:
+    """The scene's range ``first``-``last`` whatever it was (Blender moves one end when the other passes it)."""
+    scene.frame_start = first
+    scene.frame_end = last
+    scene.frame_start = first
 
 
 def render(scene: Any, out_dir: str, file_format: str = "exr", exr_colorspace: str = "Linear Rec.709") -> list[str]:

@@ -4,7 +4,7 @@ Runs inside Blender, never inside the engine (the engine does not import bpy; ``
 as a subprocess). Either with the real application or with a Python that has the ``bpy`` module:
 
     blender -b --factory-startup --python-exit-code 1 -P addon/headless.py -- MANIFEST --blend OUT.blend \\
-        [--edit Foreground=paint.png ...] [--render DIR] [--filter nearest|smooth] [--report OUT.json]
+        [--edit Foreground=paint.png ...] [--render DIR] [--filter bilinear|nearest] [--report OUT.json]
     .venv/bin/python addon/headless.py -- MANIFEST --blend OUT.blend ...
 
 It loads this checkout as the add-on package (no installed extension needed), imports the manifest exactly as
@@ -39,9 +39,10 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--render", metavar="DIR", help="render every exported frame to DIR/edit.#####.exr")
     p.add_argument(
         "--filter",
-        choices=("nearest", "smooth", "exact"),
-        default="smooth",
-        help="Map UV filter; exact = Bilinear on Blender 5, Nearest on 4.x (what `engine render` matches to 1e-5)",
+        choices=("bilinear", "nearest", "exact"),
+        default="bilinear",
+        help="the edit layers' filter, as `engine render --filter` names it (the render matches it to 1e-5 on every "
+        "Blender version); exact: bilinear",
     )
     p.add_argument("--report", metavar="JSON", help="write a JSON report here")
     return p.parse_args(args)
@@ -64,7 +65,7 @@ def run(ns: argparse.Namespace) -> dict:
 
     t0 = time.monotonic()
     addon = load_addon()
-    from neural_atlas.addon import compat, compositor
+    from neural_atlas.addon import compositor
     from neural_atlas.addon.core import tree_plan as P
     from neural_atlas.addon.ops.import_run import import_manifest
     from neural_atlas.engine import contract as C  # the add-on's only engine import, through the extension package
@@ -84,7 +85,7 @@ def run(ns: argparse.Namespace) -> dict:
     addon.register()
     try:
         scene = bpy.context.scene
-        filt = compat.EXACT_FILTER if ns.filter == "exact" else ns.filter
+        filt = P.FILTER_DEFAULT if ns.filter == "exact" else ns.filter
         scene.neural_atlas.filter_type = filt
         # a factory scene's 1-250 is no artist's range: the render is every exported frame (an export of 0-299 too)
         plan = import_manifest(bpy.context, manifest_path, setup_paint=True, edits=edits, set_range=True)
@@ -99,9 +100,9 @@ def run(ns: argparse.Namespace) -> dict:
         report = {
             "blender": bpy.app.version_string,
             "filter": filt,
-            # the engine's filter this render matches; exact: to float precision (4.x Smooth is EWA, not bilinear)
-            "engine_filter": "nearest" if filt == P.FILTER_NEAREST else "bilinear",
-            "exact": compat.matches_engine(filt),
+            # the engine's filter this render matches to float precision: the same name, on every version
+            "engine_filter": filt,
+            "exact": True,
             "manifest": manifest_path,
             "blend": blend,
             "layers": plan.layers,

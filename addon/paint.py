@@ -111,6 +111,40 @@ def setup_canvases(context: Any, layers: list[str]) -> list[Any]:
     return objects
 
 
+def show_layer(context: Any, layer: str, canvas: Any | None) -> int:
+    """Make ``layer`` the one painted: its canvas the active, selected object (what Texture Paint paints in the 3D
+    viewport) and its edit image the one every Image Editor shows (what Paint mode paints there). Returns how many
+    Image Editors now show it."""
+    if canvas is not None and canvas.name in context.view_layer.objects:
+        for obj in context.view_layer.objects:
+            if obj.name.startswith(canvas_name("")):
+                obj.select_set(obj == canvas)
+        canvas.select_set(True)
+        context.view_layer.objects.active = canvas
+    edit = bpy.data.images[P.edit_image_name(layer)]
+    shown = 0
+    for window in context.window_manager.windows:
+        for area in window.screen.areas:
+            for space in area.spaces:
+                if space.type == "IMAGE_EDITOR":
+                    space.image = edit
+                    shown += 1
+    return shown
+
+
+def painted_layer(context: Any) -> str | None:
+    """The imported layer being painted where the panel is drawn: the Image Editor's edit image, else the active
+    object's canvas; None when neither is one."""
+    prefix = P.edit_image_name("")
+    image = getattr(getattr(context, "space_data", None), "image", None)
+    if image is not None and image.name.startswith(prefix):
+        return image.name.removeprefix(prefix)
+    obj = getattr(context, "active_object", None)
+    if obj is not None and obj.name.startswith(canvas_name("")):
+        return obj.name.removeprefix(canvas_name(""))
+    return None
+
+
 def _is_exr(path: str) -> bool:
     return path.lower().endswith(C.EDIT_LAYER_FLOAT_EXT)
 

@@ -157,8 +157,8 @@ def _camera(coll: Any, framing: V.Framing) -> Any:
     return obj
 
 
-#: Each twin's edit pixels at its last copy (to copy only what changed).
-_synced: dict[str, np.ndarray] = {}
+#: Each twin's edit pixels at its last copy and the edit file's stamp then (``_file_stamp``): to copy only what changed.
+_synced: dict[str, tuple[np.ndarray, tuple[str, int, int] | None]] = {}
 #: How often (seconds) at most the float twins follow the paint while the preview is shown; the timer waits
 #: ``SYNC_LOAD`` times as long as its last check took (large atlases), at most ``SYNC_SLOWEST`` s.
 SYNC_INTERVAL = 0.25
@@ -179,11 +179,23 @@ def _mirror(edit: Any, name: str) -> Any:
     return img
 
 
+def _file_stamp(img: Any) -> tuple[str, int, int] | None:
+    """The image's file as it is on disk (path, mtime in ns, size): a saved edit image whose stamp is unchanged since
+    its last copy holds the same pixels. Save Edits, Land Paint on Atlases (which reloads the image) and another
+    file's image change it. None when there is no file."""
+    path = bpy.path.abspath(img.filepath) if img.filepath else ""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return os.path.normpath(path), st.st_mtime_ns, st.st_size
+
+
 def sync(force: bool = False) -> int:
     """Copy every edit image's pixels (unsaved paint included) into its float twin (an 8-bit one converted as the
     engine reads the PNG; a float one, linear premultiplied, as it is); only images whose pixels changed since the
-    last copy (``force``: all; an edit image with no unsaved paint is not read again once copied). Returns how
-    many."""
+    last copy (``force``: all; an edit image with no unsaved paint whose file is as it was at the last copy is not
+    read again). Returns how many."""
     mat = bpy.data.materials.get(V.PREVIEW_MATERIAL)
     if mat is None or mat.node_tree is None:
         return 0
@@ -197,20 +209,22 @@ def sync(force: bool = False) -> int:
         edit = bpy.data.images.get(P.edit_image_name(twin.name.removeprefix(V.mirror_image_name(""))))
         if edit is None or not edit.size[0]:
             continue
-        last = _synced.get(twin.name)
-        if not force and last is not None and not edit.is_dirty:
+        last, last_stamp = _synced.get(twin.name, (None, None))
+        stamp = _file_stamp(edit)
+        if not force and last is not None and not edit.is_dirty and stamp is not None and stamp == last_stamp:
             continue
         w, h = edit.size
         px = np.empty(w * h * 4, np.float32)
         edit.pixels.foreach_get(px)
         if not force and last is not None and tuple(twin.size) == (w, h) and np.array_equal(last, px):
+            _synced[twin.name] = (last, stamp)
             continue
         if tuple(twin.size) != (w, h):
             twin = _mirror(edit, twin.name)
             node.image = twin
         twin.pixels.foreach_set(px if edit.is_float else V.straight_srgb_to_premultiplied(px))
         twin.update()
-        _synced[twin.name] = px
+        _synced[twin.name] = (px, stamp)
         copied += 1
     return copied
 
@@ -225,6 +239,18 @@ def _tick() -> float | None:
     except (ReferenceError, AttributeError, RuntimeError):
         pass  # a file loading or the add-on going away: try again next time
     return min(SYNC_SLOWEST, max(SYNC_INTERVAL, SYNC_LOAD * (time.perf_counter() - start)))
+
+
+def forget_copies() -> int:
+    """After another file is loaded (File > Open, Revert): the copies remembered belong to the file that was open,
+    and the loaded file's twins hold no paint (a twin is made in Blender: the .blend keeps none of its pixels). Forget
+    them and fill the loaded file's twins now, so the preview shows its paint before the timer's next tick; returns
+    how many were filled."""
+    _synced.clear()
+    try:
+        return sync()
+    except (ReferenceError, AttributeError, RuntimeError):
+        return 0  # an image the loaded file lacks: the timer tries again
 
 
 def start_live() -> None:
@@ -260,26 +286,36 @@ def build(scene: Any, tree: P.TreePlan, manifest: dict[str, Any], manifest_path:
     return plane
 
 
-def rebuild(scene: Any) -> Any:
-    """Build the preview again for the scene's imported export (after ``NA_FramePaint`` appears, say); returns the
-    plane. Raises the import's errors (``ops.import_run.IMPORT_ERRORS``, one line each)."""
+def plan_rebuild(scene: Any) -> tuple[P.TreePlan, dict[str, Any], str]:
+    """What ``rebuild`` builds from, checked without changing anything: (tree, manifest, its path). Raises the
+    import's errors (``ops.import_run.IMPORT_ERRORS``, one line each)."""
     props = scene.neural_atlas
-    manifest_path = bpy.path.abspath(props.manifest)
+    manifest_path = os.path.normpath(bpy.path.abspath(props.manifest))
     manifest = C.load_manifest(manifest_path)
-    tree = P.plan_tree(manifest, manifest_path, props.filter_type, None, compat.colorspace_names())
+    plate = compositor.known_plate(scene, manifest_path)  # a run folder relinked without its plate
+    names = compat.colorspace_names()
+    tree = P.plan_tree(manifest, manifest_path, props.filter_type, None, names, plate, compat.BILINEAR_TAPS)
     missing = sorted(name for name in map(P.edit_image_name, tree.layers) if bpy.data.images.get(name) is None)
     if missing:
         raise ValueError(f"{', '.join(missing)} missing: import the atlas again ({manifest_path})")
-    return build(scene, tree, manifest, manifest_path, props.filter_type)
+    return tree, manifest, manifest_path
+
+
+def rebuild(scene: Any, planned: tuple[P.TreePlan, dict[str, Any], str] | None = None) -> Any:
+    """Build the preview again for the scene's imported export (after ``NA_FramePaint`` appears, say) from
+    ``planned`` (``plan_rebuild``; None: planned now); returns the plane. Raises the import's errors."""
+    tree, manifest, manifest_path = planned or plan_rebuild(scene)
+    return build(scene, tree, manifest, manifest_path, scene.neural_atlas.filter_type)
 
 
 def set_filter(filter_type: str) -> int:
-    """The edit images' interpolation in the preview material for a panel filter; returns the nodes set."""
+    """The edit images' interpolation in the preview material for a panel filter (``tree_plan.FILTERS``), the same
+    sampling as the compositor's; returns the nodes set."""
     mat = bpy.data.materials.get(V.PREVIEW_MATERIAL)
     count = 0
     for node in mat.node_tree.nodes if mat is not None and mat.node_tree is not None else ():
         if node.name.startswith("Edit_") and node.bl_idname == "ShaderNodeTexImage":
-            node.interpolation = V.INTERPOLATION.get(filter_type, "Linear")
+            node.interpolation = V.INTERPOLATION[filter_type]
             count += 1
     return count
 

@@ -114,19 +114,26 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
         name="Manifest", subtype="FILE_PATH", description="The imported export", options=compat.PATH_OPTIONS
     )
     imported_layers: StringProperty(default="", description="The imported run's layers, comma separated")
+    # the identifiers are engine render's --filter names; the numbers keep what older files stored (0 was the
+    # default, 2 Nearest)
     filter_type: EnumProperty(
         name="Filter",
         items=[
             (
-                P.FILTER_ENGINE,
-                "Match engine",
-                "The sampling engine render reproduces: Bilinear on Blender 5, Nearest on Blender 4.x (whose smooth "
-                "filter is EWA); the live preview samples bilinearly on both",
+                P.FILTER_BILINEAR,
+                "Bilinear",
+                "Edit layers sampled bilinearly, in the live preview and the render alike (engine render --filter "
+                "bilinear)",
+                0,
             ),
-            (P.FILTER_SMOOTH, "Smooth", "Bilinear (Blender 5) / EWA (Blender 4.x) sampling of the edit layers"),
-            (P.FILTER_NEAREST, "Nearest", "Nearest texel: exact, blocky"),
+            (
+                P.FILTER_NEAREST,
+                "Nearest",
+                "Nearest texel, in the live preview and the render alike: blocky (engine render --filter nearest)",
+                2,
+            ),
         ],
-        default=P.FILTER_ENGINE,
+        default=P.FILTER_DEFAULT,
         update=_on_filter,
     )
     render_dir: StringProperty(

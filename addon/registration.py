@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import bpy
 
-from . import blend_paths, ops, preferences, preview, properties, ui
+from . import blend_paths, ops, preferences, preview, properties, save_paint, ui
 from .core import running
+from .ops import frame_paint
 
 classes = (*properties.classes, *preferences.classes, *ops.classes, *ui.classes)
 
@@ -17,11 +18,26 @@ def _cancel_jobs(*_args) -> None:
     running.cancel_all()
 
 
+@bpy.app.handlers.persistent
+def _fresh_file(*_args) -> None:
+    """``load_post`` (File > Open, Revert, another shot): what the add-on remembers of the file that was open is
+    forgotten, so the live preview shows the loaded file's paint and Land reads its frame paint afresh."""
+    preview.forget_copies()
+    frame_paint.forget_painted()
+
+
+#: The add-on's handlers of file events: (the handler list, the handler); each persistent (a load keeps it).
+HANDLERS = ((bpy.app.handlers.load_pre, _cancel_jobs), (bpy.app.handlers.load_post, _fresh_file))
+
+
 def register() -> None:
     for cls in classes:
         bpy.utils.register_class(cls)
     properties.register_props()
-    bpy.app.handlers.load_pre.append(_cancel_jobs)
+    for handlers, handler in HANDLERS:
+        if handler not in handlers:
+            handlers.append(handler)
+    save_paint.register()  # Save (Ctrl+S) writes the paint too; before the paths are rebased for the file
     blend_paths.register()  # the add-on's paths stay relative to the .blend across saves
     preview.start_live()  # a saved file's preview follows the paint too (the timer idles while none is shown)
 
@@ -29,9 +45,11 @@ def register() -> None:
 def unregister() -> None:
     _cancel_jobs()
     blend_paths.unregister()
+    save_paint.unregister()
     preview.stop_live()
-    for handler in [h for h in bpy.app.handlers.load_pre if getattr(h, "__name__", "") == "_cancel_jobs"]:
-        bpy.app.handlers.load_pre.remove(handler)
+    for handlers, handler in HANDLERS:
+        for h in [h for h in handlers if getattr(h, "__name__", "") == handler.__name__]:
+            handlers.remove(h)
     properties.unregister_props()
     for cls in reversed(classes):
         bpy.utils.unregister_class(cls)

@@ -1,4 +1,5 @@
-"""The "Fit Atlas" N-panel in the Movie Clip Editor sidebar."""
+"""The add-on's "Fit Atlas" sidebar tab: Fit Atlas and Paint & Render in the Movie Clip Editor, and Paint & Render
+(the same panel, one class per editor) in the 3D viewport and the Image Editor, where the painting happens."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ import json
 
 import bpy
 
-from . import preferences, scribbles
+from . import paint, preferences, scribbles
 from .core import estimate, needs, running
 from .core import farm as FM
 from .core import scribble_math as S
@@ -149,44 +150,91 @@ class NEURALATLAS_PT_fit(_SidebarPanel, bpy.types.Panel):
         _draw_farm(col, props, context)
 
 
+def _draw_layers(col, props, context) -> None:
+    """One button per imported layer (Paint Layer), the one being painted here pressed."""
+    layers = [name.strip() for name in props.imported_layers.split(",") if name.strip()]
+    if not layers:
+        return
+    painted = paint.painted_layer(context)
+    row = col.row(align=True)
+    row.label(text="Paint", icon="RENDERLAYERS")
+    for layer in layers:
+        row.operator("neural_atlas.paint_layer", text=layer, depress=layer == painted).layer = layer
+
+
+def draw_paint_render(layout, context) -> None:
+    """Paint & Render, in every editor that has it (Movie Clip Editor, 3D viewport, Image Editor): the import, the
+    layer to paint, Save Edits, Live Preview, Paint on Frame / Land Paint, the filter and Render Edited Clip."""
+    props = context.scene.neural_atlas
+    col = layout.column()
+    col.operator("neural_atlas.import_run", icon="IMPORT")
+    if props.manifest:
+        col.label(text=props.manifest)
+        moved = _moved_line(context)
+        if moved:
+            col.label(text=moved, icon="ERROR")
+        col.operator("neural_atlas.relink", icon="FILE_REFRESH")
+    _draw_layers(col, props, context)
+    col.prop(props, "filter_type")
+    row = col.row(align=True)
+    row.operator("neural_atlas.paint_setup", icon="BRUSH_DATA")
+    row.operator("neural_atlas.save_edits", icon="FILE_TICK")
+    col.operator("neural_atlas.float_edits", icon="IMAGE_DATA")
+    col.operator("neural_atlas.live_preview", icon="HIDE_OFF")
+    row = col.row(align=True)  # paint over one plate frame, landed on the atlases (engine project-frame)
+    row.operator("neural_atlas.frame_paint_start", icon="TPAINT_HLT")
+    row.operator("neural_atlas.frame_paint_land", icon="IMPORT")
+    if running.is_running(context.scene.name):
+        col.progress(factor=props.progress, type="BAR", text=props.status or "running…")
+        col.operator("neural_atlas.cancel", icon="CANCEL")
+    col.prop(props, "render_dir")
+    col.prop(props, "render_format")
+    col.prop(props, "write_mattes")
+    if active_render(context.scene) is not None:
+        col.progress(factor=props.render_progress, type="BAR", text=props.render_status or "rendering…")
+        col.operator("neural_atlas.render_cancel", icon="CANCEL")
+    else:
+        col.operator("neural_atlas.render", icon="RENDER_ANIMATION")
+        if props.render_status:
+            col.label(text=props.render_status)
+
+
 class NEURALATLAS_PT_edit(_SidebarPanel, bpy.types.Panel):
     bl_idname = "NEURALATLAS_PT_edit"
     bl_label = "Paint & Render"
 
     def draw(self, context):
-        props = context.scene.neural_atlas
-        col = self.layout.column()
-        col.operator("neural_atlas.import_run", icon="IMPORT")
-        if props.manifest:
-            col.label(text=props.manifest)
-            if props.imported_layers:
-                col.label(text=f"Layers: {props.imported_layers}", icon="RENDERLAYERS")
-            moved = _moved_line(context)
-            if moved:
-                col.label(text=moved, icon="ERROR")
-            col.operator("neural_atlas.relink", icon="FILE_REFRESH")
-        col.prop(props, "filter_type")
-        row = col.row(align=True)
-        row.operator("neural_atlas.paint_setup", icon="BRUSH_DATA")
-        row.operator("neural_atlas.save_edits", icon="FILE_TICK")
-        col.operator("neural_atlas.float_edits", icon="IMAGE_DATA")
-        col.operator("neural_atlas.live_preview", icon="HIDE_OFF")
-        row = col.row(align=True)  # paint over one plate frame, landed on the atlases (engine project-frame)
-        row.operator("neural_atlas.frame_paint_start", icon="TPAINT_HLT")
-        row.operator("neural_atlas.frame_paint_land", icon="IMPORT")
-        if running.is_running(context.scene.name):
-            col.progress(factor=props.progress, type="BAR", text=props.status or "running…")
-            col.operator("neural_atlas.cancel", icon="CANCEL")
-        col.prop(props, "render_dir")
-        col.prop(props, "render_format")
-        col.prop(props, "write_mattes")
-        if active_render(context.scene) is not None:
-            col.progress(factor=props.render_progress, type="BAR", text=props.render_status or "rendering…")
-            col.operator("neural_atlas.render_cancel", icon="CANCEL")
-        else:
-            col.operator("neural_atlas.render", icon="RENDER_ANIMATION")
-            if props.render_status:
-                col.label(text=props.render_status)
+        draw_paint_render(self.layout, context)
 
 
-classes = (NEURALATLAS_UL_layers, NEURALATLAS_PT_fit, NEURALATLAS_PT_edit)
+class NEURALATLAS_PT_edit_view3d(bpy.types.Panel):
+    """Paint & Render where Texture Paint paints the canvases and the live preview shows: the 3D viewport."""
+
+    bl_idname = "NEURALATLAS_PT_edit_view3d"
+    bl_label = "Paint & Render"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = _SidebarPanel.bl_category
+
+    def draw(self, context):
+        draw_paint_render(self.layout, context)
+
+
+class NEURALATLAS_PT_edit_image(bpy.types.Panel):
+    """Paint & Render where an edit layer or the frame paint is painted flat: the Image Editor."""
+
+    bl_idname = "NEURALATLAS_PT_edit_image"
+    bl_label = "Paint & Render"
+    bl_space_type = "IMAGE_EDITOR"
+    bl_region_type = "UI"
+    bl_category = _SidebarPanel.bl_category
+
+    def draw(self, context):
+        draw_paint_render(self.layout, context)
+
+
+#: The Paint & Render panel of each editor the artist paints or looks in.
+PAINT_PANELS = (NEURALATLAS_PT_edit, NEURALATLAS_PT_edit_view3d, NEURALATLAS_PT_edit_image)
+
+
+classes = (NEURALATLAS_UL_layers, NEURALATLAS_PT_fit, *PAINT_PANELS)

@@ -98,6 +98,18 @@ def has_paint(alpha_max: float) -> bool:
     return alpha_max > 0.5 / 255
 
 
+def painted_answer_holds(painted: bool, was_unsaved: bool, unsaved: bool, age: float, max_age: float) -> bool:
+    """Whether an earlier answer to "does the frame paint hold paint" (``painted``, given ``age`` seconds ago when
+    the image was ``was_unsaved``) still holds now that it is ``unsaved``: a "yes" holds (a brush only adds paint;
+    Paint on Frame and Land forget the answer); a "no" holds while the image is as it was: saved both times (no stroke
+    since), or unsaved both times and at most ``max_age`` old (a later stroke shows within that)."""
+    if painted:
+        return True
+    if was_unsaved != unsaved:
+        return False  # a stroke since (or a save): read the pixels again
+    return not unsaved or age <= max_age
+
+
 def project_frame_argv(python: str, manifest: str, frame: int, paint: str) -> list[str]:
     """``engine project-frame MANIFEST --frame N --edit PAINT``: the paint lands on every layer that owns it."""
     return EC.engine_argv(python, C.VERB_PROJECT_FRAME, manifest, "--frame", str(frame), "--edit", paint)

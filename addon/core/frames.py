@@ -72,6 +72,12 @@ def scene_range(current: tuple[int, int], imported: tuple[int, int], force: bool
     return first, last
 
 
+def frame_inside(current: int, first: int, last: int) -> int:
+    """The current frame after an import of frames ``first``-``last``: as it was when it is one of them (the artist's
+    place survives a re-import), else the first (Blender's frame 1 would show a plate frame the export lacks)."""
+    return current if first <= current <= last else first
+
+
 def clip_offset_note(name: str, clip_frame_start: int, first_file_number: int | None, aligned_clip: str) -> str | None:
     """What to tell the artist whose own clip ``name`` (a sequence starting with file ``first_file_number``) does not
     show plate frame N at scene frame N once the scene is numbered as the plate: Blender starts a sequence at scene

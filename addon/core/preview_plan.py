@@ -53,8 +53,9 @@ MIX = "mix"  # RGBA mix: inputs "Factor", "A", "B"; output "Result"
 EMISSION = "emission"  # input "Color"; output "Emission"
 OUTPUT = "output"  # input "Surface"
 
-#: The edit images' interpolation for each filter: Linear is the engine's bilinear, Closest its nearest.
-INTERPOLATION = {P.FILTER_NEAREST: "Closest", P.FILTER_SMOOTH: "Linear", P.FILTER_ENGINE: "Linear"}
+#: The edit images' interpolation for each filter (``tree_plan.FILTERS``): Linear is the engine's bilinear, Closest
+#: its nearest (the compositor's Map UV samples the same way on every version: ``compat.set_map_uv_filter``).
+INTERPOLATION = {P.FILTER_BILINEAR: "Linear", P.FILTER_NEAREST: "Closest"}
 
 
 @dataclass(frozen=True)
@@ -195,7 +196,7 @@ def plan_preview(
     tree: P.TreePlan,
     manifest: dict[str, Any],
     manifest_path: str,
-    filter_type: str = P.FILTER_ENGINE,
+    filter_type: str = P.FILTER_DEFAULT,
     frame_paint: bool = False,
 ) -> PreviewPlan:
     """The preview for an imported export (``tree``: its compositor plan, which has the plate, range and size)."""

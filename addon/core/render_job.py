@@ -20,6 +20,44 @@ def frame_list(start: int, end: int, step: int = 1) -> list[int]:
     return list(range(start, end + 1, max(1, step)))
 
 
+def exported_only(frames: list[int], exported: tuple[int, int]) -> tuple[list[int], list[int]]:
+    """(the ``frames`` the export has passes for: ``exported`` is its first and last frame, contiguous; the others).
+    A frame outside the export has no passes: Blender would show the nearest exported frame's passes there (the paint
+    frozen where it was), so only the exported frames are rendered."""
+    first, last = exported
+    inside = [f for f in frames if first <= f <= last]
+    return inside, [f for f in frames if not first <= f <= last]
+
+
+def spans(frames: list[int]) -> str:
+    """``1-2, 6-8``: the frames as runs of consecutive numbers."""
+    runs: list[list[int]] = []
+    for f in sorted(frames):
+        if runs and f == runs[-1][1] + 1:
+            runs[-1][1] = f
+        else:
+            runs.append([f, f])
+    return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)
+
+
+def outside_note(skipped: list[int], exported: tuple[int, int]) -> str:
+    """What the render says of the scene frames it left out ('' when none)."""
+    if not skipped:
+        return ""
+    return (
+        f"scene frame(s) {spans(skipped)} not rendered: the export has passes for frames {exported[0]}-{exported[1]} "
+        "only (export more frames to render them)"
+    )
+
+
+def no_exported_frames(scene_range: tuple[int, int], exported: tuple[int, int]) -> str:
+    """The refusal when the scene's range holds none of the exported frames."""
+    return (
+        f"The scene's range {scene_range[0]}-{scene_range[1]} holds none of the exported frames "
+        f"{exported[0]}-{exported[1]}: set the range inside them (Import Atlas with Set Scene Range does)"
+    )
+
+
 def steps_for(file_format: str, frames: list[int]) -> list[int | None]:
     """The render's steps: one per frame for an image sequence, one (None: the whole movie) for a movie."""
     return list(frames) if file_format in FRAME_FORMATS else [None]
@@ -36,6 +74,8 @@ class RenderProgress:
     movie: bool = False
     frames: int = 0
     cancelled: bool = False
+    #: What the report adds (``outside_note``: scene frames left out); '' for nothing
+    note: str = ""
 
     @property
     def fraction(self) -> float:
@@ -69,7 +109,9 @@ class RenderProgress:
     def report(self, out_dir: str) -> str:
         """The line the operator reports at the end: what was written, and for a cancel that the frames stay."""
         if self.movie:
-            return f"rendered the movie to {out_dir}"
-        if self.cancelled:
-            return f"render cancelled after {self.done}/{self.total} frames; the finished frames stay in {out_dir}"
-        return f"rendered {self.done} frame(s) to {out_dir}"
+            line = f"rendered the movie to {out_dir}"
+        elif self.cancelled:
+            line = f"render cancelled after {self.done}/{self.total} frames; the finished frames stay in {out_dir}"
+        else:
+            line = f"rendered {self.done} frame(s) to {out_dir}"
+        return f"{line}; {self.note}" if self.note else line

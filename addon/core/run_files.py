@@ -96,3 +96,11 @@ def saving_path(path: str) -> str:
     folder, name = os.path.split(path)
     stem, ext = os.path.splitext(name)
     return os.path.join(folder, f".{stem}{SAVING_MARK}{os.getpid()}{ext}")
+
+
+def imported_run_dir(manifest_path: str) -> str | None:
+    """The run folder of an imported export's manifest (``RUN/exports/vNNN/manifest.json`` -> RUN): the Run Folder
+    Refine continues; None for a manifest outside a run folder's exports."""
+    root = C.manifest_run_root(manifest_path)
+    folder = os.path.dirname(os.path.realpath(manifest_path))
+    return None if os.path.normpath(root) == os.path.normpath(folder) else root

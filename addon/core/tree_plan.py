@@ -39,17 +39,33 @@ ADD_VALUE = "add_value"  # inputs "a", "b"; output "value"
 SET_ALPHA = "set_alpha"  # inputs "image", "alpha"; output "image" (alpha replaced)
 ALPHA_OVER = "alpha_over"  # inputs "bg", "fg" (premultiplied); output "image"
 OUTPUT = "output"  # input "image"
+VIEWER = "viewer"  # input "image": what the Compositor's backdrop and the Image Editor's Viewer Node show
 FRAME = "frame"  # a labelled, coloured box that groups nodes (params "label", "color"); no sockets
 REROUTE = "reroute"  # input "in"; output "out": a named point in the tree to pick a matte up from
 FILE_OUTPUT = "file_output"  # input "image": written each rendered frame to <mattes dir>/<params "matte">/MATTE_FILE
 
-FILTER_NEAREST = "nearest"
-FILTER_SMOOTH = "smooth"  # 5.0: Bilinear; 4.x: its only other filter, EWA ("ANISOTROPIC")
-#: The default: the Map UV filter that ``engine render`` reproduces (``compat.EXACT_FILTER``: Bilinear on 5.0, Nearest
-#: on 4.x, whose only smooth filter is EWA); the live preview samples bilinearly with it on both.
-FILTER_ENGINE = "engine"
-FILTERS = (FILTER_ENGINE, FILTER_SMOOTH, FILTER_NEAREST)
+# the Blender 4.x bilinear filter's node group: Map UV, Math, Separate/Combine XYZ, Switch and group nodes
+GROUP = "group"  # a node group's instance (params "group"); sockets by the group's interface names
+GROUP_INPUT = "group_input"  # outputs: the group's inputs, by name
+GROUP_OUTPUT = "group_output"  # inputs: the group's outputs, by name
+MATH = "math"  # inputs "a", "b", "c"; output "value"; params "operation", "values" (an input's constant)
+SEPARATE_XYZ = "separate_xyz"  # input "vector"; outputs "x", "y", "z"
+COMBINE_XYZ = "combine_xyz"  # inputs "x", "y", "z"; output "vector"
+SWITCH = "switch"  # inputs "off", "on"; output "image"; params "on" (bool)
 
+#: The filters: the edit layers sampled as ``engine render --filter NAME`` samples them, by the same names, in the
+#: compositor (Render Edited Clip) and in the live preview alike, on every Blender version.
+FILTER_BILINEAR = "bilinear"
+FILTER_NEAREST = "nearest"
+FILTERS = (FILTER_BILINEAR, FILTER_NEAREST)
+#: ``engine render``'s default.
+FILTER_DEFAULT = FILTER_BILINEAR
+#: Blender 4.x's Map UV has no bilinear filter (its smooth one is EWA, up to 0.2 off at hard paint edges): there a
+#: layer's bilinear sample is this node group, four nearest taps weighted as ``engine render`` weighs them.
+BILINEAR_GROUP = f"{PREFIX}Bilinear"
+
+#: The Viewer node fed by the composite (the render's output): the Compositor's backdrop shows it.
+VIEWER_NODE = f"{PREFIX}Viewer"
 PLATE_CLIP = f"{PREFIX}Plate"
 PASSES_IMAGE = f"{PREFIX}Passes"
 #: The live preview: a plate-sized plane in the 3D viewport whose material is the composite (``addon/preview.py``).
@@ -107,6 +123,17 @@ class ImageSpec:
 
 
 @dataclass
+class GroupPlan:
+    """A node group: its interface (name, socket type) and its nodes and links (no frames)."""
+
+    name: str
+    inputs: list[tuple[str, str]]
+    outputs: list[tuple[str, str]]
+    nodes: list[NodeSpec]
+    links: list[LinkSpec]
+
+
+@dataclass
 class TreePlan:
     nodes: list[NodeSpec]
     links: list[LinkSpec]
@@ -123,6 +150,8 @@ class TreePlan:
     """The scene's ``(pixel_aspect_x, pixel_aspect_y)``: the plate's pixel aspect ratio."""
     mattes: list[str] = field(default_factory=list)
     """The mattes the tree offers and writes: each layer's (its alpha pass), then ``PAINT_MATTE``."""
+    groups: list[GroupPlan] = field(default_factory=list)
+    """The node groups the nodes use (built before them): ``bilinear_group`` where Map UV has no bilinear filter."""
 
 
 def edit_image_name(layer: str) -> str:
@@ -159,6 +188,11 @@ def matte_path(render_dir: str, matte: str, frame: int) -> str:
     digits = MATTE_FILE.count("#")
     name = MATTE_FILE.replace("#" * digits, f"{frame:0{digits}d}") + MATTE_EXT
     return os.path.join(matte_dir(render_dir, matte), name)
+
+
+def filter_switch_name(layer: str) -> str:
+    """The Switch between a layer's nearest Map UV (off) and its ``BILINEAR_GROUP`` (on), where there is one."""
+    return f"{PREFIX}Filter_{layer}"
 
 
 def frame_node_name(group: str) -> str:
@@ -199,12 +233,17 @@ def contiguous_frames(frames: list[int]) -> tuple[int, int]:
 def plan_tree(
     manifest: dict[str, Any],
     manifest_path: str,
-    filter_type: str = FILTER_ENGINE,
+    filter_type: str = FILTER_DEFAULT,
     edits: dict[str, str] | None = None,
     colorspaces: frozenset[str] | None = None,
+    known_plate: str | None = None,
+    bilinear_taps: bool = False,
 ) -> TreePlan:
     """The tree for a validated manifest; ``edits`` maps a layer name to another edit image file. ``colorspaces``:
-    the colour spaces this Blender has (``compat.colorspace_names``): a plate in another one is a PlanError."""
+    the colour spaces this Blender has (``compat.colorspace_names``): a plate in another one is a PlanError.
+    ``known_plate``: where the scene's plate clip of this import is (``plate_path``: a run folder relinked without its
+    plate still finds it there). ``bilinear_taps``: Map UV has no bilinear filter (``compat.BILINEAR_TAPS``): each
+    layer also gets ``BILINEAR_GROUP`` and a Switch (``NA_Filter_<Layer>``, on for bilinear) between the two."""
     if filter_type not in FILTERS:
         raise PlanError(f"unknown filter {filter_type!r}")
     edits = edits or {}
@@ -224,11 +263,11 @@ def plan_tree(
         files = list(clip["frame_files"])
         if first not in numbers:
             raise PlanError(f"plate has no frame {first}; export frames that exist in the clip")
-        plate_file = plate_path(manifest_path, files[numbers.index(first)], "plate frame")
+        plate_file = plate_path(manifest_path, files[numbers.index(first)], "plate frame", known_plate)
         plate = ImageSpec(PLATE_CLIP, plate_file, plate_colorspace(clip, colorspaces), True, first, count)
     else:
         # scene frame F shows the movie's frame numbered F: its first frame is numbered start_frame (0 by default)
-        movie = plate_path(manifest_path, clip["source"], "plate movie")
+        movie = plate_path(manifest_path, clip["source"], "plate movie", known_plate)
         start = int(clip.get("start_frame", 0))
         plate = ImageSpec(PLATE_CLIP, movie, plate_colorspace(clip, colorspaces), False, start, count)
 
@@ -256,6 +295,7 @@ def plan_tree(
     passes_params = {"image": PASSES_IMAGE, "layer": passes["exr_layer"], "sequence": True}
     nodes.append(NodeSpec(n_passes, IMAGE, (-900.0, 0.0), passes_params, f_passes))
     map_outputs: list[str] = []
+    groups = [bilinear_group()] if bilinear_taps else []
     for i, layer in enumerate(manifest["layers"]):
         name = layer["name"]
         y = -420.0 - 250.0 * i  # below the passes node, whose height grows with the layers
@@ -266,11 +306,24 @@ def plan_tree(
         nodes.append(NodeSpec(n_map, MAP_UV, (-650.0, y), {"filter": filter_type}, f_layer))
         links.append(LinkSpec(n_edit, "image", n_map, "image"))
         links.append(LinkSpec(n_passes, layer["uv_pass"], n_map, "uv"))
-        map_outputs.append(n_map)
+        if not bilinear_taps:
+            map_outputs.append(n_map)
+            continue
+        atlas_size = [int(v) for v in layer["atlas_size"]]
+        n_bilinear, n_switch = f"{PREFIX}Bilinear_{name}", filter_switch_name(name)
+        params = {"group": BILINEAR_GROUP, "image": edit_image_name(name), "size": atlas_size}
+        nodes.append(NodeSpec(n_bilinear, GROUP, (-650.0, y - 120.0), params, f_layer))
+        nodes.append(NodeSpec(n_switch, SWITCH, (-450.0, y), {"on": filter_type == FILTER_BILINEAR}, f_layer))
+        links.append(LinkSpec(n_edit, "image", n_bilinear, "Image"))
+        links.append(LinkSpec(n_passes, layer["uv_pass"], n_bilinear, "UV"))
+        links.append(LinkSpec(n_map, "image", n_switch, "off"))
+        links.append(LinkSpec(n_bilinear, "Image", n_switch, "on"))
+        map_outputs.append(n_switch)
 
     nodes.append(frame_spec(FRAME_BLEND, "Blend", FRAME_BLEND))
     # the paint's matte: the alpha of the sum (one layer: its Map UV's alpha)
-    alpha_node, alpha_socket = _separate(nodes, links, map_outputs[0], f_blend)
+    layer_names = [layer["name"] for layer in manifest["layers"]]
+    alpha_node, alpha_socket = _separate(nodes, links, map_outputs[0], f_blend, layer_names[0])
     if len(map_outputs) == 1:
         fg_node, fg_socket = map_outputs[0], "image"
     else:
@@ -282,7 +335,7 @@ def plan_tree(
             links.append(LinkSpec(color_node, color_socket, n_add, "a"))
             links.append(LinkSpec(n_map, "image", n_add, "b"))
             color_node, color_socket = n_add, "result"
-            sep_node, sep_socket = _separate(nodes, links, n_map, f_blend)
+            sep_node, sep_socket = _separate(nodes, links, n_map, f_blend, layer_names[i])
             n_addv = f"{PREFIX}AddAlpha_{i}"
             nodes.append(NodeSpec(n_addv, ADD_VALUE, (-200.0, y - 120.0), parent=f_blend))
             links.append(LinkSpec(alpha_node, alpha_socket, n_addv, "a"))
@@ -294,12 +347,14 @@ def plan_tree(
         links.append(LinkSpec(alpha_node, alpha_socket, n_set, "alpha"))
         fg_node, fg_socket = n_set, "image"
 
-    n_over, n_out = f"{PREFIX}Over", f"{PREFIX}Output"
+    n_over, n_out, n_view = f"{PREFIX}Over", f"{PREFIX}Output", VIEWER_NODE
     nodes.append(NodeSpec(n_over, ALPHA_OVER, (200.0, 200.0), parent=f_blend))
     nodes.append(NodeSpec(n_out, OUTPUT, (400.0, 200.0), parent=f_blend))
+    nodes.append(NodeSpec(n_view, VIEWER, (400.0, 60.0), parent=f_blend))
     links.append(LinkSpec(n_plate, "image", n_over, "bg"))
     links.append(LinkSpec(fg_node, fg_socket, n_over, "fg"))
     links.append(LinkSpec(n_over, "image", n_out, "image"))
+    links.append(LinkSpec(n_over, "image", n_view, "image"))  # the backdrop shows the composite
 
     sources = [(layer["name"], n_passes, layer["alpha_pass"]) for layer in manifest["layers"]]
     sources.append((PAINT_MATTE, alpha_node, alpha_socket))
@@ -316,7 +371,7 @@ def plan_tree(
     fps, aspect = F.scene_fps(C.clip_rate(clip)), F.scene_pixel_aspect(clip.get("pixel_aspect", 1.0))
     mattes = [matte for matte, _, _ in sources]
     return TreePlan(
-        nodes, links, images, plate, first, last, size, layers, output_colorspace(clip), fps, aspect, mattes
+        nodes, links, images, plate, first, last, size, layers, output_colorspace(clip), fps, aspect, mattes, groups
     )
 
 
@@ -335,21 +390,135 @@ def float_edit_path(manifest_path: str, layer: dict[str, Any]) -> str:
     return C.resolve_manifest_write_path(manifest_path, C.float_edit_layer(layer["edit_layer"]))
 
 
-def plate_path(manifest_path: str, path: str, what: str) -> str:
+def plate_path(manifest_path: str, path: str, what: str, known_plate: str | None = None) -> str:
     """A plate file the manifest names (relative to it first, like every manifest path), checked to be a file: one
-    line naming it and the fix, instead of Blender's silent placeholder."""
+    line naming it and the fix, instead of Blender's silent placeholder.
+
+    ``known_plate``: a file of the same plate where the scene's plate clip shows it (``None``: none). A run folder
+    moved on its own takes the manifest's relative plate paths with it, so they name a plate that is not there; the
+    clip (left where the plate is by Relink Run Folder) says where it is: the file of the same name in the clip's
+    folder (a movie: the clip's file itself, when its name is the same) is taken when the manifest's is missing."""
     full = C.resolve_manifest_path(manifest_path, path)
+    if not os.path.isfile(full) and known_plate:
+        beside = os.path.join(os.path.dirname(os.path.abspath(known_plate)), os.path.basename(full))
+        if os.path.isfile(beside):
+            return os.path.normpath(beside)
     if not os.path.isfile(full):
         problem = f"{what} does not exist" if not os.path.exists(full) else f"{what} is not a file"
         raise PlanError(f"{full}: {problem} — {PLATE_FIX}")
     return full
 
 
-def _separate(nodes: list[NodeSpec], links: list[LinkSpec], n_map: str, parent: str) -> tuple[str, str]:
-    src = nodes[[n.name for n in nodes].index(n_map)]
-    n_sep = f"{PREFIX}Alpha_{n_map.removeprefix(PREFIX + 'MapUV_')}"
+def _separate(nodes: list[NodeSpec], links: list[LinkSpec], src_node: str, parent: str, layer: str) -> tuple[str, str]:
+    """A Separate Color node taking ``layer``'s sampled edit apart (``NA_Alpha_<Layer>``): its alpha."""
+    src = nodes[[n.name for n in nodes].index(src_node)]
+    n_sep = f"{PREFIX}Alpha_{layer}"
     nodes.append(NodeSpec(n_sep, SEPARATE, (-400.0, src.location[1] - 60.0), parent=parent))
-    links.append(LinkSpec(n_map, "image", n_sep, "image"))
+    links.append(LinkSpec(src_node, "image", n_sep, "image"))
+    return n_sep, "alpha"
+
+
+#: A Math operand: a node's output (node, socket) or a constant.
+Operand = tuple[str, str] | float
+
+
+def bilinear_group() -> GroupPlan:
+    """``BILINEAR_GROUP``: the bilinear sample of an atlas (inputs Image, UV, and the atlas's Width and Height in
+    texels; output Image, premultiplied and times the UV's Z as Map UV's) from nearest Map UV taps, as
+    ``engine render --filter bilinear`` computes it. Per axis (u over the width W, v over the height H):
+
+        x = u W - 0.5,  x0 = floor(x),  f = x - x0
+        taps at the texel centres (x0 + 0.5) / W and (x0 + 1.5) / W, weighed 1 - f and f; a tap outside the atlas
+        (x0 < 0, x0 + 1 > W - 1) weighs 0, and so does the whole sample where u lies outside 0..1.
+
+    Each of the four taps is a nearest Map UV whose UV's Z is its weight times the coverage Z (Map UV multiplies the
+    texel by Z); the four are summed as the layers are (colour Mix/Add, alpha Math/Add, Set Alpha)."""
+    nodes: list[NodeSpec] = [
+        NodeSpec("Input", GROUP_INPUT, (-1800.0, 0.0)),
+        NodeSpec("UV", SEPARATE_XYZ, (-1600.0, 0.0)),
+    ]
+    links: list[LinkSpec] = [LinkSpec("Input", "UV", "UV", "vector")]
+    rows: dict[float, int] = {}
+
+    def place(x: float) -> tuple[float, float]:
+        rows[x] = rows.get(x, 0) + 1
+        return x, -160.0 * rows[x]
+
+    def math(name: str, operation: str, x: float, *args: Operand) -> tuple[str, str]:
+        values = {}
+        for key, arg in zip("abc", args, strict=False):
+            if isinstance(arg, tuple):
+                links.append(LinkSpec(arg[0], arg[1], name, key))
+            else:
+                values[key] = float(arg)
+        nodes.append(NodeSpec(name, MATH, place(x), {"operation": operation, "values": values}))
+        return name, "value"
+
+    def axis(a: str, coord: Operand, size: Operand) -> tuple[list[tuple[str, str]], list[tuple[str, str]], Operand]:
+        """The axis's two tap positions, their weights and whether the coordinate lies inside 0..1 (1 or 0)."""
+        x = math(f"{a}_texel", "MULTIPLY_ADD", -1400.0, coord, size, -0.5)
+        x0 = math(f"{a}_floor", "FLOOR", -1200.0, x)
+        f = math(f"{a}_fraction", "SUBTRACT", -1000.0, x, x0)
+        g = math(f"{a}_1-fraction", "SUBTRACT", -800.0, 1.0, f)
+        first_in = math(f"{a}_first_inside", "GREATER_THAN", -1000.0, x0, -0.5)
+        last = math(f"{a}_last", "SUBTRACT", -1200.0, size, 1.5)
+        second_in = math(f"{a}_second_inside", "LESS_THAN", -1000.0, x0, last)
+        weights = [math(f"{a}_weight0", "MULTIPLY", -600.0, g, first_in)]
+        weights.append(math(f"{a}_weight1", "MULTIPLY", -600.0, f, second_in))
+        taps = []
+        for k, offset in enumerate((0.5, 1.5)):
+            centre = math(f"{a}_centre{k}", "ADD", -1000.0, x0, offset)
+            taps.append(math(f"{a}_tap{k}", "DIVIDE", -800.0, centre, size))
+        below = math(f"{a}_below", "LESS_THAN", -1400.0, coord, 0.0)
+        above = math(f"{a}_above", "GREATER_THAN", -1400.0, coord, 1.0)
+        outside = math(f"{a}_outside", "ADD", -1200.0, below, above)
+        return taps, weights, math(f"{a}_inside", "SUBTRACT", -1000.0, 1.0, outside)
+
+    u_taps, u_weights, u_inside = axis("u", ("UV", "x"), ("Input", "Width"))
+    v_taps, v_weights, v_inside = axis("v", ("UV", "y"), ("Input", "Height"))
+    cover = math("cover_u", "MULTIPLY", -600.0, ("UV", "z"), u_inside)
+    cover = math("cover", "MULTIPLY", -400.0, cover, v_inside)
+    taps: list[str] = []
+    for i, (u_tap, u_weight) in enumerate(zip(u_taps, u_weights, strict=True)):
+        u_cover = math(f"weight{i}_", "MULTIPLY", -400.0, u_weight, cover)
+        for j, (v_tap, v_weight) in enumerate(zip(v_taps, v_weights, strict=True)):
+            weight = math(f"weight{i}{j}", "MULTIPLY", -200.0, u_cover, v_weight)
+            n_uv, n_tap = f"uv{i}{j}", f"tap{i}{j}"
+            nodes.append(NodeSpec(n_uv, COMBINE_XYZ, place(0.0)))
+            nodes.append(NodeSpec(n_tap, MAP_UV, place(200.0), {"filter": FILTER_NEAREST}))
+            links += [LinkSpec(*u_tap, n_uv, "x"), LinkSpec(*v_tap, n_uv, "y"), LinkSpec(*weight, n_uv, "z")]
+            links += [LinkSpec("Input", "Image", n_tap, "image"), LinkSpec(n_uv, "vector", n_tap, "uv")]
+            taps.append(n_tap)
+    color: tuple[str, str] = (taps[0], "image")
+    alpha: tuple[str, str] = _tap_alpha(nodes, links, taps[0], place(400.0))
+    for k, n_tap in enumerate(taps[1:], start=1):
+        n_add = f"add{k}"
+        nodes.append(NodeSpec(n_add, ADD_COLOR, place(600.0)))
+        links += [LinkSpec(*color, n_add, "a"), LinkSpec(n_tap, "image", n_add, "b")]
+        color = (n_add, "result")
+        alpha = math(f"add_alpha{k}", "ADD", 600.0, alpha, _tap_alpha(nodes, links, n_tap, place(400.0)))
+    nodes.append(NodeSpec("sum", SET_ALPHA, (800.0, 0.0)))
+    nodes.append(NodeSpec("Output", GROUP_OUTPUT, (1000.0, 0.0)))
+    links += [
+        LinkSpec(*color, "sum", "image"),
+        LinkSpec(*alpha, "sum", "alpha"),
+        LinkSpec("sum", "image", "Output", "Image"),
+    ]
+    inputs = [
+        ("Image", "NodeSocketColor"),
+        ("UV", "NodeSocketVector"),
+        ("Width", "NodeSocketFloat"),
+        ("Height", "NodeSocketFloat"),
+    ]
+    return GroupPlan(BILINEAR_GROUP, inputs, [("Image", "NodeSocketColor")], nodes, links)
+
+
+def _tap_alpha(
+    nodes: list[NodeSpec], links: list[LinkSpec], n_tap: str, location: tuple[float, float]
+) -> tuple[str, str]:
+    n_sep = f"{n_tap}_alpha"
+    nodes.append(NodeSpec(n_sep, SEPARATE, location))
+    links.append(LinkSpec(n_tap, "image", n_sep, "image"))
     return n_sep, "alpha"
 
 

@@ -33,10 +33,12 @@ from .paint import edit_images
 
 #: The preview material's image node that shows the frame paint over the composite.
 PREVIEW_NODE = V.FRAME_PAINT_NODE
-#: Seconds a poll's "is there paint" answer is reused (the poll runs on every redraw; reading a plate's pixels
-#: each time would slow painting down).
+#: Seconds a poll's "no paint" answer is reused while the frame paint holds unsaved strokes (the poll runs on every
+#: redraw; reading a plate's pixels each time would slow painting down). A "yes" stays until Paint on Frame or Land
+#: forget it; a "no" given before the first stroke is dropped by that stroke (the image becomes unsaved).
 PAINTED_CACHE_SECONDS = 0.5
-_painted_cache: dict[str, tuple[float, int, bool]] = {}
+#: Frame paint -> (when, its pointer, painted, unsaved then).
+_painted_cache: dict[str, tuple[float, int, bool, bool]] = {}
 #: Paint on Frame and Land while an engine job runs for the scene (one job at a time; Land reads the frame paint).
 JOB_RUNNING = "An engine job is running for this scene: wait for it, or Cancel it"
 
@@ -64,16 +66,23 @@ def alpha_max(img: Any) -> float:
 
 
 def has_paint(img: Any, cached: bool = False) -> bool:
-    """Whether the frame paint holds some paint; ``cached``: an earlier answer will do when it was "yes" (a brush
-    adds paint; Paint on Frame and Land forget it) or is at most ``PAINTED_CACHE_SECONDS`` old."""
+    """Whether the frame paint holds some paint; ``cached``: an earlier answer will do when it still holds
+    (``FP.painted_answer_holds``)."""
     now = time.monotonic()
     key = img.name_full
     hit = _painted_cache.get(key)
-    if cached and hit is not None and hit[1] == id(img) and (hit[2] or now - hit[0] < PAINTED_CACHE_SECONDS):
-        return hit[2]
+    if cached and hit is not None and hit[1] == img.as_pointer():
+        when, _, painted, dirty = hit
+        if FP.painted_answer_holds(painted, dirty, img.is_dirty, now - when, PAINTED_CACHE_SECONDS):
+            return painted
     painted = FP.has_paint(alpha_max(img))
-    _painted_cache[key] = (now, id(img), painted)
+    _painted_cache[key] = (now, img.as_pointer(), painted, bool(img.is_dirty))
     return painted
+
+
+def forget_painted() -> None:
+    """Forget every answer of ``has_paint`` (another file was loaded: its images are others)."""
+    _painted_cache.clear()
 
 
 def _blank_png(path: str, size: tuple[int, int]) -> None:
@@ -114,11 +123,13 @@ def _keep_unsaved(img: Any) -> None:
 
 def start_frame_paint(context: Any, manifest_path: str, frame: int) -> Any:
     """The frame paint of plate ``frame``: its file loaded (paint started there before and not landed is kept),
-    or a new transparent one; an earlier frame paint's unsaved strokes are saved to their file first."""
+    or a new transparent one; an earlier frame paint's unsaved strokes are saved to their file first. What can refuse
+    (the frame, the live preview that will show the paint) is checked before anything is made or saved."""
     manifest = C.load_manifest(manifest_path)
     line = FP.frame_refusal(frame, list(manifest["passes"]["frames"]))
     if line:
         raise ValueError(line)
+    planned = _preview_plan(context)
     path = FP.paint_file(FP.frames_dir(manifest_path, manifest), frame)
     w, h = (int(v) for v in manifest["passes"]["resolution"])
     img = frame_paint_image()
@@ -138,19 +149,28 @@ def start_frame_paint(context: Any, manifest_path: str, frame: int) -> Any:
     img.alpha_mode = "STRAIGHT"
     img[FP.FRAME_PROP] = frame
     _painted_cache.pop(img.name_full, None)
-    show_frame_paint(context, img)
+    show_frame_paint(context, img, planned)
     return img
 
 
-def show_frame_paint(context: Any, img: Any) -> None:
-    """The frame paint as what the brush paints: the preview plane's "FramePaint" node (its active paint slot), and
-    the image every Image Editor shows."""
+def _preview_plan(context: Any) -> Any:
+    """The live preview's plan when its plane has no node for the frame paint yet (a preview built before the frame
+    paint existed), else None; planning raises what the rebuild would, before anything is made."""
     obj = bpy.data.objects.get(P.PREVIEW_OBJECT)
-    if obj is not None and not any(
+    if obj is None or any(
         s.material is not None and s.material.node_tree is not None and PREVIEW_NODE in s.material.node_tree.nodes
         for s in obj.material_slots
     ):
-        obj = preview.rebuild(context.scene)  # a preview built before the frame paint existed has no node for it
+        return None
+    return preview.plan_rebuild(context.scene)
+
+
+def show_frame_paint(context: Any, img: Any, planned: Any = None) -> None:
+    """The frame paint as what the brush paints: the preview plane's "FramePaint" node (its active paint slot), and
+    the image every Image Editor shows. ``planned``: the preview's plan when it needs that node (``_preview_plan``)."""
+    obj = bpy.data.objects.get(P.PREVIEW_OBJECT)
+    if planned is not None:
+        obj = preview.rebuild(context.scene, planned)  # a preview built before the frame paint existed has no node
     for slot in obj.material_slots if obj is not None else ():
         mat = slot.material
         node = mat.node_tree.nodes.get(PREVIEW_NODE) if mat is not None and mat.node_tree is not None else None
@@ -176,11 +196,12 @@ def _need_start(context) -> str | None:
     return FP.start_need(props.manifest if props is not None else "")
 
 
-def _need_land(context) -> str | None:
+def _need_land(context, cached: bool = True) -> str | None:
+    """What Land lacks; ``cached``: an earlier answer about the paint will do (the poll's redraws)."""
     props = getattr(context.scene, "neural_atlas", None)
     img = frame_paint_image()
     frame = painted_frame(img)
-    painted = frame is not None and has_paint(img, cached=True)
+    painted = frame is not None and has_paint(img, cached=cached)
     return FP.land_need(props.manifest if props is not None else "", frame, painted)
 
 
@@ -236,13 +257,11 @@ class NEURALATLAS_OT_frame_paint_land(EngineJobOperator, bpy.types.Operator):
 
     def make_job(self, context) -> ProjectFrameJob:
         props = context.scene.neural_atlas
-        need = _need_land(context)
+        need = _need_land(context, cached=False)  # the pixels as they are now, not the poll's last answer
         img = frame_paint_image()
         frame = painted_frame(img)
         if need or frame is None:  # poll says so; this holds for a call that skips poll
             raise UserError(need or FP.NO_FRAME_PAINT)
-        if not has_paint(img):
-            raise UserError(FP.EMPTY_PAINT.format(frame=frame))
         python = I.engine_python(context)
         try:
             path = save_frame_paint(img)

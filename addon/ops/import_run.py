@@ -11,6 +11,7 @@ from bpy.props import BoolProperty, StringProperty
 from ...engine import contract as C
 from .. import compat, compositor, line_up, paint, preview
 from ..core import frames as F
+from ..core import run_files
 from ..core import tree_plan as P
 from .scene_inputs import abspath, clip_plate
 
@@ -36,7 +37,10 @@ def import_manifest(
     (``paint.save_before_reload``; ``action`` names what refuses when it cannot be); a refusal reloads nothing."""
     props = context.scene.neural_atlas
     manifest = C.load_manifest(manifest_path)
-    plan = P.plan_tree(manifest, manifest_path, props.filter_type, edits, compat.colorspace_names())
+    plate = compositor.known_plate(context.scene, manifest_path)
+    plan = P.plan_tree(
+        manifest, manifest_path, props.filter_type, edits, compat.colorspace_names(), plate, compat.BILINEAR_TAPS
+    )
     paint.save_before_reload(action)
     compositor.build(context.scene, plan, set_range)
     if setup_paint:
@@ -45,6 +49,19 @@ def import_manifest(
     props.manifest = compositor.blend_path(os.path.abspath(manifest_path))  # relative to the .blend where it can be
     props.imported_layers = ", ".join(plan.layers)
     return plan
+
+
+def set_run_folder(context: Any, manifest_path: str) -> bool:
+    """The panel's Run Folder becomes the imported export's run (``run_files.imported_run_dir``), so Refine continues
+    the fit the atlas came from; left alone when it names that folder already or the manifest lies outside a run's
+    exports. Whether it changed."""
+    props = context.scene.neural_atlas
+    run = run_files.imported_run_dir(manifest_path)
+    current = os.path.realpath(abspath(props.run_dir)) if props.run_dir else ""
+    if run is None or current == os.path.realpath(run):
+        return False
+    props.run_dir = compositor.blend_path(run).rstrip("/" + os.sep) + "/"  # relative to the .blend where it can be
+    return True
 
 
 def clip_note(context: Any) -> str | None:
@@ -106,6 +123,7 @@ class NEURALATLAS_OT_import(bpy.types.Operator):
         except IMPORT_ERRORS as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
+        set_run_folder(context, abspath(self.filepath))  # the import after Fit Atlas or Refine is of its own run
         scene = context.scene
         kept = (scene.frame_start, scene.frame_end) != (plan.frame_start, plan.frame_end)
         note = f" (scene range {scene.frame_start}-{scene.frame_end} kept)" if kept else ""

@@ -1,10 +1,11 @@
-"""The edit layers' operators: paint canvases, Save Edits, and Float Edit Layers."""
+"""The edit layers' operators: paint canvases, Paint Layer, Save Edits, and Float Edit Layers."""
 
 from __future__ import annotations
 
 import os
 
 import bpy
+from bpy.props import StringProperty
 
 from ...engine import contract as C
 from .. import paint
@@ -114,4 +115,36 @@ class NEURALATLAS_OT_paint_setup(bpy.types.Operator):
         return {"FINISHED"}
 
 
-classes = (NEURALATLAS_OT_float_edits, NEURALATLAS_OT_save_edits, NEURALATLAS_OT_paint_setup)
+class NEURALATLAS_OT_paint_layer(bpy.types.Operator):
+    """Paint this layer: its canvas becomes the active object (Texture Paint in the 3D viewport) and every Image
+    Editor shows its edit image (Paint mode there)"""
+
+    bl_idname = "neural_atlas.paint_layer"
+    bl_label = "Paint Layer"
+    bl_options = {"REGISTER", "UNDO"}  # noqa: RUF012 (Blender reads a set)
+
+    layer: StringProperty(name="Layer", description="The imported layer to paint")
+
+    @classmethod
+    def poll(cls, context):
+        return needs.poll(cls, needs.paint_setup_need(len(edit_images())))
+
+    def execute(self, context):
+        edit = bpy.data.images.get(P.edit_image_name(self.layer))
+        if edit is None:
+            self.report({"ERROR"}, f"no edit layer {self.layer!r} is imported: Import Atlas first")
+            return {"CANCELLED"}
+        canvas = bpy.data.objects.get(paint.canvas_name(self.layer))
+        if canvas is None or canvas.name not in context.view_layer.objects:
+            canvas = next(iter(paint.setup_canvases(context, [self.layer])), None)
+        shown = paint.show_layer(context, self.layer, canvas)
+        self.report({"INFO"}, f"painting {self.layer}: its canvas is active, {shown} Image Editor(s) show it")
+        return {"FINISHED"}
+
+
+classes = (
+    NEURALATLAS_OT_float_edits,
+    NEURALATLAS_OT_save_edits,
+    NEURALATLAS_OT_paint_setup,
+    NEURALATLAS_OT_paint_layer,
+)

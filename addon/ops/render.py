@@ -86,7 +86,10 @@ class RenderRun:
         self.session = session
         self.steps = session.steps()
         self.progress = RJ.RenderProgress(
-            total=len(self.steps), movie=session.file_format not in RJ.FRAME_FORMATS, frames=len(session.frames())
+            total=len(self.steps),
+            movie=session.file_format not in RJ.FRAME_FORMATS,
+            frames=len(session.frames()),
+            note=RJ.outside_note(session.skipped(), session.exported) if session.exported else "",
         )
         self.cancel_asked = False
 
@@ -145,12 +148,19 @@ class NEURALATLAS_OT_render(bpy.types.Operator):
         try:
             # the paint is saved first, so the render is of what the artist sees; a run folder in use or a full
             # disk stops the render with the one line that says so (the paint stays unsaved in Blender)
+            manifest = C.load_manifest(imported_manifest(context))
+            exported = P.contiguous_frames(list(manifest["passes"]["frames"]))
+            session = compositor.RenderSession(
+                context.scene, self._out, fmt, P.output_colorspace(manifest["clip"]), exported
+            )
+            if not session.frames():  # the scene's range lies outside the export: nothing it could render
+                scene = context.scene
+                raise ValueError(RJ.no_exported_frames((scene.frame_start, scene.frame_end), exported))
             paint.save_edits()
-            space = P.output_colorspace(C.load_manifest(imported_manifest(context))["clip"])
         except (RuntimeError, ValueError, OSError, C.RunLocked) as exc:
             self.report({"ERROR"}, str(exc))
             return None
-        return compositor.RenderSession(context.scene, self._out, fmt, space)
+        return session
 
     def execute(self, context):
         """The blocking render (background mode, scripts, tests): the same steps as the button's, in one go."""
@@ -167,7 +177,9 @@ class NEURALATLAS_OT_render(bpy.types.Operator):
             return {"CANCELLED"}
         finally:
             session.end()
-        self.report({"INFO"}, run.progress.report(self._out))
+        line = run.progress.report(self._out)
+        context.scene.neural_atlas.render_status = line  # the panel says what the last render did
+        self.report({"WARNING" if run.progress.note else "INFO"}, line)
         return {"FINISHED"}
 
     def invoke(self, context, event):
@@ -212,7 +224,7 @@ class NEURALATLAS_OT_render(bpy.types.Operator):
         if more:
             return {"PASS_THROUGH"}
         self._stop(context)
-        self.report({"INFO"}, run.progress.report(self._out))
+        self.report({"WARNING" if run.progress.note else "INFO"}, run.progress.report(self._out))
         return {"CANCELLED"} if run.progress.cancelled else {"FINISHED"}
 
     def cancel(self, context):

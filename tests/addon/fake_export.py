@@ -121,7 +121,7 @@ def make_export(
                 "role": C.ROLE_BACKGROUND if idx == 0 else C.ROLE_FOREGROUND,
                 "uv_pass": C.uv_pass(name),
                 "alpha_pass": C.alpha_pass(name),
-                "uv_channels": list(C.UV_CHANNELS),
+                "uv_channels": list(C.LEGACY_UV_CHANNELS),  # the X, Y, Z naming of older exports: still read
                 "alpha_channels": list(C.ALPHA_CHANNELS),
                 "atlas_exr": f"{C.ATLASES_DIR}/{name}.exr",
                 "atlas_png": f"{C.ATLASES_DIR}/{name}.png",
@@ -272,7 +272,9 @@ def reference_frame(
         plate = read_exr_rgba(plate_path)[..., :3].astype(np.float64)
     else:
         plate = decode(read_rgba8(plate_path)[..., :3] / 255.0)
-    with OpenEXR.File(str(Path(manifest_path).parent / m["passes"]["dir"] / C.pass_file_name(frame))) as f:
+    with OpenEXR.File(
+        str(Path(manifest_path).parent / m["passes"]["dir"] / m["passes"]["pattern"].format(frame=frame))
+    ) as f:
         ch = {k: np.asarray(v.pixels, np.float64) for k, v in f.channels().items()}
     alpha_sum = np.zeros(plate.shape[:2])
     rgb_sum = np.zeros(plate.shape)
@@ -285,9 +287,7 @@ def reference_frame(
             a = edit8[..., 3:4] / 255.0
             premult = np.concatenate([decode(edit8[..., :3] / 255.0) * a, a], axis=-1)
         uvp = layer["uv_pass"]
-        u = ch[C.channel_name(uvp, "X")]
-        v = ch[C.channel_name(uvp, "Y")]
-        z = ch[C.channel_name(uvp, "Z")]
+        u, v, z = (ch[C.channel_name(uvp, c)] for c in layer["uv_channels"])  # u, v, coverage: either naming
         s = sample(premult, u, v, filt) * z[..., None]
         rgb_sum += s[..., :3]
         alpha_sum += s[..., 3]

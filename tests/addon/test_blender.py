@@ -36,10 +36,15 @@ def _tree(scene):
     return compat.scene_tree(scene, create=False)
 
 
-def _map_uv_filter(node) -> str:
-    """The filter a Map UV node samples with, read back from the version's own setting."""
-    value = node.inputs["Interpolation"].default_value if compat.V5 else node.filter_type
-    return P.FILTER_NEAREST if value.upper() == "NEAREST" else P.FILTER_SMOOTH
+def _layer_filter(tree, layer: str) -> str:
+    """The filter a layer is sampled with, read back from the version's own settings: 5.0's Map UV interpolation;
+    on 4.x a Nearest Map UV and the Switch to the bilinear group."""
+    if compat.V5:
+        value = tree.nodes[f"NA_MapUV_{layer}"].inputs["Interpolation"].default_value
+        return P.FILTER_NEAREST if value == "Nearest" else P.FILTER_BILINEAR
+    assert tree.nodes[f"NA_MapUV_{layer}"].filter_type == "NEAREST"
+    on = tree.nodes[P.filter_switch_name(layer)].inputs["Switch"].default_value
+    return P.FILTER_BILINEAR if on else P.FILTER_NEAREST
 
 
 def _import(blender, manifest, filt=P.FILTER_NEAREST):
@@ -90,20 +95,23 @@ def test_blender_srgb_decode_is_close_to_the_formula(lut):
     assert err < 5e-5
 
 
-@pytest.mark.parametrize("filt", [P.FILTER_NEAREST, P.FILTER_SMOOTH])
+@pytest.mark.parametrize("filt", [P.FILTER_NEAREST, P.FILTER_BILINEAR])
 def test_compositor_matches_render_equation(blender, tmp_path, lut, filt):
     manifest = make_export(tmp_path)
     scene = _import(blender, manifest, filt)
     tree = _tree(scene)
     ours = [n for n in tree.nodes if n.name.startswith(P.PREFIX)]
-    assert len(ours) == 13 + 12  # + 6 frames, and a Reroute and a File Output per matte (2 layers + paint)
-    assert _map_uv_filter(tree.nodes["NA_MapUV_Foreground"]) == filt
+    # + 6 frames, and a Reroute and a File Output per matte (2 layers + paint); 4.x: a bilinear group and a Switch
+    # per layer
+    assert len(ours) == 14 + 12 + (0 if compat.V5 else 4)
+    assert tree.nodes[P.VIEWER_NODE].inputs[0].links[0].from_node.name == "NA_Over"  # the backdrop: the composite
+    assert _layer_filter(tree, "Foreground") == _layer_filter(tree, "Background") == filt
     assert (scene.frame_start, scene.frame_end) == (FRAMES[0], FRAMES[-1])
     assert (scene.render.resolution_x, scene.render.resolution_y) == (W, H)
     assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(tmp_path / "out"), file_format="exr") == {
         "FINISHED"
     }
-    ref_filter = "nearest" if filt == P.FILTER_NEAREST else "bilinear"
+    ref_filter = filt  # the engine's name for it
     for f in FRAMES:
         out = X.read_exr_rgba(tmp_path / "out" / f"edit.{f:05d}.exr")
         assert out.shape == (H, W, 4)
@@ -111,11 +119,8 @@ def test_compositor_matches_render_equation(blender, tmp_path, lut, filt):
     err = X.render_error(tmp_path / "out", manifest, ref_filter, X.lut_decoder(lut))
     err_exact = X.render_error(tmp_path / "out", manifest, ref_filter)
     print(f"{TAG} filter {filt}: max abs err {err:.2e} (Blender's sRGB decode), {err_exact:.2e} (exact sRGB)")
-    if compat.matches_engine(filt):
-        assert err <= 1e-5
-        assert err_exact <= 5e-5
-    else:
-        assert 0.01 < err < 0.5  # 4.x has no bilinear: EWA differs at hard texel edges (documented)
+    assert err <= 1e-5  # both filters on both versions (4.x bilinear: the group's four nearest taps)
+    assert err_exact <= 5e-5
 
 
 def test_compositor_three_layers_matches_render_equation(blender, tmp_path, lut):
@@ -124,7 +129,9 @@ def test_compositor_three_layers_matches_render_equation(blender, tmp_path, lut)
     scene = _import(blender, manifest, P.FILTER_NEAREST)
     tree = _tree(scene)
     ours = {n.name for n in tree.nodes if n.name.startswith(P.PREFIX)}
-    assert len(ours) == 18 + 15  # + 7 frames, and a Reroute and a File Output per matte (3 layers + paint)
+    # + 7 frames, and a Reroute and a File Output per matte (3 layers + paint); 4.x: a bilinear group and a Switch
+    # per layer
+    assert len(ours) == 19 + 15 + (0 if compat.V5 else 6)
     assert {"NA_MapUV_Background", "NA_MapUV_Foreground1", "NA_MapUV_Foreground2"} <= ours
     out_dir = tmp_path / "out"
     assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out_dir), file_format="exr") == {"FINISHED"}
@@ -166,8 +173,8 @@ def test_rebuild_is_idempotent_and_keeps_the_artists_nodes(blender, tmp_path):
         _import(blender, manifest)
     names = sorted(n.name for n in tree.nodes)
     assert names.count("Artist Blur") == 1
-    assert len([n for n in names if n.startswith(P.PREFIX)]) == 25
-    assert len(names) == 26
+    assert len([n for n in names if n.startswith(P.PREFIX)]) == 26  # the composite's Viewer included
+    assert len(names) == 27
     assert bpy.data.images.get("artist_plate") == artist_img
     assert len([i for i in bpy.data.images if i.name.startswith("NA_Edit_")]) == 2
     assert len([c for c in bpy.data.movieclips if c.name.startswith(P.PREFIX)]) == 1

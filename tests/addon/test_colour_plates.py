@@ -5,6 +5,7 @@ such space (4.5: no ACEScct) the import says so in one line. And Blender's decod
 
 from __future__ import annotations
 
+import json
 import subprocess
 from pathlib import Path
 
@@ -97,9 +98,11 @@ def test_blender_render_equals_engine_render(blender, tmp_path, kind):
         cwd=ROOT, check=True, timeout=300, capture_output=True,
     )  # fmt: skip
     errors = []
+    clip = json.loads(Path(manifest).read_text())["clip"]
+    padding = C.frame_padding(clip["frame_files"], clip["frame_numbers"])  # engine render pads as the plate's files
     for f in plan_frames(manifest):
         a = read_exr_rgba(out_b / f"edit.{f:05d}.exr")[..., :3]
-        b = read_exr_rgba(out_e / f"edit.{f:05d}.exr")[..., :3]
+        b = read_exr_rgba(out_e / f"edit.{f:0{padding}d}.exr")[..., :3]
         errors.append(float(np.abs(a - b).max() / max(1.0, float(np.abs(b).max()))))
     print(f"Blender {blender.app.version_string} vs engine render, {kind} plate: {max(errors):.3g}")
     assert max(errors) <= TOLERANCE[kind], errors

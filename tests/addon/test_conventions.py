@@ -32,6 +32,7 @@ UNDO = {
     "scribble_layers",
     "import_run",
     "paint_setup",
+    "paint_layer",
     "float_edits",
     "frame_paint_start",
     "relink",

@@ -79,7 +79,7 @@ def test_fit_paint_render_matches_engine_render(blender, tmp_path, monkeypatch):
     # a float (scene-linear EXR) plate, as in a VFX pipeline: Blender and the engine both read it raw, so the only
     # decode that differs is the one of 8-bit sRGB edit layers (OCIO vs the exact formula), measured below
     props = fit_panel(bpy, clip_dir / "frames_exr" / "00000.exr", clip_dir / "masks", tmp_path / "run", overrides=FAST)
-    props.filter_type = compat.EXACT_FILTER
+    props.filter_type = P.FILTER_DEFAULT
 
     assert bpy.ops.neural_atlas.fit("EXEC_DEFAULT") == {"FINISHED"}, props.status
     t_fit = time.monotonic() - t0
@@ -104,10 +104,12 @@ def test_fit_paint_render_matches_engine_render(blender, tmp_path, monkeypatch):
             "NA_SetAlpha",
             "NA_Over",
             "NA_Output",
+            "NA_Viewer",
         ]
     )
     assert blend <= ours
-    assert all(n.startswith(("NA_Frame_", "NA_Matte_", "NA_MatteFile_")) for n in ours - blend), sorted(ours - blend)
+    others = ("NA_Frame_", "NA_Matte_", "NA_MatteFile_", "NA_Bilinear_", "NA_Filter_")  # 4.x: the bilinear group
+    assert all(n.startswith(others) for n in ours - blend), sorted(ours - blend)
     uv = compat.input_socket(tree.nodes["NA_MapUV_Foreground"], P.MAP_UV, "uv")
     assert uv.links[0].from_socket.name == "UVForeground"
 
@@ -116,17 +118,17 @@ def test_fit_paint_render_matches_engine_render(blender, tmp_path, monkeypatch):
     assert bpy.ops.neural_atlas.save_edits("EXEC_DEFAULT") == {"FINISHED"}
 
     errors = {}
-    exact = compat.EXACT_FILTER
+    exact = P.FILTER_DEFAULT  # bilinear: what engine render does by default
     manifest_path = Path(props.manifest)
     reader = blender_read_rgba8(bpy)
     lut = blender_srgb_lut(bpy, tmp_path / "lut")
-    filters = [exact] + ([P.FILTER_SMOOTH] if not V5 else [])
+    filters = [exact, P.FILTER_NEAREST]
     for filt in filters:
         props.filter_type = filt
         out_b = tmp_path / f"blender_{filt}"
         assert bpy.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out_b), file_format="exr") == {"FINISHED"}
         out_e = tmp_path / f"engine_{filt}"
-        engine_filter = "nearest" if filt == P.FILTER_NEAREST else "bilinear"
+        engine_filter = filt  # the panel's filter is named as engine render's
         render_argv = [py, "-m", "engine", "render", props.manifest, "--out", str(out_e), "--format", "exr"]
         subprocess.run(
             [*render_argv, "--filter", engine_filter],
@@ -174,7 +176,7 @@ def test_fit_paint_render_matches_engine_render(blender, tmp_path, monkeypatch):
     assert np.abs(saved[0, 0] - np.float32([2.0, 0.5, 0.001, 1.0])).max() == 0.0  # top row: exact float paint
     out_b, out_e = tmp_path / "blender_float", tmp_path / "engine_float"
     assert bpy.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out_b), file_format="exr") == {"FINISHED"}
-    engine_filter = "nearest" if exact == P.FILTER_NEAREST else "bilinear"
+    engine_filter = exact
     render_argv = [py, "-m", "engine", "render", props.manifest, "--out", str(out_e), "--format", "exr"]
     subprocess.run(
         [*render_argv, "--filter", engine_filter], cwd=ROOT, check=True, timeout=300, stdout=subprocess.DEVNULL
@@ -195,8 +197,7 @@ def test_fit_paint_render_matches_engine_render(blender, tmp_path, monkeypatch):
     float_tol = max(1e-5, atlas_w * 2.0**-24 * 2.0)
     assert errors["float_" + exact] <= float_tol, (errors, float_tol)
     # the tree is exact, and 8-bit sRGB PNG edit layers and plates are decoded by the same OCIO transform on both
-    # sides (docs/colour.md): 0 with Nearest (4.x), Bilinear's float rounding on 5.0
+    # sides (docs/colour.md): 0 with Nearest, Bilinear's float rounding (5.0's Map UV, 4.x's bilinear group)
     assert errors["tree_vs_equation"] <= 1e-5, errors
     assert errors[exact] <= 1e-5, errors
-    if not V5:
-        assert errors[P.FILTER_SMOOTH] < 0.5  # EWA vs bilinear at hard paint edges: reported, not exact
+    assert errors[P.FILTER_NEAREST] <= 1e-5, errors

@@ -89,7 +89,8 @@ def test_zip_holds_the_extension_and_only_the_built_paths(built_zip):
     names = zipfile.ZipFile(built_zip).namelist()
     assert {"__init__.py", "blender_manifest.toml", "addon/__init__.py", "engine/contract.py"} <= set(names)
     assert {"addon/core/jobs.py", "addon/ops/__init__.py", "addon/ops/driver.py"} <= set(names)
-    assert {n.split("/")[0] for n in names} <= {"__init__.py", "blender_manifest.toml", "addon", "engine", "README.md"}
+    top = {"__init__.py", "blender_manifest.toml", "addon", "engine", "README.md", "LICENSE"}
+    assert {n.split("/")[0] for n in names} <= top and "LICENSE" in names
     assert not any("__pycache__" in n or n.endswith(".pyc") for n in names)
     assert built_zip.name == f"{EXT_ID}-0.1.0.zip"
 

@@ -47,7 +47,7 @@ def test_headless_builds_the_blend_and_renders_the_equation(blender, tmp_path):
     assert proc.returncode == 0, proc.stderr[-2000:]
     report = json.loads((out / "report.json").read_text())
     assert report["exact"] and report["frames"] == list(X.FRAMES) and len(report["files"]) == len(X.FRAMES)
-    assert report["engine_filter"] == ("bilinear" if compat.V5 else "nearest")
+    assert report["engine_filter"] == "bilinear"  # exact: bilinear on every version
     assert "shot.blend" in proc.stdout.splitlines()[-1]
 
     decode = X.lut_decoder(X.blender_srgb_lut(bpy, tmp_path / "lut"))
@@ -58,7 +58,8 @@ def test_headless_builds_the_blend_and_renders_the_equation(blender, tmp_path):
     # the saved .blend is what an artist opens: the add-on's tree, the override as the Foreground edit layer
     bpy.ops.wm.open_mainfile(filepath=str(out / "shot.blend"))
     tree = compat.scene_tree(bpy.context.scene, create=False)
-    assert len([n for n in tree.nodes if n.name.startswith(P.PREFIX)]) == 25  # 13 + frames and mattes
+    # 14 + frames and mattes; 4.x: a bilinear group and a Switch per layer
+    assert len([n for n in tree.nodes if n.name.startswith(P.PREFIX)]) == 26 + (0 if compat.V5 else 4)
     assert os.path.isfile(P.matte_path(str(out / "render"), "Foreground", X.FRAMES[0]))  # beside the render
     edit = bpy.data.images[P.edit_image_name("Foreground")]
     assert Path(bpy.path.abspath(edit.filepath)).resolve() == other.resolve()

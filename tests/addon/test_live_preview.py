@@ -46,7 +46,7 @@ def _float_edit(manifest: Path, layer: str) -> Path:
     return exr
 
 
-def _import(blender, tmp_path, filt=P.FILTER_ENGINE):
+def _import(blender, tmp_path, filt=P.FILTER_DEFAULT):
     manifest = X.make_export(tmp_path)
     _float_edit(manifest, "Foreground")  # Foreground: float EXR edit layer; Background: 8-bit PNG
     scene = blender.context.scene
@@ -101,16 +101,16 @@ def _engine_render(manifest: Path, edits: dict[str, Path], out: Path, filt: str)
     assert done.returncode == 0, done.stderr[-2000:]
 
 
-@pytest.mark.parametrize("filt", [P.FILTER_ENGINE, P.FILTER_NEAREST])
+@pytest.mark.parametrize("filt", P.FILTERS)
 def test_preview_render_equals_engine_render(blender, tmp_path, filt):
     """Painted (not saved) PNG and EXR layers; the preview at frames A and B against ``engine render`` of that paint
-    (bilinear for Match engine, whose preview samples Linear on both versions; nearest for Nearest)."""
+    (the panel's filter by the engine's name: Bilinear samples Linear, Nearest Closest)."""
     manifest, scene = _import(blender, tmp_path, filt)
     assert not bpy.data.images[P.edit_image_name("Background")].is_float
     assert bpy.data.images[P.edit_image_name("Foreground")].is_float
     _paint(bpy.data.images[P.edit_image_name("Background")], (1.0, 0.2, 0.05, 0.6), (0.3, 0.2, 0.8, 0.7))
     _paint(bpy.data.images[P.edit_image_name("Foreground")], (0.1, 0.9, 0.3, 0.8), (0.1, 0.1, 0.9, 0.6))
-    engine_filter = "nearest" if filt == P.FILTER_NEAREST else "bilinear"
+    engine_filter = filt  # the panel's Filter is named as engine render's --filter
     _engine_render(manifest, _edit_files(tmp_path / "edits"), tmp_path / "engine", engine_filter)
     errors = {}
     for frame in (FRAME_A, FRAME_B):
@@ -162,12 +162,14 @@ def test_a_stroke_shows_in_the_preview_at_once(blender, tmp_path):
 def test_the_preview_frames_the_plate_and_rebuilds_in_place(blender, tmp_path):
     """Plane, camera, material and images are named NA_..., the camera frames the plane exactly, the frame-paint
     image shows in node FramePaint once it exists, and a second build replaces rather than adds."""
-    assert blender.context.scene.neural_atlas.filter_type == P.FILTER_ENGINE  # the panel's default
+    assert blender.context.scene.neural_atlas.filter_type == P.FILTER_BILINEAR  # the panel's default
     _, scene = _import(blender, tmp_path)
-    # Match engine: the compositor's Map UV samples as engine render does (4.x Nearest, 5.0 Bilinear)
-    map_uv = compat.scene_tree(scene).nodes["NA_MapUV_Foreground"]
-    sampling = map_uv.inputs["Interpolation"].default_value if compat.V5 else map_uv.filter_type
-    assert sampling.upper() == ("BILINEAR" if compat.V5 else "NEAREST") and compat.matches_engine(P.FILTER_ENGINE)
+    # Bilinear: the compositor samples as engine render does (5.0 Map UV Bilinear, 4.x the bilinear group's taps)
+    tree = compat.scene_tree(scene)
+    if compat.V5:
+        assert tree.nodes["NA_MapUV_Foreground"].inputs["Interpolation"].default_value == "Bilinear"
+    else:
+        assert tree.nodes[P.filter_switch_name("Foreground")].inputs["Switch"].default_value
     plane, cam = bpy.data.objects[V.PREVIEW_OBJECT], bpy.data.objects[V.PREVIEW_CAMERA]
     assert plane.users_collection[0].name == V.PREVIEW_COLLECTION
     xs = [plane.matrix_world @ v.co for v in plane.data.vertices]
@@ -182,7 +184,7 @@ def test_the_preview_frames_the_plate_and_rebuilds_in_place(blender, tmp_path):
     assert {nodes[f"Edit_{n}"].interpolation for n in ("Background", "Foreground")} == {"Linear"}
     scene.neural_atlas.filter_type = P.FILTER_NEAREST  # the panel's Filter: the preview follows
     assert {nodes[f"Edit_{n}"].interpolation for n in ("Background", "Foreground")} == {"Closest"}
-    scene.neural_atlas.filter_type = P.FILTER_ENGINE
+    scene.neural_atlas.filter_type = P.FILTER_BILINEAR
     bpy.data.images.new(P.FRAME_PAINT_IMAGE, X.W, X.H, alpha=True, float_buffer=True)
     counts = (len(bpy.data.objects), len(bpy.data.materials), len(bpy.data.images), len(bpy.data.cameras))
     assert bpy.ops.neural_atlas.live_preview("EXEC_DEFAULT") == {"FINISHED"}  # shown: hides it

@@ -94,7 +94,9 @@ def test_the_tree_groups_every_node_in_a_labelled_frame_where_the_plan_puts_it(b
     manifest = X.make_export(tmp_path, frames=FRAMES, foregrounds=2)
     _import(blender, manifest)
     tree = compat.scene_tree(blender.context.scene)
-    plan = P.plan_tree(C.load_manifest(str(manifest)), str(manifest), P.FILTER_NEAREST)
+    plan = P.plan_tree(
+        C.load_manifest(str(manifest)), str(manifest), P.FILTER_NEAREST, bilinear_taps=compat.BILINEAR_TAPS
+    )
     ours = {n.name: n for n in tree.nodes if n.name.startswith(P.PREFIX)}
     assert set(ours) == {spec.name for spec in plan.nodes}
     frames = {n.name: n for n in ours.values() if n.bl_idname == "NodeFrame"}

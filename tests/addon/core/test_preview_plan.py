@@ -20,7 +20,7 @@ from neural_atlas.addon.core import tree_plan as P
 from engine import contract as C
 
 
-def _plan(tmp_path, filt=P.FILTER_ENGINE, frame_paint=False, foregrounds=1):
+def _plan(tmp_path, filt=P.FILTER_BILINEAR, frame_paint=False, foregrounds=1):
     mp = make_export(tmp_path, foregrounds=foregrounds)
     manifest = C.load_manifest(str(mp))
     tree = P.plan_tree(manifest, str(mp), filt)
@@ -97,7 +97,7 @@ def test_frame_paint_lies_over_the_composite_by_its_alpha(tmp_path):
     assert not [k for k in plan.links if k.to_node == V.FRAME_PAINT_NODE]
 
 
-@pytest.mark.parametrize(("filt", "interp"), [(P.FILTER_ENGINE, "Linear"), (P.FILTER_NEAREST, "Closest")])
+@pytest.mark.parametrize(("filt", "interp"), [(P.FILTER_BILINEAR, "Linear"), (P.FILTER_NEAREST, "Closest")])
 def test_edit_images_are_the_float_twins_with_the_panels_filter(tmp_path, filt, interp):
     _, plan = _plan(tmp_path, filt)
     for layer in plan.layers:

@@ -33,6 +33,7 @@ def test_plan_topology_two_layers(tmp_path):
         P.SET_ALPHA: 1,
         P.ALPHA_OVER: 1,
         P.OUTPUT: 1,
+        P.VIEWER: 1,  # the Compositor's backdrop shows the composite
         P.FRAME: 6,  # Plate, Passes, one per layer, Blend, Mattes
         P.REROUTE: 3,  # a matte per layer + the paint's
         P.FILE_OUTPUT: 3,
@@ -43,6 +44,7 @@ def test_plan_topology_two_layers(tmp_path):
     assert ("NA_Passes", "UVForeground", "NA_MapUV_Foreground", "uv") in links
     assert ("NA_Plate", "image", "NA_Over", "bg") in links
     assert ("NA_SetAlpha", "image", "NA_Over", "fg") in links
+    assert ("NA_Over", "image", P.VIEWER_NODE, "image") in links
     assert ("NA_AddColor_1", "result", "NA_SetAlpha", "image") in links
     assert ("NA_AddAlpha_1", "value", "NA_SetAlpha", "alpha") in links
     assert (plan.frame_start, plan.frame_end) == (FRAMES[0], FRAMES[-1])
