@@ -251,6 +251,9 @@ def _add_paint_table_parser(sub: argparse._SubParsersAction) -> None:
     pt.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="fit config override")
     pt.add_argument("--threads", type=int, default=None, help="CPU threads of each fit (default: torch's choice)")
     pt.add_argument("--pictures", action="store_true", help="also write OUT/pictures/CLIP.png")
+    pt.add_argument(
+        "--parts", action="store_true", help="fit a clip with masks_parts/PART/ folders with one layer per part"
+    )
 
 
 def _paint_table(args: argparse.Namespace) -> int:
@@ -266,6 +269,7 @@ def _paint_table(args: argparse.Namespace) -> int:
         threads=args.threads,
         only=[c for c in args.only.split(",") if c] if args.only else None,
         pictures=args.pictures,
+        parts=args.parts,
         command=[PROG, *args.argv],
     )
     print(format_table(table))

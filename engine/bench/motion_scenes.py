@@ -46,6 +46,9 @@ import numpy as np
 
 from engine.bench.degrade import write_degraded
 from engine.bench.motion_bodies import (
+    BACK_LIMB,
+    FRONT_LIMB,
+    TORSO,
     Capsule,
     LimbsJump,
     TurningDepth,
@@ -99,6 +102,10 @@ TEXTURE_PNG = "texture.png"
 #: The rough roto written beside the exact masks: the ``clips`` bench's default recipe, with its default seed.
 ROUGH_MASKS = "masks_rough"
 ROUGH_RECIPE = "dilated10_dropped10"
+#: Per-layer masks of a scene whose object is better fitted as several layers (``masks_parts/NAME/``): the parts a
+#: compositor would roto apart. On ``limbs_jump``, the limb that swings across the body, and the rest.
+PART_MASKS = "masks_parts"
+LIMBS_PARTS: dict[str, tuple[int, ...]] = {"body": (TORSO, BACK_LIMB), "front_limb": (FRONT_LIMB,)}
 #: Zip members get this timestamp, so a rewritten clip's .npz files are byte-identical.
 ZIP_DATE = (1980, 1, 1, 0, 0, 0)
 _FRAME_NAME = re.compile(r"^\d{5}\.png$")
@@ -681,20 +688,33 @@ def _repack_fixed_date(path: Path) -> None:
     os.replace(tmp, path)
 
 
+def part_masks(scene: MotionScene) -> dict[str, np.ndarray]:
+    """The object's masks split into the parts ``PART_MASKS`` holds (bool [T, H, W] per part name: the pixels of the
+    object whose true surface coordinate is on the part); empty for a scene of one part."""
+    if not isinstance(scene.model, LimbsJump):
+        return {}
+    part = np.full(scene.masks.shape, -1, np.int64)
+    known = np.isfinite(scene.uv).all(-1)
+    part[known] = scene.model.part_of(scene.uv[known])
+    return {name: np.isin(part, ids) & scene.masks for name, ids in LIMBS_PARTS.items()}
+
+
 def write_motion_clip(scene: MotionScene, folder: str | Path) -> Path:
     """Write ``scene`` as a clip folder the ``clips`` bench reads: ``frames/00000.png ...`` (8-bit sRGB),
-    ``masks/00000.png ...`` (0/255), ``masks_rough/`` (the same masks degraded by ROUGH_RECIPE), ``texture.png``
+    ``masks/00000.png ...`` (0/255), ``masks_rough/`` (the same masks degraded by ROUGH_RECIPE), a scene of several
+    parts ``masks_parts/PART/`` (``part_masks``), ``texture.png``
     (8-bit, the object's texture), ``tracks_tapvid.npz`` and ``gt_uv.npz`` (``uv`` float32 [T, H, W, 2], NaN off
     the object; ``kind``). Frame files of an earlier, longer clip there are removed; the same scene gives the
     same bytes. Returns the folder."""
     out = Path(folder)
     frames_dir, masks_dir, rough_dir = out / "frames", out / "masks", out / ROUGH_MASKS
-    for d in (frames_dir, masks_dir, rough_dir):
+    parts = {out / PART_MASKS / name: m for name, m in part_masks(scene).items()}
+    for d in (frames_dir, masks_dir, rough_dir, *parts):
         d.mkdir(parents=True, exist_ok=True)
         for old in d.iterdir():
             if _FRAME_NAME.match(old.name):
                 old.unlink()
-    write_pngs(scene.frames, frames_dir, {masks_dir: scene.masks})
+    write_pngs(scene.frames, frames_dir, {masks_dir: scene.masks, **parts})
     write_degraded(masks_dir, rough_dir, ROUGH_RECIPE)
     texture8 = np.clip(np.rint(scene.texture * 255.0), 0, 255).astype(np.uint8)
     cv2_write(out / TEXTURE_PNG, cv2.cvtColor(texture8, cv2.COLOR_RGB2BGR))
@@ -724,11 +744,13 @@ __all__ = [
     "DESCRIPTIONS",
     "GT_UV_NPZ",
     "KINDS",
+    "PART_MASKS",
     "ROUGH_MASKS",
     "TEXTURE_PNG",
     "MotionScene",
     "MotionSpec",
     "make_motion_scene",
+    "part_masks",
     "texture_image",
     "write_motion_clip",
     "write_motion_clips",

@@ -41,7 +41,7 @@ from engine import contract as C
 from engine.bench.all_clips import find_clips
 from engine.bench.degrade import DEFAULT_SEED, masks_iou, recipe, write_degraded
 from engine.bench.flow_tracks import score_clip
-from engine.bench.motion_scenes import GT_UV_NPZ, TEXTURE_PNG
+from engine.bench.motion_scenes import GT_UV_NPZ, PART_MASKS, TEXTURE_PNG
 from engine.bench.paint_tracking import score_export
 from engine.bench.report_file import read_tracks
 from engine.bench.sharpness import MSE_FLOOR, atlas_sharpness
@@ -98,13 +98,14 @@ def _engine(args: list[str], log_path: Path, threads: int | None) -> str:
 
 
 def fit_and_export(
-    frames: Path, masks: Path, run: Path, preset: str, sets: list[str], threads: int | None, log_path: Path
+    frames: Path, masks: list[Path], run: Path, preset: str, sets: list[str], threads: int | None, log_path: Path
 ) -> Path:
-    """Fit (or continue, or leave a finished fit: ``--resume-if-started``) and export into ``EXPORT_VERSION``;
-    returns the manifest's path."""
+    """Fit (or continue, or leave a finished fit: ``--resume-if-started``) with one layer per mask folder and
+    export into ``EXPORT_VERSION``; returns the manifest's path."""
     set_args = [a for kv in sets for a in ("--set", kv)]
+    mask_args = [a for m in masks for a in ("--mask", str(m))]
     _engine(
-        [C.VERB_FIT, str(frames), "--mask", str(masks), "--out", str(run), "--preset", preset,
+        [C.VERB_FIT, str(frames), *mask_args, "--out", str(run), "--preset", preset,
          C.FIT_RESUME_IF_STARTED_FLAG, "--no-bar", *set_args],
         log_path, threads,
     )  # fmt: skip
@@ -207,11 +208,14 @@ def run_paint_table(
     threads: int | None = None,
     only: list[str] | None = None,
     pictures: bool = False,
+    parts: bool = False,
     command: list[str] | None = None,
     log: Log | None = None,
 ) -> dict:
     """Fit, export and score ``preset`` on every clip under ``root`` (or the ``only`` ones); returns the table
-    record, also written to ``out_dir/paint.json`` and ``out_dir/paint.md``."""
+    record, also written to ``out_dir/paint.json`` and ``out_dir/paint.md``. ``parts``: a clip with
+    ``masks_parts/`` (``motion_scenes.part_masks``) is fitted with one layer per part; scores are unchanged (the
+    foreground is every layer after the background)."""
     say = log or (lambda line: print(line, file=sys.stderr, flush=True))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -224,9 +228,12 @@ def run_paint_table(
         folders = [f for f in folders if f.name in only]
     rows = []
     for folder in folders:
-        masks = folder / "masks"  # exact: the clip's own masks, as a user passes them
+        given = [folder / "masks"]
+        if parts and (folder / PART_MASKS).is_dir():
+            given = sorted(p for p in (folder / PART_MASKS).iterdir() if p.is_dir())
+        masks = given  # exact: the clip's own masks, as a user passes them
         if recipe(degrade) != recipe(EXACT):
-            masks = write_degraded(masks, out / "masks" / degrade / folder.name, degrade, seed)
+            masks = [write_degraded(m, out / "masks" / degrade / folder.name / m.name, degrade, seed) for m in given]
         run = out / "runs" / folder.name
         say(f"paint-table: {folder.name}: fit {preset} + export -> {run}")
         manifest = fit_and_export(folder / "frames", masks, run, preset, sets or [], threads, out / "logs" /
@@ -235,7 +242,8 @@ def run_paint_table(
         metrics = json.loads((run / C.RUN_METRICS).read_text(encoding="utf-8"))
         row = {
             "clip": folder.name,
-            "given_masks_iou": masks_iou(masks, folder / "masks"),
+            "layers": len(masks) + 1,
+            "given_masks_iou": masks_iou(masks[0], folder / "masks") if len(masks) == 1 else None,
             **score_clip_export(folder, manifest, out),
             "psnr": metrics.get("psnr"),
             "train_seconds": metrics.get("train_seconds"),
@@ -258,6 +266,7 @@ def run_paint_table(
         "degradation": asdict(recipe(degrade)),
         "seed": seed,
         "sets": sets or [],
+        "parts": parts,
         "rows": rows,
         "mean": mean_row(rows),
     }
@@ -285,7 +294,8 @@ def _cell(row: dict, key: str, decimals: int) -> str:
 def format_table(table: dict) -> str:
     """The markdown table of a ``paint.json`` record: a line naming the preset and masks, then rows and mean."""
     sets = "".join(f" `--set {kv}`" for kv in table.get("sets") or [])
-    head = f"preset `{table['preset']}`{sets}, masks `{table['degrade']}` (seed {table['seed']})"
+    parts = ", one layer per part where a clip has `masks_parts/`" if table.get("parts") else ""
+    head = f"preset `{table['preset']}`{sets}, masks `{table['degrade']}` (seed {table['seed']}){parts}"
     lines = [head, "", "| " + " | ".join(h for h, _, _ in COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
     for row in [*table["rows"], table["mean"]]:
         lines.append("| " + " | ".join(_cell(row, key, d) for _, key, d in COLUMNS) + " |")

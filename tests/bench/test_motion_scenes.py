@@ -17,7 +17,7 @@ from engine.bench.__main__ import build_parser
 from engine.bench.__main__ import main as bench_main
 from engine.bench.all_clips import run_all_clips
 from engine.bench.degrade import RECIPES, degrade_mask, dropped_frames, read_gt
-from engine.bench.motion_bodies import LimbsJump, TurningDepth
+from engine.bench.motion_bodies import FRONT_LIMB, LimbsJump, TurningDepth
 from engine.bench.motion_scenes import (
     ARM_LENGTH,
     BAR_WIDTH,
@@ -26,6 +26,7 @@ from engine.bench.motion_scenes import (
     DESCRIPTIONS,
     GT_UV_NPZ,
     KINDS,
+    PART_MASKS,
     ROUGH_MASKS,
     ROUGH_RECIPE,
     SMALL_AREA,
@@ -37,6 +38,7 @@ from engine.bench.motion_scenes import (
     MotionScene,
     MotionSpec,
     make_motion_scene,
+    part_masks,
     write_motion_clip,
 )
 from engine.bench.tracking import load_tracks
@@ -284,6 +286,23 @@ def test_rough_masks_are_the_clips_bench_default_recipe(tmp_path):
             continue
         np.testing.assert_array_equal(rough, degrade_mask(scene.masks[t], RECIPES[ROUGH_RECIPE]))
         assert rough[scene.masks[t]].all() and rough.sum() > 1.5 * scene.masks[t].sum()
+
+
+def test_the_jumping_body_is_written_as_two_parts_a_compositor_would_roto(tmp_path):
+    """masks_parts/front_limb holds the pixels showing the front limb, masks_parts/body the rest of the object:
+    disjoint, together the object's masks; the limb is in every frame; a one-part scene writes none."""
+    scene = make_motion_scene(MotionSpec("limbs_jump", 96, 64, 8))
+    folder = write_motion_clip(scene, tmp_path / "clip")
+    body = np.stack([read_gt(folder / PART_MASKS / "body" / f"{t:05d}.png") for t in range(8)])
+    limb = np.stack([read_gt(folder / PART_MASKS / "front_limb" / f"{t:05d}.png") for t in range(8)])
+    assert not (body & limb).any()
+    np.testing.assert_array_equal(body | limb, scene.masks)
+    assert limb.sum(axis=(1, 2)).min() > 100 and body.sum() > 2 * limb.sum()  # a limb is about a third of the body
+    shown = scene.model.part_of(scene.uv[limb])  # type: ignore[attr-defined]
+    assert set(np.unique(shown)) == {FRONT_LIMB}
+    assert part_masks(make_motion_scene(MotionSpec("thin", 32, 24, 4))) == {}
+    thin = write_motion_clip(make_motion_scene(MotionSpec("thin", 32, 24, 4)), tmp_path / "thin")
+    assert not (thin / PART_MASKS).exists()
 
 
 def test_a_shorter_rewrite_leaves_no_stale_frames(tmp_path):

@@ -138,6 +138,20 @@ def test_grid_points_lie_in_the_mask_and_dots_take_their_colour():
     assert out[0:2].sum() == 0 and frame.sum() == 0  # the off-frame dot is skipped; the input is not drawn on
 
 
+def test_parts_fit_one_layer_per_part_and_are_scored_as_one_foreground(tmp_path):
+    root = tmp_path / "scenes"
+    write_motion_clips(root, width=96, height=64, frames=4, kinds=("limbs_jump",))
+    sets = ["steps=20", "bootstrap_steps=20", "global_rigidity_steps=5"]
+    record = run_paint_table(root, tmp_path / "out", sets=sets, threads=1, parts=True, log=lambda _: None)
+    (row,) = record["rows"]
+    assert row["layers"] == 3 and row["given_masks_iou"] is None
+    layers = json.loads(Path(row["manifest"]).read_text())["layers"]
+    assert [layer["name"] for layer in layers] == ["Background", "Foreground1", "Foreground2"]
+    clip = root / "limbs_jump"
+    assert row["fg_iou"] == export_fg_iou(row["manifest"], clip / "frames", clip / "masks")
+    assert "one layer per part" in (tmp_path / "out" / PAINT_MD).read_text().splitlines()[0]
+
+
 def test_an_unknown_clip_is_one_line(scene_root, tmp_path):
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
