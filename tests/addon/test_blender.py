@@ -173,8 +173,10 @@ def test_rebuild_is_idempotent_and_keeps_the_artists_nodes(blender, tmp_path):
         _import(blender, manifest)
     names = sorted(n.name for n in tree.nodes)
     assert names.count("Artist Blur") == 1
-    assert len([n for n in names if n.startswith(P.PREFIX)]) == 26  # the composite's Viewer included
-    assert len(names) == 27
+    ours = 26 + (0 if compat.V5 else 4)  # the composite's Viewer included; 4.x: a bilinear group and a Switch a layer
+    assert len([n for n in names if n.startswith(P.PREFIX)]) == ours
+    assert len(names) == ours + 1
+    assert len([g for g in bpy.data.node_groups if g.name.startswith(P.BILINEAR_GROUP)]) == (0 if compat.V5 else 1)
     assert bpy.data.images.get("artist_plate") == artist_img
     assert len([i for i in bpy.data.images if i.name.startswith("NA_Edit_")]) == 2
     assert len([c for c in bpy.data.movieclips if c.name.startswith(P.PREFIX)]) == 1

@@ -54,7 +54,15 @@ def engine_render(manifest: Path, out: Path, filt: str) -> dict[int, np.ndarray]
     args = [py, "-m", "engine", C.VERB_RENDER, str(manifest), "--out", str(out), "--format", "exr", "--filter", filt]
     done = subprocess.run([*args, "--no-bar"], cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]
-    return {f: X.read_exr_rgba(out / f"edit.{f:05d}.exr") for f in X.FRAMES}
+    return frames(out)
+
+
+def frames(out: Path) -> dict[int, np.ndarray]:
+    """The ``edit.<frame>.exr`` files in ``out`` (padded as the renderer pads them), RGBA by frame number; every
+    exported frame is there."""
+    found = {int(p.name.split(".")[1]): X.read_exr_rgba(p) for p in out.glob("edit.*.exr")}
+    assert sorted(found) == list(X.FRAMES), sorted(found)
+    return found
 
 
 def engine_filters() -> tuple[str, ...]:
@@ -70,7 +78,7 @@ def engine_filters() -> tuple[str, ...]:
 def blender_render(out: Path) -> dict[int, np.ndarray]:
     """Render Edited Clip (it saves the paint first) to EXR; RGBA per frame."""
     assert bpy.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out), file_format="exr") == {"FINISHED"}
-    return {f: X.read_exr_rgba(out / f"edit.{f:05d}.exr") for f in X.FRAMES}
+    return frames(out)
 
 
 def preview_render(folder: Path) -> dict[int, np.ndarray]:
