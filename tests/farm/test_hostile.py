@@ -18,7 +18,7 @@ import pytest
 
 from engine import contract as C
 from engine.errors import InputError
-from engine.farm import dask_backend, flamenco
+from engine.farm import dask_backend, flamenco, openjd
 from engine.farm.openjd import MAX_STEP_TASKS
 from engine.farm.plan import load_plan, task_graph_text
 from engine.farm.shots import load_shots
@@ -143,7 +143,12 @@ def test_openjd_run_of_a_hostile_shot_passes_every_argument_byte_exact_and_runs_
     got = [[bytes.fromhex(a) for a in json.loads(line)] for line in record.read_text().splitlines()]
     plan = load_plan(shots)
     want = [[os.fsencode(a) for a in t.argv(str(stub))[1:]] for t in plan.tasks if t.kind != "preview"]
-    assert got == want
+    # the job environment's onEnter runs the engine's Python once, to put EnginePath in front of PYTHONPATH
+    engine_path = json.loads((bundle / openjd.JOB_PARAMETERS_FILE).read_text(encoding="utf-8"))[
+        openjd.ENGINE_PATH_PARAMETER
+    ]
+    assert got[0] == [b"-c", openjd.PREPEND_PYTHONPATH.encode(), os.fsencode(engine_path)]
+    assert got[1:] == want
     after = {k: v for k, v in tree_digest(tmp_path).items() if not k.startswith("bundle") and k != record.name}
     assert after == before
 
