@@ -2,7 +2,7 @@
 # Set-up and entry point. Usage:
 #   bash run.sh demo   # set up .venv, then fit the embedded demo clip and write its outputs to demo_out/
 #   bash run.sh test   # set up .venv (+ .venv-bpy5), lint, run the whole suite; add-on tests on bpy 4.5 and 5.0
-# Set-up is idempotent: the venv is (re)built only when the pinned requirements change.
+# Set-up is idempotent: the venv is (re)built only when the requirements or their pinned versions change.
 set -euo pipefail
 cd "$(dirname "$0")"
 
@@ -14,7 +14,9 @@ if [ -z "$PY" ]; then
 fi
 [ -n "$PY" ] || { echo "error: no python3 found — install Python 3.11" >&2; exit 2; }
 
-# The requirements are listed once, in engine/contract.py: read as literals (no engine code runs), so any
+# The engine's requirements are engine/requirements.txt and engine/requirements-farm.txt (ranges, also the wheel's),
+# installed with the exact versions of engine/constraints.txt; the development ones (the test tools, bpy) are
+# engine/contract.py's DEV_REQUIREMENTS and BPY5_REQUIREMENTS, read as literals (no engine code runs), so any
 # Python 3 can read them before the venv exists.
 contract_list() {  # the named tuples of engine/contract.py, one item per line
   "$PY" - "$@" <<'PYEOF'
@@ -26,16 +28,17 @@ for node in ast.parse(pathlib.Path("engine/contract.py").read_text()).body:
 print("\n".join(item for name in sys.argv[1:] for item in values[name]))
 PYEOF
 }
-REQS="$(contract_list ENGINE_REQUIREMENTS FARM_REQUIREMENTS DEV_REQUIREMENTS)"
+CONSTRAINTS="engine/constraints.txt"
+REQS="$(cat engine/requirements.txt engine/requirements-farm.txt; contract_list DEV_REQUIREMENTS)"
 STAMP=".venv/.requirements.sha256"
-WANT="$(printf '%s\n' "$REQS" | sha256sum | cut -d' ' -f1)"
+WANT="$(printf '%s\n' "$REQS" | cat - "$CONSTRAINTS" | sha256sum | cut -d' ' -f1)"
 if [ ! -x .venv/bin/python ] || [ "$(cat "$STAMP" 2>/dev/null)" != "$WANT" ]; then
-  echo "== setting up .venv (pinned requirements from engine/contract.py)" >&2
+  echo "== setting up .venv (engine/requirements*.txt and the test tools, at the versions of $CONSTRAINTS)" >&2
   [ -x .venv/bin/python ] || "$PY" -m venv .venv
   # shellcheck disable=SC2086
   printf '%s\n' "$REQS" > .venv/requirements.txt
   .venv/bin/python -m pip install --quiet --upgrade pip >/dev/null 2>&1 || true
-  .venv/bin/python -m pip install --quiet -r .venv/requirements.txt
+  .venv/bin/python -m pip install --quiet -r .venv/requirements.txt -c "$CONSTRAINTS"
   echo "$WANT" > "$STAMP"
 fi
 
@@ -43,13 +46,14 @@ fi
 BPY5_REQS="$(contract_list BPY5_REQUIREMENTS)"
 setup_bpy5() {
   local want
-  want="$(printf '%s\n' "$BPY5_REQS" | sha256sum | cut -d' ' -f1)"
+  want="$(printf '%s\n' "$BPY5_REQS" | cat - "$CONSTRAINTS" | sha256sum | cut -d' ' -f1)"
   if [ ! -x .venv-bpy5/bin/python ] || [ "$(cat .venv-bpy5/.requirements.sha256 2>/dev/null)" != "$want" ]; then
     echo "== setting up .venv-bpy5 (bpy 5.0.1 for the add-on tests)" >&2
     [ -x .venv-bpy5/bin/python ] || "$PY" -m venv .venv-bpy5
     printf '%s\n' "$BPY5_REQS" > .venv-bpy5/requirements.txt
     .venv-bpy5/bin/python -m pip install --quiet --upgrade pip >/dev/null 2>&1 || true
-    .venv-bpy5/bin/python -m pip install --quiet -r .venv-bpy5/requirements.txt
+    grep -v '^bpy==' "$CONSTRAINTS" > .venv-bpy5/constraints.txt  # the same versions, less .venv's bpy 4.5
+    .venv-bpy5/bin/python -m pip install --quiet -r .venv-bpy5/requirements.txt -c .venv-bpy5/constraints.txt
     echo "$want" > .venv-bpy5/.requirements.sha256
   fi
 }

@@ -13,8 +13,8 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
-from engine import contract as C
-from engine.errors import FitDiverged, InputError
+from . import contract as C
+from .errors import FitDiverged, InputError
 
 DESCRIPTION = """\
 Neural Atlas engine: fit layered neural atlases (Kasten et al. 2021) to a clip.
@@ -73,7 +73,7 @@ def _cancellable() -> Iterator[None]:
 def _print_paths(paths: Iterable[Path | str]) -> int:
     """A verb's last lines: one ``written`` message listing what it wrote (a program reads that), then the same
     paths one per line (what the add-on and shell scripts read: the last line is the path when there is one)."""
-    from engine.io.images import display_path  # a name that is not UTF-8 would stop a strict stdout
+    from .io.images import display_path  # a name that is not UTF-8 would stop a strict stdout
 
     written = [os.fspath(path) for path in paths]
     print(C.progress_line(C.EVENT_WRITTEN, paths=written))  # JSON escapes what is not UTF-8
@@ -100,7 +100,7 @@ def frame_range(text: str) -> tuple[int, int]:
 
 def frame_rate(text: str) -> Any:
     """``--fps``: ``24``, ``25``, ``23.976`` (taken as 24000/1001) or an exact ``24000/1001``."""
-    from engine.io.timing import parse_rate
+    from .io.timing import parse_rate
 
     try:
         return parse_rate(text)
@@ -119,7 +119,7 @@ def _positions(clip: str | None, frames: tuple[int, int] | None, start_frame: in
     """The plate frame numbers of --frames as the positions the engine's readers take (None: every frame)."""
     if frames is None or clip is None:
         return frames
-    from engine.io.clip import frame_positions
+    from .io.clip import frame_positions
 
     return frame_positions(clip, frames, start_frame)
 
@@ -128,7 +128,11 @@ def _positions(clip: str | None, frames: tuple[int, int] | None, start_frame: in
 CONSOLE_SCRIPT = "neural-atlas"
 
 
-def build_parser(prog: str = "python -m engine") -> argparse.ArgumentParser:
+#: How a cancelled or interrupted fit goes on (the run folder follows).
+_RESUME = f"python -m {C.CLI_MODULE} fit --resume --out"
+
+
+def build_parser(prog: str = f"python -m {C.CLI_MODULE}") -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog=prog, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -292,9 +296,9 @@ def _add_estimate_parser(sub: argparse._SubParsersAction) -> None:
 def _cmd_estimate(args: argparse.Namespace) -> int:
     import json
 
-    from engine.config import parse_set_args
-    from engine.fit.estimate import estimate, format_estimate
-    from engine.fit.progress import Reporter
+    from .config import parse_set_args
+    from .fit.estimate import estimate, format_estimate
+    from .fit.progress import Reporter
 
     result = estimate(
         args.clip,
@@ -476,7 +480,7 @@ def _add_export_parsers(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
-    from engine.export.exporter import export_run
+    from .export.exporter import export_run
 
     path = export_run(
         args.run,
@@ -491,7 +495,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 
 def _cmd_render(args: argparse.Namespace) -> int:
-    from engine.edit.render import parse_edit_args, render_manifest
+    from .edit.render import parse_edit_args, render_manifest
 
     out = render_manifest(
         args.manifest,
@@ -509,7 +513,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
 
 
 def _cmd_project_frame(args: argparse.Namespace) -> int:
-    from engine.edit.project_frame import project_frame
+    from .edit.project_frame import project_frame
 
     def stage(name: str, message: str, step: int, total: int) -> None:
         # the add-on's progress bar: what it does now, and how far (stages done of all)
@@ -520,7 +524,7 @@ def _cmd_project_frame(args: argparse.Namespace) -> int:
 
 
 def _cmd_realign(args: argparse.Namespace) -> int:
-    from engine.edit.realign import realign, realign_measured
+    from .edit.realign import realign, realign_measured
 
     if args.measure:
         manifest, report = realign_measured(args.manifest, args.source, args.layer, args.frame_step)
@@ -531,13 +535,13 @@ def _cmd_realign(args: argparse.Namespace) -> int:
 
 
 def _cmd_preview(args: argparse.Namespace) -> int:
-    from engine.edit.preview import write_previews
+    from .edit.preview import write_previews
 
     return _print_paths(write_previews(args.manifest, args.out, movies=not args.no_movies))
 
 
 def _add_nuke_parser(sub: argparse._SubParsersAction) -> None:
-    from engine.export.nuke import DEFAULT_FILTER, OCIO_CONFIG_ARG, STMAP_FILTERS
+    from .export.nuke import DEFAULT_FILTER, OCIO_CONFIG_ARG, STMAP_FILTERS
 
     n = sub.add_parser(
         C.VERB_NUKE,
@@ -568,7 +572,7 @@ def _add_nuke_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_nuke(args: argparse.Namespace) -> int:
-    from engine.export.nuke import write_nuke_script
+    from .export.nuke import write_nuke_script
 
     return _print_paths([write_nuke_script(args.manifest, args.out, args.filter, args.ocio_config)])
 
@@ -603,7 +607,7 @@ def _cmd_masks(args: argparse.Namespace) -> int:
     """Progress goes to stdout as a JSON stage line, so stderr holds nothing but a failure's one line; the folder
     is printed last (``_print_paths``: as text any terminal takes, a name that is not UTF-8 showing its bytes as
     \\xNN)."""
-    from engine.data.auto_masks import write_auto_masks
+    from .data.auto_masks import write_auto_masks
 
     def say(message: str) -> None:
         print(C.progress_line(C.EVENT_STAGE, stage=C.VERB_MASKS, message=message), flush=True)
@@ -662,13 +666,13 @@ def _add_farm_parser(sub: argparse._SubParsersAction) -> None:
     oj.add_argument("--no-gpu", action="store_true", help="no GPU host requirement on the fit and export steps")
     oj.add_argument("--name", default=None, help="the job's name (default: the shots file's name)")
     try:
-        from engine.farm.dask_backend import add_dask_parser
+        from .farm.dask_backend import add_dask_parser
 
         add_dask_parser(commands)
     except ImportError as exc:  # a back end whose module or library is missing: its command says so
         _add_missing_farm_parser(commands, C.FARM_DASK, exc)
     try:
-        from engine.farm.flamenco import add_flamenco_parser
+        from .farm.flamenco import add_flamenco_parser
 
         add_flamenco_parser(commands)
     except ImportError as exc:
@@ -691,15 +695,15 @@ def _cmd_farm(args: argparse.Namespace) -> int:
             None, f"farm {args.farm_command} is not available ({missing})", "install the engine's farm extra"
         )
     if args.farm_command == C.FARM_DASK:
-        from engine.farm.dask_backend import run_dask
+        from .farm.dask_backend import run_dask
 
         return run_dask(args)
     if args.farm_command == C.FARM_FLAMENCO:
-        from engine.farm.flamenco import run_flamenco
+        from .farm.flamenco import run_flamenco
 
         return run_flamenco(args)
-    from engine.farm.plan import plan_with_shots, task_graph_text
-    from engine.farm.shots import load_shots
+    from .farm.plan import plan_with_shots, task_graph_text
+    from .farm.shots import load_shots
 
     shots = load_shots(args.shots)
     plan, shot_plans = plan_with_shots(shots)
@@ -709,7 +713,7 @@ def _cmd_farm(args: argparse.Namespace) -> int:
         else:
             print(task_graph_text(plan))
         return C.EXIT_OK
-    from engine.farm.openjd import write_bundle
+    from .farm.openjd import write_bundle
 
     files = write_bundle(
         plan,
@@ -728,7 +732,7 @@ def _cmd_farm(args: argparse.Namespace) -> int:
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
-    from engine.config import apply_overrides, config_help, parse_set_args, preset_config
+    from .config import apply_overrides, config_help, parse_set_args, preset_config
 
     if args.help_config:
         print(config_help())
@@ -745,8 +749,8 @@ def _cmd_fit(args: argparse.Namespace) -> int:
             f"{C.FIT_RESUME_IF_STARTED_FLAG} with --{'resume' if args.resume else 'refit'}",
             f"pass {C.FIT_RESUME_IF_STARTED_FLAG} alone: it starts, continues or leaves the fit as RUN_DIR holds it",
         )
-    from engine.fit.run_folder import RunFolder
-    from engine.fit.trainer import FitCancelled, fit
+    from .fit.run_folder import RunFolder
+    from .fit.trainer import FitCancelled, fit
 
     run_dir = Path(args.out)
     if args.refine is not None:
@@ -792,7 +796,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
             start_frame=args.start_frame,
         )
     except FitCancelled as exc:
-        print(f"cancelled: {exc}; continue with: python -m engine fit --resume --out {run_dir}", file=sys.stderr)
+        print(f"cancelled: {exc}; continue with: {_RESUME} {run_dir}", file=sys.stderr)
         return C.EXIT_CANCELLED
     print(
         f"fit done: PSNR {metrics['psnr']:.2f} dB over every pixel, {metrics['steps']} steps in "
@@ -805,10 +809,10 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 def _cmd_refine(args: argparse.Namespace, run_dir: Path) -> int:
     """``fit --refine [STEPS] [--preset P]``: a finished fit continued (``engine.fit.refine``); the export its edit
     layers were painted on is recorded once training has run, for ``realign``."""
-    from engine.config import apply_overrides, parse_set_args
-    from engine.edit.aligned import record_paint_export
-    from engine.fit.refine import refine_config
-    from engine.fit.trainer import FitCancelled, fit
+    from .config import apply_overrides, parse_set_args
+    from .edit.aligned import record_paint_export
+    from .fit.refine import refine_config
+    from .fit.trainer import FitCancelled, fit
 
     clashing = [flag for flag, given in (("--resume", args.resume), ("--refit", args.refit),
                 (C.FIT_RESUME_IF_STARTED_FLAG, args.resume_if_started), (C.FIT_AUTO_MASKS_FLAG, args.auto_masks),
@@ -835,7 +839,7 @@ def _cmd_refine(args: argparse.Namespace, run_dir: Path) -> int:
         )
     except FitCancelled as exc:
         record_paint_export(run_dir)
-        print(f"cancelled: {exc}; continue with: python -m engine fit --resume --out {run_dir}", file=sys.stderr)
+        print(f"cancelled: {exc}; continue with: {_RESUME} {run_dir}", file=sys.stderr)
         return C.EXIT_CANCELLED
     painted_on = record_paint_export(run_dir)
     carry = f"; carry the paint over: export, then {C.VERB_REALIGN} --from {painted_on}" if painted_on else ""
@@ -850,9 +854,9 @@ def _cmd_refine(args: argparse.Namespace, run_dir: Path) -> int:
 def _start_or_resume(args: argparse.Namespace, run_dir: Path) -> bool:
     """``fit --resume-if-started``: sets ``args.resume`` when RUN_DIR holds a checkpoint of this same fit; False when
     it holds this fit finished (said on stderr: nothing to do); a different fit there is one line."""
-    from engine.config import apply_overrides, parse_set_args, preset_config
-    from engine.fit.run_folder import RunFolder
-    from engine.fit.trainer import FIT_FINISHED, FIT_NEW, fit_state
+    from .config import apply_overrides, parse_set_args, preset_config
+    from .fit.run_folder import RunFolder
+    from .fit.trainer import FIT_FINISHED, FIT_NEW, fit_state
 
     run = RunFolder(run_dir)
     if not run.checkpoint.exists():
@@ -875,15 +879,15 @@ def _cancelled_line(args: argparse.Namespace, exc: KeyboardInterrupt) -> str:
     how = str(exc) or "SIGINT"
     line = f"cancelled: {args.verb} stopped by {how} before it finished; nothing half-written was kept"
     if args.verb == C.VERB_FIT and args.out is not None:
-        from engine.fit.run_folder import RunFolder
+        from .fit.run_folder import RunFolder
 
         run = RunFolder(args.out)
         if run.checkpoint.exists():
-            return f"{line}; continue with: python -m engine fit --resume --out {run.path}"
+            return f"{line}; continue with: {_RESUME} {run.path}"
     return f"{line}; run the same command again"
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m engine") -> int:
+def main(argv: list[str] | None = None, prog: str = f"python -m {C.CLI_MODULE}") -> int:
     parser = build_parser(prog)
     args = parser.parse_args(argv)
     if args.verb is None:  # nothing was asked: the help, on stderr (stdout is for what a verb reports), and 2
@@ -922,7 +926,7 @@ def _verb_parsers(parser: argparse.ArgumentParser) -> Iterator[argparse.Argument
 def _output(args: argparse.Namespace) -> Iterator[Callable[[int], None]]:
     """stdout and stderr as -q, -v and an OpenJD task (``contract.OPENJD_PROGRESS_ENV``) ask, for the verb's run;
     yields what to call with its exit code (an OpenJD task's 100 % once it succeeded). Without them: untouched."""
-    from engine.fit.progress import LineTap, OpenJDProgress, quiet_lines, verbose_lines
+    from .fit.progress import LineTap, OpenJDProgress, quiet_lines, verbose_lines
 
     openjd = OpenJDProgress() if os.environ.get(C.OPENJD_PROGRESS_ENV, "") else None
     echo = verbose_lines(sys.stderr) if args.verbose else None
@@ -964,7 +968,7 @@ def console_main() -> int:
 
 
 def _run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
-    from engine.io.atomic import disk_full_error
+    from .io.atomic import disk_full_error
 
     try:
         handlers = {
@@ -982,9 +986,9 @@ def _run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
         if args.verb in handlers:
             return handlers[args.verb](args)
         if args.verb == C.VERB_DEMO:
-            from engine.config import parse_set_args
-            from engine.demo import run_demo
-            from engine.fit.trainer import FitCancelled
+            from .config import parse_set_args
+            from .demo import run_demo
+            from .fit.trainer import FitCancelled
 
             try:
                 run_demo(Path(args.out), args.preset, parse_set_args(args.set))

@@ -17,8 +17,8 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
-from engine.contract import PRESET_STEPS, SCHEMA_VERSION
-from engine.errors import InputError
+from .contract import CLI_MODULE, PRESET_STEPS, SCHEMA_VERSION
+from .errors import InputError
 
 #: OpenCV DIS optical-flow presets (``flow_preset``), fastest first; engine/data/flow.py maps each to OpenCV's.
 #: Named here so the config (and the add-on's tests on a Blender without OpenCV) need no cv2.
@@ -489,7 +489,7 @@ def check_value(key: str, value: Any, source: str | Path | None = None, raw: Any
     want = valid.describe(kind)
     if isinstance(typed, int) and not isinstance(typed, bool) and abs(typed) > MAX_INT:
         want += f" (at most {MAX_INT})"
-    fix = "`python -m engine fit --help-config` lists every field's range"
+    fix = f"`python -m {CLI_MODULE} fit --help-config` lists every field's range"
     if source == FROM_SET:
         shown = value if raw is None else raw
         raise InputError(None, f"--set {key}={shown}: {key} must be {want}", fix)
@@ -515,7 +515,7 @@ def apply_overrides(cfg: FitConfig, overrides: dict[str, Any], source: str | Pat
     for key, raw in overrides.items():
         if key not in VALID:
             near = difflib.get_close_matches(str(key), names, n=1)
-            hint = f"did you mean {near[0]!r}?" if near else "see `python -m engine fit --help-config`"
+            hint = f"did you mean {near[0]!r}?" if near else f"see `python -m {CLI_MODULE} fit --help-config`"
             raise InputError(source, f"unknown config key {key!r}", hint)
         if source is None and isinstance(raw, str):
             values[key] = check_value(key, _parse_value(field_kind(key), raw, key), FROM_SET, raw)

@@ -1,8 +1,8 @@
 """The contract between the engine and the Blender add-on. Standard library only.
 
 The add-on may import this module and nothing else of ``engine``: CLI verbs and exit codes, the run
-folder's file names, the JSON progress lines the engine prints, and the pinned requirements the add-on's
-"Set up engine" installs. Anything that crosses the process boundary is named here, once.
+folder's file names, the JSON progress lines the engine prints, and the requirements (with their exact versions) the
+add-on's "Set up engine" installs. Anything that crosses the process boundary is named here, once.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ import os
 import re
 from collections.abc import Iterator
 from fractions import Fraction
+from pathlib import Path
 from typing import Any
 
 ENGINE_VERSION = "0.1.0"
@@ -21,27 +22,26 @@ ENGINE_VERSION = "0.1.0"
 #: Version of every JSON file the engine writes (config, metrics, checkpoints' metadata, progress lines).
 SCHEMA_VERSION = 1
 
-#: Pinned requirements of the engine's Python (listed once; run.sh and the add-on install these).
-#: torch is pinned exactly: an unpinned torch pulls a multi-GB CUDA build on machines without a GPU;
-#: numpy<2 because bpy 4.5/5.0 require it; OpenImageIO 3.0.x because 3.1+ forces numpy 2.
-ENGINE_REQUIREMENTS: tuple[str, ...] = (
-    "torch==2.13.0",
-    "numpy>=1.26,<2",
-    "openimageio==3.0.*",
-    "OpenEXR==3.5.*",
-    "opencv-python-headless>=4.9,<4.12",
-    "av>=12",
-    "tqdm>=4.66",
-    "scipy>=1.11,<1.16",  # linear scattered interpolation (Delaunay) when projecting a frame edit onto atlases
-    "fileseq==3.4.0",  # image sequences found and named the way pipeline tools do (plate.####.exr, %04d, ranges)
-)
+#: The requirement files beside this module (shipped in the wheel and the extension), each read once here. Ranges:
+#: the engine's and the farm extra's (pyproject.toml takes its dependencies from the same two files). Exact versions:
+#: the constraints file every install here uses (``pip install -r ... -c constraints.txt``).
+REQUIREMENTS_FILE = "requirements.txt"
+FARM_REQUIREMENTS_FILE = "requirements-farm.txt"
+CONSTRAINTS_FILE = "constraints.txt"
+CONSTRAINTS_PATH = Path(__file__).with_name(CONSTRAINTS_FILE)
 
-#: The farm back ends' own requirements (pyproject's ``farm`` extra; the test venv has them): Dask for
-#: ``farm dask``; the Open Job Description CLI to check and run the bundles ``farm openjd`` writes.
-FARM_REQUIREMENTS: tuple[str, ...] = (
-    "distributed==2026.8.0",
-    "openjd-cli==0.8.0",
-)
+
+def requirement_lines(name: str) -> tuple[str, ...]:
+    """The requirements of one of the files beside this module: its lines less blanks and ``#`` comments (the rule
+    setuptools applies to the same files)."""
+    text = Path(__file__).with_name(name).read_text(encoding="utf-8")
+    return tuple(s for s in (line.strip() for line in text.splitlines()) if s and not s.startswith("#"))
+
+
+#: The engine's requirements (compatible ranges), which the add-on's Set up engine installs with the constraints.
+ENGINE_REQUIREMENTS: tuple[str, ...] = requirement_lines(REQUIREMENTS_FILE)
+#: The farm back ends' own requirements (the wheel's ``farm`` extra; the test venv has them).
+FARM_REQUIREMENTS: tuple[str, ...] = requirement_lines(FARM_REQUIREMENTS_FILE)
 
 #: Extra requirements for development and the test suite (same venv).
 DEV_REQUIREMENTS: tuple[str, ...] = (
@@ -63,7 +63,12 @@ BPY5_REQUIREMENTS: tuple[str, ...] = (
 )
 
 # --- CLI -----------------------------------------------------------------------------------------------
-CLI_MODULE = "engine"  # run as: python -m engine <verb> ...
+#: The import name a pip install of the wheel gives the engine (pyproject.toml maps it onto the repository's engine/):
+#: ours, so the engine never takes or meets another project's top-level ``engine``.
+INSTALLED_MODULE = "neural_atlas"
+#: What ``python -m`` runs: the installed name when this engine came from the wheel, else ``engine`` (a checkout, or
+#: the extension's bundled engine on the engine Python's PYTHONPATH).
+CLI_MODULE = INSTALLED_MODULE if __name__ == f"{INSTALLED_MODULE}.contract" else "engine"
 VERB_FIT = "fit"
 VERB_DEMO = "demo"
 VERB_ESTIMATE = "estimate"  # estimate CLIP [--mask M ...] [--work RUN_DIR] --json: one JSON object on stdout
@@ -1053,7 +1058,7 @@ def load_manifest(path: str) -> dict[str, Any]:
         with open(path, encoding="utf-8") as f:
             data = json.load(f)
     except FileNotFoundError:
-        raise ManifestError(f"{path}: no manifest here — run `python -m engine export RUN_DIR` first") from None
+        raise ManifestError(f"{path}: no manifest here — run `python -m {CLI_MODULE} export RUN_DIR` first") from None
     except (OSError, ValueError, RecursionError) as exc:  # not JSON, not UTF-8, nested beyond the parser
         raise ManifestError(f"{path}: cannot be read ({type(exc).__name__}) — export the run again") from None
     try:

@@ -30,19 +30,19 @@ import cv2
 import numpy as np
 import torch
 
-from engine import contract as C
-from engine.config import apply_overrides, preset_config
-from engine.data.synthetic import demo_spec, make_scene, write_scene
-from engine.edit.equations import load_edit
-from engine.edit.preview import checker_edits, grid, label, tile, write_png_u8, write_previews
-from engine.edit.render import plate_frames, render_frames, render_manifest, to_display_u8
-from engine.export.exporter import export_run
-from engine.export.manifest import Manifest
-from engine.fit.contact_sheet import write_contact_sheet
-from engine.fit.run_folder import RunFolder
-from engine.fit.trainer import FitCancelled, fit, load_run
-from engine.io.atomic import atomic_write_text
-from engine.io.images import read_image, write_png
+from . import contract as C
+from .config import apply_overrides, preset_config
+from .data.synthetic import demo_spec, make_scene, write_scene
+from .edit.equations import load_edit
+from .edit.preview import checker_edits, grid, label, tile, write_png_u8, write_previews
+from .edit.render import plate_frames, render_frames, render_manifest, to_display_u8
+from .export.exporter import export_run
+from .export.manifest import Manifest
+from .fit.contact_sheet import write_contact_sheet
+from .fit.run_folder import RunFolder
+from .fit.trainer import FitCancelled, fit, load_run
+from .io.atomic import atomic_write_text
+from .io.images import read_image, write_png
 
 DEMO_ATLAS_SIZE = 512
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,8 +1,9 @@
 """The engine's Python: create it, install its requirements, check that it runs the engine. No bpy here.
 
 The engine runs with its own interpreter (Blender's Python has no torch): a virtual environment in the
-extension's user folder with ``contract.ENGINE_REQUIREMENTS`` installed, and the extension's own folder
-on PYTHONPATH (``engine_commands.engine_env``) so ``python -m engine`` finds the engine shipped inside it.
+extension's user folder with ``contract.ENGINE_REQUIREMENTS`` installed at the exact versions of the constraints
+file shipped beside it, and the extension's own folder on PYTHONPATH (``engine_commands.engine_env``) so
+``python -m engine`` finds the engine shipped inside it.
 """
 
 from __future__ import annotations
@@ -132,11 +133,13 @@ def torch_choice(setting: str = TORCH_AUTO, platform: str = sys.platform, nvidia
 
 
 def pip_install_argv(python: str, torch: TorchChoice | None = None) -> list[str]:
-    """pip's command for the engine's requirements; the chosen torch build's index as an extra index (pip takes
-    its ``torch==X+cpu``/``+cu128`` over PyPI's ``torch==X``: a local version sorts after the plain one)."""
+    """pip's command for the engine's requirements (ranges) at the exact versions the engine was tested with (the
+    constraints file shipped beside the contract); the chosen torch build's index as an extra index (pip takes its
+    ``torch==X+cpu``/``+cu128`` over PyPI's ``torch==X``: a local version sorts after the plain one)."""
     index = torch.index_url if torch is not None else None
     extra = ["--extra-index-url", index] if index else []
-    return [python, "-m", "pip", "install", "--progress-bar", "off", *extra, *C.ENGINE_REQUIREMENTS]
+    pins = ["-c", str(C.CONSTRAINTS_PATH)]
+    return [python, "-m", "pip", "install", "--progress-bar", "off", *extra, *pins, *C.ENGINE_REQUIREMENTS]
 
 
 #: Blender's switch for network use (extensions may use the network only while it is on), as its UI names it.

@@ -251,8 +251,15 @@ def _add_paint_table_parser(sub: argparse._SubParsersAction) -> None:
     pt.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="fit config override")
     pt.add_argument("--threads", type=int, default=None, help="CPU threads of each fit (default: torch's choice)")
     pt.add_argument("--pictures", action="store_true", help="also write OUT/pictures/CLIP.png")
-    pt.add_argument(
+    split = pt.add_mutually_exclusive_group()
+    split.add_argument(
         "--parts", action="store_true", help="fit a clip with masks_parts/PART/ folders with one layer per part"
+    )
+    split.add_argument(
+        "--scribbles",
+        action="store_true",
+        help="fit a clip with masks_parts/PART/ folders with its one mask split by strokes drawn from the parts "
+        "(first, middle and last frame): the product's Split with Scribbles",
     )
 
 
@@ -270,6 +277,7 @@ def _paint_table(args: argparse.Namespace) -> int:
         only=[c for c in args.only.split(",") if c] if args.only else None,
         pictures=args.pictures,
         parts=args.parts,
+        scribbles=args.scribbles,
         command=[PROG, *args.argv],
     )
     print(format_table(table))

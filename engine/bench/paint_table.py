@@ -98,14 +98,22 @@ def _engine(args: list[str], log_path: Path, threads: int | None) -> str:
 
 
 def fit_and_export(
-    frames: Path, masks: list[Path], run: Path, preset: str, sets: list[str], threads: int | None, log_path: Path
+    frames: Path,
+    masks: list[Path],
+    run: Path,
+    preset: str,
+    sets: list[str],
+    threads: int | None,
+    log_path: Path,
+    scribbles: Path | None = None,
 ) -> Path:
-    """Fit (or continue, or leave a finished fit: ``--resume-if-started``) with one layer per mask folder and
-    export into ``EXPORT_VERSION``; returns the manifest's path."""
+    """Fit (or continue, or leave a finished fit: ``--resume-if-started``) with one layer per mask folder (or the
+    one mask split by ``scribbles``) and export into ``EXPORT_VERSION``; returns the manifest's path."""
     set_args = [a for kv in sets for a in ("--set", kv)]
     mask_args = [a for m in masks for a in ("--mask", str(m))]
+    scribble_args = [C.SCRIBBLE_ARG, str(scribbles)] if scribbles is not None else []
     _engine(
-        [C.VERB_FIT, str(frames), *mask_args, "--out", str(run), "--preset", preset,
+        [C.VERB_FIT, str(frames), *mask_args, *scribble_args, "--out", str(run), "--preset", preset,
          C.FIT_RESUME_IF_STARTED_FLAG, "--no-bar", *set_args],
         log_path, threads,
     )  # fmt: skip
@@ -209,17 +217,22 @@ def run_paint_table(
     only: list[str] | None = None,
     pictures: bool = False,
     parts: bool = False,
+    scribbles: bool = False,
     command: list[str] | None = None,
     log: Log | None = None,
 ) -> dict:
     """Fit, export and score ``preset`` on every clip under ``root`` (or the ``only`` ones); returns the table
     record, also written to ``out_dir/paint.json`` and ``out_dir/paint.md``. ``parts``: a clip with
     ``masks_parts/`` (``motion_scenes.part_masks``) is fitted with one layer per part; scores are unchanged (the
-    foreground is every layer after the background)."""
+    foreground is every layer after the background). ``scribbles``: such a clip is fitted the product's way
+    instead, its one mask split by strokes drawn from the part masks on the first, middle and last frame
+    (``part_scribbles``)."""
     say = log or (lambda line: print(line, file=sys.stderr, flush=True))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     recipe(degrade)  # an unknown name is refused before anything runs
+    if parts and scribbles:
+        raise ValueError("parts and scribbles are two ways to split a clip: choose one")
     folders = find_clips(root)
     if only:
         unknown = sorted(set(only) - {f.name for f in folders})
@@ -229,20 +242,28 @@ def run_paint_table(
     rows = []
     for folder in folders:
         given = [folder / "masks"]
-        if parts and (folder / PART_MASKS).is_dir():
-            given = sorted(p for p in (folder / PART_MASKS).iterdir() if p.is_dir())
+        part_folders = sorted(p for p in (folder / PART_MASKS).iterdir() if p.is_dir()) if (
+            folder / PART_MASKS).is_dir() else []  # fmt: skip
+        if parts and part_folders:
+            given = part_folders
         masks = given  # exact: the clip's own masks, as a user passes them
         if recipe(degrade) != recipe(EXACT):
             masks = [write_degraded(m, out / "masks" / degrade / folder.name / m.name, degrade, seed) for m in given]
+        strokes = None
+        if scribbles and part_folders:
+            from engine.bench.part_scribbles import write_part_scribbles
+
+            strokes, _ = write_part_scribbles(part_folders, out / "scribbles" / folder.name)
         run = out / "runs" / folder.name
         say(f"paint-table: {folder.name}: fit {preset} + export -> {run}")
         manifest = fit_and_export(folder / "frames", masks, run, preset, sets or [], threads, out / "logs" /
-                                  f"{folder.name}.log")  # fmt: skip
+                                  f"{folder.name}.log", strokes)  # fmt: skip
         say(f"paint-table: {folder.name}: scoring the export")
         metrics = json.loads((run / C.RUN_METRICS).read_text(encoding="utf-8"))
         row = {
             "clip": folder.name,
-            "layers": len(masks) + 1,
+            "layers": (len(part_folders) if strokes is not None else len(masks)) + 1,
+            "scribbles": str(strokes) if strokes is not None else None,
             "given_masks_iou": masks_iou(masks[0], folder / "masks") if len(masks) == 1 else None,
             **score_clip_export(folder, manifest, out),
             "psnr": metrics.get("psnr"),
@@ -267,6 +288,7 @@ def run_paint_table(
         "seed": seed,
         "sets": sets or [],
         "parts": parts,
+        "scribbles": scribbles,
         "rows": rows,
         "mean": mean_row(rows),
     }
@@ -295,6 +317,8 @@ def format_table(table: dict) -> str:
     """The markdown table of a ``paint.json`` record: a line naming the preset and masks, then rows and mean."""
     sets = "".join(f" `--set {kv}`" for kv in table.get("sets") or [])
     parts = ", one layer per part where a clip has `masks_parts/`" if table.get("parts") else ""
+    if table.get("scribbles"):
+        parts = ", one mask split by strokes drawn from `masks_parts/` where a clip has it"
     head = f"preset `{table['preset']}`{sets}, masks `{table['degrade']}` (seed {table['seed']}){parts}"
     lines = [head, "", "| " + " | ".join(h for h, _, _ in COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
     for row in [*table["rows"], table["mean"]]:

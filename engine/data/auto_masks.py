@@ -35,12 +35,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from engine import contract as C
-from engine.data.flow import DISFlow, FlowField, compute_flow
-from engine.errors import InputError
-from engine.io.atomic import disk_full_as_one_line, disk_full_error, signals_held
-from engine.io.clip import ClipInfo, open_clip, read_frames, read_masks, working_size
-from engine.io.colour import to_working
+from .. import contract as C
+from ..errors import InputError
+from ..io.atomic import disk_full_as_one_line, disk_full_error, signals_held
+from ..io.clip import ClipInfo, open_clip, read_frames, read_masks, working_size
+from ..io.colour import to_working
+from .flow import DISFlow, FlowField, compute_flow
 
 #: Fewer reliable flow vectors than this in a pair: no homography is fitted and the pair casts no vote.
 MIN_POINTS = 50

@@ -24,9 +24,9 @@ from typing import BinaryIO, Protocol, runtime_checkable
 import cv2
 import numpy as np
 
-from engine.config import FLOW_PRESETS
-from engine.errors import DiskFullError, InputError
-from engine.io.atomic import atomic_write
+from ..config import FLOW_PRESETS
+from ..errors import DiskFullError, InputError
+from ..io.atomic import atomic_write
 
 log = logging.getLogger(__name__)
 

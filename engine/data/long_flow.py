@@ -24,7 +24,7 @@ from typing import Protocol
 import cv2
 import numpy as np
 
-from engine.data.flow import DISFlow, FlowField, _sanitize, _save_arrays, consistency_mask
+from .flow import DISFlow, FlowField, _sanitize, _save_arrays, consistency_mask
 
 log = logging.getLogger(__name__)
 

@@ -22,11 +22,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-from engine import contract as C
-from engine.config import FitConfig, weight_ever_on
-from engine.data.flow import FlowField
-from engine.data.long_flow import long_flow_gaps
-from engine.errors import InputError
+from .. import contract as C
+from ..config import FitConfig, weight_ever_on
+from ..errors import InputError
+from .flow import FlowField
+from .long_flow import long_flow_gaps
 
 #: A background whose median flow magnitude (working px per frame) stays under this in (almost) every frame
 #: pair is *static*: a tripod. DIS noise on a real tripod shot is far below it, and the slowest real camera

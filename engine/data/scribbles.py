@@ -13,11 +13,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from engine import contract as C
-from engine.data.flow import FlowField
-from engine.errors import InputError
-from engine.io.clip import ClipInfo, same_aspect
-from engine.io.images import cv2_read
+from .. import contract as C
+from ..errors import InputError
+from ..io.clip import ClipInfo, same_aspect
+from ..io.images import cv2_read
+from .flow import FlowField
 
 #: No scribble at this pixel.
 NO_LABEL = -1

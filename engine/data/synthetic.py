@@ -23,8 +23,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from engine import contract as C
-from engine.io.images import cv2_write
+from .. import contract as C
+from ..io.images import cv2_write
 
 #: Bump when the textures or the file layout change: write_scene then rewrites existing demo folders.
 SYNTHETIC_VERSION = 1

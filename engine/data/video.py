@@ -9,8 +9,8 @@ import cv2
 import numpy as np
 import torch
 
-from engine.data.flow import FlowField
-from engine.data.long_flow import LongFlow
+from .flow import FlowField
+from .long_flow import LongFlow
 
 #: Prior label meaning "no opinion" (near a mask boundary, or a frame without a mask).
 PRIOR_IGNORE = -1

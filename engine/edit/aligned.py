@@ -10,9 +10,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from engine import contract as C
-from engine.errors import InputError
-from engine.io.atomic import atomic_write_text
+from .. import contract as C
+from ..errors import InputError
+from ..io.atomic import atomic_write_text
 
 
 def aligned_export(run_dir: str | Path) -> str | None:

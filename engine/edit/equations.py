@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from engine.export.manifest import LayerPasses
-from engine.io.colour import srgb_to_linear
-from engine.io.images import image_header, read_image
+from ..export.manifest import LayerPasses
+from ..io.colour import srgb_to_linear
+from ..io.images import image_header, read_image
 
 FILTERS = ("bilinear", "nearest")
 

@@ -21,10 +21,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from engine import contract as C
-from engine.edit.equations import edit_to_premultiplied
-from engine.edit.project_frame import project_to_textures
-from engine.edit.render import (
+from .. import contract as C
+from ..export.manifest import Manifest
+from ..io.atomic import DISK_ERRORS, as_disk_full, atomic_write
+from ..io.images import cv2_write, read_image
+from .equations import edit_to_premultiplied
+from .project_frame import project_to_textures
+from .render import (
     StagedFolder,
     check_output,
     movie_writer,
@@ -32,9 +35,6 @@ from engine.edit.render import (
     render_frames,
     to_display_u8,
 )
-from engine.export.manifest import Manifest
-from engine.io.atomic import DISK_ERRORS, as_disk_full, atomic_write
-from engine.io.images import cv2_write, read_image
 
 #: The export's own preview folder (``preview`` beside the manifest), the default output.
 PREVIEW_DIR = "preview"

@@ -24,15 +24,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from engine import contract as C
-from engine.edit.equations import edit_to_premultiplied, load_edit
-from engine.edit.render import STAGING_SUFFIX
-from engine.errors import DiskFullError, InputError
-from engine.export.manifest import LayerPasses, Manifest
-from engine.io.atomic import DISK_ERRORS, as_disk_full, atomic_write, move_into_place, signals_held
-from engine.io.clip import same_aspect
-from engine.io.colour import linear_to_srgb
-from engine.io.images import image_header, read_image, write_png, write_rgba_exr
+from .. import contract as C
+from ..errors import DiskFullError, InputError
+from ..export.manifest import LayerPasses, Manifest
+from ..io.atomic import DISK_ERRORS, as_disk_full, atomic_write, move_into_place, signals_held
+from ..io.clip import same_aspect
+from ..io.colour import linear_to_srgb
+from ..io.images import image_header, read_image, write_png, write_rgba_exr
+from .equations import edit_to_premultiplied, load_edit
+from .render import STAGING_SUFFIX
 
 #: A layer owns a pixel when its alpha is at least this (or it is the largest of the pixel's alphas).
 OWNER_ALPHA = 0.5

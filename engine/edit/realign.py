@@ -30,12 +30,12 @@ from typing import Any
 import cv2
 import numpy as np
 
-from engine import contract as C
-from engine.edit.aligned import aligned_export, published_exports, write_aligned
-from engine.edit.equations import composite_touched, load_edit, sample_texture
-from engine.edit.project_frame import REACH_PX, _Change, _replace_edit_layers, _sample_spacing, owners
-from engine.errors import InputError
-from engine.export.manifest import Manifest
+from .. import contract as C
+from ..errors import InputError
+from ..export.manifest import Manifest
+from .aligned import aligned_export, published_exports, write_aligned
+from .equations import composite_touched, load_edit, sample_texture
+from .project_frame import REACH_PX, _Change, _replace_edit_layers, _sample_spacing, owners
 
 #: A pixel counts as painted when the paint covers at least this much of it (for the IoU of painted areas).
 PAINTED_COVER = 0.5
@@ -154,7 +154,7 @@ def resolve_exports(target: str | Path, source: str | Path | None) -> tuple[Mani
     if (target / C.EXPORTS_DIR).is_dir() and not (target / C.MANIFEST_NAME).exists():
         versions = published_exports(target)
         if not versions:
-            raise InputError(target, "has no export", "export the run first: python -m engine export RUN_DIR")
+            raise InputError(target, "has no export", f"export the run first: python -m {C.CLI_MODULE} export RUN_DIR")
         target = target / C.EXPORTS_DIR / versions[-1]
     new = Manifest(target)
     run = new.run_root

@@ -34,11 +34,10 @@ import OpenEXR
 import OpenImageIO as oiio
 from tqdm import tqdm
 
-from engine import contract as C
-from engine.edit.equations import FILTERS, composite_edits, composite_touched, edit_is_empty, load_edit
-from engine.errors import DiskFullError, InputError
-from engine.export.manifest import Manifest
-from engine.io.atomic import (
+from .. import contract as C
+from ..errors import DiskFullError, InputError
+from ..export.manifest import Manifest
+from ..io.atomic import (
     DISK_ERRORS,
     as_disk_full,
     atomic_write,
@@ -46,8 +45,8 @@ from engine.io.atomic import (
     disk_full_error,
     signals_held,
 )
-from engine.io.clip import iter_frames, open_clip
-from engine.io.colour import (
+from ..io.clip import iter_frames, open_clip
+from ..io.colour import (
     SCENE_LINEAR,
     SRGB,
     chromaticities,
@@ -58,8 +57,9 @@ from engine.io.colour import (
     role_space,
     to_linear,
 )
-from engine.io.images import exr_timing, native_path, read_spec, write_like, write_png, write_rgba_exr
-from engine.io.timing import exact_rate, timecode_at
+from ..io.images import exr_timing, native_path, read_spec, write_like, write_png, write_rgba_exr
+from ..io.timing import exact_rate, timecode_at
+from .equations import FILTERS, composite_edits, composite_touched, edit_is_empty, load_edit
 
 FORMATS = ("exr", "png", "plate")
 #: The frames' default name: ``edit.`` + the plate's frame number padded as the plate's files are + the extension

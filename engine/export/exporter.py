@@ -35,17 +35,17 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from engine import contract as C
-from engine.errors import InputError
-from engine.export.stage_record import STAGE_RECORD, STAGE_SCHEMA, changed_since, fit_source, other_fit_error
-from engine.export.stage_record import read_stage as _read_stage
-from engine.fit.progress import Reporter
-from engine.fit.run_folder import ClipRecord, RunFolder
-from engine.fit.trainer import EVAL_CHUNK, FittedRun, load_fitted
-from engine.io.atomic import DISK_ERRORS, as_disk_full, atomic_write_text, move_into_place, signals_held
-from engine.io.colour import RAW, REC709_CHROMATICITIES, SCENE_LINEAR, srgb_to_linear
-from engine.io.images import exr_timing, write_exr, write_png
-from engine.model.atlas_model import AtlasModel
+from .. import contract as C
+from ..errors import InputError
+from ..fit.progress import Reporter
+from ..fit.run_folder import ClipRecord, RunFolder
+from ..fit.trainer import EVAL_CHUNK, FittedRun, load_fitted
+from ..io.atomic import DISK_ERRORS, as_disk_full, atomic_write_text, move_into_place, signals_held
+from ..io.colour import RAW, REC709_CHROMATICITIES, SCENE_LINEAR, srgb_to_linear
+from ..io.images import exr_timing, write_exr, write_png
+from ..model.atlas_model import AtlasModel
+from .stage_record import STAGE_RECORD, STAGE_SCHEMA, changed_since, fit_source, other_fit_error
+from .stage_record import read_stage as _read_stage
 
 #: Atlas cells whose aggregated coverage exceeds this decide where the layer's atlas box lies (a foreground's
 #: faint halo, seen in a few frames only, stays below it and does not inflate the box).
@@ -831,7 +831,7 @@ def _write_nuke_script(staging: Path, manifest: dict[str, Any]) -> None:
     """The Nuke script of the edit beside the manifest (its paths are the manifest's, relative to the same folder);
     a plate Nuke cannot read as one sequence, or an OCIO config that is gone, gets a warning instead (`engine nuke`
     says the same)."""
-    from engine.export.nuke import NukeScriptError, nuke_script
+    from .nuke import NukeScriptError, nuke_script
 
     try:
         atomic_write_text(staging / C.NUKE_SCRIPT_NAME, nuke_script(manifest, str(staging / C.MANIFEST_NAME)))

@@ -16,13 +16,13 @@ from typing import Any
 
 import numpy as np
 
-from engine import contract as C
-from engine.errors import InputError
-from engine.io.clip import is_sequence_pattern
-from engine.io.images import read_exr
+from .. import contract as C
+from ..errors import InputError
+from ..io.clip import is_sequence_pattern
+from ..io.images import read_exr
 
 #: The fix of a manifest that cannot be used as it is.
-EXPORT_AGAIN = "run `python -m engine export RUN_DIR` again"
+EXPORT_AGAIN = f"run `python -m {C.CLI_MODULE} export RUN_DIR` again"
 #: The fix of a plate that is not where the manifest says.
 PLATE_FIX = (
     "put the plate back where the export was made from (its path is relative to the manifest), or export the run again "

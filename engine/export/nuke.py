@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from engine import contract as C
-from engine.errors import InputError
+from .. import contract as C
+from ..errors import InputError
 
 #: The script's format line: Nuke 13 and later load it (the nodes used are older than that).
 NUKE_VERSION = "13.0 v1"
@@ -138,7 +138,7 @@ def script_colour(clip: dict[str, Any], ocio_config: str | None = None) -> Scrip
     """The names a script of ``clip`` (a manifest's) uses: those of the config the export was made in, or of
     ``ocio_config`` (a studio's), which must know the plate's colour space (a name, an alias or a role). Raises
     InputError naming the config when it cannot be loaded or lacks a space."""
-    from engine.io.colour import SCENE_LINEAR, SRGB, load_config, recorded_space, resolve, role_space
+    from ..io.colour import SCENE_LINEAR, SRGB, load_config, recorded_space, resolve, role_space
 
     plate, config = recorded_space(clip["colorspace"], clip.get("colour_config"))
     if ocio_config is not None and ocio_config != config:
@@ -161,7 +161,7 @@ def _same_role(space: str, config: str, other: str) -> str | None:
     """``other``'s space for the fixed role (sRGB, scene-linear Rec.709, raw) that ``space`` plays in ``config``
     (configs name them differently: "sRGB Encoded Rec.709 (sRGB)", "sRGB"); None when it plays none, or ``config``
     cannot be loaded here."""
-    from engine.io.colour import RAW, SCENE_LINEAR, SRGB, role_space
+    from ..io.colour import RAW, SCENE_LINEAR, SRGB, role_space
 
     for role in (SRGB, SCENE_LINEAR, RAW):
         try:
@@ -429,8 +429,8 @@ def write_nuke_script(
     maybe the artist's comp, is never overwritten), its colour spaces named in ``ocio_config`` (default: the
     export's config); returns its path. Errors are one line naming the file and the fix.
     """
-    from engine.export.manifest import Manifest
-    from engine.io.atomic import atomic_write_text
+    from ..io.atomic import atomic_write_text
+    from .manifest import Manifest
 
     manifest = Manifest(os.fspath(manifest_path))
     target = Path(out).resolve()

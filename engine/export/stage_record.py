@@ -15,8 +15,8 @@ import json
 from pathlib import Path
 from typing import Any
 
-from engine import contract as C
-from engine.errors import InputError
+from .. import contract as C
+from ..errors import InputError
 
 #: The record's name in the staging folder (removed when the version is published).
 STAGE_RECORD = "stage.json"

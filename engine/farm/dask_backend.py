@@ -49,11 +49,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, TextIO
 
-from engine import contract as C
-from engine.errors import InputError
+from .. import contract as C
+from ..errors import InputError
 
 if TYPE_CHECKING:
-    from engine.farm.plan import Plan
+    from .plan import Plan
 
 #: Engine exits a retry cannot fix: the input is wrong, or the fit diverged (the same argv diverges again; the
 #: fix, ``fit --resume --set lr=...``, is the artist's).
@@ -270,10 +270,11 @@ def _connect(address: str, timeout: float) -> Any:
 
 
 #: The fix for a scheduler or worker whose Python cannot import the engine (Dask unpickles each task's function,
-#: ``engine.farm.dask_backend.run_task``, on the scheduler and on the worker that runs it).
+#: ``engine.farm.dask_backend.run_task``, on the scheduler and on the worker that runs it, under the name the
+#: submitter imported it by: ``engine`` from a checkout, ``neural_atlas`` from the wheel).
 ENGINE_IMPORT_FIX = (
-    'install the engine into the Python of the Dask scheduler and of every worker (pip install "neural-atlas[farm]"), '
-    "or start them with PYTHONPATH set to the folder holding engine/ (docs/farm.md, Dask)"
+    "install the engine into the Python of the Dask scheduler and of every worker as the submitter has it (pip install "
+    '"neural-atlas[farm]" on all of them, or PYTHONPATH set to the folder holding engine/ on all: docs/farm.md, Dask)'
 )
 
 
@@ -314,7 +315,7 @@ def _failure(task_id: str, key: Any, exc: BaseException, dependencies_done: bool
 def _check_environment(client: Any, address: str) -> None:
     """The scheduler and the connected workers can import the engine (Dask unpickles ``run_task`` on both): else
     every task would fail at once with Dask's own words. One line naming the process and the fix instead."""
-    probe = "import engine.farm.dask_backend"
+    probe = f"import {__name__}"  # the submitter's own name for it: engine (a checkout) or neural_atlas (the wheel)
     try:
         client.run_on_scheduler(exec, probe, {})
     except Exception as exc:
@@ -464,7 +465,7 @@ def add_dask_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def run_dask(args: argparse.Namespace) -> int:
     """``farm dask``: the exit code (0: every task done; 1: a task failed, named on stderr)."""
-    from engine.farm.plan import load_plan
+    from .plan import load_plan
 
     if args.retries < 0:
         raise InputError(None, f"--retries {args.retries} is negative", "pass 0 or more")

@@ -39,8 +39,8 @@ from pathlib import Path
 from typing import Any, Protocol
 from urllib.parse import quote, urlsplit
 
-from engine import contract as C
-from engine.errors import InputError
+from .. import contract as C
+from ..errors import InputError
 
 #: The job compiler script's file name: Flamenco names a job type after its script's file (minus ``.js``).
 JOB_TYPE_SCRIPT = f"{C.FLAMENCO_JOB_TYPE}.js"
@@ -62,8 +62,8 @@ DEFAULT_PRIORITY = 50
 DEFAULT_TIMEOUT = 30.0
 #: How to put the job type on a Manager: said in every error that means it is missing or outdated.
 INSTALL_FIX = (
-    f"write it with `python -m engine farm flamenco --job-type-out DIR`, copy {JOB_TYPE_SCRIPT} into the `scripts` "
-    "folder beside the flamenco-manager executable and restart the Manager"
+    f"write it with `python -m {C.CLI_MODULE} farm flamenco --job-type-out DIR`, copy {JOB_TYPE_SCRIPT} into the "
+    "`scripts` folder beside the flamenco-manager executable and restart the Manager"
 )
 
 
@@ -102,7 +102,7 @@ def job_type_script() -> str:
 
 def write_job_type(out_dir: str | Path) -> Path:
     """Write ``neural-atlas.js`` into OUT_DIR (created) for copying into a Manager's ``scripts`` folder."""
-    from engine.io.atomic import atomic_write_text
+    from ..io.atomic import atomic_write_text
 
     folder = Path(out_dir)
     if folder.exists() and not folder.is_dir():
@@ -188,6 +188,7 @@ def plan_setting(
     plan = {
         PLAN_TAG: PLAN_VERSION,
         "shot": shot,
+        "module": C.CLI_MODULE,
         "tasks": [
             {
                 "id": task.id,
@@ -400,7 +401,7 @@ def submit_plan(
         print(
             f"warning: {manager.base}: the Manager has no `{C.FLAMENCO_PYTHON_VARIABLE}` variable for {platform}: "
             "workers without it fail every task — add it to flamenco-manager.yaml `variables:` (each platform's "
-            "Python that runs `python -m engine`) and restart the Manager",
+            f"Python that runs `python -m {C.CLI_MODULE}`) and restart the Manager",
             file=sys.stderr,
         )
     jobs = {
@@ -488,9 +489,9 @@ def run_flamenco(args: argparse.Namespace) -> int:
         raise InputError(
             None,
             "farm flamenco needs SHOTS and --manager URL",
-            "run `python -m engine farm flamenco SHOTS --manager http://HOST:PORT`, or --job-type-out DIR",
+            f"run `python -m {C.CLI_MODULE} farm flamenco SHOTS --manager http://HOST:PORT`, or --job-type-out DIR",
         )
-    from engine.farm.plan import load_plan
+    from .plan import load_plan
 
     plan = load_plan(args.shots)
     ids = submit_plan(plan, args.manager, priority=args.priority, check_only=args.check_only, timeout=args.timeout)

@@ -41,10 +41,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from engine import contract as C
-from engine.errors import InputError
-from engine.farm.plan import CHUNKED_KINDS, Plan, ShotPlan, Task
-from engine.io.atomic import atomic_write_text
+from .. import contract as C
+from ..errors import InputError
+from ..io.atomic import atomic_write_text
+from .plan import CHUNKED_KINDS, Plan, ShotPlan, Task
 
 SPECIFICATION_VERSION = "jobtemplate-2023-09"
 TEMPLATE_FILE = "template.json"

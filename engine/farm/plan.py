@@ -28,10 +28,10 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
-from engine import contract as C
-from engine.errors import InputError
-from engine.export.stage_record import continues_fit
-from engine.farm.shots import Shot, ShotsFile, load_shots
+from .. import contract as C
+from ..errors import InputError
+from ..export.stage_record import continues_fit
+from .shots import Shot, ShotsFile, load_shots
 
 MASKS, FIT, ATLASES, PASSES, PUBLISH = "masks", "fit", "atlases", "passes", "publish"
 RENDER, PREVIEW = "render", "preview"
@@ -241,7 +241,7 @@ def next_version(run: str | Path) -> str:
 
 def plate_frame_numbers(shots_file: Path, shot: Shot) -> list[int]:
     """The plate's frame numbers, listed (a sequence) or counted (a movie: PyAV) without decoding the frames."""
-    from engine.io.clip import open_clip
+    from ..io.clip import open_clip
 
     try:
         info = open_clip(shot.plate, start_frame=shot.start_frame)
@@ -257,7 +257,7 @@ def _in_range(shots_file: Path, shot: Shot, numbers: list[int]) -> list[int]:
     first, last = shot.frames
     for n in (first, last):
         if n not in numbers:
-            from engine.io.clip import frame_ranges
+            from ..io.clip import frame_ranges
 
             raise InputError(
                 shots_file,

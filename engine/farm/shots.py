@@ -35,8 +35,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from engine import contract as C
-from engine.errors import InputError
+from .. import contract as C
+from ..errors import InputError
 
 #: What a shot gets for a key neither it nor the defaults give.
 DEFAULT_PRESET = "balanced"
@@ -256,7 +256,7 @@ def _shot(file: Path, where: str, entry: dict[str, Any]) -> Shot:
 
 def _check_plate(file: Path, where: str, plate: str) -> None:
     """The plate exists (a folder or a movie), or is a pattern whose folder exists; what is in it the plan reads."""
-    from engine.io.clip import is_sequence_pattern
+    from ..io.clip import is_sequence_pattern
 
     if os.path.exists(plate):
         return
@@ -271,7 +271,7 @@ def _check_plate(file: Path, where: str, plate: str) -> None:
 
 def _check_overrides(file: Path, where: str, preset: str, overrides: tuple[str, ...]) -> None:
     """Each ``set`` entry as ``fit --set`` takes it: a known config key with a value of its type."""
-    from engine.config import apply_overrides, parse_set_args, preset_config
+    from ..config import apply_overrides, parse_set_args, preset_config
 
     try:
         apply_overrides(preset_config(preset), parse_set_args(list(overrides)))
@@ -282,7 +282,7 @@ def _check_overrides(file: Path, where: str, preset: str, overrides: tuple[str, 
 def _check_colorspace(file: Path, where: str, name: str) -> None:
     """The colour space as the workers' fit resolves it (the OCIO config in ``$OCIO``, else the built-in one):
     a name the config does not know fails here, not an hour into the farm."""
-    from engine.io.colour import resolve
+    from ..io.colour import resolve
 
     try:
         resolve(name, option="colorspace")
@@ -432,7 +432,7 @@ class _Values:
         if isinstance(value, bool) or not isinstance(value, int | float | str):
             raise self._bad(key, "a frame rate", '"24000/1001"')
         text = str(value)
-        from engine.io.timing import parse_rate
+        from ..io.timing import parse_rate
 
         try:
             rate = parse_rate(text)

@@ -8,8 +8,8 @@ from typing import Any
 
 import torch
 
-from engine.errors import InputError
-from engine.io.atomic import atomic_write
+from ..errors import InputError
+from ..io.atomic import atomic_write
 
 __all__ = ["CHECKPOINT_DAMAGED_FIX", "checkpoint_bytes", "load_checkpoint", "nonfinite_entries", "save_checkpoint"]
 

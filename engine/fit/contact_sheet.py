@@ -13,9 +13,9 @@ import cv2
 import numpy as np
 import torch
 
-from engine.data.video import frame_pixels
-from engine.io.atomic import atomic_write_bytes
-from engine.model.atlas_model import AtlasModel
+from ..data.video import frame_pixels
+from ..io.atomic import atomic_write_bytes
+from ..model.atlas_model import AtlasModel
 
 #: Atlas images in the sheet are rendered at this many pixels per side.
 ATLAS_PX = 384

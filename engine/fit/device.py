@@ -7,7 +7,7 @@ from collections.abc import Iterator
 
 import torch
 
-from engine.errors import InputError
+from ..errors import InputError
 
 
 def _mps_available() -> bool:

@@ -23,15 +23,15 @@ from typing import Any
 
 import torch
 
-from engine import contract as C
-from engine.config import PRESETS, FitConfig, apply_overrides, preset_config
-from engine.data.video import frame_pixels
-from engine.fit.device import select_device, synchronize, torch_threads
-from engine.fit.eta import PRE_TRAIN_SHARE
-from engine.fit.prepare import prepare_clip
-from engine.fit.progress import Reporter
-from engine.fit.trainer import EVAL_CHUNK, Trainer
-from engine.io.images import display_path
+from .. import contract as C
+from ..config import PRESETS, FitConfig, apply_overrides, preset_config
+from ..data.video import frame_pixels
+from ..io.images import display_path
+from .device import select_device, synchronize, torch_threads
+from .eta import PRE_TRAIN_SHARE
+from .prepare import prepare_clip
+from .progress import Reporter
+from .trainer import EVAL_CHUNK, Trainer
 
 #: The measured PSNR of each preset (data, with where it was measured): what ``estimate`` shows as expected.
 EXPECTED_PSNR_FILE = Path(__file__).with_name("expected_psnr.json")

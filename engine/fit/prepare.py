@@ -20,20 +20,20 @@ import cv2
 import numpy as np
 import torch
 
-from engine import contract as C
-from engine.config import FitConfig
-from engine.data.auto_masks import AutoMaskConfig, auto_masks, mask_folder, resize_masks, write_mask_files
-from engine.data.flow import DISFlow, FlowField, compute_flow
-from engine.data.long_flow import LongFlow, compute_long_flow, long_flow_gaps, long_flow_pairs
-from engine.data.mask_snap import MaskSnap, snap_masks
-from engine.data.scene_analysis import SceneAnalysis, analyse_scene
-from engine.data.scribbles import read_scribbles, scribble_layers
-from engine.data.video import VideoTensors, build_video_tensors
-from engine.errors import InputError
-from engine.fit.progress import Reporter
-from engine.fit.run_folder import ClipRecord, RunFolder
-from engine.io.clip import ClipInfo, open_clip, read_frames, read_frames_at, read_masks, working_size
-from engine.io.colour import legacy_linear_to_srgb, recorded_space, to_working
+from .. import contract as C
+from ..config import FitConfig
+from ..data.auto_masks import AutoMaskConfig, auto_masks, mask_folder, resize_masks, write_mask_files
+from ..data.flow import DISFlow, FlowField, compute_flow
+from ..data.long_flow import LongFlow, compute_long_flow, long_flow_gaps, long_flow_pairs
+from ..data.mask_snap import MaskSnap, snap_masks
+from ..data.scene_analysis import SceneAnalysis, analyse_scene
+from ..data.scribbles import read_scribbles, scribble_layers
+from ..data.video import VideoTensors, build_video_tensors
+from ..errors import InputError
+from ..io.clip import ClipInfo, open_clip, read_frames, read_frames_at, read_masks, working_size
+from ..io.colour import legacy_linear_to_srgb, recorded_space, to_working
+from .progress import Reporter
+from .run_folder import ClipRecord, RunFolder
 
 #: Characters of the frames' SHA-256 kept as the clip's fingerprint.
 FINGERPRINT_CHARS = 32

@@ -8,9 +8,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
-from engine import contract as C
-from engine.fit.eta import JobClock
-from engine.io.atomic import append_text
+from .. import contract as C
+from ..io.atomic import append_text
+from .eta import JobClock
 
 
 class Reporter:

@@ -22,10 +22,10 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from engine import contract as C
-from engine.config import START_FIELDS, FitConfig, preset_config, resume_changes
-from engine.errors import InputError
-from engine.fit.run_folder import RunFolder
+from .. import contract as C
+from ..config import START_FIELDS, FitConfig, preset_config, resume_changes
+from ..errors import InputError
+from .run_folder import RunFolder
 
 #: Loss phases measured in steps: kept as the fit ran them (a finished fit is past them).
 PHASE_FIELDS: tuple[str, ...] = ("bootstrap_steps", "global_rigidity_steps")

@@ -23,13 +23,13 @@ from typing import Any
 
 import torch
 
-from engine import contract as C
-from engine.config import LATER_FIELDS, RESUMABLE_FIELDS, START_FIELDS, FitConfig
-from engine.data.scene_analysis import SceneAnalysis
-from engine.errors import InputError
-from engine.fit.checkpoint import CHECKPOINT_DAMAGED_FIX, load_checkpoint, nonfinite_entries, save_checkpoint
-from engine.io.atomic import atomic_write_text
-from engine.io.clip import NumberedFrames
+from .. import contract as C
+from ..config import LATER_FIELDS, RESUMABLE_FIELDS, START_FIELDS, FitConfig
+from ..data.scene_analysis import SceneAnalysis
+from ..errors import InputError
+from ..io.atomic import atomic_write_text
+from ..io.clip import NumberedFrames
+from .checkpoint import CHECKPOINT_DAMAGED_FIX, load_checkpoint, nonfinite_entries, save_checkpoint
 
 #: The fix for a checkpoint that does not belong with the run folder's other files.
 FOREIGN_CHECKPOINT_FIX = "copy back this run's own checkpoint, or fit again with --refit (edits and exports are kept)"
@@ -200,7 +200,7 @@ def _relative(path: str, run_dir: str | Path) -> str | None:
 
 def _exists(path: str) -> bool:
     """Whether ``path`` is there: a file or folder, or a sequence pattern's folder (plate.####.exr)."""
-    from engine.io.clip import is_sequence_pattern
+    from ..io.clip import is_sequence_pattern
 
     return os.path.exists(path) or (is_sequence_pattern(path) and os.path.isdir(os.path.dirname(path) or "."))
 
@@ -233,7 +233,7 @@ def _same_input(a: str, b: str) -> bool:
     """Whether ``b`` looks like a copy of ``a``: the same file names in a folder (a sequence pattern: its folder)
     and, for the first file, the same size and first SAME_INPUT_BYTES bytes. Cheap, and enough to tell a copied
     plate from another shot's: anything more is the fingerprint's job on a resume."""
-    from engine.io.clip import is_sequence_pattern
+    from ..io.clip import is_sequence_pattern
 
     if is_sequence_pattern(a) and is_sequence_pattern(b):
         a, b = os.path.dirname(a) or ".", os.path.dirname(b) or "."

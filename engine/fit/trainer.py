@@ -24,25 +24,25 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from engine import contract as C
-from engine.config import LR_FIELDS, PRESETS, RESUMABLE_FIELDS, FitConfig, check_config, resume_changes
-from engine.data.long_flow import long_flow_gaps
-from engine.data.scene_analysis import SceneAnalysis
-from engine.data.scribbles import propagate_labels
-from engine.data.video import VideoTensors, frame_pixels, mask_hold_layers, sample_batch, sample_pixels
-from engine.errors import FitDiverged, InputError
-from engine.fit.checkpoint import nonfinite_entries
-from engine.fit.device import select_device, synchronize
-from engine.fit.eta import JobClock, StepClock
-from engine.fit.prepare import PreparedClip, prepare_clip
-from engine.fit.progress import Reporter, logged_fraction
-from engine.fit.run_folder import FOREIGN_CHECKPOINT_FIX, ClipRecord, RunFolder
-from engine.io.colour import recorded_space, resolve
-from engine.model.atlas_model import AtlasModel, FastModel, motion_regions
-from engine.model.losses import psnr_from_mse
-from engine.model.motion_init import LayerMotion, estimate_layer_motion
-from engine.model.objective import TARGET_RANGE, compute_losses
-from engine.model.paper_model import PaperModel
+from .. import contract as C
+from ..config import LR_FIELDS, PRESETS, RESUMABLE_FIELDS, FitConfig, check_config, resume_changes
+from ..data.long_flow import long_flow_gaps
+from ..data.scene_analysis import SceneAnalysis
+from ..data.scribbles import propagate_labels
+from ..data.video import VideoTensors, frame_pixels, mask_hold_layers, sample_batch, sample_pixels
+from ..errors import FitDiverged, InputError
+from ..io.colour import recorded_space, resolve
+from ..model.atlas_model import AtlasModel, FastModel, motion_regions
+from ..model.losses import psnr_from_mse
+from ..model.motion_init import LayerMotion, estimate_layer_motion
+from ..model.objective import TARGET_RANGE, compute_losses
+from ..model.paper_model import PaperModel
+from .checkpoint import nonfinite_entries
+from .device import select_device, synchronize
+from .eta import JobClock, StepClock
+from .prepare import PreparedClip, prepare_clip
+from .progress import Reporter, logged_fraction
+from .run_folder import FOREIGN_CHECKPOINT_FIX, ClipRecord, RunFolder
 
 #: Pixels per forward chunk when evaluating whole frames (bounds memory of the evaluation).
 EVAL_CHUNK = 65536
@@ -394,7 +394,7 @@ def diverged_message(error: NonFinite, cfg: FitConfig, run: RunFolder, checkpoin
     return (
         f"{run.path}: the fit diverged at {error} — likely cause: {cause}; the checkpoint keeps step "
         f"{checkpoint_step}, the last good one: continue from it with a lower rate: "
-        f"python -m engine fit --resume --out {shlex.quote(str(run.path))} {sets}"
+        f"python -m {C.CLI_MODULE} fit --resume --out {shlex.quote(str(run.path))} {sets}"
     )
 
 

@@ -23,8 +23,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from engine import contract as C
-from engine.errors import DiskFullError, InputError
+from .. import contract as C
+from ..errors import DiskFullError, InputError
 
 #: OS errors that mean "the disk is full" (no space, quota, file too large).
 DISK_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})

@@ -38,11 +38,11 @@ import fileseq
 import numpy as np
 import OpenImageIO as oiio
 
-from engine import contract as C
-from engine.errors import InputError
-from engine.io import colour
-from engine.io.images import check_declared_size, open_image_input
-from engine.io.timing import Timecode, exact_rate, pixel_aspect, timecode_at
+from .. import contract as C
+from ..errors import InputError
+from . import colour
+from .images import check_declared_size, open_image_input
+from .timing import Timecode, exact_rate, pixel_aspect, timecode_at
 
 IMAGE_EXTENSIONS: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".exr", ".dpx", ".tif", ".tiff")
 MOVIE_EXTENSIONS: tuple[str, ...] = (".mp4", ".mov", ".mkv", ".avi", ".webm", ".m4v")

@@ -36,9 +36,9 @@ import numpy as np
 import OpenEXR
 import OpenImageIO as oiio
 
-from engine import contract as C
-from engine.errors import InputError
-from engine.io.images import native_path
+from .. import contract as C
+from ..errors import InputError
+from .images import native_path
 
 #: OpenImageIO's built-in config (the ACES CG config), used when ``$OCIO`` is not set.
 BUILTIN_CONFIG = C.COLOUR_BUILTIN_CONFIG

@@ -26,9 +26,9 @@ import numpy as np
 import OpenEXR
 import OpenImageIO as oiio
 
-from engine.errors import InputError
-from engine.io.atomic import atomic_write, signals_held
-from engine.io.timing import timecode_at
+from ..errors import InputError
+from .atomic import atomic_write, signals_held
+from .timing import timecode_at
 
 #: Every image is decoded as float32: the bytes per channel a decode allocates, whatever the file stores.
 DECODED_BYTES_PER_CHANNEL = 4

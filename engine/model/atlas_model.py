@@ -14,11 +14,11 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from engine import contract as C
-from engine.config import FitConfig
-from engine.data.video import far_outside, mask_core
-from engine.model.fields import MLP, Grid2D, Grid3D, level_resolutions
-from engine.model.motion_init import LayerMotion
+from .. import contract as C
+from ..config import FitConfig
+from ..data.video import far_outside, mask_core
+from .fields import MLP, Grid2D, Grid3D, level_resolutions
+from .motion_init import LayerMotion
 
 #: Alpha is squeezed into [ALPHA_FLOOR, ALPHA_FLOOR + ALPHA_SPAN] like the reference (0.001 .. 0.991),
 #: so log(alpha) and log(1 - alpha) stay finite without relying on clamps.

@@ -17,7 +17,7 @@ from functools import partial
 import cv2
 import numpy as np
 
-from engine.data.flow import FlowField
+from ..data.flow import FlowField
 
 #: Fewer reliable flow vectors than this in a layer's region: that pair's motion is taken as identity.
 MIN_POINTS = 12

@@ -10,10 +10,10 @@ from collections.abc import Callable
 
 import torch
 
-from engine.config import FitConfig, loss_weights
-from engine.data.video import PRIOR_IGNORE, VideoTensors, mask_hold_layers, sample_long_flow
-from engine.model import losses as L
-from engine.model.atlas_model import AtlasModel
+from ..config import FitConfig, loss_weights
+from ..data.video import PRIOR_IGNORE, VideoTensors, mask_hold_layers, sample_long_flow
+from . import losses as L
+from .atlas_model import AtlasModel
 
 #: What a reconstruction can reach: a convex combination of atlas colours in [0, 1]. Plate values outside
 #: it (a linear EXR's highlights, display-encoded, stay far above 1) cannot be fitted, so the colour and

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import torch
 
-from engine.config import FitConfig
-from engine.model.atlas_model import ALPHA_FLOOR, ALPHA_SPAN, AtlasModel
-from engine.model.fields import MLP, PositionalEncoding
+from ..config import FitConfig
+from .atlas_model import ALPHA_FLOOR, ALPHA_SPAN, AtlasModel
+from .fields import MLP, PositionalEncoding
 
 HIDDEN = 256
 #: Linear layers of the background and foreground mappings, the atlas and the alpha MLPs (each HIDDEN wide).

@@ -46,8 +46,11 @@ def test_unknown_event_is_refused():
         C.progress_line("exploded")
 
 
-def test_requirements_are_pinned_where_it_matters():
-    reqs = dict(r.split("==", 1) if "==" in r else (r, "") for r in C.ENGINE_REQUIREMENTS)
-    assert reqs["torch"] == "2.13.0"
-    assert any(r.startswith("numpy") and "<2" in r for r in C.ENGINE_REQUIREMENTS)
-    assert any(r.startswith("openimageio==3.0") for r in C.ENGINE_REQUIREMENTS)
+def test_the_constraints_pin_torch_and_the_ranges_keep_numpy_1_and_openimageio_3_0():
+    """torch exactly (an unpinned torch pulls a multi-GB CUDA build onto machines without a GPU); numpy 1.x for bpy
+    4.5/5.0; OpenImageIO 3.0.x, as 3.1 needs numpy 2. Read from the files the add-on and run.sh install."""
+    pins = dict(line.split("==", 1) for line in C.requirement_lines(C.CONSTRAINTS_FILE))
+    assert pins["torch"] == "2.13.0"
+    assert "numpy>=1.26,<2" in C.ENGINE_REQUIREMENTS
+    assert "openimageio>=3.0,<3.1" in C.ENGINE_REQUIREMENTS
+    assert C.CONSTRAINTS_PATH.is_file() and C.CONSTRAINTS_PATH.parent.name == "engine"

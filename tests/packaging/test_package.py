@@ -1,10 +1,12 @@
-"""The engine as a Python package: ``pip install .`` and a wheel build give the ``neural-atlas`` command.
+"""The engine as a Python package: ``pip install .`` and a wheel build give the ``neural-atlas`` command and the
+import package ``neural_atlas`` (the repository's ``engine/`` under a name of its own), with compatible ranges as
+its requirements and the exact versions tested in ``engine/constraints.txt``.
 
 Offline and in seconds: the source is a copy of the checkout (so a build leaves no ``build/`` or ``*.egg-info``
 in it), built with ``--no-build-isolation`` (setuptools from this venv) and installed with ``--no-deps`` into a
 fresh virtual environment whose one ``.pth`` line makes this venv's installed packages (torch, OpenImageIO, ...)
-importable, so nothing is downloaded. That the declared dependencies are exactly the pins the add-on installs is
-checked on pyproject.toml and on the built wheel's metadata.
+importable, so nothing is downloaded; a dummy package named ``engine`` is installed beside it, as another
+project's would be.
 """
 
 from __future__ import annotations
@@ -17,10 +19,13 @@ import sysconfig
 import tomllib
 import venv
 import zipfile
+from importlib import metadata
 from pathlib import Path
 
 import pytest
 from packaging.requirements import Requirement
+from packaging.utils import canonicalize_name
+from packaging.version import Version
 
 from engine import contract as C
 from engine.cli import CONSOLE_SCRIPT
@@ -28,6 +33,9 @@ from tests.paths import ROOT
 
 PYPROJECT = ROOT / "pyproject.toml"
 WHEEL_NAME = f"neural_atlas-{C.ENGINE_VERSION}-py3-none-any.whl"
+#: The installed import package (pyproject.toml maps it onto engine/).
+PACKAGE = C.INSTALLED_MODULE
+ENTRY_POINT = f"{PACKAGE}.cli:console_main"
 #: What a copy of the checkout leaves out: environments, caches, outputs of earlier builds and runs.
 NOT_SOURCE = shutil.ignore_patterns(
     ".venv*", ".git", "__pycache__", "*.pyc", ".*_cache", "build", "dist", "*.egg-info", "runs", "demo_out"
@@ -46,12 +54,46 @@ def _requirements(lines: list[str] | tuple[str, ...]) -> list[tuple[str, str, st
     return out
 
 
-def test_declared_dependencies_are_the_contract_pins_character_for_character():
-    project = tomllib.loads(PYPROJECT.read_text(encoding="utf-8"))["project"]
-    assert project["dependencies"] == list(C.ENGINE_REQUIREMENTS)
-    assert project["optional-dependencies"] == {"farm": list(C.FARM_REQUIREMENTS)}
+def _constraints() -> dict[str, Version]:
+    """engine/constraints.txt: canonical name -> exact version."""
+    pins = {}
+    for line in C.requirement_lines(C.CONSTRAINTS_FILE):
+        req = Requirement(line)
+        (spec,) = req.specifier
+        assert spec.operator == "==", line
+        pins[canonicalize_name(req.name)] = Version(spec.version)
+    return pins
+
+
+def test_pyproject_reads_the_requirements_from_the_engines_files_and_lists_every_package():
+    pyproject = tomllib.loads(PYPROJECT.read_text(encoding="utf-8"))
+    project, setuptools = pyproject["project"], pyproject["tool"]["setuptools"]
+    assert project["dynamic"] == ["dependencies", "optional-dependencies"]
+    assert setuptools["dynamic"]["dependencies"] == {"file": [f"engine/{C.REQUIREMENTS_FILE}"]}
+    assert setuptools["dynamic"]["optional-dependencies"] == {"farm": {"file": [f"engine/{C.FARM_REQUIREMENTS_FILE}"]}}
     assert project["name"] == "neural-atlas" and project["version"] == C.ENGINE_VERSION
-    assert project["scripts"] == {CONSOLE_SCRIPT: "engine.cli:console_main"}
+    assert project["scripts"] == {CONSOLE_SCRIPT: ENTRY_POINT}
+    assert setuptools["package-dir"] == {PACKAGE: "engine"}
+    # every folder of engine/ with Python in it, less the bench, is a package of the wheel
+    folders = {p.parent for p in (ROOT / "engine").rglob("*") if p.suffix in (".py", ".js")}
+    folders = {f.relative_to(ROOT / "engine").parts for f in folders if "__pycache__" not in f.parts}
+    assert sorted(setuptools["packages"]) == sorted(
+        ".".join((PACKAGE, *parts)) for parts in folders if parts[:1] != ("bench",)
+    )
+
+
+def test_requirements_are_ranges_and_the_constraints_pin_each_inside_its_range():
+    """A library install gets ranges (no ``==``); the constraints file pins every requirement, the farm's too,
+    to one version inside its range, and this test environment holds exactly the pinned versions."""
+    pins = _constraints()
+    for line in C.ENGINE_REQUIREMENTS + C.FARM_REQUIREMENTS:
+        req = Requirement(line)
+        assert req.specifier and all(s.operator in (">=", "<", "~=", "!=", "<=") for s in req.specifier), line
+        assert canonicalize_name(req.name) in pins, f"{req.name} has no exact version in {C.CONSTRAINTS_FILE}"
+        assert req.specifier.contains(pins[canonicalize_name(req.name)]), (line, pins[canonicalize_name(req.name)])
+    for name, version in pins.items():
+        installed = Version(metadata.version(name))
+        assert Version(installed.public) == version, f"{name}: {installed} installed, {version} pinned"
 
 
 @pytest.fixture(scope="module")
@@ -70,11 +112,11 @@ def wheel(source, tmp_path_factory) -> Path:
     return out / WHEEL_NAME
 
 
-def test_wheel_holds_the_engine_and_nothing_else(wheel):
+def test_wheel_holds_the_engine_under_its_own_name_and_nothing_else(wheel):
     names = zipfile.ZipFile(wheel).namelist()
     dist_info = f"neural_atlas-{C.ENGINE_VERSION}.dist-info"
-    assert {n.split("/")[0] for n in names} == {"engine", dist_info}
-    engine_files = {n for n in names if n.startswith("engine/")}
+    assert {n.split("/")[0] for n in names} == {PACKAGE, dist_info}
+    engine_files = {"engine/" + n.split("/", 1)[1] for n in names if n.startswith(f"{PACKAGE}/")}
     # every file of the engine in the checkout (a data file too: pyproject.toml's package-data must name it)
     files = [p.relative_to(ROOT).as_posix() for p in (ROOT / "engine").rglob("*") if p.is_file()]
     files = [f for f in files if "__pycache__" not in f and not f.startswith(NOT_SHIPPED)]
@@ -83,11 +125,12 @@ def test_wheel_holds_the_engine_and_nothing_else(wheel):
     ).stdout.split()
     expected = set(files) - set(ignored)
     assert engine_files == expected
-    assert {"engine/py.typed", "engine/fit/expected_psnr.json", "engine/cli.py"} <= engine_files
+    shipped = {"engine/py.typed", "engine/fit/expected_psnr.json", "engine/cli.py", "engine/constraints.txt"}
+    assert shipped <= engine_files
     assert not any(n.startswith(NOT_SHIPPED) for n in names)
 
 
-def test_wheel_metadata_declares_the_pins_and_the_command(wheel):
+def test_wheel_metadata_declares_the_ranges_and_the_command(wheel):
     z = zipfile.ZipFile(wheel)
     dist_info = f"neural_atlas-{C.ENGINE_VERSION}.dist-info"
     metadata = z.read(f"{dist_info}/METADATA").decode("utf-8").splitlines()
@@ -101,12 +144,18 @@ def test_wheel_metadata_declares_the_pins_and_the_command(wheel):
     assert "Requires-Python: >=3.11" in metadata
     assert "License-Expression: GPL-3.0-or-later" in metadata
     entry_points = z.read(f"{dist_info}/entry_points.txt").decode("utf-8").split()
-    assert entry_points == ["[console_scripts]", CONSOLE_SCRIPT, "=", "engine.cli:console_main"]
+    assert entry_points == ["[console_scripts]", CONSOLE_SCRIPT, "=", ENTRY_POINT]
+    assert not any(s.operator == "==" for r in requires for s in Requirement(r).specifier)
+
+
+#: Another project's top-level ``engine`` package, installed beside ours.
+DUMMY_ENGINE = "WHO = 'another project'\n"
 
 
 @pytest.fixture(scope="module")
 def installed(source, tmp_path_factory) -> Path:
-    """A fresh venv with ``pip install .`` done in it (this venv's packages reachable through one .pth line)."""
+    """A fresh venv with ``pip install .`` done in it (this venv's packages reachable through one .pth line), after
+    another project that installs a top-level package named ``engine``."""
     env_dir = tmp_path_factory.mktemp("venv") / "env"
     venv.EnvBuilder(with_pip=False).create(env_dir)
     python = env_dir / "bin" / "python"
@@ -117,9 +166,18 @@ def installed(source, tmp_path_factory) -> Path:
         check=True,
     ).stdout.strip()
     (Path(site) / "reuse_test_venv.pth").write_text(sysconfig.get_paths()["purelib"] + "\n", encoding="utf-8")
-    argv = [str(python), "-m", "pip", "install", "--no-deps", "--no-build-isolation", "--no-index", "."]
-    proc = subprocess.run(argv, capture_output=True, text=True, timeout=PIP_TIMEOUT, cwd=source)
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    other = tmp_path_factory.mktemp("other") / "other-engine"
+    (other / "engine").mkdir(parents=True)
+    (other / "engine" / "__init__.py").write_text(DUMMY_ENGINE, encoding="utf-8")
+    (other / "pyproject.toml").write_text(
+        '[build-system]\nrequires = ["setuptools"]\nbuild-backend = "setuptools.build_meta"\n'
+        '[project]\nname = "other-engine"\nversion = "1.0"\n[tool.setuptools]\npackages = ["engine"]\n',
+        encoding="utf-8",
+    )
+    argv = [str(python), "-m", "pip", "install", "--no-deps", "--no-build-isolation", "--no-index"]
+    for folder in (other, source):
+        proc = subprocess.run([*argv, str(folder)], capture_output=True, text=True, timeout=PIP_TIMEOUT, cwd=folder)
+        assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     return env_dir
 
 
@@ -141,6 +199,8 @@ def test_pip_install_gives_the_neural_atlas_command_with_the_engines_verbs(insta
     assert helped.stdout == module.stdout.replace("python -m engine", CONSOLE_SCRIPT)
     for verb in (C.VERB_FIT, C.VERB_ESTIMATE, C.VERB_EXPORT, C.VERB_RENDER, C.VERB_PROJECT_FRAME, C.VERB_MASKS):
         assert f"    {verb}" in helped.stdout, verb
+    as_module = _run(installed, str(installed / "bin" / "python"), "-m", PACKAGE, "--help")
+    assert as_module.stdout == module.stdout.replace("python -m engine", f"python -m {PACKAGE}")
     version = _run(installed, str(command), "--version")
     assert version.stdout.strip() == f"neural-atlas engine {C.ENGINE_VERSION}"
     render = _run(installed, str(command), C.VERB_RENDER, "--help")
@@ -151,19 +211,24 @@ def test_pip_install_gives_the_neural_atlas_command_with_the_engines_verbs(insta
 
 
 def test_installed_engine_is_the_package_not_the_checkout(installed):
-    """Every module of the installed engine imports from the venv (its data file and py.typed beside it)."""
+    """Every module of the installed engine imports from the venv (its data files and py.typed beside it), beside
+    another project's ``engine``, which stays that project's; the engine's farm tasks name the installed package."""
     script = (
-        "import importlib, pkgutil, engine, pathlib\n"
-        "mods = [m.name for m in pkgutil.walk_packages(engine.__path__, 'engine.')]\n"
+        "import importlib, pkgutil, pathlib, engine, neural_atlas\n"
+        "from neural_atlas import contract\n"
+        "mods = [m.name for m in pkgutil.walk_packages(neural_atlas.__path__, 'neural_atlas.')]\n"
         "mods = [m for m in mods if not m.endswith('__main__')]\n"
         "[importlib.import_module(m) for m in mods]\n"
-        "root = pathlib.Path(engine.__file__).parent\n"
+        "root = pathlib.Path(neural_atlas.__file__).parent\n"
         "print(root)\n"
         "print(len(mods), (root / 'py.typed').is_file(), (root / 'fit' / 'expected_psnr.json').is_file())\n"
+        "print(engine.WHO, contract.CLI_MODULE, len(contract.ENGINE_REQUIREMENTS), "
+        "contract.CONSTRAINTS_PATH.is_file())\n"
     )
     proc = _run(installed, str(installed / "bin" / "python"), "-c", script)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    root, counts = proc.stdout.split("\n")[:2]
+    root, counts, names = proc.stdout.split("\n")[:3]
     assert Path(root).is_relative_to(installed)
+    assert names == f"another project {PACKAGE} {len(C.ENGINE_REQUIREMENTS)} True"
     shipped = [p for p in (ROOT / "engine").rglob("*.py") if "bench" not in p.parts and p.name != "__main__.py"]
     assert counts == f"{len(shipped) - 1} True True"  # every module but engine/__init__.py itself

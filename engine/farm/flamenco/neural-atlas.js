@@ -12,7 +12,9 @@
 // cannot hold nested values. This script only maps the plan onto Flamenco's tasks, so every farm runs the very
 // same command lines; it never builds arguments of its own.
 //
-// Each task runs one `exec` command:  {neural_atlas_python} -m engine ARGS...
+// Each task runs one `exec` command:  {neural_atlas_python} -m MODULE ARGS... (MODULE: the plan's "module", the
+// engine's import name on the submitting machine: `engine` from a checkout or the extension, `neural_atlas` from
+// the wheel; "engine" when a plan has none)
 //   - `{neural_atlas_python}` is a Manager variable (flamenco-manager.yaml, `variables:`), one value per worker
 //     platform: the Python in which `python -m engine` runs on that worker.
 //   - Task types: "neural-atlas" for tasks that run anywhere (masks, export publish, render, preview) and
@@ -56,7 +58,7 @@ function compileJob(job) {
         const task = author.Task(step.id, step.accelerator ? TASK_TYPE_GPU : TASK_TYPE);
         task.addCommand(author.Command("exec", {
             exe: PYTHON_EXE,
-            args: ["-m", "engine"].concat(step.args),
+            args: ["-m", plan.module].concat(step.args),
         }));
         for (const dep of step.depends) {
             task.addDependency(authored.get(dep));
@@ -89,6 +91,12 @@ function parsePlan(text, shot) {
     }
     if (plan.shot !== shot) {
         throw bad(`the plan is for shot ${JSON.stringify(plan.shot)}`);
+    }
+    if (plan.module === undefined) {
+        plan.module = "engine";
+    }
+    if (typeof plan.module !== "string" || !/^[A-Za-z_][A-Za-z0-9_]*$/.test(plan.module)) {
+        throw bad(`the plan's module ${JSON.stringify(plan.module)} is not a Python module name`);
     }
     if (!Array.isArray(plan.tasks) || plan.tasks.length === 0) {
         throw bad("the plan has no tasks");

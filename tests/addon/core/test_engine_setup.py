@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import sys
 import time
+from pathlib import Path
 
 from helpers import HERE, fake_python, stand_in_pip
 from neural_atlas.addon.core import engine_commands as EC
@@ -20,6 +21,10 @@ def test_setup_commands_install_the_contract_requirements():
     argv = ES.pip_install_argv("/x/bin/python")
     assert argv[:4] == ["/x/bin/python", "-m", "pip", "install"]
     assert tuple(argv[-len(C.ENGINE_REQUIREMENTS) :]) == C.ENGINE_REQUIREMENTS
+    # at the exact versions tested: the constraints file the extension ships beside the contract
+    constraints = argv[argv.index("-c") + 1]
+    assert constraints == f"{EC.extension_root()}/engine/constraints.txt"
+    assert "torch==2.13.0" in Path(constraints).read_text(encoding="utf-8").split()
     assert EC.engine_argv("py", "fit", "a") == ["py", "-m", "engine", "fit", "a"]
     cpu = ES.pip_install_argv("/x/bin/python", ES.torch_choice(ES.TORCH_CPU, "linux"))
     assert cpu[cpu.index("--extra-index-url") + 1] == "https://download.pytorch.org/whl/cpu"

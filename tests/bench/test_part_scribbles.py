@@ -1,0 +1,75 @@
+"""Strokes drawn from part masks, as a user scribbles: inside each part, away from its edge, in the part's colour,
+read back by the engine's own scribble reader as that part's layer."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from engine import contract as C
+from engine.bench.motion_scenes import PART_MASKS, write_motion_clips
+from engine.bench.paint_table import run_paint_table
+from engine.bench.part_scribbles import INSET_PX, part_stroke, write_part_scribbles
+from engine.data.scribbles import NO_LABEL, read_scribbles
+from engine.io.clip import open_clip
+
+
+def test_a_stroke_runs_along_the_long_axis_inside_the_part_away_from_its_edge():
+    mask = np.zeros((60, 100), bool)
+    mask[20:40, 10:90] = True  # a bar 80 wide, 20 tall
+    stroke = part_stroke(mask)
+    ys, xs = np.nonzero(stroke)
+    assert (xs.max() - xs.min()) > 40 and (ys.max() - ys.min()) <= 6  # along the bar, not across it
+    inner = cv2.erode(mask.astype(np.uint8), np.ones((2 * INSET_PX + 1,) * 2, np.uint8)) > 0
+    assert (stroke <= inner).all()
+
+
+def test_an_empty_part_has_no_stroke_and_a_tiny_one_keeps_a_pixel():
+    assert not part_stroke(np.zeros((20, 20), bool)).any()
+    tiny = np.zeros((20, 20), bool)
+    tiny[9:11, 9:11] = True
+    stroke = part_stroke(tiny)
+    assert stroke.any() and (stroke <= tiny).all()
+
+
+def test_the_engine_reads_each_parts_strokes_as_its_layer(tmp_path):
+    root = tmp_path / "scenes"
+    write_motion_clips(root, width=96, height=64, frames=5, kinds=("limbs_jump",))
+    clip = root / "limbs_jump"
+    parts = sorted(p for p in (clip / PART_MASKS).iterdir() if p.is_dir())
+    folder, drawn = write_part_scribbles(parts, tmp_path / "scribbles")
+    assert drawn == [0, 2, 4]
+    info = open_clip(str(clip / "frames"))
+    labels = read_scribbles(folder, info, (info.width, info.height))
+    for i in range(5):
+        if i not in drawn:
+            assert (labels[i] == NO_LABEL).all()
+            continue
+        for k, part in enumerate(parts):
+            mask = cv2.imread(str(sorted(part.iterdir())[i]), cv2.IMREAD_GRAYSCALE) > 127
+            assert (labels[i] == k).any() and (mask[labels[i] == k]).all()
+    again = {p.name: p.read_bytes() for p in folder.iterdir()}
+    write_part_scribbles(parts, folder)
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == again
+
+
+def test_one_part_or_too_many_is_refused(tmp_path):
+    most = len(C.SCRIBBLE_COLOURS)
+    with pytest.raises(ValueError, match=rf"2\.\.{most} parts, not 1"):
+        write_part_scribbles([tmp_path], tmp_path / "s")
+    with pytest.raises(ValueError, match=rf"not {most + 1}"):
+        write_part_scribbles([tmp_path] * (most + 1), tmp_path / "s")
+
+
+def test_the_table_fits_the_one_mask_split_by_the_strokes(tmp_path):
+    root = tmp_path / "scenes"
+    write_motion_clips(root, width=96, height=64, frames=4, kinds=("limbs_jump",))
+    sets = ["steps=20", "bootstrap_steps=20", "global_rigidity_steps=5"]
+    record = run_paint_table(root, tmp_path / "out", sets=sets, threads=1, scribbles=True, log=lambda _: None)
+    (row,) = record["rows"]
+    assert row["layers"] == 3 and row["scribbles"] == str(tmp_path / "out" / "scribbles" / "limbs_jump")
+    clip_json = (tmp_path / "out" / "runs" / "limbs_jump" / C.RUN_CLIP).read_text()
+    assert "scribbles" in clip_json and str(root / "limbs_jump" / "masks") in clip_json
+    with pytest.raises(ValueError, match="choose one"):
+        run_paint_table(root, tmp_path / "o2", parts=True, scribbles=True)
