@@ -7,7 +7,7 @@ import bpy
 
 from . import blend_paths, ops, preferences, preview, properties, save_paint, ui
 from .core import running
-from .ops import frame_paint
+from .ops import frame_paint, import_run
 
 classes = (*properties.classes, *preferences.classes, *ops.classes, *ui.classes)
 
@@ -21,9 +21,12 @@ def _cancel_jobs(*_args) -> None:
 @bpy.app.handlers.persistent
 def _fresh_file(*_args) -> None:
     """``load_post`` (File > Open, Revert, another shot): what the add-on remembers of the file that was open is
-    forgotten, so the live preview shows the loaded file's paint and Land reads its frame paint afresh."""
+    forgotten, so the live preview shows the loaded file's paint and Land reads its frame paint afresh; a file saved
+    before a refine follows the export its paint was re-aligned to (``import_run.follow_realigned``)."""
     preview.forget_copies()
     frame_paint.forget_painted()
+    if bpy.context.scene is not None:
+        import_run.follow_realigned(bpy.context)
 
 
 #: The add-on's handlers of file events: (the handler list, the handler); each persistent (a load keeps it).

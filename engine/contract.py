@@ -776,7 +776,9 @@ def frame_padding(frame_files: list[str] | tuple[str, ...], frame_numbers: list[
 #:           (MANIFEST_OPTIONAL_FIELDS; absent: none stated): "rate": [num, den]|None (the exact frame rate, 24000/1001
 #:           for 23.976; "fps" is its float), "pixel_aspect": number (2.0: 2x anamorphic), "timecode": str|None (SMPTE
 #:           "HH:MM:SS:FF" of first_frame), "start_frame": int (a movie's number of its first frame: frame_numbers are
-#:           start_frame + the frame's index)},
+#:           start_frame + the frame's index), "source_absolute": str and "frame_files_absolute": [str] (optional:
+#:           the same plate paths, absolute as at export; where the relative ones name nothing, a run folder moved
+#:           alone, ``plate_path`` takes these)},
 #:  "passes": {"dir": str, "pattern": "atlas.{frame:04d}.exr" (padded as the plate's frames: ``pass_pattern``),
 #:             "blender_pattern": "atlas.####.exr" (the same for Blender: ``blender_pattern``),
 #:             "frames": [int] (plate frame numbers exported, each one of the clip's), "exr_layer": "Atlas",
@@ -827,6 +829,8 @@ MANIFEST_OPTIONAL_FIELDS: dict[str, dict[str, str]] = {
         "pixel_aspect": "number",
         "timecode": "str or null",
         "start_frame": "int",
+        "source_absolute": "str",
+        "frame_files_absolute": "str list",
     },
     "fit": {"alpha_iou": "number list or null"},
 }
@@ -1113,6 +1117,50 @@ def resolve_manifest_path(manifest_path: str, path: str) -> str:
         return path
     folder = os.path.realpath(os.path.dirname(os.path.abspath(manifest_path)))
     return os.path.normpath(os.path.join(folder, path))
+
+
+#: What makes a file name a sequence pattern (``plate.####.exr``, ``plate.@@@@.exr``, ``plate.%04d.exr``).
+SEQUENCE_TOKEN = re.compile(r"[#@]|%0?\d*d")
+
+
+def _names_something(path: str) -> bool:
+    """A file or folder that exists, or a sequence pattern whose folder does."""
+    return os.path.exists(path) or (
+        SEQUENCE_TOKEN.search(os.path.basename(path)) is not None and os.path.isdir(os.path.dirname(path))
+    )
+
+
+def resolve_plate_path(manifest_path: str, clip: dict[str, Any], index: int | None = None) -> str:
+    """The manifest's plate to READ (``index`` None: its ``source``; else ``frame_files[index]``): as
+    ``resolve_manifest_path``; where that names nothing but the path as it was at export (``source_absolute``,
+    ``frame_files_absolute``) does, that one: a run folder moved alone still finds the plate it left behind."""
+    if index is None:
+        relative, absolute = clip["source"], clip.get("source_absolute")
+    else:
+        relative = clip["frame_files"][index]
+        kept = clip.get("frame_files_absolute")
+        absolute = kept[index] if isinstance(kept, list) and len(kept) == len(clip["frame_files"]) else None
+    here = resolve_manifest_path(manifest_path, relative)
+    if isinstance(absolute, str) and not _names_something(here) and _names_something(absolute):
+        return absolute
+    return here
+
+
+def read_aligned_export(run_dir: str) -> str | None:
+    """The export (``vNNN``) the run's edit layers match, as ``edits/aligned.json`` records it; None when there is no
+    record. ValueError when the file is there but is not a record."""
+    path = os.path.join(run_dir, EDITS_DIR, EDITS_ALIGNED)
+    if not os.path.exists(path):
+        return None
+    try:
+        with open(path, encoding="utf-8") as f:
+            data = json.load(f)
+        version = data["export"] if data.get(EDITS_ALIGNED_TAG) == 1 else None
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        version = None
+    if not isinstance(version, str) or not re.fullmatch(r"v\d{3,}", version):
+        raise ValueError(f"{path}: is not an edit-alignment record")
+    return version
 
 
 def manifest_run_root(manifest_path: str) -> str:

@@ -28,6 +28,24 @@ SAVE_EDITS_HOLDER = "Blender Save Edits"
 FLOAT_EDITS_HOLDER = "Blender Float Edit Layers"
 
 
+def realigned_manifest(manifest_path: str) -> str | None:
+    """The manifest of the export the run's edit layers were re-aligned to, when that is another export of the same
+    run than ``manifest_path``'s (a refine carried the paint on, and the .blend was not saved after it) and it is
+    there; None otherwise (no record, an unreadable one, the same export, a manifest outside a run's exports)."""
+    folder = os.path.dirname(os.path.abspath(manifest_path))
+    if os.path.basename(os.path.dirname(folder)) != C.EXPORTS_DIR:
+        return None
+    run = C.manifest_run_root(manifest_path)
+    try:
+        version = C.read_aligned_export(run)
+    except ValueError:
+        return None
+    if version is None or version == os.path.basename(folder):
+        return None
+    newer = os.path.join(run, C.EXPORTS_DIR, version, C.MANIFEST_NAME)
+    return newer if os.path.isfile(newer) else None
+
+
 class RunFiles:
     """The Run Folder ``run_dir`` (absolute, no trailing separator) and the add-on's files beside it."""
 

@@ -260,14 +260,14 @@ def plan_tree(
 
     if clip["kind"] == "sequence":
         numbers = list(clip["frame_numbers"])
-        files = list(clip["frame_files"])
         if first not in numbers:
             raise PlanError(f"plate has no frame {first}; export frames that exist in the clip")
-        plate_file = plate_path(manifest_path, files[numbers.index(first)], "plate frame", known_plate)
+        at_first = C.resolve_plate_path(manifest_path, clip, numbers.index(first))  # moved alone: as at export
+        plate_file = plate_path(manifest_path, at_first, "plate frame", known_plate)
         plate = ImageSpec(PLATE_CLIP, plate_file, plate_colorspace(clip, colorspaces), True, first, count)
     else:
         # scene frame F shows the movie's frame numbered F: its first frame is numbered start_frame (0 by default)
-        movie = plate_path(manifest_path, clip["source"], "plate movie", known_plate)
+        movie = plate_path(manifest_path, C.resolve_plate_path(manifest_path, clip), "plate movie", known_plate)
         start = int(clip.get("start_frame", 0))
         plate = ImageSpec(PLATE_CLIP, movie, plate_colorspace(clip, colorspaces), False, start, count)
 

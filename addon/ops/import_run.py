@@ -51,6 +51,32 @@ def import_manifest(
     return plan
 
 
+#: What follow_realigned's import is called in a refusal line.
+OPEN_ACTION = "Open"
+
+
+def follow_realigned(context: Any) -> str | None:
+    """After a file is opened: when a refine re-aligned the run's edit layers to a later export than the one the file
+    imported (Refine imports it, but the .blend was not saved after), that export is imported, so the paint on disk
+    shows through the mapping it was carried onto and never through the old one. Returns the line it said (also the
+    panel's status), None when there was nothing to do."""
+    props = context.scene.neural_atlas
+    if not props.manifest:
+        return None
+    newer = run_files.realigned_manifest(abspath(props.manifest))
+    if newer is None:
+        return None
+    try:
+        import_manifest(context, newer, action=OPEN_ACTION)
+    except (*IMPORT_ERRORS, RuntimeError) as exc:
+        line = f"the edit layers were re-aligned to {newer} by a refine, which could not be imported: {exc}"
+    else:
+        line = f"the edit layers were re-aligned by a refine: imported {newer}"
+    props.status = line
+    print(f"Neural Atlas: {line}")
+    return line
+
+
 def set_run_folder(context: Any, manifest_path: str) -> bool:
     """The panel's Run Folder becomes the imported export's run (``run_files.imported_run_dir``), so Refine continues
     the fit the atlas came from; left alone when it names that folder already or the manifest lies outside a run's

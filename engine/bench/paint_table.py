@@ -45,6 +45,7 @@ from engine.bench.motion_scenes import GT_UV_NPZ, PART_MASKS, TEXTURE_PNG
 from engine.bench.paint_tracking import score_export
 from engine.bench.report_file import read_tracks
 from engine.bench.sharpness import MSE_FLOOR, atlas_sharpness
+from engine.bench.tracking import Tracks
 from engine.errors import InputError
 from engine.export.manifest import Manifest
 from engine.io.atomic import atomic_write_text
@@ -179,12 +180,31 @@ def flow_baseline(frames: Path, tracks_path: Path, cache: Path) -> dict:
     return report
 
 
+def part_queries(folder: Path, tracks: Tracks) -> dict[str, np.ndarray]:
+    """bool [N] per part of ``masks_parts/PART/``: the tracks whose query pixel lies on that part's mask at the query
+    frame ({} for a clip without parts)."""
+    parts = sorted(p for p in (folder / PART_MASKS).iterdir() if p.is_dir()) if (folder / PART_MASKS).is_dir() else []
+    t = np.rint(tracks.query_txy[:, 0]).astype(np.int64)
+    x = np.clip(np.rint(tracks.query_txy[:, 1]).astype(np.int64), 0, tracks.image_size[0] - 1)
+    y = np.clip(np.rint(tracks.query_txy[:, 2]).astype(np.int64), 0, tracks.image_size[1] - 1)
+    found = {}
+    for part in parts:
+        files = sorted(f for f in part.iterdir() if not f.name.startswith("."))
+        keep = np.zeros(len(t), dtype=bool)
+        for i in np.unique(t):
+            mask = cv2.imread(str(files[i]), cv2.IMREAD_GRAYSCALE)
+            keep[t == i] = mask[y[t == i], x[t == i]] > 127
+        found[part.name] = keep
+    return found
+
+
 def score_clip_export(folder: Path, manifest: Path, out: Path) -> dict:
     """Every export score of one clip (the row's numbers but PSNR and train s)."""
     frames, precise = folder / "frames", folder / "masks"
     row: dict[str, Any] = {"paint": None, "paint_256": None, "flow": None, "flow_256": None, "ratio": None}
     if (folder / TRACKS_NPZ).is_file():
-        paint = score_export(manifest, read_tracks(folder / TRACKS_NPZ))
+        tracks = read_tracks(folder / TRACKS_NPZ)
+        paint = score_export(manifest, tracks)
         flow = flow_baseline(frames, folder / TRACKS_NPZ, out / "flow" / f"{folder.name}.json")
         row.update(
             paint=paint["delta_avg"],
@@ -195,6 +215,10 @@ def score_clip_export(folder: Path, manifest: Path, out: Path) -> dict:
             flow_256=flow["delta_avg_256"],
             flow_by_gap=flow.get("by_gap"),
         )
+        by_part = {name: score_export(manifest, tracks.subset(keep, tracks.num_frames))["delta_avg"]
+                   for name, keep in part_queries(folder, tracks).items() if keep.any()}  # fmt: skip
+        if by_part:
+            row["paint_by_part"] = by_part
         if row["flow"]:
             row["ratio"] = row["paint"] / row["flow"]
     sharp = atlas_sharpness(manifest, frames, [precise])

@@ -18,17 +18,11 @@ from ..io.atomic import atomic_write_text
 def aligned_export(run_dir: str | Path) -> str | None:
     """The export (``vNNN``) the run's edit layers were painted against, as ``edits/aligned.json`` records it;
     None when nothing is recorded. A file that cannot be read is one line."""
-    path = Path(run_dir) / C.EDITS_DIR / C.EDITS_ALIGNED
-    if not path.exists():
-        return None
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-        version = data["export"] if data.get(C.EDITS_ALIGNED_TAG) == 1 else None
-    except (ValueError, KeyError, TypeError, AttributeError):
-        version = None
-    if not isinstance(version, str):
-        raise InputError(path, "is not an edit-alignment record", "delete it and pass realign --from vNNN")
-    return version
+        return C.read_aligned_export(str(run_dir))
+    except ValueError:
+        path = Path(run_dir) / C.EDITS_DIR / C.EDITS_ALIGNED
+        raise InputError(path, "is not an edit-alignment record", "delete it and pass realign --from vNNN") from None
 
 
 def write_aligned(run_dir: str | Path, version: str) -> Path:

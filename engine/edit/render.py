@@ -286,7 +286,7 @@ def protected_folders(manifest: Manifest) -> list[tuple[Path, str, str]]:
     clip = manifest.clip
     found: list[tuple[Path, str, str]] = []
     if clip["kind"] == C.CLIP_KINDS[0]:
-        plate = [manifest.resolve(clip["source"]), *(manifest.resolve(f).parent for f in clip["frame_files"])]
+        plate = [manifest.plate_path(), *(manifest.plate_path(i).parent for i in range(len(clip["frame_files"])))]
         found += [(folder, "the folder of the plate's frames", "the plate") for folder in plate]
     found += [(manifest.resolve(m), "a mask folder of the fit", "the masks") for m in clip.get("masks", [])]
     return found
@@ -315,7 +315,7 @@ def check_movie(manifest: Manifest, movie: Path) -> None:
     an output may not be (``check_output``)."""
     if movie.is_dir():
         raise InputError(movie, "is a folder", "give --movie a file name, e.g. edited.mp4")
-    if manifest.clip["kind"] != C.CLIP_KINDS[0] and _same(movie, manifest.resolve(manifest.clip["source"])):
+    if manifest.clip["kind"] != C.CLIP_KINDS[0] and _same(movie, manifest.plate_path()):
         raise InputError(movie, "is the plate movie", "choose another --movie: nothing is written over the plate")
     check_output(manifest, movie.parent, "--movie folder")
 

@@ -994,6 +994,9 @@ def _manifest(
             "source": relative_path(clip.source, final),
             "kind": clip.kind,
             "frame_files": [relative_path(f, final) for f in clip.frame_files],
+            # where the relative paths name nothing (the run folder moved alone), readers take these
+            "source_absolute": os.path.abspath(clip.source),
+            "frame_files_absolute": [os.path.abspath(f) for f in clip.frame_files],
             "frame_numbers": numbers,
             "first_frame": numbers[0],
             "last_frame": numbers[-1],

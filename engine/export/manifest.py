@@ -131,10 +131,15 @@ class Manifest:
                 "pick a frame inside the exported range or export it with --frames",
             )
 
+    def plate_path(self, position: int | None = None) -> Path:
+        """The plate (``position`` None) or its frame file at ``position``, unchecked: relative to the manifest, or
+        as it was at export where that names nothing (``contract.resolve_plate_path``: the run folder moved alone)."""
+        return Path(C.resolve_plate_path(str(self.path), self.clip, position))
+
     def plate_source(self) -> Path:
         """The plate (a folder of frames, a sequence pattern or a movie file), checked to exist as what the manifest
         says it is."""
-        path = self.resolve(self.clip["source"])
+        path = self.plate_path()
         is_sequence = self.clip["kind"] == C.CLIP_KINDS[0]
         if is_sequence and is_sequence_pattern(str(path)):  # plate.####.exr: its folder must be there
             if not path.parent.is_dir():
@@ -148,7 +153,7 @@ class Manifest:
 
     def plate_frame_file(self, position: int) -> Path:
         """The plate's frame file at ``position`` in the manifest's frame list, checked to be a file."""
-        path = self.resolve(self.clip["frame_files"][position])
+        path = self.plate_path(position)
         if not path.is_file():
             problem = "plate frame does not exist" if not path.exists() else "plate frame is not a file"
             raise InputError(path, problem, PLATE_FIX)

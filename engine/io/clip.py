@@ -56,7 +56,7 @@ _MOVIE = "movie"
 _FLOAT_TYPES = (oiio.FLOAT, oiio.HALF, oiio.DOUBLE)
 _NUMBER = re.compile(r"\d+")
 #: A sequence pattern's frame field: ``#``/``@`` padding (with an optional range before it) or printf ``%04d``.
-_PATTERN = re.compile(r"[#@]|%0?\d*d")
+_PATTERN = C.SEQUENCE_TOKEN
 #: How sequence patterns are read: one ``#`` per digit (``plate.####.exr`` is 4 digits, as in Nuke and Houdini).
 _PAD_STYLE = fileseq.PAD_STYLE_HASH1
 _MAX_LISTED = 3  # files named in a message before "and N more"

@@ -176,9 +176,11 @@ def test_an_artists_day(blender, tmp_path):
     shutil.move(str(moved / "run"), str(run))  # the run folder alone: the plate stays in the shot folder
     _open(moved / "scene.blend")
     assert bpy.ops.neural_atlas.relink("EXEC_DEFAULT", filepath=str(run)) == {"FINISHED"}
-    # the relinked manifest's own plate paths name a plate that is not there: its engine reference is the last one
-    # (the same plate, the same paint)
-    assert _same(day.check("relinked", run / manifest.relative_to(shot / "run"), engine_now), in_copy) <= 1e-6
+    # the relinked manifest's relative plate paths name nothing now: `engine render` takes the plate's paths as at
+    # export (the first shot folder's plate, the same pixels), Blender the plate the scene's clip shows
+    relinked = run / manifest.relative_to(shot / "run")
+    assert _same(day.check("relinked", relinked), in_copy) <= 1e-6
+    assert _same(day.engine["relinked"], engine_now) <= 1e-6
 
     scene = bpy.context.scene
     scene.frame_start, scene.frame_end = X.FRAMES[0] - 2, X.FRAMES[-1] + 2

@@ -54,8 +54,8 @@ def _stroke(img, rgba: tuple[float, float, float, float], rows: slice = slice(0,
 
 
 def _relative_manifest(manifest: Path) -> Path:
-    """The manifest's paths relative to its folder, as ``engine export`` writes them (the tests' export writes the
-    plate and edit layers absolute)."""
+    """The manifest's paths relative to its folder, and the plate's also as they are now, as ``engine export``
+    writes them (the tests' export writes the plate and edit layers absolute)."""
     data = json.loads(manifest.read_text())
     folder = manifest.parent
 
@@ -63,6 +63,8 @@ def _relative_manifest(manifest: Path) -> Path:
         return os.path.relpath(path, folder) if os.path.isabs(path) else path
 
     clip = data["clip"]
+    clip["source_absolute"] = os.path.abspath(clip["source"])
+    clip["frame_files_absolute"] = [os.path.abspath(p) for p in clip["frame_files"]]
     clip["source"] = rel(clip["source"])
     clip["frame_files"] = [rel(p) for p in clip["frame_files"]]
     data["run_dir"] = rel(data["run_dir"])
@@ -155,8 +157,13 @@ def test_after_a_relink_every_operator_works_as_before_the_move(blender, tmp_pat
     renders as before the move and the render is the edit, not the bare plate."""
     shot, moved, before, rendered = _moved_run(blender, tmp_path)
     new_manifest = moved / "exports" / "v001" / "manifest.json"
-    with pytest.raises(P.PlanError, match="plate frame does not exist"):  # the manifest's own plate path is gone
-        P.plan_tree(C.load_manifest(str(new_manifest)), str(new_manifest))
+    # the manifest's relative plate paths name nothing now: its plate's paths as at export still do
+    plan = P.plan_tree(C.load_manifest(str(new_manifest)), str(new_manifest))
+    assert os.path.normpath(plan.plate.filepath) == os.path.normpath(shot / "plate" / f"{X.FRAMES[0]:05d}.png")
+    data = C.load_manifest(str(new_manifest))
+    del data["clip"]["source_absolute"], data["clip"]["frame_files_absolute"]  # as an older export has it
+    with pytest.raises(P.PlanError, match="plate frame does not exist"):
+        P.plan_tree(data, str(new_manifest))
     assert bpy.ops.neural_atlas.relink("EXEC_DEFAULT", filepath=str(moved)) == {"FINISHED"}
     ops = bpy.ops.neural_atlas
     assert ops.live_preview("EXEC_DEFAULT") == {"FINISHED"} and not preview.is_shown(bpy.context.scene)

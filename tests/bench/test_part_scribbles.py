@@ -9,8 +9,9 @@ import pytest
 
 from engine import contract as C
 from engine.bench.motion_scenes import PART_MASKS, write_motion_clips
-from engine.bench.paint_table import run_paint_table
+from engine.bench.paint_table import part_queries, run_paint_table
 from engine.bench.part_scribbles import INSET_PX, part_stroke, write_part_scribbles
+from engine.bench.report_file import read_tracks
 from engine.data.scribbles import NO_LABEL, read_scribbles
 from engine.io.clip import open_clip
 
@@ -71,5 +72,11 @@ def test_the_table_fits_the_one_mask_split_by_the_strokes(tmp_path):
     assert row["layers"] == 3 and row["scribbles"] == str(tmp_path / "out" / "scribbles" / "limbs_jump")
     clip_json = (tmp_path / "out" / "runs" / "limbs_jump" / C.RUN_CLIP).read_text()
     assert "scribbles" in clip_json and str(root / "limbs_jump" / "masks") in clip_json
+    # scored per part too: the queries on each part's mask at their frame
+    tracks = read_tracks(root / "limbs_jump" / "tracks_tapvid.npz")
+    owned = part_queries(root / "limbs_jump", tracks)
+    assert set(owned) == {"body", "front_limb"} and not (owned["body"] & owned["front_limb"]).any()
+    assert set(row["paint_by_part"]) == {name for name, keep in owned.items() if keep.any()}
+    assert all(0.0 <= v <= 1.0 for v in row["paint_by_part"].values())
     with pytest.raises(ValueError, match="choose one"):
         run_paint_table(root, tmp_path / "o2", parts=True, scribbles=True)

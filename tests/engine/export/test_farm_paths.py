@@ -101,3 +101,31 @@ def test_a_shot_folder_copied_whole_keeps_to_its_own_plate(tmp_path):
     shutil.rmtree(first)
     assert _render(copy / "run", tmp_path / "rendered") == (0, [])
     assert len(list((tmp_path / "rendered").iterdir())) == 4
+
+
+def test_a_run_moved_alone_renders_from_the_plate_it_left_where_it_was(tmp_path):
+    """The manifest also keeps the plate's paths as they were at export: the run folder moved on its own (its
+    relative plate paths now name nothing) still renders the same bytes from the plate that stayed; an older
+    manifest without them names the missing plate in one line."""
+    first = tmp_path / "a"
+    make_run(first)
+    assert _export(first / "run") == (0, [])
+    manifest = json.loads(Path(_latest(first / "run")).read_text())
+    frames = first / "clip" / "frames"
+    assert manifest["clip"]["source_absolute"] == str(frames)
+    assert manifest["clip"]["frame_files_absolute"] == [str(frames / f"{n:05d}.png") for n in range(4)]
+    assert _render(first / "run", tmp_path / "before") == (0, [])
+
+    alone = tmp_path / "elsewhere" / "run"
+    alone.parent.mkdir()
+    shutil.move(first / "run", alone)
+    assert _render(alone, tmp_path / "after") == (0, [])
+    assert tree_digest(tmp_path / "after") == tree_digest(tmp_path / "before") != {}
+
+    path = Path(_latest(alone))
+    older = json.loads(path.read_text())
+    del older["clip"]["source_absolute"], older["clip"]["frame_files_absolute"]
+    path.write_text(json.dumps(older))
+    code, lines = _render(alone, tmp_path / "lost")
+    assert code == C.EXIT_BAD_INPUT and len(lines) == 1, lines
+    assert lines[0].startswith(f"error: {tmp_path / 'elsewhere' / 'clip' / 'frames'}"), lines
