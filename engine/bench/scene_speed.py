@@ -6,7 +6,8 @@
 Both fits use the same config, seed and steps; only ``components`` differs. Prints one line per fit
 (seconds per step, full-frame PSNR, background mapping class, terms evaluated) and the ratio of seconds
 per step, then a JSON summary as the last line. Training time only (the flow is computed once per run and
-cached; it is not part of ``train_seconds``). The numbers in docs/engine.md come from this command.
+cached; it is not part of ``train_seconds``). docs/engine.md (Scene analysis) quotes its ratios; the full table is in
+docs/bench/experiments.md (Engine measurements).
 """
 
 from __future__ import annotations
