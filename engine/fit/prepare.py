@@ -27,7 +27,7 @@ from ..data.flow import DISFlow, FlowField, compute_flow
 from ..data.long_flow import LongFlow, compute_long_flow, long_flow_gaps, long_flow_pairs
 from ..data.mask_snap import MaskSnap, snap_masks
 from ..data.scene_analysis import SceneAnalysis, analyse_scene
-from ..data.scribbles import read_scribbles, scribble_layers
+from ..data.scribbles import propagate_labels, read_scribbles, scribble_layers
 from ..data.video import VideoTensors, build_video_tensors
 from ..errors import InputError
 from ..io.clip import ClipInfo, open_clip, read_frames, read_frames_at, read_masks, working_size
@@ -73,13 +73,16 @@ class PreparedClip:
     def tensors(self, cfg: FitConfig, device: torch.device) -> VideoTensors:
         """The clip as training tensors on ``device`` under ``cfg`` (its mask prior's margin): what ``fit``, the
         bench, the estimate and the speed table train on, one set shared by every config tried on the clip."""
+        scribbles = self.scribbles
+        if scribbles is not None and cfg.scribble_carry:
+            scribbles = propagate_labels(scribbles, self.flow, self.masks[0])
         return build_video_tensors(
             self.frames,
             self.masks,
             self.flow,
             cfg.mask_prior_margin_px,
             device,
-            self.scribbles,
+            scribbles,
             self.mask_layers,
             long_flow=self.long_flow,
         )
