@@ -259,7 +259,14 @@ def _add_paint_table_parser(sub: argparse._SubParsersAction) -> None:
         "--scribbles",
         action="store_true",
         help="fit a clip with masks_parts/PART/ folders with its one mask split by strokes drawn from the parts "
-        "(first, middle and last frame): the product's Split with Scribbles",
+        "on --scribble-frames frames: the product's Split with Scribbles",
+    )
+    pt.add_argument(
+        "--scribble-frames",
+        type=int,
+        default=3,
+        metavar="N",
+        help="with --scribbles: frames with strokes, spread evenly from the first to the last (default: 3)",
     )
 
 
@@ -278,6 +285,7 @@ def _paint_table(args: argparse.Namespace) -> int:
         pictures=args.pictures,
         parts=args.parts,
         scribbles=args.scribbles,
+        scribble_frames=args.scribble_frames,
         command=[PROG, *args.argv],
     )
     print(format_table(table))

@@ -242,6 +242,7 @@ def run_paint_table(
     pictures: bool = False,
     parts: bool = False,
     scribbles: bool = False,
+    scribble_frames: int = 3,
     command: list[str] | None = None,
     log: Log | None = None,
 ) -> dict:
@@ -249,8 +250,8 @@ def run_paint_table(
     record, also written to ``out_dir/paint.json`` and ``out_dir/paint.md``. ``parts``: a clip with
     ``masks_parts/`` (``motion_scenes.part_masks``) is fitted with one layer per part; scores are unchanged (the
     foreground is every layer after the background). ``scribbles``: such a clip is fitted the product's way
-    instead, its one mask split by strokes drawn from the part masks on the first, middle and last frame
-    (``part_scribbles``)."""
+    instead, its one mask split by strokes drawn from the part masks on ``scribble_frames`` frames spread evenly from
+    the first to the last (3: first, middle, last; ``part_scribbles``)."""
     say = log or (lambda line: print(line, file=sys.stderr, flush=True))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -277,7 +278,8 @@ def run_paint_table(
         if scribbles and part_folders:
             from engine.bench.part_scribbles import write_part_scribbles
 
-            strokes, _ = write_part_scribbles(part_folders, out / "scribbles" / folder.name)
+            at = tuple(float(a) for a in np.linspace(0.0, 1.0, max(2, scribble_frames)))
+            strokes, _ = write_part_scribbles(part_folders, out / "scribbles" / folder.name, at)
         run = out / "runs" / folder.name
         say(f"paint-table: {folder.name}: fit {preset} + export -> {run}")
         manifest = fit_and_export(folder / "frames", masks, run, preset, sets or [], threads, out / "logs" /
@@ -313,6 +315,7 @@ def run_paint_table(
         "sets": sets or [],
         "parts": parts,
         "scribbles": scribbles,
+        "scribble_frames": scribble_frames if scribbles else None,
         "rows": rows,
         "mean": mean_row(rows),
     }

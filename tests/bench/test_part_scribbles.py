@@ -50,6 +50,7 @@ def test_the_engine_reads_each_parts_strokes_as_its_layer(tmp_path):
         for k, part in enumerate(parts):
             mask = cv2.imread(str(sorted(part.iterdir())[i]), cv2.IMREAD_GRAYSCALE) > 127
             assert (labels[i] == k).any() and (mask[labels[i] == k]).all()
+    assert write_part_scribbles(parts, tmp_path / "every", tuple(np.linspace(0.0, 1.0, 5)))[1] == [0, 1, 2, 3, 4]
     again = {p.name: p.read_bytes() for p in folder.iterdir()}
     write_part_scribbles(parts, folder)
     assert {p.name: p.read_bytes() for p in folder.iterdir()} == again

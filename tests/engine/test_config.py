@@ -228,3 +228,77 @@ def test_resume_may_change_the_schedule_only():
     allowed, refused = resume_changes(saved, apply_overrides(saved, {"lr": "1e-4", "steps": "900", "seed": "3"}))
     assert allowed == ["steps", "lr"] and refused == ["seed"]
     assert set(RESUMABLE_FIELDS) <= set(FIELDS) and "model" not in RESUMABLE_FIELDS
+
+
+#: The fields FitConfig had when checkpoints began to record their config. A field added since must be in
+#: LATER_FIELDS (with the value that computes what the engine did before it), or every run folder made before it
+#: stops loading ("checkpoint was saved with another config").
+FIELDS_WHEN_CHECKPOINTS_RECORDED_CONFIG = frozenset(
+    [
+        "preset",
+        "model",
+        "steps",
+        "batch",
+        "object_sample_share",
+        "seed",
+        "long_edge",
+        "flow_preset",
+        "flow_threshold_px",
+        "lr",
+        "lr_grid",
+        "lr_final_ratio",
+        "w_rgb",
+        "w_gradient",
+        "w_sparsity",
+        "w_atlas_sparsity",
+        "atlas_sparsity_samples",
+        "w_flow",
+        "w_alpha_flow",
+        "w_rigidity",
+        "rigidity_delta",
+        "w_global_rigidity_fg",
+        "w_global_rigidity_bg",
+        "global_rigidity_delta",
+        "global_rigidity_steps",
+        "w_mask",
+        "bootstrap_steps",
+        "w_scribble",
+        "scribble_samples",
+        "w_mask_prior",
+        "mask_prior_margin_px",
+        "w_anchor",
+        "uv_mapping_scale",
+        "pretrain_iters",
+        "mapping_hidden",
+        "mapping_layers",
+        "atlas_levels",
+        "atlas_features",
+        "atlas_density",
+        "alpha_levels",
+        "alpha_features",
+        "alpha_density",
+        "decoder_hidden",
+        "warp_levels",
+        "warp_foreground",
+        "warp_cell_px",
+        "lr_warp",
+        "init_motion",
+        "atlas_margin_fg",
+        "components",
+        "atlas_box_full_mask",
+        "eval_every",
+        "eval_pixels",
+        "checkpoint_seconds",
+    ]
+)
+
+
+def test_every_field_added_since_checkpoints_recorded_their_config_says_how_older_runs_load():
+    from engine.config import LATER_FIELDS
+
+    names = {f.name for f in fields(FitConfig)}
+    added = names - FIELDS_WHEN_CHECKPOINTS_RECORDED_CONFIG
+    assert added <= set(LATER_FIELDS), f"add {sorted(added - set(LATER_FIELDS))} to config.LATER_FIELDS"
+    assert set(LATER_FIELDS) <= names
+    for name, value in LATER_FIELDS.items():  # the old behaviour is a value the field accepts
+        assert getattr(apply_overrides(FitConfig(), {name: str(value).lower()}), name) == value
