@@ -100,7 +100,7 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
         name="Split with Scribbles",
         default=False,
         description="Split the one foreground layer into parts (e.g. two legs) marked with the clip's annotation "
-        "strokes: part 1 in red, part 2 in green, part 3 in blue, part 4 in yellow, on a few frames",
+        "strokes: part 1 in red, part 2 in green, part 3 in blue, part 4 in yellow, on about one frame in six",
     )
     run_dir: StringProperty(
         name="Run Folder",

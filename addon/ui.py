@@ -55,7 +55,7 @@ def _draw_scribbles(box, props) -> None:
     for colour, meaning in S.legend():
         box.label(text=f"{colour.title()}: {meaning}", icon=COLOUR_ICONS.get(colour, "NONE"))
     box.operator("neural_atlas.scribble_layers", icon="ADD")
-    box.label(text="A few strokes on a few frames are enough")
+    box.label(text="Stroke each part on about one frame in six")
     if len(props.layers) != 1:
         box.label(text="Keep exactly one foreground layer: the whole object", icon="ERROR")
     annotation = scribbles.clip_annotation(props.clip) if props.clip is not None else None
