@@ -778,7 +778,7 @@ def frame_padding(frame_files: list[str] | tuple[str, ...], frame_numbers: list[
 #:           "HH:MM:SS:FF" of first_frame), "start_frame": int (a movie's number of its first frame: frame_numbers are
 #:           start_frame + the frame's index), "source_absolute": str and "frame_files_absolute": [str] (optional:
 #:           the same plate paths, absolute as at export; where the relative ones name nothing, a run folder moved
-#:           alone, ``plate_path`` takes these)},
+#:           alone, ``resolve_plate_path`` takes these)},
 #:  "passes": {"dir": str, "pattern": "atlas.{frame:04d}.exr" (padded as the plate's frames: ``pass_pattern``),
 #:             "blender_pattern": "atlas.####.exr" (the same for Blender: ``blender_pattern``),
 #:             "frames": [int] (plate frame numbers exported, each one of the clip's), "exr_layer": "Atlas",
