@@ -32,10 +32,10 @@ def realigned_manifest(manifest_path: str) -> str | None:
     """The manifest of the export the run's edit layers were re-aligned to, when that is another export of the same
     run than ``manifest_path``'s (a refine carried the paint on, and the .blend was not saved after it) and it is
     there; None otherwise (no record, an unreadable one, the same export, a manifest outside a run's exports)."""
-    folder = os.path.dirname(os.path.abspath(manifest_path))
-    if os.path.basename(os.path.dirname(folder)) != C.EXPORTS_DIR:
+    run = imported_run_dir(manifest_path)
+    if run is None:
         return None
-    run = C.manifest_run_root(manifest_path)
+    folder = os.path.dirname(os.path.realpath(manifest_path))
     try:
         version = C.read_aligned_export(run)
     except ValueError:

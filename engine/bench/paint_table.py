@@ -180,10 +180,16 @@ def flow_baseline(frames: Path, tracks_path: Path, cache: Path) -> dict:
     return report
 
 
+def part_folders(folder: Path) -> list[Path]:
+    """The clip's part mask folders, ``masks_parts/PART/`` in name order ([] for a clip without parts)."""
+    parts = folder / PART_MASKS
+    return sorted(p for p in parts.iterdir() if p.is_dir()) if parts.is_dir() else []
+
+
 def part_queries(folder: Path, tracks: Tracks) -> dict[str, np.ndarray]:
     """bool [N] per part of ``masks_parts/PART/``: the tracks whose query pixel lies on that part's mask at the query
     frame ({} for a clip without parts)."""
-    parts = sorted(p for p in (folder / PART_MASKS).iterdir() if p.is_dir()) if (folder / PART_MASKS).is_dir() else []
+    parts = part_folders(folder)
     t = np.rint(tracks.query_txy[:, 0]).astype(np.int64)
     x = np.clip(np.rint(tracks.query_txy[:, 1]).astype(np.int64), 0, tracks.image_size[0] - 1)
     y = np.clip(np.rint(tracks.query_txy[:, 2]).astype(np.int64), 0, tracks.image_size[1] - 1)
@@ -267,19 +273,18 @@ def run_paint_table(
     rows = []
     for folder in folders:
         given = [folder / "masks"]
-        part_folders = sorted(p for p in (folder / PART_MASKS).iterdir() if p.is_dir()) if (
-            folder / PART_MASKS).is_dir() else []  # fmt: skip
-        if parts and part_folders:
-            given = part_folders
+        split = part_folders(folder)
+        if parts and split:
+            given = split
         masks = given  # exact: the clip's own masks, as a user passes them
         if recipe(degrade) != recipe(EXACT):
             masks = [write_degraded(m, out / "masks" / degrade / folder.name / m.name, degrade, seed) for m in given]
         strokes = None
-        if scribbles and part_folders:
+        if scribbles and split:
             from engine.bench.part_scribbles import write_part_scribbles
 
             at = tuple(float(a) for a in np.linspace(0.0, 1.0, max(2, scribble_frames)))
-            strokes, _ = write_part_scribbles(part_folders, out / "scribbles" / folder.name, at)
+            strokes, _ = write_part_scribbles(split, out / "scribbles" / folder.name, at)
         run = out / "runs" / folder.name
         say(f"paint-table: {folder.name}: fit {preset} + export -> {run}")
         manifest = fit_and_export(folder / "frames", masks, run, preset, sets or [], threads, out / "logs" /
@@ -288,7 +293,7 @@ def run_paint_table(
         metrics = json.loads((run / C.RUN_METRICS).read_text(encoding="utf-8"))
         row = {
             "clip": folder.name,
-            "layers": (len(part_folders) if strokes is not None else len(masks)) + 1,
+            "layers": (len(split) if strokes is not None else len(masks)) + 1,
             "scribbles": str(strokes) if strokes is not None else None,
             "given_masks_iou": masks_iou(masks[0], folder / "masks") if len(masks) == 1 else None,
             **score_clip_export(folder, manifest, out),

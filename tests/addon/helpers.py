@@ -5,6 +5,7 @@ timer events of a modal operator)."""
 from __future__ import annotations
 
 import os
+import subprocess
 import sys
 import time
 import types
@@ -180,6 +181,17 @@ def shape_key_mask(
         with bpy.context.temp_override(window=window, area=area, region=area.regions[-1], space_data=space):
             assert bpy.ops.mask.shape_key_insert() == {"FINISHED"}
     return mask
+
+
+def write_tiny_clip(py: str, folder: Path) -> None:
+    """The tiny synthetic clip the add-on's real fits use (48x36, 3 frames, one object; ``frames/`` and ``masks/``),
+    written by the engine's Python ``py`` (Blender's has no engine requirements)."""
+    subprocess.run(
+        [py, "-c", "import sys; from pathlib import Path; from engine.data.synthetic import SceneSpec, make_scene, "
+         "write_scene; spec = SceneSpec(width=48, height=36, frames=3, fg_size=(16, 12), fg_start=(8.0, 6.0)); "
+         "write_scene(make_scene(spec), Path(sys.argv[1]))", str(folder)],
+        cwd=HERE.parents[1], check=True, timeout=120,
+    )  # fmt: skip
 
 
 def fit_panel(bpy, clip_file: Path, masks: Path, run_dir: Path, preset: str = "draft", overrides: str = ""):

@@ -23,35 +23,17 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 import fake_export as X  # noqa: E402
-from helpers import engine_python, fit_panel  # noqa: E402
+from helpers import engine_python, fit_panel, write_tiny_clip  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
+from test_day_reopen import _pixels  # noqa: E402
+from test_refine import FAST, _stroke  # noqa: E402
 
 from engine import contract as C  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
-FAST = "steps=6 batch=256 eval_every=3 eval_pixels=256 bootstrap_steps=3 global_rigidity_steps=2"
 TAG = f"[bpy {bpy.app.version_string}]"
 #: Blender's render against ``engine render`` of the same export and paint (nearest filter: the same texels).
 ENGINE_TOLERANCE = 1e-4
-
-
-def _pixels(img) -> np.ndarray:
-    w, h = img.size
-    px = np.zeros(w * h * 4, np.float32)
-    img.pixels.foreach_get(px)
-    return px.reshape(h, w, 4)
-
-
-def _stroke(img) -> np.ndarray:
-    """An opaque red block in the middle of the edit image (rows bottom-up), left unsaved; returns its mask."""
-    px = _pixels(img)
-    h, w = px.shape[:2]
-    mask = np.zeros((h, w), bool)
-    mask[h // 3 : 2 * h // 3, w // 3 : 2 * w // 3] = True
-    px[mask] = (1.0, 0.0, 0.0, 1.0)
-    img.pixels.foreach_set(px.ravel())
-    img.update()
-    return mask
 
 
 def _renders(out: Path) -> dict[int, np.ndarray]:
@@ -76,12 +58,7 @@ def _compare(manifest: Path, out: Path) -> tuple[float, float]:
 def test_refine_in_a_copied_shot_folder_stays_in_the_copy(blender, tmp_path, monkeypatch):
     py = engine_python(C.VERB_REALIGN, "torch")
     shot = tmp_path / "shot"
-    subprocess.run(
-        [py, "-c", "import sys; from pathlib import Path; from engine.data.synthetic import SceneSpec, make_scene, "
-         "write_scene; spec = SceneSpec(width=48, height=36, frames=3, fg_size=(16, 12), fg_start=(8.0, 6.0)); "
-         "write_scene(make_scene(spec), Path(sys.argv[1]))", str(shot / "clip")],
-        cwd=ROOT, check=True, timeout=120,
-    )  # fmt: skip
+    write_tiny_clip(py, shot / "clip")
     monkeypatch.setenv("NEURAL_ATLAS_ENGINE_PYTHON", py)
     assert bpy.ops.wm.save_as_mainfile(filepath=str(shot / "scene.blend")) == {"FINISHED"}
     props = fit_panel(bpy, shot / "clip" / "frames" / "00000.png", shot / "clip" / "masks", shot / "run",

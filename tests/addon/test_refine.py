@@ -11,7 +11,6 @@ else the checkout's .venv); skipped when that Python has no torch or no realign 
 from __future__ import annotations
 
 import json
-import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -20,14 +19,13 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 import fake_export as X  # noqa: E402
-from helpers import RecordingLayout, as_operator, engine_python, fit_panel  # noqa: E402
+from helpers import RecordingLayout, as_operator, engine_python, fit_panel, write_tiny_clip  # noqa: E402
 from neural_atlas.addon import ui  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 from neural_atlas.addon.ops import refine as refine_ops  # noqa: E402
 
 from engine import contract as C  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[2]
 FAST = "steps=6 batch=256 eval_every=3 eval_pixels=256 bootstrap_steps=3 global_rigidity_steps=2"
 #: The stroke: a block in the middle of the background's atlas (opaque red, 8-bit sRGB straight); the background owns
 #: most pixels after a few steps, so the refine has pixels to pair there.
@@ -59,12 +57,7 @@ def _alpha(img) -> np.ndarray:
 def test_refine_keeps_and_realigns_the_paint(blender, tmp_path, monkeypatch):
     py = engine_python(C.VERB_REALIGN, "torch")
     clip_dir = tmp_path / "clip"
-    subprocess.run(
-        [py, "-c", "import sys; from pathlib import Path; from engine.data.synthetic import SceneSpec, make_scene, "
-         "write_scene; spec = SceneSpec(width=48, height=36, frames=3, fg_size=(16, 12), fg_start=(8.0, 6.0)); "
-         "write_scene(make_scene(spec), Path(sys.argv[1]))", str(clip_dir)],
-        cwd=ROOT, check=True, timeout=120,
-    )  # fmt: skip
+    write_tiny_clip(py, clip_dir)
     monkeypatch.setenv("NEURAL_ATLAS_ENGINE_PYTHON", py)
     props = fit_panel(bpy, clip_dir / "frames" / "00000.png", clip_dir / "masks", tmp_path / "run", overrides=FAST)
     run = tmp_path / "run"

@@ -138,11 +138,17 @@ def test_grid_points_lie_in_the_mask_and_dots_take_their_colour():
     assert out[0:2].sum() == 0 and frame.sum() == 0  # the off-frame dot is skipped; the input is not drawn on
 
 
-def test_parts_fit_one_layer_per_part_and_are_scored_as_one_foreground(tmp_path):
+def tiny_limbs_table(tmp_path: Path, **split: bool) -> tuple[Path, dict]:
+    """A 4-frame limbs_jump scene under ``tmp_path/scenes`` and its paint table after a 20-step draft fit, split as
+    ``split`` says (``parts=True`` or ``scribbles=True``); (the clips' root, the record)."""
     root = tmp_path / "scenes"
     write_motion_clips(root, width=96, height=64, frames=4, kinds=("limbs_jump",))
     sets = ["steps=20", "bootstrap_steps=20", "global_rigidity_steps=5"]
-    record = run_paint_table(root, tmp_path / "out", sets=sets, threads=1, parts=True, log=lambda _: None)
+    return root, run_paint_table(root, tmp_path / "out", sets=sets, threads=1, log=lambda _: None, **split)
+
+
+def test_parts_fit_one_layer_per_part_and_are_scored_as_one_foreground(tmp_path):
+    root, record = tiny_limbs_table(tmp_path, parts=True)
     (row,) = record["rows"]
     assert row["layers"] == 3 and row["given_masks_iou"] is None
     layers = json.loads(Path(row["manifest"]).read_text())["layers"]

@@ -14,6 +14,7 @@ from engine.bench.part_scribbles import INSET_PX, part_stroke, write_part_scribb
 from engine.bench.report_file import read_tracks
 from engine.data.scribbles import NO_LABEL, read_scribbles
 from engine.io.clip import open_clip
+from tests.bench.test_paint_table import tiny_limbs_table
 
 
 def test_a_stroke_runs_along_the_long_axis_inside_the_part_away_from_its_edge():
@@ -65,10 +66,7 @@ def test_one_part_or_too_many_is_refused(tmp_path):
 
 
 def test_the_table_fits_the_one_mask_split_by_the_strokes(tmp_path):
-    root = tmp_path / "scenes"
-    write_motion_clips(root, width=96, height=64, frames=4, kinds=("limbs_jump",))
-    sets = ["steps=20", "bootstrap_steps=20", "global_rigidity_steps=5"]
-    record = run_paint_table(root, tmp_path / "out", sets=sets, threads=1, scribbles=True, log=lambda _: None)
+    root, record = tiny_limbs_table(tmp_path, scribbles=True)
     (row,) = record["rows"]
     assert row["layers"] == 3 and row["scribbles"] == str(tmp_path / "out" / "scribbles" / "limbs_jump")
     clip_json = (tmp_path / "out" / "runs" / "limbs_jump" / C.RUN_CLIP).read_text()
