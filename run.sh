@@ -69,11 +69,12 @@ case "${1:-}" in
     .venv/bin/mypy  # the files listed in pyproject.toml's [tool.mypy]
     setup_bpy5
     rc=0
-    .venv/bin/python -m pytest -q "$@" || rc=$?
-    # the add-on tests again on Blender 5.0 (all of them, or the add-on paths among the arguments);
-    # engine processes they start use .venv's Python
+    # --durations: the slowest tests listed after every run, so what the suite costs stays in view
+    .venv/bin/python -m pytest -q --durations=25 "$@" || rc=$?
+    # the add-on tests again on Blender 5.0 (all of them, or the add-on paths among the arguments), less
+    # tests/addon/core: pure Python without bpy, the same under any Blender; engine processes they start use .venv's
     bpy5_args=()
-    if [ $# -eq 0 ]; then bpy5_args=(tests/addon); else
+    if [ $# -eq 0 ]; then bpy5_args=(tests/addon --ignore=tests/addon/core); else
       for a in "$@"; do case "$a" in tests/addon*) bpy5_args+=("$a") ;; esac; done
     fi
     if [ ${#bpy5_args[@]} -gt 0 ]; then

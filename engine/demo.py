@@ -39,8 +39,9 @@ from .edit.render import plate_frames, render_frames, render_manifest, to_displa
 from .export.exporter import export_run
 from .export.manifest import Manifest
 from .fit.contact_sheet import write_contact_sheet
+from .fit.fitted_run import load_run
 from .fit.run_folder import RunFolder
-from .fit.trainer import FitCancelled, fit, load_run
+from .fit.trainer import FitCancelled, fit
 from .io.atomic import atomic_write_text
 from .io.images import read_image, write_png
 
@@ -190,81 +191,28 @@ def demo_contact_sheet(
 
 
 def run_demo(out: Path, preset: str = "draft", overrides: dict[str, str] | None = None) -> dict:
+    """README command 1: the six steps, each skipped when its output is already there and up to date (so a second
+    run costs seconds); the fit's metrics."""
     out = Path(out)
     _say(f"demo clip -> {out / 'clip'}")  # steps 1-5: the engine; 6: Blender
     frames_dir, masks_dir = write_scene(make_scene(demo_spec()), out / "clip")
     run = out / "run"
     folder = RunFolder(run)
-    cfg = apply_overrides(preset_config(preset), overrides or {})
-    if folder.metrics.exists():
-        _say(f"1/6 fit already done in {run} (delete it to refit)")
-    else:
-        resume = folder.checkpoint.exists()  # a demo fit that was stopped continues where it was
-        _say(f"1/6 {'resuming' if resume else 'fitting'} ({preset}) -> {run}")
-        try:
-            # the bar on stderr is for people; the JSON progress lines go to the run's fit.log only
-            fit(frames_dir, [masks_dir], run, cfg, resume=resume, stream=io.StringIO())
-        except FitCancelled:
-            _say(f"cancelled; run the same command again to resume {run}")
-            raise
-    metrics = folder.read_metrics()
-    assert metrics is not None  # the fit above finished
+    metrics = _fit_step(folder, frames_dir, masks_dir, preset, overrides)
     model, prepared, _ = load_run(run)
     fit_sheet = write_contact_sheet(model, prepared.frames, prepared.size, torch.device("cpu"), out / "fit_sheet.png")
 
-    manifest_path = _newest_export(folder)
-    if manifest_path is None:
-        _say(f"2/6 export (UV + alpha EXR passes, atlases) -> {folder.exports}")
-        manifest_path = export_run(run, atlas_size=DEMO_ATLAS_SIZE, stream=io.StringIO())
-    else:
-        _say(f"2/6 export already done: {manifest_path.parent}")
-    manifest = Manifest(manifest_path)
-    preview_dir = manifest.folder / "preview"
-    if not (preview_dir / "frames.png").exists():
-        _say(f"3/6 preview (atlases, checkerboard, label propagation) -> {preview_dir}")
-        write_previews(manifest_path, preview_dir)
-    else:
-        _say(f"3/6 preview already done: {preview_dir}")
-
+    manifest_path, manifest, preview_dir = _export_step(folder)
     edits_dir = out / "example_edits"
     fg_edit, bg_edit = edits_dir / "Foreground.png", edits_dir / "Background.png"
-    if not _up_to_date([fg_edit, bg_edit], [manifest_path]):
-        _say(f"4/6 example edit: a logo on the foreground atlas, a stylised background -> {edits_dir}")
-        fg = manifest.layer("Foreground")
-        write_png(fg_edit, logo_edit(tuple(fg["atlas_size"])), 8)
-        write_png(bg_edit, stylised_background(manifest.resolve(manifest.layer("Background")["atlas_png"])), 8)
-    else:
-        _say(f"4/6 example edit already made: {edits_dir}")
+    _example_edit_step(manifest, manifest_path, fg_edit, bg_edit)
     edited, movie = out / "edited", out / "edited.mp4"
     overrides_edit = {"Foreground": str(fg_edit), "Background": str(bg_edit)}
-    last_frame = edited / f"edit.{manifest.frames[-1]:05d}.png"
-    if not _up_to_date([last_frame, movie], [fg_edit, bg_edit, manifest_path]):
-        _say(f"5/6 render the edited clip -> {edited}, {movie}")
-        render_manifest(manifest_path, edited, overrides_edit, fmt="png", movie=movie)
-    else:
-        _say(f"5/6 edited clip already rendered: {edited}")
-    edit_arrays = [load_edit(bg_edit), load_edit(fg_edit)]
+    _render_step(manifest, manifest_path, [fg_edit, bg_edit], overrides_edit, edited, movie)
+    edit_arrays: list[np.ndarray | None] = [load_edit(bg_edit), load_edit(fg_edit)]
 
     blend, blender_dir = out / "demo.blend", out / "blender"
-    report, compare_path = out / "blender_render.json", out / "blender_compare.json"
-    blender_outputs = [blend, report, compare_path] + [blender_dir / f"edit.{n:05d}.exr" for n in manifest.frames]
-    compare = None
-    if _up_to_date(blender_outputs, [fg_edit, bg_edit, manifest_path]):
-        compare = json.loads(compare_path.read_text())
-        _say(f"6/6 Blender render already done: {blender_dir}")
-    else:
-        info = blender_render(manifest_path, overrides_edit, blend, blender_dir, report)
-        if info is not None:
-            info["render_dir"] = str(blender_dir)
-            compare = {**compare_with_engine(manifest, edit_arrays, info), "blender": info["blender"]}
-            compare["filter"], compare["exact"] = info["filter"], info["exact"]
-            atomic_write_text(compare_path, json.dumps(compare, indent=2))
-    if compare is not None:
-        why = "8-bit sRGB plate and edits: Blender decodes them with OCIO, the engine with the exact formula"
-        _say(
-            f"   Blender {compare['blender']} ({compare['filter']}) vs engine render ({compare['engine_filter']}): "
-            f"max abs error {compare['max_abs_error']:.1e} over {compare['frames']} frames ({why})"
-        )
+    compare = _blender_step(out, manifest, manifest_path, [fg_edit, bg_edit], overrides_edit, edit_arrays)
     sheet = demo_contact_sheet(
         manifest, edit_arrays, out / "contact_sheet.png", blender_dir if compare is not None else None
     )
@@ -286,3 +234,107 @@ def run_demo(out: Path, preset: str = "draft", overrides: dict[str, str] | None 
         file=sys.stderr,
     )
     return metrics
+
+
+def _fit_step(
+    folder: RunFolder, frames_dir: Path, masks_dir: Path, preset: str, overrides: dict[str, str] | None
+) -> dict:
+    """Step 1: fit the demo clip (a finished fit is kept, a stopped one resumes); its metrics."""
+    run = folder.path
+    cfg = apply_overrides(preset_config(preset), overrides or {})
+    if folder.metrics.exists():
+        _say(f"1/6 fit already done in {run} (delete it to refit)")
+    else:
+        resume = folder.checkpoint.exists()  # a demo fit that was stopped continues where it was
+        _say(f"1/6 {'resuming' if resume else 'fitting'} ({preset}) -> {run}")
+        try:
+            # the bar on stderr is for people; the JSON progress lines go to the run's fit.log only
+            fit(frames_dir, [masks_dir], run, cfg, resume=resume, stream=io.StringIO())
+        except FitCancelled:
+            _say(f"cancelled; run the same command again to resume {run}")
+            raise
+    metrics = folder.read_metrics()
+    assert metrics is not None  # the fit above finished
+    return metrics
+
+
+def _export_step(folder: RunFolder) -> tuple[Path, Manifest, Path]:
+    """Steps 2 and 3: the newest complete export (made when there is none) and its preview; (its manifest's path,
+    the manifest, the preview folder)."""
+    manifest_path = _newest_export(folder)
+    if manifest_path is None:
+        _say(f"2/6 export (UV + alpha EXR passes, atlases) -> {folder.exports}")
+        manifest_path = export_run(folder.path, atlas_size=DEMO_ATLAS_SIZE, stream=io.StringIO())
+    else:
+        _say(f"2/6 export already done: {manifest_path.parent}")
+    manifest = Manifest(manifest_path)
+    preview_dir = manifest.folder / "preview"
+    if not (preview_dir / "frames.png").exists():
+        _say(f"3/6 preview (atlases, checkerboard, label propagation) -> {preview_dir}")
+        write_previews(manifest_path, preview_dir)
+    else:
+        _say(f"3/6 preview already done: {preview_dir}")
+    return manifest_path, manifest, preview_dir
+
+
+def _example_edit_step(manifest: Manifest, manifest_path: Path, fg_edit: Path, bg_edit: Path) -> None:
+    """Step 4: the artist's paint stood in for, a logo on the foreground atlas and a stylised background."""
+    edits_dir = fg_edit.parent
+    if not _up_to_date([fg_edit, bg_edit], [manifest_path]):
+        _say(f"4/6 example edit: a logo on the foreground atlas, a stylised background -> {edits_dir}")
+        fg = manifest.layer("Foreground")
+        write_png(fg_edit, logo_edit(tuple(fg["atlas_size"])), 8)
+        write_png(bg_edit, stylised_background(manifest.resolve(manifest.layer("Background")["atlas_png"])), 8)
+    else:
+        _say(f"4/6 example edit already made: {edits_dir}")
+
+
+def _render_step(
+    manifest: Manifest,
+    manifest_path: Path,
+    edits: list[Path],
+    overrides_edit: dict[str, str],
+    edited: Path,
+    movie: Path,
+) -> None:
+    """Step 5: the edited clip rendered by the engine (the example ``edits`` as ``overrides_edit``), as PNG frames
+    and a movie."""
+    last_frame = edited / f"edit.{manifest.frames[-1]:05d}.png"
+    if not _up_to_date([last_frame, movie], [*edits, manifest_path]):
+        _say(f"5/6 render the edited clip -> {edited}, {movie}")
+        render_manifest(manifest_path, edited, overrides_edit, fmt="png", movie=movie)
+    else:
+        _say(f"5/6 edited clip already rendered: {edited}")
+
+
+def _blender_step(
+    out: Path,
+    manifest: Manifest,
+    manifest_path: Path,
+    edits: list[Path],
+    overrides_edit: dict[str, str],
+    edit_arrays: list[np.ndarray | None],
+) -> dict | None:
+    """Step 6: the same edit rendered by Blender's compositor, headless, and compared with the engine's render;
+    the comparison, or None without Blender."""
+    blend, blender_dir = out / "demo.blend", out / "blender"
+    report, compare_path = out / "blender_render.json", out / "blender_compare.json"
+    blender_outputs = [blend, report, compare_path] + [blender_dir / f"edit.{n:05d}.exr" for n in manifest.frames]
+    compare = None
+    if _up_to_date(blender_outputs, [*edits, manifest_path]):
+        compare = json.loads(compare_path.read_text())
+        _say(f"6/6 Blender render already done: {blender_dir}")
+    else:
+        info = blender_render(manifest_path, overrides_edit, blend, blender_dir, report)
+        if info is not None:
+            info["render_dir"] = str(blender_dir)
+            compare = {**compare_with_engine(manifest, edit_arrays, info), "blender": info["blender"]}
+            compare["filter"], compare["exact"] = info["filter"], info["exact"]
+            atomic_write_text(compare_path, json.dumps(compare, indent=2))
+    if compare is not None:
+        why = "8-bit sRGB plate and edits: Blender decodes them with OCIO, the engine with the exact formula"
+        _say(
+            f"   Blender {compare['blender']} ({compare['filter']}) vs engine render ({compare['engine_filter']}): "
+            f"max abs error {compare['max_abs_error']:.1e} over {compare['frames']} frames ({why})"
+        )
+    return compare

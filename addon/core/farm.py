@@ -40,7 +40,7 @@ SHOT_NAME_MAX = C.SHOT_NAME_MAX
 FALLBACK_SHOT_NAME = "shot"
 
 #: Blender's colour-space names of a plate -> the engine's (OCIO's built-in config), inverse of
-#: ``tree_plan.BLENDER_COLORSPACES``: the farm reads the plate in the space the artist sees it in Blender.
+#: ``colorspaces.BLENDER_COLORSPACES``: the farm reads the plate in the space the artist sees it in Blender.
 ENGINE_COLORSPACES: dict[str, str] = {
     "sRGB": C.COLOUR_SRGB,
     "Linear Rec.709": C.COLOUR_SCENE_LINEAR,

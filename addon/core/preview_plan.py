@@ -248,32 +248,7 @@ def shader_graph(
     alpha: tuple[str, str | int] | None = None
     for i, (layer, image) in enumerate(layers.items()):
         y = -200.0 - 350.0 * i
-        uv, split, at, edit = f"UV_{layer}", f"SplitUV_{layer}", f"EditUV_{layer}", f"Edit_{layer}"
-        a, c = f"A_{layer}", f"RGB_{layer}"
-        nodes += [
-            ShaderNode(uv, TEX_IMAGE, (-1300.0, y), {"image": uv_image_name(layer), "interpolation": "Closest"}),
-            ShaderNode(split, SEPARATE_XYZ, (-1000.0, y)),
-            ShaderNode(at, COMBINE_XYZ, (-800.0, y)),
-            ShaderNode(
-                edit,
-                TEX_IMAGE,
-                (-600.0, y),
-                {"image": image, "interpolation": INTERPOLATION[filter_type]},
-            ),
-            ShaderNode(a, MATH, (-300.0, y - 100.0), {"operation": "MULTIPLY"}),
-            ShaderNode(c, VECTOR_MATH, (-100.0, y), {"operation": "SCALE"}),
-        ]
-        links += [
-            ShaderLink("UVMap", "UV", uv, "Vector"),
-            ShaderLink(uv, "Color", split, "Vector"),
-            ShaderLink(split, "X", at, "X"),
-            ShaderLink(split, "Y", at, "Y"),
-            ShaderLink(at, "Vector", edit, "Vector"),
-            ShaderLink(edit, "Alpha", a, 0),
-            ShaderLink(split, "Z", a, 1),
-            ShaderLink(edit, "Color", c, 0),  # premultiplied: a float PREMUL image's Color is rgb * a (measured)
-            ShaderLink(split, "Z", c, "Scale"),
-        ]
+        c, a = _layer_shader(nodes, links, layer, image, filter_type, y)
         if rgb is None or alpha is None:
             rgb, alpha = (c, "Vector"), (a, "Value")
             continue
@@ -291,6 +266,53 @@ def shader_graph(
         rgb, alpha = (add_c, "Vector"), (add_a, "Value")
     if rgb is None or alpha is None:
         raise P.PlanError("the export has no layers; export again")
+    _composite_shader(nodes, links, rgb, alpha, frame_paint)
+    return nodes, links
+
+
+def _layer_shader(
+    nodes: list[ShaderNode], links: list[ShaderLink], layer: str, image: str, filter_type: str, y: float
+) -> tuple[str, str]:
+    """One layer's row: its UV pass split into (u, v) and Z, its image sampled at (u, v), and the node of its
+    ``rgb_i = E_i.rgb * Z_i`` (output "Vector") and of its ``A_i = E_i.alpha * Z_i`` (output "Value")."""
+    uv, split, at, edit = f"UV_{layer}", f"SplitUV_{layer}", f"EditUV_{layer}", f"Edit_{layer}"
+    a, c = f"A_{layer}", f"RGB_{layer}"
+    nodes += [
+        ShaderNode(uv, TEX_IMAGE, (-1300.0, y), {"image": uv_image_name(layer), "interpolation": "Closest"}),
+        ShaderNode(split, SEPARATE_XYZ, (-1000.0, y)),
+        ShaderNode(at, COMBINE_XYZ, (-800.0, y)),
+        ShaderNode(
+            edit,
+            TEX_IMAGE,
+            (-600.0, y),
+            {"image": image, "interpolation": INTERPOLATION[filter_type]},
+        ),
+        ShaderNode(a, MATH, (-300.0, y - 100.0), {"operation": "MULTIPLY"}),
+        ShaderNode(c, VECTOR_MATH, (-100.0, y), {"operation": "SCALE"}),
+    ]
+    links += [
+        ShaderLink("UVMap", "UV", uv, "Vector"),
+        ShaderLink(uv, "Color", split, "Vector"),
+        ShaderLink(split, "X", at, "X"),
+        ShaderLink(split, "Y", at, "Y"),
+        ShaderLink(at, "Vector", edit, "Vector"),
+        ShaderLink(edit, "Alpha", a, 0),
+        ShaderLink(split, "Z", a, 1),
+        ShaderLink(edit, "Color", c, 0),  # premultiplied: a float PREMUL image's Color is rgb * a (measured)
+        ShaderLink(split, "Z", c, "Scale"),
+    ]
+    return c, a
+
+
+def _composite_shader(
+    nodes: list[ShaderNode],
+    links: list[ShaderLink],
+    rgb: tuple[str, str | int],
+    alpha: tuple[str, str | int],
+    frame_paint: bool,
+) -> None:
+    """``out = plate * (1 - sum A_i) + sum rgb_i`` (``rgb``, ``alpha``: the sums' outputs) emitted, with the frame
+    paint laid over it by its alpha where ``frame_paint``."""
     nodes += [
         ShaderNode("PlateShows", MATH, (300.0, 100.0), {"operation": "SUBTRACT", "defaults": {0: 1.0}}),
         ShaderNode("PlateKept", VECTOR_MATH, (500.0, 300.0), {"operation": "SCALE"}),
@@ -320,4 +342,3 @@ def shader_graph(
         ]
         shown = ("FramePaintOver", "Result")
     links.append(ShaderLink(shown[0], shown[1], "Emission", "Color"))
-    return nodes, links

@@ -25,6 +25,7 @@ from typing import Any
 
 from ...engine import contract as C  # type: ignore[import-not-found]
 from . import frames as F
+from .colorspaces import blender_colorspace, edit_colorspace, engine_colorspace, output_colorspace
 
 #: Every node and image the add-on creates starts with this; rebuilding removes only these.
 PREFIX = "NA_"
@@ -247,41 +248,16 @@ def plan_tree(
     if filter_type not in FILTERS:
         raise PlanError(f"unknown filter {filter_type!r}")
     edits = edits or {}
-
-    def at(path: str) -> str:
-        return C.resolve_manifest_path(manifest_path, path)
-
     passes = manifest["passes"]
     clip = manifest["clip"]
     first, last = contiguous_frames(passes["frames"])
     count = last - first + 1
-    pass_dir = at(passes["dir"])
+    pass_dir = C.resolve_manifest_path(manifest_path, passes["dir"])
     pass_first = os.path.join(pass_dir, passes["pattern"].format(frame=first))
-
-    if clip["kind"] == "sequence":
-        numbers = list(clip["frame_numbers"])
-        if first not in numbers:
-            raise PlanError(f"plate has no frame {first}; export frames that exist in the clip")
-        at_first = C.resolve_plate_path(manifest_path, clip, numbers.index(first))  # moved alone: as at export
-        plate_file = plate_path(manifest_path, at_first, "plate frame", known_plate)
-        plate = ImageSpec(PLATE_CLIP, plate_file, plate_colorspace(clip, colorspaces), True, first, count)
-    else:
-        # scene frame F shows the movie's frame numbered F: its first frame is numbered start_frame (0 by default)
-        movie = plate_path(manifest_path, C.resolve_plate_path(manifest_path, clip), "plate movie", known_plate)
-        start = int(clip.get("start_frame", 0))
-        plate = ImageSpec(PLATE_CLIP, movie, plate_colorspace(clip, colorspaces), False, start, count)
-
+    plate = _plate_image(manifest_path, clip, first, count, colorspaces, known_plate)
     images = [ImageSpec(PASSES_IMAGE, pass_first, "Non-Color", True, first, count)]
+    images += _layer_images(manifest_path, manifest["layers"], edits)
     layers = [layer["name"] for layer in manifest["layers"]]
-    unknown = set(edits) - set(layers)
-    if unknown:
-        raise PlanError(f"edit for unknown layer(s) {sorted(unknown)}; layers are {layers}")
-    for layer in manifest["layers"]:
-        name = layer["name"]
-        # the float edit layer <Layer>.exr wins over the export's PNG when both exist (the same rule as the engine)
-        edit = edits.get(name) or edit_layer_path(manifest_path, layer)
-        images.append(ImageSpec(edit_image_name(name), edit, edit_colorspace(edit)))
-        images.append(ImageSpec(atlas_image_name(name), at(layer["atlas_png"]), "sRGB"))
 
     nodes: list[NodeSpec] = [
         frame_spec(FRAME_PLATE, "Plate", FRAME_PLATE),
@@ -289,40 +265,110 @@ def plan_tree(
     ]
     links: list[LinkSpec] = []
     f_plate, f_passes = frame_node_name(FRAME_PLATE), frame_node_name(FRAME_PASSES)
-    f_blend, f_mattes = frame_node_name(FRAME_BLEND), frame_node_name(FRAME_MATTES)
     n_plate, n_passes = f"{PREFIX}Plate", f"{PREFIX}Passes"
     nodes.append(NodeSpec(n_plate, PLATE, (-900.0, 300.0), {"clip": PLATE_CLIP}, f_plate))
     passes_params = {"image": PASSES_IMAGE, "layer": passes["exr_layer"], "sequence": True}
     nodes.append(NodeSpec(n_passes, IMAGE, (-900.0, 0.0), passes_params, f_passes))
-    map_outputs: list[str] = []
     groups = [bilinear_group()] if bilinear_taps else []
-    for i, layer in enumerate(manifest["layers"]):
-        name = layer["name"]
-        y = -420.0 - 250.0 * i  # below the passes node, whose height grows with the layers
-        f_layer = frame_node_name(layer_frame_group(name))
-        nodes.append(frame_spec(layer_frame_group(name), layer_frame_label(name), "Layer"))
-        n_edit, n_map = f"{PREFIX}Edit_{name}", f"{PREFIX}MapUV_{name}"
-        nodes.append(NodeSpec(n_edit, IMAGE, (-900.0, y), {"image": edit_image_name(name)}, f_layer))
-        nodes.append(NodeSpec(n_map, MAP_UV, (-650.0, y), {"filter": filter_type}, f_layer))
-        links.append(LinkSpec(n_edit, "image", n_map, "image"))
-        links.append(LinkSpec(n_passes, layer["uv_pass"], n_map, "uv"))
-        if not bilinear_taps:
-            map_outputs.append(n_map)
-            continue
-        atlas_size = [int(v) for v in layer["atlas_size"]]
-        n_bilinear, n_switch = f"{PREFIX}Bilinear_{name}", filter_switch_name(name)
-        params = {"group": BILINEAR_GROUP, "image": edit_image_name(name), "size": atlas_size}
-        nodes.append(NodeSpec(n_bilinear, GROUP, (-650.0, y - 120.0), params, f_layer))
-        nodes.append(NodeSpec(n_switch, SWITCH, (-450.0, y), {"on": filter_type == FILTER_BILINEAR}, f_layer))
-        links.append(LinkSpec(n_edit, "image", n_bilinear, "Image"))
-        links.append(LinkSpec(n_passes, layer["uv_pass"], n_bilinear, "UV"))
-        links.append(LinkSpec(n_map, "image", n_switch, "off"))
-        links.append(LinkSpec(n_bilinear, "Image", n_switch, "on"))
-        map_outputs.append(n_switch)
+    map_outputs = [
+        _layer_nodes(nodes, links, layer, i, n_passes, filter_type, bilinear_taps)
+        for i, layer in enumerate(manifest["layers"])
+    ]
+    alpha_node, alpha_socket = _blend_nodes(nodes, links, map_outputs, layers, n_plate)
 
+    sources = [(layer["name"], n_passes, layer["alpha_pass"]) for layer in manifest["layers"]]
+    sources.append((PAINT_MATTE, alpha_node, alpha_socket))
+    _matte_nodes(nodes, links, sources)
+    res = passes["resolution"]
+    size = (int(res[0]), int(res[1]))
+    fps, aspect = F.scene_fps(C.clip_rate(clip)), F.scene_pixel_aspect(clip.get("pixel_aspect", 1.0))
+    mattes = [matte for matte, _, _ in sources]
+    return TreePlan(
+        nodes, links, images, plate, first, last, size, layers, output_colorspace(clip), fps, aspect, mattes, groups
+    )
+
+
+def _plate_image(
+    manifest_path: str,
+    clip: dict[str, Any],
+    first: int,
+    count: int,
+    colorspaces: frozenset[str] | None,
+    known_plate: str | None,
+) -> ImageSpec:
+    """The plate clip's image (``PLATE_CLIP``) for the exported frames ``first`` .. ``first + count - 1``."""
+    if clip["kind"] == "sequence":
+        numbers = list(clip["frame_numbers"])
+        if first not in numbers:
+            raise PlanError(f"plate has no frame {first}; export frames that exist in the clip")
+        at_first = C.resolve_plate_path(manifest_path, clip, numbers.index(first))  # moved alone: as at export
+        plate_file = plate_path(manifest_path, at_first, "plate frame", known_plate)
+        return ImageSpec(PLATE_CLIP, plate_file, plate_colorspace(clip, colorspaces), True, first, count)
+    # scene frame F shows the movie's frame numbered F: its first frame is numbered start_frame (0 by default)
+    movie = plate_path(manifest_path, C.resolve_plate_path(manifest_path, clip), "plate movie", known_plate)
+    start = int(clip.get("start_frame", 0))
+    return ImageSpec(PLATE_CLIP, movie, plate_colorspace(clip, colorspaces), False, start, count)
+
+
+def _layer_images(manifest_path: str, manifest_layers: list[dict[str, Any]], edits: dict[str, str]) -> list[ImageSpec]:
+    """Each layer's edit image (``edits``' file where it names one) and atlas image, in the layers' order."""
+    layers = [layer["name"] for layer in manifest_layers]
+    unknown = set(edits) - set(layers)
+    if unknown:
+        raise PlanError(f"edit for unknown layer(s) {sorted(unknown)}; layers are {layers}")
+    images = []
+    for layer in manifest_layers:
+        name = layer["name"]
+        # the float edit layer <Layer>.exr wins over the export's PNG when both exist (the same rule as the engine)
+        edit = edits.get(name) or edit_layer_path(manifest_path, layer)
+        images.append(ImageSpec(edit_image_name(name), edit, edit_colorspace(edit)))
+        atlas = C.resolve_manifest_path(manifest_path, layer["atlas_png"])
+        images.append(ImageSpec(atlas_image_name(name), atlas, "sRGB"))
+    return images
+
+
+def _layer_nodes(
+    nodes: list[NodeSpec],
+    links: list[LinkSpec],
+    layer: dict[str, Any],
+    i: int,
+    n_passes: str,
+    filter_type: str,
+    bilinear_taps: bool,
+) -> str:
+    """Layer ``i``'s frame: its edit image sampled at its UV pass (Map UV; with ``bilinear_taps`` also
+    ``BILINEAR_GROUP`` and the Switch between them). Returns the node whose "image" is the sampled layer."""
+    name = layer["name"]
+    y = -420.0 - 250.0 * i  # below the passes node, whose height grows with the layers
+    f_layer = frame_node_name(layer_frame_group(name))
+    nodes.append(frame_spec(layer_frame_group(name), layer_frame_label(name), "Layer"))
+    n_edit, n_map = f"{PREFIX}Edit_{name}", f"{PREFIX}MapUV_{name}"
+    nodes.append(NodeSpec(n_edit, IMAGE, (-900.0, y), {"image": edit_image_name(name)}, f_layer))
+    nodes.append(NodeSpec(n_map, MAP_UV, (-650.0, y), {"filter": filter_type}, f_layer))
+    links.append(LinkSpec(n_edit, "image", n_map, "image"))
+    links.append(LinkSpec(n_passes, layer["uv_pass"], n_map, "uv"))
+    if not bilinear_taps:
+        return n_map
+    atlas_size = [int(v) for v in layer["atlas_size"]]
+    n_bilinear, n_switch = f"{PREFIX}Bilinear_{name}", filter_switch_name(name)
+    params = {"group": BILINEAR_GROUP, "image": edit_image_name(name), "size": atlas_size}
+    nodes.append(NodeSpec(n_bilinear, GROUP, (-650.0, y - 120.0), params, f_layer))
+    nodes.append(NodeSpec(n_switch, SWITCH, (-450.0, y), {"on": filter_type == FILTER_BILINEAR}, f_layer))
+    links.append(LinkSpec(n_edit, "image", n_bilinear, "Image"))
+    links.append(LinkSpec(n_passes, layer["uv_pass"], n_bilinear, "UV"))
+    links.append(LinkSpec(n_map, "image", n_switch, "off"))
+    links.append(LinkSpec(n_bilinear, "Image", n_switch, "on"))
+    return n_switch
+
+
+def _blend_nodes(
+    nodes: list[NodeSpec], links: list[LinkSpec], map_outputs: list[str], layer_names: list[str], n_plate: str
+) -> tuple[str, str]:
+    """The Blend frame: the sampled layers summed (colour Mix/Add, alpha Math/Add, Set Alpha), put over the plate
+    (the render's output and the Viewer). Returns the output of the alpha sum: the paint's matte."""
+    f_blend = frame_node_name(FRAME_BLEND)
     nodes.append(frame_spec(FRAME_BLEND, "Blend", FRAME_BLEND))
     # the paint's matte: the alpha of the sum (one layer: its Map UV's alpha)
-    layer_names = [layer["name"] for layer in manifest["layers"]]
     alpha_node, alpha_socket = _separate(nodes, links, map_outputs[0], f_blend, layer_names[0])
     if len(map_outputs) == 1:
         fg_node, fg_socket = map_outputs[0], "image"
@@ -355,9 +401,21 @@ def plan_tree(
     links.append(LinkSpec(fg_node, fg_socket, n_over, "fg"))
     links.append(LinkSpec(n_over, "image", n_out, "image"))
     links.append(LinkSpec(n_over, "image", n_view, "image"))  # the backdrop shows the composite
+    return alpha_node, alpha_socket
 
-    sources = [(layer["name"], n_passes, layer["alpha_pass"]) for layer in manifest["layers"]]
-    sources.append((PAINT_MATTE, alpha_node, alpha_socket))
+
+def _separate(nodes: list[NodeSpec], links: list[LinkSpec], src_node: str, parent: str, layer: str) -> tuple[str, str]:
+    """A Separate Color node taking ``layer``'s sampled edit apart (``NA_Alpha_<Layer>``): its alpha."""
+    src = nodes[[n.name for n in nodes].index(src_node)]
+    n_sep = f"{PREFIX}Alpha_{layer}"
+    nodes.append(NodeSpec(n_sep, SEPARATE, (-400.0, src.location[1] - 60.0), parent=parent))
+    links.append(LinkSpec(src_node, "image", n_sep, "image"))
+    return n_sep, "alpha"
+
+
+def _matte_nodes(nodes: list[NodeSpec], links: list[LinkSpec], sources: list[tuple[str, str, str]]) -> None:
+    """The Mattes frame: each matte (name, source node, socket) as a named Reroute and the File Output writing it."""
+    f_mattes = frame_node_name(FRAME_MATTES)
     nodes.append(frame_spec(FRAME_MATTES, "Mattes", FRAME_MATTES))
     for k, (matte, src_node, src_socket) in enumerate(sources):
         y = 200.0 - 130.0 * k
@@ -366,13 +424,6 @@ def plan_tree(
         nodes.append(NodeSpec(n_file, FILE_OUTPUT, (800.0, y + 40.0), {"matte": matte}, f_mattes))
         links.append(LinkSpec(src_node, src_socket, n_matte, "in"))
         links.append(LinkSpec(n_matte, "out", n_file, "image"))
-    res = passes["resolution"]
-    size = (int(res[0]), int(res[1]))
-    fps, aspect = F.scene_fps(C.clip_rate(clip)), F.scene_pixel_aspect(clip.get("pixel_aspect", 1.0))
-    mattes = [matte for matte, _, _ in sources]
-    return TreePlan(
-        nodes, links, images, plate, first, last, size, layers, output_colorspace(clip), fps, aspect, mattes, groups
-    )
 
 
 def edit_layer_path(manifest_path: str, layer: dict[str, Any]) -> str:
@@ -409,180 +460,6 @@ def plate_path(manifest_path: str, path: str, what: str, known_plate: str | None
     return full
 
 
-def _separate(nodes: list[NodeSpec], links: list[LinkSpec], src_node: str, parent: str, layer: str) -> tuple[str, str]:
-    """A Separate Color node taking ``layer``'s sampled edit apart (``NA_Alpha_<Layer>``): its alpha."""
-    src = nodes[[n.name for n in nodes].index(src_node)]
-    n_sep = f"{PREFIX}Alpha_{layer}"
-    nodes.append(NodeSpec(n_sep, SEPARATE, (-400.0, src.location[1] - 60.0), parent=parent))
-    links.append(LinkSpec(src_node, "image", n_sep, "image"))
-    return n_sep, "alpha"
-
-
-#: A Math operand: a node's output (node, socket) or a constant.
-Operand = tuple[str, str] | float
-
-
-def bilinear_group() -> GroupPlan:
-    """``BILINEAR_GROUP``: the bilinear sample of an atlas (inputs Image, UV, and the atlas's Width and Height in
-    texels; output Image, premultiplied and times the UV's Z as Map UV's) from nearest Map UV taps, as
-    ``engine render --filter bilinear`` computes it. Per axis (u over the width W, v over the height H):
-
-        x = u W - 0.5,  x0 = floor(x),  f = x - x0
-        taps at the texel centres (x0 + 0.5) / W and (x0 + 1.5) / W, weighed 1 - f and f; a tap outside the atlas
-        (x0 < 0, x0 + 1 > W - 1) weighs 0, and so does the whole sample where u lies outside 0..1.
-
-    Each of the four taps is a nearest Map UV whose UV's Z is its weight times the coverage Z (Map UV multiplies the
-    texel by Z); the four are summed as the layers are (colour Mix/Add, alpha Math/Add, Set Alpha)."""
-    nodes: list[NodeSpec] = [
-        NodeSpec("Input", GROUP_INPUT, (-1800.0, 0.0)),
-        NodeSpec("UV", SEPARATE_XYZ, (-1600.0, 0.0)),
-    ]
-    links: list[LinkSpec] = [LinkSpec("Input", "UV", "UV", "vector")]
-    rows: dict[float, int] = {}
-
-    def place(x: float) -> tuple[float, float]:
-        rows[x] = rows.get(x, 0) + 1
-        return x, -160.0 * rows[x]
-
-    def math(name: str, operation: str, x: float, *args: Operand) -> tuple[str, str]:
-        values = {}
-        for key, arg in zip("abc", args, strict=False):
-            if isinstance(arg, tuple):
-                links.append(LinkSpec(arg[0], arg[1], name, key))
-            else:
-                values[key] = float(arg)
-        nodes.append(NodeSpec(name, MATH, place(x), {"operation": operation, "values": values}))
-        return name, "value"
-
-    def axis(a: str, coord: Operand, size: Operand) -> tuple[list[tuple[str, str]], list[tuple[str, str]], Operand]:
-        """The axis's two tap positions, their weights and whether the coordinate lies inside 0..1 (1 or 0)."""
-        x = math(f"{a}_texel", "MULTIPLY_ADD", -1400.0, coord, size, -0.5)
-        x0 = math(f"{a}_floor", "FLOOR", -1200.0, x)
-        f = math(f"{a}_fraction", "SUBTRACT", -1000.0, x, x0)
-        g = math(f"{a}_1-fraction", "SUBTRACT", -800.0, 1.0, f)
-        first_in = math(f"{a}_first_inside", "GREATER_THAN", -1000.0, x0, -0.5)
-        last = math(f"{a}_last", "SUBTRACT", -1200.0, size, 1.5)
-        second_in = math(f"{a}_second_inside", "LESS_THAN", -1000.0, x0, last)
-        weights = [math(f"{a}_weight0", "MULTIPLY", -600.0, g, first_in)]
-        weights.append(math(f"{a}_weight1", "MULTIPLY", -600.0, f, second_in))
-        taps = []
-        for k, offset in enumerate((0.5, 1.5)):
-            centre = math(f"{a}_centre{k}", "ADD", -1000.0, x0, offset)
-            taps.append(math(f"{a}_tap{k}", "DIVIDE", -800.0, centre, size))
-        below = math(f"{a}_below", "LESS_THAN", -1400.0, coord, 0.0)
-        above = math(f"{a}_above", "GREATER_THAN", -1400.0, coord, 1.0)
-        outside = math(f"{a}_outside", "ADD", -1200.0, below, above)
-        return taps, weights, math(f"{a}_inside", "SUBTRACT", -1000.0, 1.0, outside)
-
-    u_taps, u_weights, u_inside = axis("u", ("UV", "x"), ("Input", "Width"))
-    v_taps, v_weights, v_inside = axis("v", ("UV", "y"), ("Input", "Height"))
-    cover = math("cover_u", "MULTIPLY", -600.0, ("UV", "z"), u_inside)
-    cover = math("cover", "MULTIPLY", -400.0, cover, v_inside)
-    taps: list[str] = []
-    for i, (u_tap, u_weight) in enumerate(zip(u_taps, u_weights, strict=True)):
-        u_cover = math(f"weight{i}_", "MULTIPLY", -400.0, u_weight, cover)
-        for j, (v_tap, v_weight) in enumerate(zip(v_taps, v_weights, strict=True)):
-            weight = math(f"weight{i}{j}", "MULTIPLY", -200.0, u_cover, v_weight)
-            n_uv, n_tap = f"uv{i}{j}", f"tap{i}{j}"
-            nodes.append(NodeSpec(n_uv, COMBINE_XYZ, place(0.0)))
-            nodes.append(NodeSpec(n_tap, MAP_UV, place(200.0), {"filter": FILTER_NEAREST}))
-            links += [LinkSpec(*u_tap, n_uv, "x"), LinkSpec(*v_tap, n_uv, "y"), LinkSpec(*weight, n_uv, "z")]
-            links += [LinkSpec("Input", "Image", n_tap, "image"), LinkSpec(n_uv, "vector", n_tap, "uv")]
-            taps.append(n_tap)
-    color: tuple[str, str] = (taps[0], "image")
-    alpha: tuple[str, str] = _tap_alpha(nodes, links, taps[0], place(400.0))
-    for k, n_tap in enumerate(taps[1:], start=1):
-        n_add = f"add{k}"
-        nodes.append(NodeSpec(n_add, ADD_COLOR, place(600.0)))
-        links += [LinkSpec(*color, n_add, "a"), LinkSpec(n_tap, "image", n_add, "b")]
-        color = (n_add, "result")
-        alpha = math(f"add_alpha{k}", "ADD", 600.0, alpha, _tap_alpha(nodes, links, n_tap, place(400.0)))
-    nodes.append(NodeSpec("sum", SET_ALPHA, (800.0, 0.0)))
-    nodes.append(NodeSpec("Output", GROUP_OUTPUT, (1000.0, 0.0)))
-    links += [
-        LinkSpec(*color, "sum", "image"),
-        LinkSpec(*alpha, "sum", "alpha"),
-        LinkSpec("sum", "image", "Output", "Image"),
-    ]
-    inputs = [
-        ("Image", "NodeSocketColor"),
-        ("UV", "NodeSocketVector"),
-        ("Width", "NodeSocketFloat"),
-        ("Height", "NodeSocketFloat"),
-    ]
-    return GroupPlan(BILINEAR_GROUP, inputs, [("Image", "NodeSocketColor")], nodes, links)
-
-
-def _tap_alpha(
-    nodes: list[NodeSpec], links: list[LinkSpec], n_tap: str, location: tuple[float, float]
-) -> tuple[str, str]:
-    n_sep = f"{n_tap}_alpha"
-    nodes.append(NodeSpec(n_sep, SEPARATE, location))
-    links.append(LinkSpec(n_tap, "image", n_sep, "image"))
-    return n_sep, "alpha"
-
-
-#: Blender's names (4.5 and 5.0 configs) for the engine's OCIO colour spaces, by the built-in config's name; the
-#: first one Blender has is used. Blender 4.5 has no ACEScc/ACEScct (5.0 has both).
-BLENDER_COLORSPACES: dict[str, tuple[str, ...]] = {
-    C.COLOUR_SRGB: ("sRGB",),
-    C.COLOUR_SCENE_LINEAR: ("Linear Rec.709",),
-    C.COLOUR_RAW: ("Non-Color",),
-    "ACEScg": ("ACEScg",),
-    "ACES2065-1": ("ACES2065-1",),
-    "ACEScct": ("ACEScct",),
-    "ACEScc": ("ACEScc",),
-    "Linear Rec.2020": ("Linear Rec.2020",),
-    "Linear P3-D65": ("Linear DCI-P3 D65",),
-}
-#: The aliases the built-in config gives those spaces (a manifest made with an $OCIO config may use them).
-OCIO_ALIASES: dict[str, str] = {
-    "srgb_tx": C.COLOUR_SRGB,
-    "srgb_texture": C.COLOUR_SRGB,
-    "srgb - texture": C.COLOUR_SRGB,
-    "utility - srgb - texture": C.COLOUR_SRGB,
-    "srgb_encoded_rec709_srgb": C.COLOUR_SRGB,
-    "lin_rec709": C.COLOUR_SCENE_LINEAR,
-    "lin_rec709_srgb": C.COLOUR_SCENE_LINEAR,
-    "lin_srgb": C.COLOUR_SCENE_LINEAR,
-    "utility - linear - srgb": C.COLOUR_SCENE_LINEAR,
-    "utility - linear - rec.709": C.COLOUR_SCENE_LINEAR,
-    "lin_ap1": "ACEScg",
-    "aces - acescg": "ACEScg",
-    "lin_ap0": "ACES2065-1",
-    "aces - aces2065-1": "ACES2065-1",
-    "acescct_ap1": "ACEScct",
-    "aces - acescct": "ACEScct",
-    "acescc_ap1": "ACEScc",
-    "aces - acescc": "ACEScc",
-    "utility - raw": C.COLOUR_RAW,
-    "none": C.COLOUR_RAW,
-    "raw": C.COLOUR_RAW,
-}
-#: The scene-linear spaces among them: Blender writes its EXR render in the plate's space when it is one of these
-#: (as ``engine render`` does), else in its scene-linear Rec.709.
-LINEAR_COLORSPACES = frozenset({C.COLOUR_SCENE_LINEAR, "ACEScg", "ACES2065-1", "Linear Rec.2020", "Linear P3-D65"})
-
-
-def engine_colorspace(clip: dict[str, Any]) -> str:
-    """The manifest clip's colour space in the built-in config's words (older manifests' "sRGB"/"linear" mapped;
-    an alias mapped to its name; any other name kept as it is)."""
-    name = str(clip.get("colorspace", "sRGB"))
-    if "colour_config" not in clip:
-        return C.LEGACY_COLORSPACES.get(name, name)
-    return OCIO_ALIASES.get(name.lower(), name)
-
-
-def blender_colorspace(name: str, available: frozenset[str] | None = None) -> str | None:
-    """Blender's colour space for the engine's OCIO space ``name``: its entry in BLENDER_COLORSPACES, else the same
-    name (a studio $OCIO config that Blender also uses); None when Blender has none of them (``available``: the
-    names this Blender offers; None: assumed to have them all)."""
-    for candidate in (*BLENDER_COLORSPACES.get(name, ()), name):
-        if available is None or candidate in available:
-            return candidate
-    return None
-
-
 def plate_colorspace(clip: dict[str, Any], available: frozenset[str] | None = None) -> str:
     """Blender's colour space for the manifest's plate; a space Blender lacks is a PlanError that says what to do."""
     name = engine_colorspace(clip)
@@ -596,14 +473,119 @@ def plate_colorspace(clip: dict[str, Any], available: frozenset[str] | None = No
     return found
 
 
-def output_colorspace(clip: dict[str, Any]) -> str:
-    """Blender's colour space for the EXR render: the plate's when it is scene-linear, else Linear Rec.709 (what
-    ``engine render --format exr`` writes)."""
-    name = engine_colorspace(clip)
-    space = name if name in LINEAR_COLORSPACES else C.COLOUR_SCENE_LINEAR
-    return BLENDER_COLORSPACES[space][0]
+#: A Math operand: a node's output (node, socket) or a constant.
+Operand = tuple[str, str] | float
 
 
-def edit_colorspace(path: str) -> str:
-    """An edit layer is an sRGB PNG with straight alpha, or a linear float EXR with premultiplied alpha."""
-    return "Non-Color" if path.lower().endswith(C.EDIT_LAYER_FLOAT_EXT) else "sRGB"
+@dataclass
+class _GroupNodes:
+    """A node group's nodes and links as they are planned: each node placed in its column ``x``, below the last."""
+
+    nodes: list[NodeSpec]
+    links: list[LinkSpec]
+    rows: dict[float, int] = field(default_factory=dict)
+
+    def place(self, x: float) -> tuple[float, float]:
+        self.rows[x] = self.rows.get(x, 0) + 1
+        return x, -160.0 * self.rows[x]
+
+    def math(self, name: str, operation: str, x: float, *args: Operand) -> tuple[str, str]:
+        values = {}
+        for key, arg in zip("abc", args, strict=False):
+            if isinstance(arg, tuple):
+                self.links.append(LinkSpec(arg[0], arg[1], name, key))
+            else:
+                values[key] = float(arg)
+        self.nodes.append(NodeSpec(name, MATH, self.place(x), {"operation": operation, "values": values}))
+        return name, "value"
+
+
+def bilinear_group() -> GroupPlan:
+    """``BILINEAR_GROUP``: the bilinear sample of an atlas (inputs Image, UV, and the atlas's Width and Height in
+    texels; output Image, premultiplied and times the UV's Z as Map UV's) from nearest Map UV taps, as
+    ``engine render --filter bilinear`` computes it. Per axis (u over the width W, v over the height H):
+
+        x = u W - 0.5,  x0 = floor(x),  f = x - x0
+        taps at the texel centres (x0 + 0.5) / W and (x0 + 1.5) / W, weighed 1 - f and f; a tap outside the atlas
+        (x0 < 0, x0 + 1 > W - 1) weighs 0, and so does the whole sample where u lies outside 0..1.
+
+    Each of the four taps is a nearest Map UV whose UV's Z is its weight times the coverage Z (Map UV multiplies the
+    texel by Z); the four are summed as the layers are (colour Mix/Add, alpha Math/Add, Set Alpha)."""
+    g = _GroupNodes(
+        [NodeSpec("Input", GROUP_INPUT, (-1800.0, 0.0)), NodeSpec("UV", SEPARATE_XYZ, (-1600.0, 0.0))],
+        [LinkSpec("Input", "UV", "UV", "vector")],
+    )
+    u_taps, u_weights, u_inside = _axis(g, "u", ("UV", "x"), ("Input", "Width"))
+    v_taps, v_weights, v_inside = _axis(g, "v", ("UV", "y"), ("Input", "Height"))
+    cover = g.math("cover_u", "MULTIPLY", -600.0, ("UV", "z"), u_inside)
+    cover = g.math("cover", "MULTIPLY", -400.0, cover, v_inside)
+    taps: list[str] = []
+    for i, (u_tap, u_weight) in enumerate(zip(u_taps, u_weights, strict=True)):
+        u_cover = g.math(f"weight{i}_", "MULTIPLY", -400.0, u_weight, cover)
+        for j, (v_tap, v_weight) in enumerate(zip(v_taps, v_weights, strict=True)):
+            weight = g.math(f"weight{i}{j}", "MULTIPLY", -200.0, u_cover, v_weight)
+            n_uv, n_tap = f"uv{i}{j}", f"tap{i}{j}"
+            g.nodes.append(NodeSpec(n_uv, COMBINE_XYZ, g.place(0.0)))
+            g.nodes.append(NodeSpec(n_tap, MAP_UV, g.place(200.0), {"filter": FILTER_NEAREST}))
+            g.links += [LinkSpec(*u_tap, n_uv, "x"), LinkSpec(*v_tap, n_uv, "y"), LinkSpec(*weight, n_uv, "z")]
+            g.links += [LinkSpec("Input", "Image", n_tap, "image"), LinkSpec(n_uv, "vector", n_tap, "uv")]
+            taps.append(n_tap)
+    _sum_taps(g, taps)
+    inputs = [
+        ("Image", "NodeSocketColor"),
+        ("UV", "NodeSocketVector"),
+        ("Width", "NodeSocketFloat"),
+        ("Height", "NodeSocketFloat"),
+    ]
+    return GroupPlan(BILINEAR_GROUP, inputs, [("Image", "NodeSocketColor")], g.nodes, g.links)
+
+
+def _axis(
+    g: _GroupNodes, a: str, coord: Operand, size: Operand
+) -> tuple[list[tuple[str, str]], list[tuple[str, str]], Operand]:
+    """The axis's two tap positions, their weights and whether the coordinate lies inside 0..1 (1 or 0)."""
+    x = g.math(f"{a}_texel", "MULTIPLY_ADD", -1400.0, coord, size, -0.5)
+    x0 = g.math(f"{a}_floor", "FLOOR", -1200.0, x)
+    f = g.math(f"{a}_fraction", "SUBTRACT", -1000.0, x, x0)
+    rest = g.math(f"{a}_1-fraction", "SUBTRACT", -800.0, 1.0, f)
+    first_in = g.math(f"{a}_first_inside", "GREATER_THAN", -1000.0, x0, -0.5)
+    last = g.math(f"{a}_last", "SUBTRACT", -1200.0, size, 1.5)
+    second_in = g.math(f"{a}_second_inside", "LESS_THAN", -1000.0, x0, last)
+    weights = [g.math(f"{a}_weight0", "MULTIPLY", -600.0, rest, first_in)]
+    weights.append(g.math(f"{a}_weight1", "MULTIPLY", -600.0, f, second_in))
+    taps = []
+    for k, offset in enumerate((0.5, 1.5)):
+        centre = g.math(f"{a}_centre{k}", "ADD", -1000.0, x0, offset)
+        taps.append(g.math(f"{a}_tap{k}", "DIVIDE", -800.0, centre, size))
+    below = g.math(f"{a}_below", "LESS_THAN", -1400.0, coord, 0.0)
+    above = g.math(f"{a}_above", "GREATER_THAN", -1400.0, coord, 1.0)
+    outside = g.math(f"{a}_outside", "ADD", -1200.0, below, above)
+    return taps, weights, g.math(f"{a}_inside", "SUBTRACT", -1000.0, 1.0, outside)
+
+
+def _sum_taps(g: _GroupNodes, taps: list[str]) -> None:
+    """The taps summed as the layers are (colour Mix/Add, alpha Math/Add, Set Alpha) into the group's output."""
+    color: tuple[str, str] = (taps[0], "image")
+    alpha: tuple[str, str] = _tap_alpha(g.nodes, g.links, taps[0], g.place(400.0))
+    for k, n_tap in enumerate(taps[1:], start=1):
+        n_add = f"add{k}"
+        g.nodes.append(NodeSpec(n_add, ADD_COLOR, g.place(600.0)))
+        g.links += [LinkSpec(*color, n_add, "a"), LinkSpec(n_tap, "image", n_add, "b")]
+        color = (n_add, "result")
+        alpha = g.math(f"add_alpha{k}", "ADD", 600.0, alpha, _tap_alpha(g.nodes, g.links, n_tap, g.place(400.0)))
+    g.nodes.append(NodeSpec("sum", SET_ALPHA, (800.0, 0.0)))
+    g.nodes.append(NodeSpec("Output", GROUP_OUTPUT, (1000.0, 0.0)))
+    g.links += [
+        LinkSpec(*color, "sum", "image"),
+        LinkSpec(*alpha, "sum", "alpha"),
+        LinkSpec("sum", "image", "Output", "Image"),
+    ]
+
+
+def _tap_alpha(
+    nodes: list[NodeSpec], links: list[LinkSpec], n_tap: str, location: tuple[float, float]
+) -> tuple[str, str]:
+    n_sep = f"{n_tap}_alpha"
+    nodes.append(NodeSpec(n_sep, SEPARATE, location))
+    links.append(LinkSpec(n_tap, "image", n_sep, "image"))
+    return n_sep, "alpha"

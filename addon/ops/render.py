@@ -17,7 +17,7 @@ from bpy.props import EnumProperty, StringProperty
 
 from ...engine import contract as C
 from .. import compositor, paint
-from ..core import needs
+from ..core import colorspaces, needs
 from ..core import render_job as RJ
 from ..core import tree_plan as P
 from .paint import edit_images
@@ -151,7 +151,7 @@ class NEURALATLAS_OT_render(bpy.types.Operator):
             manifest = C.load_manifest(imported_manifest(context))
             exported = P.contiguous_frames(list(manifest["passes"]["frames"]))
             session = compositor.RenderSession(
-                context.scene, self._out, fmt, P.output_colorspace(manifest["clip"]), exported
+                context.scene, self._out, fmt, colorspaces.output_colorspace(manifest["clip"]), exported
             )
             if not session.frames():  # the scene's range lies outside the export: nothing it could render
                 scene = context.scene

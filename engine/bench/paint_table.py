@@ -264,48 +264,14 @@ def run_paint_table(
     recipe(degrade)  # an unknown name is refused before anything runs
     if parts and scribbles:
         raise ValueError("parts and scribbles are two ways to split a clip: choose one")
-    folders = find_clips(root)
-    if only:
-        unknown = sorted(set(only) - {f.name for f in folders})
-        if unknown:
-            raise InputError(Path(root), f"holds no clip {unknown[0]}", "name clip folders that are under it")
-        folders = [f for f in folders if f.name in only]
     rows = []
-    for folder in folders:
-        given = [folder / "masks"]
-        split = part_folders(folder)
-        if parts and split:
-            given = split
-        masks = given  # exact: the clip's own masks, as a user passes them
-        if recipe(degrade) != recipe(EXACT):
-            masks = [write_degraded(m, out / "masks" / degrade / folder.name / m.name, degrade, seed) for m in given]
-        strokes = None
-        if scribbles and split:
-            from engine.bench.part_scribbles import write_part_scribbles
-
-            at = tuple(float(a) for a in np.linspace(0.0, 1.0, max(2, scribble_frames)))
-            strokes, _ = write_part_scribbles(split, out / "scribbles" / folder.name, at)
-        run = out / "runs" / folder.name
-        say(f"paint-table: {folder.name}: fit {preset} + export -> {run}")
-        manifest = fit_and_export(folder / "frames", masks, run, preset, sets or [], threads, out / "logs" /
-                                  f"{folder.name}.log", strokes)  # fmt: skip
-        say(f"paint-table: {folder.name}: scoring the export")
-        metrics = json.loads((run / C.RUN_METRICS).read_text(encoding="utf-8"))
-        row = {
-            "clip": folder.name,
-            "layers": (len(split) if strokes is not None else len(masks)) + 1,
-            "scribbles": str(strokes) if strokes is not None else None,
-            "given_masks_iou": masks_iou(masks[0], folder / "masks") if len(masks) == 1 else None,
-            **score_clip_export(folder, manifest, out),
-            "psnr": metrics.get("psnr"),
-            "train_seconds": metrics.get("train_seconds"),
-            "steps": metrics.get("steps"),
-            "manifest": str(manifest),
-        }
+    for folder in _selected_clips(root, only):
+        row = _clip_row(folder, out, preset, degrade, seed, sets or [], threads, parts, scribbles, scribble_frames,
+                        say)  # fmt: skip
         if pictures and (folder / "masks").is_dir():
             from engine.bench.paint_picture import paint_picture
 
-            row["picture"] = str(paint_picture(manifest, folder / "frames", folder / "masks",
+            row["picture"] = str(paint_picture(Path(row["manifest"]), folder / "frames", folder / "masks",
                                                out / "pictures" / f"{folder.name}.png"))  # fmt: skip
         rows.append(row)
         say(f"paint-table: {folder.name}: " + ", ".join(f"{key} {_cell(row, key, d)}" for _, key, d in COLUMNS[1:]))
@@ -327,6 +293,64 @@ def run_paint_table(
     atomic_write_text(out / PAINT_JSON, json.dumps(table, indent=1))
     atomic_write_text(out / PAINT_MD, format_table(table) + "\n")
     return table
+
+
+def _selected_clips(root: str | Path, only: list[str] | None) -> list[Path]:
+    """The clip folders under ``root``, or the ``only`` ones; a name that is not there is refused up front."""
+    folders = find_clips(root)
+    if only:
+        unknown = sorted(set(only) - {f.name for f in folders})
+        if unknown:
+            raise InputError(Path(root), f"holds no clip {unknown[0]}", "name clip folders that are under it")
+        folders = [f for f in folders if f.name in only]
+    return folders
+
+
+def _clip_row(
+    folder: Path,
+    out: Path,
+    preset: str,
+    degrade: str,
+    seed: int,
+    sets: list[str],
+    threads: int | None,
+    parts: bool,
+    scribbles: bool,
+    scribble_frames: int,
+    say: Log,
+) -> dict:
+    """One clip fitted and exported as ``run_paint_table`` says, and its export scored: the table's row."""
+    given = [folder / "masks"]
+    split = part_folders(folder)
+    if parts and split:
+        given = split
+    masks = given  # exact: the clip's own masks, as a user passes them
+    if recipe(degrade) != recipe(EXACT):
+        masks = [write_degraded(m, out / "masks" / degrade / folder.name / m.name, degrade, seed) for m in given]
+    strokes = None
+    if scribbles and split:
+        from engine.bench.part_scribbles import write_part_scribbles
+
+        at = tuple(float(a) for a in np.linspace(0.0, 1.0, max(2, scribble_frames)))
+        strokes, _ = write_part_scribbles(split, out / "scribbles" / folder.name, at)
+    run = out / "runs" / folder.name
+    say(f"paint-table: {folder.name}: fit {preset} + export -> {run}")
+    manifest = fit_and_export(folder / "frames", masks, run, preset, sets, threads, out / "logs" /
+                              f"{folder.name}.log", strokes)  # fmt: skip
+    say(f"paint-table: {folder.name}: scoring the export")
+    metrics = json.loads((run / C.RUN_METRICS).read_text(encoding="utf-8"))
+    row = {
+        "clip": folder.name,
+        "layers": (len(split) if strokes is not None else len(masks)) + 1,
+        "scribbles": str(strokes) if strokes is not None else None,
+        "given_masks_iou": masks_iou(masks[0], folder / "masks") if len(masks) == 1 else None,
+        **score_clip_export(folder, manifest, out),
+        "psnr": metrics.get("psnr"),
+        "train_seconds": metrics.get("train_seconds"),
+        "steps": metrics.get("steps"),
+        "manifest": str(manifest),
+    }
+    return row
 
 
 def mean_row(rows: list[dict]) -> dict:

@@ -210,6 +210,26 @@ def compute_long_flow(
                 progress(total, total)
             return cached
 
+    lf = _correspondences(frames, adjacent, gaps, backend, threshold, stride, total, progress)
+    if cache_path is not None:
+        _save_long_cache(cache_path, lf)
+    return lf
+
+
+def _correspondences(
+    frames: np.ndarray,
+    adjacent: FlowField,
+    gaps: tuple[int, ...],
+    backend: InitFlowBackend,
+    threshold: float,
+    stride: int,
+    total: int,
+    progress: Callable[[int, int], None] | None,
+) -> LongFlow:
+    """The consistent correspondences of every pair ``gaps`` apart (checked arguments, see ``compute_long_flow``):
+    each gap's flow starts from the previous gap's chained twice, so a long gap is found from what a short one
+    already knows instead of searched from scratch."""
+    t, h, w = frames.shape[:3]
     src_type, t_type = _index_types(t, h, w)
     grid = np.zeros((h, w), dtype=bool)
     grid[::stride, ::stride] = True
@@ -260,8 +280,6 @@ def compute_long_flow(
         backend=backend.name,
         threshold_px=threshold,
     )
-    if cache_path is not None:
-        _save_long_cache(cache_path, lf)
     return lf
 
 

@@ -227,14 +227,7 @@ def analyse_scene(
         raise InputError(None, f"--set components={cfg.components}: unknown", "use components=auto or components=all")
     fg = int(masks.shape[0]) if foreground_layers is None else int(foreground_layers)
     source = layers_source or (C.SCENE_LAYERS_GIVEN if fg else C.SCENE_LAYERS_NONE)
-    reasons: dict[str, str] = {}
-    note = f" ({masks_note})" if masks_note else ""
-    if fg:
-        how = "found from motion (--auto-masks)" if source == C.SCENE_LAYERS_AUTO else "given (--mask)"
-        reasons["layers"] = f"background + {fg} foreground layer(s): masks {how}{note}"
-    else:
-        why = "no moving object was found" if source == C.SCENE_LAYERS_AUTO else "no masks were given"
-        reasons["layers"] = f"background only: {why}{note}; no foreground or alpha networks, alpha = 1"
+    reasons: dict[str, str] = {"layers": _layers_reason(fg, source, masks_note)}
 
     has_flow = frames >= 2 and flow is not None and flow.pairs > 0
     long_gaps = long_flow_gaps(cfg.long_flow_max_gap, frames)
@@ -245,6 +238,39 @@ def analyse_scene(
         reasons["background_motion"] += " (paper model: its mappings are MLPs either way; only loss terms change)"
     reasons["scribbles"] = f"{scribbles} scribble file(s)" if scribbles else "no scribbles given"
 
+    active = _active_terms(
+        cfg, reasons, fg=fg, has_flow=has_flow, long_gaps=bool(long_gaps), scribbles=scribbles, motion=motion
+    )
+    scene = SceneAnalysis(
+        components="auto",
+        num_layers=1 + fg,
+        layers_source=source,
+        background_motion=motion,
+        flow=has_flow,
+        scribbles=scribbles,
+        alpha_network=fg > 0,
+        active_terms=active,
+        reasons=reasons,
+        measured=_measured(frames, fg, measure),
+    )
+    return force_all(scene) if cfg.components == "all" else scene
+
+
+def _layers_reason(fg: int, source: str, masks_note: str | None) -> str:
+    """Why the fit has the layers it has: the masks given or found, or none (a background-only atlas)."""
+    note = f" ({masks_note})" if masks_note else ""
+    if fg:
+        how = "found from motion (--auto-masks)" if source == C.SCENE_LAYERS_AUTO else "given (--mask)"
+        return f"background + {fg} foreground layer(s): masks {how}{note}"
+    why = "no moving object was found" if source == C.SCENE_LAYERS_AUTO else "no masks were given"
+    return f"background only: {why}{note}; no foreground or alpha networks, alpha = 1"
+
+
+def _active_terms(
+    cfg: FitConfig, reasons: dict[str, str], *, fg: int, has_flow: bool, long_gaps: bool, scribbles: int, motion: str
+) -> list[str]:
+    """The loss terms the fit computes, in ``ALL_TERMS`` order; each term left off gets its reason in ``reasons``
+    (in that order too: the reasons are written to the run folder as they come)."""
     active = []
     for term in ALL_TERMS:
         if term in FOREGROUND_TERMS and not fg:
@@ -271,6 +297,11 @@ def analyse_scene(
             reasons[term] = "off: its weight (or schedule) is 0 in this config"
         else:
             active.append(term)
+    return active
+
+
+def _measured(frames: int, fg: int, measure: MotionMeasure | None) -> dict[str, float | int | None]:
+    """The numbers the analysis decided by, as the run folder records them."""
     measured: dict[str, float | int | None] = {"frames": frames, "foreground_layers": fg}
     if measure is not None:
         measured.update(
@@ -282,19 +313,7 @@ def analyse_scene(
                 "background_vectors": measure.vectors,
             }
         )
-    scene = SceneAnalysis(
-        components="auto",
-        num_layers=1 + fg,
-        layers_source=source,
-        background_motion=motion,
-        flow=has_flow,
-        scribbles=scribbles,
-        alpha_network=fg > 0,
-        active_terms=active,
-        reasons=reasons,
-        measured=measured,
-    )
-    return force_all(scene) if cfg.components == "all" else scene
+    return measured
 
 
 def force_all(scene: SceneAnalysis) -> SceneAnalysis:

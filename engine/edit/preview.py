@@ -26,15 +26,11 @@ from ..export.manifest import Manifest
 from ..io.atomic import DISK_ERRORS, as_disk_full, atomic_write
 from ..io.images import cv2_write, read_image
 from .equations import edit_to_premultiplied
+from .movie import movie_writer
+from .output_checks import check_output
 from .project_frame import project_to_textures
-from .render import (
-    StagedFolder,
-    check_output,
-    movie_writer,
-    plate_frames,
-    render_frames,
-    to_display_u8,
-)
+from .render import plate_frames, render_frames, to_display_u8
+from .staged_folder import StagedFolder
 
 #: The export's own preview folder (``preview`` beside the manifest), the default output.
 PREVIEW_DIR = "preview"

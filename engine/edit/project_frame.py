@@ -32,7 +32,7 @@ from ..io.clip import same_aspect
 from ..io.colour import linear_to_srgb
 from ..io.images import image_header, read_image, write_png, write_rgba_exr
 from .equations import edit_to_premultiplied, load_edit
-from .render import STAGING_SUFFIX
+from .staged_folder import STAGING_SUFFIX
 
 #: A layer owns a pixel when its alpha is at least this (or it is the largest of the pixel's alphas).
 OWNER_ALPHA = 0.5

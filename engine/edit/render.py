@@ -6,27 +6,23 @@ scene-linear Rec.709 (Blender's compositing space) and the result is converted b
 OCIO; a pixel no edit covers is the plate's own value, so an empty edit gives the plate back bit for bit. Frames
 are written as float EXR (in the plate's colour space when it is scene-linear, e.g. ACEScg, else in scene-linear
 Rec.709, tagged with its chromaticities), PNG (sRGB) or ``plate`` (the plate's file type, bit depth and colour
-space); optionally an H.264 movie through PyAV, tagged BT.709 (docs/colour.md).
+space); optionally an H.264 movie through PyAV, tagged BT.709 (``engine.edit.movie``, docs/colour.md).
 
 What it writes can never destroy what it reads: an output folder that is (or directly holds) the plate's frames
-or a mask folder, or lies inside the run folder, is refused before anything is written (``check_output``). The
+or a mask folder, or lies inside the run folder, is refused before anything is written (``output_checks``). The
 frames are rendered into a hidden staging folder inside ``--out`` and moved into place together once every one is
-written (``StagedFolder``); a failure, a full disk or a cancel removes the staging (and ``--out`` when the render
+written (``staged_folder``); a failure, a full disk or a cancel removes the staging (and ``--out`` when the render
 created it), so no partial frame set is ever left and earlier files in ``--out`` are untouched.
 """
 
 from __future__ import annotations
 
-import contextlib
 import os
 import re
-import shutil
 import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
-from fractions import Fraction
 from pathlib import Path
-from types import TracebackType
 from typing import Any
 
 import numpy as np
@@ -37,14 +33,7 @@ from tqdm import tqdm
 from .. import contract as C
 from ..errors import DiskFullError, InputError
 from ..export.manifest import Manifest
-from ..io.atomic import (
-    DISK_ERRORS,
-    as_disk_full,
-    atomic_write,
-    disk_full_as_one_line,
-    disk_full_error,
-    signals_held,
-)
+from ..io.atomic import DISK_ERRORS, as_disk_full, atomic_write, signals_held
 from ..io.clip import iter_frames, open_clip
 from ..io.colour import (
     SCENE_LINEAR,
@@ -58,8 +47,10 @@ from ..io.colour import (
     to_linear,
 )
 from ..io.images import exr_timing, native_path, read_spec, write_like, write_png, write_rgba_exr
-from ..io.timing import exact_rate, timecode_at
 from .equations import FILTERS, composite_edits, composite_touched, edit_is_empty, load_edit
+from .movie import DEFAULT_FPS, MovieWriter, movie_writer
+from .output_checks import check_movie, check_output
+from .staged_folder import StagedFolder
 
 FORMATS = ("exr", "png", "plate")
 #: The frames' default name: ``edit.`` + the plate's frame number padded as the plate's files are + the extension
@@ -72,18 +63,6 @@ NAME_ARG = "--name"
 #: when it is an EXR (a half plate gives half frames), else 32.
 EXR_DEPTHS = ("16", "32")
 DEPTH_ARG = "--depth"
-#: Frames per second of the movie when the plate has no rate (image sequences).
-DEFAULT_FPS = 25.0
-#: The movie's colour tags (ISO/IEC 23091-2 codes: primaries BT.709 = 1, transfer IEC 61966-2-1 sRGB = 13, matrix
-#: BT.709 = 1, range MPEG/limited = 1): what a player needs to show the sRGB frames as the PNGs show.
-MOVIE_COLOUR_TAGS = (1, 13, 1, 1)
-#: The largest numerator or denominator of a movie's sample aspect ratio (H.264 stores two 16-bit terms).
-MAX_SAR_TERM = 1000
-#: H.264 constant rate factor of the movies: visually lossless, so the movie judges the edit, not the codec.
-MOVIE_CRF = 18
-#: Hidden staging folders inside an output folder, one per writing process (``.edit.partial-1234``).
-STAGING_PREFIX = "."
-STAGING_SUFFIX = ".partial-"
 #: Bytes per pixel of a rendered frame before compression (the disk-full estimate before any frame is written):
 #: float32 RGBA for EXR, 8-bit RGB for PNG.
 FRAME_BYTES_PER_PIXEL = {"exr": 16, "png": 3, "plate": 16}
@@ -273,278 +252,6 @@ def to_display_u8(frame_linear: np.ndarray) -> np.ndarray:
     return np.rint(np.clip(linear_to_srgb(frame_linear), 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
-# --- what an output may not be ---------------------------------------------------------------------------------
-
-
-def _same(a: str | Path, b: str | Path) -> bool:
-    return os.path.normcase(os.path.realpath(a)) == os.path.normcase(os.path.realpath(b))
-
-
-def protected_folders(manifest: Manifest) -> list[tuple[Path, str, str]]:
-    """Folders outside the run that an output must never be: (folder, what it is, what it holds). The folders of
-    the plate's frames and the fit's mask folders (the manifest records both)."""
-    clip = manifest.clip
-    found: list[tuple[Path, str, str]] = []
-    if clip["kind"] == C.CLIP_KINDS[0]:
-        plate = [manifest.plate_path(), *(manifest.plate_path(i).parent for i in range(len(clip["frame_files"])))]
-        found += [(folder, "the folder of the plate's frames", "the plate") for folder in plate]
-    found += [(manifest.resolve(m), "a mask folder of the fit", "the masks") for m in clip.get("masks", [])]
-    return found
-
-
-def check_output(manifest: Manifest, out: Path, option: str, allow: Path | None = None) -> None:
-    """One line, before anything is written, when the folder ``out`` (frames are written straight into it) is or
-    directly holds the plate's frames or a mask folder, or lies inside the run folder (RUN_DIR itself, its exports,
-    edits, records); ``allow`` is the one folder inside the run folder this writer may use."""
-    if allow is not None and _same(out, allow):
-        return
-    root = manifest.run_root
-    if C.is_within(str(out), str(root)):
-        raise InputError(
-            out,
-            f"is inside the run folder {root} (its fit, exports and edit layers)",
-            f"choose a {option} outside the run folder",
-        )
-    for folder, what, holds in protected_folders(manifest):
-        if _same(out, folder):
-            raise InputError(out, f"is {what}", f"choose another {option}: nothing is written over {holds}")
-
-
-def check_movie(manifest: Manifest, movie: Path) -> None:
-    """One line, before anything is written, when ``--movie`` is the plate movie, a folder, or a file in a folder
-    an output may not be (``check_output``)."""
-    if movie.is_dir():
-        raise InputError(movie, "is a folder", "give --movie a file name, e.g. edited.mp4")
-    if manifest.clip["kind"] != C.CLIP_KINDS[0] and _same(movie, manifest.plate_path()):
-        raise InputError(movie, "is the plate movie", "choose another --movie: nothing is written over the plate")
-    check_output(manifest, movie.parent, "--movie folder")
-
-
-def _in_the_way(folder: Path) -> Path | None:
-    """The file (not a folder) that stands where ``folder`` or one of its parents should be, if any."""
-    for probe in (folder, *folder.parents):
-        if probe.exists():
-            return None if probe.is_dir() else probe
-    return None
-
-
-# --- writing all or nothing ------------------------------------------------------------------------------------
-
-
-def _pid_alive(pid: int) -> bool:
-    if pid == os.getpid():
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except (PermissionError, OSError):
-        return True
-    return True
-
-
-def _first_missing(folder: Path) -> Path | None:
-    """The outermost folder of ``folder``'s path that does not exist yet (what creating it creates), or None."""
-    missing = None
-    probe = folder.absolute()
-    while not probe.exists():
-        missing = probe
-        if probe.parent == probe:
-            break
-        probe = probe.parent
-    return missing
-
-
-class StagedFolder:
-    """Files written into a hidden staging folder inside ``out`` and moved into ``out`` together once all of them
-    are written (``commit``). Leaving the block without a commit (any failure, a full disk, a cancel) removes the
-    staging, and ``out`` itself when this created it: nothing partial is left and earlier files are untouched."""
-
-    def __init__(self, out: str | Path, what: str, option: str, shared: bool = False) -> None:
-        """``what`` names the staging folder (one per writer of ``out`` at a time); ``shared``: other processes write
-        into ``out`` too (a chunk of a render), so a failure never removes ``out`` even when this created it."""
-        self.out = Path(out)
-        self.what = what
-        self.option = option
-        self.shared = shared
-        self.staging = self.out / f"{STAGING_PREFIX}{what}{STAGING_SUFFIX}{os.getpid()}"
-        self.created: Path | None = None
-        self.names: list[str] = []
-        self.committed = False
-        self.discarded_bytes = 0
-
-    def __enter__(self) -> StagedFolder:
-        if self.out.exists() and not self.out.is_dir():
-            raise InputError(self.out, "is a file, not a folder", f"give {self.option} a folder (created when missing)")
-        self.created = None if self.shared else _first_missing(self.out)
-        try:
-            self.out.mkdir(parents=True, exist_ok=True)
-            self._clear_stale()
-            self.staging.mkdir()
-        except OSError as exc:
-            self.discard()
-            full = disk_full_error(exc, self.out)
-            if full is not None:
-                raise full from None
-            problem = f"cannot create the output folder ({exc.strerror or type(exc).__name__})"
-            raise InputError(self.out, problem, f"choose a writable {self.option}") from None
-        return self
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        if not self.committed:
-            self.discard()
-
-    def _clear_stale(self) -> None:
-        """Remove the staging folders that killed writers left here (their process is gone)."""
-        prefix = f"{STAGING_PREFIX}{self.what}{STAGING_SUFFIX}"
-        for entry in self.out.iterdir():
-            pid = entry.name.removeprefix(prefix)
-            if entry.name.startswith(prefix) and entry.is_dir() and pid.isdigit() and not _pid_alive(int(pid)):
-                shutil.rmtree(entry, ignore_errors=True)
-
-    def path(self, name: str) -> Path:
-        """Where to write the output file ``name`` (in the staging folder until ``commit``)."""
-        self.names.append(name)
-        return self.staging / name
-
-    def staged_bytes(self) -> int:
-        """Bytes written into the staging folder so far."""
-        return sum(p.stat().st_size for p in self.staging.iterdir() if p.is_file()) if self.staging.is_dir() else 0
-
-    def commit(self) -> list[Path]:
-        """Move every staged file into ``out`` (signals held: all or none); returns their final paths."""
-        with signals_held():
-            for name in self.names:
-                os.replace(self.staging / name, self.out / name)
-            shutil.rmtree(self.staging, ignore_errors=True)
-            self.committed = True
-        return [self.out / name for name in self.names]
-
-    def discard(self) -> None:
-        """Remove the staging (remembering how much it held) and ``out`` when this created it."""
-        self.discarded_bytes = self.staged_bytes()
-        shutil.rmtree(self.staging, ignore_errors=True)
-        if self.created is not None:
-            shutil.rmtree(self.created, ignore_errors=True)
-
-    def names_output(self, path: str | Path) -> bool:
-        """Whether ``path`` (where a write failed) is this output's: the staging folder, or ``out``."""
-        return C.is_within(str(path), str(self.out))
-
-
-class MovieWriter:
-    """H.264 (yuv420p) through PyAV; odd sizes are padded by one pixel (the codec needs even sides). Written to a
-    hidden temporary file beside the movie and renamed into place by ``publish`` (``close`` = finish + publish);
-    ``abort`` removes everything it made. A folder it cannot write is one line; so is a full disk."""
-
-    def __init__(
-        self,
-        path: Path,
-        fps: float | Fraction | None,
-        size: tuple[int, int],
-        pixel_aspect: float = 1.0,
-        timecode: str | None = None,
-    ) -> None:
-        """``fps``: the rate, kept exact (24000/1001 is written as that fraction: ``timing.exact_rate``; none:
-        ``DEFAULT_FPS``); ``pixel_aspect``: the stream's sample aspect ratio (2.0: anamorphic, shown 2x wide);
-        ``timecode``: the first frame's, written as the movie's timecode track."""
-        import av
-
-        self.path = Path(path)
-        self.tmp = self.path.with_name(f".{self.path.stem}{STAGING_SUFFIX}{os.getpid()}{self.path.suffix}")
-        self.created = _first_missing(self.path.parent)
-        self.container: Any = None
-        fix = "choose a --movie path in a folder you can write to"
-        try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            with disk_full_as_one_line(self.path.parent):
-                self.container = av.open(str(self.tmp), mode="w")
-        except DiskFullError:
-            self.abort()
-            raise
-        except (OSError, ValueError) as exc:  # PyAV's errors are OSError / ValueError subclasses
-            self.abort()
-            blocker = _in_the_way(self.path.parent)
-            reason = f"{blocker} is a file" if blocker else getattr(exc, "strerror", None) or type(exc).__name__
-            raise InputError(self.path, f"cannot write the movie here ({reason})", fix) from None
-        self.rate = exact_rate(fps) or exact_rate(DEFAULT_FPS)
-        self.stream = self.container.add_stream("libx264", rate=self.rate)
-        if pixel_aspect != 1.0:
-            self.stream.codec_context.sample_aspect_ratio = Fraction(pixel_aspect).limit_denominator(MAX_SAR_TERM)
-        if timecode is not None:
-            self.stream.metadata["timecode"] = timecode
-        w, h = size
-        self.size = (w + w % 2, h + h % 2)
-        self.stream.width, self.stream.height = self.size
-        self.stream.pix_fmt = "yuv420p"
-        self.stream.options = {"crf": str(MOVIE_CRF)}
-        # the frames are sRGB-encoded Rec.709, converted to Y'CbCr with the BT.709 matrix (``write``), limited range
-        codec = self.stream.codec_context
-        codec.color_primaries, codec.color_trc, codec.colorspace, codec.color_range = MOVIE_COLOUR_TAGS
-        self.frames = 0
-
-    def write(self, rgb_u8: np.ndarray) -> None:
-        import av
-
-        h, w = rgb_u8.shape[:2]
-        if (w, h) != self.size:
-            rgb_u8 = np.pad(rgb_u8, ((0, self.size[1] - h), (0, self.size[0] - w), (0, 0)), mode="edge")
-        frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb_u8), format="rgb24")
-        frame = frame.reformat(format="yuv420p", dst_colorspace="itu709")  # the matrix the stream is tagged with
-        with disk_full_as_one_line(self.path.parent):
-            for packet in self.stream.encode(frame):
-                self.container.mux(packet)
-        self.frames += 1
-
-    def written_bytes(self) -> int:
-        return self.tmp.stat().st_size if self.tmp.exists() else 0
-
-    def finish(self) -> None:
-        """Encode what the codec holds back and close the file (still under its temporary name)."""
-        with disk_full_as_one_line(self.path.parent):
-            for packet in self.stream.encode():
-                self.container.mux(packet)
-            self.container.close()
-        self.container = None
-
-    def publish(self) -> Path:
-        self.tmp.replace(self.path)
-        return self.path
-
-    def close(self) -> Path:
-        self.finish()
-        return self.publish()
-
-    def abort(self) -> None:
-        """Close (best effort) and remove the temporary file, and the folders this writer created."""
-        if self.container is not None:
-            with contextlib.suppress(Exception):
-                self.container.close()
-            self.container = None
-        with contextlib.suppress(OSError):  # its folder may be no folder at all (the refusal being reported)
-            self.tmp.unlink(missing_ok=True)
-        if self.created is not None:
-            shutil.rmtree(self.created, ignore_errors=True)
-
-
-def movie_writer(
-    manifest: Manifest, path: Path, default_fps: float = DEFAULT_FPS, first_frame: int | None = None
-) -> MovieWriter:
-    """A movie of the manifest's exported frames (from plate frame ``first_frame``, default the first exported) at
-    the plate's exact rate (``default_fps`` when it states none), with its pixel aspect ratio and the timecode of its
-    first frame."""
-    clip = manifest.clip
-    rate = C.clip_rate(clip)
-    first = (manifest.frames[0] if first_frame is None else first_frame) - clip["first_frame"]
-    exact = None if rate is None else Fraction(*rate)
-    timecode = timecode_at(clip.get("timecode"), exact, first)
-    fps = exact if exact is not None else exact_rate(default_fps)
-    tc = None if timecode is None else str(timecode)
-    return MovieWriter(path, fps, manifest.resolution, clip.get("pixel_aspect", 1.0), tc)
-
-
 def chunk_frames(manifest: Manifest, frames: tuple[int, int]) -> list[int]:
     """The exported frames of the inclusive range ``frames`` (plate frame numbers); a range that is not inside the
     exported frames is one line."""
@@ -669,7 +376,7 @@ def _render_into(
 ) -> None:
     """Every frame of ``frames`` into the staging folder (and the movie into its temporary file), then both into
     place."""
-    writer = None
+    writer: MovieWriter | None = None
     try:
         if movie is not None:
             writer = movie_writer(manifest, movie, first_frame=frames[0])
@@ -711,19 +418,14 @@ def _render_into(
 
 
 __all__ = [
+    "DEFAULT_FPS",
     "EXR_DEPTHS",
     "FORMATS",
-    "MovieWriter",
-    "StagedFolder",
-    "check_movie",
-    "check_output",
     "chunk_frames",
     "exr_half",
     "frame_name_pattern",
     "load_edits",
-    "movie_writer",
     "parse_edit_args",
-    "protected_folders",
     "render_frames",
     "render_manifest",
     "to_display_u8",

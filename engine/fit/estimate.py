@@ -29,9 +29,10 @@ from ..data.video import frame_pixels
 from ..io.images import display_path
 from .device import select_device, synchronize, torch_threads
 from .eta import PRE_TRAIN_SHARE
+from .evaluation import EVAL_CHUNK
 from .prepare import prepare_clip
 from .progress import Reporter
-from .trainer import EVAL_CHUNK, Trainer
+from .trainer import Trainer
 
 #: The measured PSNR of each preset (data, with where it was measured): what ``estimate`` shows as expected.
 EXPECTED_PSNR_FILE = Path(__file__).with_name("expected_psnr.json")

@@ -234,36 +234,8 @@ def prepare_clip(
     run = RunFolder(run_dir)
     finder = _AutoMasks(info, run) if auto_masks else None
     reporter.emit(C.EVENT_STAGE, stage="read", message=f"reading {info.num_frames} frames at {size[0]}x{size[1]}")
-    if finder is not None and finder.size not in (None, size):
-        raw, analysis_raw = read_frames_at(info, [size, finder.size])
-    else:
-        raw = analysis_raw = read_frames(info, size)
-    if legacy:
-        frames, faults = to_fitting_values(raw, str(colorspace), info.source, None)
-    else:
-        frames, faults = to_fitting_values(raw, info.colorspace, info.source, info.colour_config)
-    if faults.nonfinite:
-        print(f"warning: NaN/Inf pixels replaced in frames {faults.nonfinite} of {info.source}", file=sys.stderr)
-    if faults.absurd:
-        print(
-            f"warning: values beyond +-{PLATE_VALUE_LIMIT:g} clamped in frames {faults.absurd} of {info.source}",
-            file=sys.stderr,
-        )
-    masks = (
-        np.stack([read_masks(m, info, size) for m in mask_dirs])
-        if mask_dirs
-        else np.zeros((0, len(frames), size[1], size[0]), dtype=bool)
-    )
-    snaps: list[MaskSnap] = []
-    if mask_dirs and cfg.mask_snap_px >= 2:
-        masks, snaps = snap_masks(frames, masks, cfg.mask_snap_px)
-        for folder, snap in zip(mask_dirs, snaps, strict=True):
-            if snap.offset_px:
-                print(
-                    f"note: masks {folder}: outline moved {snap.offset_px:+d} px to the clip's edges "
-                    "(--set mask_snap_px=0 fits them as drawn)",
-                    file=sys.stderr,
-                )
+    frames, raw, analysis_raw = _read_plate(info, size, finder, colorspace if legacy else None)
+    masks, snaps = _read_masks(mask_dirs, info, size, frames, cfg)
     scribbles = None if scribble_dir is None else _read_scribbles(scribble_dir, info, size)
     if scribbles is not None and finder is None:
         _check_one_mask(scribble_dir, len(mask_dirs))  # type: ignore[arg-type]
@@ -281,6 +253,80 @@ def prepare_clip(
     # the whole job's clock: what evaluation (working size) and export (native size) will reconstruct
     reporter.job.eval_pixels = len(frames) * size[0] * size[1]
     reporter.job.export_pixels = len(frames) * info.width * info.height
+    flow, long_flow = _clip_flow(frames, cfg, run, reporter)
+    prepared = PreparedClip(
+        info,
+        size,
+        frames,
+        masks,
+        [str(Path(m).resolve()) for m in mask_dirs],
+        flow,
+        fingerprint,
+        scribbles,
+        None if scribble_dir is None else str(Path(scribble_dir).resolve()),
+        frame_range,
+        long_flow=long_flow,
+        mask_snaps=tuple(snaps),
+    )
+    if finder is not None:
+        finder.find(prepared, cfg, analysis_raw if analysis_raw is not raw else None, reporter)
+        if scribbles is not None:
+            _check_one_mask(scribble_dir, len(prepared.mask_dirs))  # type: ignore[arg-type]
+    return prepared
+
+
+def _read_plate(
+    info: ClipInfo, size: tuple[int, int], finder: _AutoMasks | None, legacy_space: str | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The plate's frames at the working ``size`` as the fit's values (a warning line for each kind of value
+    replaced), the frames as read, and those at the auto masks' analysis size (the same array when that is the
+    working size). ``legacy_space``: a run made before colour management, fitted with the values it had."""
+    if finder is not None and finder.size not in (None, size):
+        raw, analysis_raw = read_frames_at(info, [size, finder.size])
+    else:
+        raw = analysis_raw = read_frames(info, size)
+    if legacy_space is not None:
+        frames, faults = to_fitting_values(raw, str(legacy_space), info.source, None)
+    else:
+        frames, faults = to_fitting_values(raw, info.colorspace, info.source, info.colour_config)
+    if faults.nonfinite:
+        print(f"warning: NaN/Inf pixels replaced in frames {faults.nonfinite} of {info.source}", file=sys.stderr)
+    if faults.absurd:
+        print(
+            f"warning: values beyond +-{PLATE_VALUE_LIMIT:g} clamped in frames {faults.absurd} of {info.source}",
+            file=sys.stderr,
+        )
+    return frames, raw, analysis_raw
+
+
+def _read_masks(
+    mask_dirs: list[str | Path], info: ClipInfo, size: tuple[int, int], frames: np.ndarray, cfg: FitConfig
+) -> tuple[np.ndarray, list[MaskSnap]]:
+    """The mask folders at the working size [F, T, H, W], their outlines snapped to the clip's edges (a note line
+    for each folder moved), and each folder's snap."""
+    masks = (
+        np.stack([read_masks(m, info, size) for m in mask_dirs])
+        if mask_dirs
+        else np.zeros((0, len(frames), size[1], size[0]), dtype=bool)
+    )
+    snaps: list[MaskSnap] = []
+    if mask_dirs and cfg.mask_snap_px >= 2:
+        masks, snaps = snap_masks(frames, masks, cfg.mask_snap_px)
+        for folder, snap in zip(mask_dirs, snaps, strict=True):
+            if snap.offset_px:
+                print(
+                    f"note: masks {folder}: outline moved {snap.offset_px:+d} px to the clip's edges "
+                    "(--set mask_snap_px=0 fits them as drawn)",
+                    file=sys.stderr,
+                )
+    return masks, snaps
+
+
+def _clip_flow(
+    frames: np.ndarray, cfg: FitConfig, run: RunFolder, reporter: Reporter
+) -> tuple[FlowField, LongFlow | None]:
+    """The clip's optical flow and, where the config asks for them, its long-range correspondences (both from
+    RUN_DIR/flow_cache when cached), reported as one flow stage."""
     flow_start = time.perf_counter()
 
     # the long-range pairs are part of the flow stage: one progress count over both, so its fraction only grows
@@ -306,25 +352,7 @@ def prepare_clip(
             stride=cfg.long_flow_stride,
             progress=lambda done, total: flow_progress(done, total, adjacent_pairs),
         )
-    prepared = PreparedClip(
-        info,
-        size,
-        frames,
-        masks,
-        [str(Path(m).resolve()) for m in mask_dirs],
-        flow,
-        fingerprint,
-        scribbles,
-        None if scribble_dir is None else str(Path(scribble_dir).resolve()),
-        frame_range,
-        long_flow=long_flow,
-        mask_snaps=tuple(snaps),
-    )
-    if finder is not None:
-        finder.find(prepared, cfg, analysis_raw if analysis_raw is not raw else None, reporter)
-        if scribbles is not None:
-            _check_one_mask(scribble_dir, len(prepared.mask_dirs))  # type: ignore[arg-type]
-    return prepared
+    return flow, long_flow
 
 
 def _read_scribbles(scribble_dir: str | Path, info: ClipInfo, size: tuple[int, int]) -> np.ndarray:

@@ -3,7 +3,7 @@
 A fit writes ``config.json`` (the config), ``clip.json`` (what was fitted: ``ClipRecord``), ``scene.json`` (the
 scene analysis), ``checkpoint.pt``, ``metrics.json`` and ``fit.log`` into RUN_DIR; ``fit --resume``, ``export``,
 the demo and the bench read them back through ``RunFolder``. Every JSON file is checked against its versioned
-schema in the contract (``contract.validate_run_file``) when it is read and before it is written; a file that
+schema (``run_files.validate_run_file``) when it is read and before it is written; a file that
 does not follow it is a one-line ``InputError`` naming the file and the fix. Every file is written atomically
 (temp file + rename); the checkpoint is checked against the clip record and the config it was saved with.
 A writer holds the folder's lock (``RunFolder.lock``) for its whole write.
@@ -28,8 +28,9 @@ from ..config import LATER_FIELDS, RESUMABLE_FIELDS, START_FIELDS, FitConfig
 from ..data.scene_analysis import SceneAnalysis
 from ..errors import InputError
 from ..io.atomic import atomic_write_text
-from ..io.clip import NumberedFrames
+from ..io.clip_info import NumberedFrames
 from .checkpoint import CHECKPOINT_DAMAGED_FIX, load_checkpoint, nonfinite_entries, save_checkpoint
+from .run_files import RunFileError, validate_run_file
 
 #: The fix for a checkpoint that does not belong with the run folder's other files.
 FOREIGN_CHECKPOINT_FIX = "copy back this run's own checkpoint, or fit again with --refit (edits and exports are kept)"
@@ -151,7 +152,7 @@ class ClipRecord(NumberedFrames):
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> ClipRecord:
-        """From a record that passed ``contract.validate_run_file``."""
+        """From a record that passed ``run_files.validate_run_file``."""
         return cls(
             source=data["source"],
             kind=data["kind"],
@@ -452,10 +453,10 @@ class RunFolder:
     @staticmethod
     def _validated(path: Path, text: str) -> dict[str, Any]:
         try:
-            return C.validate_run_file(path.name, json.loads(text))
+            return validate_run_file(path.name, json.loads(text))
         except (json.JSONDecodeError, RecursionError):
             raise InputError(path, "not valid JSON", C.RUN_FILE_DAMAGED_FIX) from None
-        except C.RunFileError as exc:
+        except RunFileError as exc:
             raise InputError(path, exc.problem, exc.fix) from None
 
     @staticmethod

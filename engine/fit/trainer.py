@@ -9,13 +9,9 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import os
-import shlex
 import signal
 import sys
 import time
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
 from typing import Any
@@ -25,27 +21,26 @@ import torch
 from tqdm import tqdm
 
 from .. import contract as C
-from ..config import LR_FIELDS, PRESETS, RESUMABLE_FIELDS, FitConfig, check_config, resume_changes
+from ..config import FitConfig, check_config
 from ..data.long_flow import long_flow_gaps
 from ..data.scene_analysis import SceneAnalysis
-from ..data.scribbles import propagate_labels
-from ..data.video import VideoTensors, frame_pixels, mask_hold_layers, sample_batch, sample_pixels
+from ..data.video import VideoTensors, mask_hold_layers, sample_batch, sample_pixels
 from ..errors import FitDiverged, InputError
-from ..io.colour import recorded_space, resolve
-from ..model.atlas_model import AtlasModel, FastModel, motion_regions
+from ..model.atlas_model import AtlasModel
 from ..model.losses import psnr_from_mse
-from ..model.motion_init import LayerMotion, estimate_layer_motion
-from ..model.objective import TARGET_RANGE, compute_losses
-from ..model.paper_model import PaperModel
+from ..model.objective import compute_losses
 from .checkpoint import nonfinite_entries
 from .device import select_device, synchronize
+from .divergence import NonFinite, all_finite, diverged_message, nonfinite_groups, nonfinite_terms, require_finite
 from .eta import JobClock, StepClock
+from .evaluation import evaluate_full, evaluate_pixels
+from .model_build import assemble_model, build_model, checkpoint_fits, model_motions, motion_from_state
+from .optimisation import make_optimizer, make_scheduler
 from .prepare import PreparedClip, prepare_clip
 from .progress import Reporter, logged_fraction
-from .run_folder import FOREIGN_CHECKPOINT_FIX, ClipRecord, RunFolder
+from .run_folder import RunFolder
+from .run_plan import ResumedFit, check_fit_inputs, read_resume
 
-#: Pixels per forward chunk when evaluating whole frames (bounds memory of the evaluation).
-EVAL_CHUNK = 65536
 #: The live PSNR's fixed pixel sample is drawn with seed ``cfg.seed + EVAL_SEED_OFFSET`` (apart from training's).
 EVAL_SEED_OFFSET = 7919
 #: The regime cost probe draws its batches with seed ``cfg.seed + PROBE_SEED_OFFSET`` (the fit's own are untouched).
@@ -55,187 +50,6 @@ JOB_EVENT_SECONDS = 1.0
 #: Timed live-PSNR samples before training (the fastest sets the seconds per pixel: the estimate of evaluation and
 #: export, ``JobClock``): on a busy machine one sample's time varies tenfold.
 START_SAMPLES = 3
-#: A foreground alpha above this counts as the layer's when comparing it with its mask (alpha IoU).
-ALPHA_IOU_THRESHOLD = 0.5
-#: The learning rate's decay never goes below this fraction (a zero ratio would stop the decay's logarithm).
-MIN_LR_RATIO = 1e-6
-#: A diverged fit's message suggests the preset's rate, or this fraction of the rate it diverged with when that
-#: was no higher than the preset's.
-LR_RETRY_FACTOR = 0.1
-#: A loss weight more than this many times its preset's (or than this, where the preset's is below 1) is named as a
-#: diverged fit's likely cause: a resume keeps the weights, so lower rates alone would diverge again.
-WEIGHT_SUSPECT_FACTOR = 100.0
-#: Characters of a torch error kept in the one-line message of a checkpoint that does not fit the model.
-ERROR_DETAIL_CHARS = 160
-
-
-# --- the model a clip calls for -----------------------------------------------------------------------------
-
-
-def build_model(cfg: FitConfig, clip: PreparedClip, scene: SceneAnalysis | None = None) -> AtlasModel:
-    """A new model for ``clip``: the components ``scene`` calls for (engine.data.scene_analysis; None = every
-    component), the fast model's layers starting at the motion the flow shows inside their masks."""
-    t = clip.frames.shape[0]
-    if cfg.model == "paper":
-        return assemble_model(cfg, clip.size, t, 1 + clip.num_foreground, scene, None)
-    if cfg.model != "fast":
-        raise InputError(None, f"unknown model {cfg.model!r}", "use --set model=fast or model=paper")
-    flow = clip.flow if t > 1 else None
-    background = C.BG_MOTION_DEFORMABLE if scene is None else scene.background_motion
-    motions = []
-    if clip.masks.shape[0]:
-        bg_region, fg_regions = motion_regions(clip.masks)
-    else:
-        bg_region, fg_regions = None, []
-    # a static camera's background is the identity: the flow's noise must not tilt it
-    fit_bg = cfg.init_motion and background != C.BG_MOTION_STATIC
-    motions.append(estimate_layer_motion(flow, bg_region, clip.size, fit_bg))
-    if clip.scribbles is not None:
-        # each part moves like its scribbles (carried to every frame by the flow); its atlas spans the object
-        carried = propagate_labels(clip.scribbles, flow, clip.masks[0])
-        for k in range(clip.num_foreground):
-            region = carried == k
-            motions.append(
-                estimate_layer_motion(
-                    flow,
-                    region,
-                    clip.size,
-                    cfg.init_motion,
-                    margin=cfg.atlas_margin_fg,
-                    extent_masks=fg_regions[0],
-                    background=motions[0],
-                )
-            )
-    else:
-        # motion from the eroded mask (flow at object boundaries is unreliable), atlas box from the whole mask
-        # (an eroded box cut the rim off small objects)
-        for region, full in zip(fg_regions, clip.masks, strict=True):
-            motions.append(
-                estimate_layer_motion(
-                    flow,
-                    region,
-                    clip.size,
-                    cfg.init_motion,
-                    margin=cfg.atlas_margin_fg,
-                    extent_masks=full if cfg.atlas_box_full_mask else None,
-                    background=motions[0],
-                )
-            )
-    return assemble_model(cfg, clip.size, t, len(motions), scene, motions)
-
-
-def assemble_model(
-    cfg: FitConfig,
-    size: tuple[int, int],
-    frames: int,
-    layers: int,
-    scene: SceneAnalysis | None,
-    motions: list[LayerMotion] | None,
-) -> AtlasModel:
-    """The model of ``layers`` layers over ``frames`` frames of ``size`` (W, H) with ``scene``'s components; the
-    fast model's layers start at ``motions``. What ``build_model`` makes for a new fit and ``rebuild_model``
-    for a saved one."""
-    if cfg.model == "paper":
-        model: AtlasModel = PaperModel(cfg, size, frames, num_layers=layers)
-    elif cfg.model == "fast":
-        if motions is None or len(motions) != layers:
-            raise InputError(
-                None,
-                f"the fast model needs a starting motion for each of its {layers} layers",
-                C.RUN_FILE_OTHER_VERSION_FIX,
-            )
-        background = C.BG_MOTION_DEFORMABLE if scene is None else scene.background_motion
-        alpha_network = True if scene is None else (scene.alpha_network or len(motions) > 1)
-        model = FastModel(cfg, size, frames, motions, background=background, alpha_network=alpha_network)
-    else:
-        raise InputError(None, f"unknown model {cfg.model!r}", "use --set model=fast or model=paper")
-    model.active_terms = None if scene is None else scene.term_set
-    return model
-
-
-def rebuild_model(
-    cfg: FitConfig, clip: ClipRecord, scene: SceneAnalysis, saved_motions: list[dict[str, Any]] | None
-) -> AtlasModel:
-    """The model a checkpoint was saved from, built from the run folder alone (no frames, masks or flow): the
-    fast model's layers start at the motions the fit saved, so a run reloads into the same shapes and scales
-    whatever the engine version or the flow backend would compute today."""
-    motions = None if saved_motions is None else [motion_from_state(m) for m in saved_motions]
-    return assemble_model(cfg, clip.working_size, clip.num_frames, clip.layers, scene, motions)
-
-
-# --- evaluation --------------------------------------------------------------------------------------------
-
-
-@torch.no_grad()
-def evaluate_pixels(
-    model: AtlasModel, video: VideoTensors, ix: torch.Tensor, iy: torch.Tensor, t: torch.Tensor
-) -> float:
-    """Mean squared error of the reconstruction at the given pixels, against the plate in the objective's
-    ``TARGET_RANGE`` (what a reconstruction can reach: an HDR highlight, or an absurd value clamped to
-    ``prepare.PLATE_VALUE_LIMIT``, counts as the range's top, so one pixel cannot decide the PSNR; a no-op for
-    8/16-bit plates)."""
-    lo, hi = TARGET_RANGE
-    total, count = 0.0, 0
-    for s in range(0, ix.shape[0], EVAL_CHUNK):
-        sl = slice(s, s + EVAL_CHUNK)
-        xy = torch.stack((ix[sl], iy[sl]), -1).float() + 0.5
-        rec, _ = model.reconstruct(xy, t[sl])
-        total += float(((rec - video.frames[t[sl], iy[sl], ix[sl]].clamp(lo, hi)) ** 2).sum())
-        count += rec.shape[0] * 3
-    return total / max(count, 1)
-
-
-@torch.no_grad()
-def render_frame(
-    model: AtlasModel, t: int, size: tuple[int, int], device: torch.device
-) -> tuple[np.ndarray, np.ndarray]:
-    """Reconstruction [H, W, 3] and layer weights [H, W, L] of one frame at working resolution."""
-    w, h = size
-    xy, tt = frame_pixels(size, t, device)
-    recs, ws = [], []
-    for s in range(0, xy.shape[0], EVAL_CHUNK):
-        r, wgt = model.reconstruct(xy[s : s + EVAL_CHUNK], tt[s : s + EVAL_CHUNK])
-        recs.append(r)
-        ws.append(wgt)
-    return torch.cat(recs).reshape(h, w, 3).cpu().numpy(), torch.cat(ws).reshape(h, w, -1).cpu().numpy()
-
-
-@torch.no_grad()
-def evaluate_full(model: AtlasModel, video: VideoTensors, size: tuple[int, int], device: torch.device) -> dict:
-    """Full-frame PSNR over every pixel of every frame (against the plate in ``TARGET_RANGE``, as
-    ``evaluate_pixels``), and per-layer alpha IoU against the masks."""
-    t_count = video.shape[0]
-    sq, n = 0.0, 0
-    inter = np.zeros(video.masks.shape[0])
-    union = np.zeros(video.masks.shape[0])
-    frames_np = video.frames.cpu().numpy()
-    masks_np = video.masks.cpu().numpy()
-    lo, hi = TARGET_RANGE
-    for t in range(t_count):
-        rec, wts = render_frame(model, t, size, device)
-        sq += float(((rec - np.clip(frames_np[t], lo, hi)) ** 2).sum())
-        n += rec.size
-        for f in range(masks_np.shape[0]):
-            group = video.mask_layers[f] if video.mask_layers is not None else (f + 1,)
-            a = wts[..., list(group)].sum(-1) > ALPHA_IOU_THRESHOLD
-            m = masks_np[f, t]
-            inter[f] += float((a & m).sum())
-            union[f] += float((a | m).sum())
-    mse = sq / max(n, 1)
-    iou = [float(i / u) if u > 0 else 1.0 for i, u in zip(inter, union, strict=True)]
-    return {"psnr": psnr_from_mse(mse), "mse": mse, "alpha_iou": iou}
-
-
-# --- optimisation ------------------------------------------------------------------------------------------
-
-
-def make_optimizer(model: AtlasModel, cfg: FitConfig, device: torch.device) -> torch.optim.Optimizer:
-    """Adam; the fused kernel where the device has one (on CPU it halves the cost of updating dense grids)."""
-    groups = model.param_groups(cfg)
-    try:
-        return torch.optim.Adam(groups, fused=device.type in ("cpu", "cuda"))
-    except (RuntimeError, TypeError):
-        return torch.optim.Adam(groups)
 
 
 #: The ETA measures the two cost regimes' ratio before training only when the early one (global rigidity on)
@@ -277,13 +91,6 @@ def regime_cost_ratio(
     return late / early if early > 0 else None
 
 
-def make_scheduler(optim: torch.optim.Optimizer, cfg: FitConfig) -> torch.optim.lr_scheduler.LambdaLR:
-    """The fit's learning-rate schedule: exponential decay to ``lr_final_ratio`` at ``cfg.steps``."""
-    ratio = max(cfg.lr_final_ratio, MIN_LR_RATIO)
-    steps = max(cfg.steps, 1)
-    return torch.optim.lr_scheduler.LambdaLR(optim, lambda s: ratio ** (min(s, steps) / steps))
-
-
 class _Stop:
     """Signal flag: SIGINT/SIGTERM ask the loop to checkpoint and exit at the next step."""
 
@@ -307,142 +114,6 @@ class _Stop:
 
 class FitCancelled(Exception):
     """The fit was interrupted by a signal after writing a checkpoint."""
-
-
-# --- divergence: every step's loss, gradients and parameters are finite ------------------------------------
-
-
-class NonFinite(FitDiverged):
-    """A step's loss, gradients or parameters (or a checkpoint about to be written) hold NaN or Inf. ``train``
-    turns it into the fit's one-line ``FitDiverged`` (the learning rates, how to continue)."""
-
-    def __init__(self, step: int, quantity: str, where: list[str]) -> None:
-        self.step, self.quantity, self.where = step, quantity, where
-        inside = f" ({', '.join(where[:4])}{', ...' if len(where) > 4 else ''})" if where else ""
-        super().__init__(f"step {step}: the {quantity}{inside} became NaN/Inf")
-
-
-def all_finite(tensors: list[torch.Tensor]) -> torch.Tensor:
-    """0-d bool tensor: every value of every tensor is finite, without a synchronisation (the caller reads it
-    once). One fused pass: ``torch._foreach_norm``'s 2-norm of each tensor, which NaN and Inf propagate into (the
-    vectorised norm: the infinity norm, exact for any finite value, costs about 16 times as much on a CPU). A
-    magnitude beyond about 1.8e19 overflows the float32 norm and counts as non-finite too: a fit's values and
-    gradients are far below it unless it is diverging."""
-    tensors = [t for t in tensors if t.numel()]
-    if not tensors:
-        return torch.tensor(True)
-    return torch.isfinite(torch.stack(torch._foreach_norm(tensors))).all()
-
-
-def require_finite(ok: torch.Tensor, step: int, quantity: str, where: Callable[[], list[str]]) -> None:
-    """Raise ``NonFinite`` unless ``ok`` (the step's one synchronisation for this check); ``where`` names the
-    culprits, computed only then."""
-    if not bool(ok):
-        raise NonFinite(step, quantity, where())
-
-
-def nonfinite_terms(terms: dict[str, torch.Tensor]) -> list[str]:
-    return [name for name, value in terms.items() if not bool(torch.isfinite(value.detach()).all())]
-
-
-def nonfinite_groups(optim: torch.optim.Optimizer, grads: bool) -> list[str]:
-    """The parameter groups (``grids``, ``mappings``, ...) whose gradients (or values) are not all finite."""
-    names = []
-    for i, group in enumerate(optim.param_groups):
-        tensors = [p.grad if grads else p for p in group["params"]]
-        if not bool(all_finite([t for t in tensors if t is not None])):
-            names.append(str(group.get("name", i)))
-    return names
-
-
-def suspect_weights(error: NonFinite, cfg: FitConfig) -> list[str]:
-    """The loss weights (``w_*``) far above their preset's (``WEIGHT_SUSPECT_FACTOR``), the furthest first; those
-    of the terms that went non-finite before the rest."""
-    preset = PRESETS.get(cfg.preset, FitConfig())
-
-    def ratio(name: str) -> float:
-        return float(getattr(cfg, name)) / max(float(getattr(preset, name)), 1.0)
-
-    names = [f.name for f in dataclasses.fields(cfg) if f.name.startswith("w_")]
-    high = sorted((n for n in names if ratio(n) > WEIGHT_SUSPECT_FACTOR), key=ratio, reverse=True)
-    named = [n for n in high if error.quantity == "loss" and n.removeprefix("w_") in error.where]
-    return named + [n for n in high if n not in named]
-
-
-def diverged_message(error: NonFinite, cfg: FitConfig, run: RunFolder, checkpoint_step: int | None) -> str:
-    """The one line of a diverged fit: the step, what went non-finite, the likely cause (a loss weight far above
-    its preset's, else its learning rates or the plate's values) and the command that continues from the last good
-    checkpoint with lower rates, or, for a weight (a resume keeps the weights), the fit again with the preset's."""
-    preset = PRESETS.get(cfg.preset, FitConfig())
-    weights = suspect_weights(error, cfg)
-    if weights:
-        shown = ", ".join(f"{w}={getattr(cfg, w):g}" for w in weights)
-        theirs = ", ".join(f"{getattr(preset, w):g}" for w in weights)
-        sets = " ".join(f"--set {w}={getattr(preset, w):g}" for w in weights)
-        return (
-            f"{run.path}: the fit diverged at {error} — likely cause: the loss weight {shown}, far above the "
-            f"{cfg.preset} preset's ({theirs}); a resume keeps the weights, so fit again with --refit {sets} "
-            "(edit layers and exports are kept)"
-        )
-    high = [k for k in LR_FIELDS if getattr(cfg, k) > getattr(preset, k)]
-    lower = {k: getattr(preset, k) for k in high} or {k: getattr(cfg, k) * LR_RETRY_FACTOR for k in LR_FIELDS}
-    rates = ", ".join(f"{k}={getattr(cfg, k):g}" for k in (high or LR_FIELDS))
-    cause = f"a learning rate too high ({rates}) or extreme values in the plate"
-    if checkpoint_step is None:
-        return f"{run.path}: the fit diverged at {error} — likely cause: {cause}; lower the rate and fit again"
-    sets = " ".join(f"--set {k}={v:g}" for k, v in lower.items())
-    return (
-        f"{run.path}: the fit diverged at {error} — likely cause: {cause}; the checkpoint keeps step "
-        f"{checkpoint_step}, the last good one: continue from it with a lower rate: "
-        f"python -m {C.CLI_MODULE} fit --resume --out {shlex.quote(str(run.path))} {sets}"
-    )
-
-
-def _one_line(exc: BaseException) -> str:
-    """A torch error (often several lines) as a short clause for a one-line message."""
-    text = " ".join(part.strip() for part in str(exc).splitlines() if part.strip()) or type(exc).__name__
-    return text if len(text) <= ERROR_DETAIL_CHARS else text[: ERROR_DETAIL_CHARS - 3] + "..."
-
-
-@contextlib.contextmanager
-def checkpoint_fits(path: Path | None) -> Iterator[None]:
-    """A checkpoint loaded into a model it was not saved from (another run's, a damaged one: missing weights,
-    wrong shapes, a broken optimiser or sampler state) is one line naming ``path``, not torch's traceback."""
-    try:
-        yield
-    except InputError as exc:
-        if exc.path is not None:
-            raise
-        raise InputError(path, exc.problem, exc.fix) from None
-    except (RuntimeError, ValueError, TypeError, KeyError, IndexError, AttributeError) as exc:
-        problem = f"checkpoint does not fit this run's model ({_one_line(exc)})"
-        raise InputError(path, problem, FOREIGN_CHECKPOINT_FIX) from None
-
-
-def model_motions(model: AtlasModel) -> list[dict[str, Any]] | None:
-    """The fast model's per-layer starting motion and atlas box, for the checkpoint (None: other models)."""
-    motions = getattr(model, "layer_motions", None)
-    if motions is None:
-        return None
-    return [
-        {
-            "to_ref": torch.from_numpy(np.asarray(m.to_ref, np.float64)),
-            "center": torch.from_numpy(np.asarray(m.center, np.float64)),
-            "half_extent": float(m.half_extent),
-            "aspect": [float(a) for a in m.aspect],
-        }
-        for m in motions
-    ]
-
-
-def motion_from_state(rec: dict[str, Any]) -> LayerMotion:
-    """A layer's starting motion as ``model_motions`` saved it (a malformed one raises: ``checkpoint_fits``)."""
-    return LayerMotion(
-        to_ref=rec["to_ref"].cpu().numpy().astype(np.float64),
-        center=rec["center"].cpu().numpy().astype(np.float64),
-        half_extent=float(rec["half_extent"]),
-        aspect=(float(rec["aspect"][0]), float(rec["aspect"][1])),
-    )
 
 
 def _note_held_masks(video: VideoTensors, cfg: FitConfig, mask_dirs: list[str]) -> None:
@@ -755,13 +426,7 @@ def fit(
             None, "--resume and --refit both given", "pass --resume to continue the fit, or --refit to fit again"
         )
     run = RunFolder(run_dir)
-    if not resume and clip is None:
-        raise InputError(None, "no clip given", "pass a frame folder or movie file")
-    find_masks = auto_masks and not resume
-    if find_masks and mask_dirs:
-        raise InputError(None, f"{C.FIT_AUTO_MASKS_FLAG} and --mask both given", "pass one of them")
-    if cfg.model == "paper" and not resume:
-        _check_paper_layers(mask_dirs, find_masks, scribble_dir)
+    find_masks = check_fit_inputs(cfg, clip, mask_dirs, resume, auto_masks, scribble_dir)
     run.check_writable()
     device = select_device(device_name)
     reporter = Reporter(stream=stream)
@@ -769,26 +434,18 @@ def fit(
         lock = _WriteLock(run, stack, plain=not (resume or refit))
         if run.path.is_dir():
             lock()  # a folder that exists: another process writing it is refused before the clip is read
-        state = scene = saved = None
-        expect = colour_config = None
+        resumed = expect = colour_config = None
         if resume:
-            saved, record = run.read_config(), run.read_clip()
-            scene = run.read_scene(record)
-            _check_resume_inputs(run, record, clip, mask_dirs, frame_range, scribble_dir)
-            missing = record.missing_input(run.path)
-            if missing is not None:
-                raise missing
-            colorspace, colour_config = _check_resume_colour(run, record, colorspace)
-            _check_resume_config(run, saved, cfg)
-            state = run.load_checkpoint(device)
-            run.check_checkpoint_belongs(state, saved, record)
+            resumed = read_resume(run, cfg, device, clip, mask_dirs, frame_range, scribble_dir, colorspace)
             # the bar continues where the stopped fit showed it, from the first message (the flow's) on
-            shown = logged_fraction(run.log, int(state["step"]), cfg.steps)
+            shown = logged_fraction(run.log, int(resumed.state["step"]), cfg.steps)
             if shown is not None:
                 reporter.job.resume_from(shown)
+            record = resumed.record
             clip, mask_dirs, frame_range = record.source, list(record.masks), record.frame_range
             scribble_dir, expect = record.scribbles, record.fingerprint
             fps, start_frame = record.exact_rate, record.movie_start
+            colorspace, colour_config = resumed.colorspace, resumed.colour_config
         # the input is read and validated before anything is written: bad input leaves no run folder behind
         prepared = prepare_clip(
             clip,  # type: ignore[arg-type]  # a resume's clip is the recorded one; a new fit's was checked above
@@ -806,39 +463,37 @@ def fit(
             fps=fps,
             start_frame=start_frame,
         )
-        new_fit = saved is None or scene is None
-        if new_fit:
-            scene = prepared.analyse(cfg)
-        # built (a resume: its checkpoint restored and checked) before anything is written
-        trainer = Trainer(cfg, prepared, scene, device, state=state, state_source=run.checkpoint)
+        trainer = _start_trainer(run, cfg, prepared, device, resumed, refit)
         reporter.log_path = run.log
-        if new_fit:
-            if refit:
-                run.clear_fit()
-            run.write_config(cfg)
-            run.write_clip(prepared.record())
-            run.write_scene(scene)
-        elif cfg != saved:
-            run.write_config(cfg)  # the resume's new schedule, before its next checkpoint
         return _fit_locked(run, trainer, reporter, progress_bar)
 
 
-def _check_paper_layers(mask_dirs: list[str | Path], auto_masks: bool, scribble_dir: str | Path | None) -> None:
-    """The paper's architecture has one background and one foreground layer: exactly one --mask (masks found by
-    motion may be none, and scribbles split the object into several), checked before anything is read."""
-    given = None
-    if auto_masks:
-        given = f"{C.FIT_AUTO_MASKS_FLAG} was given"
-    elif scribble_dir is not None:
-        given = f"{C.SCRIBBLE_ARG} split the object into layers"
-    elif len(mask_dirs) != 1:
-        given = f"{len(mask_dirs)} --mask folders were given"
-    if given is not None:
-        raise InputError(
-            None,
-            f"the paper model fits one background and one foreground layer, but {given}",
-            "pass exactly one --mask, or use a fast preset (draft, balanced or final)",
-        )
+def _start_trainer(
+    run: RunFolder,
+    cfg: FitConfig,
+    prepared: PreparedClip,
+    device: torch.device,
+    resumed: ResumedFit | None,
+    refit: bool,
+) -> Trainer:
+    """``fit``'s trainer for ``prepared`` (a resume: its checkpoint restored and checked), built before anything
+    is written; then the run folder's records: a new fit's config, clip record and scene (a refit's old fit
+    cleared first), a resume's new schedule before its next checkpoint."""
+    state = None if resumed is None else resumed.state
+    scene = None if resumed is None else resumed.scene
+    new_fit = resumed is None or scene is None
+    if new_fit:
+        scene = prepared.analyse(cfg)
+    trainer = Trainer(cfg, prepared, scene, device, state=state, state_source=run.checkpoint)
+    if new_fit:
+        if refit:
+            run.clear_fit()
+        run.write_config(cfg)
+        run.write_clip(prepared.record())
+        run.write_scene(scene)
+    elif resumed is not None and cfg != resumed.saved:
+        run.write_config(cfg)  # the resume's new schedule, before its next checkpoint
+    return trainer
 
 
 class _WriteLock:
@@ -895,174 +550,9 @@ def _fit_locked(run: RunFolder, trainer: Trainer, reporter: Reporter, progress_b
     return metrics
 
 
-#: What ``fit_state`` finds in a run folder for ``fit --resume-if-started``.
-FIT_NEW, FIT_STARTED, FIT_FINISHED = "new", "started", "finished"
-
-
-def fit_state(
-    run_dir: str | Path,
-    clip: str | Path | None,
-    mask_dirs: list[str | Path],
-    cfg: FitConfig,
-    frame_range: tuple[int, int] | None = None,
-    scribble_dir: str | Path | None = None,
-    colorspace: str | None = None,
-) -> str:
-    """For a retried fit (``fit --resume-if-started``, whose arguments are the same on every try): ``FIT_NEW`` when
-    ``run_dir`` holds no checkpoint (start it), ``FIT_STARTED`` when it holds one of this same fit (continue it as
-    ``--resume`` does), ``FIT_FINISHED`` when it holds this fit finished (nothing to do). This same fit: the clip,
-    masks, scribbles, frames and colour space given are the recorded ones and ``cfg`` differs from config.json in
-    nothing but the schedule (``RESUMABLE_FIELDS``), checked as ``--resume`` checks them; else one line. Reads
-    only: the fit that follows takes the lock."""
-    run = RunFolder(run_dir)
-    if not run.checkpoint.exists():
-        return FIT_NEW
-    saved, record = run.read_config(), run.read_clip()
-    _check_resume_inputs(run, record, clip, mask_dirs, frame_range, scribble_dir)
-    _check_resume_colour(run, record, colorspace)
-    _check_resume_config(run, saved, cfg)
-    metrics = run.read_metrics()
-    if metrics is not None and cfg == saved:
-        return FIT_FINISHED
-    return FIT_STARTED
-
-
-def _same_path(given: str | Path, recorded: str) -> bool:
-    """Whether a path given on the command line names what the run recorded (symlinks and ``~`` resolved)."""
-    return os.path.realpath(os.path.expanduser(os.fspath(given))) == os.path.realpath(recorded)
-
-
-def _check_resume_inputs(
-    run: RunFolder,
-    record: ClipRecord,
-    clip: str | Path | None,
-    mask_dirs: list[str | Path],
-    frame_range: tuple[int, int] | None,
-    scribble_dir: str | Path | None,
-) -> None:
-    """``--resume`` continues the fit of the clip, masks, scribbles and frames clip.json records: any of them given
-    again must be the recorded one (a different mask folder would otherwise be fitted while clip.json keeps the
-    old one). One line naming the first difference."""
-    changed: tuple[str, str, str] | None = None
-    if clip is not None and not _same_path(clip, record.source):
-        changed = ("the clip", str(clip), record.source)
-    elif mask_dirs and not (len(mask_dirs) == len(record.masks) and all(map(_same_path, mask_dirs, record.masks))):
-        changed = ("--mask", ", ".join(map(str, mask_dirs)), ", ".join(record.masks) or "no masks")
-    elif scribble_dir is not None and (record.scribbles is None or not _same_path(scribble_dir, record.scribbles)):
-        changed = ("--scribbles", str(scribble_dir), record.scribbles or "no scribbles")
-    elif frame_range is not None and tuple(frame_range) != tuple(record.frame_range):
-        first, last = record.frame_range
-        changed = ("--frames", f"{frame_range[0]}:{frame_range[1]}", f"{first}:{last}")
-    if changed is not None:
-        what, given, recorded = changed
-        raise InputError(
-            run.clip,
-            f"--resume with {what} {given}, but this run fitted {recorded}",
-            "drop it to continue the fit as it started, or fit with it into a new --out (or --refit)",
-        )
-
-
-def _check_resume_colour(run: RunFolder, record: ClipRecord, given: str | None) -> tuple[str, str | None]:
-    """The recorded plate colour space and config a resume continues with, as recorded (a run made before colour
-    management: "sRGB"/"linear" and no config, which ``prepare_clip`` reads as it did); a ``--colorspace`` that
-    names another space is refused in one line."""
-    space, config = recorded_space(record.colorspace, record.colour_config)
-    if given is not None and resolve(given, config) != space:
-        raise InputError(
-            run.clip,
-            f"--resume with --colorspace {given}, but this run fitted the plate as {space!r}",
-            "drop --colorspace to continue the fit as it started, or fit with it into a new --out (or --refit)",
-        )
-    return record.colorspace, record.colour_config
-
-
-def _check_resume_config(run: RunFolder, saved: FitConfig, cfg: FitConfig) -> None:
-    """A resume may change the schedule (``config.RESUMABLE_FIELDS``) and nothing else: one line naming the
-    first other field that differs from config.json."""
-    _, refused = resume_changes(saved, cfg)
-    if refused:
-        key = refused[0]
-        raise InputError(
-            run.config,
-            f"--resume cannot change {key} ({getattr(saved, key)!r} -> {getattr(cfg, key)!r}); "
-            f"a resume changes only {', '.join(RESUMABLE_FIELDS)}",
-            "drop that --set to continue the fit, or fit with it into a new --out (or --refit)",
-        )
-
-
-# --- a fitted run, loaded back ------------------------------------------------------------------------------
-
-
-@dataclass
-class FittedRun:
-    """A fit as its run folder holds it, loaded without its clip: what ``export`` works from."""
-
-    folder: RunFolder
-    cfg: FitConfig
-    clip: ClipRecord
-    scene: SceneAnalysis
-    model: AtlasModel
-    metrics: dict[str, Any] | None  # None: the fit has not finished
-
-
-def load_fitted(run_dir: str | Path, device_name: str = "cpu") -> FittedRun:
-    """The model of a finished (or checkpointed) fit with its weights, from the run folder alone: the plate,
-    masks, scribbles and flow are not read."""
-    run = RunFolder(run_dir)
-    cfg = run.read_config()
-    record = run.read_clip()
-    scene = run.read_scene(record)
-    device = select_device(device_name)
-    state = run.load_checkpoint(device)
-    run.check_checkpoint_belongs(state, cfg, record)
-    with checkpoint_fits(run.checkpoint):
-        model = rebuild_model(cfg, record, scene, state["motions"]).to(device)
-        model.load_state_dict(state["model"])
-    return FittedRun(run, cfg, record, scene, model.eval(), run.read_metrics())
-
-
-def load_run(run_dir: str | Path, device_name: str = "cpu") -> tuple[AtlasModel, PreparedClip, FitConfig]:
-    """A finished (or checkpointed) fit's model with its weights, its clip prepared again (frames, masks, flow
-    from the cache) and its config: for looking at a fit against its plate (the demo's contact sheet)."""
-    fitted = load_fitted(run_dir, device_name)
-    record = fitted.clip
-    missing = record.missing_input(fitted.folder.path)
-    if missing is not None:
-        raise missing
-    prepared = prepare_clip(
-        record.source,
-        list(record.masks),
-        fitted.cfg,
-        fitted.folder.path,
-        record.frame_range,
-        scribble_dir=record.scribbles,
-        # the plate as it was fitted: its recorded colour space, rate and movie numbering, not today's defaults
-        colorspace=record.colorspace,
-        colour_config=record.colour_config,
-        fps=record.exact_rate,
-        start_frame=record.movie_start,
-    )
-    return fitted.model, prepared, fitted.cfg
-
-
 __all__ = [
-    "EVAL_CHUNK",
     "FitCancelled",
-    "FittedRun",
-    "NonFinite",
-    "PreparedClip",
-    "Reporter",
     "Trainer",
-    "build_model",
     "fit",
-    "fit_state",
-    "load_fitted",
-    "load_run",
-    "make_optimizer",
-    "make_scheduler",
-    "prepare_clip",
-    "rebuild_model",
     "regime_cost_ratio",
-    "render_frame",
-    "select_device",
 ]

@@ -7,6 +7,7 @@ per step on [pixel, pixel+dx, pixel+dy] (reconstruction, gradient loss and local
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import torch
 
@@ -64,6 +65,50 @@ def _evaluate(
     return list(out.split([c[0].shape[0] for c in chunks]))
 
 
+#: A per-layer flow target: (the batch samples it belongs to, their points moved by the flow, the frame they land in).
+FlowPart = tuple[torch.Tensor, torch.Tensor, torch.Tensor]
+
+
+@dataclass
+class _Batch:
+    """One step's pixel batch and what the fields answered about it, each field called once per layer on every
+    point the terms need (``_evaluate_fields``); the loss groups read their parts from here."""
+
+    ix: torch.Tensor
+    iy: torch.Tensor
+    t: torch.Tensor
+    xy: torch.Tensor  # [N, 2] pixel centres
+    n: int
+    nl: int
+    flow_parts: list[FlowPart]
+    want_flow: bool
+    want_alpha_flow: bool
+    long_pts: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor] | None
+    glob_bg: bool
+    glob_fg: bool
+    glob_on: bool
+    glob_layers: list[int]
+    local_extra: bool
+    local_at: int
+    glob_at: int
+    flow_at: list[int]
+    uv_parts: list[list[torch.Tensor]]
+    alpha_parts: list[torch.Tensor]
+    uvs: list[torch.Tensor]  # each layer's uv at [pixel, pixel+dx, pixel+dy]
+    cols: list[torch.Tensor]
+    rec: torch.Tensor  # the reconstruction at the samples
+    rec_dx: torch.Tensor  # ... at their +x neighbours
+    rec_dy: torch.Tensor  # ... at their +y neighbours
+    wts0: torch.Tensor  # [N, L] the samples' layer weights
+    # the step's context: what every loss group reads besides the fields' answers
+    model: AtlasModel
+    video: VideoTensors
+    cfg: FitConfig
+    step: int
+    wts: dict[str, float]
+    on: Callable[[str], bool]
+
+
 def compute_losses(
     model: AtlasModel,
     video: VideoTensors,
@@ -77,6 +122,9 @@ def compute_losses(
 
     Only the terms in ``model.active_terms`` (engine.data.scene_analysis; None = all) are evaluated at all: a term the
     scene does not call for costs nothing, not just weight 0, and is absent from the returned dict.
+
+    The groups run in a fixed order (each one's tensors are created in the same sequence on every step, so the
+    backward pass sums the gradients in the same order and a resumed fit continues bit for bit).
     """
     wts = loss_weights(cfg, step)
     active = model.active_terms
@@ -84,7 +132,34 @@ def compute_losses(
     def on(term: str) -> bool:
         return active is None or term in active
 
-    t_count, h, w = video.shape
+    b = _evaluate_fields(model, video, cfg, step, ix, iy, t, wts, on)
+    terms: dict[str, torch.Tensor] = {}
+    _photometric_terms(terms, b)
+    _rigidity_terms(terms, b)
+    zero = _flow_terms(terms, b)
+    gen = _sparsity_terms(terms, b, zero)
+    _scribble_term(terms, b, gen)
+    _anchor_term(terms, b)
+    _mask_terms(terms, b)
+
+    total = sum(wts[k] * v for k, v in terms.items() if wts.get(k, 0.0) != 0.0)
+    return total, terms
+
+
+def _evaluate_fields(
+    model: AtlasModel,
+    video: VideoTensors,
+    cfg: FitConfig,
+    step: int,
+    ix: torch.Tensor,
+    iy: torch.Tensor,
+    t: torch.Tensor,
+    wts: dict[str, float],
+    on: Callable[[str], bool],
+) -> _Batch:
+    """Every point a field is asked about this step, and its answers: the samples and their +x/+y neighbours,
+    the rigidity neighbours, the flow targets both ways and the long-range correspondences."""
+    active = model.active_terms
     n = ix.shape[0]
     nl = model.num_layers
     xy = torch.stack((ix, iy), -1).float() + 0.5
@@ -97,21 +172,7 @@ def compute_losses(
     # backward zero-fills a gradient the size of the whole grid per call, so one call instead of five
     # (pixels, global-rigidity neighbours, flow targets both ways) is most of a step's saving.
     want_flow, want_alpha_flow = on("flow"), on("alpha_flow") and nl > 1
-    flow_parts: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []  # (selected samples, q, t of q)
-    for direction in (1, -1):
-        if t_count < 2 or not (want_flow or want_alpha_flow):
-            break
-        if direction == 1:
-            has = t < t_count - 1
-            tt = t.clamp(max=t_count - 2)
-            vec, ok = video.fwd[tt, iy, ix], video.fwd_ok[tt, iy, ix]
-        else:
-            has = t > 0
-            tt = (t - 1).clamp(min=0)
-            vec, ok = video.bwd[tt, iy, ix], video.bwd_ok[tt, iy, ix]
-        sel = (has & ok).nonzero().squeeze(1)
-        if sel.numel():
-            flow_parts.append((sel, xy[sel] + vec[sel], t[sel] + direction))
+    flow_parts = _flow_targets(video, xy, ix, iy, t, want_flow or want_alpha_flow)
 
     # long-range correspondences (t -> t +- k): their source and target points join each layer's one call
     want_long = (
@@ -145,6 +206,57 @@ def compute_losses(
         if long_pts is not None:
             chunks += [(long_pts[0], long_pts[1]), (long_pts[2], long_pts[3])]
         uv_parts.append(_evaluate(lambda a, b, _i=i: model.uv(_i, a, b), chunks))
+    alpha_parts = _layer_alphas(model, xy3, t3, flow_parts, long_pts, uv_parts, flow_at, want_flow, want_alpha_flow)
+
+    weights3 = alpha_parts[0]  # [3N, L]
+    uvs = [parts[0] for parts in uv_parts]
+    cols = [model.color(i, uv) for i, uv in enumerate(uvs)]
+    rec3 = sum(weights3[:, i : i + 1] * cols[i] for i in range(nl))
+    rec, rec_dx, rec_dy = rec3[:n], rec3[n : 2 * n], rec3[2 * n :]
+    wts0 = weights3[:n]
+    return _Batch(
+        ix, iy, t, xy, n, nl, flow_parts, want_flow, want_alpha_flow, long_pts, glob_bg, glob_fg, glob_on,
+        glob_layers, local_extra, local_at, glob_at, flow_at, uv_parts, alpha_parts, uvs, cols, rec, rec_dx,
+        rec_dy, wts0, model, video, cfg, step, wts, on,
+    )  # fmt: skip
+
+
+def _flow_targets(
+    video: VideoTensors, xy: torch.Tensor, ix: torch.Tensor, iy: torch.Tensor, t: torch.Tensor, wanted: bool
+) -> list[FlowPart]:
+    """The samples whose flow to the next (then the previous) frame is reliable, with where it takes them."""
+    t_count = video.shape[0]
+    flow_parts: list[FlowPart] = []  # (selected samples, q, t of q)
+    for direction in (1, -1):
+        if t_count < 2 or not wanted:
+            break
+        if direction == 1:
+            has = t < t_count - 1
+            tt = t.clamp(max=t_count - 2)
+            vec, ok = video.fwd[tt, iy, ix], video.fwd_ok[tt, iy, ix]
+        else:
+            has = t > 0
+            tt = (t - 1).clamp(min=0)
+            vec, ok = video.bwd[tt, iy, ix], video.bwd_ok[tt, iy, ix]
+        sel = (has & ok).nonzero().squeeze(1)
+        if sel.numel():
+            flow_parts.append((sel, xy[sel] + vec[sel], t[sel] + direction))
+    return flow_parts
+
+
+def _layer_alphas(
+    model: AtlasModel,
+    xy3: torch.Tensor,
+    t3: torch.Tensor,
+    flow_parts: list[FlowPart],
+    long_pts: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor] | None,
+    uv_parts: list[list[torch.Tensor]],
+    flow_at: list[int],
+    want_flow: bool,
+    want_alpha_flow: bool,
+) -> list[torch.Tensor]:
+    """The layer weights at the samples (and their neighbours), the flow targets and the long-range sources."""
+    nl = model.num_layers
     alpha_chunks = [(xy3, t3)] + ([(q, tq) for _, q, tq in flow_parts] if want_alpha_flow else [])
     if long_pts is not None:
         alpha_chunks.append((long_pts[0], long_pts[1]))
@@ -165,16 +277,15 @@ def compute_losses(
             torch.cat([c[1] for c in alpha_chunks]),
             [alpha_uvs(i) for i in range(nl)],
         )
-        alpha_parts = list(joined.split([c[0].shape[0] for c in alpha_chunks]))
-    else:
-        alpha_parts = _evaluate(model.alpha, alpha_chunks)
+        return list(joined.split([c[0].shape[0] for c in alpha_chunks]))
+    return _evaluate(model.alpha, alpha_chunks)
 
-    weights3 = alpha_parts[0]  # [3N, L]
-    uvs = [parts[0] for parts in uv_parts]
-    cols = [model.color(i, uv) for i, uv in enumerate(uvs)]
-    rec3 = sum(weights3[:, i : i + 1] * cols[i] for i in range(nl))
-    rec, rec_dx, rec_dy = rec3[:n], rec3[n : 2 * n], rec3[2 * n :]
-    wts0 = weights3[:n]
+
+def _photometric_terms(terms: dict[str, torch.Tensor], b: _Batch) -> None:
+    """``rgb`` and ``gradient``: the reconstruction against the plate in ``TARGET_RANGE``."""
+    video = b.video
+    ix, iy, t, rec, rec_dx, rec_dy = b.ix, b.iy, b.t, b.rec, b.rec_dx, b.rec_dy
+    _, h, w = video.shape
 
     lo, hi = TARGET_RANGE
     target = video.frames[t, iy, ix].clamp(lo, hi)
@@ -183,56 +294,74 @@ def compute_losses(
     gt_dx = video.frames[t, iy, nx].clamp(lo, hi) - target
     gt_dy = video.frames[t, ny, ix].clamp(lo, hi) - target
 
-    terms: dict[str, torch.Tensor] = {}
     terms["rgb"] = L.rgb_loss(rec, target)
     terms["gradient"] = L.gradient_loss(rec_dx - rec, rec_dy - rec, gt_dx, gt_dy, ix < w - 1, iy < h - 1)
 
+
+def _rigidity_terms(terms: dict[str, torch.Tensor], b: _Batch) -> None:
+    """``rigidity`` (each mapping locally rigid) and the global rigidity terms (over a wider neighbourhood)."""
+    model, cfg, on = b.model, b.cfg, b.on
+    n, nl, uvs, uv_parts = b.n, b.nl, b.uvs, b.uv_parts
+    local_at, glob_at = b.local_at, b.glob_at
     if on("rigidity"):
         rig = []
         for i in range(nl):
             u = uvs[i]
-            u_dx, u_dy = uv_parts[i][local_at : local_at + 2] if local_extra else (u[n : 2 * n], u[2 * n :])
+            u_dx, u_dy = uv_parts[i][local_at : local_at + 2] if b.local_extra else (u[n : 2 * n], u[2 * n :])
             rig.append(L.rigidity_loss(u[:n], u_dx, u_dy, cfg.rigidity_delta, model.uv_per_px(i)))
         terms["rigidity"] = sum(rig)
 
-    if glob_on:
+    if b.glob_on:
         g = {
             i: L.rigidity_loss(
                 uvs[i][:n], *uv_parts[i][glob_at : glob_at + 2], cfg.global_rigidity_delta, model.uv_per_px(i)
             )
-            for i in glob_layers
+            for i in b.glob_layers
         }
-        if glob_bg:
+        if b.glob_bg:
             terms["global_rigidity_bg"] = g[0]
-        if glob_fg:
+        if b.glob_fg:
             fg = [g[i] for i in range(1, nl)]
-            terms["global_rigidity_fg"] = sum(fg) if fg else torch.zeros((), device=xy.device)
+            terms["global_rigidity_fg"] = sum(fg) if fg else torch.zeros((), device=b.xy.device)
 
+
+def _flow_terms(terms: dict[str, torch.Tensor], b: _Batch) -> torch.Tensor:
+    """``flow``, ``alpha_flow`` and ``long_flow``: points the flow pairs map to the same atlas point with the same
+    layer weights. Returns the zero an absent group counts as."""
+    model, on = b.model, b.on
+    n, nl, uvs, uv_parts, wts0, alpha_parts = b.n, b.nl, b.uvs, b.uv_parts, b.wts0, b.alpha_parts
     # flow consistency, forward (t -> t+1) and backward (t -> t-1), only where the flow is reliable
     flow_terms, alpha_terms = [], []
-    for k, (sel, _, _) in enumerate(flow_parts):
-        if want_flow:
+    for k, (sel, _, _) in enumerate(b.flow_parts):
+        if b.want_flow:
             per_layer = []
             for i in range(nl):
-                uq = uv_parts[i][flow_at[i] + k]
+                uq = uv_parts[i][b.flow_at[i] + k]
                 per_layer.append(L.flow_loss(uvs[i][:n][sel], uq, wts0[sel, i], None, model.uv_per_px(i)))
             flow_terms.append(sum(per_layer))
-        if want_alpha_flow:
+        if b.want_alpha_flow:
             alpha_terms.append(L.alpha_flow_loss(wts0[sel, 1:], alpha_parts[1 + k][:, 1:], None))
-    zero = torch.zeros((), device=xy.device)
+    zero = torch.zeros((), device=b.xy.device)
     # forward and backward count half each
     if on("flow"):
         terms["flow"] = 0.5 * sum(flow_terms) if flow_terms else zero
     if on("alpha_flow"):
         terms["alpha_flow"] = 0.5 * sum(alpha_terms) if alpha_terms else zero
 
-    if long_pts is not None:
+    if b.long_pts is not None:
         # the source's alpha (the last alpha chunk) weighs each layer, as in the adjacent term
         alpha_long = alpha_parts[-1]
         terms["long_flow"] = sum(
             L.flow_loss(uv_parts[i][-2], uv_parts[i][-1], alpha_long[:, i], None, model.uv_per_px(i)) for i in range(nl)
         )
+    return zero
 
+
+def _sparsity_terms(terms: dict[str, torch.Tensor], b: _Batch, zero: torch.Tensor) -> torch.Generator | None:
+    """``atlas_sparsity`` (several foreground layers) or ``sparsity``: foreground colour only where it is needed.
+    Returns the step's generator when it drew from it (the scribble samples continue its stream)."""
+    model, cfg, step, on = b.model, b.cfg, b.step, b.on
+    nl, xy = b.nl, b.xy
     gen = None
     if nl > 2:
         # several foreground layers (Sec. 4.3): an object hidden behind another keeps its atlas colours, so
@@ -246,9 +375,16 @@ def compute_losses(
                 cols_s.append(model.color(i, r * torch.tensor([ax, ay], device=xy.device)))
             terms["atlas_sparsity"] = L.atlas_sparsity_loss(torch.cat(cols_s))
     elif on("sparsity"):
-        sp = [L.sparsity_loss(wts0[:, i : i + 1], cols[i][:n]) for i in range(1, nl)]
+        sp = [L.sparsity_loss(b.wts0[:, i : i + 1], b.cols[i][: b.n]) for i in range(1, nl)]
         terms["sparsity"] = sum(sp) if sp else zero
+    return gen
 
+
+def _scribble_term(terms: dict[str, torch.Tensor], b: _Batch, gen: torch.Generator | None) -> None:
+    """``scribble``: the layer weights at sampled scribble pixels against their strokes' labels (drawn from the
+    step's generator after the atlas sparsity's points, when that drew any)."""
+    model, video, cfg, step, wts, on = b.model, b.video, b.cfg, b.step, b.wts, b.on
+    xy = b.xy
     if on("scribble") and video.scribble_xyt is not None and wts["scribble"] > 0 and video.scribble_xyt.shape[0]:
         gen = gen or _step_generator(cfg, step, xy.device)
         pick = torch.randint(0, video.scribble_xyt.shape[0], (cfg.scribble_samples,), generator=gen, device=xy.device)
@@ -256,7 +392,12 @@ def compute_losses(
         a = model.alpha(sxyt[:, :2].float() + 0.5, sxyt[:, 2])
         terms["scribble"] = L.scribble_loss(a[:, 1:], video.scribble_label[pick])
 
-    # a bounded atlas (the fast model): keep each foreground where its atlas box was drawn (gauge fixing)
+
+def _anchor_term(terms: dict[str, torch.Tensor], b: _Batch) -> None:
+    """``anchor``: a bounded atlas (the fast model) keeps each foreground where its atlas box was drawn (gauge
+    fixing)."""
+    model, video, wts, on = b.model, b.video, b.wts, b.on
+    n, nl, t, ix, iy, xy = b.n, b.nl, b.t, b.ix, b.iy, b.xy
     if nl > 1 and on("anchor") and wts["anchor"] > 0:
         m_all = video.masks[:, t, iy, ix]  # [F, N]
         groups = video.mask_layers or tuple((f + 1,) for f in range(m_all.shape[0]))
@@ -265,18 +406,23 @@ def compute_losses(
             for i in group:  # scribbled parts share their object's mask
                 u0 = model.uv_anchor(i, xy, t)
                 if u0 is not None:
-                    anchor.append(L.anchor_loss(uvs[i][:n], u0, m_all[f], model.uv_per_px(i)))
+                    anchor.append(L.anchor_loss(b.uvs[i][:n], u0, m_all[f], model.uv_per_px(i)))
         if anchor:
             terms["anchor"] = sum(anchor)
 
+
+def _mask_terms(terms: dict[str, torch.Tensor], b: _Batch) -> None:
+    """``mask``, ``mask_prior`` and ``mask_hold``: the foreground alphas against the masks and the mask prior."""
+    video, cfg, wts, on = b.video, b.cfg, b.wts, b.on
+    t, ix, iy, xy = b.t, b.ix, b.iy, b.xy
     # bool [F]: the mask layers held after the bootstrap (only looked up once the hold's weight is on)
     held: torch.Tensor | None = None
     if wts["mask_hold"] > 0 and on("mask_hold"):
         hold = mask_hold_layers(video.prior_coverage, cfg.mask_hold_coverage)
         held = torch.as_tensor(hold, device=xy.device) if hold.any() else None
     on_masks = on("mask") or on("mask_prior") or held is not None
-    if nl > 1 and on_masks and (wts["mask"] > 0 or wts["mask_prior"] > 0 or held is not None):
-        fg_alpha = mask_alphas(wts0, video.mask_layers)
+    if b.nl > 1 and on_masks and (wts["mask"] > 0 or wts["mask_prior"] > 0 or held is not None):
+        fg_alpha = mask_alphas(b.wts0, video.mask_layers)
         m = video.masks[:, t, iy, ix].t()  # [N, F]
         valid = video.mask_valid[:, t].t()
         terms["mask"] = L.mask_bce(fg_alpha, m, valid)
@@ -285,6 +431,3 @@ def compute_losses(
         if held is not None:
             # small and thin objects' layers: the bootstrap's term on their masks alone, after the bootstrap
             terms["mask_hold"] = L.mask_bce(fg_alpha, m, valid & held[None, :])
-
-    total = sum(wts[k] * v for k, v in terms.items() if wts.get(k, 0.0) != 0.0)
-    return total, terms

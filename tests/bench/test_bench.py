@@ -21,10 +21,10 @@ from engine.bench.bench import (
     BENCH_PNG,
     BENCH_TAG,
     bench_configs,
-    fit_eta_errors,
     resolve_clip,
     run_bench,
 )
+from engine.bench.finished_fit import fit_eta_errors
 from engine.bench.tracking import Tracks, save_tracks
 from engine.cli import main
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
@@ -212,7 +212,7 @@ def test_expected_psnr_is_recorded_from_a_finished_fit(tmp_path):
     """``estimate``'s expected PSNR is data written from a fit's metrics.json, not numbers typed into code."""
     import shutil
 
-    from engine.bench.bench import record_expected_psnr
+    from engine.bench.finished_fit import record_expected_psnr
     from engine.fit.estimate import EXPECTED_PSNR_FILE
 
     table = tmp_path / "expected_psnr.json"
@@ -263,8 +263,9 @@ def test_regime_cost_ratio_leaves_the_fit_untouched(clip):
     """The probe times both regimes without changing the model, its gradients or the fit's random state."""
     from engine.config import apply_overrides, preset_config
     from engine.data.video import build_video_tensors
+    from engine.fit.model_build import build_model
     from engine.fit.prepare import prepare_clip
-    from engine.fit.trainer import build_model, regime_cost_ratio
+    from engine.fit.trainer import regime_cost_ratio
 
     cfg = apply_overrides(preset_config("draft"), {"batch": "300"})
     prepared = prepare_clip(clip / "frames", [clip / "masks"], cfg, clip / "work", None)

@@ -13,22 +13,16 @@ import torch
 
 from engine import contract as C
 from engine.bench.__main__ import main as bench_main
-from engine.bench.bench import (
-    BENCH_JSON,
-    FG_ALPHA_THRESHOLD,
-    Run,
-    _prepare,
-    evaluate,
-    foreground,
-    resolve_clip,
-    run_bench,
-    summary_table,
-)
+from engine.bench.bench import BENCH_JSON, resolve_clip, run_bench
+from engine.bench.bench_evaluation import FG_ALPHA_THRESHOLD, evaluate, foreground
+from engine.bench.bench_runs import Run, _prepare
+from engine.bench.bench_summary import summary_table
 from engine.bench.degrade import Degradation, write_degraded
 from engine.config import apply_overrides, preset_config
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.fit.device import torch_threads
-from engine.fit.trainer import Trainer, render_frame
+from engine.fit.evaluation import render_frame
+from engine.fit.trainer import Trainer
 
 SPEC = SceneSpec(width=64, height=48, frames=6, fg_size=(24, 18), fg_start=(12.0, 10.0), fg_velocity=(3.0, 1.0))
 #: Enough for the foreground alpha to settle on this scene (about 3 s on one thread).

@@ -203,7 +203,7 @@ def test_tracks_file_round_trip(tmp_path):
 
 def test_track_scores_split_by_the_query_mask(tmp_path):
     """Points on the masked object and background points are scored apart (bench JSON: ``by_query_mask``)."""
-    from engine.bench.bench import _track_scores
+    from engine.bench.bench_evaluation import _track_scores
 
     t = 4
     gt = np.zeros((2, t, 2), np.float32)
@@ -230,7 +230,7 @@ def test_track_scores_split_by_the_query_mask(tmp_path):
 def test_per_point_scores_weighted_by_their_counts_give_the_aggregate():
     """``per_point`` is a breakdown, not a second metric: count-weighted it is ``delta_avg`` exactly, with
     occluded frames and each track's own query frame left out as TAP-Vid does."""
-    from engine.bench.bench import _track_scores
+    from engine.bench.bench_evaluation import _track_scores
 
     rng = np.random.default_rng(3)
     n, t = 6, 9
@@ -254,7 +254,7 @@ def test_scores_by_frame_gap_tell_imprecision_from_drift():
     """A tracker that drifts 0.5 px a frame is exact one frame away and lost 32 frames away: ``by_gap`` shows
     where it goes wrong. Each band scores only its own positions (query frame and occluded ones left out), and
     the bands together are the aggregate."""
-    from engine.bench.bench import _track_scores
+    from engine.bench.bench_evaluation import _track_scores
 
     t = 40
     gt = np.zeros((2, t, 2), np.float32)

@@ -8,16 +8,9 @@ import numpy as np
 import pytest
 
 from engine.bench.motion_bodies import BACK_LIMB, FRONT_LIMB, TORSO, LimbsJump, TurningDepth, rotate
-from engine.bench.motion_scenes import (
-    CAMERA_DISTANCE,
-    DEPTH_HEIGHT,
-    JUMP_HEIGHT,
-    JUMP_PERIOD,
-    NEIGHBOUR_FRAMES,
-    SWING_PERIOD,
-    MotionScene,
-    make_motion_scene,
-)
+from engine.bench.motion_builders import CAMERA_DISTANCE, DEPTH_HEIGHT, JUMP_HEIGHT, JUMP_PERIOD, SWING_PERIOD
+from engine.bench.motion_scenes import MotionScene, make_motion_scene
+from engine.bench.motion_tracks import NEIGHBOUR_FRAMES
 
 
 @pytest.fixture(scope="module")

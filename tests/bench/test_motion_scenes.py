@@ -13,34 +13,27 @@ import numpy as np
 import pytest
 
 from engine import contract as C
-from engine.bench.__main__ import build_parser
 from engine.bench.__main__ import main as bench_main
 from engine.bench.all_clips import run_all_clips
 from engine.bench.degrade import RECIPES, degrade_mask, dropped_frames, read_gt
 from engine.bench.motion_bodies import FRONT_LIMB, LimbsJump, TurningDepth
+from engine.bench.motion_builders import ARM_LENGTH, BAR_WIDTH, DESCRIPTIONS, SMALL_AREA, SMALL_SPEED
 from engine.bench.motion_scenes import (
-    ARM_LENGTH,
-    BAR_WIDTH,
-    DEFAULT_FRAMES,
-    DEFAULT_SIZE,
-    DESCRIPTIONS,
     GT_UV_NPZ,
-    KINDS,
     PART_MASKS,
     ROUGH_MASKS,
     ROUGH_RECIPE,
-    SMALL_AREA,
-    SMALL_SPEED,
     TEXTURE_PNG,
-    TRACKS,
     TRACKS_NPZ,
     ZIP_DATE,
     MotionScene,
-    MotionSpec,
     make_motion_scene,
     part_masks,
     write_motion_clip,
 )
+from engine.bench.motion_spec import DEFAULT_FRAMES, DEFAULT_SIZE, KINDS, MotionSpec
+from engine.bench.motion_tracks import TRACKS
+from engine.bench.tool_parsers import build_parser
 from engine.bench.tracking import load_tracks
 
 SIZE = {"width": 128, "height": 96, "frames": 8}

@@ -348,7 +348,7 @@ def substitute(words: list[str], places: Places) -> list[list[str]]:
 
 def _parser(program: str) -> argparse.ArgumentParser:
     if program == "engine.bench":
-        from engine.bench.__main__ import build_parser as bench_parser
+        from engine.bench.tool_parsers import build_parser as bench_parser
 
         return bench_parser()
     from engine.cli import build_parser

@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from engine import contract as C
-from engine.export.exporter import layer_record, stmap_values
+from engine.export.manifest_writer import layer_record
+from engine.export.pass_files import stmap_values
 from engine.io.images import write_exr, write_png
 
 UVFn = Callable[[int, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]

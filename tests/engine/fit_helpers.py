@@ -10,7 +10,8 @@ import torch
 
 from engine.config import apply_overrides, preset_config
 from engine.data.synthetic import SceneSpec, SyntheticScene, make_scene, write_scene
-from engine.fit.trainer import fit, load_run
+from engine.fit.fitted_run import load_run
+from engine.fit.trainer import fit
 
 TINY_OVERRIDES = {
     "steps": "400",

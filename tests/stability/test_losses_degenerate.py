@@ -19,8 +19,8 @@ from hypothesis import strategies as st
 from engine.config import apply_overrides, preset_config
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.data.video import build_video_tensors
+from engine.fit.model_build import build_model
 from engine.fit.prepare import prepare_clip
-from engine.fit.trainer import build_model
 from engine.model import losses as L
 from engine.model.objective import TARGET_RANGE, compute_losses
 from tests.stability.fitcheck import QUICK

@@ -16,7 +16,8 @@ import torch
 from engine import contract as C
 from engine.config import apply_overrides, preset_config
 from engine.data.synthetic import SceneSpec, make_scene
-from engine.fit.trainer import build_model, render_frame
+from engine.fit.evaluation import render_frame
+from engine.fit.model_build import build_model
 from engine.model.losses import psnr_from_mse
 from tests.stability.fitcheck import QUICK, monitored_fit, write_masks, write_sequence
 

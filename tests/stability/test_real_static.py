@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from engine.config import apply_overrides, preset_config
-from engine.fit.trainer import fit, load_run
+from engine.fit.fitted_run import load_run
+from engine.fit.trainer import fit
 from tests.paths import CLIPS
 from tests.stability.fitcheck import background_mapping_motion
 

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from engine import contract as C
+from engine.fit import run_files
 from engine.io import colour
 from engine.io.clip import open_clip
 from engine.io.images import write_rgba_exr
@@ -94,11 +95,11 @@ def test_an_unknown_colour_source_is_refused(assumed_run, where: str) -> None:
     record = json.loads(path.read_text(encoding="utf-8"))
     clip = record if where == "clip record" else record["clip"]
     clip["colour_source"] = "guessed"
-    error = C.RunFileError if where == "clip record" else C.ManifestError
+    error = run_files.RunFileError if where == "clip record" else C.ManifestError
     with pytest.raises(error, match="unknown colour_source 'guessed'"):
-        C.validate_run_file(C.RUN_CLIP, record) if where == "clip record" else C.validate_manifest(record)
+        run_files.validate_run_file(C.RUN_CLIP, record) if where == "clip record" else C.validate_manifest(record)
     clip["colour_source"] = C.COLOUR_SOURCE_FILE  # every known value passes
-    C.validate_run_file(C.RUN_CLIP, record) if where == "clip record" else C.validate_manifest(record)
+    run_files.validate_run_file(C.RUN_CLIP, record) if where == "clip record" else C.validate_manifest(record)
 
 
 # --- a fit of an untagged EXR plate, through the command line --------------------------------------------------

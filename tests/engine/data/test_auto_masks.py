@@ -27,7 +27,6 @@ from engine import contract as C
 from engine.cli import main
 from engine.data.auto_masks import (
     MIN_POINTS,
-    STAGING_SUFFIX,
     AutoMaskConfig,
     auto_masks,
     clean_mask,
@@ -37,6 +36,7 @@ from engine.data.auto_masks import (
     write_mask_files,
 )
 from engine.data.flow import compute_flow
+from engine.data.mask_files import STAGING_SUFFIX
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.errors import InputError
 from engine.io.clip import open_clip, read_masks
@@ -380,7 +380,7 @@ def test_sigterm_during_the_analysis_exits_3_and_a_rerun_writes_the_set(small_cl
 #: masks are in the staging folder, "publish" after the first mask is published), then runs the CLI on argv[3:].
 _SIGTERM_AT = """
 import os, signal, sys
-import engine.data.auto_masks as A
+import engine.data.mask_files as A
 from engine.cli import main
 
 when, count = sys.argv[1], int(sys.argv[2])

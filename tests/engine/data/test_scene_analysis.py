@@ -24,8 +24,12 @@ from engine.data.scene_analysis import (
 )
 from engine.data.video import build_video_tensors, sample_pixels
 from engine.errors import InputError
+from engine.fit.fitted_run import load_run
+from engine.fit.model_build import build_model
+from engine.fit.prepare import prepare_clip
+from engine.fit.progress import Reporter
 from engine.fit.run_folder import RunFolder
-from engine.fit.trainer import Reporter, build_model, fit, load_run, prepare_clip
+from engine.fit.trainer import fit
 from engine.io.images import write_png
 from engine.model.atlas_model import FastModel
 from engine.model.objective import compute_losses

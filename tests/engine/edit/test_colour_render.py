@@ -11,11 +11,13 @@ import pytest
 
 from engine import contract as C
 from engine.edit.equations import load_edit
-from engine.edit.render import MOVIE_COLOUR_TAGS, render_manifest
+from engine.edit.movie import MOVIE_COLOUR_TAGS
+from engine.edit.render import render_manifest
 from engine.errors import InputError
+from engine.fit import run_files
 from engine.fit.prepare import to_fitting_values
 from engine.fit.run_folder import ClipRecord, RunFolder
-from engine.fit.trainer import _check_resume_colour
+from engine.fit.run_plan import _check_resume_colour
 from engine.io import colour
 from engine.io.clip import open_clip
 from tests.colour_plates import AP1, KINDS, H, T, W, _half_layer, _read, _write, export_plate, paint
@@ -135,10 +137,12 @@ def test_resume_refuses_another_colour_space(tmp_path):
 
 
 def test_old_records_are_read():
-    assert C.validate_run_file(C.RUN_CLIP, {**_clip_json(), "colorspace": "linear"})
-    with pytest.raises(C.RunFileError):
-        C.validate_run_file(C.RUN_CLIP, {**_clip_json(), "colorspace": "ACEScg"})  # a name needs its config
-    assert C.validate_run_file(C.RUN_CLIP, {**_clip_json(), "colorspace": "ACEScg", "colour_config": "ocio://default"})
+    assert run_files.validate_run_file(C.RUN_CLIP, {**_clip_json(), "colorspace": "linear"})
+    with pytest.raises(run_files.RunFileError):
+        run_files.validate_run_file(C.RUN_CLIP, {**_clip_json(), "colorspace": "ACEScg"})  # a name needs its config
+    assert run_files.validate_run_file(
+        C.RUN_CLIP, {**_clip_json(), "colorspace": "ACEScg", "colour_config": "ocio://default"}
+    )
     assert colour.recorded_space("linear", None) == (C.COLOUR_SCENE_LINEAR, C.COLOUR_BUILTIN_CONFIG)
 
 
@@ -195,7 +199,7 @@ def test_fit_refuses_an_unknown_colour_space_and_an_unnamed_log_dpx(tmp_path):
 
 def test_movie_frames_are_converted_with_the_bt709_matrix_they_are_tagged_with(tmp_path):
     """Pure sRGB red becomes Y' = 16 + 219 * 0.2126 = 63 (BT.709, limited range), not BT.601's 81."""
-    from engine.edit.render import MovieWriter
+    from engine.edit.movie import MovieWriter
 
     writer = MovieWriter(tmp_path / "red.mp4", 24.0, (16, 16))
     for _ in range(3):

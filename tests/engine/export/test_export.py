@@ -24,7 +24,8 @@ from engine.edit.equations import load_edit, sample_texture
 from engine.edit.project_frame import project_frame
 from engine.edit.render import render_frames, render_manifest
 from engine.errors import DiskFullError
-from engine.export.exporter import BOX_ALPHA, export_run
+from engine.export.atlas_frame import BOX_ALPHA
+from engine.export.exporter import export_run
 from engine.export.manifest import Manifest
 from engine.io.colour import srgb_to_linear
 from engine.io.images import read_exr, read_image, write_png

@@ -15,7 +15,8 @@ from engine.config import apply_overrides, preset_config
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.errors import InputError
 from engine.export.exporter import export_run
-from engine.fit.trainer import fit, load_fitted
+from engine.fit.fitted_run import load_fitted
+from engine.fit.trainer import fit
 from engine.io.images import read_exr, read_image
 
 #: 96x64 fitted at 48x32: the passes (96x64) can only get their size from the run folder's record.

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.export.exporter import MIN_BOX_EXTENT, _Coverage, _fill_holes, layer_frame_for
+from engine.export.atlas_frame import MIN_BOX_EXTENT, _Coverage, _fill_holes, layer_frame_for
 
 
 def test_degenerate_box_gets_a_minimum_extent():

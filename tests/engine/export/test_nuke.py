@@ -319,7 +319,7 @@ def test_knob_values_with_spaces_and_tcl_characters_stay_one_literal_value():
 
 
 def test_export_warns_and_writes_no_script_for_a_plate_nuke_cannot_read_as_one_sequence(tmp_path, capsys):
-    from engine.export.exporter import _write_nuke_script
+    from engine.export.manifest_writer import _write_nuke_script
 
     manifest = _movie_manifest()
     manifest["clip"].update(kind="sequence", frame_files=[f"../../clip/shot_{c}.png" for c in "abcdefghij"])
@@ -352,7 +352,7 @@ def test_stack_variables_are_named_by_the_layer_index_and_comments_stay_comments
 
 
 def test_export_warns_and_writes_no_script_for_a_plate_folder_holding_a_frame_token(tmp_path, capsys):
-    from engine.export.exporter import _write_nuke_script
+    from engine.export.manifest_writer import _write_nuke_script
 
     manifest = _movie_manifest()
     frames = [f"../../../shot#2/plate.{n:04d}.exr" for n in manifest["clip"]["frame_numbers"]]

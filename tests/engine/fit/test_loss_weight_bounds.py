@@ -14,8 +14,8 @@ from engine import contract as C
 from engine.config import MAX_LOSS_WEIGHT, VALID, FitConfig, apply_overrides, preset_config
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.errors import InputError
+from engine.fit.divergence import NonFinite, diverged_message, suspect_weights
 from engine.fit.run_folder import RunFolder
-from engine.fit.trainer import NonFinite, diverged_message, suspect_weights
 from tests.engine_cli import run_cli
 from tests.untouched import digest_outside
 

@@ -28,7 +28,9 @@ from engine.edit.equations import load_edit
 from engine.edit.render import plate_frames, render_frames, render_manifest
 from engine.export.exporter import export_run
 from engine.export.manifest import Manifest
-from engine.fit.trainer import fit, load_run, render_frame
+from engine.fit.evaluation import render_frame
+from engine.fit.fitted_run import load_run
+from engine.fit.trainer import fit
 from engine.io.colour import srgb_to_linear
 from engine.io.images import read_exr, write_png
 from tests.engine.fit_helpers import TINY_OVERRIDES, object_drift_per_frame

@@ -22,8 +22,8 @@ import torch
 from engine import contract as C
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.errors import InputError
+from engine.fit.fitted_run import load_fitted
 from engine.fit.run_folder import RunFolder
-from engine.fit.trainer import load_fitted
 from tests.engine_cli import run_cli
 from tests.folders import tree_digest
 from tests.stability.bad_inputs import TINY_FIT

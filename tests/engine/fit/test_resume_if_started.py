@@ -15,7 +15,7 @@ import torch
 
 from engine import contract as C
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
-from engine.fit import trainer
+from engine.fit import run_files, trainer
 from tests.engine_cli import progress_until, run_cli, start_engine
 from tests.folders import tree_digest
 from tests.paths import ROOT
@@ -64,7 +64,7 @@ def test_a_retried_fit_starts_continues_and_then_does_nothing(tmp_path, monkeypa
     assert out.returncode == C.EXIT_OK, out.stderr
     resumed = [e["step"] for e in _events(out.stdout) if e["event"] == C.EVENT_PROGRESS]
     assert resumed[0] == saved + 1 and resumed[-1] == STEPS
-    metrics = C.validate_run_file(C.RUN_METRICS, json.loads((run / C.RUN_METRICS).read_text()))
+    metrics = run_files.validate_run_file(C.RUN_METRICS, json.loads((run / C.RUN_METRICS).read_text()))
     assert metrics["steps"] == STEPS
 
     # 3. the same command once more: nothing to do, at once (no training starts: how fast that is depends on the

@@ -12,6 +12,7 @@ import torch
 from engine import contract as C
 from engine.config import preset_config
 from engine.errors import InputError
+from engine.fit import run_files
 from engine.fit.run_folder import ClipRecord, RunFolder
 
 RECORD = ClipRecord(
@@ -64,7 +65,7 @@ def test_what_is_written_reads_back(tmp_path):
     assert run.read_clip() == RECORD and run.read_clip().num_frames == 3
     assert run.read_metrics() == {"schema": C.RUN_METRICS_SCHEMA, **METRICS}
     data = json.loads(run.clip.read_text())
-    written = {"schema", *C.RUN_FILE_FIELDS[C.RUN_CLIP], *C.RUN_CLIP_OPTIONAL_FIELDS}
+    written = {"schema", *run_files.RUN_FILE_FIELDS[C.RUN_CLIP], *run_files.RUN_CLIP_OPTIONAL_FIELDS}
     assert data["schema"] == C.RUN_CLIP_SCHEMA and set(data) == written
     assert RunFolder(tmp_path / "nothing").read_metrics() is None  # an unfinished fit has none
 
@@ -104,7 +105,7 @@ def test_the_plate_timing_reads_back_and_a_record_written_before_it_reads_as_bef
     timed = dataclasses.replace(RECORD, rate=(24000, 1001), pixel_aspect=2.0, timecode="01:00:00:00", start_frame=0)
     run.write_clip(timed)
     assert run.read_clip() == timed and json.loads(run.clip.read_text())["rate"] == [24000, 1001]
-    old = {k: v for k, v in RECORD.to_dict().items() if k not in C.RUN_CLIP_OPTIONAL_FIELDS}
+    old = {k: v for k, v in RECORD.to_dict().items() if k not in run_files.RUN_CLIP_OPTIONAL_FIELDS}
     run.clip.write_text(json.dumps(old))
     back = run.read_clip()
     assert back == RECORD and (back.rate, back.pixel_aspect, back.timecode, back.start_frame) == (None, 1.0, None, 0)
@@ -193,13 +194,13 @@ def test_checkpoint_keys_and_version_are_checked(tmp_path):
 
 def test_the_contract_validates_without_the_engine():
     """The schemas live in the contract (standard library only): what the add-on could check on its own."""
-    assert C.validate_run_file(C.RUN_CLIP, RECORD.to_dict())["layers"] == 2
-    with pytest.raises(C.RunFileError) as err:
-        C.validate_run_file(C.RUN_METRICS, [1, 2])
+    assert run_files.validate_run_file(C.RUN_CLIP, RECORD.to_dict())["layers"] == 2
+    with pytest.raises(run_files.RunFileError) as err:
+        run_files.validate_run_file(C.RUN_METRICS, [1, 2])
     assert err.value.problem == "metrics is not a JSON object" and err.value.fix == C.RUN_FILE_DAMAGED_FIX
-    assert C.validate_run_file(C.RUN_METRICS, {"schema": 1, **METRICS, "psnr": float("inf")})  # a perfect fit
-    with pytest.raises(C.RunFileError, match="'steps' is not a int"):
-        C.validate_run_file(C.RUN_METRICS, {"schema": 1, **METRICS, "steps": True})
+    assert run_files.validate_run_file(C.RUN_METRICS, {"schema": 1, **METRICS, "psnr": float("inf")})  # a perfect fit
+    with pytest.raises(run_files.RunFileError, match="'steps' is not a int"):
+        run_files.validate_run_file(C.RUN_METRICS, {"schema": 1, **METRICS, "steps": True})
 
 
 @pytest.mark.parametrize(

@@ -18,8 +18,9 @@ from engine.config import apply_overrides, preset_config
 from engine.data.synthetic import make_scene, write_scene
 from engine.errors import InputError
 from engine.fit.checkpoint import load_checkpoint, save_checkpoint
+from engine.fit.fitted_run import load_run
 from engine.fit.prepare import to_fitting_values
-from engine.fit.trainer import fit, load_run
+from engine.fit.trainer import fit
 from engine.io.clip import open_clip, read_frames
 from tests.engine.fit_helpers import TINY_OVERRIDES, fit_scene
 

@@ -24,7 +24,9 @@ import torch
 from engine import contract as C
 from engine.config import apply_overrides, preset_config
 from engine.errors import InputError
-from engine.fit.trainer import fit, load_run, render_frame
+from engine.fit.evaluation import render_frame
+from engine.fit.fitted_run import load_run
+from engine.fit.trainer import fit
 from tests.engine.fit_helpers import TINY_OVERRIDES, object_drift_per_frame
 from tests.two_object_scene import make_two_object_scene, write_two_object_scene
 

@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 
 from engine.errors import InputError
-from engine.io import clip
-from engine.io.clip import DECODER_THREADS, open_clip, read_frames
+from engine.io import movie as clip
+from engine.io.clip import open_clip, read_frames
+from engine.io.movie import DECODER_THREADS
 from tests.media_files import _ENCODE, X264_PARAMS, textured_frames, write_movie
 from tests.packet_damage import invert_packet
 from tests.paths import ROOT

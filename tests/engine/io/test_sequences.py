@@ -13,7 +13,7 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 
-from engine.cli import frame_range
+from engine.cli_options import frame_range
 from engine.errors import InputError
 from engine.io.clip import frame_positions, iter_frames, open_clip
 from engine.io.images import exr_timing, write_exr

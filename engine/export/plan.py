@@ -1,0 +1,126 @@
+"""What every part of one export shares (``Plan``): the layers, each layer's atlas frame and the frames exported.
+
+A whole export makes it once; a staged export's atlases stage makes it and records it (``Plan.to_record``), and
+its passes and publish stages read it back (``Plan.from_record``), so every chunk writes the passes the whole
+export would. An existing edit layer's frame (``edits/layout.json``) wins over the one the coverage gives: its
+paint must not shift.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from .. import contract as C
+from ..errors import InputError
+from ..fit.fitted_run import FittedRun
+from ..fit.progress import Reporter
+from ..fit.run_folder import ClipRecord
+from .atlas_frame import LayerFrame, _Coverage, layer_frame_for
+from .sampling import eval_pixels, pixel_grid
+from .stage_record import STAGE_SCHEMA
+
+
+def read_layout(edits_dir: Path) -> dict[str, Any]:
+    path = edits_dir / C.EDITS_LAYOUT
+    if not path.exists():
+        return {"schema": C.SCHEMA_VERSION, "layers": {}}
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError):
+        raise InputError(path, "edit layout is not valid JSON", "restore it from a backup or delete it") from None
+    if data.get("schema") != C.SCHEMA_VERSION or not isinstance(data.get("layers"), dict):
+        raise InputError(path, "edit layout has an unknown schema", "restore it or delete it (paint may shift)")
+    return data
+
+
+def selected_frames(clip: ClipRecord, frames: tuple[int, int] | None) -> list[int]:
+    """Run frame indices to export; ``frames`` are the plate's frame numbers, like `fit --frames`."""
+    numbers = list(clip.frame_numbers)
+    if frames is None:
+        return list(range(clip.num_frames))
+    a, b = frames
+    if a > b or a not in numbers or b not in numbers:
+        first, last = numbers[0], numbers[-1]
+        raise InputError(
+            None,
+            f"--frames {a}-{b} is outside the fitted frames {first}-{last}",
+            f"choose a range inside {first}-{last} (the plate's frame numbers)",
+        )
+    return list(range(numbers.index(a), numbers.index(b) + 1))
+
+
+@dataclass
+class Plan:
+    """What every part of one export shares: the layers, the atlas frame of each and the frames exported."""
+
+    names: list[str]
+    frames_by_layer: list[LayerFrame]
+    selected: list[int]  # run frame indices
+    atlas_size: int
+
+    def numbers(self, clip: ClipRecord) -> list[int]:
+        return [clip.frame_numbers[t] for t in self.selected]
+
+    def to_record(self, clip: ClipRecord, source: dict[str, str]) -> dict[str, Any]:
+        """The staged export's record (``STAGE_RECORD``): JSON keeps each float exactly, so every pass a chunk
+        writes from it is the whole export's; ``source`` (``stage_record.fit_source``) is the fit it is made from,
+        which every later stage checks."""
+        numbers = self.numbers(clip)
+        layers = [
+            {"name": n, "atlas_box": list(fr.box), "atlas_size": list(fr.size)}
+            for n, fr in zip(self.names, self.frames_by_layer, strict=True)
+        ]
+        return {"schema": STAGE_SCHEMA, "frames": [numbers[0], numbers[-1]], "atlas_size": self.atlas_size,
+                "layers": layers, "source": source}  # fmt: skip
+
+    @classmethod
+    def from_record(cls, data: dict[str, Any], clip: ClipRecord) -> Plan:
+        frames = (int(data["frames"][0]), int(data["frames"][1]))
+        layers = data["layers"]
+        return cls(
+            [str(layer["name"]) for layer in layers],
+            [LayerFrame(tuple(layer["atlas_box"]), tuple(layer["atlas_size"])) for layer in layers],  # type: ignore[arg-type]
+            selected_frames(clip, frames),
+            int(data["atlas_size"]),
+        )
+
+
+def plan_export(
+    reporter: Reporter, fitted: FittedRun, atlas_size: int, frames: tuple[int, int] | None, bar: Any
+) -> tuple[Plan, list[_Coverage]]:
+    """Where each layer's mapping lands (every frame, working resolution) and each layer's atlas frame: an existing
+    edit layer's frame wins (its paint must not shift)."""
+    model, clip = fitted.model, fitted.clip
+    device = next(model.parameters()).device
+    selected = selected_frames(clip, frames)
+    names = [C.layer_name(i, model.num_layers) for i in range(model.num_layers)]
+    reporter.emit(C.EVENT_STAGE, stage="atlas", message="atlas extent and coverage")
+    cov = [_Coverage(model.uv_per_px(i), clip.num_frames, foreground=i > 0) for i in range(model.num_layers)]
+    xy_work = pixel_grid(clip.working_size, (1.0, 1.0), device)
+    for t in range(clip.num_frames):
+        uvs, wts = eval_pixels(model, xy_work, t)
+        for i in range(model.num_layers):
+            cov[i].add(t, uvs[i], wts[:, i])
+        bar.update(1)
+    edits_dir = fitted.folder.edits
+    layout = read_layout(edits_dir)
+    frames_by_layer: list[LayerFrame] = []
+    for i, name in enumerate(names):
+        rec = layout["layers"].get(name)
+        painted = any((edits_dir / f"{name}{ext}").exists() for ext in (C.EDIT_LAYER_EXT, C.EDIT_LAYER_FLOAT_EXT))
+        if rec is not None and painted:
+            frames_by_layer.append(layer_frame_for(tuple(rec["atlas_box"]), atlas_size))  # type: ignore[arg-type]
+        else:
+            frames_by_layer.append(layer_frame_for(cov[i].box(), atlas_size))
+    return Plan(names, frames_by_layer, selected, atlas_size), cov
+
+
+__all__ = [
+    "Plan",
+    "plan_export",
+    "read_layout",
+    "selected_frames",
+]

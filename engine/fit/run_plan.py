@@ -1,0 +1,295 @@
+"""The run policy: what ``fit`` does with its run folder. A new fit starts, a stopped one resumes (``--resume``,
+``--resume-if-started``), a finished one is refitted (``--refit``) or refined (``--refine``): ``plan_fit``
+reads the folder once for the command line's flags and returns the plan; ``read_resume`` reads and checks what
+a resume continues from. The same clip, masks, frames, colour space and config (but for the schedule) are
+required of every resume, in one line naming the first difference."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from .. import contract as C
+from ..config import RESUMABLE_FIELDS, FitConfig, apply_overrides, parse_set_args, preset_config, resume_changes
+from ..data.scene_analysis import SceneAnalysis
+from ..errors import InputError
+from ..io.clip import frame_positions
+from ..io.colour import recorded_space, resolve
+from .run_folder import ClipRecord, RunFolder
+
+#: What ``plan_fit`` found to do: start a new fit, continue a stopped one, fit again over a finished one, continue
+#: a finished one for more steps, or nothing (``--resume-if-started`` with this fit finished).
+PLAN_START, PLAN_RESUME, PLAN_REFIT, PLAN_REFINE, PLAN_DONE = "start", "resume", "refit", "refine", "done"
+
+
+@dataclass(frozen=True)
+class FitPlan:
+    """What ``fit`` does with RUN_DIR (``action``, one of the ``PLAN_*``), with the config it trains with and the
+    frames as the plate's positions (None: every frame, or a resume's recorded ones)."""
+
+    action: str
+    cfg: FitConfig
+    frames: tuple[int, int] | None = None
+    #: ``PLAN_REFINE``: the steps the finished fit had done
+    refined_from: int = 0
+    #: ``PLAN_DONE``: the finished fit's metrics
+    metrics: dict[str, Any] | None = None
+
+    @property
+    def resume(self) -> bool:
+        """Whether the fit continues from RUN_DIR's checkpoint (a resume or a refinement)."""
+        return self.action in (PLAN_RESUME, PLAN_REFINE)
+
+
+def plan_fit(
+    run_dir: Path,
+    clip: str | None,
+    mask_dirs: list[str | Path],
+    *,
+    preset: str | None,
+    default_preset: str,
+    set_args: list[str],
+    frames: tuple[int, int] | None,
+    start_frame: int | None,
+    scribble_dir: str | None,
+    colorspace: str | None,
+    auto_masks: bool,
+    resume: bool,
+    refit: bool,
+    resume_if_started: bool,
+    refine: int | None,
+) -> FitPlan:
+    """The plan of ``fit``'s command line (``frames`` in the plate's numbers, ``set_args`` the ``--set`` texts):
+    the flags that cannot go together refused in one line, RUN_DIR read once for what it holds, the config built
+    (a resume's from config.json, with its preset kept) and the frames turned into positions in the plate a
+    resume continues with."""
+    if resume and refit:
+        raise InputError(
+            None, "--resume and --refit both given", "pass --resume to continue the fit, or --refit to fit again"
+        )
+    if resume_if_started and (resume or refit):
+        raise InputError(
+            None,
+            f"{C.FIT_RESUME_IF_STARTED_FLAG} with --{'resume' if resume else 'refit'}",
+            f"pass {C.FIT_RESUME_IF_STARTED_FLAG} alone: it starts, continues or leaves the fit as RUN_DIR holds it",
+        )
+    if refine is not None:
+        clashing = [flag for flag, given in (("--resume", resume), ("--refit", refit),
+                    (C.FIT_RESUME_IF_STARTED_FLAG, resume_if_started), (C.FIT_AUTO_MASKS_FLAG, auto_masks),
+                    ("--frames", frames is not None)) if given]  # fmt: skip
+        return _plan_refine(run_dir, refine, preset, set_args, clashing)
+    run = RunFolder(run_dir)
+    saved = record = None
+    if resume_if_started and run.checkpoint.exists():
+        cfg = apply_overrides(preset_config(preset or default_preset), parse_set_args(set_args))
+        record = run.read_clip()
+        given = frame_positions(record.source, frames, record.movie_start) if frames is not None else None
+        saved = run.read_config()
+        if _same_fit(run, saved, record, clip, mask_dirs, cfg, given, scribble_dir, colorspace):
+            return FitPlan(PLAN_DONE, cfg, metrics=run.read_metrics())
+        resume = True
+    if resume:
+        cfg = saved or run.read_config()
+        if preset is not None and preset != cfg.preset:
+            raise InputError(
+                run_dir / C.RUN_CONFIG,
+                f"--preset {preset} with --resume: this fit started with preset {cfg.preset}",
+                "drop --preset to continue it, or fit with that preset into a new --out (or --refit)",
+            )
+    else:
+        cfg = preset_config(preset or default_preset)
+    if resume_if_started and resume:  # the config the fit started with, as the same argv builds it
+        cfg = preset_config(preset or default_preset)
+    cfg = apply_overrides(cfg, parse_set_args(set_args))
+    if resume and frames is not None:  # the recorded plate, numbered as it was fitted
+        record = record or run.read_clip()
+        missing = record.missing_input(run_dir)
+        if missing is not None:
+            raise missing
+        positions = frame_positions(record.source, frames, record.movie_start)
+    else:
+        positions = frames if frames is None or clip is None else frame_positions(clip, frames, start_frame)
+    return FitPlan(PLAN_RESUME if resume else PLAN_REFIT if refit else PLAN_START, cfg, positions)
+
+
+def _plan_refine(
+    run_dir: Path, steps: int | None, preset: str | None, set_args: list[str], clashing: list[str]
+) -> FitPlan:
+    """``fit --refine [STEPS] [--preset P]``: a finished fit continued (``engine.fit.refine``), given alone."""
+    from .refine import refine_config
+
+    if clashing:
+        raise InputError(
+            None,
+            f"{C.FIT_REFINE_FLAG} with {clashing[0]}",
+            f"pass {C.FIT_REFINE_FLAG} alone with --out: it continues the finished fit as it was fitted",
+        )
+    plan = refine_config(run_dir, steps or None, preset)
+    return FitPlan(PLAN_REFINE, apply_overrides(plan.cfg, parse_set_args(set_args)), refined_from=plan.done)
+
+
+def _same_fit(
+    run: RunFolder,
+    saved: FitConfig,
+    record: ClipRecord,
+    clip: str | Path | None,
+    mask_dirs: list[str | Path],
+    cfg: FitConfig,
+    frame_range: tuple[int, int] | None,
+    scribble_dir: str | Path | None,
+    colorspace: str | None,
+) -> bool:
+    """For a retried fit (``fit --resume-if-started``, whose arguments are the same on every try) of a run folder
+    that holds a checkpoint: True when it holds this fit finished (nothing to do), False when a checkpoint of
+    this same fit (continue it as ``--resume`` does). This same fit: the clip, masks, scribbles, frames and colour
+    space given are the recorded ones and ``cfg`` differs from config.json in nothing but the schedule
+    (``RESUMABLE_FIELDS``), checked as ``--resume`` checks them; else one line. Reads only: the fit that follows
+    takes the lock."""
+    _check_resume_inputs(run, record, clip, mask_dirs, frame_range, scribble_dir)
+    _check_resume_colour(run, record, colorspace)
+    _check_resume_config(run, saved, cfg)
+    return run.read_metrics() is not None and cfg == saved
+
+
+@dataclass
+class ResumedFit:
+    """What a resume continues from, read from its run folder and checked against what ``fit`` was given."""
+
+    saved: FitConfig
+    record: ClipRecord
+    scene: SceneAnalysis
+    state: dict[str, Any]
+    colorspace: str
+    colour_config: str | None
+
+
+def read_resume(
+    run: RunFolder,
+    cfg: FitConfig,
+    device: torch.device,
+    clip: str | Path | None,
+    mask_dirs: list[str | Path],
+    frame_range: tuple[int, int] | None,
+    scribble_dir: str | Path | None,
+    colorspace: str | None,
+) -> ResumedFit:
+    """``fit --resume``'s run folder: its config, clip record, scene and checkpoint, read under the lock; the
+    clip, masks, frames, scribbles and colour space given must be the recorded ones, the recorded input must be
+    there, ``cfg`` may change only the schedule and the checkpoint must be this run's (each one line)."""
+    saved, record = run.read_config(), run.read_clip()
+    scene = run.read_scene(record)
+    _check_resume_inputs(run, record, clip, mask_dirs, frame_range, scribble_dir)
+    missing = record.missing_input(run.path)
+    if missing is not None:
+        raise missing
+    space, colour_config = _check_resume_colour(run, record, colorspace)
+    _check_resume_config(run, saved, cfg)
+    state = run.load_checkpoint(device)
+    run.check_checkpoint_belongs(state, saved, record)
+    return ResumedFit(saved, record, scene, state, space, colour_config)
+
+
+def check_fit_inputs(
+    cfg: FitConfig,
+    clip: str | Path | None,
+    mask_dirs: list[str | Path],
+    resume: bool,
+    auto_masks: bool,
+    scribble_dir: str | Path | None,
+) -> bool:
+    """``fit``'s input as given, checked before anything is read: a new fit needs a clip, masks come from folders
+    or from motion (not both), and the paper model takes exactly one mask. Returns whether the masks are to be
+    found from motion (a resume fits the recorded ones)."""
+    if not resume and clip is None:
+        raise InputError(None, "no clip given", "pass a frame folder or movie file")
+    find_masks = auto_masks and not resume
+    if find_masks and mask_dirs:
+        raise InputError(None, f"{C.FIT_AUTO_MASKS_FLAG} and --mask both given", "pass one of them")
+    if cfg.model == "paper" and not resume:
+        check_paper_layers(mask_dirs, find_masks, scribble_dir)
+    return find_masks
+
+
+def check_paper_layers(mask_dirs: list[str | Path], auto_masks: bool, scribble_dir: str | Path | None) -> None:
+    """The paper's architecture has one background and one foreground layer: exactly one --mask (masks found by
+    motion may be none, and scribbles split the object into several), checked before anything is read."""
+    given = None
+    if auto_masks:
+        given = f"{C.FIT_AUTO_MASKS_FLAG} was given"
+    elif scribble_dir is not None:
+        given = f"{C.SCRIBBLE_ARG} split the object into layers"
+    elif len(mask_dirs) != 1:
+        given = f"{len(mask_dirs)} --mask folders were given"
+    if given is not None:
+        raise InputError(
+            None,
+            f"the paper model fits one background and one foreground layer, but {given}",
+            "pass exactly one --mask, or use a fast preset (draft, balanced or final)",
+        )
+
+
+def _same_path(given: str | Path, recorded: str) -> bool:
+    """Whether a path given on the command line names what the run recorded (symlinks and ``~`` resolved)."""
+    return os.path.realpath(os.path.expanduser(os.fspath(given))) == os.path.realpath(recorded)
+
+
+def _check_resume_inputs(
+    run: RunFolder,
+    record: ClipRecord,
+    clip: str | Path | None,
+    mask_dirs: list[str | Path],
+    frame_range: tuple[int, int] | None,
+    scribble_dir: str | Path | None,
+) -> None:
+    """``--resume`` continues the fit of the clip, masks, scribbles and frames clip.json records: any of them given
+    again must be the recorded one (a different mask folder would otherwise be fitted while clip.json keeps the
+    old one). One line naming the first difference."""
+    changed: tuple[str, str, str] | None = None
+    if clip is not None and not _same_path(clip, record.source):
+        changed = ("the clip", str(clip), record.source)
+    elif mask_dirs and not (len(mask_dirs) == len(record.masks) and all(map(_same_path, mask_dirs, record.masks))):
+        changed = ("--mask", ", ".join(map(str, mask_dirs)), ", ".join(record.masks) or "no masks")
+    elif scribble_dir is not None and (record.scribbles is None or not _same_path(scribble_dir, record.scribbles)):
+        changed = ("--scribbles", str(scribble_dir), record.scribbles or "no scribbles")
+    elif frame_range is not None and tuple(frame_range) != tuple(record.frame_range):
+        first, last = record.frame_range
+        changed = ("--frames", f"{frame_range[0]}:{frame_range[1]}", f"{first}:{last}")
+    if changed is not None:
+        what, given, recorded = changed
+        raise InputError(
+            run.clip,
+            f"--resume with {what} {given}, but this run fitted {recorded}",
+            "drop it to continue the fit as it started, or fit with it into a new --out (or --refit)",
+        )
+
+
+def _check_resume_colour(run: RunFolder, record: ClipRecord, given: str | None) -> tuple[str, str | None]:
+    """The recorded plate colour space and config a resume continues with, as recorded (a run made before colour
+    management: "sRGB"/"linear" and no config, which ``prepare_clip`` reads as it did); a ``--colorspace`` that
+    names another space is refused in one line."""
+    space, config = recorded_space(record.colorspace, record.colour_config)
+    if given is not None and resolve(given, config) != space:
+        raise InputError(
+            run.clip,
+            f"--resume with --colorspace {given}, but this run fitted the plate as {space!r}",
+            "drop --colorspace to continue the fit as it started, or fit with it into a new --out (or --refit)",
+        )
+    return record.colorspace, record.colour_config
+
+
+def _check_resume_config(run: RunFolder, saved: FitConfig, cfg: FitConfig) -> None:
+    """A resume may change the schedule (``config.RESUMABLE_FIELDS``) and nothing else: one line naming the
+    first other field that differs from config.json."""
+    _, refused = resume_changes(saved, cfg)
+    if refused:
+        key = refused[0]
+        raise InputError(
+            run.config,
+            f"--resume cannot change {key} ({getattr(saved, key)!r} -> {getattr(cfg, key)!r}); "
+            f"a resume changes only {', '.join(RESUMABLE_FIELDS)}",
+            "drop that --set to continue the fit, or fit with it into a new --out (or --refit)",
+        )
