@@ -20,6 +20,11 @@ shot, the key and the fix: a farm that finds a typo an hour into a sequence has 
 
 Relative paths resolve against the file's folder, so a sequence's folder can move with its shots file; a shot's
 run folder defaults to ``runs/<name>`` beside the file.
+
+Each key's type, bounds and choices are declared once, in engine/farm/shots_model.py; this module reads a shot's keys
+in a fixed order, between them the checks no declaration makes (the plate and the mask folders exist, ``masks`` and
+``auto_masks`` exclude each other, the ``set`` overrides and the colour space are the fit's), so a file with several
+mistakes is always refused for the same one.
 """
 
 from __future__ import annotations
@@ -28,25 +33,22 @@ import difflib
 import json
 import os
 import re
-import reprlib
 import tomllib
-import unicodedata
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from .. import contract as C
 from ..errors import InputError
+from .shots_model import (
+    DEFAULT_EXPORT_CHUNK,
+    DEFAULT_PRESET,
+    DEFAULT_RENDER_CHUNK,
+    check,
+    not_utf8,
+)
+from .shots_model import shown as _shown
 
-#: What a shot gets for a key neither it nor the defaults give.
-DEFAULT_PRESET = "balanced"
-DEFAULT_EXPORT_CHUNK = 50
-DEFAULT_RENDER_CHUNK = 50
-#: render --format's choices.
-RENDER_FORMATS: tuple[str, ...] = ("exr", "png", "plate")
-#: --device's choices: exactly what the engine's fit and export take (engine/fit/device.py), so the plan refuses
-#: what a worker would (a GPU of several is chosen with CUDA_VISIBLE_DEVICES on the worker, not cuda:N).
-DEVICES: tuple[str, ...] = ("auto", "cpu", "cuda", "mps")
 #: A shot's name becomes task ids, OpenJD step names and a folder name: a portable, short identifier.
 NAME_PATTERN = re.compile(rf"^[A-Za-z0-9][A-Za-z0-9_-]{{0,{C.SHOT_NAME_MAX - 1}}}$")
 #: Where a shot's run folder goes when the shot names none, relative to the shots file.
@@ -195,7 +197,7 @@ def _shot(file: Path, where: str, entry: dict[str, Any]) -> Shot:
         if key not in entry:
             raise InputError(file, f"{where}: no '{key}'", f"give every shot a {' and a '.join(C.SHOT_REQUIRED_KEYS)}")
     v = _Values(file, where, entry)
-    name = v.text("name")
+    name: str = v.get("name")
     if not NAME_PATTERN.match(name):
         raise InputError(
             file,
@@ -209,27 +211,18 @@ def _shot(file: Path, where: str, entry: dict[str, Any]) -> Shot:
     for mask in masks:
         if not os.path.isdir(mask):
             raise InputError(file, f"{where}: mask folder {mask} does not exist", "fix 'masks' (relative to this file)")
-    auto = v.flag("auto_masks", False)
+    auto: bool = v.get("auto_masks", False)
     if auto and masks:
         raise InputError(file, f"{where}: both 'masks' and 'auto_masks'", "drop one: given masks or found ones")
-    preset = v.choice("preset", tuple(C.PRESET_STEPS), DEFAULT_PRESET)
-    overrides = tuple(v.text_list("set"))
+    preset: str = v.get("preset", DEFAULT_PRESET)
+    overrides = tuple(v.get("set", []))
     _check_overrides(file, where, preset, overrides)
-    device = v.optional_text("device")
-    if device is not None and device not in DEVICES:
-        raise InputError(
-            file,
-            f"{where}: 'device' is {device!r}",
-            f"use one of {', '.join(DEVICES)} (pick one GPU of several with CUDA_VISIBLE_DEVICES on the worker)",
-        )
+    device = v.get("device")
     fps = v.rate("fps")
-    colorspace = v.optional_text("colorspace")
+    colorspace = v.get("colorspace")
     if colorspace is not None:
         _check_colorspace(file, where, colorspace)
-    low, high = C.ATLAS_SIZE_RANGE
-    atlas_size = v.count("atlas_size", None, low)
-    if atlas_size is not None and atlas_size > high:
-        raise InputError(file, f"{where}: 'atlas_size' is {atlas_size}", f"give atlas_size {low}..{high} (paper: 1000)")
+    atlas_size = v.get("atlas_size")
     run = v.optional_path("run", folder) or _utf8_path(file, where, "run", os.path.join(folder, RUNS_DIR, name))
     render = v.optional_path("render", folder)
     return Shot(
@@ -241,16 +234,16 @@ def _shot(file: Path, where: str, entry: dict[str, Any]) -> Shot:
         frames=v.frames("frames"),
         colorspace=colorspace,
         fps=fps,
-        start_frame=v.count("start_frame", None, 0),
+        start_frame=v.get("start_frame"),
         render=render,
         preset=preset,
         set=overrides,
         device=device,
         atlas_size=atlas_size,
-        export_chunk=v.count("export_chunk", DEFAULT_EXPORT_CHUNK, 1) or DEFAULT_EXPORT_CHUNK,
-        render_chunk=v.count("render_chunk", DEFAULT_RENDER_CHUNK, 1) or DEFAULT_RENDER_CHUNK,
-        render_format=v.choice("render_format", RENDER_FORMATS, None),
-        preview=v.flag("preview", True),
+        export_chunk=v.get("export_chunk", DEFAULT_EXPORT_CHUNK) or DEFAULT_EXPORT_CHUNK,
+        render_chunk=v.get("render_chunk", DEFAULT_RENDER_CHUNK) or DEFAULT_RENDER_CHUNK,
+        render_format=v.get("render_format"),
+        preview=v.get("preview", True),
     )
 
 
@@ -358,80 +351,30 @@ def _check_unique(file: Path, shots: list[Shot]) -> None:
 
 
 class _Values:
-    """A shot's values, each read with its type checked and a one-line error naming the shot and the key."""
+    """A shot's values, each validated by its declaration (engine/farm/shots_model.py) with a one-line error naming
+    the shot and the key; paths are made absolute against the shots file's folder."""
 
     def __init__(self, file: Path, where: str, table: dict[str, Any]) -> None:
         self.file, self.where, self.table = file, where, table
 
-    def _bad(self, key: str, wanted: str, example: str) -> InputError:
-        value = self.table[key]
-        return InputError(
-            self.file,
-            f"{self.where}: '{key}' is {type(value).__name__} {_SHORT.repr(value)}, not {wanted}",
-            f"write e.g. {key} = {example}",
-        )
-
-    def text(self, key: str) -> str:
-        value = self.table[key]
-        if not isinstance(value, str) or not value.strip():
-            raise self._bad(key, "a non-empty string", '"..."')
-        _utf8(self.file, self.where, key, value)
-        return value
-
-    def optional_text(self, key: str) -> str | None:
-        return self.text(key) if key in self.table else None
-
-    def text_list(self, key: str) -> list[str]:
-        value = self.table.get(key, [])
-        if not isinstance(value, list) or not all(isinstance(x, str) and x.strip() for x in value):
-            raise self._bad(key, "a list of strings", '["steps=2000"]' if key == "set" else '["a", "b"]')
-        return value
+    def get(self, key: str, default: Any = None) -> Any:
+        """The value of ``key`` as its declaration validates it; ``default`` when the table does not give it."""
+        return check(self.file, self.where, key, self.table[key]) if key in self.table else default
 
     def path(self, key: str, folder: Path) -> str:
-        return _utf8_path(self.file, self.where, key, _absolute(self.text(key), folder))
+        return _utf8_path(self.file, self.where, key, _absolute(self.get(key), folder))
 
     def optional_path(self, key: str, folder: Path) -> str | None:
         return self.path(key, folder) if key in self.table else None
 
     def path_list(self, key: str, folder: Path) -> list[str]:
-        for item in self.text_list(key):
-            _utf8(self.file, self.where, key, item)
-        return [_utf8_path(self.file, self.where, key, _absolute(p, folder)) for p in self.text_list(key)]
-
-    def flag(self, key: str, default: bool) -> bool:
-        value = self.table.get(key, default)
-        if not isinstance(value, bool):
-            raise self._bad(key, "true or false", "true")
-        return value
-
-    def count(self, key: str, default: int | None, minimum: int) -> int | None:
-        if key not in self.table:
-            return default
-        value = self.table[key]
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise self._bad(key, "a whole number", str(max(minimum, 1) * 50))
-        if value < minimum:
-            raise InputError(self.file, f"{self.where}: '{key}' is {value}", f"give {key} a number >= {minimum}")
-        return value
-
-    def choice(self, key: str, choices: tuple[str, ...], default: str | None) -> Any:
-        if key not in self.table:
-            return default
-        value = self.table[key]
-        if value not in choices:
-            close = difflib.get_close_matches(str(value), choices, n=1)
-            hint = f"did you mean {close[0]!r}? " if close else ""
-            raise InputError(self.file, f"{self.where}: '{key}' is {value!r}", f"{hint}use one of {', '.join(choices)}")
-        return value
+        return [_utf8_path(self.file, self.where, key, _absolute(p, folder)) for p in self.get(key, [])]
 
     def rate(self, key: str) -> str | None:
         """fps: a number or a string (``24``, ``23.976``, ``"24000/1001"``), kept as fit --fps takes it."""
         if key not in self.table:
             return None
-        value = self.table[key]
-        if isinstance(value, bool) or not isinstance(value, int | float | str):
-            raise self._bad(key, "a frame rate", '"24000/1001"')
-        text = str(value)
+        text = str(self.get(key))
         from ..io.timing import parse_rate
 
         try:
@@ -448,11 +391,7 @@ class _Values:
         """``"1001-1100"`` (or ``"1001:1100"``, or one frame): inclusive plate frame numbers, FIRST <= LAST."""
         if key not in self.table:
             return None
-        value = self.table[key]
-        if isinstance(value, int) and not isinstance(value, bool):
-            value = str(value)
-        if not isinstance(value, str):
-            raise self._bad(key, "a FIRST-LAST string", '"1001-1100"')
+        value = str(self.get(key))
         match = re.fullmatch(r"\s*(\d+)\s*(?:[-:]\s*(\d+)\s*)?", value)
         if match is None:
             raise InputError(
@@ -469,33 +408,12 @@ class _Values:
         return first, last
 
 
-#: Values in messages: long or deeply nested ones cut short, so the message stays one short line.
-_SHORT = reprlib.Repr()
-_SHORT.maxlevel, _SHORT.maxstring, _SHORT.maxother = 3, 80, 80
-
-
-def _shown(text: str) -> str:
-    """``text`` for a one-line message: control characters (a newline in a folder's name) and bytes that are not
-    UTF-8 written as escapes, everything else as it is."""
-    text = text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
-    return "".join(f"\\x{ord(c):02x}" if unicodedata.category(c) == "Cc" else c for c in text)
-
-
-def _utf8(file: Path, where: str, key: str, text: str) -> None:
-    """Refuse text that is not UTF-8 (a name read from a non-UTF-8 file system): the farm's job files (JSON,
-    OpenJD templates, Flamenco's settings) are UTF-8 text and cannot carry it."""
-    try:
-        text.encode("utf-8")
-    except UnicodeEncodeError:
-        raise InputError(
-            file,
-            f"{where}: '{key}' {_shown(text)} is not UTF-8 text",
-            "rename the file or folder with UTF-8 characters (farm job files are UTF-8 text)",
-        ) from None
-
-
 def _utf8_path(file: Path, where: str, key: str, path: str) -> str:
-    _utf8(file, where, key, path)
+    """``path`` when it is UTF-8 text: a relative path's folder (the shots file's) may not be, as its text was."""
+    try:
+        path.encode("utf-8")
+    except UnicodeEncodeError:
+        raise not_utf8(file, where, key, path) from None
     return path
 
 
