@@ -4,7 +4,7 @@ Every write goes to a hidden temp file in the destination folder and is renamed 
 export or render never leaves a half-written file where a compositor would pick it up. Channel data is
 float32, row 0 at the top (the file convention; Blender flips to bottom-up on load).
 
-Two guards every reader of an image shares (``engine.io.clip`` too):
+Two guards every reader of an image shares (``engine.io.image_reader`` too):
 
 - an image is decoded only when its header declares no more than ``MAX_DECODED_BYTES`` (``check_declared_size``):
   a few megabytes of PNG can declare 30000x30000 pixels, which would ask for 10.8 GB before a single pixel is

@@ -6,7 +6,8 @@ file to the movie the engine writes. Files that store the rate as a float (DPX) 
 they stand for (``exact_rate``). Timecode is counted at the nominal integer rate (24 for 24000/1001, as every
 editing system does), drop-frame only where SMPTE defines it (29.97 and 59.94, written ``HH:MM:SS;FF``).
 
-Reading these from a file is ``engine.io.clip``'s job; this module holds the arithmetic, with no image library.
+Reading these from a file is the clip openers' job (``engine.io.image_sequence``, ``engine.io.movie``); this
+module holds the arithmetic, with no image library.
 """
 
 from __future__ import annotations
