@@ -60,5 +60,6 @@ BPY5_REQUIREMENTS: tuple[str, ...] = (
     "bpy==5.0.1",
     "numpy<2",
     "OpenEXR==3.5.*",
+    "pydantic>=2.7,<3",  # the farm test helpers load a shots file (engine.farm.shots) in this interpreter
     "pytest>=8",
 )
