@@ -64,3 +64,32 @@ EXIT_CANCELLED = 3  # SIGINT/SIGTERM: one line; nothing half-written is kept; a 
 #: The fit diverged (a non-finite loss, gradient or parameter): one line names the step and the likely cause;
 #: nothing past the last good checkpoint was saved, so `fit --resume --set lr=...` continues from it.
 EXIT_DIVERGED = 4
+
+#: What ``engine.contract`` re-exports from this module (its own names, not its imports).
+__all__ = [
+    "CLI_MODULE",
+    "ESTIMATE_TAG",
+    "EXIT_BAD_INPUT",
+    "EXIT_CANCELLED",
+    "EXIT_DIVERGED",
+    "EXIT_FAILED",
+    "EXIT_OK",
+    "EXPORT_INTO_ARG",
+    "EXPORT_STAGES",
+    "EXPORT_STAGE_ARG",
+    "FIT_REFINE_FLAG",
+    "FIT_RESUME_IF_STARTED_FLAG",
+    "HEADLESS_SCRIPT",
+    "INSTALLED_MODULE",
+    "PRESET_STEPS",
+    "VERB_DEMO",
+    "VERB_ESTIMATE",
+    "VERB_EXPORT",
+    "VERB_FIT",
+    "VERB_MASKS",
+    "VERB_NUKE",
+    "VERB_PREVIEW",
+    "VERB_PROJECT_FRAME",
+    "VERB_REALIGN",
+    "VERB_RENDER",
+]

@@ -72,3 +72,19 @@ SCRIBBLE_COLOURS: tuple[tuple[int, int, int], ...] = (
 SCRIBBLE_TOLERANCE = 48
 SCRIBBLE_ALPHA_CUTOFF = 127  # half of 8-bit full scale: a stroke's soft edge counts where it is mostly opaque
 SCRIBBLE_FILE_FORMAT = "{:05d}.png"  # what the add-on writes; the engine reads any numbered png/tif
+
+#: What ``engine.contract`` re-exports from this module (its own names, not its imports).
+__all__ = [
+    "CLIP_KINDS",
+    "DEFAULT_LONG_EDGE",
+    "FRAME_FILE_DIGITS",
+    "MASK_THRESHOLD",
+    "SCRIBBLE_ALPHA_CUTOFF",
+    "SCRIBBLE_ARG",
+    "SCRIBBLE_COLOURS",
+    "SCRIBBLE_FILE_FORMAT",
+    "SCRIBBLE_TOLERANCE",
+    "clip_rate",
+    "sequence_pattern_of",
+    "working_size",
+]

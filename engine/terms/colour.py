@@ -72,3 +72,30 @@ def srgb_to_linear(c: float) -> float:
     a = abs(c)
     lin = a / SRGB_SLOPE if a <= SRGB_ENCODED_CUTOFF else ((a + SRGB_OFFSET) / SRGB_SCALE) ** SRGB_GAMMA
     return math.copysign(lin, c)
+
+
+#: What ``engine.contract`` re-exports from this module (its own names, not its imports).
+__all__ = [
+    "COLORSPACES",
+    "COLOUR_BUILTIN_CONFIG",
+    "COLOUR_NAME_MAX",
+    "COLOUR_RAW",
+    "COLOUR_SCENE_LINEAR",
+    "COLOUR_SOURCES",
+    "COLOUR_SOURCE_ASKED",
+    "COLOUR_SOURCE_ASSUMED",
+    "COLOUR_SOURCE_FILE",
+    "COLOUR_SOURCE_FORMAT",
+    "COLOUR_SOURCE_RULES",
+    "COLOUR_SRGB",
+    "EXR_COLORSPACE_ATTRIBUTE",
+    "LEGACY_COLORSPACES",
+    "SRGB_ENCODED_CUTOFF",
+    "SRGB_GAMMA",
+    "SRGB_LINEAR_CUTOFF",
+    "SRGB_OFFSET",
+    "SRGB_SCALE",
+    "SRGB_SLOPE",
+    "srgb_to_linear",
+    "valid_colour_record",
+]

@@ -49,3 +49,25 @@ FLAMENCO_JOB_TYPE = "neural-atlas"
 FLAMENCO_PYTHON_VARIABLE = "neural_atlas_python"
 FLAMENCO_API_CHECK = "/api/v3/jobs/check"
 FLAMENCO_API_SUBMIT = "/api/v3/jobs"
+
+#: What ``engine.contract`` re-exports from this module (its own names, not its imports).
+__all__ = [
+    "FARM_COMMANDS",
+    "FARM_DASK",
+    "FARM_FLAMENCO",
+    "FARM_OPENJD",
+    "FARM_PLAN",
+    "FLAMENCO_API_CHECK",
+    "FLAMENCO_API_SUBMIT",
+    "FLAMENCO_JOB_TYPE",
+    "FLAMENCO_PYTHON_VARIABLE",
+    "SHOTS_DEFAULTS_KEY",
+    "SHOTS_LIST_KEY",
+    "SHOTS_TAG",
+    "SHOTS_VERSION",
+    "SHOT_DEFAULT_KEYS",
+    "SHOT_KEYS",
+    "SHOT_NAME_MAX",
+    "SHOT_REQUIRED_KEYS",
+    "VERB_FARM",
+]

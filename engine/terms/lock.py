@@ -152,3 +152,17 @@ def run_lock(folder: str | os.PathLike[str], what: str) -> Iterator[None]:
             del _HELD_LOCKS[key]
     finally:
         os.close(fd)  # closing the descriptor releases the lock
+
+
+#: What ``engine.contract`` re-exports from this module (its own names, not its imports).
+__all__ = [
+    "IN_PLACE_FLAGS",
+    "IN_PLACE_UNSAFE_FIX",
+    "RUN_LOCK",
+    "RUN_LOCKED_FIX",
+    "RunLockUnsafe",
+    "RunLocked",
+    "in_place_problem",
+    "open_in_place",
+    "run_lock",
+]

@@ -364,3 +364,35 @@ def _is_type(value: Any, kind: str) -> bool:
     if kind == "int":
         return isinstance(value, int) and not isinstance(value, bool)
     return isinstance(value, {"str": str, "bool": bool, "dict": dict}[kind])
+
+
+#: What ``engine.contract`` re-exports from this module (its own names, not its imports).
+__all__ = [
+    "MANIFEST_BOX_NUMBERS",
+    "MANIFEST_CLIP_KEYS",
+    "MANIFEST_FIELDS",
+    "MANIFEST_FIT_KEYS",
+    "MANIFEST_KEYS",
+    "MANIFEST_LAYER_FIELDS",
+    "MANIFEST_LAYER_KEYS",
+    "MANIFEST_LAYER_NAME",
+    "MANIFEST_LAYER_NAME_MAX",
+    "MANIFEST_MAX_SIDE",
+    "MANIFEST_NAME",
+    "MANIFEST_OPTIONAL_FIELDS",
+    "MANIFEST_OPTIONAL_LAYER_FIELDS",
+    "MANIFEST_PASSES_KEYS",
+    "MANIFEST_QUOTE_CHARS",
+    "MANIFEST_QUOTE_PATH_CHARS",
+    "MANIFEST_TAG",
+    "MANIFEST_UV_CHANNEL_COUNT",
+    "MANIFEST_VERSION",
+    "SCENE_FIELDS",
+    "TIMECODE_PATTERN",
+    "ManifestError",
+    "is_layer_name",
+    "load_manifest",
+    "timing_problem",
+    "validate_manifest",
+    "validate_scene",
+]

@@ -111,3 +111,16 @@ def resolve_manifest_write_path(manifest_path: str, path: str) -> str:
             f"{manifest_path}: write path {quoted} {where} the run folder's edits/ and this export — {fix}"
         )
     return resolved
+
+
+#: What ``engine.contract`` re-exports from this module (its own names, not its imports).
+__all__ = [
+    "SEQUENCE_TOKEN",
+    "is_within",
+    "manifest_run_root",
+    "manifest_write_roots",
+    "read_aligned_export",
+    "resolve_manifest_path",
+    "resolve_manifest_write_path",
+    "resolve_plate_path",
+]

@@ -68,3 +68,24 @@ def parse_progress_line(line: str) -> dict[str, Any] | None:
     if not isinstance(msg, dict) or msg.get(PROGRESS_TAG) != SCHEMA_VERSION or msg.get("event") not in EVENTS:
         return None
     return msg
+
+
+#: What ``engine.contract`` re-exports from this module (its own names, not its imports).
+__all__ = [
+    "EVENTS",
+    "EVENT_CANCELLED",
+    "EVENT_CHECKPOINT",
+    "EVENT_DONE",
+    "EVENT_ERROR",
+    "EVENT_EXPORTED",
+    "EVENT_JOB",
+    "EVENT_MASKS",
+    "EVENT_PROGRESS",
+    "EVENT_STAGE",
+    "EVENT_WRITTEN",
+    "JOB_STAGES",
+    "OPENJD_PROGRESS_ENV",
+    "PROGRESS_TAG",
+    "parse_progress_line",
+    "progress_line",
+]

@@ -74,3 +74,33 @@ RUN_CHECKPOINT_KEYS: tuple[str, ...] = (
 RUN_FILE_OTHER_VERSION_FIX = "fit into a new run folder or use the engine version that made this run"
 #: The fix for a run file that is damaged (not JSON, a key missing or of the wrong type).
 RUN_FILE_DAMAGED_FIX = "restore it, or fit into a new run folder"
+
+#: What ``engine.contract`` re-exports from this module (its own names, not its imports).
+__all__ = [
+    "AUTO_MASKS_DIR",
+    "BG_MOTIONS",
+    "BG_MOTION_DEFORMABLE",
+    "BG_MOTION_PAN_ZOOM",
+    "BG_MOTION_STATIC",
+    "FIT_AUTO_MASKS_FLAG",
+    "FLOW_CACHE_DIR",
+    "RUN_CHECKPOINT",
+    "RUN_CHECKPOINT_KEYS",
+    "RUN_CHECKPOINT_SCHEMA",
+    "RUN_CHECKPOINT_SCHEMA_WITHOUT_CONFIG",
+    "RUN_CLIP",
+    "RUN_CLIP_SCHEMA",
+    "RUN_CONFIG",
+    "RUN_CONFIG_SCHEMA",
+    "RUN_FILE_DAMAGED_FIX",
+    "RUN_FILE_OTHER_VERSION_FIX",
+    "RUN_LOG",
+    "RUN_METRICS",
+    "RUN_METRICS_SCHEMA",
+    "RUN_SCENE_SCHEMA",
+    "SCENE_FILE",
+    "SCENE_KEYS",
+    "SCENE_LAYERS_AUTO",
+    "SCENE_LAYERS_GIVEN",
+    "SCENE_LAYERS_NONE",
+]

@@ -7,3 +7,6 @@ ENGINE_VERSION = "0.1.0"
 
 #: Version of every JSON file the engine writes (config, metrics, checkpoints' metadata, progress lines).
 SCHEMA_VERSION = 1
+
+#: What ``engine.contract`` re-exports from this module (its own names, not its imports).
+__all__ = ["ENGINE_VERSION", "SCHEMA_VERSION"]

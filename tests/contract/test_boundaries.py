@@ -188,6 +188,29 @@ def test_contract_is_standard_library_only():
             assert ok, f"{py.relative_to(ROOT)}:{line} imports {mod}"
 
 
+def test_contract_reexports_each_terms_modules_own_names_only():
+    """Each terms module's ``__all__`` is every public name it defines, none it imports: ``contract.NAME`` reaches
+    every term, and no ``Path`` or ``Any`` rides along on the contract."""
+    for py in sorted((ROOT / "engine" / "terms").glob("*.py")):
+        if py.name == "__init__.py":
+            continue
+        tree = ast.parse(py.read_text(encoding="utf-8"))
+        defined: set[str] = set()
+        declared: list[str] = []
+        for node in tree.body:
+            if isinstance(node, ast.FunctionDef | ast.ClassDef):
+                defined.add(node.name)
+            targets = node.targets if isinstance(node, ast.Assign) else [getattr(node, "target", None)]
+            for t in targets:
+                if isinstance(t, ast.Name) and t.id == "__all__":
+                    declared = list(ast.literal_eval(node.value))
+                elif isinstance(t, ast.Name) and isinstance(node, ast.Assign | ast.AnnAssign):
+                    defined.add(t.id)
+        public = {name for name in defined if not name.startswith("_")} - {"__all__"}
+        assert sorted(declared) == sorted(public), f"{py.relative_to(ROOT)}: __all__ != its public names"
+    assert not hasattr(C, "Any") and not hasattr(C, "json")
+
+
 def test_addon_imports_only_the_contract_of_the_engine():
     for py in _files("addon"):
         for mod, line in imports(py):
