@@ -20,6 +20,7 @@ from engine.bench.tool_parsers import (
     FLOW_TRACKS,
     MASKS,
     MOTION_SCENES,
+    PAINT_GAPS,
     PAINT_TABLE,
     PAINT_TRACKS,
     PROG,
@@ -242,6 +243,19 @@ def _motion_scenes(args: argparse.Namespace) -> int:
     return C.EXIT_OK
 
 
+def _paint_gaps(args: argparse.Namespace) -> int:
+    from engine.bench.paint_gaps import plot_paint_gaps, read_table
+
+    if args.label and len(args.label) != len(args.tables):
+        problem = f"{len(args.label)} --label for {len(args.tables)} tables"
+        raise InputError(None, problem, "give one --label per table, or none")
+    tables = [read_table(t) for t in args.tables]
+    only = [c for c in args.only.split(",") if c] if args.only else None
+    plot_paint_gaps(tables, args.out, only, args.label)
+    print(str(Path(args.out).resolve()))
+    return C.EXIT_OK
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -260,6 +274,7 @@ def main(argv: list[str] | None = None) -> int:
         FLOW_TRACKS: _flow_tracks,
         SHARPNESS: _sharpness,
         PAINT_TABLE: _paint_table,
+        PAINT_GAPS: _paint_gaps,
     }
     if args.tool not in tools:
         parser.print_help()

@@ -15,6 +15,7 @@ part of the product (its CLI is ``python -m engine``) and not in the extension z
     sharpness    the plate re-rendered from the exported atlas textures and passes: PSNR inside the mask
     paint-table  one preset fitted and exported on every clip of a folder, scored on the export: paint, flow,
                  IoU, sharpness, PSNR, training seconds; with a picture per clip
+    paint-gaps   paint against chained flow by frame gap, one panel per clip, one line per paint table
 
 The tools' command-line parser: each tool's options; the options several tools share are defined once and given to
 them as argparse parents, so their help cannot drift apart. ``engine.bench.__main__`` runs the tool.
@@ -38,6 +39,7 @@ PAINT_TRACKS = "paint-tracks"
 FLOW_TRACKS = "flow-tracks"
 SHARPNESS = "sharpness"
 PAINT_TABLE = "paint-table"
+PAINT_GAPS = "paint-gaps"
 PROG = "python -m engine.bench"
 
 BENCH_EPILOG = """\
@@ -63,6 +65,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_masks_parser(sub)
     _add_scoring_parsers(sub)
     _add_paint_table_parser(sub)
+    _add_paint_gaps_parser(sub)
     _add_motion_scenes_parser(sub)
     return p
 
@@ -321,6 +324,23 @@ def _add_paint_table_parser(sub: argparse._SubParsersAction) -> None:
         default=3,
         metavar="N",
         help="with --scribbles: frames with strokes, spread evenly from the first to the last (default: 3)",
+    )
+
+
+def _add_paint_gaps_parser(sub: argparse._SubParsersAction) -> None:
+    pg = sub.add_parser(
+        PAINT_GAPS,
+        help="paint against chained flow by frame gap, one panel per clip, one line per paint table",
+        description="Read paint-table records (paint.json) and draw each clip's TAP-Vid delta_avg by the frames "
+        "between a point's frame and its query frame: one line per table (e.g. exact masks against a rough roto, "
+        "or one change against another), chained flow dashed.",
+    )
+    pg.add_argument("tables", nargs="+", metavar="PAINT_JSON", help="paint-table records")
+    pg.add_argument("--out", required=True, metavar="PNG", help="the picture to write")
+    pg.add_argument("--only", default=None, metavar="CLIP,CLIP", help="these clips only (default: every clip)")
+    pg.add_argument(
+        "--label", action="append", default=None, metavar="TEXT", help="a legend entry per table, in order "
+        "(default: each table's preset, masks and overrides)"
     )
 
 
