@@ -23,6 +23,7 @@ import argparse
 import importlib.util
 import json
 import os
+import shutil
 import sys
 import time
 
@@ -120,6 +121,16 @@ def run(ns: argparse.Namespace) -> dict:
     return report
 
 
+def remove_session_temp() -> None:
+    """Remove Blender's session temp folder (``bpy.app.tempdir``, named ``blender_XXXXXX``): Blender removes it at
+    its own exit only, so a process that leaves with ``os._exit`` (the bpy 4.5 exit hang) would leave one behind on
+    every run, on every farm node. Nothing when bpy was never imported."""
+    bpy = sys.modules.get("bpy")
+    folder = getattr(getattr(bpy, "app", None), "tempdir", "") if bpy is not None else ""
+    if folder and os.path.basename(os.path.normpath(folder)).startswith("blender_"):
+        shutil.rmtree(folder, ignore_errors=True)
+
+
 def main(argv: list[str]) -> int:
     ns = parse_args(argv)
     try:
@@ -149,4 +160,5 @@ if __name__ == "__main__":
     finally:
         sys.stdout.flush()
         sys.stderr.flush()
+        remove_session_temp()
         os._exit(rc)  # bpy 4.5 can hang at interpreter exit (docs/blender-compat.md): leave without it

@@ -60,6 +60,9 @@ def pytest_unconfigure(config):
     # bpy < 5 can hang at interpreter exit (docs/blender-compat.md); the summary is printed by now
     bpy = sys.modules.get("bpy")
     if bpy is not None and bpy.app.version < (5, 0, 0):
+        from neural_atlas.addon.headless import remove_session_temp
+
         sys.stdout.flush()
         sys.stderr.flush()
+        remove_session_temp()  # Blender's exit would have; os._exit does not
         os._exit(_exit_status)

@@ -97,7 +97,7 @@ def test_zip_holds_the_extension_and_only_the_built_paths(built_zip):
 
 INSTALL_SCRIPT = textwrap.dedent(
     """
-    import json, os, sys
+    import json, os, shutil, sys
     import bpy, addon_utils
     zip_path, engine_python = sys.argv[1], sys.argv[2]
     res = bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default", enable_on_install=True)
@@ -117,6 +117,7 @@ INSTALL_SCRIPT = textwrap.dedent(
     out["panel_after_disable"] = hasattr(bpy.types, "NEURALATLAS_PT_fit")
     print("RESULT " + json.dumps(out))
     sys.stdout.flush()
+    shutil.rmtree(bpy.app.tempdir, ignore_errors=True)  # Blender's exit would have; os._exit does not
     os._exit(0)
     """
 )

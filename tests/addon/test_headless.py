@@ -25,9 +25,11 @@ SCRIPT = ROOT / "addon" / "headless.py"
 TAG = f"[bpy {bpy.app.version_string}]"
 
 
-def _run(*args: str) -> subprocess.CompletedProcess:
+def _run(*args: str, temp: Path | None = None) -> subprocess.CompletedProcess:
+    """headless.py in its own Python; ``temp``: its TMPDIR, where Blender makes its session temp folder."""
+    env = os.environ if temp is None else {**os.environ, "TMPDIR": str(temp)}
     return subprocess.run(
-        [sys.executable, str(SCRIPT), "--", *args], capture_output=True, text=True, timeout=300, cwd=ROOT
+        [sys.executable, str(SCRIPT), "--", *args], capture_output=True, text=True, timeout=300, cwd=ROOT, env=env
     )
 
 
@@ -39,12 +41,16 @@ def test_headless_builds_the_blend_and_renders_the_equation(blender, tmp_path):
     other.parent.mkdir()
     shutil.copy(fg_edit, other)  # same pixels, another file: the override must be what the .blend uses
     out = tmp_path / "out"
+    temp = tmp_path / "temp"
+    temp.mkdir()
     proc = _run(
         str(manifest),
         *("--blend", str(out / "shot.blend"), "--render", str(out / "render"), "--filter", "exact"),
         *("--edit", f"Foreground={other}", "--report", str(out / "report.json")),
+        temp=temp,
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
+    assert list(temp.iterdir()) == []  # Blender's session temp folder gone, though the process left with os._exit
     report = json.loads((out / "report.json").read_text())
     assert report["exact"] and report["frames"] == list(X.FRAMES) and len(report["files"]) == len(X.FRAMES)
     assert report["engine_filter"] == "bilinear"  # exact: bilinear on every version
