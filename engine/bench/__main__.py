@@ -21,6 +21,7 @@ from engine.bench.tool_parsers import (
     MASKS,
     MOTION_SCENES,
     PAINT_GAPS,
+    PAINT_SLIP,
     PAINT_TABLE,
     PAINT_TRACKS,
     PROG,
@@ -111,6 +112,25 @@ def _sharpness(args: argparse.Namespace) -> int:
     )
     if args.json:
         print(str(write_report(args.json, SHARPNESS, report).resolve()))
+    return C.EXIT_OK
+
+
+def _paint_slip(args: argparse.Namespace) -> int:
+    from engine.bench.paint_slip import export_slip
+    from engine.bench.report_file import write_report
+
+    report = export_slip(args.manifest, args.plate)
+
+    def fmt(v: float | None) -> str:
+        return "–" if v is None else f"{v:.2f} px"
+
+    for name, layer in report["layers"].items():
+        print(
+            f"{PAINT_SLIP}: {name}: median {fmt(layer['median_px'])}, mean {fmt(layer['mean_px'])}, "
+            f"90% {fmt(layer['p90_px'])} over {layer['pixels']} pixels of {report['frame_pairs']} frame pairs"
+        )
+    if args.json:
+        print(str(write_report(args.json, PAINT_SLIP, report).resolve()))
     return C.EXIT_OK
 
 
@@ -275,6 +295,7 @@ def main(argv: list[str] | None = None) -> int:
         SHARPNESS: _sharpness,
         PAINT_TABLE: _paint_table,
         PAINT_GAPS: _paint_gaps,
+        PAINT_SLIP: _paint_slip,
     }
     if args.tool not in tools:
         parser.print_help()

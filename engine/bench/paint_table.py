@@ -42,6 +42,7 @@ from engine.bench.all_clips import find_clips
 from engine.bench.degrade import DEFAULT_SEED, masks_iou, recipe, write_degraded
 from engine.bench.flow_tracks import score_clip
 from engine.bench.motion_scenes import GT_UV_NPZ, PART_MASKS, TEXTURE_PNG
+from engine.bench.paint_slip import export_slip
 from engine.bench.paint_tracking import score_export
 from engine.bench.report_file import read_tracks
 from engine.bench.sharpness import MSE_FLOOR, atlas_sharpness
@@ -69,6 +70,7 @@ COLUMNS: tuple[tuple[str, str, int], ...] = (
     ("paint", "paint", 3),
     ("flow", "flow", 3),
     ("paint / flow", "ratio", 2),
+    ("slip px", "slip", 2),
     ("fg IoU", "fg_iou", 3),
     ("sharpness dB", "sharpness", 2),
     ("true texture dB", "true_sharpness", 2),
@@ -229,6 +231,7 @@ def score_clip_export(folder: Path, manifest: Path, out: Path) -> dict:
             row["ratio"] = row["paint"] / row["flow"]
     sharp = atlas_sharpness(manifest, frames, [precise])
     row.update(
+        slip=export_slip(manifest, frames)["foreground"]["median_px"],
         fg_iou=export_fg_iou(manifest, frames, precise),
         sharpness=sharp["psnr_pooled"],
         true_sharpness=true_sharpness(folder),

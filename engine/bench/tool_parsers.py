@@ -13,6 +13,7 @@ part of the product (its CLI is ``python -m engine``) and not in the extension z
     paint-tracks where paint on the exported atlases shows in each frame, scored against TAP-Vid tracks
     flow-tracks  the baseline: chained DIS optical flow on the native plate, scored the same way
     sharpness    the plate re-rendered from the exported atlas textures and passes: PSNR inside the mask
+    paint-slip   how far paint on an export moves from the plate's own motion between neighbouring frames
     paint-table  one preset fitted and exported on every clip of a folder, scored on the export: paint, flow,
                  IoU, sharpness, PSNR, training seconds; with a picture per clip
     paint-gaps   paint against chained flow by frame gap, one panel per clip, one line per paint table
@@ -38,6 +39,7 @@ MASKS = "masks"
 PAINT_TRACKS = "paint-tracks"
 FLOW_TRACKS = "flow-tracks"
 SHARPNESS = "sharpness"
+PAINT_SLIP = "paint-slip"
 PAINT_TABLE = "paint-table"
 PAINT_GAPS = "paint-gaps"
 PROG = "python -m engine.bench"
@@ -287,6 +289,17 @@ def _add_scoring_parsers(sub: argparse._SubParsersAction) -> None:
     sh.add_argument("--plate", required=True, metavar="FRAMES", help="the plate the export was made from")
     sh.add_argument("--masks", action="append", required=True, metavar="FOLDER", help="the object's masks")
     _add_json(sh)
+    sl = sub.add_parser(
+        PAINT_SLIP,
+        parents=[_manifest_parent()],
+        help="how far paint on an export moves from the plate's own motion between neighbouring frames",
+        description="For pixels a foreground layer owns, where DIS flow to the next frame survives a round trip, "
+        "find where paint at the pixel's UV shows in the next frame (the owned pixel with the nearest UV, "
+        "sub-pixel) and measure its distance from where the flow carries the pixel: median, mean and 90th "
+        "percentile in native pixels, per foreground layer and pooled. No tracks needed.",
+    )
+    sl.add_argument("--plate", required=True, metavar="FRAMES", help="the plate the export was made from")
+    _add_json(sl)
 
 
 def _add_paint_table_parser(sub: argparse._SubParsersAction) -> None:
@@ -339,8 +352,11 @@ def _add_paint_gaps_parser(sub: argparse._SubParsersAction) -> None:
     pg.add_argument("--out", required=True, metavar="PNG", help="the picture to write")
     pg.add_argument("--only", default=None, metavar="CLIP,CLIP", help="these clips only (default: every clip)")
     pg.add_argument(
-        "--label", action="append", default=None, metavar="TEXT", help="a legend entry per table, in order "
-        "(default: each table's preset, masks and overrides)"
+        "--label",
+        action="append",
+        default=None,
+        metavar="TEXT",
+        help="a legend entry per table, in order (default: each table's preset, masks and overrides)",
     )
 
 

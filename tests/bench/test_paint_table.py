@@ -20,6 +20,7 @@ from engine.bench.__main__ import main as bench_main
 from engine.bench.flow_tracks import score_clip
 from engine.bench.motion_scenes import TEXTURE_PNG, write_motion_clips
 from engine.bench.paint_picture import draw_dots, grid_points, picture_frames
+from engine.bench.paint_slip import export_slip
 from engine.bench.paint_table import PAINT_JSON, PAINT_MD, export_fg_iou, run_paint_table, true_sharpness
 from engine.bench.paint_tracking import score_export
 from engine.bench.report_file import read_tracks
@@ -56,6 +57,7 @@ def test_the_rows_are_the_scorers_on_the_export(scene_root, table):
     assert row["flow"] == flow["delta_avg"]
     assert row["ratio"] == pytest.approx(paint["delta_avg"] / flow["delta_avg"])
     assert row["sharpness"] == sharp["psnr_pooled"]
+    assert row["slip"] == export_slip(row["manifest"], clip / "frames")["foreground"]["median_px"]
     metrics = json.loads((out / "runs" / "turning_depth" / C.RUN_METRICS).read_text())
     assert row["psnr"] == metrics["psnr"] and row["train_seconds"] == metrics["train_seconds"]
     assert row["steps"] == 100
