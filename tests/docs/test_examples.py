@@ -36,7 +36,7 @@ STRICT = {"README.md", "guide.md", "troubleshooting.md", "architecture.md", "add
 TAG = re.compile(r"<!--\s*(test|covered|manual)(?::\s*(.*?))?\s*-->\s*$")
 FENCE = re.compile(r"^```bash\s*$")
 #: A whole page's examples: a tiny fit (60 steps) + export + renders, well under a minute on 2 cores.
-BLOCK_TIMEOUT_S = 300
+BLOCK_TIMEOUT_S = 900
 
 
 @dataclass
