@@ -53,7 +53,7 @@ def _paint_table(args: argparse.Namespace) -> int:
         seed=args.seed,
         sets=args.set,
         threads=args.threads,
-        only=[c for c in args.only.split(",") if c] if args.only else None,
+        only=args.only,
         pictures=args.pictures,
         parts=args.parts,
         scribbles=args.scribbles,
@@ -97,18 +97,19 @@ def _flow_tracks(args: argparse.Namespace) -> int:
     return C.EXIT_OK
 
 
+def _measure(value: float | None, unit: str) -> str:
+    """A scorer's number as printed: two decimals and its unit, or "–" where nothing was scored."""
+    return "–" if value is None else f"{value:.2f} {unit}"
+
+
 def _sharpness(args: argparse.Namespace) -> int:
     from engine.bench.report_file import write_report
     from engine.bench.sharpness import atlas_sharpness
 
     report = atlas_sharpness(args.manifest, args.plate, args.masks)
-
-    def fmt(v: float | None) -> str:
-        return "–" if v is None else f"{v:.2f} dB"
-
     print(
-        f"{SHARPNESS}: masked PSNR mean {fmt(report['psnr_mean'])}, pooled {fmt(report['psnr_pooled'])}, "
-        f"{report['frames_scored']} frames"
+        f"{SHARPNESS}: masked PSNR mean {_measure(report['psnr_mean'], 'dB')}, "
+        f"pooled {_measure(report['psnr_pooled'], 'dB')}, {report['frames_scored']} frames"
     )
     if args.json:
         print(str(write_report(args.json, SHARPNESS, report).resolve()))
@@ -120,14 +121,11 @@ def _paint_slip(args: argparse.Namespace) -> int:
     from engine.bench.report_file import write_report
 
     report = export_slip(args.manifest, args.plate)
-
-    def fmt(v: float | None) -> str:
-        return "–" if v is None else f"{v:.2f} px"
-
     for name, layer in report["layers"].items():
         print(
-            f"{PAINT_SLIP}: {name}: median {fmt(layer['median_px'])}, mean {fmt(layer['mean_px'])}, "
-            f"90% {fmt(layer['p90_px'])} over {layer['pixels']} pixels of {report['frame_pairs']} frame pairs"
+            f"{PAINT_SLIP}: {name}: median {_measure(layer['median_px'], 'px')}, "
+            f"mean {_measure(layer['mean_px'], 'px')}, 90% {_measure(layer['p90_px'], 'px')} "
+            f"over {layer['pixels']} pixels of {report['frame_pairs']} frame pairs"
         )
     if args.json:
         print(str(write_report(args.json, PAINT_SLIP, report).resolve()))
@@ -270,8 +268,7 @@ def _paint_gaps(args: argparse.Namespace) -> int:
         problem = f"{len(args.label)} --label for {len(args.tables)} tables"
         raise InputError(None, problem, "give one --label per table, or none")
     tables = [read_table(t) for t in args.tables]
-    only = [c for c in args.only.split(",") if c] if args.only else None
-    plot_paint_gaps(tables, args.out, only, args.label)
+    plot_paint_gaps(tables, args.out, args.only, args.label)
     print(str(Path(args.out).resolve()))
     return C.EXIT_OK
 

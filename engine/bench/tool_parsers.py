@@ -121,6 +121,18 @@ def _tracks_parent() -> argparse.ArgumentParser:
     return p
 
 
+def _clip_names(text: str) -> list[str]:
+    """``--only a,b`` -> ["a", "b"] (empty entries dropped; none: every clip)."""
+    return [name for name in text.split(",") if name]
+
+
+def _add_only(parser: argparse.ArgumentParser) -> None:
+    """``--only CLIP,CLIP`` of the tools that read a folder of clips or tables of them: a list of clip names."""
+    parser.add_argument(
+        "--only", type=_clip_names, default=None, metavar="CLIP,CLIP", help="these clips only (default: every clip)"
+    )
+
+
 def _add_json(parser: argparse.ArgumentParser) -> None:
     """The scorers' report file (sharpness lists it after its own options, so it cannot take it as a parent)."""
     parser.add_argument("--json", default=None, metavar="OUT", help="also write the full scores to this file")
@@ -317,7 +329,7 @@ def _add_paint_table_parser(sub: argparse._SubParsersAction) -> None:
     )
     pt.add_argument("root", metavar="CLIPS_ROOT", help="folder of clip folders")
     pt.add_argument("--out", default="paint_out", help="output folder (default: paint_out)")
-    pt.add_argument("--only", default=None, metavar="CLIP,CLIP", help="these clips only (default: every clip)")
+    _add_only(pt)
     pt.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="fit config override")
     pt.add_argument("--threads", type=int, default=None, help="CPU threads of each fit (default: torch's choice)")
     pt.add_argument("--pictures", action="store_true", help="also write OUT/pictures/CLIP.png")
@@ -350,7 +362,7 @@ def _add_paint_gaps_parser(sub: argparse._SubParsersAction) -> None:
     )
     pg.add_argument("tables", nargs="+", metavar="PAINT_JSON", help="paint-table records")
     pg.add_argument("--out", required=True, metavar="PNG", help="the picture to write")
-    pg.add_argument("--only", default=None, metavar="CLIP,CLIP", help="these clips only (default: every clip)")
+    _add_only(pg)
     pg.add_argument(
         "--label",
         action="append",
