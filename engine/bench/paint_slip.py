@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from engine import contract as C
 from engine.bench.flow_tracks import dis_flow, plate_codes
 from engine.bench.paint_tracking import OWNED_COVERAGE, nearest_positions, texel_uv
 from engine.errors import InputError
@@ -91,21 +92,25 @@ def export_slip(manifest_path: str | Path, plate: str | Path, samples: int = SAM
     missing = [n for n in numbers if n not in at]
     if missing:
         raise InputError(plate, f"has no frame {missing[0]} of the export", FIX_PLATE)
-    layers = [i for i, layer in enumerate(manifest.layers) if layer["role"] == "foreground"]
+    layers = [i for i, layer in enumerate(manifest.layers) if layer["role"] == C.ROLE_FOREGROUND]
     rng = np.random.default_rng(seed)
     slips: dict[int, list[np.ndarray]] = {i: [] for i in layers}
-    ahead = manifest.read_passes(numbers[0]) if numbers else None
+
+    def owned_uvs(number: int) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """Each foreground layer's UVs in texels and the pixels it owns, in one exported frame."""
+        passes = manifest.read_passes(number)
+        return {
+            i: (texel_uv(passes[i], tuple(manifest.layers[i]["atlas_size"])), passes[i].z > OWNED_COVERAGE)
+            for i in layers
+        }
+
+    ahead = owned_uvs(numbers[0]) if numbers else {}
     for t in range(len(numbers) - 1):
-        here, ahead = ahead, manifest.read_passes(numbers[t + 1])
-        assert here is not None
+        here, ahead = ahead, owned_uvs(numbers[t + 1])  # each frame read and converted once
         a_code, b_code = codes[at[numbers[t]]], codes[at[numbers[t + 1]]]
         forward, backward = dis_flow(a_code, b_code), dis_flow(b_code, a_code)
         for i in layers:
-            atlas = tuple(manifest.layers[i]["atlas_size"])
-            a, b = here[i], ahead[i]
-            uv_a, uv_b = texel_uv(a, atlas), texel_uv(b, atlas)
-            owned_a, owned_b = a.z > OWNED_COVERAGE, b.z > OWNED_COVERAGE
-            slips[i].append(frame_slip(uv_a, owned_a, uv_b, owned_b, forward, backward, samples, rng))
+            slips[i].append(frame_slip(*here[i], *ahead[i], forward, backward, samples, rng))
     return {
         "layers": {manifest.layers[i]["name"]: _summary(slips[i]) for i in layers},
         "foreground": _summary([s for i in layers for s in slips[i]]),
