@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Set-up and entry point. Usage:
 #   bash run.sh demo   # set up .venv, then fit the embedded demo clip and write its outputs to demo_out/
-#   bash run.sh test   # set up .venv (+ .venv-bpy5), lint, run the whole suite; add-on tests on bpy 4.5 and 5.0
+#   bash run.sh test   # set up .venv (+ .venv-bpy5), lint, run the suite on every core; add-on tests on bpy 4.5 and 5.0
+#   bash run.sh test --slow   # the same for the tests marked slow (end-to-end fits) that the line above leaves out
+#   bash run.sh test --all    # both
 # Set-up is idempotent: the venv is (re)built only when the requirements or their pinned versions change.
 set -euo pipefail
 cd "$(dirname "$0")"
@@ -65,12 +67,20 @@ case "${1:-}" in
     ;;
   test)
     shift
+    # which tests: the default leaves out those marked slow (pyproject.toml's markers); CI runs both sets
+    marks=(-m "not slow")
+    case "${1:-}" in
+      --slow) marks=(-m slow); shift ;;
+      --all) marks=(); shift ;;
+    esac
     .venv/bin/ruff check .
     .venv/bin/mypy  # the files listed in pyproject.toml's [tool.mypy]
     setup_bpy5
     rc=0
+    # -n auto: a worker per core, a test file per worker at a time (its module fixtures are made once);
     # --durations: the slowest tests listed after every run, so what the suite costs stays in view
-    .venv/bin/python -m pytest -q --durations=25 "$@" || rc=$?
+    par=(-n auto --dist loadfile)
+    .venv/bin/python -m pytest -q "${par[@]}" --durations=25 "${marks[@]}" "$@" || rc=$?
     # the add-on tests again on Blender 5.0 (all of them, or the add-on paths among the arguments), less
     # tests/addon/core: pure Python without bpy, the same under any Blender; engine processes they start use .venv's
     bpy5_args=()
@@ -79,12 +89,13 @@ case "${1:-}" in
     fi
     if [ ${#bpy5_args[@]} -gt 0 ]; then
       echo "== add-on tests on bpy 5.0.1 (.venv-bpy5)" >&2
-      NEURAL_ATLAS_TEST_ENGINE_PYTHON="$PWD/.venv/bin/python" .venv-bpy5/bin/python -m pytest -q "${bpy5_args[@]}" || rc=$?
+      NEURAL_ATLAS_TEST_ENGINE_PYTHON="$PWD/.venv/bin/python" .venv-bpy5/bin/python -m pytest -q "${par[@]}" \
+        "${marks[@]}" "${bpy5_args[@]}" || rc=$?
     fi
     exit $rc
     ;;
   *)
-    echo "usage: bash run.sh demo | test" >&2
+    echo "usage: bash run.sh demo | test [--slow | --all] [pytest arguments]" >&2
     exit 2
     ;;
 esac

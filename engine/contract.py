@@ -47,6 +47,7 @@ FARM_REQUIREMENTS: tuple[str, ...] = requirement_lines(FARM_REQUIREMENTS_FILE)
 #: Extra requirements for development and the test suite (same venv).
 DEV_REQUIREMENTS: tuple[str, ...] = (
     "pytest>=8",
+    "pytest-xdist>=3.6",  # run.sh runs the suite on every core
     "hypothesis>=6.100",
     "ruff>=0.6",
     "matplotlib>=3.8",
@@ -62,4 +63,5 @@ BPY5_REQUIREMENTS: tuple[str, ...] = (
     "OpenEXR==3.5.*",
     "pydantic>=2.7,<3",  # the farm test helpers load a shots file (engine.farm.shots) in this interpreter
     "pytest>=8",
+    "pytest-xdist>=3.6",
 )

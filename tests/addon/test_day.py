@@ -116,6 +116,7 @@ def _same(a: dict[int, np.ndarray], b: dict[int, np.ndarray]) -> float:
     return worst(a, b)
 
 
+@pytest.mark.slow
 def test_an_artists_day(blender, tmp_path):
     day = Day(tmp_path)
     other_manifest = _shot(blender, tmp_path / "other", 1, Stroke("Background", (0.0, 0.3, 1.0, 1.0), (0, 8)))

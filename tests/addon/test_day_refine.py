@@ -55,6 +55,7 @@ def _compare(manifest: Path, out: Path) -> tuple[float, float]:
     return err, min(float(img[..., :3].mean()) for img in ours.values())
 
 
+@pytest.mark.slow
 def test_refine_in_a_copied_shot_folder_stays_in_the_copy(blender, tmp_path, monkeypatch):
     py = engine_python(C.VERB_REALIGN, "torch")
     shot = tmp_path / "shot"

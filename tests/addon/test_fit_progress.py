@@ -7,6 +7,7 @@ from __future__ import annotations
 import subprocess
 import time
 
+import pytest
 from helpers import engine_python
 from neural_atlas.addon.core import engine_commands as EC
 from neural_atlas.addon.core import engine_process as EP
@@ -42,6 +43,7 @@ def _drive(job: FitJob, stop_at: float | None = None) -> list[tuple[str, float, 
         time.sleep(0.02)
 
 
+@pytest.mark.slow
 def test_fit_bar_moves_through_every_stage_and_resume_continues(tmp_path):
     py = engine_python("fit", "torch")
     clip = _clip(py, tmp_path / "clip")

@@ -101,6 +101,7 @@ def _engine_render(manifest: Path, edits: dict[str, Path], out: Path, filt: str)
     assert done.returncode == 0, done.stderr[-2000:]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("filt", P.FILTERS)
 def test_preview_render_equals_engine_render(blender, tmp_path, filt):
     """Painted (not saved) PNG and EXR layers; the preview at frames A and B against ``engine render`` of that paint

@@ -213,6 +213,7 @@ def _engine(py: str, *args: str) -> None:
     subprocess.run([py, "-m", "engine", *args], cwd=ROOT, check=True, timeout=300, capture_output=True)
 
 
+@pytest.mark.slow
 def test_paint_laid_on_frame_n_lands_on_the_atlas_and_shows_on_every_frame(blender, export, tmp_path, monkeypatch):
     py = engine_python(C.VERB_PROJECT_FRAME, "cv2, scipy")
     monkeypatch.setenv("NEURAL_ATLAS_ENGINE_PYTHON", py)

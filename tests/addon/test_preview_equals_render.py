@@ -109,6 +109,7 @@ def test_the_filter_is_named_and_defaults_as_engine_render(registered):
     assert {V.INTERPOLATION[f] for f in P.FILTERS} == {"Linear", "Closest"}
 
 
+@pytest.mark.slow
 def test_preview_equals_render_equals_engine_render_at_paint_edges(blender, tmp_path):
     """Hard-edged strokes on both layers; for each filter: the live preview, Render Edited Clip and engine render
     --filter of the same name agree at every pixel, paint edges included, at every exported frame."""

@@ -54,6 +54,7 @@ def _alpha(img) -> np.ndarray:
     return px.reshape(h, w, 4)[..., 3]
 
 
+@pytest.mark.slow
 def test_refine_keeps_and_realigns_the_paint(blender, tmp_path, monkeypatch):
     py = engine_python(C.VERB_REALIGN, "torch")
     clip_dir = tmp_path / "clip"

@@ -82,6 +82,7 @@ def bench_record(clip, tmp_path_factory) -> tuple[dict, Path, str]:
     return json.loads((out / BENCH_JSON).read_text()), out, " ".join(args)
 
 
+@pytest.mark.slow
 def test_bench_json_schema(bench_record):
     rec, _, _ = bench_record
     assert rec[BENCH_TAG] == 1
@@ -114,6 +115,7 @@ def test_bench_json_schema(bench_record):
             assert point["peak_rss_mb"] > 0
 
 
+@pytest.mark.slow
 def test_bench_curves_are_monotone_and_in_range(bench_record):
     rec, _, _ = bench_record
     for run in rec["runs"]:
@@ -129,6 +131,7 @@ def test_bench_curves_are_monotone_and_in_range(bench_record):
             assert np.isfinite(p["psnr"])
 
 
+@pytest.mark.slow
 def test_bench_stops_at_steps_or_budget_and_records_the_eta(bench_record):
     rec, _, _ = bench_record
     draft, paper = rec["runs"]
@@ -144,6 +147,7 @@ def test_bench_stops_at_steps_or_budget_and_records_the_eta(bench_record):
     assert all("error" not in e for e in paper["eta"])
 
 
+@pytest.mark.slow
 def test_bench_writes_a_plot(bench_record):
     _, out, _ = bench_record
     assert (out / BENCH_PNG).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -308,6 +312,7 @@ def test_eval_schedule_adds_the_target_marks_within_the_budget():
         parse_eval_at("3min")
 
 
+@pytest.mark.slow
 def test_the_tools_run_outside_the_product_cli(clip, tmp_path, capsys):
     """``bench``, ``speed`` and ``scene-speed`` are ``python -m engine.bench`` tools: the product CLI has no such
     verbs, and nothing in the product (engine/ outside engine/bench, which the extension zip leaves out) imports

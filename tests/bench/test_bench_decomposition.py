@@ -55,6 +55,7 @@ def test_score_masks_default_to_the_clip_folders_own(clip, dilated, tmp_path, ca
     assert "--score-masks need exactly one clip" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_fg_iou_is_the_foreground_alpha_against_the_precise_masks(clip, dilated):
     torch.manual_seed(0)
     spec = resolve_clip(clip, [dilated])

@@ -45,6 +45,7 @@ def table(scene_root, tmp_path_factory) -> tuple[dict, Path]:
     return run_paint_table(scene_root, out, sets=STEPS, threads=1, pictures=True, log=lambda _: None), out
 
 
+@pytest.mark.slow
 def test_the_rows_are_the_scorers_on_the_export(scene_root, table):
     record, out = table
     (row,) = record["rows"]
@@ -70,6 +71,7 @@ def test_the_rows_are_the_scorers_on_the_export(scene_root, table):
     assert json.loads((out / PAINT_JSON).read_text())["rows"][0]["paint"] == row["paint"]
 
 
+@pytest.mark.slow
 def test_a_second_run_fits_and_exports_nothing(scene_root, table):
     record, out = table
     run = out / "runs" / "turning_depth"
@@ -80,6 +82,7 @@ def test_a_second_run_fits_and_exports_nothing(scene_root, table):
     assert [{k: r[k] for k in keep} for r in again["rows"]] == [{k: r[k] for k in keep} for r in record["rows"]]
 
 
+@pytest.mark.slow
 def test_the_picture_is_two_rows_of_the_first_middle_and_last_frame(table):
     record, _ = table
     picture, _ = read_image(record["rows"][0]["picture"])
@@ -149,6 +152,7 @@ def tiny_limbs_table(tmp_path: Path, **split: bool) -> tuple[Path, dict]:
     return root, run_paint_table(root, tmp_path / "out", sets=sets, threads=1, log=lambda _: None, **split)
 
 
+@pytest.mark.slow
 def test_parts_fit_one_layer_per_part_and_are_scored_as_one_foreground(tmp_path):
     root, record = tiny_limbs_table(tmp_path, parts=True)
     (row,) = record["rows"]

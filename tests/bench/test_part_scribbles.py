@@ -65,6 +65,7 @@ def test_one_part_or_too_many_is_refused(tmp_path):
         write_part_scribbles([tmp_path] * (most + 1), tmp_path / "s")
 
 
+@pytest.mark.slow
 def test_the_table_fits_the_one_mask_split_by_the_strokes(tmp_path):
     root, record = tiny_limbs_table(tmp_path, scribbles=True)
     (row,) = record["rows"]

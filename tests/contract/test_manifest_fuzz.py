@@ -176,6 +176,7 @@ def _mutated(data: dict[str, Any], at: tuple, replacement: Any, drop: bool) -> d
     return out
 
 
+@pytest.mark.slow
 @FUZZ
 @given(data=st.data())
 def test_a_real_manifest_with_one_part_changed_is_read_or_refused_in_one_line(real, data):

@@ -55,6 +55,7 @@ def test_missing_clip_is_one_line_naming_it(tmp_path):
     assert not (tmp_path / "run").exists()
 
 
+@pytest.mark.slow
 def test_unknown_preset_and_key_suggest(tmp_path, small_clip):
     frames, masks = small_clip
     out = run_engine("fit", str(frames), "--mask", str(masks), "--out", str(tmp_path / "r"), "--preset", "drat")
@@ -86,6 +87,7 @@ def _fit_args(frames, masks, run, *extra):
     ]
 
 
+@pytest.mark.slow
 def test_sigterm_checkpoints_and_resume_finishes(tmp_path, small_clip):
     frames, masks = small_clip
     run = tmp_path / "run"
@@ -130,6 +132,7 @@ def test_sigterm_checkpoints_and_resume_finishes(tmp_path, small_clip):
     assert metrics["steps"] == 400 and metrics["psnr"] > 20.0
 
 
+@pytest.mark.slow
 def test_resume_refuses_a_changed_clip(tmp_path):
     clip = tmp_path / "clip"
     frames, masks = write_scene(make_scene(SMALL), clip)

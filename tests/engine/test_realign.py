@@ -136,6 +136,7 @@ def test_realign_cli_and_bad_input(shifted_run):
     assert err["iou"] > 0.93
 
 
+@pytest.mark.slow
 def test_refine_continues_a_finished_fit_and_keeps_the_paint(tmp_path):
     """fit -> export -> paint -> fit --refine -> export -> realign, through the CLI on a tiny clip: the refine adds
     its steps to the finished fit, records the export the paint was made on, keeps every export and edit layer, and

@@ -112,6 +112,7 @@ def checkpoint_past_zero(run: Path) -> bool:
     return not done and any(e["event"] == C.EVENT_CHECKPOINT and e["step"] > 0 for e in events)
 
 
+@pytest.mark.slow
 def test_killed_worker_mid_fit_resumes_and_both_shots_finish(tmp_path: Path) -> None:
     shots_file = write_shots(tmp_path)
     plan = load_plan(shots_file)
@@ -266,6 +267,7 @@ def test_farm_dask_without_a_scheduler_is_one_line(tmp_path: Path) -> None:
     ]
 
 
+@pytest.mark.slow
 def test_farm_dask_bad_input_fails_the_task_and_skips_what_follows(tmp_path: Path) -> None:
     """A fit refused for bad input (exit 2) is not retried: its shot's later tasks are skipped, and `farm dask`
     exits 1 naming the task and the engine's one line."""

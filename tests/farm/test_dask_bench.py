@@ -21,6 +21,7 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="th
 TINY = ["steps=30", "batch=1000", "eval_every=10", "bootstrap_steps=10", "global_rigidity_steps=10"]
 
 
+@pytest.mark.slow
 def test_bench_farm_times_both_routes_and_their_exports_agree(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

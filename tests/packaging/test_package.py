@@ -189,6 +189,7 @@ def _run(installed: Path, *argv: str, cwd: Path | None = None) -> subprocess.Com
     )
 
 
+@pytest.mark.slow
 def test_pip_install_gives_the_neural_atlas_command_with_the_engines_verbs(installed):
     command = installed / "bin" / CONSOLE_SCRIPT
     helped = _run(installed, str(command), "--help")
@@ -210,6 +211,7 @@ def test_pip_install_gives_the_neural_atlas_command_with_the_engines_verbs(insta
     assert "no manifest here" in bad.stderr
 
 
+@pytest.mark.slow
 def test_installed_engine_is_the_package_not_the_checkout(installed):
     """Every module of the installed engine imports from the venv (its data files and py.typed beside it), beside
     another project's ``engine``, which stays that project's; the engine's farm tasks name the installed package."""

@@ -166,6 +166,7 @@ def _delays(name: str, duration: float) -> list[float]:
     return [rng.uniform(start, duration) for _ in range(SEEDS)]
 
 
+@pytest.mark.slow
 def test_sigkill_during_a_fit_then_resume_or_rerun_finishes(base, tmp_path):
     def args(run: Path) -> list[str]:
         return ["fit", str(base.frames), "--mask", str(base.masks), "--out", str(run), "--preset", "draft"]
@@ -185,6 +186,7 @@ def test_sigkill_during_a_fit_then_resume_or_rerun_finishes(base, tmp_path):
         _assert_run_loads(run)
 
 
+@pytest.mark.slow
 def test_sigkill_while_continuing_a_painted_run_keeps_exports_and_edits(base, tmp_path):
     probe = _copy_run(base, tmp_path / "timed")
     longer = _sets([f"steps={STEPS + 60}"])
@@ -200,6 +202,7 @@ def test_sigkill_while_continuing_a_painted_run_keeps_exports_and_edits(base, tm
         assert tree_digest(run / C.EXPORTS_DIR) == exports and tree_digest(run / C.EDITS_DIR) == edits, delay
 
 
+@pytest.mark.slow
 def test_sigkill_during_an_export_keeps_earlier_exports_and_edits(base, tmp_path):
     probe = _copy_run(base, tmp_path / "timed")
     duration = _timed(["export", str(probe), "--atlas-size", "64", "--no-bar"])
@@ -216,6 +219,7 @@ def test_sigkill_during_an_export_keeps_earlier_exports_and_edits(base, tmp_path
         assert tree_digest(run / C.EXPORTS_DIR / "v001") == exports and tree_digest(run / C.EDITS_DIR) == edits, delay
 
 
+@pytest.mark.slow
 def test_sigkill_during_a_render_leaves_whole_frames_and_a_rerun_matches(base, tmp_path):
     reference = tmp_path / "reference"
     duration = _timed(["render", str(base.manifest), "--out", str(reference), "--no-bar"])
@@ -238,6 +242,7 @@ def test_sigkill_during_a_render_leaves_whole_frames_and_a_rerun_matches(base, t
             assert all(np.array_equal(got[c], channels[c]) for c in channels), (delay, name)
 
 
+@pytest.mark.slow
 def test_sigkill_during_project_frame_keeps_every_edit_layer_whole(base, tmp_path):
     probe = _copy_run(base, tmp_path / "timed")
     args = ["--frame", "1", "--edit", str(base.paint)]

@@ -49,6 +49,7 @@ def fitted(tmp_path_factory):
     return frames, masks, run
 
 
+@pytest.mark.slow
 def test_resume_on_a_full_disk_is_one_line_and_keeps_the_last_checkpoint(fitted, tmp_path):
     _, _, run = fitted
     checkpoint = run / C.RUN_CHECKPOINT
@@ -75,6 +76,7 @@ def test_resume_on_a_full_disk_is_one_line_and_keeps_the_last_checkpoint(fitted,
     assert run_cli("fit", "--resume", "--out", str(retry), "--no-bar", *_sets("steps=80"))[0] == C.EXIT_OK
 
 
+@pytest.mark.slow
 def test_a_fit_on_a_disk_with_no_room_is_one_line_and_leaves_no_temp_file(fitted, tmp_path):
     frames, masks, _ = fitted
     disk = tmp_path / "disk"

@@ -108,6 +108,7 @@ def test_the_run_folder_is_in_and_out(tmp_path) -> None:
     assert str(tmp_path / "runs" / "sh010") in refs["inputs"]["directories"]
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not OPENJD.exists(), reason="openjd-cli is not installed (the farm extra)")
 def test_openjd_run_of_the_fit_step_reports_progress_with_the_workers_path_kept(tmp_path) -> None:
     """The worker's PYTHONPATH holds a sitecustomize that notes the path it ran with: it runs in the task only if the

@@ -8,6 +8,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 from helpers import HERE, fake_python, stand_in_pip
 from neural_atlas.addon.core import engine_commands as EC
 from neural_atlas.addon.core import engine_process as EP
@@ -39,6 +40,7 @@ def test_setup_failure_offline_is_explained():
     assert ES.explain_setup_failure("ERROR: torch wheel is broken\n") == "ERROR: torch wheel is broken"
 
 
+@pytest.mark.slow
 def test_setup_engine_offline_error_is_clear(tmp_path, monkeypatch):
     """Creates a real venv, then pip cannot reach an index: the report says offline, nothing hangs."""
     for var in ("PIP_FIND_LINKS", "PIP_EXTRA_INDEX_URL"):

@@ -162,6 +162,7 @@ def test_static_background_only_evaluates_fewer_modules_and_terms(tmp_path):
     assert auto[3] < full[3] / 2
 
 
+@pytest.mark.slow
 def test_fit_records_scene_and_export_has_one_layer(tmp_path):
     """A background-only static clip: scene.json, the 'scene' stage event, a 1-layer export whose passes
     hold only the background, and a manifest carrying the scene; the background reconstructs."""
@@ -220,6 +221,7 @@ def test_manifest_scene_is_validated():
         C.validate_scene({k: v for k, v in good.items() if k != "active_terms"})
 
 
+@pytest.mark.slow
 def test_single_frame_fit_computes_no_flow(tmp_path):
     s = make_named_scene("static_camera", width=48, height=32, frames=1)
     frames_dir, masks_dir = _write_clip(tmp_path / "clip", s.frames, s.masks)
@@ -235,6 +237,7 @@ def test_single_frame_fit_computes_no_flow(tmp_path):
     assert scene["flow"] is False and "flow" not in scene["active_terms"]
 
 
+@pytest.mark.slow
 def test_auto_masks_fit_uses_found_masks_or_falls_back(tmp_path):
     """--auto-masks on the static-camera scene finds the object (IoU vs truth reported) and fits 2 layers;
     on the lighting-change scene (nothing moves) it fits the background alone, with the reason recorded."""
@@ -286,6 +289,7 @@ def test_pan_builds_a_small_residual_and_no_warp_grid(tmp_path):
     assert full.warp is not None and full.residual.linears[0].out_features == 64
 
 
+@pytest.mark.slow
 def test_scene_speed_compares_the_same_fit_with_and_without_the_analysis(tmp_path):
     """The measurement helper behind the docs' speed-up table: both fits, same steps; numbers only, no
     timing assertion (the ratio depends on the machine)."""

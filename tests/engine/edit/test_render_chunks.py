@@ -29,6 +29,7 @@ def _render(manifest, out, *args: str) -> tuple[int, list[str]]:  # type: ignore
     return run_cli("render", manifest, "--out", out, "--no-bar", *args)
 
 
+@pytest.mark.slow
 def test_chunks_into_one_folder_equal_a_whole_render(manifest, tmp_path):
     whole, chunked = tmp_path / "whole", tmp_path / "chunked"
     assert _render(manifest, whole) == (0, [])

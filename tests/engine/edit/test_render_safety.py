@@ -76,6 +76,7 @@ def _enospc_after(monkeypatch, module, name: str, calls: int) -> None:  # type: 
     monkeypatch.setattr(module, name, full)
 
 
+@pytest.mark.slow
 def test_disk_full_during_a_render_is_one_line_naming_what_it_needs(tmp_path, monkeypatch):
     """ENOSPC on the 6th of 24 frames: one line "disk full: free N MB at OUT", N within a factor 2 of the whole
     render's size (0 bytes free); the earlier render in --out byte-identical, no staging left."""
@@ -108,6 +109,7 @@ def test_disk_full_in_the_movie_is_one_line_and_leaves_nothing(tmp_path, monkeyp
     assert not (tmp_path / "new").exists() and not (tmp_path / "m").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("size_kb", [512, 1288], ids=["frames", "movie"])
 def test_render_on_a_really_full_disk_leaves_nothing(tmp_path, size_kb):
     """A real child render onto a tmpfs that fills up while the frames are written (512 KB) or while the movie is

@@ -66,6 +66,7 @@ def _paint(root: Path) -> Path:
     return write_png(root / "paint.png", paint, 8)
 
 
+@pytest.mark.slow
 def test_writers_refuse_a_run_folder_another_process_holds(root):
     """A fit (here a child holding the lock as `fit`) owns the run folder: export (a real second process),
     project-frame and preview into the export are refused in one line naming the holder, exit 2, and change
@@ -111,6 +112,7 @@ def test_a_run_folder_moved_with_its_plate_renders_identically(root, tmp_path):
     assert code == C.EXIT_OK and all(str(moved / "run" / C.EDITS_DIR) in line for line in lines[:1]), lines
 
 
+@pytest.mark.slow
 def test_sigterm_during_export_exits_3_and_leaves_nothing(root):
     """SIGTERM while a real export computes its atlases: exit 3, one line, no staging, the earlier export and the
     edit layers byte-identical; the same command again finishes."""
@@ -153,6 +155,7 @@ def _fill_disk_after(monkeypatch, writes: int) -> None:
     monkeypatch.setattr(atomic, "free_bytes", lambda folder: 0)
 
 
+@pytest.mark.slow
 def test_disk_full_during_export_is_one_line_naming_what_it_needs(root, monkeypatch):
     """ENOSPC on the export's fourth EXR (two atlases and a pass written): exit 2, one line "disk full: free N MB
     at RUN_DIR", N within a factor 2 of what the whole export takes; no staging, earlier export and edit layers

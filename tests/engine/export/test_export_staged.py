@@ -69,6 +69,7 @@ def _same_export(plain: Path, staged: Path) -> None:
     assert ma == mb
 
 
+@pytest.mark.slow
 def test_staged_export_in_three_chunks_equals_a_plain_export(root):
     run = root / "run"
     exports = run / C.EXPORTS_DIR

@@ -119,6 +119,7 @@ def test_pass_files_hold_the_stmap_layers_as_copies_of_the_uv_passes(exported):
         assert not st[2].any()
 
 
+@pytest.mark.slow
 def test_blender_sees_the_atlas_passes_exactly_as_before(exported):
     """Blender skips one-dot channel names: the Image node offers the one layer Atlas and the same sockets."""
     pythons = blender_pythons()

@@ -54,6 +54,7 @@ def _engine(*argv: str) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.slow
 def test_a_huge_learning_rate_exits_4_in_one_line_and_resume_with_a_lower_one_finishes(tmp_path, clip):
     frames, masks = clip
     run = tmp_path / "run"

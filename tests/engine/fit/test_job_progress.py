@@ -46,6 +46,7 @@ def _engine(*args: str) -> tuple[list[dict], float]:
     return _events(out.stdout), time.perf_counter() - started
 
 
+@pytest.mark.slow
 def test_fit_resume_and_export_report_the_whole_job(tmp_path):
     frames, masks = write_scene(make_scene(SPEC), tmp_path / "clip")
     run = tmp_path / "run"

@@ -42,6 +42,7 @@ def _events(text: str) -> list[dict]:
     return [m for m in map(C.parse_progress_line, text.splitlines()) if m]
 
 
+@pytest.mark.slow
 def test_fit_with_long_range_correspondences(tmp_path: Path) -> None:
     frames_dir, masks_dir = write_scene(make_scene(SPEC), tmp_path / "clip")
     cfg = apply_overrides(preset_config("draft"), SETS)

@@ -11,6 +11,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import torch
 
 from engine import contract as C
@@ -41,6 +42,7 @@ def _no_fit(*args: object, **kwargs: object) -> None:
     raise AssertionError("a finished fit was trained again")
 
 
+@pytest.mark.slow
 def test_a_retried_fit_starts_continues_and_then_does_nothing(tmp_path, monkeypatch):
     frames, masks = write_scene(make_scene(SPEC), tmp_path / "clip")
     run = tmp_path / "run"

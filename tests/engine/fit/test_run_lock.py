@@ -76,6 +76,7 @@ def _start_and_pause(argv: list[str]) -> subprocess.Popen:
     return proc
 
 
+@pytest.mark.slow
 def test_a_second_fit_into_a_folder_in_use_is_refused_and_the_first_finishes(tmp_path, clip):
     run = tmp_path / "run"
     first = _start_and_pause(_fit_argv(clip, run))
@@ -102,6 +103,7 @@ def test_a_second_fit_into_a_folder_in_use_is_refused_and_the_first_finishes(tmp
     assert Path(exported.stdout.strip().splitlines()[-1]).is_file()
 
 
+@pytest.mark.slow
 def test_a_fit_is_refused_while_another_verb_holds_the_folder(tmp_path, clip):
     """``RunFolder(path).lock(what)`` is how the other writers (export, project-frame) hold a run folder: a fit
     meanwhile is one line naming that verb."""

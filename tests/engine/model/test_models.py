@@ -94,6 +94,7 @@ def test_paper_model_shapes_and_quadrants():
     assert m.uv_per_px(0) == pytest.approx(0.8 / 32.0)  # the reference's atlas scale over half the long side
 
 
+@pytest.mark.slow
 def test_paper_calibration_reaches_scaled_identity():
     cfg = preset_config("paper")
     cfg.pretrain_iters = 150
@@ -168,6 +169,7 @@ def test_atlas_opacity_starts_at_the_same_alpha_and_moves_with_the_mapping():
         assert float(ys[lifted].mean()) == pytest.approx(24.0, abs=0.6)
 
 
+@pytest.mark.slow
 def test_atlas_opacity_learns_a_thin_bar_from_every_frame():
     """A 2 px bar moving 3 px per frame over 12 frames of 512x96 (draft's alpha grid: 4 px cells), alpha trained
     on the bar's masks alone (BCE, 300 Adam steps, uniform batches: about two samples per step on the bar). In
