@@ -75,6 +75,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
         progress_bar=not args.no_bar,
         into=args.into,
         stage=args.stage,
+        follow_flow=args.follow_flow,
     )
     return print_paths([path])
 

@@ -58,6 +58,7 @@ def _paint_table(args: argparse.Namespace) -> int:
         parts=args.parts,
         scribbles=args.scribbles,
         scribble_frames=args.scribble_frames,
+        follow_flow=args.follow_flow,
         command=[PROG, *args.argv],
     )
     print(format_table(table))

@@ -109,9 +109,11 @@ def fit_and_export(
     threads: int | None,
     log_path: Path,
     scribbles: Path | None = None,
+    follow_flow: bool = False,
 ) -> Path:
     """Fit (or continue, or leave a finished fit: ``--resume-if-started``) with one layer per mask folder (or the
-    one mask split by ``scribbles``) and export into ``EXPORT_VERSION``; returns the manifest's path."""
+    one mask split by ``scribbles``) and export into ``EXPORT_VERSION`` (``follow_flow``: ``export --follow-flow``);
+    returns the manifest's path."""
     set_args = [a for kv in sets for a in ("--set", kv)]
     mask_args = [a for m in masks for a in ("--mask", str(m))]
     scribble_args = [C.SCRIBBLE_ARG, str(scribbles)] if scribbles is not None else []
@@ -120,7 +122,8 @@ def fit_and_export(
          C.FIT_RESUME_IF_STARTED_FLAG, "--no-bar", *set_args],
         log_path, threads,
     )  # fmt: skip
-    out = _engine([C.VERB_EXPORT, str(run), C.EXPORT_INTO_ARG, EXPORT_VERSION, "--no-bar"], log_path, threads)
+    follow = [C.EXPORT_FOLLOW_FLOW_FLAG] if follow_flow else []
+    out = _engine([C.VERB_EXPORT, str(run), C.EXPORT_INTO_ARG, EXPORT_VERSION, "--no-bar", *follow], log_path, threads)
     lines = [line for line in out.strip().splitlines() if line.strip()]
     if not lines:
         raise InputError(log_path, "engine export printed no manifest path", "read the log, run again")
@@ -252,6 +255,7 @@ def run_paint_table(
     parts: bool = False,
     scribbles: bool = False,
     scribble_frames: int = 3,
+    follow_flow: bool = False,
     command: list[str] | None = None,
     log: Log | None = None,
 ) -> dict:
@@ -260,7 +264,8 @@ def run_paint_table(
     ``masks_parts/`` (``motion_scenes.part_masks``) is fitted with one layer per part; scores are unchanged (the
     foreground is every layer after the background). ``scribbles``: such a clip is fitted the product's way
     instead, its one mask split by strokes drawn from the part masks on ``scribble_frames`` frames spread evenly from
-    the first to the last (3: first, middle, last; ``part_scribbles``)."""
+    the first to the last (3: first, middle, last; ``part_scribbles``). ``follow_flow``: exported with
+    ``export --follow-flow``."""
     say = log or (lambda line: print(line, file=sys.stderr, flush=True))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -270,7 +275,7 @@ def run_paint_table(
     rows = []
     for folder in _selected_clips(root, only):
         row = _clip_row(folder, out, preset, degrade, seed, sets or [], threads, parts, scribbles, scribble_frames,
-                        say)  # fmt: skip
+                        follow_flow, say)  # fmt: skip
         if pictures and (folder / "masks").is_dir():
             from engine.bench.paint_picture import paint_picture
 
@@ -290,6 +295,7 @@ def run_paint_table(
         "parts": parts,
         "scribbles": scribbles,
         "scribble_frames": scribble_frames if scribbles else None,
+        "follow_flow": follow_flow,
         "rows": rows,
         "mean": mean_row(rows),
     }
@@ -320,6 +326,7 @@ def _clip_row(
     parts: bool,
     scribbles: bool,
     scribble_frames: int,
+    follow_flow: bool,
     say: Log,
 ) -> dict:
     """One clip fitted and exported as ``run_paint_table`` says, and its export scored: the table's row."""
@@ -339,7 +346,7 @@ def _clip_row(
     run = out / "runs" / folder.name
     say(f"paint-table: {folder.name}: fit {preset} + export -> {run}")
     manifest = fit_and_export(folder / "frames", masks, run, preset, sets, threads, out / "logs" /
-                              f"{folder.name}.log", strokes)  # fmt: skip
+                              f"{folder.name}.log", strokes, follow_flow)  # fmt: skip
     say(f"paint-table: {folder.name}: scoring the export")
     metrics = json.loads((run / C.RUN_METRICS).read_text(encoding="utf-8"))
     row = {

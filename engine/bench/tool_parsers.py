@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 
+from engine import contract as C
 from engine.cli_options import frame_range
 
 BENCH = "bench"
@@ -349,6 +350,12 @@ def _add_paint_table_parser(sub: argparse._SubParsersAction) -> None:
         default=3,
         metavar="N",
         help="with --scribbles: frames with strokes, spread evenly from the first to the last (default: 3)",
+    )
+    pt.add_argument(
+        C.EXPORT_FOLLOW_FLOW_FLAG,
+        dest="follow_flow",
+        action="store_true",
+        help="export with the engine's --follow-flow (each foreground layer's UV averaged along the fit's flow)",
     )
 
 

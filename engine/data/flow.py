@@ -220,8 +220,23 @@ def content_key(frames: np.ndarray, backend: FlowBackend, threshold_px: float) -
     return h.hexdigest()
 
 
-def _load_cache(path: Path, t: int, h: int, w: int, backend: str, threshold_px: float) -> FlowField | None:
-    """A cache file that is missing, truncated or from something else is a miss, never an error."""
+def cached_flow(cache_dir: Path, t: int, h: int, w: int, backend: str, threshold_px: float) -> FlowField | None:
+    """The adjacent-pair flow a fit left in ``cache_dir`` for its ``t`` frames at ``h`` x ``w`` with this backend
+    and threshold, found without the frames its file is named by (an export reads the run folder, not the plate);
+    None when there is none. Several (the plate was changed under the run folder and fitted again): the newest."""
+    files = [p for p in Path(cache_dir).glob("*.npz") if len(p.stem) == hashlib.sha256().digest_size * 2]
+    for path in sorted(files, key=lambda p: p.stat().st_mtime, reverse=True):
+        field = _load_cache(path, t, h, w, backend, threshold_px, quiet=True)
+        if field is not None:
+            return field
+    return None
+
+
+def _load_cache(
+    path: Path, t: int, h: int, w: int, backend: str, threshold_px: float, quiet: bool = False
+) -> FlowField | None:
+    """A cache file that is missing, truncated or from something else is a miss, never an error (``quiet``: a
+    search through several files, where a miss is no news)."""
     if not path.is_file():
         return None
     try:
@@ -236,7 +251,8 @@ def _load_cache(path: Path, t: int, h: int, w: int, backend: str, threshold_px: 
             )
             version = int(z["version"])
     except Exception as exc:  # zipfile.BadZipFile, EOFError, KeyError, ValueError, OSError, ...
-        log.warning("ignoring unreadable flow cache %s (%s); recomputing", path, exc)
+        if not quiet:
+            log.warning("ignoring unreadable flow cache %s (%s); recomputing", path, exc)
         return None
     n = t - 1
     good = (
@@ -250,7 +266,8 @@ def _load_cache(path: Path, t: int, h: int, w: int, backend: str, threshold_px: 
         and bool(np.isfinite(field.forward).all() and np.isfinite(field.backward).all())
     )
     if not good:
-        log.warning("ignoring flow cache %s: it does not match this clip; recomputing", path)
+        if not quiet:
+            log.warning("ignoring flow cache %s: it does not match this clip; recomputing", path)
         return None
     return field
 

@@ -24,10 +24,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 from tqdm import tqdm
 
 from .. import contract as C
+from ..data.flow import DISFlow, cached_flow
 from ..errors import InputError
 from ..fit.fitted_run import FittedRun, load_fitted
 from ..fit.progress import Reporter
@@ -36,6 +38,7 @@ from ..io.atomic import DISK_ERRORS, as_disk_full, atomic_write_text
 from ..io.colour import RAW, REC709_CHROMATICITIES, SCENE_LINEAR, srgb_to_linear
 from ..io.images import exr_timing, write_exr, write_png
 from .atlas_frame import _Coverage
+from .follow_flow import MIN_SLIP_PX, follow_flow, layer_slip_px
 from .manifest_writer import _write_nuke_script, build_manifest
 from .pass_files import pass_file, stmap_values
 from .plan import Plan, plan_export, read_layout, selected_frames
@@ -53,6 +56,9 @@ from .staging import (
 )
 
 DEFAULT_ATLAS_SIZE = C.ATLAS_SIZE_DEFAULT
+#: ``follow_flow``: a pixel belongs to a foreground layer where its weight is above this (the layers' weights sum to
+#: one, so above one half is also the highest).
+FG_OWNED_ALPHA = 0.5
 
 
 def export_run(
@@ -64,6 +70,7 @@ def export_run(
     stream: Any = None,
     into: str | None = None,
     stage: str | None = None,
+    follow_flow: bool = False,
 ) -> Path:
     """Export ``run_dir``; returns the path of the manifest.json written. Reads the run folder only (its
     ``clip.json`` says what export needs of the clip): the plate is not decoded. Holds the run folder's lock for
@@ -77,7 +84,9 @@ def export_run(
     ``frames``, without the lock: chunks run at once on several hosts; returns the staging folder) and ``publish``
     (every pass present: edit layers, manifest and Nuke script as a whole export writes them, then the folder
     becomes ``vNNN``). The staged export's files are those of a whole export of the same run, byte for byte.
-    ``atlas_size`` None: the default (publish: the staged one)."""
+    ``atlas_size`` None: the default (publish: the staged one). ``follow_flow``: each foreground layer's UV averaged
+    along the fit's optical flow where it slips against it (``engine.export.follow_flow``); a whole export only (a
+    version ``into`` already holds is returned as it is, as without it)."""
     run_dir = Path(run_dir).resolve()
     low, high = C.ATLAS_SIZE_RANGE
     if atlas_size is not None and not low <= atlas_size <= high:
@@ -91,8 +100,14 @@ def export_run(
             f"{C.EXPORT_STAGE_ARG} {stage} without {C.EXPORT_INTO_ARG}",
             f"name the version its stages share: {C.EXPORT_INTO_ARG} {C.EXPORT_VERSION_FORMAT.format(1)}",
         )
+    if follow_flow and stage is not None:
+        raise InputError(
+            None,
+            f"{C.EXPORT_FOLLOW_FLOW_FLAG} with {C.EXPORT_STAGE_ARG}",
+            f"a staged export does not follow the flow yet: export the run whole, without {C.EXPORT_STAGE_ARG}",
+        )
     RunFolder(run_dir).require_fit()
-    job = _Job(run_dir, device_name, progress_bar, stream)
+    job = _Job(run_dir, device_name, progress_bar, stream, follow_flow)
     if stage == C.EXPORT_STAGES[1]:
         assert version is not None
         return _export_passes(job, version, frames)  # no lock: its chunks run at once on several hosts
@@ -128,6 +143,7 @@ class _Job:
     device_name: str
     progress_bar: bool
     stream: Any
+    follow_flow: bool = False
 
     def __post_init__(self) -> None:
         self.reporter = Reporter(stream=self.stream)
@@ -161,11 +177,64 @@ def _write_atlases(fitted: FittedRun, plan: Plan, cov: list[_Coverage], dest: Pa
         )
 
 
+def _flow_corrections(job: _Job, fitted: FittedRun, names: list[str]) -> dict[int, np.ndarray]:
+    """``follow_flow``: the UV correction [T, h, w, 2] at working resolution of each foreground layer whose UV slips
+    against the fit's own flow (RUN_DIR/flow_cache) by more than ``MIN_SLIP_PX``, by layer index (``names``: the
+    layers' names, for the messages)."""
+    model, clip, cfg = fitted.model, fitted.clip, fitted.cfg
+    frames, (ww, wh) = clip.num_frames, clip.working_size
+    layers = list(range(1, model.num_layers))  # the foreground layers (0 is the background)
+    if frames < 2 or not layers:
+        return {}
+    cache = fitted.folder.flow_cache
+    flow = cached_flow(cache, frames, wh, ww, DISFlow(cfg.flow_preset).name, cfg.flow_threshold_px)
+    if flow is None:
+        raise InputError(
+            cache,
+            "holds no flow of this fit",
+            f"fit the run again (the fit writes its flow there), or export without {C.EXPORT_FOLLOW_FLOW_FLAG}",
+        )
+    job.reporter.emit(C.EVENT_STAGE, stage="follow-flow", message=f"{frames} frames of the layers' UV at working size")
+    xy = pixel_grid((ww, wh), (1.0, 1.0), next(model.parameters()).device)
+    uv = {i: np.empty((frames, wh, ww, 2), np.float32) for i in layers}
+    owned = {i: np.empty((frames, wh, ww), bool) for i in layers}
+    bar = job.bar(frames)
+    for t in range(frames):
+        uvs, wts = eval_pixels(model, xy, t)
+        for i in layers:
+            uv[i][t] = uvs[i].reshape(wh, ww, 2)
+            owned[i][t] = (wts[:, i] > FG_OWNED_ALPHA).reshape(wh, ww)
+        bar.update(1)
+    bar.close()
+    out = {}
+    for i in layers:
+        slip = layer_slip_px(uv[i], owned[i], flow)
+        follows = slip is not None and slip > MIN_SLIP_PX
+        said = "no pixel to judge" if slip is None else f"slips {slip:.2f} px against the flow"
+        job.reporter.emit(
+            C.EVENT_STAGE,
+            stage="follow-flow",
+            message=f"{names[i]}: {said}: {'following the flow' if follows else 'left as fitted'}",
+        )
+        if follows:
+            out[i] = follow_flow(uv[i], owned[i], flow)
+    return out
+
+
 def _write_passes(
-    job: _Job, fitted: FittedRun, plan: Plan, todo: list[int], dest: Path, bar: Any, written: Any = None
+    job: _Job,
+    fitted: FittedRun,
+    plan: Plan,
+    todo: list[int],
+    dest: Path,
+    bar: Any,
+    written: Any = None,
+    corrections: dict[int, np.ndarray] | None = None,
 ) -> None:
     """The UV + alpha passes of the run frames ``todo`` at native resolution into ``dest/passes``, each file
-    atomic (a frame's pass exists whole or not at all); ``written(path)`` is told of each."""
+    atomic (a frame's pass exists whole or not at all); ``written(path)`` is told of each. ``corrections``
+    (``_flow_corrections``) are added, upsampled, to their layers' UV."""
+    corrections = corrections or {}
     model, clip = fitted.model, fitted.clip
     device = next(model.parameters()).device
     job.reporter.emit(C.EVENT_STAGE, stage="passes", message=f"{len(todo)} frames of UV + alpha passes")
@@ -178,7 +247,10 @@ def _write_passes(
         uvs, wts = eval_pixels(model, xy_native, t)
         chans: dict[str, np.ndarray] = {}
         for i, name in enumerate(plan.names):
-            tex_uv, inside = plan.frames_by_layer[i].to_texture_uv(uvs[i])
+            uv = uvs[i]
+            if i in corrections:  # working size -> native, pixel centres on pixel centres
+                uv = uv + cv2.resize(corrections[i][t], (nw, nh), interpolation=cv2.INTER_LINEAR).reshape(-1, 2)
+            tex_uv, inside = plan.frames_by_layer[i].to_texture_uv(uv)
             a = wts[:, i]
             uv_pass, alpha_pass = C.uv_pass(name), C.alpha_pass(name)
             u_name, v_name, coverage_name = (C.channel_name(uv_pass, c) for c in C.UV_CHANNELS)
@@ -217,9 +289,10 @@ def _export_whole(job: _Job, atlas_size: int, frames: tuple[int, int] | None, ve
     try:
         bar = job.bar(clip.num_frames + out.frames)
         plan, cov = plan_export(job.reporter, fitted, atlas_size, frames, bar)
+        corrections = _flow_corrections(job, fitted, plan.names) if job.follow_flow else None
         final, staging = out.begin(version)
         _write_atlases(fitted, plan, cov, staging)
-        _write_passes(job, fitted, plan, plan.selected, staging, bar, out.pass_written)
+        _write_passes(job, fitted, plan, plan.selected, staging, bar, out.pass_written, corrections)
         bar.close()
         _publish(job, fitted, plan, out)
     except BaseException as exc:

@@ -35,6 +35,9 @@ VERB_REALIGN = "realign"
 EXPORT_INTO_ARG = "--into"
 EXPORT_STAGE_ARG = "--stage"
 EXPORT_STAGES: tuple[str, ...] = ("atlases", "passes", "publish")
+#: ``export RUN --follow-flow``: each foreground layer's UV averaged along the fit's optical flow where it slips
+#: against it, so paint follows a deforming body from frame to frame (a whole export only, not ``--stage``).
+EXPORT_FOLLOW_FLOW_FLAG = "--follow-flow"
 #: ``fit ... --resume-if-started``: a retried farm task: continue the checkpoint of this same fit in RUN_DIR, leave
 #: a finished one as it is (exit 0), or start it.
 FIT_RESUME_IF_STARTED_FLAG = "--resume-if-started"
@@ -74,6 +77,7 @@ __all__ = [
     "EXIT_DIVERGED",
     "EXIT_FAILED",
     "EXIT_OK",
+    "EXPORT_FOLLOW_FLOW_FLAG",
     "EXPORT_INTO_ARG",
     "EXPORT_STAGES",
     "EXPORT_STAGE_ARG",

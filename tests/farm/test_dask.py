@@ -42,10 +42,11 @@ FIT_SETS = [
     "checkpoint_seconds=0.3",
 ]
 FRAMES = 8
-#: Bounds of the waits (the machine is shared and slow; each is far above what a run needs).
-CHECKPOINT_WAIT = 90.0
-CHILD_EXIT_WAIT = 30.0
-PLAN_WAIT = 150.0
+#: Bounds of the waits: hang guards, not timings. The suite runs a test file per core, so another file's fits share
+#: the machine; the whole plan took 280 s with the machine loaded five deep.
+CHECKPOINT_WAIT = 300.0
+CHILD_EXIT_WAIT = 60.0
+PLAN_WAIT = 600.0
 
 
 def write_shots(tmp: Path) -> Path:

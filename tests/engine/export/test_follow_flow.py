@@ -1,0 +1,138 @@
+"""``export --follow-flow``: a layer's UV averaged along the flow (engine/export/follow_flow.py), on arrays whose
+answer is known, then through a real export of a tiny fit."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+
+from engine import contract as C
+from engine.data.flow import FlowField
+from engine.errors import InputError
+from engine.export import exporter
+from engine.export import follow_flow as FF
+from engine.export.manifest import Manifest
+from tests.engine.export.tiny_run import export, make_run
+
+T, H, W = 8, 40, 56
+SPEED = np.array([1.5, -0.5], np.float32)  # px per frame
+UV_PER_PX = 0.01
+
+
+def _flow(ok: bool = True) -> FlowField:
+    """A whole-frame translation by SPEED: forward carries frame t to t+1, backward t+1 to t."""
+    fwd = np.broadcast_to(SPEED, (T - 1, H, W, 2)).astype(np.float32)
+    oks = np.full((T - 1, H, W), ok)
+    return FlowField(fwd, -fwd, oks, oks.copy(), "dis-medium", 1.0)
+
+
+def _true_uv() -> np.ndarray:
+    """The UV of an ideal atlas of that translation: a point keeps its UV in every frame."""
+    gy, gx = np.mgrid[0:H, 0:W].astype(np.float32)
+    t = np.arange(T, dtype=np.float32)[:, None, None]
+    return np.stack((gx[None] - SPEED[0] * t, gy[None] - SPEED[1] * t), -1) * UV_PER_PX
+
+
+def _inner() -> np.ndarray:
+    """Owned pixels away from the frame's edge (a lookup there lands outside the frame in some frame)."""
+    owned = np.zeros((T, H, W), bool)
+    owned[:, 6:-6, 14:-14] = True
+    return owned
+
+
+def test_uv_that_follows_the_flow_is_judged_still_and_left_alone():
+    uv, owned = _true_uv(), _inner()
+    assert FF.layer_slip_px(uv, owned, _flow()) == pytest.approx(0.0, abs=1e-3)
+    assert np.abs(FF.follow_flow(uv, owned, _flow())).max() < 1e-5
+
+
+def test_per_frame_jitter_is_measured_in_pixels_and_mostly_averaged_away():
+    """Each frame's UV off by a random shift (the slip of a mapping too smooth to follow the body): the slip is
+    the frame-to-frame difference in pixels, and the filtered UV keeps under half of the jitter."""
+    rng = np.random.default_rng(0)
+    jitter_px = rng.normal(0.0, 2.0, (T, 1, 1, 2)).astype(np.float32)
+    truth, owned = _true_uv(), _inner()
+    uv = truth + jitter_px * UV_PER_PX
+    steps = np.linalg.norm(np.diff(jitter_px[:, 0, 0], axis=0), axis=-1)
+    assert FF.layer_slip_px(uv, owned, _flow()) == pytest.approx(float(np.median(steps)), rel=0.02)
+    out = uv + FF.follow_flow(uv, owned, _flow())
+
+    def per_frame_error_px(field: np.ndarray) -> np.ndarray:  # [T, 2]: each frame's mean UV error, in pixels
+        return np.stack([(field[t] - truth[t])[owned[t]].mean(0) for t in range(T)]) / UV_PER_PX
+
+    before, after = per_frame_error_px(uv), per_frame_error_px(out)
+    # a shift common to every frame is the atlas's own gauge, not a slip: what varies from frame to frame is
+    assert np.abs(np.diff(after, axis=0)).mean() < 0.5 * np.abs(np.diff(before, axis=0)).mean()
+
+
+def test_pixels_the_layer_does_not_own_are_untouched_and_never_mixed_in():
+    """UV outside the layer is garbage (another layer's, or nothing's): the correction there is exactly zero and
+    no garbage reaches the owned pixels through a bilinear read at the outline."""
+    uv, owned = _true_uv(), _inner()
+    uv[~owned] = 1e6
+    corr = FF.follow_flow(uv, owned, _flow())
+    assert np.all(corr[~owned] == 0.0)
+    assert np.abs(corr[owned]).max() < 1e-4
+
+
+def test_flow_that_failed_its_check_is_not_followed():
+    rng = np.random.default_rng(1)
+    uv = _true_uv() + rng.normal(0.0, 0.02, (T, 1, 1, 2)).astype(np.float32)
+    owned = _inner()
+    assert FF.layer_slip_px(uv, owned, _flow(ok=False)) is None
+    assert np.all(FF.follow_flow(uv, owned, _flow(ok=False)) == 0.0)
+
+
+def test_weight_zero_a_single_frame_or_nothing_owned_change_nothing():
+    uv, owned = _true_uv(), _inner()
+    assert np.all(FF.follow_flow(uv, owned, _flow(), weight=0.0) == 0.0)
+    assert np.all(FF.follow_flow(uv[:1], owned[:1], _flow()) == 0.0)
+    none = np.zeros_like(owned)
+    assert np.all(FF.follow_flow(uv, none, _flow()) == 0.0)
+    assert FF.layer_slip_px(uv, none, _flow()) is None
+    with pytest.raises(ValueError, match="weight"):
+        FF.follow_flow(uv, owned, _flow(), weight=1.0)
+
+
+def test_uv_scale_per_pixel_and_its_guards():
+    uv, owned = _true_uv(), _inner()
+    assert FF.uv_per_px(uv[0], owned[0]) == pytest.approx(UV_PER_PX, rel=1e-4)
+    assert FF.uv_per_px(uv[0], np.zeros((H, W), bool)) is None
+    assert FF.uv_per_px(np.zeros_like(uv[0]), owned[0]) == FF.MIN_UV_PER_PX  # a collapsed map: no division by 0
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    _, _, run = make_run(tmp_path_factory.mktemp("follow_flow"))
+    return run
+
+
+@pytest.mark.slow
+def test_the_export_follows_the_flow_on_foreground_layers_only(tiny, monkeypatch):
+    """The wiring: the tiny fit's foreground weight is about 0.42 everywhere, so with the ownership threshold
+    below it and the gate at 0 its layer owns the frame and is filtered. Its UV moves; the background's passes and
+    every alpha are the plain export's, bit for bit. (What it does to paint: the bench's paint table.)"""
+    plain = Manifest(export(tiny))
+    monkeypatch.setattr(exporter, "MIN_SLIP_PX", 0.0)
+    monkeypatch.setattr(exporter, "FG_OWNED_ALPHA", 0.4)
+    followed = Manifest(export(tiny, follow_flow=True))
+    moved = 0.0
+    for number in plain.frames:
+        a, b = plain.read_passes(number), followed.read_passes(number)
+        assert np.array_equal(a[0].uv, b[0].uv) and np.array_equal(a[0].z, b[0].z)  # the background
+        for la, lb in zip(a[1:], b[1:], strict=True):
+            assert np.array_equal(la.alpha, lb.alpha)
+            moved = max(moved, float(np.abs(la.uv - lb.uv).max()))
+    assert moved > 0.0
+
+
+@pytest.mark.slow
+def test_follow_flow_is_refused_in_one_line_with_a_stage_or_without_the_fits_flow(tiny, tmp_path):
+    with pytest.raises(InputError, match=f"{C.EXPORT_FOLLOW_FLOW_FLAG} with {C.EXPORT_STAGE_ARG}"):
+        export(tiny, follow_flow=True, into="v009", stage=C.EXPORT_STAGES[0])
+    bare = shutil.copytree(tiny, tmp_path / "run", ignore=shutil.ignore_patterns(C.FLOW_CACHE_DIR, C.EXPORTS_DIR))
+    with pytest.raises(InputError, match="holds no flow of this fit") as err:
+        export(bare, follow_flow=True)
+    assert C.FLOW_CACHE_DIR in str(err.value) and not (bare / C.EXPORTS_DIR / "v001").exists()
