@@ -50,7 +50,7 @@ def test_uv_that_follows_the_flow_is_judged_still_and_left_alone():
 
 def test_per_frame_jitter_is_measured_in_pixels_and_mostly_averaged_away():
     """Each frame's UV off by a random shift (the slip of a mapping too smooth to follow the body): the slip is
-    the frame-to-frame difference in pixels, and the filtered UV keeps under half of the jitter."""
+    the frame-to-frame difference in pixels, and the filtered UV keeps under half of that frame-to-frame change."""
     rng = np.random.default_rng(0)
     jitter_px = rng.normal(0.0, 2.0, (T, 1, 1, 2)).astype(np.float32)
     truth, owned = _true_uv(), _inner()
@@ -63,7 +63,7 @@ def test_per_frame_jitter_is_measured_in_pixels_and_mostly_averaged_away():
         return np.stack([(field[t] - truth[t])[owned[t]].mean(0) for t in range(T)]) / UV_PER_PX
 
     before, after = per_frame_error_px(uv), per_frame_error_px(out)
-    # a shift common to every frame is the atlas's own gauge, not a slip: what varies from frame to frame is
+    # a shift common to every frame is the atlas's own gauge, not a slip: the slip is what changes between frames
     assert np.abs(np.diff(after, axis=0)).mean() < 0.5 * np.abs(np.diff(before, axis=0)).mean()
 
 
