@@ -3,8 +3,10 @@
 The compositor's Mask node (feather off, the scene's size) renders the mask exactly at pixel centres
 (docs/blender-compat.md); it runs in a temporary scene so the artist's scene and compositor stay untouched.
 Animated masks: layer shape keys (what the clip editor's mask tools key) are evaluated by an animation
-render; F-curves are written into the datablock frame by frame. Both are exact on every supported version
-(tests/addon/test_blender.py); a mask animated both ways at once is not supported.
+render; F-curves are evaluated frame by frame and written into a temporary copy without animation data (the
+artist's mask is never written, and no depsgraph update can put a stale frame's values back before the render).
+Both are exact on every supported version (tests/addon/test_blender.py); a mask animated both ways at once is not
+supported.
 """
 
 from __future__ import annotations
@@ -20,15 +22,15 @@ from .core import tree_plan as P
 TEMP_SCENE = f"{P.PREFIX}MaskRaster"
 
 
-def _apply_fcurves(mask: Any, frame: int) -> None:
-    """Write the mask's F-curve values at ``frame`` into the datablock the compositor reads.
+def _apply_fcurves(source: Any, target: Any, frame: int) -> None:
+    """Write ``source``'s F-curve values at ``frame`` into ``target`` (a copy of it), the datablock the node reads.
 
     The Mask node reads the original datablock; outside the window's scene its animation is not (4.x) or
     one frame late (frame_set in a second scene) evaluated into it, so the add-on evaluates it here.
     """
-    for fc in compat.action_fcurves(mask):
+    for fc in compat.action_fcurves(source):
         try:
-            prop = mask.path_resolve(fc.data_path)
+            prop = target.path_resolve(fc.data_path)
         except ValueError:
             continue
         value = fc.evaluate(frame)
@@ -36,7 +38,7 @@ def _apply_fcurves(mask: Any, frame: int) -> None:
             prop[fc.array_index] = value  # an array property (a point's co, a handle)
         except TypeError:  # a single value
             owner_path, _, attr = fc.data_path.rpartition(".")
-            setattr(mask.path_resolve(owner_path) if owner_path else mask, attr, value)
+            setattr(target.path_resolve(owner_path) if owner_path else target, attr, value)
 
 
 def rasterize(mask: Any, width: int, height: int, scene_frames: list[int], out_dir: str, names: list[str]) -> list[str]:
@@ -47,6 +49,7 @@ def rasterize(mask: Any, width: int, height: int, scene_frames: list[int], out_d
         bpy.data.scenes.remove(old)
     scene = bpy.data.scenes.new(TEMP_SCENE)
     paths = []
+    copy = None
     try:
         tree = compat.scene_tree(scene)
         node = tree.nodes.new("CompositorNodeMask")
@@ -73,10 +76,13 @@ def rasterize(mask: Any, width: int, height: int, scene_frames: list[int], out_d
                 paths.append(os.path.join(os.path.abspath(out_dir), name))
                 os.replace(os.path.join(out_dir, f"raw_{frame:05d}"), paths[-1])
             return paths
-        # F-curves: written into the datablock frame by frame (see _apply_fcurves)
+        # F-curves: evaluated frame by frame into a copy that has no animation of its own (see _apply_fcurves)
+        copy = mask.copy()
+        copy.animation_data_clear()
+        node.mask = copy
         for frame, name in zip(scene_frames, names, strict=True):
             scene.frame_set(frame)
-            _apply_fcurves(mask, frame)
+            _apply_fcurves(mask, copy, frame)
             r.filepath = os.path.join(os.path.abspath(out_dir), name)
             result = bpy.ops.render.render(write_still=True, scene=scene.name)
             if "FINISHED" not in result:
@@ -84,4 +90,6 @@ def rasterize(mask: Any, width: int, height: int, scene_frames: list[int], out_d
             paths.append(r.filepath)
     finally:
         bpy.data.scenes.remove(scene)
+        if copy is not None:
+            bpy.data.masks.remove(copy)
     return paths
