@@ -80,6 +80,12 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
         "e.g. steps=2000 (advanced; python -m engine fit --help-config lists the keys)",
         update=_forget_estimate,
     )
+    follow_flow: BoolProperty(
+        name="Follow Flow",
+        default=True,
+        description="Export: average each foreground layer's UV along the fit's optical flow where it slips "
+        "against it, so paint follows legs and bending bodies from frame to frame (off: the atlas's UV as fitted)",
+    )
     refine_steps: IntProperty(
         name="Steps",
         default=1000,

@@ -113,6 +113,7 @@ class NEURALATLAS_PT_fit(_SidebarPanel, bpy.types.Panel):
         col.prop(props, "long_edge")
         col.prop(props, "preset")
         col.prop(props, "overrides")
+        col.prop(props, "follow_flow")
         text = _estimate_text(props)
         if text:
             row = col.row()

@@ -106,8 +106,10 @@ def realign_argv(python: str, run_dir: str) -> list[str]:
     return engine_argv(python, C.VERB_REALIGN, run_dir)
 
 
-def export_argv(python: str, run_dir: str) -> list[str]:
-    return engine_argv(python, C.VERB_EXPORT, run_dir)
+def export_argv(python: str, run_dir: str, follow_flow: bool = True) -> list[str]:
+    """``export RUN``: with the engine's default (the UV follows the flow where the fit's flow is there), or the
+    UV as fitted (``follow_flow`` False: ``--no-follow-flow``)."""
+    return engine_argv(python, C.VERB_EXPORT, run_dir, *([] if follow_flow else [C.EXPORT_NO_FOLLOW_FLOW_FLAG]))
 
 
 def masks_argv(python: str, plate: str, out_dir: str, first: int, last: int) -> list[str]:

@@ -77,6 +77,8 @@ class FarmShot:
     sets: tuple[str, ...]
     run_dir: str
     colorspace: str | None = None
+    follow_flow: bool = True
+    """False: the export's UV as fitted (the shots file's ``follow_flow``, ``export --no-follow-flow``)."""
 
     @property
     def auto_masks(self) -> bool:
@@ -124,11 +126,10 @@ def shots_document(shot: FarmShot) -> dict[str, object]:
         entry["colorspace"] = shot.colorspace
     entry["run"] = shot.run_dir
     assert set(entry) <= set(C.SHOT_KEYS)
-    return {
-        C.SHOTS_TAG: C.SHOTS_VERSION,
-        C.SHOTS_DEFAULTS_KEY: {"preset": shot.preset, "set": list(shot.sets)},
-        C.SHOTS_LIST_KEY: [entry],
-    }
+    defaults: dict[str, object] = {"preset": shot.preset, "set": list(shot.sets)}
+    if not shot.follow_flow:
+        defaults["follow_flow"] = False
+    return {C.SHOTS_TAG: C.SHOTS_VERSION, C.SHOTS_DEFAULTS_KEY: defaults, C.SHOTS_LIST_KEY: [entry]}
 
 
 def write_shots_file(shot: FarmShot, path: str) -> str:

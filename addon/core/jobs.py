@@ -135,10 +135,16 @@ class FitJob(Job):
     whole = "fit"
 
     def __init__(
-        self, python: str, run_dir: str, clip: Callable[[], EC.ClipInputs] | None, preset: str, sets: list[str]
+        self,
+        python: str,
+        run_dir: str,
+        clip: Callable[[], EC.ClipInputs] | None,
+        preset: str,
+        sets: list[str],
+        follow_flow: bool = True,
     ):
         """``clip`` gathers the inputs (rasterising masks and scribbles) once the Run Folder is known to be free;
-        None resumes the fit in ``run_dir``."""
+        None resumes the fit in ``run_dir``. ``follow_flow``: the export's (``EC.export_argv``)."""
         files = RunFiles(run_dir)
         self.run_dir = run_dir
         if clip is None:
@@ -150,7 +156,7 @@ class FitJob(Job):
                 again = "Refine it" if files.has_finished_fit() else "Resume it"
                 raise UserError(f"{run_dir} already holds a fit: {again}, or choose another Run Folder")
             fit = EC.fit_argv(python, clip(), run_dir, preset, sets)
-        commands = [Command("fit", fit), Command("export", EC.export_argv(python, run_dir))]
+        commands = [Command("fit", fit), Command("export", EC.export_argv(python, run_dir, follow_flow))]
         super().__init__(commands, files.fit_log, EC.engine_env(), keep_log=clip is None)
         self.manifest: str | None = None
         #: a resume's bar starts where the stopped fit's was (its last whole-job fraction in the log), before the
@@ -198,8 +204,9 @@ class RefineJob(FitJob):
     """Refine: ``engine fit --refine`` of the finished fit, ``engine export``, then ``engine realign``, which carries
     the edit layers from the export they were painted on onto the new one; the result names the new manifest."""
 
-    def __init__(self, python: str, run_dir: str, steps: int, preset: str | None = None):
-        """``steps`` more steps (0: on to ``preset``'s budget); ``preset``: its schedule (None: the fit's own)."""
+    def __init__(self, python: str, run_dir: str, steps: int, preset: str | None = None, follow_flow: bool = True):
+        """``steps`` more steps (0: on to ``preset``'s budget); ``preset``: its schedule (None: the fit's own);
+        ``follow_flow``: the export's (``EC.export_argv``)."""
         files = RunFiles(run_dir)
         if not files.has_finished_fit():
             raise UserError(f"{run_dir} holds no finished fit to refine (Fit Atlas first, or Resume it)")
@@ -208,7 +215,7 @@ class RefineJob(FitJob):
         self.run_dir = run_dir
         commands = [
             Command("fit", EC.refine_argv(python, run_dir, steps, preset)),
-            Command("export", EC.export_argv(python, run_dir)),
+            Command("export", EC.export_argv(python, run_dir, follow_flow)),
             Command("realign", EC.realign_argv(python, run_dir)),
         ]
         Job.__init__(self, commands, files.fit_log, EC.engine_env(), keep_log=True)

@@ -63,7 +63,7 @@ class NEURALATLAS_OT_fit(EngineJobOperator, bpy.types.Operator):
         props = context.scene.neural_atlas
         python, files = I.engine_python(context), RunFiles(I.run_dir(props))
         clip = None if self.resume else lambda: I.clip_inputs(props, files)
-        return FitJob(python, files.run_dir, clip, props.preset, I.sets(props))
+        return FitJob(python, files.run_dir, clip, props.preset, I.sets(props), props.follow_flow)
 
     def finish(self, context, job: FitJob, result: EP.JobResult) -> set[str]:
         props = context.scene.neural_atlas

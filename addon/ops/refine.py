@@ -58,7 +58,7 @@ class NEURALATLAS_OT_refine(EngineJobOperator, bpy.types.Operator):
         props = context.scene.neural_atlas
         python, run_dir = I.engine_python(context), I.run_dir(props)
         preset = None if props.refine_preset == REFINE_SAME_PRESET else props.refine_preset
-        job = RefineJob(python, run_dir, props.refine_steps, preset)
+        job = RefineJob(python, run_dir, props.refine_steps, preset, props.follow_flow)
         try:
             paint.save_before_reload(ACTION)  # the engine carries over what is in the files
         except (ValueError, OSError) as exc:

@@ -144,4 +144,5 @@ def farm_shot(props: Any, files: RunFiles) -> FM.FarmShot:
         sets=FM.set_items(props.long_edge, props.overrides),
         run_dir=files.run_dir,
         colorspace=FM.engine_colorspace(clip.colorspace_settings.name),
+        follow_flow=props.follow_flow,
     )

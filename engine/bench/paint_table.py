@@ -109,11 +109,11 @@ def fit_and_export(
     threads: int | None,
     log_path: Path,
     scribbles: Path | None = None,
-    follow_flow: bool = False,
+    follow_flow: bool = True,
 ) -> Path:
     """Fit (or continue, or leave a finished fit: ``--resume-if-started``) with one layer per mask folder (or the
-    one mask split by ``scribbles``) and export into ``EXPORT_VERSION`` (``follow_flow``: ``export --follow-flow``);
-    returns the manifest's path."""
+    one mask split by ``scribbles``) and export into ``EXPORT_VERSION`` (``follow_flow``: ``export --follow-flow``,
+    else ``--no-follow-flow``); returns the manifest's path."""
     set_args = [a for kv in sets for a in ("--set", kv)]
     mask_args = [a for m in masks for a in ("--mask", str(m))]
     scribble_args = [C.SCRIBBLE_ARG, str(scribbles)] if scribbles is not None else []
@@ -122,7 +122,7 @@ def fit_and_export(
          C.FIT_RESUME_IF_STARTED_FLAG, "--no-bar", *set_args],
         log_path, threads,
     )  # fmt: skip
-    follow = [C.EXPORT_FOLLOW_FLOW_FLAG] if follow_flow else []
+    follow = [C.EXPORT_FOLLOW_FLOW_FLAG if follow_flow else C.EXPORT_NO_FOLLOW_FLOW_FLAG]
     out = _engine([C.VERB_EXPORT, str(run), C.EXPORT_INTO_ARG, EXPORT_VERSION, "--no-bar", *follow], log_path, threads)
     lines = [line for line in out.strip().splitlines() if line.strip()]
     if not lines:
@@ -255,7 +255,7 @@ def run_paint_table(
     parts: bool = False,
     scribbles: bool = False,
     scribble_frames: int = 3,
-    follow_flow: bool = False,
+    follow_flow: bool = True,
     command: list[str] | None = None,
     log: Log | None = None,
 ) -> dict:
@@ -265,7 +265,7 @@ def run_paint_table(
     foreground is every layer after the background). ``scribbles``: such a clip is fitted the product's way
     instead, its one mask split by strokes drawn from the part masks on ``scribble_frames`` frames spread evenly from
     the first to the last (3: first, middle, last; ``part_scribbles``). ``follow_flow``: exported with
-    ``export --follow-flow``."""
+    ``export --follow-flow`` (the product's default), else ``--no-follow-flow``."""
     say = log or (lambda line: print(line, file=sys.stderr, flush=True))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -351,11 +351,22 @@ def _add_paint_table_parser(sub: argparse._SubParsersAction) -> None:
         metavar="N",
         help="with --scribbles: frames with strokes, spread evenly from the first to the last (default: 3)",
     )
-    pt.add_argument(
+    follow = pt.add_mutually_exclusive_group()
+    follow.add_argument(
         C.EXPORT_FOLLOW_FLOW_FLAG,
         dest="follow_flow",
-        action="store_true",
-        help="export with the engine's --follow-flow (each foreground layer's UV averaged along the fit's flow)",
+        action="store_const",
+        const=True,
+        default=True,
+        help="export with the engine's --follow-flow (each foreground layer's UV averaged along the fit's flow "
+        "where it slips against it; the default)",
+    )
+    follow.add_argument(
+        C.EXPORT_NO_FOLLOW_FLOW_FLAG,
+        dest="follow_flow",
+        action="store_const",
+        const=False,
+        help="export with --no-follow-flow (each layer's UV as fitted)",
     )
 
 

@@ -29,7 +29,7 @@ import numpy as np
 from tqdm import tqdm
 
 from .. import contract as C
-from ..data.flow import DISFlow, cached_flow
+from ..data.flow import DISFlow, FlowField, cached_flow
 from ..errors import InputError
 from ..fit.fitted_run import FittedRun, load_fitted
 from ..fit.progress import Reporter
@@ -43,9 +43,10 @@ from .manifest_writer import _write_nuke_script, build_manifest
 from .pass_files import pass_file, stmap_values
 from .plan import Plan, plan_export, read_layout, selected_frames
 from .sampling import atlas_colours, eval_pixels, pixel_grid
-from .stage_record import STAGE_RECORD, fit_source
+from .stage_record import DAMAGED_FIX, STAGE_RECORD, fit_source
 from .stage_record import read_stage as _read_stage
 from .staging import (
+    FOLLOW_FLOW_DIR,
     ExportOutput,
     chunks_folder,
     export_version,
@@ -70,7 +71,7 @@ def export_run(
     stream: Any = None,
     into: str | None = None,
     stage: str | None = None,
-    follow_flow: bool = False,
+    follow_flow: bool | None = None,
 ) -> Path:
     """Export ``run_dir``; returns the path of the manifest.json written. Reads the run folder only (its
     ``clip.json`` says what export needs of the clip): the plate is not decoded. Holds the run folder's lock for
@@ -85,8 +86,11 @@ def export_run(
     (every pass present: edit layers, manifest and Nuke script as a whole export writes them, then the folder
     becomes ``vNNN``). The staged export's files are those of a whole export of the same run, byte for byte.
     ``atlas_size`` None: the default (publish: the staged one). ``follow_flow``: each foreground layer's UV averaged
-    along the fit's optical flow where it slips against it (``engine.export.follow_flow``); a whole export only (a
-    version ``into`` already holds is returned as it is, as without it)."""
+    along the fit's optical flow where it slips against it (``engine.export.follow_flow``): None (the default) when
+    the run holds the fit's flow, True insists (refused without it), False exports the UV as fitted. A staged
+    export decides it in its atlases stage; its passes and publish follow the record (asked otherwise: refused). A
+    version ``into`` already holds is returned as it is, whatever is asked.
+    """
     run_dir = Path(run_dir).resolve()
     low, high = C.ATLAS_SIZE_RANGE
     if atlas_size is not None and not low <= atlas_size <= high:
@@ -99,12 +103,6 @@ def export_run(
             None,
             f"{C.EXPORT_STAGE_ARG} {stage} without {C.EXPORT_INTO_ARG}",
             f"name the version its stages share: {C.EXPORT_INTO_ARG} {C.EXPORT_VERSION_FORMAT.format(1)}",
-        )
-    if follow_flow and stage is not None:
-        raise InputError(
-            None,
-            f"{C.EXPORT_FOLLOW_FLOW_FLAG} with {C.EXPORT_STAGE_ARG}",
-            f"a staged export does not follow the flow yet: export the run whole, without {C.EXPORT_STAGE_ARG}",
         )
     RunFolder(run_dir).require_fit()
     job = _Job(run_dir, device_name, progress_bar, stream, follow_flow)
@@ -143,7 +141,7 @@ class _Job:
     device_name: str
     progress_bar: bool
     stream: Any
-    follow_flow: bool = False
+    follow_flow: bool | None = None
 
     def __post_init__(self) -> None:
         self.reporter = Reporter(stream=self.stream)
@@ -177,38 +175,50 @@ def _write_atlases(fitted: FittedRun, plan: Plan, cov: list[_Coverage], dest: Pa
         )
 
 
-def _flow_corrections(job: _Job, fitted: FittedRun, names: list[str]) -> dict[int, np.ndarray]:
-    """``follow_flow``: the UV correction [T, h, w, 2] at working resolution of each foreground layer whose UV slips
-    against the fit's own flow (RUN_DIR/flow_cache) by more than ``MIN_SLIP_PX``, by layer index (``names``: the
-    layers' names, for the messages)."""
+class _WorkingUV:
+    """The foreground layers' UV and ownership at working size, every frame, kept from the evaluation the atlas
+    plan makes anyway (``plan_export``'s ``on_frame``): what ``follow_flow`` filters. Memory: 9 bytes per working
+    pixel per frame per foreground layer."""
+
+    def __init__(self, frames: int, size: tuple[int, int], layers: int) -> None:
+        w, h = size
+        self.size = (h, w)
+        self.uv = {i: np.empty((frames, h, w, 2), np.float32) for i in range(1, layers)}
+        self.owned = {i: np.empty((frames, h, w), bool) for i in range(1, layers)}
+
+    def add(self, t: int, uvs: list[np.ndarray], wts: np.ndarray) -> None:
+        for i in self.uv:
+            self.uv[i][t] = uvs[i].reshape(*self.size, 2)
+            self.owned[i][t] = (wts[:, i] > FG_OWNED_ALPHA).reshape(self.size)
+
+
+def _follow_source(job: _Job, fitted: FittedRun) -> tuple[FlowField, _WorkingUV] | None:
+    """The fit's flow (``RUN_DIR/flow_cache``) and an empty ``_WorkingUV`` when this export follows the flow; None
+    when it does not: asked not to, nothing to follow (one frame, no foreground layer), or (unless it was insisted
+    on: refused in one line) the run holds no flow of this fit."""
     model, clip, cfg = fitted.model, fitted.clip, fitted.cfg
-    frames, (ww, wh) = clip.num_frames, clip.working_size
-    layers = list(range(1, model.num_layers))  # the foreground layers (0 is the background)
-    if frames < 2 or not layers:
-        return {}
-    cache = fitted.folder.flow_cache
-    flow = cached_flow(cache, frames, wh, ww, DISFlow(cfg.flow_preset).name, cfg.flow_threshold_px)
+    if job.follow_flow is False or clip.num_frames < 2 or model.num_layers < 2:
+        return None
+    (ww, wh), cache = clip.working_size, fitted.folder.flow_cache
+    flow = cached_flow(cache, clip.num_frames, wh, ww, DISFlow(cfg.flow_preset).name, cfg.flow_threshold_px)
     if flow is None:
-        raise InputError(
-            cache,
-            "holds no flow of this fit",
-            f"fit the run again (the fit writes its flow there), or export without {C.EXPORT_FOLLOW_FLOW_FLAG}",
-        )
-    job.reporter.emit(C.EVENT_STAGE, stage="follow-flow", message=f"{frames} frames of the layers' UV at working size")
-    xy = pixel_grid((ww, wh), (1.0, 1.0), next(model.parameters()).device)
-    uv = {i: np.empty((frames, wh, ww, 2), np.float32) for i in layers}
-    owned = {i: np.empty((frames, wh, ww), bool) for i in layers}
-    bar = job.bar(frames)
-    for t in range(frames):
-        uvs, wts = eval_pixels(model, xy, t)
-        for i in layers:
-            uv[i][t] = uvs[i].reshape(wh, ww, 2)
-            owned[i][t] = (wts[:, i] > FG_OWNED_ALPHA).reshape(wh, ww)
-        bar.update(1)
-    bar.close()
+        if job.follow_flow:
+            raise InputError(
+                cache,
+                "holds no flow of this fit",
+                f"fit the run again (the fit writes its flow there), or export with {C.EXPORT_NO_FOLLOW_FLOW_FLAG}",
+            )
+        print(f"warning: {cache} holds no flow of this fit: the layers' UV is exported as fitted", file=sys.stderr)
+        return None
+    return flow, _WorkingUV(clip.num_frames, clip.working_size, model.num_layers)
+
+
+def _flow_corrections(job: _Job, names: list[str], flow: FlowField, working: _WorkingUV) -> dict[int, np.ndarray]:
+    """The UV correction [T, h, w, 2] at working resolution of each foreground layer whose UV slips against the
+    fit's flow by more than ``MIN_SLIP_PX``, by layer index (``names``: the layers' names, for the messages)."""
     out = {}
-    for i in layers:
-        slip = layer_slip_px(uv[i], owned[i], flow)
+    for i in working.uv:
+        slip = layer_slip_px(working.uv[i], working.owned[i], flow)
         follows = slip is not None and slip > MIN_SLIP_PX
         said = "no pixel to judge" if slip is None else f"slips {slip:.2f} px against the flow"
         job.reporter.emit(
@@ -217,8 +227,24 @@ def _flow_corrections(job: _Job, fitted: FittedRun, names: list[str]) -> dict[in
             message=f"{names[i]}: {said}: {'following the flow' if follows else 'left as fitted'}",
         )
         if follows:
-            out[i] = follow_flow(uv[i], owned[i], flow)
+            out[i] = follow_flow(working.uv[i], working.owned[i], flow)
     return out
+
+
+def _plan(
+    job: _Job, fitted: FittedRun, atlas_size: int, frames: tuple[int, int] | None, bar: Any
+) -> tuple[Plan, list[_Coverage], dict[int, np.ndarray]]:
+    """The atlas plan, and the flow-following UV corrections by layer (``_flow_corrections``) when the export
+    follows the flow (``plan.follow_flow``, ``plan.follows``)."""
+    source = _follow_source(job, fitted)
+    if source is None:
+        plan, cov = plan_export(job.reporter, fitted, atlas_size, frames, bar)
+        return plan, cov, {}
+    flow, working = source
+    plan, cov = plan_export(job.reporter, fitted, atlas_size, frames, bar, working.add)
+    corrections = _flow_corrections(job, plan.names, flow, working)
+    plan.follow_flow, plan.follows = True, frozenset(corrections)
+    return plan, cov, corrections
 
 
 def _write_passes(
@@ -288,8 +314,7 @@ def _export_whole(job: _Job, atlas_size: int, frames: tuple[int, int] | None, ve
     out = ExportOutput(fitted.folder, clip.native_size, fitted.model.num_layers, len(selected_frames(clip, frames)))
     try:
         bar = job.bar(clip.num_frames + out.frames)
-        plan, cov = plan_export(job.reporter, fitted, atlas_size, frames, bar)
-        corrections = _flow_corrections(job, fitted, plan.names) if job.follow_flow else None
+        plan, cov, corrections = _plan(job, fitted, atlas_size, frames, bar)
         final, staging = out.begin(version)
         _write_atlases(fitted, plan, cov, staging)
         _write_passes(job, fitted, plan, plan.selected, staging, bar, out.pass_written, corrections)
@@ -324,7 +349,9 @@ def _publish(job: _Job, fitted: FittedRun, plan: Plan, out: ExportOutput) -> Non
             layout["layers"][name] = {"atlas_box": list(fr.box), "atlas_size": list(fr.size)}
     if json.dumps(layout, indent=2) != recorded or not (edits_dir / C.EDITS_LAYOUT).exists():
         atomic_write_text(out.stage_edit(edits_dir / C.EDITS_LAYOUT), json.dumps(layout, indent=2))
-    manifest = build_manifest(job.run_dir, out.final, fitted, plan.names, plan.frames_by_layer, plan.selected)
+    manifest = build_manifest(
+        job.run_dir, out.final, fitted, plan.names, plan.frames_by_layer, plan.selected, plan.follows
+    )
     C.validate_manifest(manifest)
     atomic_write_text(out.staging / C.MANIFEST_NAME, json.dumps(manifest, indent=2))
     _write_nuke_script(out.staging, manifest)
@@ -345,6 +372,7 @@ def _export_atlases(job: _Job, version: str, atlas_size: int, frames: tuple[int,
         require_same_fit(job.run_dir, chunks, version, record, source)
         clip = RunFolder(job.run_dir).read_clip()
         numbers = [clip.frame_numbers[t] for t in selected_frames(clip, frames)]
+        _require_same_follow(job, chunks, version, record)
         if [numbers[0], numbers[-1]] != list(record["frames"]) or atlas_size != record["atlas_size"]:
             first, last = record["frames"]
             raise InputError(
@@ -356,18 +384,49 @@ def _export_atlases(job: _Job, version: str, atlas_size: int, frames: tuple[int,
         return chunks
     fitted = job.load()
     bar = job.bar(fitted.clip.num_frames)
-    plan, cov = plan_export(job.reporter, fitted, atlas_size, frames, bar)
+    plan, cov, corrections = _plan(job, fitted, atlas_size, frames, bar)
     bar.close()
     shutil.rmtree(chunks, ignore_errors=True)  # a killed atlases stage's leftover (no record: no pass was written)
     chunks.mkdir(parents=True)
     try:
         _write_atlases(fitted, plan, cov, chunks)
+        if corrections:
+            (chunks / FOLLOW_FLOW_DIR).mkdir()
+            for i, correction in corrections.items():
+                np.save(chunks / FOLLOW_FLOW_DIR / f"{i}.npy", correction)
         (chunks / C.PASSES_DIR).mkdir()
         atomic_write_text(chunks / STAGE_RECORD, json.dumps(plan.to_record(fitted.clip, source), indent=2))
     except BaseException:
         shutil.rmtree(chunks, ignore_errors=True)
         raise
     return chunks
+
+
+def _require_same_follow(job: _Job, chunks: Path, version: str, record: dict[str, Any]) -> None:
+    """A stage asked explicitly to follow the flow, or not to, continues only a staged export that decided the
+    same in its atlases stage (asked nothing: it follows the record)."""
+    staged = bool(record.get("follow_flow", False))
+    if job.follow_flow is not None and job.follow_flow != staged:
+        flag = C.EXPORT_FOLLOW_FLOW_FLAG if job.follow_flow else C.EXPORT_NO_FOLLOW_FLOW_FLAG
+        said = "following" if staged else "not following"
+        raise InputError(
+            chunks / STAGE_RECORD,
+            f"{version} is staged {said} the flow, not as {flag} asks",
+            f"run this stage without {flag}, or stage another {C.EXPORT_INTO_ARG} version",
+        )
+
+
+def _staged_corrections(chunks: Path, plan: Plan) -> dict[int, np.ndarray]:
+    """The atlases stage's flow-following UV corrections of ``plan.follows``, memory-mapped (a chunk reads only its
+    own frames); a missing or damaged file is one line."""
+    out = {}
+    for i in sorted(plan.follows):
+        path = chunks / FOLLOW_FLOW_DIR / f"{i}.npy"
+        try:
+            out[i] = np.load(path, mmap_mode="r")
+        except (OSError, ValueError):
+            raise InputError(path, "staged flow correction is missing or damaged", DAMAGED_FIX) from None
+    return out
 
 
 def _export_passes(job: _Job, version: str, frames: tuple[int, int] | None) -> Path:
@@ -388,6 +447,7 @@ def _export_passes(job: _Job, version: str, frames: tuple[int, int] | None) -> P
         if done is not None:
             return done
         raise no_stage_error(version, chunks)
+    _require_same_follow(job, chunks, version, record)
     plan = Plan.from_record(record, clip)
     staged = plan.numbers(clip)
     if frames is not None and not (staged[0] <= frames[0] <= frames[1] <= staged[-1]):
@@ -405,7 +465,7 @@ def _export_passes(job: _Job, version: str, frames: tuple[int, int] | None) -> P
         fitted = job.load()
         require_same_fit(job.run_dir, chunks, version, record)
         bar = job.bar(len(todo))
-        _write_passes(job, fitted, plan, todo, chunks, bar)
+        _write_passes(job, fitted, plan, todo, chunks, bar, corrections=_staged_corrections(chunks, plan))
         bar.close()
     return chunks
 
@@ -418,6 +478,7 @@ def _export_publish(job: _Job, version: str, atlas_size: int | None, frames: tup
     if record is None:
         raise no_stage_error(version, chunks)
     require_same_fit(job.run_dir, chunks, version, record)
+    _require_same_follow(job, chunks, version, record)
     clip = RunFolder(job.run_dir).read_clip()
     plan = Plan.from_record(record, clip)
     numbers = plan.numbers(clip)

@@ -156,6 +156,8 @@ class Layer(BaseModel):
     """The full channel names of the layer's STMap (stmap_pass)."""
     stmap_pass: str = _absent()
     """STMap<Layer>; exports made before the STMap layers have neither it nor stmap_channels."""
+    follows_flow: bool = _absent()
+    """True: the layer's UV was averaged along the fit's optical flow (export --follow-flow); absent: false."""
 
 
 class Fit(BaseModel):

@@ -26,9 +26,15 @@ if TYPE_CHECKING:
 
 
 def layer_record(
-    name: str, index: int, atlas_size: tuple[int, int], box: tuple[float, ...], edit_layer: str
+    name: str,
+    index: int,
+    atlas_size: tuple[int, int],
+    box: tuple[float, ...],
+    edit_layer: str,
+    follows_flow: bool = False,
 ) -> dict[str, Any]:
-    """One layer's manifest entry (contract.MANIFEST_LAYER_KEYS); paths relative to the export folder."""
+    """One layer's manifest entry (contract.MANIFEST_LAYER_KEYS); paths relative to the export folder.
+    ``follows_flow``: its UV was averaged along the fit's flow (``engine.export.follow_flow``)."""
     return {
         "name": name,
         "index": index,
@@ -46,6 +52,7 @@ def layer_record(
         "atlas_size": list(atlas_size),
         "edit_layer": edit_layer,
         "atlas_box": [round(float(b), 7) for b in box],
+        "follows_flow": follows_flow,
     }
 
 
@@ -78,15 +85,16 @@ def build_manifest(
     names: list[str],
     frames_by_layer: list[LayerFrame],
     selected: list[int],
+    follows: frozenset[int] = frozenset(),
 ) -> dict[str, Any]:
     """The manifest of ``fitted``'s export into ``final`` (the run frames ``selected``): what Blender, Nuke and
     render read the passes, atlases and edit layers by. Paths are relative to ``final``; the plate's are also kept
-    absolute, for a run folder moved without its plate."""
+    absolute, for a run folder moved without its plate. ``follows``: the layers whose UV follows the flow."""
     clip, cfg, metrics = fitted.clip, fitted.cfg, fitted.metrics or {}
     numbers = list(clip.frame_numbers)
     rel_edits = relative_path(fitted.folder.edits, final)
     layers = [
-        layer_record(name, i, fr.size, fr.box, f"{rel_edits}/{name}{C.EDIT_LAYER_EXT}")
+        layer_record(name, i, fr.size, fr.box, f"{rel_edits}/{name}{C.EDIT_LAYER_EXT}", i in follows)
         for i, (name, fr) in enumerate(zip(names, frames_by_layer, strict=True))
     ]
     return {

@@ -9,9 +9,12 @@ paint must not shift.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from .. import contract as C
 from ..errors import InputError
@@ -60,6 +63,10 @@ class Plan:
     frames_by_layer: list[LayerFrame]
     selected: list[int]  # run frame indices
     atlas_size: int
+    #: Whether the export follows the flow (``export --follow-flow``), and the layers whose UV it moved: those that
+    #: slip against the flow (``engine.export.follow_flow``).
+    follow_flow: bool = False
+    follows: frozenset[int] = frozenset()
 
     def numbers(self, clip: ClipRecord) -> list[int]:
         return [clip.frame_numbers[t] for t in self.selected]
@@ -74,7 +81,8 @@ class Plan:
             for n, fr in zip(self.names, self.frames_by_layer, strict=True)
         ]
         return {"schema": STAGE_SCHEMA, "frames": [numbers[0], numbers[-1]], "atlas_size": self.atlas_size,
-                "layers": layers, "source": source}  # fmt: skip
+                "layers": layers, "source": source, "follow_flow": self.follow_flow,
+                "follows": sorted(self.follows)}  # fmt: skip
 
     @classmethod
     def from_record(cls, data: dict[str, Any], clip: ClipRecord) -> Plan:
@@ -85,14 +93,22 @@ class Plan:
             [LayerFrame(tuple(layer["atlas_box"]), tuple(layer["atlas_size"])) for layer in layers],  # type: ignore[arg-type]
             selected_frames(clip, frames),
             int(data["atlas_size"]),
+            bool(data.get("follow_flow", False)),  # a record written before the flow was followed: not followed
+            frozenset(int(i) for i in data.get("follows", [])),
         )
 
 
 def plan_export(
-    reporter: Reporter, fitted: FittedRun, atlas_size: int, frames: tuple[int, int] | None, bar: Any
+    reporter: Reporter,
+    fitted: FittedRun,
+    atlas_size: int,
+    frames: tuple[int, int] | None,
+    bar: Any,
+    on_frame: Callable[[int, list[np.ndarray], np.ndarray], None] | None = None,
 ) -> tuple[Plan, list[_Coverage]]:
     """Where each layer's mapping lands (every frame, working resolution) and each layer's atlas frame: an existing
-    edit layer's frame wins (its paint must not shift)."""
+    edit layer's frame wins (its paint must not shift). ``on_frame(t, uvs, weights)`` is given each frame's
+    evaluation (the flow-following export keeps the foreground UV of this one pass rather than evaluating again)."""
     model, clip = fitted.model, fitted.clip
     device = next(model.parameters()).device
     selected = selected_frames(clip, frames)
@@ -104,6 +120,8 @@ def plan_export(
         uvs, wts = eval_pixels(model, xy_work, t)
         for i in range(model.num_layers):
             cov[i].add(t, uvs[i], wts[:, i])
+        if on_frame is not None:
+            on_frame(t, uvs, wts)
         bar.update(1)
     edits_dir = fitted.folder.edits
     layout = read_layout(edits_dir)

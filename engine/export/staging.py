@@ -36,6 +36,12 @@ STAGED_EDITS = ".edits"
 CHUNKS_SUFFIX = C.EXPORT_CHUNKS_SUFFIX
 
 
+#: In a staged export's folder: the flow-following UV correction of each foreground layer that has one
+#: (``<layer index>.npy``, float32 [frames, working height, working width, 2]), made by the atlases stage and read
+#: by every passes chunk, so their passes are a whole export's; removed when the version is published.
+FOLLOW_FLOW_DIR = "follow_flow"
+
+
 def _next_version(exports: Path) -> tuple[Path, Path]:
     """The next free ``vNNN`` and its hidden staging folder (created). Called under the run folder's lock, so any
     staging folder already there is a killed export's leftover: it is removed first. A number a staged export holds
@@ -119,11 +125,13 @@ class ExportOutput:
         self.pass_estimate = w * h * layers * PASS_CHANNELS_PER_LAYER * PASS_BYTES_PER_CHANNEL
 
     def begin(self, version: str | None = None) -> tuple[Path, Path]:
-        """The staging folder of the next free version, or of ``version``."""
-        if version is None:
-            self.final, self.staging = _next_version(self.run.exports)
-        else:
-            self.final, self.staging = self.run.exports / version, _fresh_staging(self.run.exports, version)
+        """The staging folder of the next free version, or of ``version``. Signals are held while it is made, so a
+        cancel can never fall between the folder's creation and ``discard`` knowing of it."""
+        with signals_held():
+            if version is None:
+                self.final, self.staging = _next_version(self.run.exports)
+            else:
+                self.final, self.staging = self.run.exports / version, _fresh_staging(self.run.exports, version)
         return self.final, self.staging
 
     def stage_edit(self, path: Path) -> Path:
@@ -156,6 +164,7 @@ class ExportOutput:
                 move_into_place(staged, path)
             shutil.rmtree(self.staging / STAGED_EDITS, ignore_errors=True)
             (self.staging / STAGE_RECORD).unlink(missing_ok=True)
+            shutil.rmtree(self.staging / FOLLOW_FLOW_DIR, ignore_errors=True)
             os.replace(self.staging, self.final)
             self.edits, self.staging = [], None
 
@@ -240,6 +249,7 @@ def require_same_fit(
 
 __all__ = [
     "CHUNKS_SUFFIX",
+    "FOLLOW_FLOW_DIR",
     "STAGED_EDITS",
     "STAGING_SUFFIX",
     "ExportOutput",

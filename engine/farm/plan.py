@@ -183,7 +183,8 @@ def shot_tasks(sp: ShotPlan) -> list[Task]:
     export = [C.VERB_EXPORT, shot.run, C.EXPORT_INTO_ARG, sp.version, C.EXPORT_STAGE_ARG]
     device = _option("--device", shot.device)
     atlases = add(
-        ATLASES, [*export, ATLASES, "--frames", frames, *_option("--atlas-size", shot.atlas_size), *device, "--no-bar"],
+        ATLASES, [*export, ATLASES, "--frames", frames, *_option("--atlas-size", shot.atlas_size), *device,
+                  *([] if shot.follow_flow else [C.EXPORT_NO_FOLLOW_FLOW_FLAG]), "--no-bar"],
         [fit.id],
     )  # fmt: skip
     numbers = list(sp.numbers) or list(range(first, last + 1))

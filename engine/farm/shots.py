@@ -83,6 +83,8 @@ class Shot:
     render_chunk: int = DEFAULT_RENDER_CHUNK
     render_format: str | None = None
     preview: bool = True
+    follow_flow: bool = True
+    """False: the export's UV as fitted (``export --no-follow-flow``); True: the export's default."""
 
 
 @dataclass(frozen=True)
@@ -244,6 +246,7 @@ def _shot(file: Path, where: str, entry: dict[str, Any]) -> Shot:
         render_chunk=v.get("render_chunk", DEFAULT_RENDER_CHUNK) or DEFAULT_RENDER_CHUNK,
         render_format=v.get("render_format"),
         preview=v.get("preview", True),
+        follow_flow=v.get("follow_flow", True),
     )
 
 

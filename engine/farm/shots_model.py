@@ -127,6 +127,7 @@ class ShotDefaults(BaseModel):
     render_chunk: Chunk = DEFAULT_RENDER_CHUNK
     render_format: Annotated[RenderFormat, Field(default=None)]
     preview: Flag = True
+    follow_flow: Flag = True
 
 
 class ShotTable(ShotDefaults):

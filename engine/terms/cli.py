@@ -35,9 +35,11 @@ VERB_REALIGN = "realign"
 EXPORT_INTO_ARG = "--into"
 EXPORT_STAGE_ARG = "--stage"
 EXPORT_STAGES: tuple[str, ...] = ("atlases", "passes", "publish")
-#: ``export RUN --follow-flow``: each foreground layer's UV averaged along the fit's optical flow where it slips
-#: against it, so paint follows a deforming body from frame to frame (a whole export only, not ``--stage``).
+#: Each foreground layer's UV averaged along the fit's optical flow where it slips against it, so paint follows a
+#: deforming body from frame to frame: on by default. ``--follow-flow`` insists (a run without the fit's flow is
+#: refused), ``--no-follow-flow`` exports the UV as fitted. A staged export decides it in its ``atlases`` stage.
 EXPORT_FOLLOW_FLOW_FLAG = "--follow-flow"
+EXPORT_NO_FOLLOW_FLOW_FLAG = "--no-follow-flow"
 #: ``fit ... --resume-if-started``: a retried farm task: continue the checkpoint of this same fit in RUN_DIR, leave
 #: a finished one as it is (exit 0), or start it.
 FIT_RESUME_IF_STARTED_FLAG = "--resume-if-started"
@@ -79,6 +81,7 @@ __all__ = [
     "EXIT_OK",
     "EXPORT_FOLLOW_FLOW_FLAG",
     "EXPORT_INTO_ARG",
+    "EXPORT_NO_FOLLOW_FLOW_FLAG",
     "EXPORT_STAGES",
     "EXPORT_STAGE_ARG",
     "FIT_REFINE_FLAG",

@@ -48,7 +48,9 @@ MANIFEST_TAG = "neural_atlas_manifest"  # {"neural_atlas_manifest": MANIFEST_VER
 #:              "atlas_box": [u0, v0, u1, v1],
 #:              "channels": [full EXR channel names, e.g. "Atlas.UVForeground.U"] (optional: derivable),
 #:              "stmap_pass": "STMap<Layer>", "stmap_channels": [4 full EXR channel names] (optional: exports made
-#:              before the STMap layers have neither, and their pass files have no STMap layers)}],
+#:              before the STMap layers have neither, and their pass files have no STMap layers),
+#:              "follows_flow": bool (optional, absent: false: its UV was averaged along the fit's flow,
+#:              ``export --follow-flow``)}],
 #:  "fit": {"preset": str, "model": str, "steps": int, "train_seconds": float, "psnr": float|None,
 #:          "alpha_iou": [float]|None (optional)},
 #:  "scene": the run's SCENE_FILE (every export writes it; checked by ``validate_scene`` when present)}
@@ -110,6 +112,7 @@ MANIFEST_OPTIONAL_LAYER_FIELDS: dict[str, str] = {
     "channels": "str list",
     "stmap_pass": "str",
     "stmap_channels": "str list",
+    "follows_flow": "bool",
 }
 MANIFEST_KEYS: tuple[str, ...] = (*MANIFEST_FIELDS[""], "clip", "passes", "layers", "fit")
 MANIFEST_CLIP_KEYS: tuple[str, ...] = tuple(MANIFEST_FIELDS["clip"])

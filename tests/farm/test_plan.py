@@ -73,9 +73,11 @@ def test_every_option_of_a_shot_reaches_its_command(tmp_path):
     path = write_shots(tmp_path, [{
         "name": "x", "plate": "c/frames", "colorspace": "sRGB Encoded Rec.709 (sRGB)", "fps": 25, "device": "cpu",
         "atlas_size": 64, "render": "out", "render_format": "png", "render_chunk": 2, "frames": "1-3",
-        "set": ["seed=2"],
+        "set": ["seed=2"], "follow_flow": False,
     }])  # fmt: skip
     plan = load_plan(path)
+    assert C.EXPORT_NO_FOLLOW_FLOW_FLAG in plan.task("x.atlases").args  # the passes and publish follow its record
+    assert C.EXPORT_NO_FOLLOW_FLOW_FLAG not in plan.task("x.passes.1-3").args
     fit = plan.task("x.fit").args
     assert fit[fit.index("--colorspace") + 1] == "sRGB Encoded Rec.709 (sRGB)"
     assert fit[fit.index("--fps") + 1] == "25" and fit[fit.index("--device") + 1] == "cpu"

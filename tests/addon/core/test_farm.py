@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -51,6 +52,12 @@ def test_the_shots_file_of_one_shot(tmp_path):
     }
     assert set(doc[C.SHOTS_DEFAULTS_KEY]) <= set(C.SHOT_DEFAULT_KEYS)
     assert set(doc[C.SHOTS_LIST_KEY][0]) <= set(C.SHOT_KEYS)
+
+
+def test_follow_flow_off_is_written_in_the_shots_files_defaults(tmp_path):
+    doc = FM.shots_document(replace(_shot(tmp_path), follow_flow=False))
+    assert doc[C.SHOTS_DEFAULTS_KEY]["follow_flow"] is False
+    assert set(doc[C.SHOTS_DEFAULTS_KEY]) <= set(C.SHOT_DEFAULT_KEYS)
 
 
 def test_no_masks_means_auto_masks_and_no_colour_space_means_the_engines_rules(tmp_path):

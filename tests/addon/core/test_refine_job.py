@@ -43,6 +43,9 @@ def test_refine_job_refines_exports_then_realigns_into_one_log(tmp_path):
     assert [c.label for c in job.commands] == ["fit", "export", "realign"]
     assert job.commands[0].argv[3:] == [C.VERB_FIT, "--out", run, C.FIT_REFINE_FLAG, "300", "--preset", "balanced",
                                         EC.NO_BAR_FLAG]  # fmt: skip
+    assert job.commands[1].argv[3:] == [C.VERB_EXPORT, run]  # the export's default: the UV follows the flow
+    off = RefineJob(fake_python(tmp_path), run, 300, "balanced", follow_flow=False)
+    assert off.commands[1].argv[3:] == [C.VERB_EXPORT, run, C.EXPORT_NO_FOLLOW_FLOW_FLAG]
     job.start()
     for _ in range(2000):
         if not job.step():

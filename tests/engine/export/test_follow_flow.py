@@ -1,9 +1,11 @@
-"""``export --follow-flow``: a layer's UV averaged along the flow (engine/export/follow_flow.py), on arrays whose
-answer is known, then through a real export of a tiny fit."""
+"""``export --follow-flow`` (the default): a layer's UV averaged along the flow (engine/export/follow_flow.py), on
+arrays whose answer is known, then through real exports of a tiny fit, whole and staged."""
 
 from __future__ import annotations
 
+import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,7 +16,9 @@ from engine.errors import InputError
 from engine.export import exporter
 from engine.export import follow_flow as FF
 from engine.export.manifest import Manifest
+from engine.export.staging import FOLLOW_FLOW_DIR
 from tests.engine.export.tiny_run import export, make_run
+from tests.folders import tree_digest
 
 T, H, W = 8, 40, 56
 SPEED = np.array([1.5, -0.5], np.float32)  # px per frame
@@ -111,12 +115,10 @@ def tiny(tmp_path_factory):
 
 @pytest.mark.slow
 def test_the_export_follows_the_flow_on_foreground_layers_only(tiny, monkeypatch):
-    """The wiring: the tiny fit's foreground weight is about 0.42 everywhere, so with the ownership threshold
-    below it and the gate at 0 its layer owns the frame and is filtered. Its UV moves; the background's passes and
-    every alpha are the plain export's, bit for bit. (What it does to paint: the bench's paint table.)"""
-    plain = Manifest(export(tiny))
-    monkeypatch.setattr(exporter, "MIN_SLIP_PX", 0.0)
-    monkeypatch.setattr(exporter, "FG_OWNED_ALPHA", 0.4)
+    """The wiring, with the gate open (``_gate_open``): the foreground layer's UV moves; the background's passes
+    and every alpha are the plain export's, bit for bit. (What it does to paint: the bench's paint table.)"""
+    plain = Manifest(export(tiny, follow_flow=False))
+    _gate_open(monkeypatch)
     followed = Manifest(export(tiny, follow_flow=True))
     moved = 0.0
     for number in plain.frames:
@@ -128,11 +130,59 @@ def test_the_export_follows_the_flow_on_foreground_layers_only(tiny, monkeypatch
     assert moved > 0.0
 
 
+def _gate_open(monkeypatch) -> None:
+    """The tiny fit's foreground weight is about 0.42 everywhere: with the ownership threshold below it and the
+    gate at 0, its layer owns the frame and is filtered."""
+    monkeypatch.setattr(exporter, "MIN_SLIP_PX", 0.0)
+    monkeypatch.setattr(exporter, "FG_OWNED_ALPHA", 0.4)
+
+
 @pytest.mark.slow
-def test_follow_flow_is_refused_in_one_line_with_a_stage_or_without_the_fits_flow(tiny, tmp_path):
-    with pytest.raises(InputError, match=f"{C.EXPORT_FOLLOW_FLOW_FLAG} with {C.EXPORT_STAGE_ARG}"):
-        export(tiny, follow_flow=True, into="v009", stage=C.EXPORT_STAGES[0])
+def test_a_staged_export_follows_the_flow_as_a_whole_export_does(tiny, tmp_path, monkeypatch):
+    """The atlases stage computes the corrections and stages them; each passes chunk reads its frames of them; the
+    published version equals a whole export of the same run byte for byte (the manifest's creation time apart),
+    without the staged corrections, and its manifest says which layer follows the flow."""
+    _gate_open(monkeypatch)
+    run = shutil.copytree(tiny, tmp_path / "run", ignore=shutil.ignore_patterns(C.EXPORTS_DIR))
+    whole = Path(export(run)).parent
+    atlases, passes, publish = C.EXPORT_STAGES
+    chunks = export(run, into="v002", stage=atlases)
+    assert sorted(p.name for p in (chunks / FOLLOW_FLOW_DIR).iterdir()) == ["1.npy"]
+    for frames in ((0, 1), (2, 3)):
+        export(run, into="v002", stage=passes, frames=frames)
+    staged = Path(export(run, into="v002", stage=publish)).parent
+    a, b = tree_digest(whole), tree_digest(staged)
+    assert sorted(a) == sorted(b) and [n for n in a if a[n] != b[n]] == [C.MANIFEST_NAME]
+    ma, mb = (json.loads((d / C.MANIFEST_NAME).read_text()) for d in (whole, staged))
+    ma.pop("created"), mb.pop("created")
+    assert ma == mb and [layer["follows_flow"] for layer in mb["layers"]] == [False, True]
+    plain = Manifest(export(run, follow_flow=False))
+    assert not any(layer["follows_flow"] for layer in plain.data["layers"])
+    assert not np.array_equal(plain.read_passes(0)[1].uv, Manifest(staged / C.MANIFEST_NAME).read_passes(0)[1].uv)
+
+
+@pytest.mark.slow
+def test_a_stage_asked_otherwise_than_its_atlases_stage_is_refused_in_one_line(tiny, tmp_path):
+    run = shutil.copytree(tiny, tmp_path / "run", ignore=shutil.ignore_patterns(C.EXPORTS_DIR))
+    atlases, passes, publish = C.EXPORT_STAGES
+    export(run, into="v001", stage=atlases, follow_flow=False)
+    for stage in (atlases, passes, publish):
+        with pytest.raises(
+            InputError, match=f"v001 is staged not following the flow, not as {C.EXPORT_FOLLOW_FLOW_FLAG}"
+        ):
+            export(run, into="v001", stage=stage, follow_flow=True)
+    export(run, into="v001", stage=passes)  # asked nothing: it follows the record
+    manifest = Manifest(export(run, into="v001", stage=publish))
+    assert not any(layer["follows_flow"] for layer in manifest.data["layers"])
+
+
+@pytest.mark.slow
+def test_without_the_fits_flow_it_is_exported_as_fitted_or_refused_when_insisted_on(tiny, tmp_path, capsys):
     bare = shutil.copytree(tiny, tmp_path / "run", ignore=shutil.ignore_patterns(C.FLOW_CACHE_DIR, C.EXPORTS_DIR))
     with pytest.raises(InputError, match="holds no flow of this fit") as err:
         export(bare, follow_flow=True)
-    assert C.FLOW_CACHE_DIR in str(err.value) and not (bare / C.EXPORTS_DIR / "v001").exists()
+    assert C.FLOW_CACHE_DIR in str(err.value) and C.EXPORT_NO_FOLLOW_FLOW_FLAG in str(err.value)
+    assert not (bare / C.EXPORTS_DIR / "v001").exists()
+    manifest = Manifest(export(bare))  # the default: a warning, the UV as fitted
+    assert "holds no flow of this fit: the layers' UV is exported as fitted" in capsys.readouterr().err
+    assert not any(layer["follows_flow"] for layer in manifest.data["layers"])
