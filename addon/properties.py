@@ -83,7 +83,7 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
     follow_flow: BoolProperty(
         name="Follow Flow",
         default=True,
-        description="Export: average each foreground layer's UV along the fit's optical flow where it slips "
+        description="Export: average each layer's UV along the fit's optical flow where it slips "
         "against it, so paint follows legs and bending bodies from frame to frame (off: the atlas's UV as fitted)",
     )
     refine_steps: IntProperty(

@@ -281,8 +281,9 @@ def _add_export_parser(sub: argparse._SubParsersAction) -> None:
         action="store_const",
         const=True,
         default=None,
-        help="average each foreground layer's UV along the fit's optical flow where it slips against it (a body "
-        "that bends: legs, a rider), so paint follows it from frame to frame; layers that already follow the flow "
+        help="average each layer's UV along the fit's optical flow where it slips against it (a body that bends: "
+        "legs, a rider; cars moving in the background), so paint follows it from frame to frame; layers that "
+        "already follow the flow "
         f"are left as fitted. On by default when RUN_DIR/{C.FLOW_CACHE_DIR} holds the fit's flow; this flag "
         f"insists (refused without it). A staged export decides it in its {C.EXPORT_STAGES[0]} stage",
     )

@@ -358,7 +358,7 @@ def _add_paint_table_parser(sub: argparse._SubParsersAction) -> None:
         action="store_const",
         const=True,
         default=True,
-        help="export with the engine's --follow-flow (each foreground layer's UV averaged along the fit's flow "
+        help="export with the engine's --follow-flow (each layer's UV averaged along the fit's flow "
         "where it slips against it; the default)",
     )
     follow.add_argument(

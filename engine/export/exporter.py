@@ -57,9 +57,9 @@ from .staging import (
 )
 
 DEFAULT_ATLAS_SIZE = C.ATLAS_SIZE_DEFAULT
-#: ``follow_flow``: a pixel belongs to a foreground layer where its weight is above this (the layers' weights sum to
-#: one, so above one half is also the highest).
-FG_OWNED_ALPHA = 0.5
+#: ``follow_flow``: a pixel belongs to a layer where its weight is above this (the layers' weights sum to one, so
+#: above one half is also the highest).
+OWNED_ALPHA = 0.5
 
 
 def export_run(
@@ -85,7 +85,7 @@ def export_run(
     ``frames``, without the lock: chunks run at once on several hosts; returns the staging folder) and ``publish``
     (every pass present: edit layers, manifest and Nuke script as a whole export writes them, then the folder
     becomes ``vNNN``). The staged export's files are those of a whole export of the same run, byte for byte.
-    ``atlas_size`` None: the default (publish: the staged one). ``follow_flow``: each foreground layer's UV averaged
+    ``atlas_size`` None: the default (publish: the staged one). ``follow_flow``: each layer's UV averaged
     along the fit's optical flow where it slips against it (``engine.export.follow_flow``): None (the default) when
     the run holds the fit's flow, True insists (refused without it), False exports the UV as fitted. A staged
     export decides it in its atlases stage; its passes and publish follow the record (asked otherwise: refused). A
@@ -176,28 +176,28 @@ def _write_atlases(fitted: FittedRun, plan: Plan, cov: list[_Coverage], dest: Pa
 
 
 class _WorkingUV:
-    """The foreground layers' UV and ownership at working size, every frame, kept from the evaluation the atlas
-    plan makes anyway (``plan_export``'s ``on_frame``): what ``follow_flow`` filters. Memory: 9 bytes per working
-    pixel per frame per foreground layer."""
+    """Every layer's UV and ownership at working size, every frame, kept from the evaluation the atlas plan makes
+    anyway (``plan_export``'s ``on_frame``): what ``follow_flow`` filters. Memory: 9 bytes per working pixel per
+    frame per layer."""
 
     def __init__(self, frames: int, size: tuple[int, int], layers: int) -> None:
         w, h = size
         self.size = (h, w)
-        self.uv = {i: np.empty((frames, h, w, 2), np.float32) for i in range(1, layers)}
-        self.owned = {i: np.empty((frames, h, w), bool) for i in range(1, layers)}
+        self.uv = {i: np.empty((frames, h, w, 2), np.float32) for i in range(layers)}
+        self.owned = {i: np.empty((frames, h, w), bool) for i in range(layers)}
 
     def add(self, t: int, uvs: list[np.ndarray], wts: np.ndarray) -> None:
         for i in self.uv:
             self.uv[i][t] = uvs[i].reshape(*self.size, 2)
-            self.owned[i][t] = (wts[:, i] > FG_OWNED_ALPHA).reshape(self.size)
+            self.owned[i][t] = (wts[:, i] > OWNED_ALPHA).reshape(self.size)
 
 
 def _follow_source(job: _Job, fitted: FittedRun) -> tuple[FlowField, _WorkingUV] | None:
     """The fit's flow (``RUN_DIR/flow_cache``) and an empty ``_WorkingUV`` when this export follows the flow; None
-    when it does not: asked not to, nothing to follow (one frame, no foreground layer), or (unless it was insisted
+    when it does not: asked not to, nothing to follow (one frame), or (unless it was insisted
     on: refused in one line) the run holds no flow of this fit."""
     model, clip, cfg = fitted.model, fitted.clip, fitted.cfg
-    if job.follow_flow is False or clip.num_frames < 2 or model.num_layers < 2:
+    if job.follow_flow is False or clip.num_frames < 2:
         return None
     (ww, wh), cache = clip.working_size, fitted.folder.flow_cache
     flow = cached_flow(cache, clip.num_frames, wh, ww, DISFlow(cfg.flow_preset).name, cfg.flow_threshold_px)
@@ -214,7 +214,7 @@ def _follow_source(job: _Job, fitted: FittedRun) -> tuple[FlowField, _WorkingUV]
 
 
 def _flow_corrections(job: _Job, names: list[str], flow: FlowField, working: _WorkingUV) -> dict[int, np.ndarray]:
-    """The UV correction [T, h, w, 2] at working resolution of each foreground layer whose UV slips against the
+    """The UV correction [T, h, w, 2] at working resolution of each layer whose UV slips against the
     fit's flow by more than ``MIN_SLIP_PX``, by layer index (``names``: the layers' names, for the messages)."""
     out = {}
     for i in working.uv:

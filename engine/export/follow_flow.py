@@ -1,12 +1,13 @@
-"""Paint that follows the flow (``export --follow-flow``): each foreground layer's UV averaged along the fit's own
+"""Paint that follows the flow (``export --follow-flow``, the default): each layer's UV averaged along the fit's own
 optical flow before the passes are written.
 
 Why: in an ideal atlas a point of the object keeps its UV in every frame. A fitted mapping is smooth in time and
-cannot follow a dog's legs or a rider's knees from one frame to the next, so the UV of such a point wobbles by a
-few pixels a frame and the paint slips over the body. Chained optical flow follows those frames closely but drifts
-over long gaps; the atlas does not drift. Averaging a layer's UV along flow trajectories with a two-sided
-exponential filter takes what each does well: over a few frames the UV moves with the flow, over many it stays the
-atlas's. The filter, at working resolution, with ``u`` the layer's UV and ``w`` the weight of one frame step::
+cannot follow a dog's legs or a rider's knees from one frame to the next (nor, in the background's one mapping, the
+cars that drive through it), so the UV of such a point wobbles by a few pixels a frame and the paint slips. Chained
+optical flow follows those frames closely but drifts over long gaps; the atlas does not drift. Averaging a layer's
+UV along flow trajectories with a two-sided exponential filter takes what each does well: over a few frames the UV
+moves with the flow, over many it stays the atlas's. The filter, at working resolution, with ``u`` the layer's UV
+and ``w`` the weight of one frame step::
 
     F_0 = u_0,       F_t(x) = (1 - w) u_t(x) + w F_{t-1}(x + back_t(x))      (back_t: flow t -> t-1)
     B_T = u_T,       B_t(x) = (1 - w) u_t(x) + w B_{t+1}(x + fwd_t(x))       (fwd_t: flow t -> t+1)

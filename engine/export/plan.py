@@ -108,7 +108,7 @@ def plan_export(
 ) -> tuple[Plan, list[_Coverage]]:
     """Where each layer's mapping lands (every frame, working resolution) and each layer's atlas frame: an existing
     edit layer's frame wins (its paint must not shift). ``on_frame(t, uvs, weights)`` is given each frame's
-    evaluation (the flow-following export keeps the foreground UV of this one pass rather than evaluating again)."""
+    evaluation (the flow-following export keeps the layers' UV of this one pass rather than evaluating again)."""
     model, clip = fitted.model, fitted.clip
     device = next(model.parameters()).device
     selected = selected_frames(clip, frames)

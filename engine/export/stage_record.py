@@ -21,7 +21,7 @@ from ..errors import InputError
 #: The record's name in the staging folder (removed when the version is published).
 STAGE_RECORD = "stage.json"
 #: The record's schema: frames, atlas size, each layer's atlas frame, ``source`` (what it was made from) and, when
-#: written by an engine that follows the flow, ``follow_flow`` (bool) and ``follows`` (the foreground layers whose
+#: written by an engine that follows the flow, ``follow_flow`` (bool) and ``follows`` (the layers whose
 #: UV corrections are staged beside it: ``staging.FOLLOW_FLOW_DIR``).
 STAGE_SCHEMA = "neural_atlas.export_stage/2"
 #: The schema of records written before they said what they were made from: such a stage cannot be continued.
@@ -78,8 +78,8 @@ def read_stage(chunks: Path) -> dict[str, Any] | None:
         follows = data.get("follows", [])  # absent in records written before the flow was followed: none
         if not isinstance(data.get("follow_flow", False), bool) or not isinstance(follows, list):
             raise ValueError
-        if not all(type(i) is int and 0 < i < len(data["layers"]) for i in follows):
-            raise ValueError  # foreground layers only
+        if not all(type(i) is int and 0 <= i < len(data["layers"]) for i in follows):
+            raise ValueError
         return dict(data)
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         raise InputError(path, "staged export record is damaged", DAMAGED_FIX) from None

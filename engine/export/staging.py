@@ -36,7 +36,7 @@ STAGED_EDITS = ".edits"
 CHUNKS_SUFFIX = C.EXPORT_CHUNKS_SUFFIX
 
 
-#: In a staged export's folder: the flow-following UV correction of each foreground layer that has one
+#: In a staged export's folder: the flow-following UV correction of each layer that has one
 #: (``<layer index>.npy``, float32 [frames, working height, working width, 2]), made by the atlases stage and read
 #: by every passes chunk, so their passes are a whole export's; removed when the version is published.
 FOLLOW_FLOW_DIR = "follow_flow"

@@ -35,7 +35,7 @@ VERB_REALIGN = "realign"
 EXPORT_INTO_ARG = "--into"
 EXPORT_STAGE_ARG = "--stage"
 EXPORT_STAGES: tuple[str, ...] = ("atlases", "passes", "publish")
-#: Each foreground layer's UV averaged along the fit's optical flow where it slips against it, so paint follows a
+#: Each layer's UV averaged along the fit's optical flow where it slips against it, so paint follows a
 #: deforming body from frame to frame: on by default. ``--follow-flow`` insists (a run without the fit's flow is
 #: refused), ``--no-follow-flow`` exports the UV as fitted. A staged export decides it in its ``atlases`` stage.
 EXPORT_FOLLOW_FLOW_FLAG = "--follow-flow"

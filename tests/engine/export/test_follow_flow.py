@@ -113,28 +113,37 @@ def tiny(tmp_path_factory):
     return run
 
 
-@pytest.mark.slow
-def test_the_export_follows_the_flow_on_foreground_layers_only(tiny, monkeypatch):
-    """The wiring, with the gate open (``_gate_open``): the foreground layer's UV moves; the background's passes
-    and every alpha are the plain export's, bit for bit. (What it does to paint: the bench's paint table.)"""
-    plain = Manifest(export(tiny, follow_flow=False))
-    _gate_open(monkeypatch)
-    followed = Manifest(export(tiny, follow_flow=True))
-    moved = 0.0
+def _moved(plain: Manifest, followed: Manifest) -> list[float]:
+    """How far each layer's UV moved between two exports, at most over every frame; their alphas are equal."""
+    moved = [0.0] * len(plain.layers)
     for number in plain.frames:
-        a, b = plain.read_passes(number), followed.read_passes(number)
-        assert np.array_equal(a[0].uv, b[0].uv) and np.array_equal(a[0].z, b[0].z)  # the background
-        for la, lb in zip(a[1:], b[1:], strict=True):
+        for i, (la, lb) in enumerate(zip(plain.read_passes(number), followed.read_passes(number), strict=True)):
             assert np.array_equal(la.alpha, lb.alpha)
-            moved = max(moved, float(np.abs(la.uv - lb.uv).max()))
-    assert moved > 0.0
+            moved[i] = max(moved[i], float(np.abs(la.uv - lb.uv).max()))
+    return moved
 
 
-def _gate_open(monkeypatch) -> None:
-    """The tiny fit's foreground weight is about 0.42 everywhere: with the ownership threshold below it and the
-    gate at 0, its layer owns the frame and is filtered."""
+@pytest.mark.slow
+def test_the_export_follows_the_flow_layer_by_layer(tiny, monkeypatch):
+    """The wiring, the gate open (``_gate_open``): a layer that owns pixels has its UV moved, one that owns none is
+    the plain export's bit for bit; every alpha is the plain export's; the manifest says which layers follow. (What
+    it does to paint: the bench's paint table.)"""
+    plain = Manifest(export(tiny, follow_flow=False))
+    _gate_open(monkeypatch, owned_alpha=0.5)  # the background owns every pixel, the foreground none
+    only_background = Manifest(export(tiny, follow_flow=True))
+    background, foreground = _moved(plain, only_background)
+    assert background > 0.0 and foreground == 0.0
+    assert [layer["follows_flow"] for layer in only_background.layers] == [True, False]
+    _gate_open(monkeypatch)
+    both = Manifest(export(tiny, follow_flow=True))
+    assert min(_moved(plain, both)) > 0.0 and all(layer["follows_flow"] for layer in both.layers)
+
+
+def _gate_open(monkeypatch, owned_alpha: float = 0.4) -> None:
+    """The tiny fit's foreground weight is about 0.42 everywhere (the background's 0.58): with the gate at 0 and the
+    ownership threshold below both, each layer owns the frame and is filtered; at 0.5 only the background is."""
     monkeypatch.setattr(exporter, "MIN_SLIP_PX", 0.0)
-    monkeypatch.setattr(exporter, "FG_OWNED_ALPHA", 0.4)
+    monkeypatch.setattr(exporter, "OWNED_ALPHA", owned_alpha)
 
 
 @pytest.mark.slow
@@ -147,7 +156,7 @@ def test_a_staged_export_follows_the_flow_as_a_whole_export_does(tiny, tmp_path,
     whole = Path(export(run)).parent
     atlases, passes, publish = C.EXPORT_STAGES
     chunks = export(run, into="v002", stage=atlases)
-    assert sorted(p.name for p in (chunks / FOLLOW_FLOW_DIR).iterdir()) == ["1.npy"]
+    assert sorted(p.name for p in (chunks / FOLLOW_FLOW_DIR).iterdir()) == ["0.npy", "1.npy"]
     for frames in ((0, 1), (2, 3)):
         export(run, into="v002", stage=passes, frames=frames)
     staged = Path(export(run, into="v002", stage=publish)).parent
@@ -155,7 +164,7 @@ def test_a_staged_export_follows_the_flow_as_a_whole_export_does(tiny, tmp_path,
     assert sorted(a) == sorted(b) and [n for n in a if a[n] != b[n]] == [C.MANIFEST_NAME]
     ma, mb = (json.loads((d / C.MANIFEST_NAME).read_text()) for d in (whole, staged))
     ma.pop("created"), mb.pop("created")
-    assert ma == mb and [layer["follows_flow"] for layer in mb["layers"]] == [False, True]
+    assert ma == mb and [layer["follows_flow"] for layer in mb["layers"]] == [True, True]
     plain = Manifest(export(run, follow_flow=False))
     assert not any(layer["follows_flow"] for layer in plain.data["layers"])
     assert not np.array_equal(plain.read_passes(0)[1].uv, Manifest(staged / C.MANIFEST_NAME).read_passes(0)[1].uv)
