@@ -11,6 +11,8 @@ import argparse
 from collections.abc import Iterator
 from typing import Any
 
+from . import contract as C
+
 #: Every verb's exit codes, for the other verbs' help.
 EXIT_EPILOG = """\
 exit codes: 0 done, 1 engine error, 2 bad input, a full disk or a run folder in use (one line names the file
@@ -106,6 +108,16 @@ def add_device(parser: argparse.ArgumentParser, default: str) -> None:
 def add_no_bar(parser: argparse.ArgumentParser, help: str = "no progress bar on stderr") -> None:
     """``--no-bar``: a verb whose progress shows as a bar on stderr."""
     parser.add_argument("--no-bar", action="store_true", help=help)
+
+
+def add_follow_flow(parser: argparse.ArgumentParser, default: bool | None, follow_help: str, no_help: str) -> None:
+    """``--follow-flow`` | ``--no-follow-flow`` into ``follow_flow`` (True | False; neither: ``default``): whether
+    an export averages each layer's UV along the fit's flow (``engine.export.follow_flow``)."""
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument(C.EXPORT_FOLLOW_FLOW_FLAG, dest="follow_flow", action="store_const", const=True,
+                       default=default, help=follow_help)  # fmt: skip
+    group.add_argument(C.EXPORT_NO_FOLLOW_FLOW_FLAG, dest="follow_flow", action="store_const", const=False,
+                       help=no_help)  # fmt: skip
 
 
 def add_layers(parser: argparse.ArgumentParser) -> None:

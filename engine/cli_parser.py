@@ -14,6 +14,7 @@ from .cli_options import (
     MANIFEST_HELP,
     RAW_HELP,
     add_device,
+    add_follow_flow,
     add_layers,
     add_no_bar,
     add_output_options,
@@ -274,25 +275,15 @@ def _add_export_parser(sub: argparse._SubParsersAction) -> None:
         "(once every chunk is done: edit layers, manifest and Nuke script, then the folder becomes vNNN). The files "
         "are those of a whole export, byte for byte; each part run again is idempotent",
     )
-    follow = x.add_mutually_exclusive_group()
-    follow.add_argument(
-        C.EXPORT_FOLLOW_FLOW_FLAG,
-        dest="follow_flow",
-        action="store_const",
-        const=True,
-        default=None,
-        help="average each layer's UV along the fit's optical flow where it slips against it (a body that bends: "
+    add_follow_flow(
+        x,
+        None,
+        "average each layer's UV along the fit's optical flow where it slips against it (a body that bends: "
         "legs, a rider; cars moving in the background), so paint follows it from frame to frame; layers that "
         "already follow the flow "
         f"are left as fitted. On by default when RUN_DIR/{C.FLOW_CACHE_DIR} holds the fit's flow; this flag "
         f"insists (refused without it). A staged export decides it in its {C.EXPORT_STAGES[0]} stage",
-    )
-    follow.add_argument(
-        C.EXPORT_NO_FOLLOW_FLOW_FLAG,
-        dest="follow_flow",
-        action="store_const",
-        const=False,
-        help="export each layer's UV as fitted (the atlas alone, as exports before the flow was followed)",
+        "export each layer's UV as fitted (the atlas alone, as exports before the flow was followed)",
     )
     add_no_bar(x)
 

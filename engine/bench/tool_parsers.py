@@ -26,8 +26,7 @@ from __future__ import annotations
 
 import argparse
 
-from engine import contract as C
-from engine.cli_options import frame_range
+from engine.cli_options import add_follow_flow, frame_range
 
 BENCH = "bench"
 CLIPS = "clips"
@@ -351,22 +350,12 @@ def _add_paint_table_parser(sub: argparse._SubParsersAction) -> None:
         metavar="N",
         help="with --scribbles: frames with strokes, spread evenly from the first to the last (default: 3)",
     )
-    follow = pt.add_mutually_exclusive_group()
-    follow.add_argument(
-        C.EXPORT_FOLLOW_FLOW_FLAG,
-        dest="follow_flow",
-        action="store_const",
-        const=True,
-        default=True,
-        help="export with the engine's --follow-flow (each layer's UV averaged along the fit's flow "
-        "where it slips against it; the default)",
-    )
-    follow.add_argument(
-        C.EXPORT_NO_FOLLOW_FLOW_FLAG,
-        dest="follow_flow",
-        action="store_const",
-        const=False,
-        help="export with --no-follow-flow (each layer's UV as fitted)",
+    add_follow_flow(
+        pt,
+        True,
+        "export with the engine's --follow-flow (each layer's UV averaged along the fit's flow where it slips "
+        "against it; the default)",
+        "export with --no-follow-flow (each layer's UV as fitted)",
     )
 
 
