@@ -16,6 +16,7 @@ from engine.bench.tool_parsers import (
     BENCH,
     CLIPS,
     EXPECTED_PSNR,
+    EXPORT_COST,
     FARM,
     FLOW_TRACKS,
     MASKS,
@@ -274,6 +275,17 @@ def _paint_gaps(args: argparse.Namespace) -> int:
     return C.EXIT_OK
 
 
+def _export_cost(args: argparse.Namespace) -> int:
+    from engine.bench.export_cost import format_cost, measure_export_cost
+    from engine.bench.report_file import write_report
+
+    report = measure_export_cost(Path(args.run), args.repeats, args.threads, Path(args.work) if args.work else None)
+    print(format_cost(report))
+    if args.json:
+        print(str(write_report(args.json, EXPORT_COST, report).resolve()))
+    return C.EXIT_OK
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -294,6 +306,7 @@ def main(argv: list[str] | None = None) -> int:
         PAINT_TABLE: _paint_table,
         PAINT_GAPS: _paint_gaps,
         PAINT_SLIP: _paint_slip,
+        EXPORT_COST: _export_cost,
     }
     if args.tool not in tools:
         parser.print_help()

@@ -17,6 +17,7 @@ part of the product (its CLI is ``python -m engine``) and not in the extension z
     paint-table  one preset fitted and exported on every clip of a folder, scored on the export: paint, flow,
                  IoU, sharpness, PSNR, training seconds; with a picture per clip
     paint-gaps   paint against chained flow by frame gap, one panel per clip, one line per paint table
+    export-cost  an export following the flow against one as fitted, in turn: wall time and peak memory
 
 The tools' command-line parser: each tool's options; the options several tools share are defined once and given to
 them as argparse parents, so their help cannot drift apart. ``engine.bench.__main__`` runs the tool.
@@ -42,6 +43,7 @@ SHARPNESS = "sharpness"
 PAINT_SLIP = "paint-slip"
 PAINT_TABLE = "paint-table"
 PAINT_GAPS = "paint-gaps"
+EXPORT_COST = "export-cost"
 PROG = "python -m engine.bench"
 
 BENCH_EPILOG = """\
@@ -68,6 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_scoring_parsers(sub)
     _add_paint_table_parser(sub)
     _add_paint_gaps_parser(sub)
+    _add_export_cost_parser(sub)
     _add_motion_scenes_parser(sub)
     return p
 
@@ -377,6 +380,21 @@ def _add_paint_gaps_parser(sub: argparse._SubParsersAction) -> None:
         metavar="TEXT",
         help="a legend entry per table, in order (default: each table's preset, masks and overrides)",
     )
+
+
+def _add_export_cost_parser(sub: argparse._SubParsersAction) -> None:
+    ec = sub.add_parser(
+        EXPORT_COST,
+        help="an export following the flow against one as fitted, in turn: wall time and peak memory, as ratios",
+        description="Export a copy of RUN_DIR (its exports and edit layers are not touched) REPEATS times each way, "
+        "following the flow and as fitted (--no-follow-flow), in turn with the order swapped each round, each in "
+        "its own process: the medians of wall seconds and of peak resident memory, and their ratios.",
+    )
+    ec.add_argument("run", metavar="RUN_DIR", help="the --out folder of a finished fit")
+    ec.add_argument("--repeats", type=int, default=2, help="exports of each kind (default: 2)")
+    ec.add_argument("--threads", type=int, default=None, help="CPU threads of each export (default: torch's choice)")
+    ec.add_argument("--work", default=None, metavar="DIR", help="where the copy goes (default: the temp folder)")
+    _add_json(ec)
 
 
 def _add_farm_parser(sub: argparse._SubParsersAction) -> None:
