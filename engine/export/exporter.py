@@ -38,7 +38,7 @@ from ..io.atomic import DISK_ERRORS, as_disk_full, atomic_write_text
 from ..io.colour import RAW, REC709_CHROMATICITIES, SCENE_LINEAR, srgb_to_linear
 from ..io.images import exr_timing, write_exr, write_png
 from .atlas_frame import _Coverage
-from .follow_flow import MIN_SLIP_PX, follow_flow, layer_slip_px
+from .follow_flow import MEMORY_SHARE, MIN_SLIP_PX, available_memory, follow_flow, layer_slip_px, memory_needed
 from .manifest_writer import _write_nuke_script, build_manifest
 from .pass_files import pass_file, stmap_values
 from .plan import Plan, plan_export, read_layout, selected_frames
@@ -194,10 +194,18 @@ class _WorkingUV:
 
 def _follow_source(job: _Job, fitted: FittedRun) -> tuple[FlowField, _WorkingUV] | None:
     """The fit's flow (``RUN_DIR/flow_cache``) and an empty ``_WorkingUV`` when this export follows the flow; None
-    when it does not: asked not to, nothing to follow (one frame), or (unless it was insisted
-    on: refused in one line) the run holds no flow of this fit."""
+    when it does not: asked not to, nothing to follow (one frame), or (unless it was insisted on: refused in one
+    line) the run holds no flow of this fit or following it would not fit in the memory available
+    (``follow_flow.memory_needed``: a long clip)."""
     model, clip, cfg = fitted.model, fitted.clip, fitted.cfg
     if job.follow_flow is False or clip.num_frames < 2:
+        return None
+    need, have = memory_needed(clip.num_frames, clip.working_size, model.num_layers), available_memory()
+    if have is not None and need > MEMORY_SHARE * have:
+        said = f"following the flow needs about {need / 2**30:.1f} GiB of memory, {have / 2**30:.1f} GiB is available"
+        if job.follow_flow:
+            raise InputError(job.run_dir, said, f"export with {C.EXPORT_NO_FOLLOW_FLOW_FLAG}, or free memory first")
+        print(f"warning: {job.run_dir}: {said}: the layers' UV is exported as fitted", file=sys.stderr)
         return None
     (ww, wh), cache = clip.working_size, fitted.folder.flow_cache
     flow = cached_flow(cache, clip.num_frames, wh, ww, DISFlow(cfg.flow_preset).name, cfg.flow_threshold_px)

@@ -42,6 +42,34 @@ MIN_SLIP_PX = 0.3
 MIN_SHARE = 0.99
 #: Floor of a frame's UV scale (UV units per pixel) when converting UV distances to pixels: a collapsed mapping.
 MIN_UV_PER_PX = 1e-9
+#: What following the flow holds in memory per working pixel and frame: each layer's UV (8 B), whether the layer
+#: owns the pixel (1 B) and its correction (8 B); once, the fit's flow both ways (16 B) and their checks (2 B).
+BYTES_PER_LAYER, FLOW_BYTES = 17, 18
+#: Follow the flow only while that fits in this share of the memory the system says is available, so an export that
+#: would once have fitted is not pushed into swap or the OOM killer by a long clip.
+MEMORY_SHARE = 0.8
+#: Where Linux says how much memory a new allocation can take without swapping (``MemAvailable``, in kB).
+MEMINFO = "/proc/meminfo"
+
+
+def memory_needed(frames: int, size: tuple[int, int], layers: int) -> int:
+    """Bytes that following the flow holds for ``frames`` frames of ``size`` (W, H) working pixels and ``layers``
+    layers, beyond what an export as fitted holds."""
+    w, h = size
+    return frames * w * h * (FLOW_BYTES + BYTES_PER_LAYER * layers)
+
+
+def available_memory(meminfo: str = MEMINFO) -> int | None:
+    """Bytes of memory available to a new allocation (Linux's ``MemAvailable``); None where the system does not
+    say (then nothing is refused on its account)."""
+    try:
+        with open(meminfo, encoding="ascii") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
 
 
 def _grid(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
@@ -144,10 +172,15 @@ def layer_slip_px(uv: np.ndarray, owned: np.ndarray, flow: FlowField) -> float |
 
 
 __all__ = [
+    "BYTES_PER_LAYER",
+    "FLOW_BYTES",
     "FOLLOW_WEIGHT",
+    "MEMORY_SHARE",
     "MIN_SHARE",
     "MIN_SLIP_PX",
+    "available_memory",
     "follow_flow",
     "layer_slip_px",
+    "memory_needed",
     "uv_per_px",
 ]

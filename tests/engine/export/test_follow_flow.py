@@ -195,3 +195,38 @@ def test_without_the_fits_flow_it_is_exported_as_fitted_or_refused_when_insisted
     manifest = Manifest(export(bare))  # the default: a warning, the UV as fitted
     assert "holds no flow of this fit: the layers' UV is exported as fitted" in capsys.readouterr().err
     assert not any(layer["follows_flow"] for layer in manifest.data["layers"])
+
+
+def test_the_memory_it_needs_and_the_memory_the_system_says_is_available(tmp_path):
+    assert FF.memory_needed(70, (768, 432), 2) == 70 * 768 * 432 * (18 + 2 * 17)  # bmx-trees: 2.1 GiB
+    meminfo = tmp_path / "meminfo"
+    meminfo.write_text("MemTotal:       24000000 kB\nMemFree:         1000000 kB\nMemAvailable:   12000000 kB\n")
+    assert FF.available_memory(str(meminfo)) == 12000000 * 1024
+    meminfo.write_text("MemTotal:       24000000 kB\n")  # an old kernel: not said
+    assert FF.available_memory(str(meminfo)) is None
+    meminfo.write_text("MemAvailable:   lots\n")
+    assert FF.available_memory(str(meminfo)) is None
+    assert FF.available_memory(str(tmp_path / "absent")) is None  # not Linux
+
+
+@pytest.mark.slow
+def test_more_than_the_memory_available_is_exported_as_fitted_or_refused_when_insisted_on(
+    tiny, tmp_path, monkeypatch, capsys
+):
+    """A clip long enough that following the flow would not fit in memory: the default exports the UV as fitted
+    with a warning that says how much it needs; insisting is refused in one line naming the flag that works."""
+    run = shutil.copytree(tiny, tmp_path / "run", ignore=shutil.ignore_patterns(C.EXPORTS_DIR))
+    _gate_open(monkeypatch)
+    need = FF.memory_needed(4, (48, 32), 2)
+    monkeypatch.setattr(exporter, "available_memory", lambda: int(need / FF.MEMORY_SHARE) - 1)
+    with pytest.raises(InputError, match=r"following the flow needs about .* GiB of memory") as err:
+        export(run, follow_flow=True)
+    assert "\n" not in str(err.value) and C.EXPORT_NO_FOLLOW_FLOW_FLAG in str(err.value) and str(run) in str(err.value)
+    assert not (run / C.EXPORTS_DIR / "v001").exists()
+    manifest = Manifest(export(run))
+    assert "the layers' UV is exported as fitted" in capsys.readouterr().err
+    assert not any(layer["follows_flow"] for layer in manifest.data["layers"])
+    monkeypatch.setattr(exporter, "available_memory", lambda: int(need / FF.MEMORY_SHARE) + 1024)
+    assert all(layer["follows_flow"] for layer in Manifest(export(run)).data["layers"])  # enough: followed
+    monkeypatch.setattr(exporter, "available_memory", lambda: None)  # the system does not say: followed
+    assert all(layer["follows_flow"] for layer in Manifest(export(run)).data["layers"])
