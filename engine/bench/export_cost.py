@@ -26,6 +26,7 @@ from typing import Any
 
 from engine import contract as C
 from engine.errors import InputError
+from engine.fit.run_folder import RunFolder
 
 #: What the copy of the run folder leaves out: earlier exports, edit layers and the lock of the original.
 NOT_COPIED = (C.EXPORTS_DIR, C.EDITS_DIR, C.RUN_LOCK)
@@ -41,8 +42,7 @@ def _link_or_copy(src: str, dst: str) -> None:
 
 def scratch_run(run: Path, work: Path) -> Path:
     """A copy of ``run`` under ``work`` that exports can write into (``NOT_COPIED`` left out)."""
-    if not (run / C.RUN_CHECKPOINT).is_file():
-        raise InputError(run, "holds no finished fit (no checkpoint)", "give export-cost the --out folder of a fit")
+    RunFolder(run).require_fit()
     dest = work / run.name
     shutil.copytree(run, dest, ignore=shutil.ignore_patterns(*NOT_COPIED), copy_function=_link_or_copy)
     return dest

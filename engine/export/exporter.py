@@ -203,22 +203,20 @@ def _follow_source(job: _Job, fitted: FittedRun) -> tuple[FlowField, _WorkingUV]
     need, have = memory_needed(clip.num_frames, clip.working_size, model.num_layers), available_memory()
     if have is not None and need > MEMORY_SHARE * have:
         said = f"following the flow needs about {need / 2**30:.1f} GiB of memory, {have / 2**30:.1f} GiB is available"
-        if job.follow_flow:
-            raise InputError(job.run_dir, said, f"export with {C.EXPORT_NO_FOLLOW_FLOW_FLAG}, or free memory first")
-        print(f"warning: {job.run_dir}: {said}: the layers' UV is exported as fitted", file=sys.stderr)
-        return None
+        return _not_followed(job, job.run_dir, said, "free memory first")
     (ww, wh), cache = clip.working_size, fitted.folder.flow_cache
     flow = cached_flow(cache, clip.num_frames, wh, ww, DISFlow(cfg.flow_preset).name, cfg.flow_threshold_px)
     if flow is None:
-        if job.follow_flow:
-            raise InputError(
-                cache,
-                "holds no flow of this fit",
-                f"fit the run again (the fit writes its flow there), or export with {C.EXPORT_NO_FOLLOW_FLOW_FLAG}",
-            )
-        print(f"warning: {cache} holds no flow of this fit: the layers' UV is exported as fitted", file=sys.stderr)
-        return None
+        return _not_followed(job, cache, "holds no flow of this fit", "fit the run again (it writes its flow there)")
     return flow, _WorkingUV(clip.num_frames, clip.working_size, model.num_layers)
+
+
+def _not_followed(job: _Job, where: Path, problem: str, remedy: str) -> None:
+    """This export cannot follow the flow (``problem``, of ``where``): refused in one line when it was insisted on
+    (``remedy``, or exporting as fitted), else a warning and the UV as fitted (None, ``_follow_source``'s answer)."""
+    if job.follow_flow:
+        raise InputError(where, problem, f"{remedy}, or export with {C.EXPORT_NO_FOLLOW_FLOW_FLAG}")
+    print(f"warning: {where}: {problem}: the layers' UV is exported as fitted", file=sys.stderr)
 
 
 def _flow_corrections(job: _Job, names: list[str], flow: FlowField, working: _WorkingUV) -> dict[int, np.ndarray]:

@@ -47,7 +47,7 @@ def test_both_kinds_are_timed_in_turn_and_the_run_is_left_as_it_was(tiny, tmp_pa
 
 
 def test_a_folder_without_a_fit_and_no_repeats_are_one_line_each(tmp_path):
-    with pytest.raises(InputError, match="holds no finished fit") as caught:
+    with pytest.raises(InputError, match="this is not a fitted run folder") as caught:
         measure_export_cost(tmp_path, repeats=1)
     assert "\n" not in str(caught.value) and str(tmp_path) in str(caught.value)
     with pytest.raises(InputError, match="--repeats 0 measures nothing"):
