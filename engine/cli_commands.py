@@ -152,6 +152,21 @@ def _cmd_masks(args: argparse.Namespace) -> int:
     return print_paths([report.folder])
 
 
+def _cmd_parts(args: argparse.Namespace) -> int:
+    """Progress goes to stdout as a JSON stage line; the summary, then the folder (or the no-split line) last."""
+    from .data.motion_parts_files import write_motion_parts
+
+    def say(message: str) -> None:
+        print(C.progress_line(C.EVENT_STAGE, stage=C.VERB_PARTS, message=message), flush=True)
+
+    frames = _positions(args.clip, args.frames)
+    report = write_motion_parts(args.clip, args.mask, args.out, frame_range=frames, colorspace=args.colorspace,
+                                say=say)  # fmt: skip
+    for line in report.summary():  # nothing split: its one line is the last
+        print(line)
+    return 0 if report.folder is None else print_paths([report.folder])
+
+
 def _cmd_farm(args: argparse.Namespace) -> int:
     """Plan, then hand the plan to the back end; progress per shot as JSON lines, the result's path last."""
     missing = getattr(args, "farm_missing", None)
@@ -319,6 +334,7 @@ HANDLERS: dict[str, Callable[[argparse.Namespace], int]] = {
     C.VERB_PREVIEW: _cmd_preview,
     C.VERB_ESTIMATE: _cmd_estimate,
     C.VERB_MASKS: _cmd_masks,
+    C.VERB_PARTS: _cmd_parts,
     C.VERB_NUKE: _cmd_nuke,
     C.VERB_FARM: _cmd_farm,
     C.VERB_DEMO: _cmd_demo,

@@ -64,6 +64,7 @@ def build_parser(prog: str = f"python -m {C.CLI_MODULE}") -> argparse.ArgumentPa
     _add_realign_parser(sub)
     _add_preview_parser(sub)
     _add_masks_parser(sub)
+    _add_parts_parser(sub)
     _add_nuke_parser(sub)
     _add_farm_parser(sub)
     add_output_options(p)
@@ -466,6 +467,27 @@ def _add_masks_parser(sub: argparse._SubParsersAction) -> None:
     add_plate_frames(m)
     m.add_argument("--truth", default=None, metavar="FOLDER", help="also print the IoU against these masks")
     m.add_argument("--colorspace", default=None, metavar="NAME", help="the clip's OCIO colour space (as fit's)")
+
+
+def _add_parts_parser(sub: argparse._SubParsersAction) -> None:
+    """``parts``: strokes that split one masked object into the parts that move apart."""
+    p = add_verb(
+        sub,
+        C.VERB_PARTS,
+        help="strokes splitting one masked object into the parts that move apart (for fit --scribbles)",
+        description="Follow points inside the object's mask a few frames along the optical flow on six frames spread "
+        "over the clip, and fit an affine motion to each part that moves apart from the rest (a limb swinging in front "
+        "of the body). Where two or more parts hold on most of those frames, write their strokes as scribble images "
+        "(Foreground1 red, Foreground2 green, ...) named like the frames, to check and pass to fit --scribbles with "
+        "the same --mask; an object that moves as one piece gets none. Existing files are never overwritten: a folder "
+        "holding these very strokes is left as it is and the command succeeds. The last line printed is the folder, "
+        "or the line saying nothing was split. See docs/engine.md.",
+    )
+    p.add_argument("clip", help=CLIP_HELP)
+    p.add_argument("--mask", required=True, metavar="FOLDER", help="the object's mask folder (one mask)")
+    p.add_argument("--out", required=True, metavar="FOLDER", help="folder for the stroke images (created)")
+    add_plate_frames(p)
+    p.add_argument("--colorspace", default=None, metavar="NAME", help="the clip's OCIO colour space (as fit's)")
 
 
 def _add_farm_parser(sub: argparse._SubParsersAction) -> None:

@@ -59,6 +59,7 @@ def _paint_table(args: argparse.Namespace) -> int:
         parts=args.parts,
         scribbles=args.scribbles,
         scribble_frames=args.scribble_frames,
+        auto_parts=args.auto_parts,
         follow_flow=args.follow_flow,
         command=[PROG, *args.argv],
     )

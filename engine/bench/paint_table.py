@@ -255,6 +255,7 @@ def run_paint_table(
     parts: bool = False,
     scribbles: bool = False,
     scribble_frames: int = 3,
+    auto_parts: bool = False,
     follow_flow: bool = True,
     command: list[str] | None = None,
     log: Log | None = None,
@@ -264,18 +265,21 @@ def run_paint_table(
     ``masks_parts/`` (``motion_scenes.part_masks``) is fitted with one layer per part; scores are unchanged (the
     foreground is every layer after the background). ``scribbles``: such a clip is fitted the product's way
     instead, its one mask split by strokes drawn from the part masks on ``scribble_frames`` frames spread evenly from
-    the first to the last (3: first, middle, last; ``part_scribbles``). ``follow_flow``: exported with
+    the first to the last (3: first, middle, last; ``part_scribbles``). ``auto_parts``: each clip's one (degraded)
+    mask split by the strokes the engine's ``parts`` draws from the motion, where it splits it (the row's
+    ``auto_parts`` says what it found). ``follow_flow``: exported with
     ``export --follow-flow`` (the product's default), else ``--no-follow-flow``."""
     say = log or (lambda line: print(line, file=sys.stderr, flush=True))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     recipe(degrade)  # an unknown name is refused before anything runs
-    if parts and scribbles:
-        raise ValueError("parts and scribbles are two ways to split a clip: choose one")
+    if parts + scribbles + auto_parts > 1:
+        raise ValueError("parts, scribbles and auto_parts are ways to split a clip: choose one")
     rows = []
     for folder in _selected_clips(root, only):
-        row = _clip_row(folder, out, preset, degrade, seed, sets or [], threads, parts, scribbles, scribble_frames,
-                        follow_flow, say)  # fmt: skip
+        split = "parts" if parts else "scribbles" if scribbles else "auto" if auto_parts else None
+        row = _clip_row(folder, out, preset, degrade, seed, sets or [], threads, split, scribble_frames, follow_flow,
+                        say)  # fmt: skip
         if pictures and (folder / "masks").is_dir():
             from engine.bench.paint_picture import paint_picture
 
@@ -295,6 +299,7 @@ def run_paint_table(
         "parts": parts,
         "scribbles": scribbles,
         "scribble_frames": scribble_frames if scribbles else None,
+        "auto_parts": auto_parts,
         "follow_flow": follow_flow,
         "rows": rows,
         "mean": mean_row(rows),
@@ -323,26 +328,38 @@ def _clip_row(
     seed: int,
     sets: list[str],
     threads: int | None,
-    parts: bool,
-    scribbles: bool,
+    how: str | None,
     scribble_frames: int,
     follow_flow: bool,
     say: Log,
 ) -> dict:
-    """One clip fitted and exported as ``run_paint_table`` says, and its export scored: the table's row."""
+    """One clip fitted and exported as ``run_paint_table`` says, and its export scored: the table's row. ``how`` a
+    clip is split: ``parts``, ``scribbles``, ``auto`` (``run_paint_table``'s flags) or None."""
     given = [folder / "masks"]
     split = part_folders(folder)
-    if parts and split:
+    if how == "parts" and split:
         given = split
     masks = given  # exact: the clip's own masks, as a user passes them
     if recipe(degrade) != recipe(EXACT):
         masks = [write_degraded(m, out / "masks" / degrade / folder.name / m.name, degrade, seed) for m in given]
     strokes = None
-    if scribbles and split:
+    found = None
+    layers = len(masks) + 1
+    if how == "scribbles" and split:
         from engine.bench.part_scribbles import write_part_scribbles
 
         at = tuple(float(a) for a in np.linspace(0.0, 1.0, max(2, scribble_frames)))
         strokes, _ = write_part_scribbles(split, out / "scribbles" / folder.name, at)
+        layers = len(split) + 1
+    if how == "auto":
+        from engine.data.motion_parts_files import write_motion_parts
+
+        report = write_motion_parts(folder / "frames", masks[0], out / "parts" / folder.name)
+        found = report.result.message
+        say(f"paint-table: {folder.name}: parts: {found}")
+        if report.folder is not None:
+            strokes = Path(report.folder)
+            layers = report.result.parts + 1
     run = out / "runs" / folder.name
     say(f"paint-table: {folder.name}: fit {preset} + export -> {run}")
     manifest = fit_and_export(folder / "frames", masks, run, preset, sets, threads, out / "logs" /
@@ -351,8 +368,9 @@ def _clip_row(
     metrics = json.loads((run / C.RUN_METRICS).read_text(encoding="utf-8"))
     row = {
         "clip": folder.name,
-        "layers": (len(split) if strokes is not None else len(masks)) + 1,
+        "layers": layers,
         "scribbles": str(strokes) if strokes is not None else None,
+        "auto_parts": found,
         "given_masks_iou": masks_iou(masks[0], folder / "masks") if len(masks) == 1 else None,
         **score_clip_export(folder, manifest, out),
         "psnr": metrics.get("psnr"),
@@ -385,6 +403,8 @@ def format_table(table: dict) -> str:
     parts = ", one layer per part where a clip has `masks_parts/`" if table.get("parts") else ""
     if table.get("scribbles"):
         parts = ", one mask split by strokes drawn from `masks_parts/` where a clip has it"
+    if table.get("auto_parts"):
+        parts = ", one mask split by the strokes `parts` draws from the motion where it splits the object"
     head = f"preset `{table['preset']}`{sets}, masks `{table['degrade']}` (seed {table['seed']}){parts}"
     lines = [head, "", "| " + " | ".join(h for h, _, _ in COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
     for row in [*table["rows"], table["mean"]]:

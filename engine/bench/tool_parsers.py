@@ -346,6 +346,12 @@ def _add_paint_table_parser(sub: argparse._SubParsersAction) -> None:
         help="fit a clip with masks_parts/PART/ folders with its one mask split by strokes drawn from the parts "
         "on --scribble-frames frames: the product's Split with Scribbles",
     )
+    split.add_argument(
+        "--auto-parts",
+        action="store_true",
+        help="run the engine's `parts` on each clip's (degraded) mask into OUT/parts/CLIP and, where it splits the "
+        "object, fit with those strokes as --scribbles (a clip it does not split is fitted as without)",
+    )
     pt.add_argument(
         "--scribble-frames",
         type=int,

@@ -21,6 +21,9 @@ VERB_RENDER = "render"  # render MANIFEST [--edit LAYER=IMAGE ...] --out DIR [--
 VERB_PROJECT_FRAME = "project-frame"  # project-frame MANIFEST --frame N --edit IMAGE
 VERB_PREVIEW = "preview"  # preview MANIFEST [--out DIR]
 VERB_MASKS = "masks"  # masks CLIP --out FOLDER [--frames FIRST-LAST]; last stdout line = the masks folder
+#: parts CLIP --mask FOLDER --out FOLDER [--frames FIRST-LAST]: strokes (scribble images) splitting the one masked
+#: object into the parts that move apart; last stdout line = the strokes folder, or the line saying nothing was split
+VERB_PARTS = "parts"
 VERB_NUKE = "nuke"  # nuke MANIFEST [--out FILE.nk] [--filter ...]: a Nuke script of the edit; last line = its path
 #: realign MANIFEST [--from vNNN|OLD_MANIFEST] [--layer NAME ...] [--frame-step N] [--measure]: move the edit layers
 #: painted against an earlier export of the run onto MANIFEST's mapping (after ``fit --refine``); last line = MANIFEST
@@ -95,6 +98,7 @@ __all__ = [
     "VERB_FIT",
     "VERB_MASKS",
     "VERB_NUKE",
+    "VERB_PARTS",
     "VERB_PREVIEW",
     "VERB_PROJECT_FRAME",
     "VERB_REALIGN",

@@ -164,6 +164,25 @@ def test_parts_fit_one_layer_per_part_and_are_scored_as_one_foreground(tmp_path)
     assert "one layer per part" in (tmp_path / "out" / PAINT_MD).read_text().splitlines()[0]
 
 
+@pytest.mark.slow
+def test_auto_parts_fit_an_object_that_moves_as_one_piece_as_one_layer(tmp_path):
+    _, record = tiny_limbs_table(tmp_path, auto_parts=True)
+    (row,) = record["rows"]
+    assert record["auto_parts"] and row["layers"] == 2 and row["scribbles"] is None
+    assert "nothing to split" in row["auto_parts"]
+    assert not (tmp_path / "out" / "parts" / "limbs_jump").exists()
+    assert "the strokes `parts` draws" in (tmp_path / "out" / PAINT_MD).read_text().splitlines()[0]
+
+
+def test_one_way_to_split_a_clip_at_a_time(scene_root, tmp_path):
+    with pytest.raises(ValueError, match="choose one"):
+        run_paint_table(scene_root, tmp_path / "o", parts=True, auto_parts=True, log=lambda _: None)
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), pytest.raises(SystemExit):
+        bench_main(["paint-table", str(scene_root), "--scribbles", "--auto-parts"])
+    assert "not allowed with argument" in err.getvalue()
+
+
 def test_an_unknown_clip_is_one_line(scene_root, tmp_path):
     err = io.StringIO()
     with contextlib.redirect_stderr(err):

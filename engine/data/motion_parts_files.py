@@ -1,0 +1,121 @@
+"""``parts``: the strokes that split one masked object into the parts that move apart, written as scribble images.
+
+The clip and the mask are read as ``fit`` reads them (its working size and encoding, as ``masks`` reads a plate;
+the outline snapped to the clip's edges), the adjacent flow is computed as ``fit`` computes it, and
+``engine.data.motion_parts`` finds the parts. The strokes are written as RGBA PNGs at the clip's resolution, one
+per stroked frame, named like the frames, in ``contract.SCRIBBLE_COLOURS`` (Foreground1 red, Foreground2 green,
+...): the files ``fit --scribbles`` reads, which an artist can open, check and fix like strokes of their own.
+Files are never overwritten; the same command run again over its own output leaves it as it is and succeeds.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .. import contract as C
+from ..config import FitConfig
+from ..errors import InputError
+from ..io.atomic import atomic_write_bytes
+from ..io.clip import open_clip, read_frames, read_masks, working_size
+from ..io.colour import to_working
+from .flow import DISFlow, compute_flow
+from .mask_files import mask_file_names
+from .mask_snap import snap_masks
+from .motion_parts import MotionParts, PartsConfig, motion_parts
+from .scribbles import NO_LABEL
+
+
+@dataclass
+class PartsReport:
+    """What ``write_motion_parts`` did, for the CLI's summary: the folder is None when nothing was split."""
+
+    result: MotionParts
+    folder: str | None = None
+    files: list[str] = field(default_factory=list)
+    reused: bool = False
+    """The folder held these very strokes already (the same command run before): left as it is."""
+
+    def summary(self) -> list[str]:
+        again = " (the folder held these very strokes already: left as they are)" if self.reused else ""
+        lines = [f"parts: {self.result.message}{again}"]
+        if self.folder is not None:
+            lines.append(f"fit with: --mask MASKS --scribbles {self.folder}")
+        return lines
+
+
+def stroke_image(labels: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """uint8 [H, W, 4] BGRA (OpenCV's order) of working-resolution ``labels`` at the clip's ``size`` (W, H): each
+    label in its scribble colour, opaque; transparent where there is no stroke. Nearest resizing keeps the colours
+    exact, which the scribble reader matches within ``contract.SCRIBBLE_TOLERANCE``."""
+    w, h = size
+    big = cv2.resize(labels.astype(np.int16), (w, h), interpolation=cv2.INTER_NEAREST)
+    out = np.zeros((h, w, 4), np.uint8)
+    for k, (r, g, b) in enumerate(C.SCRIBBLE_COLOURS):
+        out[big == k] = (b, g, r, 255)
+    return out
+
+
+def _encode(image: np.ndarray, path: Path) -> bytes:
+    ok, data = cv2.imencode(".png", image)
+    if not ok:  # pragma: no cover - OpenCV encodes any uint8 BGRA array
+        raise InputError(path, "could not be encoded as PNG", "check the disk and run again")
+    return data.tobytes()
+
+
+def write_motion_parts(
+    clip: str | Path,
+    mask: str | Path,
+    out: str | Path,
+    frame_range: tuple[int, int] | None = None,
+    colorspace: str | None = None,
+    cfg: PartsConfig | None = None,
+    say: Callable[[str], None] | None = None,
+) -> PartsReport:
+    """Find the parts of the object in ``mask`` (one mask folder) that move apart and write their strokes to
+    ``out`` (created). Nothing is written when the object moves as one piece. A file of the same name already there
+    is refused, unless every file would be the same (the command run before), which is left as it is."""
+    info = open_clip(clip, frame_range, colorspace)
+    if info.num_frames < 2:
+        raise InputError(
+            info.source, "a single frame has no motion to split the object by", "select at least two frames"
+        )
+    fit = FitConfig()
+    size = working_size(info.width, info.height, fit.long_edge)
+    folder = Path(out).expanduser().resolve()
+    if folder.exists() and not folder.is_dir():
+        raise InputError(folder, "is a file, not a folder", "pass a folder for the strokes with --out")
+    if say is not None:
+        say(f"following the object's parts in {info.num_frames} frames at {size[0]}x{size[1]}")
+    frames = to_working(np.nan_to_num(read_frames(info, size), nan=0.0, posinf=1.0, neginf=0.0), info.colorspace,
+                        info.colour_config)  # fmt: skip
+    frames = np.clip(np.nan_to_num(frames, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0).astype(np.float32)
+    masks = read_masks(mask, info, size)
+    if not masks.any():
+        raise InputError(mask, "holds no mask pixel on the selected frames", "draw the object's mask first")
+    snapped, _ = snap_masks(frames, masks[None], fit.mask_snap_px)
+    flow = compute_flow(frames, DISFlow(fit.flow_preset), None, fit.flow_threshold_px)
+    result = motion_parts(snapped[0], flow, cfg)
+    if not result.found:
+        return PartsReport(result)
+    names = mask_file_names(info)
+    stroked = [t for t in range(info.num_frames) if (result.labels[t] != NO_LABEL).any()]
+    images = {names[t]: _encode(stroke_image(result.labels[t], (info.width, info.height)), folder) for t in stroked}
+    there = [n for n in images if (folder / n).exists()]
+    if there:
+        if len(there) == len(images) and all((folder / n).read_bytes() == data for n, data in images.items()):
+            return PartsReport(result, str(folder), [str(folder / n) for n in images], reused=True)
+        raise InputError(
+            folder / there[0], "already exists (strokes are never overwritten)", "pass an empty folder with --out"
+        )
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, data in images.items():
+        atomic_write_bytes(folder / name, data)
+    return PartsReport(result, str(folder), [str(folder / n) for n in images])
+
+
+__all__ = ["PartsReport", "stroke_image", "write_motion_parts"]
