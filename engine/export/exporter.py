@@ -219,14 +219,27 @@ def _not_followed(job: _Job, where: Path, problem: str, remedy: str) -> None:
     print(f"warning: {where}: {problem}: the layers' UV is exported as fitted", file=sys.stderr)
 
 
-def _flow_corrections(job: _Job, names: list[str], flow: FlowField, working: _WorkingUV) -> dict[int, np.ndarray]:
+def split_parts(scribbled: bool, insisted: bool | None, layers: int) -> frozenset[int]:
+    """The layers (of ``layers``, the background first) that following the flow leaves as fitted: the foreground
+    layers of a fit whose one object was split by scribbles, unless the export insists on the flow (``insisted``:
+    the export's ``follow_flow``)."""
+    return frozenset(range(1, layers)) if scribbled and not insisted else frozenset()
+
+
+def _flow_corrections(
+    job: _Job, names: list[str], flow: FlowField, working: _WorkingUV, parts: frozenset[int] = frozenset()
+) -> dict[int, np.ndarray]:
     """The UV correction [T, h, w, 2] at working resolution of each layer whose UV slips against the
-    fit's flow by more than ``MIN_SLIP_PX``, by layer index (``names``: the layers' names, for the messages)."""
+    fit's flow by more than ``MIN_SLIP_PX``, by layer index (``names``: the layers' names, for the messages).
+    ``parts``: layers that are parts of one object split by scribbles, left as fitted: where the parts cross, the
+    flow follows neither (measured: ``docs/export.md``)."""
     out = {}
     for i in working.uv:
         slip = layer_slip_px(working.uv[i], working.owned[i], flow)
-        follows = slip is not None and slip > MIN_SLIP_PX
+        follows = slip is not None and slip > MIN_SLIP_PX and i not in parts
         said = "no pixel to judge" if slip is None else f"slips {slip:.2f} px against the flow"
+        if i in parts and slip is not None:
+            said += f" (a part of one object: {C.EXPORT_FOLLOW_FLOW_FLAG} follows it)"
         job.reporter.emit(
             C.EVENT_STAGE,
             stage="follow-flow",
@@ -248,7 +261,8 @@ def _plan(
         return plan, cov, {}
     flow, working = source
     plan, cov = plan_export(job.reporter, fitted, atlas_size, frames, bar, working.add)
-    corrections = _flow_corrections(job, plan.names, flow, working)
+    parts = split_parts(fitted.clip.scribbles is not None, job.follow_flow, len(plan.names))
+    corrections = _flow_corrections(job, plan.names, flow, working, parts)
     plan.follow_flow, plan.follows = True, frozenset(corrections)
     return plan, cov, corrections
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -105,6 +106,36 @@ def test_uv_scale_per_pixel_and_its_guards():
     assert FF.uv_per_px(uv[0], owned[0]) == pytest.approx(UV_PER_PX, rel=1e-4)
     assert FF.uv_per_px(uv[0], np.zeros((H, W), bool)) is None
     assert FF.uv_per_px(np.zeros_like(uv[0]), owned[0]) == FF.MIN_UV_PER_PX  # a collapsed map: no division by 0
+
+
+class _Said:
+    """A reporter that keeps each stage message."""
+
+    def __init__(self) -> None:
+        self.messages: list[str] = []
+
+    def emit(self, _event: str, **fields: object) -> None:
+        self.messages.append(str(fields["message"]))
+
+
+def test_the_parts_of_one_object_are_left_as_fitted_unless_the_export_insists():
+    rng = np.random.default_rng(0)
+    uv = _true_uv() + rng.normal(0, 0.8 * UV_PER_PX, (T, H, W, 2)).astype(np.float32)  # slips ~1 px a frame
+    owned = _inner()
+    working = SimpleNamespace(uv={0: uv, 1: uv, 2: uv}, owned={0: owned, 1: owned, 2: owned})
+    job = SimpleNamespace(reporter=_Said())
+    names = ["Background", "Foreground1", "Foreground2"]
+    parts = exporter.split_parts(scribbled=True, insisted=None, layers=3)
+    assert parts == {1, 2}
+    out = exporter._flow_corrections(job, names, _flow(), working, parts)
+    assert set(out) == {0}  # the background follows, the parts do not
+    assert job.reporter.messages[0].endswith("following the flow")
+    for message in job.reporter.messages[1:]:
+        assert "a part of one object: --follow-flow follows it" in message and message.endswith("left as fitted")
+    # insisted on, or no scribbles: every layer over the gate follows
+    assert exporter.split_parts(scribbled=True, insisted=True, layers=3) == frozenset()
+    assert exporter.split_parts(scribbled=False, insisted=None, layers=3) == frozenset()
+    assert set(exporter._flow_corrections(SimpleNamespace(reporter=_Said()), names, _flow(), working)) == {0, 1, 2}
 
 
 @pytest.fixture(scope="module")
