@@ -276,8 +276,8 @@ def run_paint_table(
     if parts + scribbles + auto_parts > 1:
         raise ValueError("parts, scribbles and auto_parts are ways to split a clip: choose one")
     rows = []
+    split = "parts" if parts else "scribbles" if scribbles else "auto" if auto_parts else None
     for folder in _selected_clips(root, only):
-        split = "parts" if parts else "scribbles" if scribbles else "auto" if auto_parts else None
         row = _clip_row(folder, out, preset, degrade, seed, sets or [], threads, split, scribble_frames, follow_flow,
                         say)  # fmt: skip
         if pictures and (folder / "masks").is_dir():

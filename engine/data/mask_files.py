@@ -3,7 +3,8 @@
 A set of masks is written all or nothing (``write_mask_files``): assembled in a hidden folder beside its
 destination and published at once, so a full disk, a cancel or a crash never leaves a partial set that a later
 run (or ``fit --mask``) would take for a finished one, and running the command again writes the set. Existing
-files are never replaced: an artist may have fixed them.
+files are never replaced: an artist may have fixed them. Other per-frame image sets an artist checks and fixes (the
+strokes of ``engine parts``) are written the same way (``write_file_set``).
 """
 
 from __future__ import annotations
@@ -88,12 +89,13 @@ def _umask() -> int:
     return mask
 
 
-def already_holds(folder: Path, clash: list[str]) -> InputError:
-    """Masks are never overwritten: the one line for a destination that holds some of the names."""
+def already_holds(folder: Path, clash: list[str], what: str = "mask") -> InputError:
+    """Masks (or other ``what`` files) are never overwritten: the one line for a destination that holds some of the
+    names."""
     return InputError(
         folder,
-        f"already holds {clash[0]}" + (f" and {len(clash) - 1} more of the mask names" if len(clash) > 1 else ""),
-        "masks are never overwritten (an artist may have fixed them): choose a new --out or delete them",
+        f"already holds {clash[0]}" + (f" and {len(clash) - 1} more of the {what} names" if len(clash) > 1 else ""),
+        f"{what}s are never overwritten (an artist may have fixed them): choose a new --out or delete them",
     )
 
 
@@ -110,7 +112,7 @@ def _link_new(source: Path, target: Path) -> None:
         os.rename(source, target)
 
 
-def _publish(staging: Path, folder: Path, names: list[str]) -> None:
+def _publish(staging: Path, folder: Path, names: list[str], what: str) -> None:
     """Move the finished set from ``staging`` to ``folder``, all at once.
 
     A missing or empty ``folder`` is replaced by the staging folder in one rename (atomic). A folder that holds
@@ -132,11 +134,11 @@ def _publish(staging: Path, folder: Path, names: list[str]) -> None:
         except FileExistsError:
             for path in linked:
                 path.unlink(missing_ok=True)
-            raise already_holds(folder, [n for n in names if (folder / n).exists()]) from None
+            raise already_holds(folder, [n for n in names if (folder / n).exists()], what) from None
         shutil.rmtree(staging, ignore_errors=True)
 
 
-def _staging_folder(folder: Path, need: int) -> Path:
+def _staging_folder(folder: Path, need: int, what: str) -> Path:
     """A new hidden folder beside ``folder`` (created with its parents); a full disk or a folder that cannot be
     created there is one line."""
     try:
@@ -146,29 +148,35 @@ def _staging_folder(folder: Path, need: int) -> Path:
     except (PermissionError, NotADirectoryError, FileExistsError) as exc:
         raise InputError(
             folder,
-            f"cannot create the mask folder here ({exc.strerror})",
+            f"cannot create the {what} folder here ({exc.strerror})",
             "choose a folder you can write to with --out",
         ) from None
 
 
 def write_mask_files(folder: Path, names: list[str], masks: np.ndarray) -> list[str]:
-    """Bool masks [T, H, W] (the clip's resolution) as 8-bit 0/255 PNGs ``folder/names[t]``, all or nothing; the
-    paths written.
+    """Bool masks [T, H, W] (the clip's resolution) as 8-bit 0/255 PNGs ``folder/names[t]``, all or nothing
+    (``write_file_set``); the paths written."""
+    return write_file_set(folder, {name: _encode_mask(m, name) for name, m in zip(names, masks, strict=True)})
 
-    The set is encoded, written and synced into a hidden staging folder beside ``folder`` (``STAGING_SUFFIX``),
-    then published (``_publish``). Any failure or cancel (a BaseException: SIGTERM raises one) removes the staging
+
+def write_file_set(folder: Path, files: dict[str, bytes], what: str = "mask") -> list[str]:
+    """Encoded files (name -> bytes) into ``folder``, all or nothing; the paths written. ``what`` the files are
+    names them in the one-line refusals.
+
+    The set is written and synced into a hidden staging folder beside ``folder`` (``STAGING_SUFFIX``), then
+    published (``_publish``). Any failure or cancel (a BaseException: SIGTERM raises one) removes the staging
     folder, so ``folder`` holds the whole set or nothing of it; a full disk is one line, ``disk full: free N MB
     at FOLDER`` (``DiskFullError``). Existing files are never replaced.
     """
     folder = Path(folder)
-    encoded = [_encode_mask(m, name) for name, m in zip(names, masks, strict=True)]
-    need = sum(len(data) for data in encoded)
-    staging = _staging_folder(folder, need)
+    names = list(files)
+    need = sum(len(data) for data in files.values())
+    staging = _staging_folder(folder, need, what)
     try:
         os.chmod(staging, 0o777 & ~_umask())  # the folder the artist gets: a plain mkdir's permissions, not 0700
-        for name, data in zip(names, encoded, strict=True):
+        for name, data in files.items():
             _write_synced(staging / name, data)
-        _publish(staging, folder, names)
+        _publish(staging, folder, names, what)
     except BaseException as exc:
         shutil.rmtree(staging, ignore_errors=True)
         full = disk_full_error(exc, folder, need=need)

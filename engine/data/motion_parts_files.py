@@ -5,7 +5,8 @@ the outline snapped to the clip's edges), the adjacent flow is computed as ``fit
 ``engine.data.motion_parts`` finds the parts. The strokes are written as RGBA PNGs at the clip's resolution, one
 per stroked frame, named like the frames, in ``contract.SCRIBBLE_COLOURS`` (Foreground1 red, Foreground2 green,
 ...): the files ``fit --scribbles`` reads, which an artist can open, check and fix like strokes of their own.
-Files are never overwritten; the same command run again over its own output leaves it as it is and succeeds.
+The set is written all or nothing (``mask_files.write_file_set``), never over a file; the same command run again
+over its own output leaves it as it is and succeeds.
 """
 
 from __future__ import annotations
@@ -20,14 +21,16 @@ import numpy as np
 from .. import contract as C
 from ..config import FitConfig
 from ..errors import InputError
-from ..io.atomic import atomic_write_bytes
 from ..io.clip import open_clip, read_frames, read_masks, working_size
 from ..io.colour import to_working
 from .flow import DISFlow, compute_flow
-from .mask_files import mask_file_names
+from .mask_files import already_holds, mask_file_names, write_file_set
 from .mask_snap import snap_masks
 from .motion_parts import MotionParts, PartsConfig, motion_parts
 from .scribbles import NO_LABEL
+
+#: What the files are, in the one-line refusals of ``mask_files``.
+STROKE = "stroke"
 
 
 @dataclass
@@ -106,16 +109,11 @@ def write_motion_parts(
     stroked = [t for t in range(info.num_frames) if (result.labels[t] != NO_LABEL).any()]
     images = {names[t]: _encode(stroke_image(result.labels[t], (info.width, info.height)), folder) for t in stroked}
     there = [n for n in images if (folder / n).exists()]
-    if there:
+    if there:  # the same command run before left these very strokes: nothing to do; anything else is refused
         if len(there) == len(images) and all((folder / n).read_bytes() == data for n, data in images.items()):
             return PartsReport(result, str(folder), [str(folder / n) for n in images], reused=True)
-        raise InputError(
-            folder / there[0], "already exists (strokes are never overwritten)", "pass an empty folder with --out"
-        )
-    folder.mkdir(parents=True, exist_ok=True)
-    for name, data in images.items():
-        atomic_write_bytes(folder / name, data)
-    return PartsReport(result, str(folder), [str(folder / n) for n in images])
+        raise already_holds(folder, there, STROKE)
+    return PartsReport(result, str(folder), write_file_set(folder, images, STROKE))
 
 
 __all__ = ["PartsReport", "stroke_image", "write_motion_parts"]
