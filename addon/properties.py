@@ -108,6 +108,13 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
         description="Split the one foreground layer into parts (e.g. two legs) marked with the clip's annotation "
         "strokes: part 1 in red, part 2 in green, part 3 in blue, part 4 in yellow, on about one frame in six",
     )
+    find_parts: BoolProperty(
+        name="Find Parts",
+        default=False,
+        description="Split the one foreground layer into the parts that move apart (a limb swinging across the "
+        "body), found from motion when the fit starts; the strokes are written to the run folder's parts/ to check "
+        "(fix them there, or delete the folder to find them again). An object moving as one piece stays one layer",
+    )
     run_dir: StringProperty(
         name="Run Folder",
         subtype="DIR_PATH",

@@ -30,8 +30,9 @@ FRAMES_SHOWN = 8
 class NEURALATLAS_UL_layers(bpy.types.UIList):
     def draw_item(self, context, layout, data, item, icon, active_data, active_propname, index=0):
         row = layout.row(align=True)
-        split = data.use_scribbles and len(data.layers) == 1
-        row.label(text="Object (split by scribbles)" if split else f"Foreground {index + 1}")
+        one = len(data.layers) == 1
+        split = "split by scribbles" if data.use_scribbles else "parts from motion" if data.find_parts else None
+        row.label(text=f"Object ({split})" if one and split else f"Foreground {index + 1}")
         row.prop(item, "source", text="")
         row.prop(item, "mask" if item.source == "MASK" else "folder", text="")
 
@@ -126,7 +127,9 @@ class NEURALATLAS_PT_fit(_SidebarPanel, bpy.types.Panel):
         sub.operator("neural_atlas.layer_add", icon="ADD", text="")
         sub.operator("neural_atlas.layer_remove", icon="REMOVE", text="")
         col.operator("neural_atlas.find_masks", icon="VIEWZOOM")
-        col.prop(props, "use_scribbles")
+        row = col.row(align=True)
+        row.prop(props, "use_scribbles")
+        row.prop(props, "find_parts")
         if props.use_scribbles:
             _draw_scribbles(col.box(), props)
         col.prop(props, "run_dir")

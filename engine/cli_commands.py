@@ -156,12 +156,9 @@ def _cmd_parts(args: argparse.Namespace) -> int:
     """Progress goes to stdout as a JSON stage line; the summary, then the folder (or the no-split line) last."""
     from .data.motion_parts_files import write_motion_parts
 
-    def say(message: str) -> None:
-        print(C.progress_line(C.EVENT_STAGE, stage=C.VERB_PARTS, message=message), flush=True)
-
     frames = _positions(args.clip, args.frames)
     report = write_motion_parts(args.clip, args.mask, args.out, frame_range=frames, colorspace=args.colorspace,
-                                say=say)  # fmt: skip
+                                say=_say_parts)  # fmt: skip
     for line in report.summary():  # nothing split: its one line is the last
         print(line)
     return 0 if report.folder is None else print_paths([report.folder])
@@ -222,10 +219,14 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         return C.EXIT_OK
     if args.out is None:
         raise InputError(None, "no run folder given", "pass --out RUN_DIR (a new folder, or a fit's to --resume)")
+    from .fit.auto_parts import check_auto_parts, find_parts, strokes_in_run
     from .fit.run_plan import PLAN_DONE, PLAN_REFINE, plan_fit
     from .fit.trainer import FitCancelled, fit
 
     run_dir = Path(args.out)
+    scribbles = args.scribbles
+    if args.auto_parts and scribbles is None:  # strokes an earlier --auto-parts wrote, or the artist fixed
+        scribbles = strokes_in_run(run_dir)
     plan = plan_fit(
         run_dir,
         args.clip,
@@ -235,7 +236,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         set_args=args.set,
         frames=args.frames,
         start_frame=args.start_frame,
-        scribble_dir=args.scribbles,
+        scribble_dir=scribbles,
         colorspace=args.colorspace,
         auto_masks=args.auto_masks,
         resume=args.resume,
@@ -250,6 +251,10 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         return C.EXIT_OK
     if plan.action == PLAN_REFINE:
         return _cmd_refine(args, run_dir, plan)
+    if args.auto_parts and not plan.resume:
+        check_auto_parts(plan.cfg, args.mask, args.scribbles, args.auto_masks)
+        if scribbles is None:
+            scribbles = find_parts(args.clip, args.mask[0], run_dir, plan.cfg, plan.frames, args.colorspace, _say_parts)
     try:
         metrics = fit(
             args.clip,
@@ -260,7 +265,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
             resume=plan.resume,
             frame_range=plan.frames,
             progress_bar=not args.no_bar,
-            scribble_dir=args.scribbles,
+            scribble_dir=scribbles,
             auto_masks=args.auto_masks,
             refit=args.refit,
             colorspace=args.colorspace,
@@ -276,6 +281,11 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     return C.EXIT_OK
+
+
+def _say_parts(message: str) -> None:
+    """The progress of ``parts`` and of ``fit --auto-parts``: a JSON stage line on stdout."""
+    print(C.progress_line(C.EVENT_STAGE, stage=C.VERB_PARTS, message=message), flush=True)
 
 
 def _cmd_refine(args: argparse.Namespace, run_dir: Path, plan: FitPlan) -> int:

@@ -46,19 +46,23 @@ def version_argv(python: str) -> list[str]:
 class ClipInputs:
     """What the engine reads of a clip: the plate (a sequence's folder or a movie file), one mask folder per
     foreground layer, the frames as the plate's frame numbers (first and last, inclusive) and, for a fit that
-    splits one object with scribbles, the scribble folder."""
+    splits one object with scribbles, the scribble folder, or, for one the engine splits into the parts that move
+    apart (Find Parts), ``auto_parts``."""
 
     plate: str
     masks: tuple[str, ...]
     first: int
     last: int
     scribbles: str | None = None
+    auto_parts: bool = False
 
     def args(self) -> list[str]:
-        """``--mask M ... --frames A:B [--scribbles S]`` (the plate is the verb's first argument)."""
+        """``--mask M ... --frames A:B [--scribbles S | --auto-parts]`` (the plate is the verb's first argument)."""
         out = [arg for folder in self.masks for arg in ("--mask", folder)]
         out += ["--frames", frames_arg(self.first, self.last)]
-        return out + ([C.SCRIBBLE_ARG, self.scribbles] if self.scribbles else [])
+        if self.scribbles:
+            out += [C.SCRIBBLE_ARG, self.scribbles]
+        return out + ([C.FIT_AUTO_PARTS_FLAG] if self.auto_parts else [])
 
 
 def frames_arg(first: int, last: int) -> str:

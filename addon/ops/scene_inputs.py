@@ -77,7 +77,8 @@ def _scribbles(clip: Any, folder: str, frames: list[int], first_number: int | No
 
 def clip_inputs(props: Any, files: RunFiles, with_scribbles: bool = True) -> EC.ClipInputs:
     """The plate, each layer's mask folder (Mask layers rasterised now), the frames and (with
-    ``props.use_scribbles``) the rasterised scribbles."""
+    ``props.use_scribbles``) the rasterised scribbles or (with ``props.find_parts``) the engine's own split.
+    ``with_scribbles`` False: neither (the estimate's and the farm's inputs)."""
     clip = props.clip
     if clip is None:
         raise UserError("choose the clip to fit")
@@ -88,6 +89,14 @@ def clip_inputs(props: Any, files: RunFiles, with_scribbles: bool = True) -> EC.
         raise UserError(
             f"Split with Scribbles splits one object: keep exactly one foreground layer (the whole object's mask), "
             f"not {len(props.layers)}, or turn Split with Scribbles off"
+        )
+    find_parts = with_scribbles and props.find_parts
+    if find_parts and scribbled:
+        raise UserError("Find Parts and Split with Scribbles both split the object: turn one of them off")
+    if find_parts and len(props.layers) != 1:
+        raise UserError(
+            f"Find Parts splits one object: keep exactly one foreground layer (the whole object's mask), not "
+            f"{len(props.layers)}, or turn Find Parts off"
         )
     plate, first_number = clip_plate(clip)
     first, last = clip_range(props)
@@ -108,7 +117,7 @@ def clip_inputs(props: Any, files: RunFiles, with_scribbles: bool = True) -> EC.
                 raise UserError(f"layer {i}: mask folder {folder!r} does not exist")
         folders.append(folder)
     numbers = F.plate_numbers(first, last, clip.frame_start, first_number)
-    return EC.ClipInputs(plate, tuple(folders), *numbers, scribble_dir)
+    return EC.ClipInputs(plate, tuple(folders), *numbers, scribble_dir, auto_parts=find_parts)
 
 
 def sets(props: Any) -> list[str]:
@@ -123,10 +132,9 @@ def farm_shot(props: Any, files: RunFiles) -> FM.FarmShot:
     clip = props.clip
     if clip is None:
         raise UserError("choose the clip to submit")
-    if props.use_scribbles:
-        raise UserError(
-            "Submit to Farm: Split with Scribbles is fitted here only (Fit Atlas): turn it off to submit the clip"
-        )
+    if props.use_scribbles or props.find_parts:
+        what = "Split with Scribbles" if props.use_scribbles else "Find Parts"
+        raise UserError(f"Submit to Farm: {what} is fitted here only (Fit Atlas): turn it off to submit the clip")
     if props.layers:
         inputs = clip_inputs(props, files, with_scribbles=False)
         plate, masks, first, last = inputs.plate, inputs.masks, inputs.first, inputs.last

@@ -114,6 +114,11 @@ def _sharpness(args: argparse.Namespace) -> int:
         f"{SHARPNESS}: masked PSNR mean {_measure(report['psnr_mean'], 'dB')}, "
         f"pooled {_measure(report['psnr_pooled'], 'dB')}, {report['frames_scored']} frames"
     )
+    if args.run is not None:
+        from engine.bench.network_sharpness import network_sharpness
+
+        report["network"] = network_sharpness(args.run, args.plate, args.masks)
+        print(f"{SHARPNESS}: the fit's networks, pooled {_measure(report['network']['psnr_pooled'], 'dB')}")
     if args.json:
         print(str(write_report(args.json, SHARPNESS, report).resolve()))
     return C.EXIT_OK

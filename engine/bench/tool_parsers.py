@@ -303,6 +303,13 @@ def _add_scoring_parsers(sub: argparse._SubParsersAction) -> None:
     )
     sh.add_argument("--plate", required=True, metavar="FRAMES", help="the plate the export was made from")
     sh.add_argument("--masks", action="append", required=True, metavar="FOLDER", help="the object's masks")
+    sh.add_argument(
+        "--run",
+        default=None,
+        metavar="RUN_DIR",
+        help="also the ceiling: the fit's own networks' reconstruction inside the masks at its working size (the "
+        "gap to the export's number is what the discretised textures lose)",
+    )
     _add_json(sh)
     sl = sub.add_parser(
         PAINT_SLIP,

@@ -78,16 +78,20 @@ def write_motion_parts(
     colorspace: str | None = None,
     cfg: PartsConfig | None = None,
     say: Callable[[str], None] | None = None,
+    fit: FitConfig | None = None,
+    flow_cache: Path | None = None,
 ) -> PartsReport:
     """Find the parts of the object in ``mask`` (one mask folder) that move apart and write their strokes to
     ``out`` (created). Nothing is written when the object moves as one piece. A file of the same name already there
-    is refused, unless every file would be the same (the command run before), which is left as it is."""
+    is refused, unless every file would be the same (the command run before), which is left as it is. ``fit``: the
+    config whose working size, mask snap and flow the analysis uses (``fit --auto-parts``: the fit's own; default:
+    a default fit's); ``flow_cache``: where the flow is cached (the run's, so the fit that follows reuses it)."""
     info = open_clip(clip, frame_range, colorspace)
     if info.num_frames < 2:
         raise InputError(
             info.source, "a single frame has no motion to split the object by", "select at least two frames"
         )
-    fit = FitConfig()
+    fit = fit or FitConfig()
     size = working_size(info.width, info.height, fit.long_edge)
     folder = Path(out).expanduser().resolve()
     if folder.exists() and not folder.is_dir():
@@ -101,7 +105,7 @@ def write_motion_parts(
     if not masks.any():
         raise InputError(mask, "holds no mask pixel on the selected frames", "draw the object's mask first")
     snapped, _ = snap_masks(frames, masks[None], fit.mask_snap_px)
-    flow = compute_flow(frames, DISFlow(fit.flow_preset), None, fit.flow_threshold_px)
+    flow = compute_flow(frames, DISFlow(fit.flow_preset), flow_cache, fit.flow_threshold_px)
     result = motion_parts(snapped[0], flow, cfg)
     if not result.found:
         return PartsReport(result)

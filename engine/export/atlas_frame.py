@@ -1,6 +1,12 @@
 """Where each layer's texture sits in the model's atlas space (its atlas frame), found from where the layer's
 mapping lands in every frame.
 
+Texture coverage: the alpha a layer's atlas texture is premultiplied by. A background texel's is its maximum over
+frames; a foreground texel's is its median over the frames where the texel is seen (alpha > ``SEEN_ALPHA``, in at
+least ``SEEN_MIN_FRAMES`` frames), else its median over all frames. The plain median (the paper's rule) gives 0 to
+every texel hidden in more than half of the frames: the body behind a swinging limb, a limb seen in a few frames, the
+far side of a turning object; their colours were lost from the texture although the passes show them.
+
 Atlas frame: each layer's texture covers the bounding box of the atlas cells the layer covers (aggregated
 alpha > ``BOX_COVERAGE``: median over frames for foregrounds, maximum for the background) and, for a foreground,
 of the atlas points of the pixels it owns in any frame (a limb's cells are owned in a few frames only), plus a
@@ -14,6 +20,7 @@ Torch-free: it works on the mapped points the networks gave (``engine.export.sam
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import cv2
@@ -22,6 +29,15 @@ import numpy as np
 #: Atlas cells whose aggregated coverage exceeds this decide where the layer's atlas box lies (a foreground's
 #: faint halo, seen in a few frames only, stays below it and does not inflate the box).
 BOX_COVERAGE = 0.5
+#: A foreground texel counts as seen in a frame where the alpha landing on it exceeds this (the texture coverage is
+#: the median over those frames).
+SEEN_ALPHA = 0.25
+#: ... in at least this many frames (or every frame of a shorter clip); a texel seen less often (a fleck of alpha in
+#: one frame) keeps the plain median over all frames.
+SEEN_MIN_FRAMES = 2
+#: Cells per chunk of the per-frame stack when taking medians over frames (bounds the float32 copy to
+#: frames x MEDIAN_CHUNK_CELLS x 4 bytes).
+MEDIAN_CHUNK_CELLS = 1 << 16
 #: Fallback when no cell is covered: the pixels whose layer alpha exceeds this.
 BOX_ALPHA = 0.25
 #: A foreground's box also holds the atlas points of the pixels it owns (alpha > BOX_COVERAGE) in any frame, but
@@ -163,24 +179,49 @@ class _Coverage:
         return np.array([ends[0][0], ends[1][0]]), np.array([ends[0][1], ends[1][1]])
 
     def grid(self) -> np.ndarray:
-        """Coverage alpha over the domain grid [cells, cells] (row = v), 0 where nothing ever landed."""
-        if self.foreground:
-            with np.errstate(all="ignore"):
-                import warnings
-
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN cells: never hit
-                    med = np.nanmedian(self.stack.astype(np.float32), axis=0)
-            g = np.nan_to_num(med, nan=0.0)
-        else:
-            g = np.clip(self.max, 0.0, None)
+        """Coverage alpha over the domain grid [cells, cells] (row = v), 0 where nothing ever landed: the median over
+        frames for a foreground (what decides its atlas box), the maximum for the background."""
+        g = _median_over_frames(self.stack, seen_only=False) if self.foreground else np.clip(self.max, 0.0, None)
         return g.reshape(self.cells, self.cells).astype(np.float32)
 
+    def texture_grid(self) -> np.ndarray:
+        """The texture's coverage over the domain grid [cells, cells]: for a foreground, the median over the frames
+        where the cell is seen (see the module docstring), else as ``grid``."""
+        if not self.foreground:
+            return self.grid()
+        return _median_over_frames(self.stack, seen_only=True).reshape(self.cells, self.cells).astype(np.float32)
+
     def sample(self, frame: LayerFrame) -> np.ndarray:
-        """Coverage at every texel centre of ``frame`` [H, W] (bilinear)."""
+        """Texture coverage at every texel centre of ``frame`` [H, W] (bilinear)."""
         uv = frame.texel_centres()
         map_xy = ((uv + COVERAGE_DOMAIN) * self.scale - 0.5).astype(np.float32)
-        return cv2.remap(self.grid(), map_xy[..., 0], map_xy[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        grid = self.texture_grid()
+        return cv2.remap(grid, map_xy[..., 0], map_xy[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+
+
+def _median_over_frames(stack: np.ndarray, seen_only: bool) -> np.ndarray:
+    """Per cell of ``stack`` [frames, cells] (NaN: nothing landed there that frame), the median over frames, 0 where
+    nothing ever landed. ``seen_only``: over the frames where the cell is seen (> SEEN_ALPHA) when it is seen in at
+    least SEEN_MIN_FRAMES frames (every frame of a shorter clip). Taken in chunks of cells to bound memory."""
+    frames, cells = stack.shape
+    need = min(SEEN_MIN_FRAMES, frames)
+    out = np.zeros(cells, np.float32)
+    for lo in range(0, cells, MEDIAN_CHUNK_CELLS):
+        part = stack[:, lo : lo + MEDIAN_CHUNK_CELLS].astype(np.float32)
+        hit = np.isfinite(part).any(0)
+        if not hit.any():
+            continue
+        part = part[:, hit]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # no NaN-free frame in a column: handled below
+            med = np.nanmedian(part, axis=0)
+            if seen_only:
+                seen = part > SEEN_ALPHA  # NaN compares False
+                use = seen.sum(0) >= need
+                if use.any():
+                    med[use] = np.nanmedian(np.where(seen[:, use], part[:, use], np.nan), axis=0)
+        out[lo : lo + MEDIAN_CHUNK_CELLS][hit] = np.nan_to_num(med, nan=0.0)
+    return out
 
 
 def _fill_holes(total: np.ndarray, count: np.ndarray) -> np.ndarray:
@@ -201,6 +242,8 @@ __all__ = [
     "BOX_ALPHA",
     "BOX_COVERAGE",
     "MIN_BOX_EXTENT",
+    "SEEN_ALPHA",
+    "SEEN_MIN_FRAMES",
     "LayerFrame",
     "layer_frame_for",
 ]

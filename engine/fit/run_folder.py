@@ -278,6 +278,7 @@ class RunFolder:
     log = _entry(C.RUN_LOG)
     flow_cache = _entry(C.FLOW_CACHE_DIR)
     auto_masks = _entry(C.AUTO_MASKS_DIR)
+    auto_parts = _entry(C.AUTO_PARTS_DIR)
     exports = _entry(C.EXPORTS_DIR)
     edits = _entry(C.EDITS_DIR)
 

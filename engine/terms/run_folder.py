@@ -40,6 +40,11 @@ BG_MOTIONS: tuple[str, ...] = (BG_MOTION_STATIC, BG_MOTION_PAN_ZOOM, BG_MOTION_D
 #: check and fix them, then fit again with --mask RUN_DIR/auto_masks), and fit with them.
 FIT_AUTO_MASKS_FLAG = "--auto-masks"
 AUTO_MASKS_DIR = "auto_masks"
+#: ``fit --mask FOLDER --auto-parts``: split the one object into the parts that move apart (``parts``), strokes
+#: written to RUN_DIR/parts/ (checked, fixed or deleted by the artist; used as they are when already there), and
+#: fit with them as --scribbles; an object that moves as one piece is fitted as one layer.
+FIT_AUTO_PARTS_FLAG = "--auto-parts"
+AUTO_PARTS_DIR = "parts"
 
 # --- run folder files: their versions -----------------------------------------------------------------------
 # Each JSON file of a run folder carries {"schema": <its version>}, bumped whenever its shape changes; a reader
@@ -78,11 +83,13 @@ RUN_FILE_DAMAGED_FIX = "restore it, or fit into a new run folder"
 #: What ``engine.contract`` re-exports from this module (its own names, not its imports).
 __all__ = [
     "AUTO_MASKS_DIR",
+    "AUTO_PARTS_DIR",
     "BG_MOTIONS",
     "BG_MOTION_DEFORMABLE",
     "BG_MOTION_PAN_ZOOM",
     "BG_MOTION_STATIC",
     "FIT_AUTO_MASKS_FLAG",
+    "FIT_AUTO_PARTS_FLAG",
     "FLOW_CACHE_DIR",
     "RUN_CHECKPOINT",
     "RUN_CHECKPOINT_KEYS",

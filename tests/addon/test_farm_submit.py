@@ -185,11 +185,13 @@ def test_no_layers_means_auto_masks(farm_scene, tmp_path):
     assert not (tmp_path / "sh010.masks").exists()
 
 
-def test_scribbles_are_refused(farm_scene, tmp_path):
+@pytest.mark.parametrize("split", ["use_scribbles", "find_parts"])
+def test_scribbles_and_find_parts_are_refused(farm_scene, tmp_path, split):
     props, prefs = farm_scene
     prefs.farm_kind = FM.FARM_OPENJD
-    props.use_scribbles = True
-    with pytest.raises(RuntimeError, match="Split with Scribbles is fitted here only"):
+    setattr(props, split, True)
+    what = {"use_scribbles": "Split with Scribbles", "find_parts": "Find Parts"}[split]
+    with pytest.raises(RuntimeError, match=f"{what} is fitted here only"):
         bpy.ops.neural_atlas.submit_farm("EXEC_DEFAULT")
     assert not (tmp_path / "sh010.farm").exists() and running.jobs() == {}
 

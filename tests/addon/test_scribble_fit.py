@@ -250,3 +250,35 @@ def test_real_annotation_strokes_from_the_scribble_layers(plain_scene, tmp_path)
     assert np.array_equal(labels == 0, red) and np.array_equal(labels == 1, green)
     assert np.array_equal(labels == -1, ~(red | green))
     assert props.imported_layers == "Background, Foreground1, Foreground2"
+
+
+def test_find_parts_asks_the_engine_to_split_the_one_mask(plain_scene):
+    """Find Parts: the fit gets the one --mask and --auto-parts (the engine writes the strokes into the run folder),
+    no --scribbles; the estimate gets neither."""
+    props = plain_scene
+    props.use_scribbles = False
+    props.find_parts = True
+    assert bpy.ops.neural_atlas.fit("EXEC_DEFAULT") == {"FINISHED"}, props.status
+    argv = Path(props.log_path).read_text().splitlines()[0].split(" ")
+    assert argv.count("--mask") == 1 and argv.count(C.FIT_AUTO_PARTS_FLAG) == 1 and C.SCRIBBLE_ARG not in argv
+    assert bpy.ops.neural_atlas.estimate("EXEC_DEFAULT") == {"FINISHED"}
+    assert C.FIT_AUTO_PARTS_FLAG not in Path(props.run_dir + ".estimate.log").read_text().splitlines()[0]
+
+
+@pytest.mark.parametrize(
+    ("case", "match"),
+    [
+        ("two_layers", "Find Parts splits one object: keep exactly one foreground layer .* not 2"),
+        ("with_scribbles", "Find Parts and Split with Scribbles both split the object: turn one of them off"),
+    ],
+)
+def test_find_parts_refusals_are_clear_and_start_no_engine(plain_scene, case, match):
+    props = plain_scene
+    props.use_scribbles = case == "with_scribbles"
+    props.find_parts = True
+    if case == "two_layers":
+        props.layers.add().source = "FOLDER"
+    with pytest.raises(RuntimeError, match=match):
+        bpy.ops.neural_atlas.fit("EXEC_DEFAULT")
+    assert not Path(props.run_dir + ".blender.log").exists()
+    assert not props.running and running.jobs() == {}

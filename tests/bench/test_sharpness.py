@@ -130,3 +130,35 @@ def test_cli_prints_the_mean_and_a_plate_of_another_size_is_one_line(tmp_path):
         f"error: {other}: plate is {W + 2}x{H}, the export's passes are {W}x{H} — pass the plate the export was "
         "made from"
     ]
+
+
+def test_the_networks_ceiling_over_every_pixel_is_the_fits_own_psnr(tmp_path):
+    """``sharpness --run``: the fit's networks rendered at the working size against the plate. With a mask over every
+    pixel it is the PSNR the fit itself reports (evaluate_full, a separate path) to 1e-4 dB; inside the object's
+    mask it is a number of its own, pooled from the per-frame values."""
+    from engine.bench.network_sharpness import network_sharpness
+    from engine.data.synthetic import SceneSpec, make_scene, write_scene
+    from tests.engine_cli import run_cli
+    from tests.stability.bad_inputs import TINY_FIT
+
+    spec = SceneSpec(width=32, height=24, frames=3, fg_size=(12, 10), fg_start=(8.0, 6.0))
+    frames, masks = write_scene(make_scene(spec), tmp_path / "clip")
+    run = tmp_path / "run"
+    assert run_cli("fit", frames, "--mask", masks, "--out", run, *TINY_FIT)[0] == C.EXIT_OK
+    full = tmp_path / "full"
+    full.mkdir()
+    for p in sorted(Path(masks).iterdir()):
+        cv2.imwrite(str(full / p.name), np.full((spec.height, spec.width), 255, np.uint8))
+    fitted_psnr = json.loads((run / C.RUN_METRICS).read_text())["psnr"]
+    assert abs(network_sharpness(run, frames, [full])["psnr_pooled"] - fitted_psnr) < 1e-4
+    inside = network_sharpness(run, frames, [masks])
+    values = [v for v in inside["per_frame"].values() if v is not None]
+    assert len(values) == spec.frames and min(values) <= inside["psnr_pooled"] <= max(values)
+    assert run_cli("export", run, "--no-bar")[0] == C.EXIT_OK
+    manifest = run / C.EXPORTS_DIR / "v001" / "manifest.json"
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        argv = ["sharpness", manifest, "--plate", frames, "--masks", masks, "--run", run]
+        code = bench_main([str(a) for a in argv])
+    assert code == C.EXIT_OK
+    assert out.getvalue().splitlines()[-1] == f"sharpness: the fit's networks, pooled {inside['psnr_pooled']:.2f} dB"

@@ -33,6 +33,13 @@ def test_scribbles_go_to_the_fit_but_not_to_the_estimate():
     ]
 
 
+def test_find_parts_goes_to_the_fit_but_not_to_the_estimate():
+    split = EC.ClipInputs(CLIP.plate, CLIP.masks[:1], 0, 2, auto_parts=True)
+    fit = EC.fit_argv("py", split, "/run", "draft", [])
+    assert fit.count(C.FIT_AUTO_PARTS_FLAG) == 1 and C.SCRIBBLE_ARG not in fit
+    assert C.FIT_AUTO_PARTS_FLAG not in EC.estimate_argv("py", split, EC.set_args(768))
+
+
 def test_resume_export_masks_and_version():
     assert EC.resume_argv("py", "/run") == ["py", "-m", "engine", C.VERB_FIT, "--resume", "--out", "/run", "--no-bar"]
     assert EC.export_argv("py", "/run") == ["py", "-m", "engine", C.VERB_EXPORT, "/run"]

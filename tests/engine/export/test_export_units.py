@@ -109,3 +109,55 @@ def test_the_background_box_is_unchanged_by_the_owned_points():
         cov.add(t, np.array([[0.0, 0.0], [0.5, 0.5]]), np.array([1.0, 0.0]))
     _, _, u1, v1 = cov.box()
     assert u1 < 0.1 and v1 < 0.1
+
+
+def test_the_texture_keeps_what_is_seen_in_a_few_frames_and_the_box_does_not_move():
+    """The body behind a swinging limb, or the limb itself, is seen in a minority of frames: the plain median gives
+    its texels coverage 0 (their colour lost from the texture); the texture's coverage is the median over the frames
+    where they are seen, while the box, decided by the plain median and the owned points, is the same as before."""
+    cov = _body_and_limb(10, {1, 4, 7})
+    row, limb = cov.cells // 2, cov.cells // 2 + int(0.5 * cov.scale)
+    assert cov.grid()[row, limb] == 0.0
+    assert cov.texture_grid()[row, limb] == 1.0
+    assert cov.texture_grid()[row, row] == 1.0  # the body: seen in every frame either way
+    far = cov.cells // 2 + int(1.0 * cov.scale)  # background that the layer's mapping sends there, never seen
+    assert cov.texture_grid()[row, far] == cov.grid()[row, far] == 0.0
+    frame = layer_frame_for(cov.box(), 64)
+    tex = cov.sample(frame)
+    uv, _ = frame.to_texture_uv(np.array([[0.5, 0.0]]))
+    x, y = int(uv[0, 0] * 64), int((1.0 - uv[0, 1]) * frame.size[1])
+    assert tex[y, x] > 0.99  # the limb's texel in the written texture
+
+
+def test_a_fleck_seen_in_one_frame_keeps_the_plain_median():
+    cov = _Coverage(uv_per_px=0.1, frames=5, foreground=True)
+    for t in range(5):
+        cov.add(t, np.array([[0.0, 0.0]]), np.array([0.9 if t == 2 else 0.0]))
+    cell = cov.cells // 2
+    assert cov.texture_grid()[cell, cell] == cov.grid()[cell, cell] == 0.0
+    one = _Coverage(uv_per_px=0.1, frames=1, foreground=True)  # a one-frame clip: seen once is seen in every frame
+    one.add(0, np.array([[0.0, 0.0]]), np.array([0.6]))
+    assert abs(one.texture_grid()[cell, cell] - 0.6) < 1e-3
+
+
+def test_the_medians_over_frames_do_not_depend_on_the_chunk(monkeypatch):
+    """Chunked medians equal the medians of the whole stack (NaN where nothing landed in a frame)."""
+    from engine.export import atlas_frame
+
+    rng = np.random.default_rng(3)
+    stack = rng.uniform(0, 1, (7, 1000)).astype(np.float16)
+    stack[rng.uniform(size=stack.shape) < 0.4] = np.nan
+    stack[:, :50] = np.nan  # never landed
+    whole = atlas_frame._median_over_frames(stack, seen_only=True)
+    plain = atlas_frame._median_over_frames(stack, seen_only=False)
+    monkeypatch.setattr(atlas_frame, "MEDIAN_CHUNK_CELLS", 64)
+    np.testing.assert_array_equal(atlas_frame._median_over_frames(stack, seen_only=True), whole)
+    np.testing.assert_array_equal(atlas_frame._median_over_frames(stack, seen_only=False), plain)
+    assert (whole[:50] == 0).all() and (plain[:50] == 0).all()
+    s = stack.astype(np.float32)
+    with np.errstate(all="ignore"):
+        np.testing.assert_allclose(plain[50:], np.nan_to_num(np.nanmedian(s[:, 50:], 0)))
+    col = s[:, 100]
+    seen = col[col > atlas_frame.SEEN_ALPHA]
+    expect = np.median(seen) if len(seen) >= 2 else np.nanmedian(col)
+    assert abs(whole[100] - expect) < 1e-6

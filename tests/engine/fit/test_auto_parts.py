@@ -1,0 +1,120 @@
+"""``fit --mask M --auto-parts``: the jumping body split into its body and its swinging limb before the fit (strokes
+in RUN_DIR/parts, the fit's recorded scribbles, one layer per part), the same command run again leaves the finished
+fit as it is, strokes already in RUN_DIR/parts (the artist's fix) are used as they are, an object moving as one
+piece is fitted as one layer with no folder, and the flags it cannot go with are one line before anything is
+written."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from engine import contract as C
+from engine.bench.motion_scenes import make_motion_scene, write_motion_clip
+from engine.data.scribbles import NO_LABEL, read_scribbles
+from engine.data.synthetic import SceneSpec, make_scene, write_scene
+from engine.fit.fitted_run import load_fitted
+from engine.fit.run_folder import RunFolder
+from engine.io.clip import open_clip
+from tests.engine_cli import run_cli
+from tests.folders import tree_digest
+from tests.stability.bad_inputs import TINY_FIT
+
+
+@pytest.fixture(scope="module")
+def jumping(tmp_path_factory) -> Path:
+    """The limbs_jump scene at the bench's size, in half its frames (as ``test_parts_command``)."""
+    scene = make_motion_scene("limbs_jump", width=480, height=272, frames=18)
+    return write_motion_clip(scene, tmp_path_factory.mktemp("scene") / "limbs_jump")
+
+
+@pytest.fixture(scope="module")
+def rigid(tmp_path_factory) -> tuple[Path, Path]:
+    return write_scene(
+        make_scene(SceneSpec(width=160, height=96, frames=8, fg_size=(40, 30))), tmp_path_factory.mktemp("rigid")
+    )
+
+
+@pytest.mark.slow  # the scene at the bench's size, its flow and a tiny fit: about 30 s
+def test_the_jumping_body_is_fitted_as_its_parts_and_the_same_command_again_changes_nothing(jumping, tmp_path):
+    run = tmp_path / "run"
+    argv = ["fit", jumping / "frames", "--mask", jumping / "masks", "--out", run, *TINY_FIT, C.FIT_AUTO_PARTS_FLAG]
+    code, lines = run_cli(*argv)
+    assert code == C.EXIT_OK, lines
+    assert any(line.startswith("auto parts: 2 parts that move apart") for line in lines), lines
+    folder = RunFolder(run)
+    assert folder.read_clip().scribbles == str(folder.auto_parts.resolve())
+    info = open_clip(jumping / "frames")
+    labels = read_scribbles(folder.auto_parts, info, (info.width, info.height))
+    assert set(labels[labels != NO_LABEL].tolist()) == {0, 1}
+    assert load_fitted(run).model.num_layers == 3  # the background, the body and the limb
+    assert len(list(folder.flow_cache.glob("*.npz"))) == 1  # the parts' flow is the fit's: computed once
+    before = tree_digest(run)
+    code, lines = run_cli(*argv, C.FIT_RESUME_IF_STARTED_FLAG)  # a farm task run twice: the fit is done
+    assert code == C.EXIT_OK and any(line.startswith("already fitted") for line in lines), lines
+    assert tree_digest(run) == before
+
+
+def test_strokes_already_in_the_run_folder_are_used_as_they_are(rigid, tmp_path):
+    """The artist fixed (here: drew) the strokes in RUN_DIR/parts: they are the fit's scribbles, never searched
+    again or overwritten, although this object moves as one piece."""
+    frames, masks = rigid
+    run = tmp_path / "run"
+    strokes = RunFolder(run).auto_parts
+    strokes.mkdir(parents=True)
+    import cv2
+    import numpy as np
+
+    image = np.zeros((96, 160, 4), np.uint8)
+    image[30:40, 45:55] = (0, 0, 255, 255)  # red: Foreground1 (BGRA)
+    image[50:58, 70:80] = (0, 255, 0, 255)  # green: Foreground2
+    name = f"{Path(open_clip(frames).frame_files[0]).stem}.png"
+    cv2.imwrite(str(strokes / name), image)
+    before = tree_digest(strokes)
+    code, lines = run_cli("fit", frames, "--mask", masks, "--out", run, *TINY_FIT, C.FIT_AUTO_PARTS_FLAG)
+    assert code == C.EXIT_OK, lines
+    assert not any(line.startswith("auto parts:") for line in lines)  # not searched
+    assert RunFolder(run).read_clip().scribbles == str(strokes.resolve())
+    assert load_fitted(run).model.num_layers == 3
+    assert tree_digest(strokes) == before
+
+
+def test_an_object_moving_as_one_piece_is_fitted_as_one_layer(rigid, tmp_path):
+    frames, masks = rigid
+    run = tmp_path / "run"
+    code, lines = run_cli("fit", frames, "--mask", masks, "--out", run, *TINY_FIT, C.FIT_AUTO_PARTS_FLAG)
+    assert code == C.EXIT_OK, lines
+    assert any(line.startswith("auto parts: ") and line.endswith("fitted as one layer") for line in lines), lines
+    assert not RunFolder(run).auto_parts.exists()
+    assert RunFolder(run).read_clip().scribbles is None
+    assert load_fitted(run).model.num_layers == 2
+
+
+@pytest.mark.parametrize(
+    ("extra", "needles"),
+    [
+        (["--mask", "SECOND"], ("splits one object", "2 --mask folders")),
+        ([C.SCRIBBLE_ARG, "SCRIBBLES"], (C.FIT_AUTO_PARTS_FLAG, C.SCRIBBLE_ARG, "pass one of them")),
+        (["--preset", "paper"], ("paper model", "fast preset")),
+    ],
+    ids=["two-masks", "scribbles", "paper"],
+)
+def test_what_auto_parts_cannot_go_with_is_one_line_and_writes_nothing(rigid, tmp_path, extra, needles):
+    frames, masks = rigid
+    run = tmp_path / "run"
+    extra = [str(masks) if e in ("SECOND", "SCRIBBLES") else e for e in extra]
+    code, lines = run_cli("fit", frames, "--mask", masks, "--out", run, *TINY_FIT, *extra, C.FIT_AUTO_PARTS_FLAG)
+    assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and lines[0].startswith("error: "), lines
+    for needle in needles:
+        assert needle in lines[0], (needle, lines[0])
+    assert not run.exists()
+
+
+def test_auto_parts_with_auto_masks_says_to_check_the_masks_first(rigid, tmp_path):
+    frames, _ = rigid
+    run = tmp_path / "run"
+    code, lines = run_cli("fit", frames, C.FIT_AUTO_MASKS_FLAG, C.FIT_AUTO_PARTS_FLAG, "--out", run, *TINY_FIT)
+    assert code == C.EXIT_BAD_INPUT and len(lines) == 1, lines
+    assert C.FIT_AUTO_MASKS_FLAG in lines[0] and f"`{C.VERB_MASKS}`" in lines[0]
+    assert not run.exists()
