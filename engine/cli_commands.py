@@ -253,7 +253,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         return _cmd_refine(args, run_dir, plan)
     if args.auto_parts and not plan.resume:
         check_auto_parts(plan.cfg, args.mask, args.scribbles, args.auto_masks)
-        if scribbles is None:
+        if scribbles is None and args.clip is not None:  # no clip: the fit's own one line says so
             scribbles = find_parts(args.clip, args.mask[0], run_dir, plan.cfg, plan.frames, args.colorspace, _say_parts)
     try:
         metrics = fit(

@@ -82,15 +82,29 @@ def find_parts(
     run = RunFolder(run_dir)
     shown = run.auto_parts
     say(f"looking for parts that move apart; strokes go to {shown}")
-    with run.lock(LOCK_HOLDER):
-        report = write_motion_parts(
-            clip, mask_dir, shown, frame_range, colorspace, say=say, fit=cfg, flow_cache=run.flow_cache
-        )
+    existed = run.path.exists()
+    try:
+        with run.lock(LOCK_HOLDER):
+            report = write_motion_parts(
+                clip, mask_dir, shown, frame_range, colorspace, say=say, fit=cfg, flow_cache=run.flow_cache
+            )
+    except InputError:  # bad input (read before anything is written) leaves no run folder behind, as for a fit
+        if not existed:
+            _remove_lock_only(run.path)
+        raise
     if report.folder is None:
         print(f"auto parts: {report.result.message}: fitted as one layer", file=sys.stderr)
         return None
     print(f"auto parts: {report.result.message} ({shown})", file=sys.stderr)
     return report.folder
+
+
+def _remove_lock_only(folder: Path) -> None:
+    """Remove ``folder`` when all it holds is the lock file the refused command created with it."""
+    entries = list(folder.iterdir()) if folder.is_dir() else None
+    if entries is not None and [e.name for e in entries] == [C.RUN_LOCK]:
+        (folder / C.RUN_LOCK).unlink()
+        folder.rmdir()
 
 
 __all__ = ["LOCK_HOLDER", "check_auto_parts", "find_parts", "strokes_in_run"]

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 
 from engine import contract as C
@@ -63,9 +65,6 @@ def test_strokes_already_in_the_run_folder_are_used_as_they_are(rigid, tmp_path)
     run = tmp_path / "run"
     strokes = RunFolder(run).auto_parts
     strokes.mkdir(parents=True)
-    import cv2
-    import numpy as np
-
     image = np.zeros((96, 160, 4), np.uint8)
     image[30:40, 45:55] = (0, 0, 255, 255)  # red: Foreground1 (BGRA)
     image[50:58, 70:80] = (0, 255, 0, 255)  # green: Foreground2
@@ -117,4 +116,16 @@ def test_auto_parts_with_auto_masks_says_to_check_the_masks_first(rigid, tmp_pat
     code, lines = run_cli("fit", frames, C.FIT_AUTO_MASKS_FLAG, C.FIT_AUTO_PARTS_FLAG, "--out", run, *TINY_FIT)
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1, lines
     assert C.FIT_AUTO_MASKS_FLAG in lines[0] and f"`{C.VERB_MASKS}`" in lines[0]
+    assert not run.exists()
+
+
+def test_a_mask_folder_with_no_mask_pixel_is_one_line_and_leaves_no_run_folder(rigid, tmp_path):
+    frames, masks = rigid
+    empty = tmp_path / "empty_masks"
+    empty.mkdir()
+    for p in sorted(Path(masks).iterdir()):
+        cv2.imwrite(str(empty / p.name), np.zeros((96, 160), np.uint8))
+    run = tmp_path / "run"
+    code, lines = run_cli("fit", frames, "--mask", empty, "--out", run, *TINY_FIT, C.FIT_AUTO_PARTS_FLAG)
+    assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and "holds no mask pixel" in lines[0], lines
     assert not run.exists()
