@@ -79,6 +79,8 @@ class FarmShot:
     colorspace: str | None = None
     follow_flow: bool = True
     """False: the export's UV as fitted (the shots file's ``follow_flow``, ``export --no-follow-flow``)."""
+    auto_parts: bool = False
+    """The one mask's object split into the parts that move apart (Find Parts: the shot's ``auto_parts``)."""
 
     @property
     def auto_masks(self) -> bool:
@@ -121,6 +123,8 @@ def shots_document(shot: FarmShot) -> dict[str, object]:
         entry["masks"] = list(shot.masks)
     else:
         entry["auto_masks"] = True
+    if shot.auto_parts:
+        entry["auto_parts"] = True
     entry["frames"] = frames_value(shot.first, shot.last)
     if shot.colorspace:
         entry["colorspace"] = shot.colorspace

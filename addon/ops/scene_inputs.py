@@ -128,13 +128,20 @@ def sets(props: Any) -> list[str]:
 def farm_shot(props: Any, files: RunFiles) -> FM.FarmShot:
     """The clip as one farm shot, read as Fit Atlas reads it: the same plate, the same frames (the plate's numbers),
     Mask layers rasterised into the same folders, the same preset and overrides, the same Run Folder. No foreground
-    layer: the farm finds the moving objects first (``auto_masks``)."""
+    layer: the farm finds the moving objects first (``auto_masks``); Find Parts: the fit splits the one object
+    (``auto_parts``)."""
     clip = props.clip
     if clip is None:
         raise UserError("choose the clip to submit")
-    if props.use_scribbles or props.find_parts:
-        what = "Split with Scribbles" if props.use_scribbles else "Find Parts"
-        raise UserError(f"Submit to Farm: {what} is fitted here only (Fit Atlas): turn it off to submit the clip")
+    if props.use_scribbles:
+        raise UserError(
+            "Submit to Farm: Split with Scribbles is fitted here only (Fit Atlas): turn it off to submit the clip"
+        )
+    if props.find_parts and len(props.layers) != 1:
+        raise UserError(
+            f"Submit to Farm: Find Parts splits one object: keep exactly one foreground layer, not "
+            f"{len(props.layers)}, or turn Find Parts off"
+        )
     if props.layers:
         inputs = clip_inputs(props, files, with_scribbles=False)
         plate, masks, first, last = inputs.plate, inputs.masks, inputs.first, inputs.last
@@ -153,4 +160,5 @@ def farm_shot(props: Any, files: RunFiles) -> FM.FarmShot:
         run_dir=files.run_dir,
         colorspace=FM.engine_colorspace(clip.colorspace_settings.name),
         follow_flow=props.follow_flow,
+        auto_parts=props.find_parts,
     )

@@ -68,6 +68,8 @@ class Shot:
     """The shot's run folder (absolute): the fit, its exports and, with auto_masks, the found masks."""
     masks: tuple[str, ...] = ()
     auto_masks: bool = False
+    auto_parts: bool = False
+    """The one mask's object split into the parts that move apart when the fit starts (``fit --auto-parts``)."""
     frames: tuple[int, int] | None = None
     """Inclusive, in the plate's frame numbers; None: every frame."""
     colorspace: str | None = None
@@ -216,6 +218,13 @@ def _shot(file: Path, where: str, entry: dict[str, Any]) -> Shot:
     auto: bool = v.get("auto_masks", False)
     if auto and masks:
         raise InputError(file, f"{where}: both 'masks' and 'auto_masks'", "drop one: given masks or found ones")
+    parts: bool = v.get("auto_parts", False)
+    if parts and len(masks) != 1:
+        raise InputError(
+            file,
+            f"{where}: 'auto_parts' splits one object, but the shot has {len(masks)} mask folder(s)",
+            "give 'masks' exactly one folder (the whole object), or drop 'auto_parts'",
+        )
     preset: str = v.get("preset", DEFAULT_PRESET)
     overrides = tuple(v.get("set", []))
     _check_overrides(file, where, preset, overrides)
@@ -233,6 +242,7 @@ def _shot(file: Path, where: str, entry: dict[str, Any]) -> Shot:
         run=run,
         masks=masks,
         auto_masks=auto,
+        auto_parts=parts,
         frames=v.frames("frames"),
         colorspace=colorspace,
         fps=fps,

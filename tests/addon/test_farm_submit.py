@@ -185,15 +185,27 @@ def test_no_layers_means_auto_masks(farm_scene, tmp_path):
     assert not (tmp_path / "sh010.masks").exists()
 
 
-@pytest.mark.parametrize("split", ["use_scribbles", "find_parts"])
-def test_scribbles_and_find_parts_are_refused(farm_scene, tmp_path, split):
+def test_scribbles_are_refused(farm_scene, tmp_path):
     props, prefs = farm_scene
     prefs.farm_kind = FM.FARM_OPENJD
-    setattr(props, split, True)
-    what = {"use_scribbles": "Split with Scribbles", "find_parts": "Find Parts"}[split]
-    with pytest.raises(RuntimeError, match=f"{what} is fitted here only"):
+    props.use_scribbles = True
+    with pytest.raises(RuntimeError, match="Split with Scribbles is fitted here only"):
         bpy.ops.neural_atlas.submit_farm("EXEC_DEFAULT")
     assert not (tmp_path / "sh010.farm").exists() and running.jobs() == {}
+
+
+def test_find_parts_goes_to_the_shot_with_its_one_mask(farm_scene, tmp_path):
+    props, prefs = farm_scene
+    prefs.farm_kind = FM.FARM_OPENJD
+    props.find_parts = True
+    while len(props.layers) > 1:
+        props.layers.remove(len(props.layers) - 1)
+    assert bpy.ops.neural_atlas.submit_farm("EXEC_DEFAULT") == {"FINISHED"}
+    (shot,) = json.loads((tmp_path / "sh010.farm" / "shots.json").read_text())[C.SHOTS_LIST_KEY]
+    assert shot["auto_parts"] is True and len(shot["masks"]) == 1
+    props.layers.add().source = "FOLDER"
+    with pytest.raises(RuntimeError, match="Find Parts splits one object: keep exactly one foreground layer"):
+        bpy.ops.neural_atlas.submit_farm("EXEC_DEFAULT")
 
 
 def test_greyed_without_clip_or_engine(farm_scene, monkeypatch):

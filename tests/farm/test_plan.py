@@ -87,6 +87,16 @@ def test_every_option_of_a_shot_reaches_its_command(tmp_path):
     assert plan.task("x.render.3-3").args[-3:] == ("--format", "png", "--no-bar")
 
 
+def test_auto_parts_reaches_the_fit_only(tmp_path):
+    write_clip(tmp_path / "c")
+    path = write_shots(tmp_path, [{"name": "x", "plate": "c/frames", "masks": ["c/masks"], "auto_parts": True}])
+    plan = load_plan(path)
+    assert plan.task("x.fit").args.count(C.FIT_AUTO_PARTS_FLAG) == 1
+    assert all(C.FIT_AUTO_PARTS_FLAG not in t.args for t in plan.tasks if t.kind != "fit")
+    plain = load_plan(write_shots(tmp_path, [{"name": "x", "plate": "c/frames", "masks": ["c/masks"]}]))
+    assert C.FIT_AUTO_PARTS_FLAG not in plain.task("x.fit").args
+
+
 def test_a_movie_plate_is_counted_and_numbered_from_its_start_frame(tmp_path):
     movie = write_movie(tmp_path / "plate.mp4", textured_frames(7, (32, 32)))
     path = write_shots(tmp_path, [{"name": "m", "plate": movie.name, "start_frame": 1001, "export_chunk": 4,
