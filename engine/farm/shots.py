@@ -226,6 +226,12 @@ def _shot(file: Path, where: str, entry: dict[str, Any]) -> Shot:
             "give 'masks' exactly one folder (the whole object), or drop 'auto_parts'",
         )
     preset: str = v.get("preset", DEFAULT_PRESET)
+    if parts and preset == "paper":
+        raise InputError(
+            file,
+            f"{where}: 'auto_parts' with the paper preset, which fits one background and one foreground layer",
+            "use a fast preset (draft, balanced or final), or drop 'auto_parts'",
+        )
     overrides = tuple(v.get("set", []))
     _check_overrides(file, where, preset, overrides)
     device = v.get("device")
