@@ -75,6 +75,16 @@ def _scribbles(clip: Any, folder: str, frames: list[int], first_number: int | No
     return folder
 
 
+def _require_one_layer(props: Any, split: str, prefix: str = "") -> None:
+    """``split`` (Split with Scribbles, Find Parts) splits one object: a UserError unless there is exactly one
+    foreground layer."""
+    if len(props.layers) != 1:
+        raise UserError(
+            f"{prefix}{split} splits one object: keep exactly one foreground layer (the whole object's mask), not "
+            f"{len(props.layers)}, or turn {split} off"
+        )
+
+
 def clip_inputs(props: Any, files: RunFiles, with_scribbles: bool = True) -> EC.ClipInputs:
     """The plate, each layer's mask folder (Mask layers rasterised now), the frames and (with
     ``props.use_scribbles``) the rasterised scribbles or (with ``props.find_parts``) the engine's own split.
@@ -85,19 +95,13 @@ def clip_inputs(props: Any, files: RunFiles, with_scribbles: bool = True) -> EC.
     if not props.layers:
         raise UserError("add a foreground layer (a Mask or a folder of mask images)")
     scribbled = with_scribbles and props.use_scribbles
-    if scribbled and len(props.layers) != 1:
-        raise UserError(
-            f"Split with Scribbles splits one object: keep exactly one foreground layer (the whole object's mask), "
-            f"not {len(props.layers)}, or turn Split with Scribbles off"
-        )
+    if scribbled:
+        _require_one_layer(props, "Split with Scribbles")
     find_parts = with_scribbles and props.find_parts
     if find_parts and scribbled:
         raise UserError("Find Parts and Split with Scribbles both split the object: turn one of them off")
-    if find_parts and len(props.layers) != 1:
-        raise UserError(
-            f"Find Parts splits one object: keep exactly one foreground layer (the whole object's mask), not "
-            f"{len(props.layers)}, or turn Find Parts off"
-        )
+    if find_parts:
+        _require_one_layer(props, "Find Parts")
     plate, first_number = clip_plate(clip)
     first, last = clip_range(props)
     frames = list(range(first, last + 1))
@@ -137,11 +141,8 @@ def farm_shot(props: Any, files: RunFiles) -> FM.FarmShot:
         raise UserError(
             "Submit to Farm: Split with Scribbles is fitted here only (Fit Atlas): turn it off to submit the clip"
         )
-    if props.find_parts and len(props.layers) != 1:
-        raise UserError(
-            f"Submit to Farm: Find Parts splits one object: keep exactly one foreground layer, not "
-            f"{len(props.layers)}, or turn Find Parts off"
-        )
+    if props.find_parts:
+        _require_one_layer(props, "Find Parts", "Submit to Farm: ")
     if props.layers:
         inputs = clip_inputs(props, files, with_scribbles=False)
         plate, masks, first, last = inputs.plate, inputs.masks, inputs.first, inputs.last

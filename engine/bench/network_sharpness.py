@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from engine.bench.sharpness import MSE_FLOOR
+from engine.bench.sharpness import MSE_FLOOR, masked_psnr
 from engine.errors import InputError
 from engine.fit.evaluation import render_frame
 from engine.fit.fitted_run import load_fitted
@@ -49,10 +49,10 @@ def network_sharpness(run_dir: str | Path, plate: str | Path, masks: list[str | 
             per_frame[str(number)] = None
             continue
         rec, _ = render_frame(fitted.model, t, size, model_device)  # type: ignore[arg-type]
-        diff = np.clip(rec, 0.0, 1.0)[mask[k]].astype(np.float64) - frames[k][mask[k]]
-        sq = float((diff * diff).sum())
-        per_frame[str(number)] = 10.0 * math.log10(1.0 / max(sq / diff.size, MSE_FLOOR))
-        sq_sum, count = sq_sum + sq, count + diff.size
+        rec = np.clip(rec, 0.0, 1.0)
+        per_frame[str(number)] = masked_psnr(rec, frames[k], mask[k])
+        diff = rec[mask[k]].astype(np.float64) - frames[k][mask[k]]
+        sq_sum, count = sq_sum + float((diff * diff).sum()), count + diff.size
     pooled = None if count == 0 else 10.0 * math.log10(1.0 / max(sq_sum / count, MSE_FLOOR))
     return {"psnr_pooled": pooled, "working_size": list(size), "per_frame": per_frame, "run": str(run_dir)}
 
