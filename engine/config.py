@@ -185,6 +185,9 @@ class FitConfig:
     """Fast model: width of the residual mapping MLP (no positional encoding: mappings stay smooth)."""
     mapping_layers: Count = 3
     """Fast model: hidden layers of the residual mapping MLP."""
+    mapping_hidden_fg: NonNegativeInt = 0
+    """Fast model: width of a foreground layer's residual mapping MLP; 0 = ``mapping_hidden``. An object that turns
+    in depth shows the mapping new surface every frame: a wider mapping unwraps it onto more of its atlas."""
     atlas_levels: Count = 6
     """Fast model: resolution levels of each layer's atlas grid (finest has ~1 texel per working pixel)."""
     atlas_features: Count = 4

@@ -214,6 +214,7 @@ def _speed(args: argparse.Namespace) -> int:
             steps=args.steps,
             rounds=args.rounds,
             device_name=args.device,
+            at_step=args.at_step,
         )
     print(format_table(rows))
     return C.EXIT_OK

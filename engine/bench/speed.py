@@ -1,7 +1,8 @@
 """Seconds per training step of several presets on one clip, measured side by side in one process.
 
 Machines here are noisy, so presets are interleaved in short blocks and the median block is reported;
-ratios between presets are what to trust. (The full accuracy-vs-time benchmark builds on this.)
+ratios between presets are what to trust. (The full accuracy-vs-time benchmark builds on this.) A preset may carry
+overrides, ``draft:mapping_hidden_fg=128``, so a candidate change is timed beside the preset it would change.
 """
 
 from __future__ import annotations
@@ -12,13 +13,25 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from engine.config import preset_config
+from engine.config import FitConfig, apply_overrides, parse_set_args, preset_config
 from engine.fit.device import select_device, synchronize
 from engine.fit.prepare import prepare_clip
 from engine.fit.trainer import Trainer
 
 #: Untimed steps of each preset before the rounds (allocator, kernels).
 WARMUP_STEPS = 2
+
+
+#: Separates a preset from its overrides in a ``--presets`` entry: ``PRESET:KEY=VALUE[:KEY=VALUE...]``.
+VARIANT_SEP = ":"
+
+
+def variant_config(entry: str) -> FitConfig:
+    """``PRESET`` or ``PRESET:KEY=VALUE[:KEY=VALUE...]`` as the config it names (a bad preset, key or value is one
+    line, as for ``fit --set``)."""
+    name, *sets = entry.split(VARIANT_SEP)
+    cfg = preset_config(name)
+    return apply_overrides(cfg, parse_set_args(sets)) if sets else cfg
 
 
 @dataclass
@@ -38,39 +51,42 @@ def measure_step_times(
     steps: int = 10,
     rounds: int = 3,
     device_name: str = "auto",
+    at_step: int = 0,
 ) -> list[StepTiming]:
-    """Seconds per step of each preset's trainer (what ``fit`` would train, scene analysis included) at step 0,
-    where every bootstrap term is on: the median of ``rounds`` blocks of ``steps`` steps, presets interleaved."""
+    """Seconds per step of each preset's trainer (what ``fit`` would train, scene analysis included) with the loss
+    weights of step ``at_step`` (0: every bootstrap term on; past ``global_rigidity_steps``: the late phase): the
+    median of ``rounds`` blocks of ``steps`` steps, presets interleaved. ``presets`` entries may carry overrides
+    (``variant_config``); every entry must share the first's flow and working size."""
     device = select_device(device_name)
-    cfgs = [preset_config(p) for p in presets]
+    cfgs = [variant_config(p) for p in presets]
     prepared = prepare_clip(clip, mask_dirs, cfgs[0], work_dir, None)
     video = prepared.tensors(cfgs[0], device)
     trainers = [Trainer(cfg, prepared, prepared.analyse(cfg), device, video=video) for cfg in cfgs]
-    times: dict[str, list[float]] = {c.preset: [] for c in cfgs}
+    times: list[list[float]] = [[] for _ in cfgs]
 
     def block(trainer: Trainer, n: int) -> float:
         t0 = time.perf_counter()
         for _ in range(n):
-            trainer.optimise(0)
+            trainer.optimise(at_step)
         synchronize(device)
         return (time.perf_counter() - t0) / n
 
     for trainer in trainers:
         block(trainer, WARMUP_STEPS)
     for r in range(rounds):
-        for trainer in trainers if r % 2 == 0 else reversed(trainers):
-            preset = trainer.cfg.preset
-            times[preset].append(block(trainer, steps))
-            print(f"round {r + 1}/{rounds} {preset}: {times[preset][-1]:.3f} s/step", file=sys.stderr)
+        order = list(enumerate(trainers))
+        for i, trainer in order if r % 2 == 0 else reversed(order):
+            times[i].append(block(trainer, steps))
+            print(f"round {r + 1}/{rounds} {presets[i]}: {times[i][-1]:.3f} s/step", file=sys.stderr)
     return [
         StepTiming(
-            t.cfg.preset,
+            name,
             t.cfg.model,
             t.cfg.batch,
-            statistics.median(times[t.cfg.preset]),
+            statistics.median(own),
             sum(p.numel() for p in t.model.parameters()),
         )
-        for t in trainers
+        for name, t, own in zip(presets, trainers, times, strict=True)
     ]
 
 

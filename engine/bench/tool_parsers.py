@@ -192,7 +192,17 @@ def _add_speed_parsers(sub: argparse._SubParsersAction) -> None:
     )
     sp.add_argument("clip")
     sp.add_argument("--mask", action="append", default=[], metavar="FOLDER")
-    sp.add_argument("--presets", default="draft,balanced,paper", help="comma-separated (default: draft,balanced,paper)")
+    sp.add_argument(
+        "--presets",
+        default="draft,balanced,paper",
+        help="comma-separated, each PRESET or PRESET:KEY=VALUE[:KEY=VALUE] (default: draft,balanced,paper)",
+    )
+    sp.add_argument(
+        "--at-step",
+        type=int,
+        default=0,
+        help="time the steps with the loss weights of this step (default 0: every bootstrap term on)",
+    )
     sp.add_argument("--steps", type=int, default=10, help="steps per block (default: 10)")
     sp.add_argument("--rounds", type=int, default=3, help="interleaved rounds (default: 3)")
     sp.add_argument("--device", default="auto")

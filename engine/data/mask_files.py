@@ -30,17 +30,25 @@ def mask_file_names(info: ClipInfo) -> list[str]:
     return [f"{n:05d}.png" for n in info.frame_numbers]
 
 
+def output_folder(info: ClipInfo, out: str | Path, what: str = "mask") -> Path:
+    """``out`` resolved (a link is followed: the files land where it points); a one-line error when it is a file or
+    the clip's own frame folder, reached by any path or link (files named like the frames, beside them, would be
+    read as frames)."""
+    folder = Path(out).expanduser().resolve()
+    if folder.exists() and not folder.is_dir():
+        raise InputError(folder, "is a file, not a folder", f"pass a folder for the {what}s with --out")
+    if info.kind == "sequence" and folder == Path(info.source).resolve():
+        raise InputError(
+            folder, "is the clip's own frame folder", f"write the {what}s to a folder of their own with --out"
+        )
+    return folder
+
+
 def mask_folder(info: ClipInfo, out: str | Path, whole_set: bool = False) -> tuple[Path, list[str]]:
     """The folder the masks of ``info`` go to and their file names; a one-line error when the folder is a file,
     the clip's own frame folder, or already holds one of the names (masks are never overwritten) but, with
     ``whole_set``, for every one of them (the caller compares them with the set it would write)."""
-    folder = Path(out).expanduser().resolve()
-    if folder.exists() and not folder.is_dir():
-        raise InputError(folder, "is a file, not a folder", "pass a folder for the masks with --out")
-    if info.kind == "sequence" and folder == Path(info.source).resolve():
-        raise InputError(
-            folder, "is the clip's own frame folder", "write the masks to a folder of their own with --out"
-        )
+    folder = output_folder(info, out)
     names = mask_file_names(info)
     clash = [n for n in names if (folder / n).exists()]
     if clash and not (whole_set and len(clash) == len(names)):

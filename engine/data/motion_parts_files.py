@@ -24,7 +24,7 @@ from ..errors import InputError
 from ..io.clip import open_clip, read_frames, read_masks, working_size
 from ..io.colour import to_working
 from .flow import DISFlow, compute_flow
-from .mask_files import already_holds, mask_file_names, write_file_set
+from .mask_files import already_holds, mask_file_names, output_folder, write_file_set
 from .mask_snap import snap_masks
 from .motion_parts import MotionParts, PartsConfig, motion_parts
 from .scribbles import NO_LABEL
@@ -93,9 +93,7 @@ def write_motion_parts(
         )
     fit = fit or FitConfig()
     size = working_size(info.width, info.height, fit.long_edge)
-    folder = Path(out).expanduser().resolve()
-    if folder.exists() and not folder.is_dir():
-        raise InputError(folder, "is a file, not a folder", "pass a folder for the strokes with --out")
+    folder = output_folder(info, out, STROKE)
     if say is not None:
         say(f"following the object's parts in {info.num_frames} frames at {size[0]}x{size[1]}")
     frames = to_working(np.nan_to_num(read_frames(info, size), nan=0.0, posinf=1.0, neginf=0.0), info.colorspace,

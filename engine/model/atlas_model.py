@@ -124,10 +124,13 @@ class FastLayerMapping(nn.Module):
         cfg: FitConfig,
         warp: bool = True,
         kind: str = MAPPING_DEFORMABLE,
+        hidden: int | None = None,
     ) -> None:
+        """``hidden``: the residual MLP's width (None: ``cfg.mapping_hidden``)."""
         super().__init__()
         w, h = size
-        hidden, layers = cfg.mapping_hidden, cfg.mapping_layers
+        layers = cfg.mapping_layers
+        hidden = cfg.mapping_hidden if hidden is None else hidden
         if kind == MAPPING_PAN_ZOOM:
             hidden, layers = PANZOOM_MAPPING_HIDDEN, PANZOOM_MAPPING_LAYERS
         self.kind = kind
@@ -253,6 +256,7 @@ class FastModel(AtlasModel):
                 cfg,
                 warp=(i == 0 or cfg.warp_foreground),
                 kind=background if i == 0 else MAPPING_DEFORMABLE,
+                hidden=None if i == 0 else (cfg.mapping_hidden_fg or None),
             )
             for i, m in enumerate(motions)
         )

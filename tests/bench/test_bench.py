@@ -342,3 +342,20 @@ def test_the_tools_run_outside_the_product_cli(clip, tmp_path, capsys):
     assert bench_main(["scene-speed", *scene_args]) == C.EXIT_OK
     res = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert res["steps"] == 2 and res["auto"]["background_motion"] in C.BG_MOTIONS and res["speedup"] > 0
+
+
+def test_speed_times_a_preset_beside_its_variant(clip, tmp_path, capsys):
+    """``--presets draft,draft:KEY=VALUE`` times a candidate change beside the preset it changes, each entry its own
+    row and model: the wider foreground mapping has more parameters, the background's is untouched; a bad key is
+    one line."""
+    from engine.bench.speed import measure_step_times
+
+    rows = measure_step_times(
+        clip / "frames", [clip / "masks"], ["draft", "draft:mapping_hidden_fg=96"], tmp_path, steps=1, rounds=1,
+        device_name="cpu", at_step=10_000,
+    )  # fmt: skip
+    assert [r.preset for r in rows] == ["draft", "draft:mapping_hidden_fg=96"]
+    assert rows[1].params > rows[0].params and all(r.seconds_per_step > 0 for r in rows)
+    args = [str(clip / "frames"), "--mask", str(clip / "masks"), "--presets", "draft:no_such_key=1", "--steps", "1"]
+    assert bench_main(["speed", *args, "--device", "cpu", "--work", str(tmp_path)]) == C.EXIT_BAD_INPUT
+    assert "no_such_key" in capsys.readouterr().err

@@ -86,3 +86,29 @@ def test_a_mask_folder_without_masks_is_one_line(jumping, tmp_path):
     code, _, err = _parts(folder / "frames", "--mask", empty, "--out", tmp_path / "strokes")
     assert code == C.EXIT_BAD_INPUT and len(err) == 1 and str(empty) in err[0]
     assert not (tmp_path / "strokes").exists()
+
+
+@pytest.mark.parametrize("via_link", [False, True])
+def test_the_clips_own_frame_folder_is_refused_before_anything_is_computed(tmp_path, via_link):
+    """Stroke images named like the frames, beside them, would be read as frames of the clip: refused in one line
+    whether ``--out`` names the frame folder or a link to it, and the folder is left as it was."""
+    frames, masks = write_scene(make_scene(SceneSpec(width=160, height=96, frames=4)), tmp_path)
+    out = Path(frames)
+    if via_link:
+        out = tmp_path / "strokes"
+        out.symlink_to(frames, target_is_directory=True)
+    before = tree_digest(Path(frames))
+    code, _, err = _parts(frames, "--mask", masks, "--out", out)
+    assert code == C.EXIT_BAD_INPUT and len(err) == 1
+    assert "own frame folder" in err[0] and "folder of their own" in err[0]
+    assert tree_digest(Path(frames)) == before
+
+
+def test_a_file_as_the_folder_is_one_line(tmp_path):
+    frames, masks = write_scene(make_scene(SceneSpec(width=160, height=96, frames=4)), tmp_path)
+    out = tmp_path / "strokes.png"
+    out.write_bytes(b"not a folder")
+    code, _, err = _parts(frames, "--mask", masks, "--out", out)
+    assert code == C.EXIT_BAD_INPUT and len(err) == 1
+    assert "is a file, not a folder" in err[0] and "strokes" in err[0]
+    assert out.read_bytes() == b"not a folder"

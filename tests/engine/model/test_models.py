@@ -3,6 +3,8 @@ empty outside its rectangle; the paper model has the paper's shapes and calibrat
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -49,6 +51,26 @@ def test_fast_mapping_starts_at_the_initial_motion():
     expected = (xy + torch.stack((2.0 * t, 0 * t), -1) - torch.tensor([32.0, 24.0])) / 40.0
     assert torch.allclose(uv, expected, atol=1e-5)
     assert model.uv_per_px(1) == pytest.approx(1 / 20.0)
+
+
+def test_the_foreground_mapping_width_leaves_the_background_as_it_was():
+    """``mapping_hidden_fg`` widens each foreground layer's residual MLP only; 0 keeps ``mapping_hidden`` for every
+    layer, and a wider foreground still starts at its flow-fitted motion (the last layer starts at zero)."""
+    plain = FastModel(preset_config("draft"), SIZE, T, [_motion(2.0), _motion(-1.0, 20.0), _motion(1.0, 10.0)])
+    wide = FastModel(
+        dataclasses.replace(preset_config("draft"), mapping_hidden_fg=96),
+        SIZE,
+        T,
+        [_motion(2.0), _motion(-1.0, 20.0), _motion(1.0, 10.0)],
+    )
+
+    def widths(model: FastModel) -> list[int]:
+        return [m.residual.linears[0].out_features for m in model.mappings]
+
+    assert widths(plain) == [64, 64, 64] and widths(wide) == [64, 96, 96]
+    xy, t = torch.rand(50, 2) * torch.tensor(SIZE, dtype=torch.float32), torch.randint(0, T, (50,))
+    for layer in range(3):
+        assert torch.allclose(wide.uv(layer, xy, t), plain.uv(layer, xy, t))
 
 
 def test_anchor_term_sees_a_whole_mapping_slide_and_only_that():
@@ -138,7 +160,6 @@ def test_atlas_opacity_starts_at_the_same_alpha_and_moves_with_the_mapping():
     """``alpha_atlas_density``: a logit texture in the foreground's atlas. At the start it adds nothing (the fit
     starts as without it); a mark painted in it appears in every frame where the mapping carries that atlas point,
     2 px further right per frame for an object moving 2 px per frame."""
-    import dataclasses
 
     plain_cfg = preset_config("draft")
     cfg = dataclasses.replace(plain_cfg, alpha_atlas_density=1.0)
