@@ -318,6 +318,7 @@ LATER_FIELDS: dict[str, Any] = {
     "alpha_atlas_levels": 3,
     "mask_hold_coverage": 0.0,
     "scribble_carry": False,
+    "mapping_hidden_fg": 0,
 }
 #: The learning rates (``fit`` names them when a fit diverges).
 LR_FIELDS: tuple[str, ...] = ("lr", "lr_grid", "lr_warp")

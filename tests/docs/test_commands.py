@@ -384,11 +384,25 @@ def problem(program: str, argv: list[str], values: bool = True) -> str | None:
 def _values_problem(program: str, args: argparse.Namespace) -> str | None:
     """Presets and --set keys and values: real, for the presets the command names."""
     presets = [getattr(args, "preset", None) or "balanced"]
+    variants: list[str] = []
     if getattr(args, "presets", None):
         presets = [p.strip() for p in args.presets.split(",")]
+        if program == "engine.bench":  # `speed` takes PRESET:KEY=VALUE entries (engine.bench.speed.variant_config)
+            from engine.bench.speed import VARIANT_SEP
+
+            variants = [p for p in presets if VARIANT_SEP in p]
+            presets = list(dict.fromkeys(p.split(VARIANT_SEP, 1)[0] for p in presets))
     unknown = [p for p in presets if p not in PRESETS]
     if unknown:
         return f"unknown preset {unknown} ({sorted(PRESETS)})"
+    try:
+        if variants:
+            from engine.bench.speed import variant_config
+
+            for entry in variants:
+                variant_config(entry)
+    except InputError as exc:
+        return str(exc)
     sets = getattr(args, "set", None) or []
     try:
         if program == "engine.bench":
