@@ -359,3 +359,6 @@ def test_speed_times_a_preset_beside_its_variant(clip, tmp_path, capsys):
     args = [str(clip / "frames"), "--mask", str(clip / "masks"), "--presets", "draft:no_such_key=1", "--steps", "1"]
     assert bench_main(["speed", *args, "--device", "cpu", "--work", str(tmp_path)]) == C.EXIT_BAD_INPUT
     assert "no_such_key" in capsys.readouterr().err
+    args[-3] = "draft,draft:long_edge=32"  # one prepared clip: the entries must share its working size
+    assert bench_main(["speed", *args, "--device", "cpu", "--work", str(tmp_path)]) == C.EXIT_BAD_INPUT
+    assert "long_edge" in capsys.readouterr().err
