@@ -110,13 +110,17 @@ def fit_and_export(
     log_path: Path,
     scribbles: Path | None = None,
     follow_flow: bool = True,
+    auto_parts: bool = False,
 ) -> Path:
     """Fit (or continue, or leave a finished fit: ``--resume-if-started``) with one layer per mask folder (or the
-    one mask split by ``scribbles``) and export into ``EXPORT_VERSION`` (``follow_flow``: ``export --follow-flow``,
-    else ``--no-follow-flow``); returns the manifest's path."""
+    one mask split by ``scribbles``, or by the parts ``fit --auto-parts`` finds: ``auto_parts``) and export into
+    ``EXPORT_VERSION`` (``follow_flow``: ``export --follow-flow``, else ``--no-follow-flow``); returns the manifest's
+    path."""
     set_args = [a for kv in sets for a in ("--set", kv)]
     mask_args = [a for m in masks for a in ("--mask", str(m))]
     scribble_args = [C.SCRIBBLE_ARG, str(scribbles)] if scribbles is not None else []
+    if auto_parts:
+        scribble_args = [C.FIT_AUTO_PARTS_FLAG]
     _engine(
         [C.VERB_FIT, str(frames), *mask_args, *scribble_args, "--out", str(run), "--preset", preset,
          C.FIT_RESUME_IF_STARTED_FLAG, "--no-bar", *set_args],
@@ -128,6 +132,17 @@ def fit_and_export(
     if not lines:
         raise InputError(log_path, "engine export printed no manifest path", "read the log, run again")
     return Path(lines[-1].strip())
+
+
+#: What ``fit --auto-parts`` says on stderr about the parts it found (``engine.fit.auto_parts``).
+AUTO_PARTS_PREFIX = "auto parts: "
+
+
+def _auto_parts_line(log_path: Path) -> str | None:
+    """The last thing ``fit --auto-parts`` said in the clip's log about its parts (None: nothing)."""
+    lines = log_path.read_text(encoding="utf-8", errors="replace").splitlines() if log_path.is_file() else []
+    said = [line[len(AUTO_PARTS_PREFIX) :] for line in lines if line.startswith(AUTO_PARTS_PREFIX)]
+    return said[-1].strip() if said else None
 
 
 def export_fg_iou(manifest_path: str | Path, plate: str | Path, masks: str | Path) -> float | None:
@@ -265,10 +280,10 @@ def run_paint_table(
     ``masks_parts/`` (``motion_scenes.part_masks``) is fitted with one layer per part; scores are unchanged (the
     foreground is every layer after the background). ``scribbles``: such a clip is fitted the product's way
     instead, its one mask split by strokes drawn from the part masks on ``scribble_frames`` frames spread evenly from
-    the first to the last (3: first, middle, last; ``part_scribbles``). ``auto_parts``: each clip's one (degraded)
-    mask split by the strokes the engine's ``parts`` draws from the motion, where it splits it (the row's
-    ``auto_parts`` says what it found). ``follow_flow``: exported with
-    ``export --follow-flow`` (the product's default), else ``--no-follow-flow``."""
+    the first to the last (3: first, middle, last; ``part_scribbles``). ``auto_parts``: each clip fitted with
+    ``fit --auto-parts``, its one (degraded) mask split by the strokes the fit draws from the motion where it splits
+    it (the row's ``auto_parts``: what the fit said it found; ``scribbles``: the strokes it wrote, ``RUN/parts``).
+    ``follow_flow``: exported with ``export --follow-flow`` (the product's default), else ``--no-follow-flow``."""
     say = log or (lambda line: print(line, file=sys.stderr, flush=True))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -351,19 +366,17 @@ def _clip_row(
         at = tuple(float(a) for a in np.linspace(0.0, 1.0, max(2, scribble_frames)))
         strokes, _ = write_part_scribbles(split, out / "scribbles" / folder.name, at)
         layers = len(split) + 1
-    if how == "auto":
-        from engine.data.motion_parts_files import write_motion_parts
-
-        report = write_motion_parts(folder / "frames", masks[0], out / "parts" / folder.name)
-        found = report.result.message
-        say(f"paint-table: {folder.name}: parts: {found}")
-        if report.folder is not None:
-            strokes = Path(report.folder)
-            layers = report.result.parts + 1
     run = out / "runs" / folder.name
+    log_path = out / "logs" / f"{folder.name}.log"
     say(f"paint-table: {folder.name}: fit {preset} + export -> {run}")
-    manifest = fit_and_export(folder / "frames", masks, run, preset, sets, threads, out / "logs" /
-                              f"{folder.name}.log", strokes, follow_flow)  # fmt: skip
+    manifest = fit_and_export(folder / "frames", masks, run, preset, sets, threads, log_path, strokes, follow_flow,
+                              auto_parts=how == "auto")  # fmt: skip
+    if how == "auto":  # the product's own search: what the fit said it found, and the strokes it wrote
+        found = _auto_parts_line(log_path)
+        say(f"paint-table: {folder.name}: parts: {found}")
+        if (run / C.AUTO_PARTS_DIR).is_dir():
+            strokes = run / C.AUTO_PARTS_DIR
+        layers = len(Manifest(manifest).layers)
     say(f"paint-table: {folder.name}: scoring the export")
     metrics = json.loads((run / C.RUN_METRICS).read_text(encoding="utf-8"))
     row = {
@@ -404,7 +417,7 @@ def format_table(table: dict) -> str:
     if table.get("scribbles"):
         parts = ", one mask split by strokes drawn from `masks_parts/` where a clip has it"
     if table.get("auto_parts"):
-        parts = ", one mask split by the strokes `parts` draws from the motion where it splits the object"
+        parts = ", one mask split by the strokes `fit --auto-parts` draws from the motion where it splits the object"
     head = f"preset `{table['preset']}`{sets}, masks `{table['degrade']}` (seed {table['seed']}){parts}"
     lines = [head, "", "| " + " | ".join(h for h, _, _ in COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
     for row in [*table["rows"], table["mean"]]:

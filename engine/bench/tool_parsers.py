@@ -366,8 +366,8 @@ def _add_paint_table_parser(sub: argparse._SubParsersAction) -> None:
     split.add_argument(
         "--auto-parts",
         action="store_true",
-        help="run the engine's `parts` on each clip's (degraded) mask into OUT/parts/CLIP and, where it splits the "
-        "object, fit with those strokes as --scribbles (a clip it does not split is fitted as without)",
+        help="fit each clip with `fit --auto-parts`: its (degraded) mask split by the strokes the fit draws from the "
+        "motion into OUT/runs/CLIP/parts (a clip it does not split is fitted as without)",
     )
     pt.add_argument(
         "--scribble-frames",

@@ -169,9 +169,9 @@ def test_auto_parts_fit_an_object_that_moves_as_one_piece_as_one_layer(tmp_path)
     _, record = tiny_limbs_table(tmp_path, auto_parts=True)
     (row,) = record["rows"]
     assert record["auto_parts"] and row["layers"] == 2 and row["scribbles"] is None
-    assert "nothing to split" in row["auto_parts"]
-    assert not (tmp_path / "out" / "parts" / "limbs_jump").exists()
-    assert "the strokes `parts` draws" in (tmp_path / "out" / PAINT_MD).read_text().splitlines()[0]
+    assert "nothing to split" in row["auto_parts"] and "fitted as one layer" in row["auto_parts"]  # the fit's line
+    assert not (tmp_path / "out" / "runs" / "limbs_jump" / C.AUTO_PARTS_DIR).exists()
+    assert "the strokes `fit --auto-parts` draws" in (tmp_path / "out" / PAINT_MD).read_text().splitlines()[0]
 
 
 def test_one_way_to_split_a_clip_at_a_time(scene_root, tmp_path):
