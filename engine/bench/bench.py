@@ -102,10 +102,15 @@ def bench_configs(presets: list[str], overrides: dict[str, str]) -> list[FitConf
     for p in presets:
         own = {k.split(".", 1)[1]: v for k, v in overrides.items() if k.startswith(p + ".")}
         cfgs.append(apply_overrides(preset_config(p), {**common, **own}))
-    for f in SHARED_FIELDS:
-        if len({getattr(c, f) for c in cfgs}) > 1:
-            raise InputError(None, f"presets differ in {f}", f"set {f} for every preset (--set {f}=...)")
+    differ = differing_shared_field(cfgs)
+    if differ is not None:
+        raise InputError(None, f"presets differ in {differ}", f"set {differ} for every preset (--set {differ}=...)")
     return cfgs
+
+
+def differing_shared_field(cfgs: list[FitConfig]) -> str | None:
+    """The first of ``SHARED_FIELDS`` (the prepared clip's) on which ``cfgs`` disagree; None if they share them."""
+    return next((f for f in SHARED_FIELDS if len({getattr(c, f) for c in cfgs}) > 1), None)
 
 
 def _eval_schedule(budget: float, evals: int, extra: tuple[float, ...] = ()) -> list[float]:

@@ -9,13 +9,12 @@ the object, and no texture can do better.
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from engine.bench.sharpness import MSE_FLOOR, masked_psnr
+from engine.bench.sharpness import PooledPSNR
 from engine.errors import InputError
 from engine.fit.evaluation import render_frame
 from engine.fit.fitted_run import load_fitted
@@ -42,19 +41,15 @@ def network_sharpness(run_dir: str | Path, plate: str | Path, masks: list[str | 
         mask |= read_masks(folder, info, size)
     model_device = next(fitted.model.parameters()).device
     per_frame: dict[str, float | None] = {}
-    sq_sum, count = 0.0, 0
+    pool = PooledPSNR()
     for t, number in enumerate(fitted.clip.frame_numbers):
         k = numbers.index(number)
         if not mask[k].any():
             per_frame[str(number)] = None
             continue
         rec, _ = render_frame(fitted.model, t, size, model_device)  # type: ignore[arg-type]
-        rec = np.clip(rec, 0.0, 1.0)
-        per_frame[str(number)] = masked_psnr(rec, frames[k], mask[k])
-        diff = rec[mask[k]].astype(np.float64) - frames[k][mask[k]]
-        sq_sum, count = sq_sum + float((diff * diff).sum()), count + diff.size
-    pooled = None if count == 0 else 10.0 * math.log10(1.0 / max(sq_sum / count, MSE_FLOOR))
-    return {"psnr_pooled": pooled, "working_size": list(size), "per_frame": per_frame, "run": str(run_dir)}
+        per_frame[str(number)] = pool.add(np.clip(rec, 0.0, 1.0), frames[k], mask[k])
+    return {"psnr_pooled": pool.pooled, "working_size": list(size), "per_frame": per_frame, "run": str(run_dir)}
 
 
 __all__ = ["network_sharpness"]

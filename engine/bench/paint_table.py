@@ -49,6 +49,7 @@ from engine.bench.sharpness import MSE_FLOOR, atlas_sharpness
 from engine.bench.tracking import Tracks
 from engine.errors import InputError
 from engine.export.manifest import Manifest
+from engine.fit.auto_parts import SAID_PREFIX
 from engine.io.atomic import atomic_write_text
 from engine.io.clip import iter_frames, open_clip, read_masks
 from engine.io.images import read_image
@@ -118,11 +119,11 @@ def fit_and_export(
     path."""
     set_args = [a for kv in sets for a in ("--set", kv)]
     mask_args = [a for m in masks for a in ("--mask", str(m))]
-    scribble_args = [C.SCRIBBLE_ARG, str(scribbles)] if scribbles is not None else []
+    split_args = [C.SCRIBBLE_ARG, str(scribbles)] if scribbles is not None else []
     if auto_parts:
-        scribble_args = [C.FIT_AUTO_PARTS_FLAG]
+        split_args = [C.FIT_AUTO_PARTS_FLAG]
     _engine(
-        [C.VERB_FIT, str(frames), *mask_args, *scribble_args, "--out", str(run), "--preset", preset,
+        [C.VERB_FIT, str(frames), *mask_args, *split_args, "--out", str(run), "--preset", preset,
          C.FIT_RESUME_IF_STARTED_FLAG, "--no-bar", *set_args],
         log_path, threads,
     )  # fmt: skip
@@ -134,14 +135,10 @@ def fit_and_export(
     return Path(lines[-1].strip())
 
 
-#: What ``fit --auto-parts`` says on stderr about the parts it found (``engine.fit.auto_parts``).
-AUTO_PARTS_PREFIX = "auto parts: "
-
-
 def _auto_parts_line(log_path: Path) -> str | None:
     """The last thing ``fit --auto-parts`` said in the clip's log about its parts (None: nothing)."""
     lines = log_path.read_text(encoding="utf-8", errors="replace").splitlines() if log_path.is_file() else []
-    said = [line[len(AUTO_PARTS_PREFIX) :] for line in lines if line.startswith(AUTO_PARTS_PREFIX)]
+    said = [line[len(SAID_PREFIX) :] for line in lines if line.startswith(SAID_PREFIX)]
     return said[-1].strip() if said else None
 
 

@@ -59,14 +59,38 @@ def rerender(passes: list[LayerPasses], atlases: list[np.ndarray]) -> np.ndarray
     return out
 
 
+def _psnr(mse: float) -> float:
+    return 10.0 * math.log10(1.0 / max(mse, MSE_FLOOR))
+
+
 def masked_psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float | None:
     """PSNR (dB, peak 1) of ``a`` against ``b`` [H, W, C] over the pixels of ``mask`` [H, W]; None for a mask with
     fewer than MIN_MASK_PIXELS pixels; at most PSNR_CAP_DB."""
-    if int(mask.sum()) < MIN_MASK_PIXELS:
-        return None
-    diff = a[mask].astype(np.float64) - b[mask].astype(np.float64)
-    mse = max(float(np.mean(diff * diff)), MSE_FLOOR)
-    return 10.0 * math.log10(1.0 / mse)
+    return PooledPSNR().add(a, b, mask)
+
+
+class PooledPSNR:
+    """Frame by frame, ``masked_psnr`` of each frame and, pooled, the PSNR of every masked pixel together (one
+    difference per frame serves both): how the re-rendered atlas and the fit's networks are scored alike."""
+
+    def __init__(self) -> None:
+        self.sq_sum = 0.0
+        self.count = 0
+
+    def add(self, a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float | None:
+        """This frame's ``masked_psnr``; its masked pixels join the pool."""
+        if not mask.any():
+            return None
+        diff = a[mask].astype(np.float64) - b[mask].astype(np.float64)
+        sq = float((diff * diff).sum())
+        self.sq_sum += sq
+        self.count += diff.size
+        return _psnr(sq / diff.size) if int(mask.sum()) >= MIN_MASK_PIXELS else None
+
+    @property
+    def pooled(self) -> float | None:
+        """The PSNR of every pixel added so far; None before any."""
+        return None if self.count == 0 else _psnr(self.sq_sum / self.count)
 
 
 def atlas_sharpness(manifest_path: str | Path, plate: str | Path, masks: list[str | Path]) -> dict:
@@ -95,23 +119,18 @@ def atlas_sharpness(manifest_path: str | Path, plate: str | Path, masks: list[st
     atlases = load_atlases(manifest)
     wanted = set(manifest.frames)
     per_frame: dict[str, float | None] = {}
-    sq_sum, count = 0.0, 0
+    pool = PooledPSNR()
     for k, rgb in enumerate(iter_frames(info)):
         number = numbers[k]
         if number not in wanted:
             continue
         plate_enc = np.clip(to_working(rgb, info.colorspace, info.colour_config), 0.0, 1.0)
         render_enc = np.clip(linear_to_srgb(rerender(manifest.read_passes(number), atlases)), 0.0, 1.0)
-        per_frame[str(number)] = masked_psnr(render_enc, plate_enc, mask[k])
-        if mask[k].any():
-            diff = render_enc[mask[k]].astype(np.float64) - plate_enc[mask[k]]
-            sq_sum += float((diff * diff).sum())
-            count += diff.size
+        per_frame[str(number)] = pool.add(render_enc, plate_enc, mask[k])
     scored = [v for v in per_frame.values() if v is not None]
-    pooled = None if count == 0 else 10.0 * math.log10(1.0 / max(sq_sum / count, MSE_FLOOR))
     return {
         "psnr_mean": float(np.mean(scored)) if scored else None,
-        "psnr_pooled": pooled,
+        "psnr_pooled": pool.pooled,
         "frames_scored": len(scored),
         "per_frame": per_frame,
         "manifest": str(manifest.path),
@@ -123,6 +142,7 @@ __all__ = [
     "MSE_FLOOR",
     "PSNR_CAP_DB",
     "UNPREMULT_MIN_COVERAGE",
+    "PooledPSNR",
     "atlas_sharpness",
     "load_atlases",
     "masked_psnr",

@@ -13,7 +13,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from engine.bench.bench import SHARED_FIELDS
+from engine.bench.bench import differing_shared_field
 from engine.config import FitConfig, apply_overrides, parse_set_args, preset_config
 from engine.errors import InputError
 from engine.fit.device import select_device, synchronize
@@ -59,11 +59,11 @@ def measure_step_times(
     weights of step ``at_step`` (0: every bootstrap term on; past ``global_rigidity_steps``: the late phase): the
     median of ``rounds`` blocks of ``steps`` steps, presets interleaved. ``presets`` entries may carry overrides
     (``variant_config``); they share one prepared clip, so they must agree on its flow and working size
-    (``SHARED_FIELDS``: a one-line error otherwise)."""
+    (``bench.SHARED_FIELDS``: a one-line error otherwise)."""
     cfgs = [variant_config(p) for p in presets]
-    for f in SHARED_FIELDS:
-        if len({getattr(c, f) for c in cfgs}) > 1:
-            raise InputError(None, f"the entries differ in {f}", f"give every entry the same {f}")
+    differ = differing_shared_field(cfgs)
+    if differ is not None:
+        raise InputError(None, f"the entries differ in {differ}", f"give every entry the same {differ}")
     device = select_device(device_name)
     prepared = prepare_clip(clip, mask_dirs, cfgs[0], work_dir, None)
     video = prepared.tensors(cfgs[0], device)

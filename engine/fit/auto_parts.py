@@ -25,6 +25,8 @@ from .run_folder import RunFolder
 
 #: What the run folder's lock names while the strokes are written.
 LOCK_HOLDER = f"fit {C.FIT_AUTO_PARTS_FLAG}"
+#: The start of the one stderr line that says what the search found (``bench paint-table`` reads it from the log).
+SAID_PREFIX = "auto parts: "
 
 
 def check_auto_parts(cfg: FitConfig, mask_dirs: list[str | Path], scribble_dir: str | None, auto_masks: bool) -> None:
@@ -93,9 +95,9 @@ def find_parts(
             _remove_lock_only(run.path)
         raise
     if report.folder is None:
-        print(f"auto parts: {report.result.message}: fitted as one layer", file=sys.stderr)
+        print(f"{SAID_PREFIX}{report.result.message}: fitted as one layer", file=sys.stderr)
         return None
-    print(f"auto parts: {report.result.message} ({shown})", file=sys.stderr)
+    print(f"{SAID_PREFIX}{report.result.message} ({shown})", file=sys.stderr)
     return report.folder
 
 

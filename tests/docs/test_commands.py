@@ -395,16 +395,13 @@ def _values_problem(program: str, args: argparse.Namespace) -> str | None:
     unknown = [p for p in presets if p not in PRESETS]
     if unknown:
         return f"unknown preset {unknown} ({sorted(PRESETS)})"
+    sets = getattr(args, "set", None) or []
     try:
         if variants:
             from engine.bench.speed import variant_config
 
             for entry in variants:
                 variant_config(entry)
-    except InputError as exc:
-        return str(exc)
-    sets = getattr(args, "set", None) or []
-    try:
         if program == "engine.bench":
             from engine.bench.bench import bench_configs
 
