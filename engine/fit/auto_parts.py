@@ -59,7 +59,8 @@ def check_auto_parts(cfg: FitConfig, mask_dirs: list[str | Path], scribble_dir: 
 def strokes_in_run(run_dir: Path) -> str | None:
     """RUN_DIR/parts when it holds stroke images (an earlier ``--auto-parts``'s, or the artist's fix of them): the
     scribbles the fit uses as they are; None when there are none."""
-    folder = RunFolder(run_dir).auto_parts
+    run = RunFolder(run_dir)
+    folder = run.own_folder(run.auto_parts, "strokes")
     if folder.is_dir() and any(p.suffix.lower() == ".png" and not p.name.startswith(".") for p in folder.iterdir()):
         return str(folder)
     return None
@@ -82,7 +83,7 @@ def find_parts(
     from ..data.motion_parts_files import write_motion_parts
 
     run = RunFolder(run_dir)
-    shown = run.auto_parts
+    shown = run.own_folder(run.auto_parts, "strokes")
     say(f"looking for parts that move apart; strokes go to {shown}")
     existed = run.path.exists()
     try:

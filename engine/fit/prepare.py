@@ -382,7 +382,7 @@ class _AutoMasks:
     def __init__(self, info: ClipInfo, run: RunFolder, cfg: AutoMaskConfig | None = None) -> None:
         self.info = info
         self.cfg = cfg or AutoMaskConfig()
-        self.shown = run.auto_masks  # the folder as messages name it
+        self.shown = run.own_folder(run.auto_masks, "masks")  # the folder as messages name it
         self.cache = run.flow_cache
         #: the analysis size; None: a single frame, nothing to analyse
         self.size = working_size(info.width, info.height, self.cfg.long_edge) if info.num_frames >= 2 else None

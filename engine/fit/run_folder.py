@@ -323,6 +323,20 @@ class RunFolder:
             if not path.exists():
                 raise InputError(path, "this is not a fitted run folder", "pass the --out folder of a `fit`")
 
+    def own_folder(self, folder: Path, what: str) -> Path:
+        """``folder`` (an entry the engine finds things in and writes into: ``auto_masks/``, ``parts/``), refused in
+        one line when it is a symbolic link: unlike the run folder itself, ``exports/`` and ``edits/``, which the user
+        may link to another disk, these are the engine's own, and a link planted there would take its files out of
+        the run folder."""
+        if folder.is_symlink():
+            raise InputError(
+                folder,
+                f"is a symbolic link, and the run folder's {folder.name}/ is the engine's own (never written through a "
+                "link)",
+                f"delete the link (move any {what} you want used into a real folder there), then run the fit again",
+            )
+        return folder
+
     def check_writable(self) -> None:
         """One-line error if the folder (or the nearest folder that exists above it) cannot be written."""
         probe = self.path

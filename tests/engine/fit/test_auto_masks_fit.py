@@ -4,6 +4,8 @@ masks written for the artist are exactly what the ``masks`` verb writes, and exa
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
@@ -18,6 +20,9 @@ from engine.errors import InputError
 from engine.fit.prepare import prepare_clip
 from engine.io.clip import open_clip, read_masks
 from engine.io.images import read_image
+from tests.engine_cli import run_cli
+from tests.folders import tree_digest
+from tests.stability.bad_inputs import TINY_FIT
 
 SMALL = SceneSpec(width=96, height=64, frames=6, fg_size=(28, 20), fg_start=(20.0, 20.0))
 
@@ -112,3 +117,29 @@ def test_a_partial_set_of_masks_in_the_run_folder_is_still_refused(tmp_path):
     cfg = preset_config("draft")
     with pytest.raises(InputError, match="already holds"):
         prepare_clip(frames_dir, [], cfg, tmp_path / "run", None, auto_masks=True)
+
+
+def test_a_link_planted_at_the_run_folders_auto_masks_is_refused_and_nothing_is_written(tmp_path):
+    """``RUN/auto_masks`` is the engine's own folder: a symbolic link there (to an empty folder, or to one that
+    holds a whole set of masks) is one line naming it, before anything is decoded; the folder it points to is left
+    exactly as it was."""
+    frames_dir, _ = write_scene(make_scene(SMALL), tmp_path / "clip")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / C.AUTO_MASKS_DIR).symlink_to(elsewhere, target_is_directory=True)
+    for holds_masks in (False, True):
+        if holds_masks:
+            write_auto_masks(frames_dir, elsewhere)
+        before, run_before = tree_digest(elsewhere), _entries(run)
+        code, lines = run_cli("fit", frames_dir, "--auto-masks", "--out", run, *TINY_FIT)
+        assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and lines[0].startswith("error: "), lines
+        assert C.AUTO_MASKS_DIR in lines[0] and "symbolic link" in lines[0] and "delete the link" in lines[0]
+        assert tree_digest(elsewhere) == before
+        assert _entries(run) == run_before
+
+
+def _entries(folder: Path) -> list[str]:
+    """What ``folder`` holds, by name, but its lock file (the OS's bookkeeping: a fit takes the lock first)."""
+    return sorted(p.name for p in folder.iterdir() if p.name != C.RUN_LOCK)

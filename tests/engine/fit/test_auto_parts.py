@@ -129,3 +129,26 @@ def test_a_mask_folder_with_no_mask_pixel_is_one_line_and_leaves_no_run_folder(r
     code, lines = run_cli("fit", frames, "--mask", empty, "--out", run, *TINY_FIT, C.FIT_AUTO_PARTS_FLAG)
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and "holds no mask pixel" in lines[0], lines
     assert not run.exists()
+
+
+@pytest.mark.parametrize("holds_strokes", [False, True], ids=["empty", "strokes"])
+def test_a_link_planted_at_the_run_folders_parts_is_refused_and_nothing_is_written(rigid, tmp_path, holds_strokes):
+    """``RUN/parts`` is the engine's own folder: a symbolic link there is one line naming it, whether the folder it
+    points to is empty (the strokes would be written through it) or holds strokes (they would be the fit's); that
+    folder and the run folder are left exactly as they were."""
+    frames, masks = rigid
+    run, elsewhere = tmp_path / "run", tmp_path / "elsewhere"
+    run.mkdir()
+    elsewhere.mkdir()
+    if holds_strokes:
+        name = f"{Path(open_clip(frames).frame_files[0]).stem}.png"
+        image = np.zeros((96, 160, 4), np.uint8)
+        image[30:40, 45:55] = (0, 0, 255, 255)
+        cv2.imwrite(str(elsewhere / name), image)
+    (run / C.AUTO_PARTS_DIR).symlink_to(elsewhere, target_is_directory=True)
+    before, run_before = tree_digest(elsewhere), sorted(p.name for p in run.iterdir())
+    code, lines = run_cli("fit", frames, "--mask", masks, "--out", run, *TINY_FIT, C.FIT_AUTO_PARTS_FLAG)
+    assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and lines[0].startswith("error: "), lines
+    assert f"{C.AUTO_PARTS_DIR}/" in lines[0] and "symbolic link" in lines[0] and "delete the link" in lines[0]
+    assert tree_digest(elsewhere) == before
+    assert sorted(p.name for p in run.iterdir()) == run_before
