@@ -110,10 +110,11 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
     )
     find_parts: BoolProperty(
         name="Find Parts",
-        default=False,
+        default=True,
         description="Split the one foreground layer into the parts that move apart (a limb swinging across the "
         "body), found from motion when the fit starts; the strokes are written to the run folder's parts/ to check "
-        "(fix them there, or delete the folder to find them again). An object moving as one piece stays one layer",
+        "(fix them there, or delete the folder to find them again). An object moving as one piece stays one layer, "
+        "fitted as with this off. Applies to one foreground layer without Split with Scribbles",
     )
     run_dir: StringProperty(
         name="Run Folder",

@@ -129,7 +129,9 @@ class NEURALATLAS_PT_fit(_SidebarPanel, bpy.types.Panel):
         col.operator("neural_atlas.find_masks", icon="VIEWZOOM")
         row = col.row(align=True)
         row.prop(props, "use_scribbles")
-        row.prop(props, "find_parts")
+        sub = row.row(align=True)
+        sub.active = len(props.layers) == 1 and not props.use_scribbles  # where the engine may split the object
+        sub.prop(props, "find_parts")
         if props.use_scribbles:
             _draw_scribbles(col.box(), props)
         col.prop(props, "run_dir")

@@ -219,14 +219,14 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         return C.EXIT_OK
     if args.out is None:
         raise InputError(None, "no run folder given", "pass --out RUN_DIR (a new folder, or a fit's to --resume)")
-    from .fit.auto_parts import check_auto_parts, find_parts, strokes_in_run
+    from .fit.auto_parts import PartsRequest, parts_wanted, strokes_in_run
     from .fit.run_plan import PLAN_DONE, PLAN_REFINE, plan_fit
     from .fit.trainer import FitCancelled, fit
 
     run_dir = Path(args.out)
     scribbles = args.scribbles
     if args.auto_parts and scribbles is None:  # strokes an earlier --auto-parts wrote, or the artist fixed
-        scribbles = strokes_in_run(run_dir)
+        scribbles = strokes_in_run(run_dir)  # (the default looks after the plan: a resume keeps what it recorded)
     plan = plan_fit(
         run_dir,
         args.clip,
@@ -251,10 +251,13 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         return C.EXIT_OK
     if plan.action == PLAN_REFINE:
         return _cmd_refine(args, run_dir, plan)
-    if args.auto_parts and not plan.resume:
-        check_auto_parts(plan.cfg, args.mask, args.scribbles, args.auto_masks)
-        if scribbles is None and args.clip is not None:  # no clip: the fit's own one line says so
-            scribbles = find_parts(args.clip, args.mask[0], run_dir, plan.cfg, plan.frames, args.colorspace, _say_parts)
+    parts = None
+    if not plan.resume and parts_wanted(args.auto_parts, plan.cfg, args.mask, args.scribbles, args.auto_masks):
+        asked = args.auto_parts is True
+        if scribbles is None and not asked:
+            scribbles = strokes_in_run(run_dir)
+        if scribbles is None:  # the search runs in the fit, on its own frames, mask and flow
+            parts = PartsRequest(asked)
     try:
         metrics = fit(
             args.clip,
@@ -271,6 +274,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
             colorspace=args.colorspace,
             fps=args.fps,
             start_frame=args.start_frame,
+            parts=parts,
         )
     except FitCancelled as exc:
         print(f"cancelled: {exc}; continue with: {RESUME_COMMAND} {run_dir}", file=sys.stderr)
@@ -284,7 +288,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 
 
 def _say_parts(message: str) -> None:
-    """The progress of ``parts`` and of ``fit --auto-parts``: a JSON stage line on stdout."""
+    """The progress of ``parts``: a JSON stage line on stdout."""
     print(C.progress_line(C.EVENT_STAGE, stage=C.VERB_PARTS, message=message), flush=True)
 
 

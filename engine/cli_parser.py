@@ -108,13 +108,16 @@ def _add_fit_parser(sub: argparse._SubParsersAction) -> None:
         "(written by `masks`, or fixed by hand) is used as it is. Without --mask or this, the fit is background-only",
     )
     f.add_argument(
-        C.FIT_AUTO_PARTS_FLAG,
+        C.FIT_AUTO_PARTS_FLAG,  # and C.FIT_NO_AUTO_PARTS_FLAG, which the action derives from it
         dest="auto_parts",
-        action="store_true",
-        help=f"with one --mask: split the object into the parts that move apart (a limb swinging across the body), "
-        f"as `{C.VERB_PARTS}` then {C.SCRIBBLE_ARG} would; the strokes are written to RUN_DIR/{C.AUTO_PARTS_DIR} for "
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help=f"split the one --mask object into the parts that move apart (a limb swinging across the body), as "
+        f"`{C.VERB_PARTS}` then {C.SCRIBBLE_ARG} would; the strokes are written to RUN_DIR/{C.AUTO_PARTS_DIR} for "
         "checking, and strokes already there (an earlier fit's, or fixed by hand) are used as they are. An object "
-        "that moves as one piece is fitted as one layer",
+        "that moves as one piece is fitted as one layer. Default: on wherever it applies (one --mask, no "
+        f"{C.SCRIBBLE_ARG} or {C.FIT_AUTO_MASKS_FLAG}, a fast preset, two frames or more); {C.FIT_AUTO_PARTS_FLAG} "
+        f"insists (refused where it cannot apply), {C.FIT_NO_AUTO_PARTS_FLAG} fits the object as one layer",
     )
     f.add_argument(
         "--out",

@@ -46,23 +46,25 @@ def version_argv(python: str) -> list[str]:
 class ClipInputs:
     """What the engine reads of a clip: the plate (a sequence's folder or a movie file), one mask folder per
     foreground layer, the frames as the plate's frame numbers (first and last, inclusive) and, for a fit that
-    splits one object with scribbles, the scribble folder, or, for one the engine splits into the parts that move
-    apart (Find Parts), ``auto_parts``."""
+    splits one object with scribbles, the scribble folder. ``auto_parts`` False (Find Parts off): the engine is told
+    not to split the object into the parts that move apart; True leaves it to the engine's default, which splits
+    them wherever that applies (one mask, no scribbles)."""
 
     plate: str
     masks: tuple[str, ...]
     first: int
     last: int
     scribbles: str | None = None
-    auto_parts: bool = False
+    auto_parts: bool = True
 
     def args(self) -> list[str]:
-        """``--mask M ... --frames A:B [--scribbles S | --auto-parts]`` (the plate is the verb's first argument)."""
+        """``--mask M ... --frames A:B [--scribbles S] [--no-auto-parts]`` (the plate is the verb's first
+        argument)."""
         out = [arg for folder in self.masks for arg in ("--mask", folder)]
         out += ["--frames", frames_arg(self.first, self.last)]
         if self.scribbles:
             out += [C.SCRIBBLE_ARG, self.scribbles]
-        return out + ([C.FIT_AUTO_PARTS_FLAG] if self.auto_parts else [])
+        return out + ([] if self.auto_parts else [C.FIT_NO_AUTO_PARTS_FLAG])
 
 
 def frames_arg(first: int, last: int) -> str:

@@ -79,8 +79,9 @@ class FarmShot:
     colorspace: str | None = None
     follow_flow: bool = True
     """False: the export's UV as fitted (the shots file's ``follow_flow``, ``export --no-follow-flow``)."""
-    auto_parts: bool = False
-    """The one mask's object split into the parts that move apart (Find Parts: the shot's ``auto_parts``)."""
+    auto_parts: bool = True
+    """False (Find Parts off): the shot's ``auto_parts`` false, the one object fitted as one layer; True: the key
+    left out, the fit's default (the parts that move apart, wherever that applies)."""
 
     @property
     def auto_masks(self) -> bool:
@@ -123,8 +124,8 @@ def shots_document(shot: FarmShot) -> dict[str, object]:
         entry["masks"] = list(shot.masks)
     else:
         entry["auto_masks"] = True
-    if shot.auto_parts:
-        entry["auto_parts"] = True
+    if not shot.auto_parts:
+        entry["auto_parts"] = False
     entry["frames"] = frames_value(shot.first, shot.last)
     if shot.colorspace:
         entry["colorspace"] = shot.colorspace

@@ -76,8 +76,8 @@ def _scribbles(clip: Any, folder: str, frames: list[int], first_number: int | No
 
 
 def _require_one_layer(props: Any, split: str, prefix: str = "") -> None:
-    """``split`` (Split with Scribbles, Find Parts) splits one object: a UserError unless there is exactly one
-    foreground layer."""
+    """``split`` (Split with Scribbles) splits one object: a UserError unless there is exactly one foreground
+    layer."""
     if len(props.layers) != 1:
         raise UserError(
             f"{prefix}{split} splits one object: keep exactly one foreground layer (the whole object's mask), not "
@@ -87,8 +87,9 @@ def _require_one_layer(props: Any, split: str, prefix: str = "") -> None:
 
 def clip_inputs(props: Any, files: RunFiles, with_scribbles: bool = True) -> EC.ClipInputs:
     """The plate, each layer's mask folder (Mask layers rasterised now), the frames and (with
-    ``props.use_scribbles``) the rasterised scribbles or (with ``props.find_parts``) the engine's own split.
-    ``with_scribbles`` False: neither (the estimate's and the farm's inputs)."""
+    ``props.use_scribbles``) the rasterised scribbles; Find Parts off: the engine told not to split the object
+    (on, the engine's default: the parts that move apart wherever that applies). ``with_scribbles`` False: no
+    scribbles, and the split left to the engine (the estimate's and the farm's inputs)."""
     clip = props.clip
     if clip is None:
         raise UserError("choose the clip to fit")
@@ -97,11 +98,7 @@ def clip_inputs(props: Any, files: RunFiles, with_scribbles: bool = True) -> EC.
     scribbled = with_scribbles and props.use_scribbles
     if scribbled:
         _require_one_layer(props, "Split with Scribbles")
-    find_parts = with_scribbles and props.find_parts
-    if find_parts and scribbled:
-        raise UserError("Find Parts and Split with Scribbles both split the object: turn one of them off")
-    if find_parts:
-        _require_one_layer(props, "Find Parts")
+    find_parts = props.find_parts or not with_scribbles
     plate, first_number = clip_plate(clip)
     first, last = clip_range(props)
     frames = list(range(first, last + 1))
@@ -132,8 +129,8 @@ def sets(props: Any) -> list[str]:
 def farm_shot(props: Any, files: RunFiles) -> FM.FarmShot:
     """The clip as one farm shot, read as Fit Atlas reads it: the same plate, the same frames (the plate's numbers),
     Mask layers rasterised into the same folders, the same preset and overrides, the same Run Folder. No foreground
-    layer: the farm finds the moving objects first (``auto_masks``); Find Parts: the fit splits the one object
-    (``auto_parts``)."""
+    layer: the farm finds the moving objects first (``auto_masks``); Find Parts off: the shot's ``auto_parts`` false
+    (on: left to the fit's default)."""
     clip = props.clip
     if clip is None:
         raise UserError("choose the clip to submit")
@@ -141,8 +138,6 @@ def farm_shot(props: Any, files: RunFiles) -> FM.FarmShot:
         raise UserError(
             "Submit to Farm: Split with Scribbles is fitted here only (Fit Atlas): turn it off to submit the clip"
         )
-    if props.find_parts:
-        _require_one_layer(props, "Find Parts", "Submit to Farm: ")
     if props.layers:
         inputs = clip_inputs(props, files, with_scribbles=False)
         plate, masks, first, last = inputs.plate, inputs.masks, inputs.first, inputs.last

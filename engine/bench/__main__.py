@@ -60,6 +60,7 @@ def _paint_table(args: argparse.Namespace) -> int:
         scribbles=args.scribbles,
         scribble_frames=args.scribble_frames,
         auto_parts=args.auto_parts,
+        one_layer=args.one_layer,
         follow_flow=args.follow_flow,
         command=[PROG, *args.argv],
     )

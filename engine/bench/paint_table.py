@@ -111,17 +111,17 @@ def fit_and_export(
     log_path: Path,
     scribbles: Path | None = None,
     follow_flow: bool = True,
-    auto_parts: bool = False,
+    auto_parts: bool | None = None,
 ) -> Path:
     """Fit (or continue, or leave a finished fit: ``--resume-if-started``) with one layer per mask folder (or the
-    one mask split by ``scribbles``, or by the parts ``fit --auto-parts`` finds: ``auto_parts``) and export into
-    ``EXPORT_VERSION`` (``follow_flow``: ``export --follow-flow``, else ``--no-follow-flow``); returns the manifest's
-    path."""
+    one mask split by ``scribbles``, or by the parts the fit finds: ``auto_parts`` None, its default, or True,
+    ``--auto-parts``; False: ``--no-auto-parts``) and export into ``EXPORT_VERSION`` (``follow_flow``:
+    ``export --follow-flow``, else ``--no-follow-flow``); returns the manifest's path."""
     set_args = [a for kv in sets for a in ("--set", kv)]
     mask_args = [a for m in masks for a in ("--mask", str(m))]
     split_args = [C.SCRIBBLE_ARG, str(scribbles)] if scribbles is not None else []
-    if auto_parts:
-        split_args = [C.FIT_AUTO_PARTS_FLAG]
+    if auto_parts is not None:
+        split_args += [C.FIT_AUTO_PARTS_FLAG if auto_parts else C.FIT_NO_AUTO_PARTS_FLAG]
     _engine(
         [C.VERB_FIT, str(frames), *mask_args, *split_args, "--out", str(run), "--preset", preset,
          C.FIT_RESUME_IF_STARTED_FLAG, "--no-bar", *set_args],
@@ -268,6 +268,7 @@ def run_paint_table(
     scribbles: bool = False,
     scribble_frames: int = 3,
     auto_parts: bool = False,
+    one_layer: bool = False,
     follow_flow: bool = True,
     command: list[str] | None = None,
     log: Log | None = None,
@@ -279,16 +280,18 @@ def run_paint_table(
     instead, its one mask split by strokes drawn from the part masks on ``scribble_frames`` frames spread evenly from
     the first to the last (3: first, middle, last; ``part_scribbles``). ``auto_parts``: each clip fitted with
     ``fit --auto-parts``, its one (degraded) mask split by the strokes the fit draws from the motion where it splits
-    it (the row's ``auto_parts``: what the fit said it found; ``scribbles``: the strokes it wrote, ``RUN/parts``).
+    it (the row's ``auto_parts``: what the fit said it found; ``scribbles``: the strokes it wrote, ``RUN/parts``);
+    without any of these the fit's default does the same wherever it applies. ``one_layer``: each clip fitted with
+    ``fit --no-auto-parts``, one layer per mask.
     ``follow_flow``: exported with ``export --follow-flow`` (the product's default), else ``--no-follow-flow``."""
     say = log or (lambda line: print(line, file=sys.stderr, flush=True))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     recipe(degrade)  # an unknown name is refused before anything runs
-    if parts + scribbles + auto_parts > 1:
-        raise ValueError("parts, scribbles and auto_parts are ways to split a clip: choose one")
+    if parts + scribbles + auto_parts + one_layer > 1:
+        raise ValueError("parts, scribbles, auto_parts and one_layer are ways to split a clip: choose one")
     rows = []
-    split = "parts" if parts else "scribbles" if scribbles else "auto" if auto_parts else None
+    split = "parts" if parts else "scribbles" if scribbles else "auto" if auto_parts else "one" if one_layer else None
     for folder in _selected_clips(root, only):
         row = _clip_row(folder, out, preset, degrade, seed, sets or [], threads, split, scribble_frames, follow_flow,
                         say)  # fmt: skip
@@ -312,6 +315,7 @@ def run_paint_table(
         "scribbles": scribbles,
         "scribble_frames": scribble_frames if scribbles else None,
         "auto_parts": auto_parts,
+        "one_layer": one_layer,
         "follow_flow": follow_flow,
         "rows": rows,
         "mean": mean_row(rows),
@@ -346,7 +350,8 @@ def _clip_row(
     say: Log,
 ) -> dict:
     """One clip fitted and exported as ``run_paint_table`` says, and its export scored: the table's row. ``how`` a
-    clip is split: ``parts``, ``scribbles``, ``auto`` (``run_paint_table``'s flags) or None."""
+    clip is split: ``parts``, ``scribbles``, ``auto``, ``one`` (``run_paint_table``'s flags) or None (the fit's
+    default)."""
     given = [folder / "masks"]
     split = part_folders(folder)
     if how == "parts" and split:
@@ -366,11 +371,14 @@ def _clip_row(
     run = out / "runs" / folder.name
     log_path = out / "logs" / f"{folder.name}.log"
     say(f"paint-table: {folder.name}: fit {preset} + export -> {run}")
+    flag = {"auto": True, "one": False}.get(how or "")
     manifest = fit_and_export(folder / "frames", masks, run, preset, sets, threads, log_path, strokes, follow_flow,
-                              auto_parts=how == "auto")  # fmt: skip
-    if how == "auto":  # the product's own search: what the fit said it found, and the strokes it wrote
+                              auto_parts=flag)  # fmt: skip
+    if strokes is None and len(masks) == 1 and flag is not False:  # the fit's own search (asked, or its default):
+        # what it said it found, and the strokes it wrote
         found = _auto_parts_line(log_path)
-        say(f"paint-table: {folder.name}: parts: {found}")
+        if found is not None:
+            say(f"paint-table: {folder.name}: parts: {found}")
         if (run / C.AUTO_PARTS_DIR).is_dir():
             strokes = run / C.AUTO_PARTS_DIR
         layers = len(Manifest(manifest).layers)
@@ -415,6 +423,8 @@ def format_table(table: dict) -> str:
         parts = ", one mask split by strokes drawn from `masks_parts/` where a clip has it"
     if table.get("auto_parts"):
         parts = ", one mask split by the strokes `fit --auto-parts` draws from the motion where it splits the object"
+    if table.get("one_layer"):
+        parts = ", one layer per mask (`fit --no-auto-parts`)"
     head = f"preset `{table['preset']}`{sets}, masks `{table['degrade']}` (seed {table['seed']}){parts}"
     lines = [head, "", "| " + " | ".join(h for h, _, _ in COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
     for row in [*table["rows"], table["mean"]]:

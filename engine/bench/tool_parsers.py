@@ -367,7 +367,14 @@ def _add_paint_table_parser(sub: argparse._SubParsersAction) -> None:
         "--auto-parts",
         action="store_true",
         help="fit each clip with `fit --auto-parts`: its (degraded) mask split by the strokes the fit draws from the "
-        "motion into OUT/runs/CLIP/parts (a clip it does not split is fitted as without)",
+        "motion into OUT/runs/CLIP/parts (a clip it does not split is fitted as without); the fit's default does "
+        "the same wherever it applies",
+    )
+    split.add_argument(
+        "--no-auto-parts",
+        dest="one_layer",
+        action="store_true",
+        help="fit each clip with `fit --no-auto-parts`: one layer per mask, never split",
     )
     pt.add_argument(
         "--scribble-frames",

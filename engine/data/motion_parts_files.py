@@ -21,7 +21,7 @@ import numpy as np
 from .. import contract as C
 from ..config import FitConfig
 from ..errors import InputError
-from ..io.clip import open_clip, read_frames, read_masks, working_size
+from ..io.clip import ClipInfo, open_clip, read_frames, read_masks, working_size
 from ..io.colour import to_working
 from .flow import DISFlow, compute_flow
 from .mask_files import already_holds, mask_file_names, output_folder, write_file_set
@@ -31,6 +31,12 @@ from .scribbles import NO_LABEL
 
 #: What the files are, in the one-line refusals of ``mask_files``.
 STROKE = "stroke"
+
+
+class NothingToSplit(InputError):
+    """The clip gives the search nothing to split: a single frame, or a mask empty on every selected frame. Refused
+    in one line when the split was asked for (``parts``, ``fit --auto-parts``); a fit that splits by default fits
+    such a clip as it is (``fit.auto_parts.find_parts``)."""
 
 
 @dataclass
@@ -87,10 +93,7 @@ def write_motion_parts(
     config whose working size, mask snap and flow the analysis uses (``fit --auto-parts``: the fit's own; default:
     a default fit's); ``flow_cache``: where the flow is cached (the run's, so the fit that follows reuses it)."""
     info = open_clip(clip, frame_range, colorspace)
-    if info.num_frames < 2:
-        raise InputError(
-            info.source, "a single frame has no motion to split the object by", "select at least two frames"
-        )
+    require_something_to_split(info, mask, None)
     fit = fit or FitConfig()
     size = working_size(info.width, info.height, fit.long_edge)
     folder = output_folder(info, out, STROKE)
@@ -100,11 +103,27 @@ def write_motion_parts(
                         info.colour_config)  # fmt: skip
     frames = np.clip(np.nan_to_num(frames, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0).astype(np.float32)
     masks = read_masks(mask, info, size)
-    if not masks.any():
-        raise InputError(mask, "holds no mask pixel on the selected frames", "draw the object's mask first")
+    require_something_to_split(info, mask, masks)
     snapped, _ = snap_masks(frames, masks[None], fit.mask_snap_px)
     flow = compute_flow(frames, DISFlow(fit.flow_preset), flow_cache, fit.flow_threshold_px)
-    result = motion_parts(snapped[0], flow, cfg)
+    return write_strokes(info, folder, motion_parts(snapped[0], flow, cfg))
+
+
+def require_something_to_split(info: ClipInfo, mask: str | Path, masks: np.ndarray | None) -> None:
+    """``NothingToSplit`` (one line) for a clip of one frame, or a ``mask`` folder whose ``masks`` (bool [T, H, W];
+    None: not read yet) are empty on every frame."""
+    if info.num_frames < 2:
+        raise NothingToSplit(
+            info.source, "a single frame has no motion to split the object by", "select at least two frames"
+        )
+    if masks is not None and not masks.any():
+        raise NothingToSplit(mask, "holds no mask pixel on the selected frames", "draw the object's mask first")
+
+
+def write_strokes(info: ClipInfo, folder: Path, result: MotionParts) -> PartsReport:
+    """The strokes of ``result`` written to ``folder`` (resolved by ``output_folder``), one image per stroked frame
+    at the clip's resolution, named like its frames; nothing when it found no parts. A file of the same name already
+    there is refused, unless every file would be the same, which is left as it is."""
     if not result.found:
         return PartsReport(result)
     names = mask_file_names(info)
@@ -118,4 +137,11 @@ def write_motion_parts(
     return PartsReport(result, str(folder), write_file_set(folder, images, STROKE))
 
 
-__all__ = ["PartsReport", "stroke_image", "write_motion_parts"]
+__all__ = [
+    "NothingToSplit",
+    "PartsReport",
+    "require_something_to_split",
+    "stroke_image",
+    "write_motion_parts",
+    "write_strokes",
+]

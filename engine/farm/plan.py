@@ -175,8 +175,8 @@ def shot_tasks(sp: ShotPlan) -> list[Task]:
         fit_args += ["--mask", mask]
     if shot.auto_masks:
         fit_args.append(C.FIT_AUTO_MASKS_FLAG)
-    if shot.auto_parts:
-        fit_args.append(C.FIT_AUTO_PARTS_FLAG)
+    if shot.auto_parts is not None:  # not given: the fit's default (the parts wherever that applies)
+        fit_args.append(C.FIT_AUTO_PARTS_FLAG if shot.auto_parts else C.FIT_NO_AUTO_PARTS_FLAG)
     fit_args += ["--frames", frames]
     fit_args += _option("--colorspace", shot.colorspace) + _option("--fps", shot.fps)
     fit_args += _option("--start-frame", shot.start_frame) + _option("--device", shot.device) + ["--no-bar"]

@@ -68,8 +68,10 @@ class Shot:
     """The shot's run folder (absolute): the fit, its exports and, with auto_masks, the found masks."""
     masks: tuple[str, ...] = ()
     auto_masks: bool = False
-    auto_parts: bool = False
-    """The one mask's object split into the parts that move apart when the fit starts (``fit --auto-parts``)."""
+    auto_parts: bool | None = None
+    """The one mask's object split into the parts that move apart when the fit starts: True ``fit --auto-parts``
+    (refused where it cannot apply), False ``--no-auto-parts``, None (not given) the fit's default: wherever it
+    applies."""
     frames: tuple[int, int] | None = None
     """Inclusive, in the plate's frame numbers; None: every frame."""
     colorspace: str | None = None
@@ -218,7 +220,7 @@ def _shot(file: Path, where: str, entry: dict[str, Any]) -> Shot:
     auto: bool = v.get("auto_masks", False)
     if auto and masks:
         raise InputError(file, f"{where}: both 'masks' and 'auto_masks'", "drop one: given masks or found ones")
-    parts: bool = v.get("auto_parts", False)
+    parts: bool | None = v.get("auto_parts")
     if parts and len(masks) != 1:
         raise InputError(
             file,

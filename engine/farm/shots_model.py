@@ -137,7 +137,7 @@ class ShotTable(ShotDefaults):
     plate: Utf8Text
     masks: Paths = Field(default_factory=list)
     auto_masks: Flag = False
-    auto_parts: Flag = False
+    auto_parts: Annotated[Flag, Field(default=None)]
     frames: Annotated[FrameRange, Field(default=None)]
     colorspace: Annotated[Utf8Text, Field(default=None)]
     fps: Annotated[Rate, Field(default=None)]

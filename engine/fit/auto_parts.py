@@ -1,5 +1,9 @@
-"""``fit --auto-parts``: the one masked object split into the parts that move apart before it is fitted, as
-``parts`` then ``fit --scribbles`` would do it, in one command.
+"""``fit --auto-parts``: the one masked object split into the parts that move apart before it is trained, as
+``parts`` then ``fit --scribbles`` would do it, in one command. A fit given neither ``--auto-parts`` nor
+``--no-auto-parts`` does it wherever it applies (``parts_wanted``). The search runs inside ``prepare_clip`` on the
+fit's own decoded frames, snapped mask and optical flow (``PartsSearch``), so it costs the analysis alone, and an
+object that moves as one piece is fitted bit for bit as without it: only objects whose parts move apart are fitted
+differently.
 
 The strokes go to RUN_DIR/parts (``contract.AUTO_PARTS_DIR``), where the artist can check them, fix them, or
 delete the folder to have them found again. A folder there that already holds stroke images (an earlier fit's, or
@@ -15,16 +19,23 @@ motion*).
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
 
 from .. import contract as C
 from ..config import FitConfig
+from ..data.flow import FlowField
+from ..data.mask_files import output_folder
+from ..data.motion_parts import motion_parts
+from ..data.motion_parts_files import STROKE, NothingToSplit, require_something_to_split, write_strokes
+from ..data.scribbles import read_scribbles
 from ..errors import InputError
+from ..io.clip_info import ClipInfo
+from .progress import Reporter
 from .run_folder import RunFolder
 
-#: What the run folder's lock names while the strokes are written.
-LOCK_HOLDER = f"fit {C.FIT_AUTO_PARTS_FLAG}"
 #: The start of the one stderr line that says what the search found (``bench paint-table`` reads it from the log).
 SAID_PREFIX = "auto parts: "
 
@@ -56,6 +67,20 @@ def check_auto_parts(cfg: FitConfig, mask_dirs: list[str | Path], scribble_dir: 
         )
 
 
+def parts_wanted(
+    flag: bool | None, cfg: FitConfig, mask_dirs: list[str | Path], scribble_dir: str | None, auto_masks: bool
+) -> bool:
+    """Whether a fit that starts splits its object into parts: ``--auto-parts`` (``flag`` True) always, after
+    ``check_auto_parts`` refused what it cannot go with; ``--no-auto-parts`` never; neither (None) wherever it
+    applies, silently: one --mask, no --scribbles or --auto-masks, a fast model (a clip the search cannot split,
+    one frame or an empty mask, is left to ``PartsSearch.check``, which fits it as it is)."""
+    if flag is None:
+        return len(mask_dirs) == 1 and scribble_dir is None and not auto_masks and cfg.model != "paper"
+    if flag:
+        check_auto_parts(cfg, mask_dirs, scribble_dir, auto_masks)
+    return flag
+
+
 def strokes_in_run(run_dir: Path) -> str | None:
     """RUN_DIR/parts when it holds stroke images (an earlier ``--auto-parts``'s, or the artist's fix of them): the
     scribbles the fit uses as they are; None when there are none."""
@@ -66,48 +91,54 @@ def strokes_in_run(run_dir: Path) -> str | None:
     return None
 
 
-def find_parts(
-    clip: str,
-    mask_dir: str | Path,
-    run_dir: Path,
-    cfg: FitConfig,
-    frame_range: tuple[int, int] | None,
-    colorspace: str | None,
-    say: Callable[[str], None],
-) -> str | None:
-    """Find the parts of the object in ``mask_dir`` that move apart (``motion_parts_files.write_motion_parts``) and
-    write their strokes to RUN_DIR/parts, under the run folder's lock; the folder, or None when the object moves as
-    one piece (nothing written). The analysis runs at the fit's working size, mask snap and flow (``cfg``), and
-    its flow goes to the run's cache, where the fit finds it. ``say`` gets the progress; the result is one line on
-    stderr, as ``--auto-masks`` says what it found."""
-    from ..data.motion_parts_files import write_motion_parts
+@dataclass(frozen=True)
+class PartsRequest:
+    """A fit that starts asks ``prepare_clip`` to split its one mask into the parts that move apart. ``asked``: the
+    artist asked (``--auto-parts``): a clip with nothing to split (one frame, an empty mask) is refused in one line
+    before anything is written, and what the search found is said either way. Otherwise (the fit's default) such a
+    clip is fitted as it is, and only a split is said on stderr (the log has every finding)."""
 
-    run = RunFolder(run_dir)
-    shown = run.own_folder(run.auto_parts, "strokes")
-    say(f"looking for parts that move apart; strokes go to {shown}")
-    existed = run.path.exists()
-    try:
-        with run.lock(LOCK_HOLDER):
-            report = write_motion_parts(
-                clip, mask_dir, shown, frame_range, colorspace, say=say, fit=cfg, flow_cache=run.flow_cache
-            )
-    except InputError:  # bad input (read before anything is written) leaves no run folder behind, as for a fit
-        if not existed:
-            _remove_lock_only(run.path)
-        raise
-    if report.folder is None:
-        print(f"{SAID_PREFIX}{report.result.message}: fitted as one layer", file=sys.stderr)
-        return None
-    print(f"{SAID_PREFIX}{report.result.message} ({shown})", file=sys.stderr)
-    return report.folder
+    asked: bool
 
 
-def _remove_lock_only(folder: Path) -> None:
-    """Remove ``folder`` when all it holds is the lock file the refused command created with it."""
-    entries = list(folder.iterdir()) if folder.is_dir() else None
-    if entries is not None and [e.name for e in entries] == [C.RUN_LOCK]:
-        (folder / C.RUN_LOCK).unlink()
-        folder.rmdir()
+class PartsSearch:
+    """The search within ``prepare_clip``, on the fit's own decoded frames, snapped mask and flow: made before
+    anything is decoded (a link at RUN_DIR/parts is refused at once), checked once the mask is read, run once the
+    flow is there (under the run folder's lock, which the fit holds by then)."""
+
+    def __init__(self, request: PartsRequest, info: ClipInfo, run: RunFolder, mask_dir: str | Path) -> None:
+        self.asked, self.info, self.mask_dir = request.asked, info, mask_dir
+        self.shown = run.own_folder(run.auto_parts, "strokes")  # the folder as messages name it
+        self.wanted = True
+
+    def check(self, masks: np.ndarray) -> None:
+        """Before anything is written: whether there is anything to split in the mask (bool [T, H, W]); asked, a
+        clip with nothing to split is one line (``NothingToSplit``); by default the search is left out."""
+        try:
+            require_something_to_split(self.info, self.mask_dir, masks)
+        except NothingToSplit:
+            if self.asked:
+                raise
+            self.wanted = False
+
+    def find(self, masks: np.ndarray, flow: FlowField, reporter: Reporter) -> tuple[np.ndarray, str] | None:
+        """The strokes of the parts that move apart in ``masks`` (the fit's, bool [T, H, W]) along ``flow`` (its
+        adjacent flow), written to RUN_DIR/parts and read back as ``--scribbles`` reads them at the working size:
+        (labels, folder); None when the object moves as one piece (nothing written)."""
+        if not self.wanted:
+            return None
+        reporter.emit(C.EVENT_STAGE, stage=C.VERB_PARTS, message=f"looking for parts that move apart ({self.shown})")
+        folder = output_folder(self.info, self.shown, STROKE)
+        report = write_strokes(self.info, folder, motion_parts(masks, flow))
+        if report.folder is None:
+            said = f"{report.result.message}: fitted as one layer"
+            reporter.emit(C.EVENT_STAGE, stage=C.VERB_PARTS, message=said)
+            if self.asked:
+                print(f"{SAID_PREFIX}{said}", file=sys.stderr)
+            return None
+        print(f"{SAID_PREFIX}{report.result.message} ({self.shown})", file=sys.stderr)
+        size = (masks.shape[2], masks.shape[1])
+        return read_scribbles(report.folder, self.info, size), str(Path(report.folder).resolve())
 
 
-__all__ = ["LOCK_HOLDER", "check_auto_parts", "find_parts", "strokes_in_run"]
+__all__ = ["SAID_PREFIX", "PartsRequest", "PartsSearch", "check_auto_parts", "parts_wanted", "strokes_in_run"]

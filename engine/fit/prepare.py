@@ -32,6 +32,7 @@ from ..data.video import VideoTensors, build_video_tensors
 from ..errors import InputError
 from ..io.clip import ClipInfo, open_clip, read_frames, read_frames_at, read_masks, working_size
 from ..io.colour import legacy_linear_to_srgb, recorded_space, to_working
+from .auto_parts import PartsRequest, PartsSearch
 from .progress import Reporter
 from .run_folder import ClipRecord, RunFolder
 
@@ -214,6 +215,7 @@ def prepare_clip(
     colour_config: str | None = None,
     fps: Fraction | None = None,
     start_frame: int | None = None,
+    parts: PartsRequest | None = None,
 ) -> PreparedClip:
     """Read, validate and sanitise the clip and masks, and compute (or load from RUN_DIR/flow_cache) its flow.
 
@@ -224,6 +226,9 @@ def prepare_clip(
     (the flow cache, the auto masks): ``fit`` takes the run folder's lock there, so bad input creates no folder.
     ``colorspace`` / ``colour_config``: the plate's colour space (``fit --colorspace``; a resume: the recorded one).
     ``fps`` and ``start_frame``: the plate's rate and a movie's first frame number (``open_clip``); recorded only.
+    ``parts``: split the one mask (no scribbles given) into the parts that move apart, found from the fit's own
+    snapped mask and flow once it is computed (``auto_parts.PartsSearch``; the strokes go to RUN_DIR/parts and are
+    the fit's scribbles); an object that moves as one piece is fitted as without it.
     """
     reporter = reporter or Reporter.null()
     # a run made before colour management ("sRGB"/"linear", no config) is resumed with the values it fitted
@@ -233,9 +238,12 @@ def prepare_clip(
     size = working_size(info.width, info.height, cfg.long_edge)
     run = RunFolder(run_dir)
     finder = _AutoMasks(info, run) if auto_masks else None
+    search = None if parts is None else PartsSearch(parts, info, run, mask_dirs[0])
     reporter.emit(C.EVENT_STAGE, stage="read", message=f"reading {info.num_frames} frames at {size[0]}x{size[1]}")
     frames, raw, analysis_raw = _read_plate(info, size, finder, colorspace if legacy else None)
     masks, snaps = _read_masks(mask_dirs, info, size, frames, cfg)
+    if search is not None:
+        search.check(masks[0])
     scribbles = None if scribble_dir is None else _read_scribbles(scribble_dir, info, size)
     if scribbles is not None and finder is None:
         _check_one_mask(scribble_dir, len(mask_dirs))  # type: ignore[arg-type]
@@ -254,6 +262,9 @@ def prepare_clip(
     reporter.job.eval_pixels = len(frames) * size[0] * size[1]
     reporter.job.export_pixels = len(frames) * info.width * info.height
     flow, long_flow = _clip_flow(frames, cfg, run, reporter)
+    found = None if search is None else search.find(masks[0], flow, reporter)
+    if found is not None:
+        scribbles, scribble_dir = found
     prepared = PreparedClip(
         info,
         size,

@@ -29,6 +29,7 @@ from ..errors import FitDiverged, InputError
 from ..model.atlas_model import AtlasModel
 from ..model.losses import psnr_from_mse
 from ..model.objective import compute_losses
+from .auto_parts import PartsRequest
 from .checkpoint import nonfinite_entries
 from .device import select_device, synchronize
 from .divergence import NonFinite, all_finite, diverged_message, nonfinite_groups, nonfinite_terms, require_finite
@@ -407,11 +408,14 @@ def fit(
     colorspace: str | None = None,
     fps: Fraction | None = None,
     start_frame: int | None = None,
+    parts: PartsRequest | None = None,
 ) -> dict[str, Any]:
     """Fit a layered atlas to ``clip``; writes config, clip record, scene analysis, checkpoint and metrics
     into ``run_dir``. ``auto_masks``: no masks given, find them from motion (written to RUN_DIR/auto_masks
     for the artist to check) and fit with them; nothing moving gives a background-only fit. ``scribble_dir``:
     red/green/... strokes that split the one mask's object into several foreground layers (paper Sec. 4.4).
+    ``parts`` (a new fit of one mask, no scribbles): those strokes found from the motion where the object's parts
+    move apart (``auto_parts``; ``fit``'s default and ``--auto-parts``).
     ``fps``: the plate's rate where its files state none; ``start_frame``: a movie's first frame number (both
     recorded in clip.json, neither changes the fit; a resume keeps the recorded ones).
 
@@ -462,6 +466,7 @@ def fit(
             colour_config=colour_config,
             fps=fps,
             start_frame=start_frame,
+            parts=None if resumed is not None else parts,
         )
         trainer = _start_trainer(run, cfg, prepared, device, resumed, refit)
         reporter.log_path = run.log

@@ -37,7 +37,7 @@ SHOT_KEYS: tuple[str, ...] = (
     *SHOT_REQUIRED_KEYS,
     "masks",  # mask folders, one per foreground layer
     "auto_masks",  # true: find the moving objects (a masks task before the fit)
-    "auto_parts",  # true: split the one masked object into the parts that move apart (fit --auto-parts)
+    "auto_parts",  # false: fit --no-auto-parts (one layer); true: --auto-parts; absent: the fit's default
     "frames",  # "FIRST-LAST" in the plate's frame numbers
     "colorspace",  # the plate's OCIO colour space
     "fps",  # the plate's rate ("24", "24000/1001")

@@ -42,8 +42,11 @@ FIT_AUTO_MASKS_FLAG = "--auto-masks"
 AUTO_MASKS_DIR = "auto_masks"
 #: ``fit --mask FOLDER --auto-parts``: split the one object into the parts that move apart (``parts``), strokes
 #: written to RUN_DIR/parts/ (checked, fixed or deleted by the artist; used as they are when already there), and
-#: fit with them as --scribbles; an object that moves as one piece is fitted as one layer.
+#: fit with them as --scribbles; an object that moves as one piece is fitted as one layer. Without either flag a fit
+#: does so wherever it applies (one --mask, no --scribbles or --auto-masks, a fast model, two frames or more);
+#: ``--no-auto-parts`` fits the object as one layer.
 FIT_AUTO_PARTS_FLAG = "--auto-parts"
+FIT_NO_AUTO_PARTS_FLAG = "--no-auto-parts"
 AUTO_PARTS_DIR = "parts"
 
 # --- run folder files: their versions -----------------------------------------------------------------------
@@ -90,6 +93,7 @@ __all__ = [
     "BG_MOTION_STATIC",
     "FIT_AUTO_MASKS_FLAG",
     "FIT_AUTO_PARTS_FLAG",
+    "FIT_NO_AUTO_PARTS_FLAG",
     "FLOW_CACHE_DIR",
     "RUN_CHECKPOINT",
     "RUN_CHECKPOINT_KEYS",

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -194,18 +195,21 @@ def test_scribbles_are_refused(farm_scene, tmp_path):
     assert not (tmp_path / "sh010.farm").exists() and running.jobs() == {}
 
 
-def test_find_parts_goes_to_the_shot_with_its_one_mask(farm_scene, tmp_path):
+def test_find_parts_off_goes_to_the_shot_and_on_leaves_it_to_the_fit(farm_scene, tmp_path):
+    """Find Parts off: the shot's ``auto_parts`` is false (its fit task: ``--no-auto-parts``); on (the default): the
+    key is left out, the fit's default (the parts that move apart, wherever that applies)."""
     props, prefs = farm_scene
     prefs.farm_kind = FM.FARM_OPENJD
-    props.find_parts = True
     while len(props.layers) > 1:
         props.layers.remove(len(props.layers) - 1)
-    assert bpy.ops.neural_atlas.submit_farm("EXEC_DEFAULT") == {"FINISHED"}
-    (shot,) = json.loads((tmp_path / "sh010.farm" / "shots.json").read_text())[C.SHOTS_LIST_KEY]
-    assert shot["auto_parts"] is True and len(shot["masks"]) == 1
-    props.layers.add().source = "FOLDER"
-    with pytest.raises(RuntimeError, match="Find Parts splits one object: keep exactly one foreground layer"):
-        bpy.ops.neural_atlas.submit_farm("EXEC_DEFAULT")
+    shots = tmp_path / "sh010.farm" / "shots.json"
+    for find_parts in (False, True):
+        props.find_parts = find_parts
+        shutil.rmtree(shots.parent, ignore_errors=True)
+        assert bpy.ops.neural_atlas.submit_farm("EXEC_DEFAULT") == {"FINISHED"}
+        (shot,) = json.loads(shots.read_text())[C.SHOTS_LIST_KEY]
+        assert shot.get("auto_parts", "left out") == ("left out" if find_parts else False)
+        assert len(shot["masks"]) == 1
 
 
 def test_greyed_without_clip_or_engine(farm_scene, monkeypatch):

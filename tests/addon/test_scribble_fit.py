@@ -252,33 +252,36 @@ def test_real_annotation_strokes_from_the_scribble_layers(plain_scene, tmp_path)
     assert props.imported_layers == "Background, Foreground1, Foreground2"
 
 
-def test_find_parts_asks_the_engine_to_split_the_one_mask(plain_scene):
-    """Find Parts: the fit gets the one --mask and --auto-parts (the engine writes the strokes into the run folder),
-    no --scribbles; the estimate gets neither."""
+PARTS_FLAGS = {C.FIT_AUTO_PARTS_FLAG, C.FIT_NO_AUTO_PARTS_FLAG}
+
+
+@pytest.mark.parametrize("find_parts", [True, False], ids=["on", "off"])
+def test_find_parts_is_on_by_default_and_off_tells_the_engine_not_to_split(plain_scene, find_parts):
+    """Find Parts on (the default): the fit gets the one --mask and no flag, so the engine splits the parts that
+    move apart (writing their strokes into the run folder) as its default does; off: ``--no-auto-parts``, the
+    object fitted as one layer. The estimate gets neither."""
     props = plain_scene
     props.use_scribbles = False
-    props.find_parts = True
+    assert props.find_parts, "Find Parts is on by default"
+    props.find_parts = find_parts
     assert bpy.ops.neural_atlas.fit("EXEC_DEFAULT") == {"FINISHED"}, props.status
     argv = Path(props.log_path).read_text().splitlines()[0].split(" ")
-    assert argv.count("--mask") == 1 and argv.count(C.FIT_AUTO_PARTS_FLAG) == 1 and C.SCRIBBLE_ARG not in argv
+    assert argv.count("--mask") == 1 and C.SCRIBBLE_ARG not in argv
+    assert [a for a in argv if a in PARTS_FLAGS] == ([] if find_parts else [C.FIT_NO_AUTO_PARTS_FLAG])
     assert bpy.ops.neural_atlas.estimate("EXEC_DEFAULT") == {"FINISHED"}
-    assert C.FIT_AUTO_PARTS_FLAG not in Path(props.run_dir + ".estimate.log").read_text().splitlines()[0]
+    assert not PARTS_FLAGS & set(Path(props.run_dir + ".estimate.log").read_text().splitlines()[0].split(" "))
 
 
-@pytest.mark.parametrize(
-    ("case", "match"),
-    [
-        ("two_layers", "Find Parts splits one object: keep exactly one foreground layer .* not 2"),
-        ("with_scribbles", "Find Parts and Split with Scribbles both split the object: turn one of them off"),
-    ],
-)
-def test_find_parts_refusals_are_clear_and_start_no_engine(plain_scene, case, match):
+def test_find_parts_on_with_two_layers_fits_them_as_given(plain_scene, tmp_path):
+    """Find Parts splits one object: with two foreground layers (its checkbox greyed out) the fit starts as it would
+    without it, each layer's --mask and no flag (the engine splits nothing it was given two masks for)."""
     props = plain_scene
-    props.use_scribbles = case == "with_scribbles"
-    props.find_parts = True
-    if case == "two_layers":
-        props.layers.add().source = "FOLDER"
-    with pytest.raises(RuntimeError, match=match):
-        bpy.ops.neural_atlas.fit("EXEC_DEFAULT")
-    assert not Path(props.run_dir + ".blender.log").exists()
-    assert not props.running and running.jobs() == {}
+    props.use_scribbles = False
+    second = props.layers.add()
+    second.source = "FOLDER"
+    second.folder = str(tmp_path / "second_masks")
+    Path(second.folder).mkdir()
+    assert props.find_parts
+    assert bpy.ops.neural_atlas.fit("EXEC_DEFAULT") == {"FINISHED"}, props.status
+    argv = Path(props.log_path).read_text().splitlines()[0].split(" ")
+    assert argv.count("--mask") == 2 and not PARTS_FLAGS & set(argv)

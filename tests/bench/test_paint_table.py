@@ -174,12 +174,42 @@ def test_auto_parts_fit_an_object_that_moves_as_one_piece_as_one_layer(tmp_path)
     assert "the strokes `fit --auto-parts` draws" in (tmp_path / "out" / PAINT_MD).read_text().splitlines()[0]
 
 
+@pytest.mark.parametrize(
+    ("auto_parts", "flags"),
+    [(None, []), (True, [C.FIT_AUTO_PARTS_FLAG]), (False, [C.FIT_NO_AUTO_PARTS_FLAG])],
+    ids=["the-fits-default", "auto-parts", "no-auto-parts"],
+)
+def test_the_fit_gets_the_split_flag_the_table_asks_for(monkeypatch, tmp_path, auto_parts, flags):
+    """The table's default fits as the product does (no flag: the parts wherever that applies); ``--auto-parts``
+    and ``--no-auto-parts`` (``one_layer``) reach the fit as those flags, the export gets neither."""
+    import engine.bench.paint_table as paint_table
+
+    calls: list[list[str]] = []
+
+    def engine(args: list[str], log_path: Path, threads: int | None) -> str:
+        calls.append(args)
+        return str(tmp_path / "manifest.json")
+
+    monkeypatch.setattr(paint_table, "_engine", engine)
+    paint_table.fit_and_export(tmp_path / "f", [tmp_path / "m"], tmp_path / "run", "draft", [], 1, tmp_path / "log",
+                               auto_parts=auto_parts)  # fmt: skip
+    fit, export = calls
+    parts = {C.FIT_AUTO_PARTS_FLAG, C.FIT_NO_AUTO_PARTS_FLAG}
+    assert [a for a in fit if a in parts] == flags and not parts & set(export)
+
+
 def test_one_way_to_split_a_clip_at_a_time(scene_root, tmp_path):
     with pytest.raises(ValueError, match="choose one"):
         run_paint_table(scene_root, tmp_path / "o", parts=True, auto_parts=True, log=lambda _: None)
     err = io.StringIO()
     with contextlib.redirect_stderr(err), pytest.raises(SystemExit):
         bench_main(["paint-table", str(scene_root), "--scribbles", "--auto-parts"])
+    assert "not allowed with argument" in err.getvalue()
+    with pytest.raises(ValueError, match="choose one"):
+        run_paint_table(scene_root, tmp_path / "o", auto_parts=True, one_layer=True, log=lambda _: None)
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), pytest.raises(SystemExit):
+        bench_main(["paint-table", str(scene_root), "--auto-parts", "--no-auto-parts"])
     assert "not allowed with argument" in err.getvalue()
 
 

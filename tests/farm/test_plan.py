@@ -94,7 +94,10 @@ def test_auto_parts_reaches_the_fit_only(tmp_path):
     assert plan.task("x.fit").args.count(C.FIT_AUTO_PARTS_FLAG) == 1
     assert all(C.FIT_AUTO_PARTS_FLAG not in t.args for t in plan.tasks if t.kind != "fit")
     plain = load_plan(write_shots(tmp_path, [{"name": "x", "plate": "c/frames", "masks": ["c/masks"]}]))
-    assert C.FIT_AUTO_PARTS_FLAG not in plain.task("x.fit").args
+    assert not {C.FIT_AUTO_PARTS_FLAG, C.FIT_NO_AUTO_PARTS_FLAG} & set(plain.task("x.fit").args)  # the fit's default
+    off = [{"name": "x", "plate": "c/frames", "masks": ["c/masks"], "auto_parts": False}]
+    args = load_plan(write_shots(tmp_path, off)).task("x.fit").args
+    assert args.count(C.FIT_NO_AUTO_PARTS_FLAG) == 1 and C.FIT_AUTO_PARTS_FLAG not in args
 
 
 def test_a_movie_plate_is_counted_and_numbered_from_its_start_frame(tmp_path):

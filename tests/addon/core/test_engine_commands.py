@@ -33,11 +33,16 @@ def test_scribbles_go_to_the_fit_but_not_to_the_estimate():
     ]
 
 
-def test_find_parts_goes_to_the_fit_but_not_to_the_estimate():
-    split = EC.ClipInputs(CLIP.plate, CLIP.masks[:1], 0, 2, auto_parts=True)
-    fit = EC.fit_argv("py", split, "/run", "draft", [])
-    assert fit.count(C.FIT_AUTO_PARTS_FLAG) == 1 and C.SCRIBBLE_ARG not in fit
-    assert C.FIT_AUTO_PARTS_FLAG not in EC.estimate_argv("py", split, EC.set_args(768))
+def test_find_parts_on_leaves_the_split_to_the_engine_and_off_tells_it_not_to():
+    """Find Parts on (the default): no flag, the engine splits the parts that move apart wherever that applies;
+    off: ``--no-auto-parts`` to the fit; the estimate gets neither."""
+    flags = {C.FIT_AUTO_PARTS_FLAG, C.FIT_NO_AUTO_PARTS_FLAG}
+    on = EC.ClipInputs(CLIP.plate, CLIP.masks[:1], 0, 2)
+    assert not flags & set(EC.fit_argv("py", on, "/run", "draft", []))
+    off = EC.ClipInputs(CLIP.plate, CLIP.masks[:1], 0, 2, auto_parts=False)
+    fit = EC.fit_argv("py", off, "/run", "draft", [])
+    assert fit.count(C.FIT_NO_AUTO_PARTS_FLAG) == 1 and C.FIT_AUTO_PARTS_FLAG not in fit and C.SCRIBBLE_ARG not in fit
+    assert not flags & set(EC.estimate_argv("py", off, EC.set_args(768)))
 
 
 def test_resume_export_masks_and_version():

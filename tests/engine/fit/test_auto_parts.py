@@ -1,8 +1,9 @@
-"""``fit --mask M --auto-parts``: the jumping body split into its body and its swinging limb before the fit (strokes
-in RUN_DIR/parts, the fit's recorded scribbles, one layer per part), the same command run again leaves the finished
-fit as it is, strokes already in RUN_DIR/parts (the artist's fix) are used as they are, an object moving as one
-piece is fitted as one layer with no folder, and the flags it cannot go with are one line before anything is
-written."""
+"""``fit --mask M``: by default (and with ``--auto-parts``) the jumping body split into its body and its swinging limb
+before the fit (strokes in RUN_DIR/parts, the fit's recorded scribbles, one layer per part), the same command run
+again leaves the finished fit as it is, strokes already in RUN_DIR/parts (the artist's fix) are used as they are, an
+object moving as one piece is fitted as one layer with no folder; ``--no-auto-parts`` never splits. The default
+leaves alone what it does not apply to (two masks, the paper model, a single frame, an empty mask), where
+``--auto-parts`` is one line before anything is written."""
 
 from __future__ import annotations
 
@@ -14,8 +15,11 @@ import pytest
 
 from engine import contract as C
 from engine.bench.motion_scenes import make_motion_scene, write_motion_clip
+from engine.config import preset_config
 from engine.data.scribbles import NO_LABEL, read_scribbles
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
+from engine.errors import InputError
+from engine.fit.auto_parts import parts_wanted
 from engine.fit.fitted_run import load_fitted
 from engine.fit.run_folder import RunFolder
 from engine.io.clip import open_clip
@@ -39,9 +43,12 @@ def rigid(tmp_path_factory) -> tuple[Path, Path]:
 
 
 @pytest.mark.slow  # the scene at the bench's size, its flow and a tiny fit: about 30 s
-def test_the_jumping_body_is_fitted_as_its_parts_and_the_same_command_again_changes_nothing(jumping, tmp_path):
+def test_the_jumping_body_is_fitted_as_its_parts_by_default_and_the_same_command_again_changes_nothing(
+    jumping, tmp_path
+):
+    """No flag: the fit's default splits the one mask (what ``--auto-parts`` does, which insists on it)."""
     run = tmp_path / "run"
-    argv = ["fit", jumping / "frames", "--mask", jumping / "masks", "--out", run, *TINY_FIT, C.FIT_AUTO_PARTS_FLAG]
+    argv = ["fit", jumping / "frames", "--mask", jumping / "masks", "--out", run, *TINY_FIT]
     code, lines = run_cli(*argv)
     assert code == C.EXIT_OK, lines
     assert any(line.startswith("auto parts: 2 parts that move apart") for line in lines), lines
@@ -58,20 +65,15 @@ def test_the_jumping_body_is_fitted_as_its_parts_and_the_same_command_again_chan
     assert tree_digest(run) == before
 
 
-def test_strokes_already_in_the_run_folder_are_used_as_they_are(rigid, tmp_path):
+@pytest.mark.parametrize("flag", [[], [C.FIT_AUTO_PARTS_FLAG]], ids=["default", "auto-parts"])
+def test_strokes_already_in_the_run_folder_are_used_as_they_are(rigid, tmp_path, flag):
     """The artist fixed (here: drew) the strokes in RUN_DIR/parts: they are the fit's scribbles, never searched
     again or overwritten, although this object moves as one piece."""
     frames, masks = rigid
     run = tmp_path / "run"
-    strokes = RunFolder(run).auto_parts
-    strokes.mkdir(parents=True)
-    image = np.zeros((96, 160, 4), np.uint8)
-    image[30:40, 45:55] = (0, 0, 255, 255)  # red: Foreground1 (BGRA)
-    image[50:58, 70:80] = (0, 255, 0, 255)  # green: Foreground2
-    name = f"{Path(open_clip(frames).frame_files[0]).stem}.png"
-    cv2.imwrite(str(strokes / name), image)
+    strokes = _stroke_in(run, frames)
     before = tree_digest(strokes)
-    code, lines = run_cli("fit", frames, "--mask", masks, "--out", run, *TINY_FIT, C.FIT_AUTO_PARTS_FLAG)
+    code, lines = run_cli("fit", frames, "--mask", masks, "--out", run, *TINY_FIT, *flag)
     assert code == C.EXIT_OK, lines
     assert not any(line.startswith("auto parts:") for line in lines)  # not searched
     assert RunFolder(run).read_clip().scribbles == str(strokes.resolve())
@@ -79,12 +81,40 @@ def test_strokes_already_in_the_run_folder_are_used_as_they_are(rigid, tmp_path)
     assert tree_digest(strokes) == before
 
 
-def test_an_object_moving_as_one_piece_is_fitted_as_one_layer(rigid, tmp_path):
+def _stroke_in(run: Path, frames: Path) -> Path:
+    """RUN_DIR/parts holding one frame's strokes of two parts (drawn by hand, as an artist's fix)."""
+    strokes = RunFolder(run).auto_parts
+    strokes.mkdir(parents=True)
+    image = np.zeros((96, 160, 4), np.uint8)
+    image[30:40, 45:55] = (0, 0, 255, 255)  # red: Foreground1 (BGRA)
+    image[50:58, 70:80] = (0, 255, 0, 255)  # green: Foreground2
+    cv2.imwrite(str(strokes / f"{Path(open_clip(frames).frame_files[0]).stem}.png"), image)
+    return strokes
+
+
+def test_no_auto_parts_fits_one_layer_and_leaves_strokes_in_the_run_folder_unused(rigid, tmp_path):
+    """``--no-auto-parts``: never split, not even by strokes an earlier fit left in RUN_DIR/parts (kept as they
+    are); nothing is searched."""
     frames, masks = rigid
     run = tmp_path / "run"
-    code, lines = run_cli("fit", frames, "--mask", masks, "--out", run, *TINY_FIT, C.FIT_AUTO_PARTS_FLAG)
+    before = tree_digest(_stroke_in(run, frames))
+    code, lines = run_cli("fit", frames, "--mask", masks, "--out", run, *TINY_FIT, C.FIT_NO_AUTO_PARTS_FLAG)
     assert code == C.EXIT_OK, lines
-    assert any(line.startswith("auto parts: ") and line.endswith("fitted as one layer") for line in lines), lines
+    assert not any(line.startswith("auto parts:") for line in lines)
+    assert RunFolder(run).read_clip().scribbles is None and load_fitted(run).model.num_layers == 2
+    assert tree_digest(RunFolder(run).auto_parts) == before
+
+
+@pytest.mark.parametrize("flag", [[], [C.FIT_AUTO_PARTS_FLAG]], ids=["default", "auto-parts"])
+def test_an_object_moving_as_one_piece_is_fitted_as_one_layer(rigid, tmp_path, flag):
+    """Asked for (``--auto-parts``), the finding is one stderr line; by default only a split is (every fit of one
+    mask searches: a line on each would be noise), and the progress says it."""
+    frames, masks = rigid
+    run = tmp_path / "run"
+    code, lines = run_cli("fit", frames, "--mask", masks, "--out", run, *TINY_FIT, *flag)
+    assert code == C.EXIT_OK, lines
+    said = [line for line in lines if line.startswith("auto parts: ")]
+    assert len(said) == (1 if flag else 0) and all(line.endswith("fitted as one layer") for line in said), lines
     assert not RunFolder(run).auto_parts.exists()
     assert RunFolder(run).read_clip().scribbles is None
     assert load_fitted(run).model.num_layers == 2
@@ -152,3 +182,56 @@ def test_a_link_planted_at_the_run_folders_parts_is_refused_and_nothing_is_writt
     assert f"{C.AUTO_PARTS_DIR}/" in lines[0] and "symbolic link" in lines[0] and "delete the link" in lines[0]
     assert tree_digest(elsewhere) == before
     assert sorted(p.name for p in run.iterdir()) == run_before
+
+
+@pytest.mark.parametrize(
+    ("case", "needles"),
+    [
+        ("two-masks", ("splits one object", "2 --mask folders")),
+        ("single-frame", ("single frame", "at least two frames")),
+        ("empty-mask", ("holds no mask pixel", "draw the object's mask")),
+    ],
+)
+def test_the_default_fits_what_it_cannot_split_as_given_where_auto_parts_is_one_line(rigid, tmp_path, case, needles):
+    """Where a split cannot apply the default fits the clip as it would without the search (two masks: one layer
+    each; a single frame and an empty mask, which the search cannot split, as one layer), while ``--auto-parts``,
+    which insists on it, is refused in one line and writes nothing."""
+    frames, masks = rigid
+    extra: list[str] = []
+    if case == "two-masks":
+        extra = ["--mask", str(masks)]
+    elif case == "single-frame":
+        first = open_clip(frames).frame_files[0]
+        extra = ["--frames", f"{Path(first).stem}-{Path(first).stem}"]
+    else:
+        masks = tmp_path / "empty_masks"
+        masks.mkdir()
+        for name in sorted(p.name for p in rigid[1].iterdir()):
+            cv2.imwrite(str(masks / name), np.zeros((96, 160), np.uint8))
+    run = tmp_path / "run"
+    code, lines = run_cli("fit", frames, "--mask", masks, "--out", run, *TINY_FIT, *extra)
+    assert code == C.EXIT_OK, lines
+    assert not RunFolder(run).auto_parts.exists() and RunFolder(run).read_clip().scribbles is None
+    assert not [line for line in lines if line.startswith("auto parts:")], lines
+    refused = tmp_path / "refused"
+    code, lines = run_cli("fit", frames, "--mask", masks, "--out", refused, *TINY_FIT, *extra, C.FIT_AUTO_PARTS_FLAG)
+    assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and lines[0].startswith("error: "), lines
+    for needle in needles:
+        assert needle in lines[0], (needle, lines[0])
+    assert not refused.exists()
+
+
+def test_which_fits_the_default_splits():
+    """The default splits one --mask object with a fast model and nothing else splitting it; ``--auto-parts``
+    insists (what it cannot go with is one line: ``test_what_auto_parts_cannot_go_with...``), ``--no-auto-parts``
+    never."""
+    fast, paper = preset_config("draft"), preset_config("paper")
+    one, two = ["m"], ["m", "n"]
+    assert parts_wanted(None, fast, one, None, False)
+    assert not parts_wanted(None, paper, one, None, False)
+    assert not parts_wanted(None, fast, two, None, False)
+    assert not parts_wanted(None, fast, one, "strokes", False)
+    assert not parts_wanted(None, fast, [], None, True)
+    assert parts_wanted(True, fast, one, None, False) and not parts_wanted(False, fast, one, None, False)
+    with pytest.raises(InputError, match="paper model"):
+        parts_wanted(True, paper, one, None, False)
