@@ -96,7 +96,7 @@ class PartsRequest:
     """A fit that starts asks ``prepare_clip`` to split its one mask into the parts that move apart. ``asked``: the
     artist asked (``--auto-parts``): a clip with nothing to split (one frame, an empty mask) is refused in one line
     before anything is written, and what the search found is said either way. Otherwise (the fit's default) such a
-    clip is fitted as it is, and only a split is said on stderr (the log has every finding)."""
+    clip is fitted as it is, and only a split is said on stderr (the progress messages carry every finding)."""
 
     asked: bool
 
@@ -136,7 +136,9 @@ class PartsSearch:
             if self.asked:
                 print(f"{SAID_PREFIX}{said}", file=sys.stderr)
             return None
-        print(f"{SAID_PREFIX}{report.result.message} ({self.shown})", file=sys.stderr)
+        said = f"{report.result.message} ({self.shown})"
+        reporter.emit(C.EVENT_STAGE, stage=C.VERB_PARTS, message=said)
+        print(f"{SAID_PREFIX}{said}", file=sys.stderr)
         size = (masks.shape[2], masks.shape[1])
         return read_scribbles(report.folder, self.info, size), str(Path(report.folder).resolve())
 
