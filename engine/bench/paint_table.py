@@ -110,13 +110,13 @@ def fit_and_export(
     threads: int | None,
     log_path: Path,
     scribbles: Path | None = None,
-    follow_flow: bool = True,
+    follow_flow: bool | None = None,
     auto_parts: bool | None = None,
 ) -> Path:
     """Fit (or continue, or leave a finished fit: ``--resume-if-started``) with one layer per mask folder (or the
     one mask split by ``scribbles``, or by the parts the fit finds: ``auto_parts`` None, its default, or True,
-    ``--auto-parts``; False: ``--no-auto-parts``) and export into ``EXPORT_VERSION`` (``follow_flow``:
-    ``export --follow-flow``, else ``--no-follow-flow``); returns the manifest's path."""
+    ``--auto-parts``; False: ``--no-auto-parts``) and export into ``EXPORT_VERSION`` (``follow_flow`` None: the
+    export's default, True ``--follow-flow``, False ``--no-follow-flow``); returns the manifest's path."""
     set_args = [a for kv in sets for a in ("--set", kv)]
     mask_args = [a for m in masks for a in ("--mask", str(m))]
     split_args = [C.SCRIBBLE_ARG, str(scribbles)] if scribbles is not None else []
@@ -127,7 +127,7 @@ def fit_and_export(
          C.FIT_RESUME_IF_STARTED_FLAG, "--no-bar", *set_args],
         log_path, threads,
     )  # fmt: skip
-    follow = [C.EXPORT_FOLLOW_FLOW_FLAG if follow_flow else C.EXPORT_NO_FOLLOW_FLOW_FLAG]
+    follow = [] if follow_flow is None else [C.EXPORT_FOLLOW_FLOW_FLAG if follow_flow else C.EXPORT_NO_FOLLOW_FLOW_FLAG]
     out = _engine([C.VERB_EXPORT, str(run), C.EXPORT_INTO_ARG, EXPORT_VERSION, "--no-bar", *follow], log_path, threads)
     lines = [line for line in out.strip().splitlines() if line.strip()]
     if not lines:
@@ -269,7 +269,7 @@ def run_paint_table(
     scribble_frames: int = 3,
     auto_parts: bool = False,
     one_layer: bool = False,
-    follow_flow: bool = True,
+    follow_flow: bool | None = None,
     command: list[str] | None = None,
     log: Log | None = None,
 ) -> dict:
@@ -283,7 +283,8 @@ def run_paint_table(
     it (the row's ``auto_parts``: what the fit said it found; ``scribbles``: the strokes it wrote, ``RUN/parts``);
     without any of these the fit's default does the same wherever it applies. ``one_layer``: each clip fitted with
     ``fit --no-auto-parts``, one layer per mask.
-    ``follow_flow``: exported with ``export --follow-flow`` (the product's default), else ``--no-follow-flow``."""
+    ``follow_flow``: None, exported as ``export`` does by default (each layer follows the flow where it slips, the
+    parts of one split object stay as fitted); True ``--follow-flow`` (every layer), False ``--no-follow-flow``."""
     say = log or (lambda line: print(line, file=sys.stderr, flush=True))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -346,7 +347,7 @@ def _clip_row(
     threads: int | None,
     how: str | None,
     scribble_frames: int,
-    follow_flow: bool,
+    follow_flow: bool | None,
     say: Log,
 ) -> dict:
     """One clip fitted and exported as ``run_paint_table`` says, and its export scored: the table's row. ``how`` a

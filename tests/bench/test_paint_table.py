@@ -180,8 +180,9 @@ def test_auto_parts_fit_an_object_that_moves_as_one_piece_as_one_layer(tmp_path)
     ids=["the-fits-default", "auto-parts", "no-auto-parts"],
 )
 def test_the_fit_gets_the_split_flag_the_table_asks_for(monkeypatch, tmp_path, auto_parts, flags):
-    """The table's default fits as the product does (no flag: the parts wherever that applies); ``--auto-parts``
-    and ``--no-auto-parts`` (``one_layer``) reach the fit as those flags, the export gets neither."""
+    """The table's default fits and exports as the product does (no flag: the parts wherever that applies, and the
+    export's own choice of following the flow, which leaves those parts as fitted); ``--auto-parts`` and
+    ``--no-auto-parts`` (``one_layer``) reach the fit as those flags, the export gets neither."""
     import engine.bench.paint_table as paint_table
 
     calls: list[list[str]] = []
@@ -196,6 +197,7 @@ def test_the_fit_gets_the_split_flag_the_table_asks_for(monkeypatch, tmp_path, a
     fit, export = calls
     parts = {C.FIT_AUTO_PARTS_FLAG, C.FIT_NO_AUTO_PARTS_FLAG}
     assert [a for a in fit if a in parts] == flags and not parts & set(export)
+    assert not {C.EXPORT_FOLLOW_FLOW_FLAG, C.EXPORT_NO_FOLLOW_FLOW_FLAG} & set(export)
 
 
 def test_one_way_to_split_a_clip_at_a_time(scene_root, tmp_path):
