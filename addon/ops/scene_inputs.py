@@ -75,13 +75,12 @@ def _scribbles(clip: Any, folder: str, frames: list[int], first_number: int | No
     return folder
 
 
-def _require_one_layer(props: Any, split: str, prefix: str = "") -> None:
-    """``split`` (Split with Scribbles) splits one object: a UserError unless there is exactly one foreground
-    layer."""
+def _require_one_layer(props: Any) -> None:
+    """Split with Scribbles splits one object: a UserError unless there is exactly one foreground layer."""
     if len(props.layers) != 1:
         raise UserError(
-            f"{prefix}{split} splits one object: keep exactly one foreground layer (the whole object's mask), not "
-            f"{len(props.layers)}, or turn {split} off"
+            "Split with Scribbles splits one object: keep exactly one foreground layer (the whole object's mask), not "
+            f"{len(props.layers)}, or turn Split with Scribbles off"
         )
 
 
@@ -97,7 +96,7 @@ def clip_inputs(props: Any, files: RunFiles, with_scribbles: bool = True) -> EC.
         raise UserError("add a foreground layer (a Mask or a folder of mask images)")
     scribbled = with_scribbles and props.use_scribbles
     if scribbled:
-        _require_one_layer(props, "Split with Scribbles")
+        _require_one_layer(props)
     find_parts = props.find_parts or not with_scribbles
     plate, first_number = clip_plate(clip)
     first, last = clip_range(props)

@@ -36,7 +36,7 @@ STROKE = "stroke"
 class NothingToSplit(InputError):
     """The clip gives the search nothing to split: a single frame, or a mask empty on every selected frame. Refused
     in one line when the split was asked for (``parts``, ``fit --auto-parts``); a fit that splits by default fits
-    such a clip as it is (``fit.auto_parts.find_parts``)."""
+    such a clip as it is (``fit.auto_parts.PartsSearch``)."""
 
 
 @dataclass
@@ -84,17 +84,15 @@ def write_motion_parts(
     colorspace: str | None = None,
     cfg: PartsConfig | None = None,
     say: Callable[[str], None] | None = None,
-    fit: FitConfig | None = None,
-    flow_cache: Path | None = None,
 ) -> PartsReport:
     """Find the parts of the object in ``mask`` (one mask folder) that move apart and write their strokes to
     ``out`` (created). Nothing is written when the object moves as one piece. A file of the same name already there
-    is refused, unless every file would be the same (the command run before), which is left as it is. ``fit``: the
-    config whose working size, mask snap and flow the analysis uses (``fit --auto-parts``: the fit's own; default:
-    a default fit's); ``flow_cache``: where the flow is cached (the run's, so the fit that follows reuses it)."""
+    is refused, unless every file would be the same (the command run before), which is left as it is. The analysis
+    runs at a default fit's working size, mask snap and flow (a fit's own search, ``fit.auto_parts.PartsSearch``,
+    uses the fit's)."""
     info = open_clip(clip, frame_range, colorspace)
     require_something_to_split(info, mask, None)
-    fit = fit or FitConfig()
+    fit = FitConfig()
     size = working_size(info.width, info.height, fit.long_edge)
     folder = output_folder(info, out, STROKE)
     if say is not None:
@@ -105,7 +103,7 @@ def write_motion_parts(
     masks = read_masks(mask, info, size)
     require_something_to_split(info, mask, masks)
     snapped, _ = snap_masks(frames, masks[None], fit.mask_snap_px)
-    flow = compute_flow(frames, DISFlow(fit.flow_preset), flow_cache, fit.flow_threshold_px)
+    flow = compute_flow(frames, DISFlow(fit.flow_preset), None, fit.flow_threshold_px)
     return write_strokes(info, folder, motion_parts(snapped[0], flow, cfg))
 
 
