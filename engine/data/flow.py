@@ -173,6 +173,24 @@ def consistency_mask(fwd: np.ndarray, bwd: np.ndarray, threshold_px: float = 1.0
     return ok
 
 
+#: ``cv2.remap`` refuses a map or an image of ``SHRT_MAX`` (32767) pixels or more a side. Points sampled at once are
+#: laid out in rows of this many, so any number of them fits (a close-up's mask holds 100k points and more).
+POINTS_PER_ROW = 4096
+
+
+def sample_points(field: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Bilinear samples [N, C] of ``field`` [H, W, C] (float32) at the points ``pts`` [N, 2] (x, y), edge values
+    beyond it; each point is sampled alone, so the rows the points are laid out in change no value."""
+    n = len(pts)
+    rows = max(1, -(-n // POINTS_PER_ROW))
+    width = min(max(n, 1), POINTS_PER_ROW)
+    xy = np.zeros((rows * width, 2), np.float32)
+    xy[:n] = pts
+    xy = xy.reshape(rows, width, 2)
+    out = cv2.remap(field, xy[..., 0], xy[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(rows * width, -1)[:n]
+
+
 def resize_flow(flow: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """Resample a flow field ([H, W, 2] or [N, H, W, 2]) to ``size = (W, H)``, rescaling the vectors.
 

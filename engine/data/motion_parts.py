@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .flow import FlowField
+from .flow import FlowField, sample_points
 from .scribbles import NO_LABEL
 
 
@@ -123,13 +123,6 @@ def key_frame_positions(has_mask: np.ndarray, count: int) -> list[int]:
     return sorted(out)
 
 
-def _sample(field_: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Bilinear samples of ``field_`` [H, W, C] at float points [N, 2] (x, y), replicated at the border."""
-    xy = pts.astype(np.float32).reshape(-1, 1, 2)
-    out = cv2.remap(field_, xy[..., 0], xy[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(len(pts), -1)
-
-
 def follow(
     flow: FlowField, masks: np.ndarray, start: int, steps: int, pts: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -149,7 +142,7 @@ def follow(
         xi = np.clip(np.rint(pos[:, 0]).astype(int), 0, w - 1)
         yi = np.clip(np.rint(pos[:, 1]).astype(int), 0, h - 1)
         ok &= good[yi, xi]
-        pos = pos + _sample(np.ascontiguousarray(vec, dtype=np.float32), pos)
+        pos = pos + sample_points(np.ascontiguousarray(vec, dtype=np.float32), pos)
         t += direction
         inside = (pos[:, 0] >= 0) & (pos[:, 0] <= w - 1) & (pos[:, 1] >= 0) & (pos[:, 1] <= h - 1)
         ok &= inside & np.isfinite(pos).all(1)

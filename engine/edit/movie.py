@@ -32,6 +32,23 @@ MOVIE_COLOUR_TAGS = (1, 13, 1, 1)
 MAX_SAR_TERM = 1000
 #: H.264 constant rate factor of the movies: visually lossless, so the movie judges the edit, not the codec.
 MOVIE_CRF = 18
+#: FFmpeg refuses a picture whose (width + 128) x (height + 128) reaches INT_MAX / 8 pixels (``av_image_check_size``):
+#: an 8K or a 16384x8640 plate is written, a 16384x16384 one is not.
+MOVIE_PAD_PX = 128
+MOVIE_MAX_PADDED_PIXELS = (2**31 - 1) // 8
+
+
+def movie_size_problem(size: tuple[int, int]) -> str | None:
+    """Why FFmpeg cannot write a movie of ``size`` (W, H) pixels, or None when it can: said before any frame is
+    rendered, not as a codec error after the first."""
+    w, h = size
+    w, h = w + w % 2, h + h % 2  # the codec's even sides (``MovieWriter``)
+    if (w + MOVIE_PAD_PX) * (h + MOVIE_PAD_PX) < MOVIE_MAX_PADDED_PIXELS:
+        return None
+    return f"a {w}x{h} movie is larger than FFmpeg encodes (about 268 million pixels with its padding)"
+
+
+MOVIE_SIZE_FIX = "write frames instead (render without --movie, preview with --no-movies)"
 
 
 def _in_the_way(folder: Path) -> Path | None:
@@ -61,6 +78,9 @@ class MovieWriter:
         import av
 
         self.path = Path(path)
+        too_big = movie_size_problem(size)
+        if too_big is not None:
+            raise InputError(self.path, too_big, MOVIE_SIZE_FIX)
         self.tmp = self.path.with_name(f".{self.path.stem}{STAGING_SUFFIX}{os.getpid()}{self.path.suffix}")
         self.created = first_missing(self.path.parent)
         self.container: Any = None
@@ -156,6 +176,9 @@ def movie_writer(
 __all__ = [
     "DEFAULT_FPS",
     "MOVIE_COLOUR_TAGS",
+    "MOVIE_MAX_PADDED_PIXELS",
+    "MOVIE_SIZE_FIX",
     "MovieWriter",
+    "movie_size_problem",
     "movie_writer",
 ]

@@ -12,6 +12,7 @@ from pathlib import Path
 from .. import contract as C
 from ..errors import InputError
 from ..export.manifest import Manifest
+from .movie import MOVIE_SIZE_FIX, movie_size_problem
 
 
 def _same(a: str | Path, b: str | Path) -> bool:
@@ -53,6 +54,9 @@ def check_movie(manifest: Manifest, movie: Path) -> None:
     an output may not be (``check_output``)."""
     if movie.is_dir():
         raise InputError(movie, "is a folder", "give --movie a file name, e.g. edited.mp4")
+    too_big = movie_size_problem(manifest.resolution)
+    if too_big is not None:
+        raise InputError(movie, too_big, MOVIE_SIZE_FIX)
     if manifest.clip["kind"] != C.CLIP_KINDS[0] and _same(movie, manifest.plate_path()):
         raise InputError(movie, "is the plate movie", "choose another --movie: nothing is written over the plate")
     check_output(manifest, movie.parent, "--movie folder")

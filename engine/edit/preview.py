@@ -22,11 +22,12 @@ import cv2
 import numpy as np
 
 from .. import contract as C
+from ..errors import InputError
 from ..export.manifest import Manifest
 from ..io.atomic import DISK_ERRORS, as_disk_full, atomic_write
 from ..io.images import cv2_write, read_image
 from .equations import edit_to_premultiplied
-from .movie import movie_writer
+from .movie import MOVIE_SIZE_FIX, movie_size_problem, movie_writer
 from .output_checks import check_output
 from .project_frame import project_to_textures
 from .render import plate_frames, render_frames, to_display_u8
@@ -142,6 +143,9 @@ def write_previews(manifest_path: str | Path, out_dir: str | Path | None = None,
     are written, or none does (``StagedFolder``). The default folder is the export's ``preview/``, written under the
     run folder's lock; another ``--out`` must not be the plate's, a mask folder or inside the run folder."""
     manifest = Manifest(manifest_path)
+    too_big = movie_size_problem(manifest.resolution) if movies else None
+    if too_big is not None:
+        raise InputError(manifest.path, too_big, MOVIE_SIZE_FIX)
     out = Path(out_dir) if out_dir else manifest.resolve_write(PREVIEW_DIR)
     check_output(manifest, out, "--out", allow=manifest.resolve(PREVIEW_DIR))
     in_run = C.is_within(str(out), str(manifest.run_root))

@@ -17,6 +17,7 @@ from engine.data.flow import (
     consistency_mask,
     content_key,
     resize_flow,
+    sample_points,
 )
 from engine.data.synthetic import SceneSpec, make_scene
 
@@ -326,3 +327,24 @@ def test_bad_inputs() -> None:
 
     with pytest.raises(ValueError, match="shape"):
         compute_flow(_clip(t=2), WrongShape())
+
+
+@pytest.mark.parametrize("count", [0, 1, 4095, 4097, 32767, 100_000])
+def test_sample_points_takes_any_number_of_points_each_sampled_alone(count: int) -> None:
+    """``cv2.remap`` refuses 32767 samples in a row; ``sample_points`` lays them out in rows, and every point's
+    value is the bilinear one of its own position, bit for bit what one row of fewer points gives."""
+    rng = np.random.default_rng(count)
+    field = rng.normal(size=(48, 64, 2)).astype(np.float32)
+    pts = rng.uniform(-3.0, 66.0, size=(count, 2))
+    got = sample_points(field, pts)
+    assert got.shape == (count, 2) and got.dtype == np.float32
+    for lo in range(0, count, 30_000):  # the one-row call, where OpenCV takes it
+        part = pts[lo : lo + 30_000].astype(np.float32).reshape(-1, 1, 2)
+        one_row = cv2.remap(field, part[..., 0], part[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        assert np.array_equal(got[lo : lo + 30_000], one_row.reshape(-1, 2))
+
+
+def test_sample_points_of_a_one_channel_field_and_at_pixel_centres() -> None:
+    field = np.arange(12, dtype=np.float32).reshape(3, 4, 1)
+    pts = np.array([[0.0, 0.0], [3.0, 2.0], [1.5, 1.0], [9.0, -4.0]])  # the last beyond the corner: edge value
+    assert sample_points(field, pts)[:, 0].tolist() == [0.0, 11.0, 5.5, 3.0]

@@ -168,3 +168,24 @@ def test_stroke_images_read_back_as_the_labels(size):
     expected = cv2.resize(labels.astype(np.int16), size, interpolation=cv2.INTER_NEAREST)
     assert np.array_equal(back, expected.astype(np.int8))
     assert len(C.SCRIBBLE_COLOURS) >= PartsConfig().max_parts
+
+
+@pytest.mark.parametrize("cover", [0.44, 0.95, 1.0])
+def test_an_object_filling_most_or_all_of_the_frame_is_searched(cover):
+    """A close-up at the working size (768x432): up to 83k points followed at once, past OpenCV's 32767 per row. A
+    mask filling the frame (1.0) moves with it: the points leaving the frame are dropped, the rest followed."""
+    t_count, h, w = 8, 432, 768
+    side = np.sqrt(cover)
+    bw, bh = round(w * side), round(h * side)
+    masks = np.zeros((t_count, h, w), bool)
+    for t in range(t_count):
+        x0 = min(w - bw, (w - bw) // 2 + t)
+        masks[t, (h - bh) // 2 : (h - bh) // 2 + bh, x0 : x0 + bw] = True
+    shift = np.zeros((t_count - 1, h, w, 2), np.float32)
+    shift[..., 0] = 1.0
+    ok = np.ones((t_count - 1, h, w), bool)
+    flow = FlowField(shift, -shift, ok, ok.copy(), "exact", 1.0)
+    result = motion_parts(masks, flow)
+    assert not result.found and result.parts == 1  # one rigid piece: nothing to split
+    judged = [k for k in result.key_frames if k.followed]
+    assert judged and max(k.followed for k in judged) > 32767 * cover

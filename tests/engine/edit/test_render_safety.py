@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from engine import contract as C
-from engine.errors import MB
+from engine.errors import MB, InputError
 from engine.io.images import write_png
 from tests.engine.fake_export import make_fake_export
 from tests.engine_cli import run_cli
@@ -241,3 +241,33 @@ def test_project_frame_and_preview_refuse_a_run_folder_another_process_holds(tmp
         holder.kill()
         holder.wait()
     assert tree_digest(run) == before
+
+
+def test_movie_sizes_ffmpeg_writes_and_the_one_it_does_not():
+    from engine.edit.movie import movie_size_problem
+
+    for size in ((64, 36), (8192, 4320), (16384, 8640), (16383, 8639)):
+        assert movie_size_problem(size) is None, size
+    assert "16384x16384 movie is larger than FFmpeg encodes" in (movie_size_problem((16384, 16384)) or "")
+    assert movie_size_problem((16383, 16383)) is not None  # padded to even sides, as the writer pads them
+
+
+def test_a_movie_larger_than_ffmpeg_writes_is_one_line_before_any_frame(tmp_path, monkeypatch):
+    """The limit lowered below the fake export's 32x24 stands for a 16384x16384 plate: render --movie and preview
+    (whose movies are on by default) refuse in one line naming the fix, and write nothing; preview --no-movies runs."""
+    import engine.edit.movie as movie
+
+    manifest = _export(tmp_path)
+    run = tmp_path / "run"
+    before = tree_digest(run)
+    monkeypatch.setattr(movie, "MOVIE_MAX_PADDED_PIXELS", 100 * 100)
+    code, lines = run_cli("render", manifest, "--out", tmp_path / "out", "--movie", tmp_path / "e.mp4", "--no-bar")
+    assert code == C.EXIT_BAD_INPUT and len(lines) == 1, lines
+    assert "32x24 movie is larger than FFmpeg encodes" in lines[0] and "without --movie" in lines[0]
+    code, lines = run_cli("preview", manifest)
+    assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and "--no-movies" in lines[0], lines
+    assert not (tmp_path / "out").exists() and not (tmp_path / "e.mp4").exists() and tree_digest(run) == before
+    with pytest.raises(InputError, match="larger than FFmpeg encodes"):
+        movie.MovieWriter(tmp_path / "w.mp4", 25.0, (32, 24))
+    assert not list(tmp_path.glob("*.mp4")) and not list(tmp_path.glob(".w*"))
+    assert run_cli("preview", manifest, "--no-movies")[0] == C.EXIT_OK
