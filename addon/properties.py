@@ -84,7 +84,8 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
         name="Follow Flow",
         default=True,
         description="Export: average each layer's UV along the fit's optical flow where it slips "
-        "against it, so paint follows legs and bending bodies from frame to frame (off: the atlas's UV as fitted)",
+        "against it, so paint follows legs and bending, turning bodies: over a few frames or along whole "
+        "trajectories, whichever reads the plate back sharper (off: the atlas's UV as fitted)",
     )
     refine_steps: IntProperty(
         name="Steps",

@@ -92,6 +92,8 @@ def measure_export_cost(run: Path, repeats: int = 2, threads: int | None = None,
     run = Path(run).expanduser().resolve()
     if repeats < 1:
         raise InputError(None, f"--repeats {repeats} measures nothing", "give --repeats 1 or more")
+    if work is not None and not Path(work).is_dir():
+        raise InputError(work, "is not a folder", "give --work an existing folder (or leave it out: the temp folder)")
     with tempfile.TemporaryDirectory(dir=work) as tmp:
         copy = scratch_run(run, Path(tmp))
         exports, version = [], 0

@@ -71,6 +71,11 @@ COLUMNS: tuple[tuple[str, str, int], ...] = (
     ("paint", "paint", 3),
     ("flow", "flow", 3),
     ("paint / flow", "ratio", 2),
+    ("object: paint", "paint_object", 3),
+    ("object: flow", "flow_object", 3),
+    ("object: paint / flow", "ratio_object", 2),
+    ("background: paint", "paint_background", 3),
+    ("background: flow", "flow_background", 3),
     ("slip px", "slip", 2),
     ("fg IoU", "fg_iou", 3),
     ("sharpness dB", "sharpness", 2),
@@ -221,10 +226,17 @@ def part_queries(folder: Path, tracks: Tracks) -> dict[str, np.ndarray]:
     return found
 
 
+def _region_score(report: dict, key: str) -> float | None:
+    """A tracking report's delta_avg over the points whose query lies on (``on_mask``) or off (``off_mask``) the
+    clip's mask; None where the tracks do not say, or hold no such point."""
+    return ((report.get("by_query_mask") or {}).get(key) or {}).get("delta_avg")
+
+
 def score_clip_export(folder: Path, manifest: Path, out: Path) -> dict:
     """Every export score of one clip (the row's numbers but PSNR and train s)."""
     frames, precise = folder / "frames", folder / "masks"
-    row: dict[str, Any] = {"paint": None, "paint_256": None, "flow": None, "flow_256": None, "ratio": None}
+    row: dict[str, Any] = {"paint": None, "paint_256": None, "flow": None, "flow_256": None, "ratio": None,
+                           "ratio_object": None}  # fmt: skip
     if (folder / TRACKS_NPZ).is_file():
         tracks = read_tracks(folder / TRACKS_NPZ)
         paint = score_export(manifest, tracks)
@@ -244,6 +256,13 @@ def score_clip_export(folder: Path, manifest: Path, out: Path) -> dict:
             row["paint_by_part"] = by_part
         if row["flow"]:
             row["ratio"] = row["paint"] / row["flow"]
+        # the points on the object (the mask at the query) apart from the rest: a crowd's or a second animal's
+        # tracks move against the background layer, which chained flow follows and no atlas of the object can
+        for region, key in (("object", "on_mask"), ("background", "off_mask")):
+            row[f"paint_{region}"] = _region_score(paint, key)
+            row[f"flow_{region}"] = _region_score(flow, key)
+        if row["paint_object"] is not None and row["flow_object"]:
+            row["ratio_object"] = row["paint_object"] / row["flow_object"]
     sharp = atlas_sharpness(manifest, frames, [precise])
     row.update(
         slip=export_slip(manifest, frames)["foreground"]["median_px"],

@@ -16,9 +16,10 @@ near a joint, which every motion explains, stay unlabelled; a key frame where th
 labelled grid is filled, cleaned of small islands and kept ``inset_px`` inside its part, so a stroke never reaches a
 boundary the motion cannot place. Parts are numbered by size at each key frame (the body is part 0, Foreground1):
 a limb is smaller than the body it swings from. The object is split when at least ``min_frames`` key frames, and at
-least half of all of them, find the same number of parts, two or more; key frames finding another
-number get no strokes. An object the flow follows on fewer than half of the key frames is not split: too little
-is known of how it moves.
+least ``min_agreement`` of all of them, find the same number of parts, two or more; key frames finding another
+number get no strokes. An object the flow follows on fewer key frames is not split: too little is known of how it
+moves, and on real footage a split found on only some frames (a man vaulting a wall, a dancer spinning) follows the
+body worse than one layer does (docs/accuracy-vs-time.md).
 
 Conventions as in ``engine.data.flow``: pixel ``[y, x]`` is the point ``(x, y)``; masks are bool [T, H, W];
 labels are ``engine.data.scribbles``' (0-based foreground layer, ``NO_LABEL``).
@@ -62,6 +63,10 @@ class PartsConfig:
     """Fewer followed points than this on a key frame: it is not judged (too small or too occluded)."""
     min_frames: int = 2
     """Key frames that must agree on the number of parts for the object to be split."""
+    min_agreement: float = 0.75
+    """... and the share of all key frames that must (five of six): a limb that swings apart all through the clip
+    is found on every key frame but where it turns back; parts found on half of them were measured to cost the
+    paint more than they gave."""
     inset_px: int = 2
     """Strokes stay this many pixels inside their part's labelled region (and the mask)."""
     min_area_px: int = 30
@@ -86,6 +91,8 @@ class MotionParts:
     labels: np.ndarray
     parts: int
     key_frames: list[KeyFrame]
+    needed: int = 0
+    """Key frames that had to agree for a split (``min_frames``, ``min_agreement``)."""
 
     @property
     def found(self) -> bool:
@@ -97,8 +104,8 @@ class MotionParts:
         if not self.found:
             split = sum(1 for k in judged if len(k.shares) >= 2)
             return (
-                f"no parts move apart on at least half of {len(self.key_frames)} key frames (split on {split}): "
-                "the object moves as one piece, nothing to split"
+                f"no parts move apart on at least {self.needed} of {len(self.key_frames)} key frames "
+                f"(split on {split}): the object moves as one piece, nothing to split"
             )
         agree = [k for k in judged if len(k.shares) == self.parts]
         frames = ", ".join(str(k.frame) for k in agree)
@@ -254,13 +261,14 @@ def motion_parts(masks: np.ndarray, flow: FlowField, cfg: PartsConfig | None = N
     counts = np.bincount([len(k.shares) for k in judged], minlength=cfg.max_parts + 1) if judged else np.zeros(1)
     counts[:2] = 0  # one piece (or none) is not a split
     parts = int(np.argmax(counts))
-    # half of every key frame, not of those followed: an object the flow loses on most frames is not split
-    if parts == 0 or counts[parts] < max(cfg.min_frames, int(np.ceil(len(found) / 2))):
-        return MotionParts(labels, 1 if judged else 0, [k for k, _, _ in found])
+    # a share of every key frame, not of those followed: an object the flow loses on most frames is not split
+    needed = max(cfg.min_frames, int(np.ceil(cfg.min_agreement * len(found))))
+    if parts == 0 or counts[parts] < needed:
+        return MotionParts(labels, 1 if judged else 0, [k for k, _, _ in found], needed)
     for key, pts, lab in found:
         if len(key.shares) == parts:
             labels[key.frame] = strokes(masks[key.frame], pts, lab, parts, cfg)
-    return MotionParts(labels, parts, [k for k, _, _ in found])
+    return MotionParts(labels, parts, [k for k, _, _ in found], needed)
 
 
 __all__ = ["KeyFrame", "MotionParts", "PartsConfig", "follow", "key_frame_positions", "motion_parts", "split_motion"]

@@ -16,11 +16,14 @@ hosts, the publish once.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import shutil
 import sys
 import time
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -32,17 +35,21 @@ from .. import contract as C
 from ..data.flow import DISFlow, FlowField, cached_flow
 from ..errors import InputError
 from ..fit.fitted_run import FittedRun, load_fitted
+from ..fit.prepare import fingerprint_of, to_fitting_values
 from ..fit.progress import Reporter
 from ..fit.run_folder import RunFolder
 from ..io.atomic import DISK_ERRORS, as_disk_full, atomic_write_text
-from ..io.colour import RAW, REC709_CHROMATICITIES, SCENE_LINEAR, srgb_to_linear
+from ..io.clip import open_clip, read_frames
+from ..io.colour import RAW, REC709_CHROMATICITIES, SCENE_LINEAR, recorded_space, srgb_to_linear
 from ..io.images import exr_timing, write_exr, write_png
+from ..model.atlas_model import AtlasModel
 from .atlas_frame import _Coverage
-from .follow_flow import MEMORY_SHARE, MIN_SLIP_PX, available_memory, follow_flow, layer_slip_px, memory_needed
+from .flow_reach import choose_reach
+from .follow_flow import MEMORY_SHARE, MIN_SLIP_PX, available_memory, layer_slip_px, memory_needed
 from .manifest_writer import _write_nuke_script, build_manifest
 from .pass_files import pass_file, stmap_values
 from .plan import Plan, plan_export, read_layout, selected_frames
-from .sampling import atlas_colours, eval_pixels, pixel_grid
+from .sampling import atlas_colours, colours_at, eval_pixels, pixel_grid
 from .stage_record import DAMAGED_FIX, STAGE_RECORD, fit_source
 from .stage_record import read_stage as _read_stage
 from .staging import (
@@ -192,11 +199,52 @@ class _WorkingUV:
             self.owned[i][t] = (wts[:, i] > OWNED_ALPHA).reshape(self.size)
 
 
-def _follow_source(job: _Job, fitted: FittedRun) -> tuple[FlowField, _WorkingUV] | None:
-    """The fit's flow (``RUN_DIR/flow_cache``) and an empty ``_WorkingUV`` when this export follows the flow; None
-    when it does not: asked not to, nothing to follow (one frame), or (unless it was insisted on: refused in one
-    line) the run holds no flow of this fit or following it would not fit in the memory available
-    (``follow_flow.memory_needed``: a long clip)."""
+@dataclass
+class _FollowSource:
+    """What following the flow reads: the fit's flow, the layers' UV at working size (filled by the atlas plan) and
+    the plate at working size (None: unreadable or changed since the fit; the layers then keep to a few frames)."""
+
+    flow: FlowField
+    working: _WorkingUV
+    frames: np.ndarray | None
+
+
+def _working_plate(fitted: FittedRun) -> np.ndarray | None:
+    """The plate at the working size as the fit read it (``prepare.to_fitting_values``), checked against the fit's
+    fingerprint: what ``flow_reach`` tests each reach with. None, with a warning line, where it cannot be read or
+    is not the plate the fit read: then every layer follows the flow over a few frames."""
+    clip = fitted.clip
+    legacy = clip.colour_config is None and clip.colorspace in C.COLORSPACES
+    space, config = recorded_space(clip.colorspace, None) if legacy else (clip.colorspace, clip.colour_config)
+    problem = "has changed since the fit"
+    try:
+        info = open_clip(
+            clip.source, clip.frame_range, space, config, fps=clip.exact_rate, start_frame=clip.movie_start
+        )
+        raw = read_frames(info, clip.working_size)
+        with contextlib.redirect_stderr(io.StringIO()):  # its faults were said by the fit
+            frames, _ = to_fitting_values(
+                raw, clip.colorspace if legacy else info.colorspace, info.source, None if legacy else info.colour_config
+            )
+    except InputError as exc:
+        frames, problem = None, f"cannot be read ({exc.problem})"
+    except (OSError, ValueError) as exc:
+        frames, problem = None, f"cannot be read ({' '.join(str(exc).split())[:120]})"
+    if frames is not None and fingerprint_of(frames) == clip.fingerprint:
+        return frames
+    print(
+        f"warning: {clip.source}: the plate {problem}: the layers follow the flow over a few frames, not along whole "
+        "trajectories (which needs the plate to choose)",
+        file=sys.stderr,
+    )
+    return None
+
+
+def _follow_source(job: _Job, fitted: FittedRun) -> _FollowSource | None:
+    """The fit's flow (``RUN_DIR/flow_cache``), an empty ``_WorkingUV`` and the plate at working size when this
+    export follows the flow; None when it does not: asked not to, nothing to follow (one frame), or (unless it was
+    insisted on: refused in one line) the run holds no flow of this fit or following it would not fit in the memory
+    available (``follow_flow.memory_needed``: a long clip)."""
     model, clip, cfg = fitted.model, fitted.clip, fitted.cfg
     if job.follow_flow is False or clip.num_frames < 2:
         return None
@@ -208,7 +256,7 @@ def _follow_source(job: _Job, fitted: FittedRun) -> tuple[FlowField, _WorkingUV]
     flow = cached_flow(cache, clip.num_frames, wh, ww, DISFlow(cfg.flow_preset).name, cfg.flow_threshold_px)
     if flow is None:
         return _not_followed(job, cache, "holds no flow of this fit", "fit the run again (it writes its flow there)")
-    return flow, _WorkingUV(clip.num_frames, clip.working_size, model.num_layers)
+    return _FollowSource(flow, _WorkingUV(clip.num_frames, clip.working_size, model.num_layers), _working_plate(fitted))
 
 
 def _not_followed(job: _Job, where: Path, problem: str, remedy: str) -> None:
@@ -227,12 +275,20 @@ def split_parts(scribbled: bool, insisted: bool | None, layers: int) -> frozense
 
 
 def _flow_corrections(
-    job: _Job, names: list[str], flow: FlowField, working: _WorkingUV, parts: frozenset[int] = frozenset()
+    job: _Job,
+    names: list[str],
+    flow: FlowField,
+    working: _WorkingUV,
+    parts: frozenset[int] = frozenset(),
+    frames: np.ndarray | None = None,
+    model: AtlasModel | None = None,
 ) -> dict[int, np.ndarray]:
     """The UV correction [T, h, w, 2] at working resolution of each layer whose UV slips against the
-    fit's flow by more than ``MIN_SLIP_PX``, by layer index (``names``: the layers' names, for the messages).
-    ``parts``: layers that are parts of one object split by scribbles, left as fitted: where the parts cross, the
-    flow follows neither (measured: ``docs/export.md``)."""
+    fit's flow by more than ``MIN_SLIP_PX``, by layer index (``names``: the layers' names, for the messages), over the
+    reach ``flow_reach.choose_reach`` tests with ``frames`` (the plate at working size; None: a few frames) and the
+    ``model``'s atlas colours (its texture guard; None: no guard). ``parts``: layers that are parts of one object
+    split by scribbles, left as fitted: where the parts cross, the flow follows neither (measured:
+    ``docs/export.md``)."""
     out = {}
     for i in working.uv:
         slip = layer_slip_px(working.uv[i], working.owned[i], flow)
@@ -240,14 +296,18 @@ def _flow_corrections(
         said = "no pixel to judge" if slip is None else f"slips {slip:.2f} px against the flow"
         if i in parts and slip is not None:
             said += f" (a part of one object: {C.EXPORT_FOLLOW_FLOW_FLAG} follows it)"
-        job.reporter.emit(
-            C.EVENT_STAGE,
-            stage="follow-flow",
-            message=f"{names[i]}: {said}: {'following the flow' if follows else 'left as fitted'}",
-        )
+        done = "left as fitted"
         if follows:
-            out[i] = follow_flow(working.uv[i], working.owned[i], flow)
+            colours = None if model is None else partial(_colours, model, i)
+            reach = choose_reach(working.uv[i], working.owned[i], flow, frames, colours)
+            out[i], done = reach.correction, reach.said
+        job.reporter.emit(C.EVENT_STAGE, stage="follow-flow", message=f"{names[i]}: {said}: {done}")
     return out
+
+
+def _colours(model: AtlasModel, layer: int, uv: np.ndarray) -> np.ndarray:
+    """The layer's atlas colours at ``uv`` (``flow_reach.Colours``), on the model's device."""
+    return colours_at(model, layer, uv, next(model.parameters()).device)
 
 
 def _plan(
@@ -259,10 +319,9 @@ def _plan(
     if source is None:
         plan, cov = plan_export(job.reporter, fitted, atlas_size, frames, bar)
         return plan, cov, {}
-    flow, working = source
-    plan, cov = plan_export(job.reporter, fitted, atlas_size, frames, bar, working.add)
+    plan, cov = plan_export(job.reporter, fitted, atlas_size, frames, bar, source.working.add)
     parts = split_parts(fitted.clip.scribbles is not None, job.follow_flow, len(plan.names))
-    corrections = _flow_corrections(job, plan.names, flow, working, parts)
+    corrections = _flow_corrections(job, plan.names, source.flow, source.working, parts, source.frames, fitted.model)
     plan.follow_flow, plan.follows = True, frozenset(corrections)
     return plan, cov, corrections
 

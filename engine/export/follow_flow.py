@@ -2,21 +2,27 @@
 optical flow before the passes are written.
 
 Why: in an ideal atlas a point of the object keeps its UV in every frame. A fitted mapping is smooth in time and
-cannot follow a dog's legs or a rider's knees from one frame to the next (nor, in the background's one mapping, the
-cars that drive through it), so the UV of such a point wobbles by a few pixels a frame and the paint slips. Chained
-optical flow follows those frames closely but drifts over long gaps; the atlas does not drift. Averaging a layer's
-UV along flow trajectories with a two-sided exponential filter takes what each does well: over a few frames the UV
-moves with the flow, over many it stays the atlas's. The filter, at working resolution, with ``u`` the layer's UV
-and ``w`` the weight of one frame step::
+cannot follow a dog's legs, a camel turning or a dancer's arms from one frame to the next (nor, in the background's
+one mapping, the cars that drive through it), so the UV of such a point drifts by pixels over a few frames and the
+paint slips. Chained optical flow follows those frames closely; the atlas is one canvas for the whole clip. Averaging
+a layer's UV along flow trajectories with a two-sided exponential filter takes what each does well: over a few
+frames the paint moves with the flow, over many it stays the atlas's; with a long reach a point keeps nearly one UV
+along its whole trajectory, the mean of what the atlas says over its frames. The filter, at working
+resolution, with ``u`` the layer's UV and ``w`` the weight of one frame step::
 
     F_0 = u_0,       F_t(x) = (1 - w) u_t(x) + w F_{t-1}(x + back_t(x))      (back_t: flow t -> t-1)
     B_T = u_T,       B_t(x) = (1 - w) u_t(x) + w B_{t+1}(x + fwd_t(x))       (fwd_t: flow t -> t+1)
     result = (F + B - (1 - w) u) / (1 + w)                                   (weights proportional to w^|k|)
 
 A step is taken only where the pixel belongs to the layer, the flow passed the fit's forward-backward check and
-the point it lands on belongs to the layer in the neighbour frame; elsewhere the pass restarts from ``u`` (where
-neither pass could step, the result is ``u`` exactly). The export adds the correction (result - u), upsampled, to
-the UV it evaluates at every native pixel.
+the point it lands on belongs to the layer in the neighbour frame. Where it cannot be taken (an occlusion, a
+disocclusion, the outline), the pass starts again from ``u`` over a few frames (``SHORT_WEIGHT``); along whole
+trajectories (``LONG_WEIGHT``, ``fill``) the pixel instead takes the correction (``F - u``) of the pixels around it
+that were carried (a Gaussian of ``FILL_SIGMA_PX``, normalised over them), times ``w``: the atlas's error is smooth
+over the object, and starting again from the fitted UV there would bring back, downstream, the error the filter had
+removed. A pixel with no carried pixel near it keeps ``u``; where neither pass could step or fill, the result is
+``u`` exactly. The export adds the correction (result - u), upsampled, to the UV it evaluates at every native pixel;
+which reach each layer follows is ``flow_reach``'s choice.
 
 A layer whose UV already follows the flow within the flow's own error (``MIN_SLIP_PX``, the median frame-to-frame
 disagreement, ``layer_slip_px``) is left as it is: there the atlas is better than the flow at every gap, and the
@@ -32,8 +38,19 @@ import numpy as np
 
 from ..data.flow import FlowField
 
-#: Weight of the neighbour frame in each step (0: the fitted UV, unchanged).
-FOLLOW_WEIGHT = 0.7
+#: Weight of the neighbour frame in each step (0: the fitted UV, unchanged), over a few frames: the filter reaches
+#: about 1 / (1 - w) frames along the flow, and where the flow cannot carry a pixel it starts again from its fitted UV.
+SHORT_WEIGHT = 0.7
+#: ... along whole trajectories: at 0.995 a point keeps nearly one UV along all of its trajectory in a clip of a few
+#: hundred frames, and where the flow cannot carry a pixel it takes its carried neighbours' correction (the fill).
+#: Which reach a layer gets: ``flow_reach`` (measured from 0.7 to 0.999: docs/bench/experiments.md).
+LONG_WEIGHT = 0.995
+#: The fill: where the flow cannot carry a pixel, it takes the correction of the carried pixels around it, a Gaussian
+#: of this many working pixels (about a limb's half-width at the working size) normalised over the carried pixels.
+FILL_SIGMA_PX = 6.0
+#: ... only where the carried pixels make up at least this share of the Gaussian's weight: farther away, nothing
+#: nearby says what the atlas's error is, and the pixel keeps its fitted UV.
+FILL_MIN_SHARE = 0.01
 #: A layer is filtered only when its UV disagrees with the flow by more than this, in working pixels (median over
 #: its pixels and frames): DIS's own error on a plate the UV follows exactly is 0.15-0.3 px.
 MIN_SLIP_PX = 0.3
@@ -43,8 +60,9 @@ MIN_SHARE = 0.99
 #: Floor of a frame's UV scale (UV units per pixel) when converting UV distances to pixels: a collapsed mapping.
 MIN_UV_PER_PX = 1e-9
 #: What following the flow holds in memory per working pixel and frame: each layer's UV (8 B), whether the layer
-#: owns the pixel (1 B) and its correction (8 B); once, the fit's flow both ways (16 B) and their checks (2 B).
-BYTES_PER_LAYER, FLOW_BYTES = 17, 18
+#: owns the pixel (1 B) and its correction over each reach (2 x 8 B); once, the fit's flow both ways (16 B), their
+#: checks (2 B) and the plate at working size (12 B: the reach test).
+BYTES_PER_LAYER, FLOW_BYTES = 25, 30
 #: Follow the flow only while that fits in this share of the memory the system says is available, so an export that
 #: would once have fitted is not pushed into swap or the OOM killer by a long clip.
 MEMORY_SHARE = 0.8
@@ -96,6 +114,19 @@ def _carried(
     return look[..., :2] / np.maximum(share, MIN_SHARE)[..., None], share
 
 
+def _filled(correction: np.ndarray, carried: np.ndarray, owned: np.ndarray) -> np.ndarray:
+    """``correction`` [H, W, 2] where ``carried``, and at the other ``owned`` pixels the carried pixels' correction
+    around them (a Gaussian of ``FILL_SIGMA_PX`` normalised over the carried pixels, where they hold at least
+    ``FILL_MIN_SHARE`` of its weight; else 0); 0 off ``owned``."""
+    m = carried.astype(np.float32)
+    num = cv2.GaussianBlur(correction * m[..., None], (0, 0), FILL_SIGMA_PX)
+    den = cv2.GaussianBlur(m, (0, 0), FILL_SIGMA_PX)
+    near = den >= FILL_MIN_SHARE
+    around = num / np.maximum(den, FILL_MIN_SHARE)[..., None]
+    out = np.where(carried[..., None], correction, np.where(near[..., None], around, 0.0))
+    return np.where(owned[..., None], out, 0.0).astype(np.float32)
+
+
 def _step(
     u: np.ndarray,
     owned: np.ndarray,
@@ -105,38 +136,51 @@ def _step(
     flow_ok: np.ndarray,
     weight: float,
     grid: tuple[np.ndarray, np.ndarray],
+    fill: bool,
 ) -> np.ndarray:
-    """One recursion step of either pass: ``u`` pulled toward the filtered neighbour where the flow allows."""
+    """One recursion step of either pass: the correction [H, W, 2] that pulls ``u`` toward the filtered neighbour
+    (``neighbour``, its filtered UV) where the flow carries it; with ``fill``, elsewhere toward what the carried
+    pixels around were pulled by, times ``weight``."""
     looked, share = _carried(neighbour, neighbour_owned, flow, grid)
     use = owned & flow_ok & (share >= MIN_SHARE)
-    out = u.copy()
-    out[use] = (1.0 - weight) * u[use] + weight * looked[use]
+    pulled = np.zeros_like(u)
+    pulled[use] = weight * (looked[use] - u[use])
+    if not fill:
+        return pulled
+    out = _filled(pulled, use, owned)
+    out[~use] *= weight  # a filled pixel is one step further from the pixels it was filled from
     return out
 
 
-def follow_flow(uv: np.ndarray, owned: np.ndarray, flow: FlowField, weight: float = FOLLOW_WEIGHT) -> np.ndarray:
+def follow_flow(
+    uv: np.ndarray, owned: np.ndarray, flow: FlowField, weight: float = SHORT_WEIGHT, fill: bool = False
+) -> np.ndarray:
     """The correction [T, H, W, 2] (filtered minus ``uv``; zero where the layer does not own the pixel) of one
     layer's UV ``uv`` [T, H, W, 2] (any linear unit), ``owned`` [T, H, W] bool, along ``flow`` (the fit's, at the
-    same H x W). Memory: ``uv`` and one more array of its size."""
+    same H x W); ``fill``: a pixel the flow cannot carry takes its carried neighbours' correction (the long reach).
+    Memory: ``uv`` and one more array of its size."""
     if not 0.0 <= weight < 1.0:
         raise ValueError(f"the follow-flow weight must be in [0, 1), not {weight}")
     frames, h, w = owned.shape
     if frames < 2 or weight == 0.0:
         return np.zeros_like(uv, dtype=np.float32)
     grid = _grid(h, w)
-    fwd = np.empty(uv.shape, np.float32)  # the forward pass, then the correction in place
-    fwd[0] = uv[0]
+    out = np.empty(uv.shape, np.float32)  # the forward pass's corrections, then the result in place
+    out[0] = 0.0
     for t in range(1, frames):
         k = t - 1  # pair (t-1, t): backward[k] carries frame t to t-1
-        fwd[t] = _step(uv[t], owned[t], fwd[t - 1], owned[t - 1], flow.backward[k], flow.backward_ok[k], weight, grid)
-    bwd = uv[-1].astype(np.float32)
+        prev = uv[t - 1] + out[t - 1]
+        out[t] = _step(uv[t], owned[t], prev, owned[t - 1], flow.backward[k], flow.backward_ok[k], weight, grid, fill)
+    after = np.zeros(uv.shape[1:], np.float32)  # the backward pass's correction of frame t + 1
     for t in range(frames - 1, -1, -1):
+        here = np.zeros_like(after)
         if t < frames - 1:
-            bwd = _step(uv[t], owned[t], bwd, owned[t + 1], flow.forward[t], flow.forward_ok[t], weight, grid)
-        # (F + B - (1 - w) u) / (1 + w) - u, written so that it is exactly 0 where neither pass took a step
-        both = ((fwd[t] - uv[t]) + (bwd - uv[t])) / (1.0 + weight)
-        fwd[t] = np.where(owned[t][..., None], both, 0.0)
-    return fwd
+            nxt = uv[t + 1] + after
+            here = _step(uv[t], owned[t], nxt, owned[t + 1], flow.forward[t], flow.forward_ok[t], weight, grid, fill)
+        # (F + B - (1 - w) u) / (1 + w) - u: exactly 0 where neither pass took a step or filled one
+        out[t] = np.where(owned[t][..., None], (out[t] + here) / (1.0 + weight), 0.0)
+        after = here
+    return out
 
 
 def uv_per_px(uv: np.ndarray, owned: np.ndarray) -> float | None:
@@ -173,11 +217,14 @@ def layer_slip_px(uv: np.ndarray, owned: np.ndarray, flow: FlowField) -> float |
 
 __all__ = [
     "BYTES_PER_LAYER",
+    "FILL_MIN_SHARE",
+    "FILL_SIGMA_PX",
     "FLOW_BYTES",
-    "FOLLOW_WEIGHT",
+    "LONG_WEIGHT",
     "MEMORY_SHARE",
     "MIN_SHARE",
     "MIN_SLIP_PX",
+    "SHORT_WEIGHT",
     "available_memory",
     "follow_flow",
     "layer_slip_px",

@@ -43,17 +43,24 @@ def pixel_grid(size: tuple[int, int], scale: tuple[float, float], device: torch.
 
 
 @torch.no_grad()
+def colours_at(model: AtlasModel, layer: int, uv: np.ndarray, device: torch.device) -> np.ndarray:
+    """The layer's atlas colour [N, 3] at atlas points ``uv`` [N, 2] (the model's units), clipped to [0, 1] as the
+    texture is written."""
+    pts = torch.from_numpy(np.ascontiguousarray(uv, dtype=np.float32)).to(device)
+    out = np.empty((pts.shape[0], 3), np.float32)
+    for s in range(0, pts.shape[0], EVAL_CHUNK):
+        out[s : s + EVAL_CHUNK] = model.color(layer, pts[s : s + EVAL_CHUNK]).float().cpu().numpy()
+    return np.clip(out, 0.0, 1.0)
+
+
 def atlas_colours(model: AtlasModel, layer: int, frame: LayerFrame, device: torch.device) -> np.ndarray:
-    uv = torch.from_numpy(frame.texel_centres().reshape(-1, 2)).to(device)
-    out = np.empty((uv.shape[0], 3), np.float32)
-    for s in range(0, uv.shape[0], EVAL_CHUNK):
-        out[s : s + EVAL_CHUNK] = model.color(layer, uv[s : s + EVAL_CHUNK]).float().cpu().numpy()
     w, h = frame.size
-    return np.clip(out.reshape(h, w, 3), 0.0, 1.0)
+    return colours_at(model, layer, frame.texel_centres().reshape(-1, 2), device).reshape(h, w, 3)
 
 
 __all__ = [
     "atlas_colours",
+    "colours_at",
     "eval_pixels",
     "pixel_grid",
 ]

@@ -147,6 +147,12 @@ class PlateFaults:
     """Frames with finite values beyond +-PLATE_VALUE_LIMIT (clamped to it)."""
 
 
+def fingerprint_of(frames: np.ndarray) -> str:
+    """The fitted frames' fingerprint (``clip.json``): a resume, and an export that reads the plate again, check that
+    the clip is still the one fitted."""
+    return hashlib.sha256(memoryview(np.ascontiguousarray(frames)).cast("B")).hexdigest()[:FINGERPRINT_CHARS]
+
+
 def to_fitting_values(
     frames: np.ndarray, colorspace: str, source: str = "", colour_config: str | None = None
 ) -> tuple[np.ndarray, PlateFaults]:
@@ -247,7 +253,7 @@ def prepare_clip(
     scribbles = None if scribble_dir is None else _read_scribbles(scribble_dir, info, size)
     if scribbles is not None and finder is None:
         _check_one_mask(scribble_dir, len(mask_dirs))  # type: ignore[arg-type]
-    fingerprint = hashlib.sha256(memoryview(np.ascontiguousarray(frames)).cast("B")).hexdigest()[:FINGERPRINT_CHARS]
+    fingerprint = fingerprint_of(frames)
     if expect_fingerprint is not None and fingerprint != expect_fingerprint:
         raise InputError(
             info.source, "the clip changed since this run started", "fit it into a new --out instead of --resume"
@@ -453,4 +459,4 @@ class _AutoMasks:
         print(f"auto masks: {prepared.masks_note}", file=sys.stderr)
 
 
-__all__ = ["PLATE_VALUE_LIMIT", "PlateFaults", "PreparedClip", "prepare_clip", "to_fitting_values"]
+__all__ = ["PLATE_VALUE_LIMIT", "PlateFaults", "PreparedClip", "fingerprint_of", "prepare_clip", "to_fitting_values"]

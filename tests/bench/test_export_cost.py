@@ -46,10 +46,13 @@ def test_both_kinds_are_timed_in_turn_and_the_run_is_left_as_it_was(tiny, tmp_pa
     assert "ratio" in printed and printed.strip().endswith(str(out.resolve()))
 
 
-def test_a_folder_without_a_fit_and_no_repeats_are_one_line_each(tmp_path):
+def test_a_folder_without_a_fit_no_repeats_and_no_work_folder_are_one_line_each(tmp_path):
     with pytest.raises(InputError, match="this is not a fitted run folder") as caught:
         measure_export_cost(tmp_path, repeats=1)
     assert "\n" not in str(caught.value) and str(tmp_path) in str(caught.value)
     with pytest.raises(InputError, match="--repeats 0 measures nothing"):
         measure_export_cost(tmp_path, repeats=0)
+    with pytest.raises(InputError, match="is not a folder") as caught:  # not a traceback from the temp folder
+        measure_export_cost(tmp_path, repeats=1, work=tmp_path / "absent")
+    assert "\n" not in str(caught.value) and "--work" in str(caught.value)
     assert bench_main(["export-cost", str(tmp_path)]) == C.EXIT_BAD_INPUT

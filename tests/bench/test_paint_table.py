@@ -58,6 +58,10 @@ def test_the_rows_are_the_scorers_on_the_export(scene_root, table):
     assert row["flow"] == flow["delta_avg"]
     assert row["ratio"] == pytest.approx(paint["delta_avg"] / flow["delta_avg"])
     assert row["sharpness"] == sharp["psnr_pooled"]
+    # the object's points apart from the rest: every query of the scene lies on the body
+    assert row["paint_object"] == paint["by_query_mask"]["on_mask"]["delta_avg"] == row["paint"]
+    assert row["flow_object"] == flow["by_query_mask"]["on_mask"]["delta_avg"] == row["flow"]
+    assert row["ratio_object"] == pytest.approx(row["ratio"]) and row["paint_background"] is None
     assert row["slip"] == export_slip(row["manifest"], clip / "frames")["foreground"]["median_px"]
     metrics = json.loads((out / "runs" / "turning_depth" / C.RUN_METRICS).read_text())
     assert row["psnr"] == metrics["psnr"] and row["train_seconds"] == metrics["train_seconds"]

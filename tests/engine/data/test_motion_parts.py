@@ -99,6 +99,21 @@ def test_an_object_that_moves_as_one_piece_is_not_split():
     assert "nothing to split" in result.message
 
 
+def test_a_limb_that_moves_apart_on_only_some_key_frames_is_not_split():
+    """The limb swings for the first 13 frames, then moves with the body: four of the six key frames find two parts,
+    fewer than ``min_agreement`` asks (five); on real footage such splits cost the paint more than they give."""
+    swing = [35.0 if t < 13 else 0.0 for t in range(T)]
+    masks = np.stack([np.logical_or(*_parts(t, swing[t])) for t in range(T)])
+    fwd = np.stack([_flow(t, 1, swing[t]) for t in range(T - 1)])
+    bwd = np.stack([_flow(t + 1, -1, swing[t + 1]) for t in range(T - 1)])
+    flow = FlowField(fwd, bwd, consistency_mask(fwd, bwd), consistency_mask(bwd, fwd), "exact", 1.0)
+    result = motion_parts(masks, flow)
+    assert sum(len(k.shares) == 2 for k in result.key_frames) == 4
+    assert not result.found and (result.labels == NO_LABEL).all()
+    assert "no parts move apart on at least 5 of 6 key frames (split on 4)" in result.message
+    assert motion_parts(masks, flow, PartsConfig(min_agreement=0.5)).found  # at half, as before
+
+
 def test_a_static_object_and_degenerate_clips_give_no_strokes():
     masks, flow, _, _ = _clip(swing=35.0)
     still = FlowField(np.zeros_like(flow.forward), np.zeros_like(flow.backward), flow.forward_ok,

@@ -30,8 +30,8 @@ from tests.stability.bad_inputs import TINY_FIT
 
 @pytest.fixture(scope="module")
 def jumping(tmp_path_factory) -> Path:
-    """The limbs_jump scene at the bench's size, in half its frames (as ``test_parts_command``)."""
-    scene = make_motion_scene("limbs_jump", width=480, height=272, frames=18)
+    """The limbs_jump scene as the bench makes it (480x272, 36 frames; as ``test_parts_command``)."""
+    scene = make_motion_scene("limbs_jump", width=480, height=272, frames=36)
     return write_motion_clip(scene, tmp_path_factory.mktemp("scene") / "limbs_jump")
 
 
@@ -42,7 +42,7 @@ def rigid(tmp_path_factory) -> tuple[Path, Path]:
     )
 
 
-@pytest.mark.slow  # the scene at the bench's size, its flow and a tiny fit: about 30 s
+@pytest.mark.slow  # the scene at the bench's size, its flow and a tiny fit: about 45 s
 def test_the_jumping_body_is_fitted_as_its_parts_by_default_and_the_same_command_again_changes_nothing(
     jumping, tmp_path
 ):

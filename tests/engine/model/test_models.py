@@ -122,6 +122,7 @@ def test_paper_calibration_reaches_scaled_identity():
     cfg.pretrain_iters = 150
     cfg.batch = 1000
     cfg.lr = 1e-3  # faster calibration for the test; the preset keeps the reference's 1e-4
+    torch.manual_seed(cfg.seed)  # the initial weights as a fit draws them, not what earlier tests left
     m = PaperModel(cfg, SIZE, T)
     m.prepare(cfg, torch.device("cpu"))
     xy, t = _xyt(200, seed=3)
