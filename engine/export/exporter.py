@@ -16,8 +16,6 @@ hosts, the publish once.
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import shutil
 import sys
@@ -35,12 +33,11 @@ from .. import contract as C
 from ..data.flow import DISFlow, FlowField, cached_flow
 from ..errors import InputError
 from ..fit.fitted_run import FittedRun, load_fitted
-from ..fit.prepare import fingerprint_of, to_fitting_values
+from ..fit.prepare import fingerprint_of, fitted_plate
 from ..fit.progress import Reporter
 from ..fit.run_folder import RunFolder
 from ..io.atomic import DISK_ERRORS, as_disk_full, atomic_write_text
-from ..io.clip import open_clip, read_frames
-from ..io.colour import RAW, REC709_CHROMATICITIES, SCENE_LINEAR, recorded_space, srgb_to_linear
+from ..io.colour import RAW, REC709_CHROMATICITIES, SCENE_LINEAR, srgb_to_linear
 from ..io.images import exr_timing, write_exr, write_png
 from ..model.atlas_model import AtlasModel
 from .atlas_frame import _Coverage
@@ -210,22 +207,13 @@ class _FollowSource:
 
 
 def _working_plate(fitted: FittedRun) -> np.ndarray | None:
-    """The plate at the working size as the fit read it (``prepare.to_fitting_values``), checked against the fit's
+    """The plate at the working size as the fit read it (``prepare.fitted_plate``), checked against the fit's
     fingerprint: what ``flow_reach`` tests each reach with. None, with a warning line, where it cannot be read or
     is not the plate the fit read: then every layer follows the flow over a few frames."""
     clip = fitted.clip
-    legacy = clip.colour_config is None and clip.colorspace in C.COLORSPACES
-    space, config = recorded_space(clip.colorspace, None) if legacy else (clip.colorspace, clip.colour_config)
     problem = "has changed since the fit"
     try:
-        info = open_clip(
-            clip.source, clip.frame_range, space, config, fps=clip.exact_rate, start_frame=clip.movie_start
-        )
-        raw = read_frames(info, clip.working_size)
-        with contextlib.redirect_stderr(io.StringIO()):  # its faults were said by the fit
-            frames, _ = to_fitting_values(
-                raw, clip.colorspace if legacy else info.colorspace, info.source, None if legacy else info.colour_config
-            )
+        frames: np.ndarray | None = fitted_plate(clip)
     except InputError as exc:
         frames, problem = None, f"cannot be read ({exc.problem})"
     except (OSError, ValueError) as exc:

@@ -237,16 +237,13 @@ def prepare_clip(
     the fit's scribbles); an object that moves as one piece is fitted as without it.
     """
     reporter = reporter or Reporter.null()
-    # a run made before colour management ("sRGB"/"linear", no config) is resumed with the values it fitted
-    legacy = colour_config is None and colorspace in C.COLORSPACES
-    space, config = recorded_space(colorspace, None) if legacy else (colorspace, colour_config)
-    info = open_clip(clip, frame_range, space, config, fps=fps, start_frame=start_frame)
+    info, legacy_space = open_plate(clip, frame_range, colorspace, colour_config, fps, start_frame)
     size = working_size(info.width, info.height, cfg.long_edge)
     run = RunFolder(run_dir)
     finder = _AutoMasks(info, run) if auto_masks else None
     search = None if parts is None else PartsSearch(parts, info, run, mask_dirs[0])
     reporter.emit(C.EVENT_STAGE, stage="read", message=f"reading {info.num_frames} frames at {size[0]}x{size[1]}")
-    frames, raw, analysis_raw = _read_plate(info, size, finder, colorspace if legacy else None)
+    frames, raw, analysis_raw = _read_plate(info, size, finder, legacy_space)
     masks, snaps = _read_masks(mask_dirs, info, size, frames, cfg)
     if search is not None:
         search.check(masks[0])
@@ -292,12 +289,46 @@ def prepare_clip(
     return prepared
 
 
+def open_plate(
+    clip: str | Path,
+    frame_range: tuple[int, int] | None,
+    colorspace: str | None,
+    colour_config: str | None,
+    fps: Fraction | None = None,
+    start_frame: int | None = None,
+) -> tuple[ClipInfo, str | None]:
+    """The plate opened in its colour space (``fit --colorspace``, or the one a run recorded) and, for a run made
+    before colour management ("sRGB"/"linear", no config), that legacy space: it is read with the values it fitted
+    (``_read_plate``); None otherwise."""
+    legacy = colour_config is None and colorspace in C.COLORSPACES
+    space, config = recorded_space(colorspace, None) if legacy else (colorspace, colour_config)
+    info = open_clip(clip, frame_range, space, config, fps=fps, start_frame=start_frame)
+    return info, colorspace if legacy else None
+
+
+def fitted_plate(record: ClipRecord) -> np.ndarray:
+    """The plate of a run at its working size, as its fit read it (its recorded colour space, rate and movie
+    numbering; ``fingerprint_of`` it to check it is still the plate fitted). The faults it repairs were said by the
+    fit: not again. An ``InputError`` where it cannot be read."""
+    info, legacy_space = open_plate(
+        record.source, record.frame_range, record.colorspace, record.colour_config, record.exact_rate,
+        record.movie_start,
+    )  # fmt: skip
+    frames, _, _ = _read_plate(info, record.working_size, None, legacy_space, say_faults=False)
+    return frames
+
+
 def _read_plate(
-    info: ClipInfo, size: tuple[int, int], finder: _AutoMasks | None, legacy_space: str | None
+    info: ClipInfo,
+    size: tuple[int, int],
+    finder: _AutoMasks | None,
+    legacy_space: str | None,
+    say_faults: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The plate's frames at the working ``size`` as the fit's values (a warning line for each kind of value
-    replaced), the frames as read, and those at the auto masks' analysis size (the same array when that is the
-    working size). ``legacy_space``: a run made before colour management, fitted with the values it had."""
+    replaced, unless not ``say_faults``), the frames as read, and those at the auto masks' analysis size (the same
+    array when that is the working size). ``legacy_space``: a run made before colour management, fitted with the
+    values it had."""
     if finder is not None and finder.size not in (None, size):
         raw, analysis_raw = read_frames_at(info, [size, finder.size])
     else:
@@ -306,9 +337,9 @@ def _read_plate(
         frames, faults = to_fitting_values(raw, str(legacy_space), info.source, None)
     else:
         frames, faults = to_fitting_values(raw, info.colorspace, info.source, info.colour_config)
-    if faults.nonfinite:
+    if faults.nonfinite and say_faults:
         print(f"warning: NaN/Inf pixels replaced in frames {faults.nonfinite} of {info.source}", file=sys.stderr)
-    if faults.absurd:
+    if faults.absurd and say_faults:
         print(
             f"warning: values beyond +-{PLATE_VALUE_LIMIT:g} clamped in frames {faults.absurd} of {info.source}",
             file=sys.stderr,
@@ -459,4 +490,13 @@ class _AutoMasks:
         print(f"auto masks: {prepared.masks_note}", file=sys.stderr)
 
 
-__all__ = ["PLATE_VALUE_LIMIT", "PlateFaults", "PreparedClip", "fingerprint_of", "prepare_clip", "to_fitting_values"]
+__all__ = [
+    "PLATE_VALUE_LIMIT",
+    "PlateFaults",
+    "PreparedClip",
+    "fingerprint_of",
+    "fitted_plate",
+    "open_plate",
+    "prepare_clip",
+    "to_fitting_values",
+]

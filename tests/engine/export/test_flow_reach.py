@@ -13,7 +13,7 @@ from engine.export import flow_reach as R
 from engine.export import follow_flow as FF
 from engine.export.manifest import Manifest
 from engine.io.images import read_image, write_png
-from tests.engine.export.test_follow_flow import UV_PER_PX, T, _flow, _inner, _true_uv
+from tests.engine.export.test_follow_flow import UV_PER_PX, _drifted, _flow, _inner, _true_uv
 from tests.engine.export.tiny_run import export, make_run
 
 
@@ -29,13 +29,6 @@ def _plate(uv: np.ndarray) -> np.ndarray:
         ),
         -1,
     ).astype(np.float32)
-
-
-def _drifted(truth: np.ndarray) -> np.ndarray:
-    """The UV of a mapping too smooth to follow the body: each frame's off by a shift growing by 1 px a frame."""
-    drift = np.zeros((T, 1, 1, 2), np.float32)
-    drift[:, 0, 0, 0] = np.arange(T, dtype=np.float32)
-    return truth + drift * UV_PER_PX
 
 
 def test_the_plate_reads_back_sharper_through_the_uv_that_keeps_each_point_on_one_texel():

@@ -40,6 +40,13 @@ def _true_uv() -> np.ndarray:
     return np.stack((gx[None] - SPEED[0] * t, gy[None] - SPEED[1] * t), -1) * UV_PER_PX
 
 
+def _drifted(truth: np.ndarray) -> np.ndarray:
+    """The UV of a mapping too smooth to follow the body: each frame's off by a shift growing by 1 px a frame."""
+    drift_px = np.zeros((T, 1, 1, 2), np.float32)
+    drift_px[:, 0, 0, 0] = np.arange(T, dtype=np.float32)
+    return truth + drift_px * UV_PER_PX
+
+
 def _inner() -> np.ndarray:
     """Owned pixels away from the frame's edge (a lookup there lands outside the frame in some frame)."""
     owned = np.zeros((T, H, W), bool)
@@ -77,9 +84,7 @@ def test_a_slow_drift_is_removed_along_the_whole_clip():
     does not only jitter): along whole trajectories a point keeps nearly one UV, so the frame-to-frame drift left is
     a small share of what it was; over a few frames most of it stays."""
     truth, owned = _true_uv(), _inner()
-    drift_px = np.zeros((T, 1, 1, 2), np.float32)
-    drift_px[:, 0, 0, 0] = np.arange(T, dtype=np.float32)
-    uv = truth + drift_px * UV_PER_PX
+    uv = _drifted(truth)
 
     def drift_left(weight: float, fill: bool) -> float:
         out = uv + FF.follow_flow(uv, owned, _flow(), weight, fill)
@@ -95,9 +100,7 @@ def test_where_the_flow_cannot_carry_a_pixel_it_takes_its_carried_neighbours_cor
     without the fill it would start again from its drifted fitted UV and pass that drift on; with it, the band keeps
     the correction of the pixels around it, and the frames after it keep theirs."""
     truth, owned = _true_uv(), _inner()
-    drift_px = np.zeros((T, 1, 1, 2), np.float32)
-    drift_px[:, 0, 0, 0] = np.arange(T, dtype=np.float32)
-    uv = truth + drift_px * UV_PER_PX
+    uv = _drifted(truth)
     flow = _flow()
     band = np.zeros((H, W), bool)
     band[:, 24:30] = True
