@@ -41,11 +41,12 @@ from ..io.colour import RAW, REC709_CHROMATICITIES, SCENE_LINEAR, srgb_to_linear
 from ..io.images import exr_timing, write_exr, write_png
 from ..model.atlas_model import AtlasModel
 from .atlas_frame import _Coverage
-from .flow_reach import choose_reach
+from .flow_reach import choose_reach, layer_scale
 from .follow_flow import MEMORY_SHARE, MIN_SLIP_PX, available_memory, layer_slip_px, memory_needed
 from .manifest_writer import _write_nuke_script, build_manifest
 from .pass_files import pass_file, stmap_values
 from .plan import Plan, plan_export, read_layout, selected_frames
+from .plate_splat import Splat, plate_texture, splat
 from .sampling import atlas_colours, colours_at, eval_pixels, pixel_grid
 from .stage_record import DAMAGED_FIX, STAGE_RECORD, fit_source
 from .stage_record import read_stage as _read_stage
@@ -64,6 +65,10 @@ DEFAULT_ATLAS_SIZE = C.ATLAS_SIZE_DEFAULT
 #: ``follow_flow``: a pixel belongs to a layer where its weight is above this (the layers' weights sum to one, so
 #: above one half is also the highest).
 OWNED_ALPHA = 0.5
+#: The plate is laid on a layer's atlas texture from the pixels where the layer's weight is at least this: at an
+#: outline the plate mixes the layers (a swan's edge holds the water behind it), and the texture is composited by the
+#: weight again, so the mixed colour would count twice; the outline's texels keep the network's colours.
+SOLID_ALPHA = 0.9
 
 
 def export_run(
@@ -161,14 +166,20 @@ class _Job:
         return tqdm(total=total, disable=not self.progress_bar, file=sys.stderr, unit="frame")
 
 
-def _write_atlases(fitted: FittedRun, plan: Plan, cov: list[_Coverage], dest: Path) -> None:
-    """Atlas textures into ``dest/atlases``: colours from the atlas network, coverage from the alpha network."""
-    model = fitted.model
+def _write_atlases(job: _Job, fitted: FittedRun, planned: _Planned, dest: Path) -> None:
+    """Atlas textures into ``dest/atlases``: colours from the plate laid through the exported UV where the export
+    moved a layer's UV along the flow and read the plate (``plate_splat.plate_texture``), else the atlas network's;
+    coverage from the alpha network."""
+    model, plan = fitted.model, planned.plan
     device = next(model.parameters()).device
     for i, name in enumerate(plan.names):
         fr = plan.frames_by_layer[i]
         rgb = atlas_colours(model, i, fr, device)
-        alpha = np.clip(cov[i].sample(fr), 0.0, 1.0)[..., None]
+        if i in planned.splats:
+            rgb, full = plate_texture(planned.splats[i], fr, rgb)
+            said = f"{name}: the atlas texture from the plate ({full:.0%} of its texels in full)"
+            job.reporter.emit(C.EVENT_STAGE, stage="atlas", message=said)
+        alpha = np.clip(planned.cov[i].sample(fr), 0.0, 1.0)[..., None]
         write_png(dest / C.ATLASES_DIR / f"{name}{C.ATLAS_PNG_EXT}", np.concatenate((rgb, alpha), -1), 16)
         lin = srgb_to_linear(rgb) * alpha
         write_exr(
@@ -180,20 +191,22 @@ def _write_atlases(fitted: FittedRun, plan: Plan, cov: list[_Coverage], dest: Pa
 
 
 class _WorkingUV:
-    """Every layer's UV and ownership at working size, every frame, kept from the evaluation the atlas plan makes
-    anyway (``plan_export``'s ``on_frame``): what ``follow_flow`` filters. Memory: 9 bytes per working pixel per
-    frame per layer."""
+    """Every layer's UV, ownership and solid pixels at working size, every frame, kept from the evaluation the atlas
+    plan makes anyway (``plan_export``'s ``on_frame``): what ``follow_flow`` filters and ``plate_splat`` lays the
+    plate through. Memory: 10 bytes per working pixel per frame per layer."""
 
     def __init__(self, frames: int, size: tuple[int, int], layers: int) -> None:
         w, h = size
         self.size = (h, w)
         self.uv = {i: np.empty((frames, h, w, 2), np.float32) for i in range(layers)}
         self.owned = {i: np.empty((frames, h, w), bool) for i in range(layers)}
+        self.solid = {i: np.empty((frames, h, w), bool) for i in range(layers)}
 
     def add(self, t: int, uvs: list[np.ndarray], wts: np.ndarray) -> None:
         for i in self.uv:
             self.uv[i][t] = uvs[i].reshape(*self.size, 2)
             self.owned[i][t] = (wts[:, i] > OWNED_ALPHA).reshape(self.size)
+            self.solid[i][t] = (wts[:, i] >= SOLID_ALPHA).reshape(self.size)
 
 
 @dataclass
@@ -298,20 +311,49 @@ def _colours(model: AtlasModel, layer: int, uv: np.ndarray) -> np.ndarray:
     return colours_at(model, layer, uv, next(model.parameters()).device)
 
 
-def _plan(
-    job: _Job, fitted: FittedRun, atlas_size: int, frames: tuple[int, int] | None, bar: Any
-) -> tuple[Plan, list[_Coverage], dict[int, np.ndarray]]:
-    """The atlas plan, and the flow-following UV corrections by layer (``_flow_corrections``) when the export
-    follows the flow (``plan.follow_flow``, ``plan.follows``)."""
+@dataclass
+class _Planned:
+    """What the passes and atlases are written from: the atlas plan and coverage, the flow-following UV corrections
+    by layer (``_flow_corrections``) and, where the export read the plate, each layer's plate laid through its
+    exported UV at working size (``plate_splat.splat``: its atlas texture)."""
+
+    plan: Plan
+    cov: list[_Coverage]
+    corrections: dict[int, np.ndarray]
+    splats: dict[int, Splat]
+
+
+def _plan(job: _Job, fitted: FittedRun, atlas_size: int, frames: tuple[int, int] | None, bar: Any) -> _Planned:
+    """The atlas plan, and, when the export follows the flow (``plan.follow_flow``, ``plan.follows``), the UV
+    corrections and the plate laid through each layer's exported UV."""
     source = _follow_source(job, fitted)
     if source is None:
         plan, cov = plan_export(job.reporter, fitted, atlas_size, frames, bar)
-        return plan, cov, {}
+        return _Planned(plan, cov, {}, {})
     plan, cov = plan_export(job.reporter, fitted, atlas_size, frames, bar, source.working.add)
     parts = split_parts(fitted.clip.scribbles is not None, job.follow_flow, len(plan.names))
     corrections = _flow_corrections(job, plan.names, source.flow, source.working, parts, source.frames, fitted.model)
     plan.follow_flow, plan.follows = True, frozenset(corrections)
-    return plan, cov, corrections
+    return _Planned(plan, cov, corrections, _plate_splats(source, corrections))
+
+
+def _plate_splats(source: _FollowSource, corrections: dict[int, np.ndarray]) -> dict[int, Splat]:
+    """Each layer that follows the flow (``corrections``), its plate laid through its exported UV (the fitted one
+    plus its correction) on texels one working pixel wide: the network's colours lie under the fitted UV, not the
+    moved one. A layer left as fitted keeps them (its UV is the one they were fitted through: measured, the plate laid
+    there re-renders the object no better and its outline worse). None where the plate could not be read or a layer
+    owns too little to measure its scale."""
+    out: dict[int, Splat] = {}
+    if source.frames is None:
+        return out
+    working = source.working
+    for i in corrections:
+        uv, owned = working.uv[i], working.owned[i]
+        scale = layer_scale(uv, owned)
+        laid = None if scale is None else splat(uv, corrections.get(i), working.solid[i], source.frames, scale)
+        if laid is not None:
+            out[i] = laid
+    return out
 
 
 def _write_passes(
@@ -381,10 +423,11 @@ def _export_whole(job: _Job, atlas_size: int, frames: tuple[int, int] | None, ve
     out = ExportOutput(fitted.folder, clip.native_size, fitted.model.num_layers, len(selected_frames(clip, frames)))
     try:
         bar = job.bar(clip.num_frames + out.frames)
-        plan, cov, corrections = _plan(job, fitted, atlas_size, frames, bar)
+        planned = _plan(job, fitted, atlas_size, frames, bar)
+        plan = planned.plan
         final, staging = out.begin(version)
-        _write_atlases(fitted, plan, cov, staging)
-        _write_passes(job, fitted, plan, plan.selected, staging, bar, out.pass_written, corrections)
+        _write_atlases(job, fitted, planned, staging)
+        _write_passes(job, fitted, plan, plan.selected, staging, bar, out.pass_written, planned.corrections)
         bar.close()
         _publish(job, fitted, plan, out)
     except BaseException as exc:
@@ -451,15 +494,16 @@ def _export_atlases(job: _Job, version: str, atlas_size: int, frames: tuple[int,
         return chunks
     fitted = job.load()
     bar = job.bar(fitted.clip.num_frames)
-    plan, cov, corrections = _plan(job, fitted, atlas_size, frames, bar)
+    planned = _plan(job, fitted, atlas_size, frames, bar)
+    plan = planned.plan
     bar.close()
     shutil.rmtree(chunks, ignore_errors=True)  # a killed atlases stage's leftover (no record: no pass was written)
     chunks.mkdir(parents=True)
     try:
-        _write_atlases(fitted, plan, cov, chunks)
-        if corrections:
+        _write_atlases(job, fitted, planned, chunks)
+        if planned.corrections:
             (chunks / FOLLOW_FLOW_DIR).mkdir()
-            for i, correction in corrections.items():
+            for i, correction in planned.corrections.items():
                 np.save(chunks / FOLLOW_FLOW_DIR / f"{i}.npy", correction)
         (chunks / C.PASSES_DIR).mkdir()
         atomic_write_text(chunks / STAGE_RECORD, json.dumps(plan.to_record(fitted.clip, source), indent=2))

@@ -11,14 +11,15 @@ trajectory. Neither reach wins on every clip (docs/accuracy-vs-time.md).
 
 Each layer gets the reach that passes a test needing no ground truth, the principle the atlas itself rests on: the
 plate's colours at every pixel the layer owns, in every frame, are splatted (bilinear) through the candidate UV into
-texels one working pixel wide, and read back at the same UVs. A UV that gives one point of the object one texel in
-every frame gathers one colour per texel and reads back sharp; one that gives a point several texels, or several
-points one, blurs. The reach read back with the higher PSNR is followed, with one guard: the texture the export
-writes is the atlas network's, so a UV moved so far that the plate read through that texture loses more than
-``MAX_TEXTURE_LOSS_DB`` against the few-frames reach would put paint where the texture shows something else (a body
-turning 180 degrees: its trajectories' mean UV lies 21 px from the fitted one, the texture read through it 13 dB
-worse). Such a layer keeps to a few frames. (The flow follows colour, so the splat test alone leans to the long
-reach where the flow drifts along similar colours.)
+texels one working pixel wide (``plate_splat``), and read back at the same UVs. A UV that gives one point of the
+object one texel in every frame gathers one colour per texel and reads back sharp; one that gives a point several
+texels, or several points one, blurs. The reach read back with the higher PSNR is followed, with one guard: the flow
+follows colour, so the splat test alone leans to the long reach where the flow drifts along similar colours, and
+then the trajectories carry points far from where the fit placed them on its canvas. The atlas network's colours
+read at the moved UV say so: where they show the plate more than ``MAX_TEXTURE_LOSS_DB`` worse than at the
+few-frames reach's UV (a body turning 180 degrees: its trajectories' mean UV lies 21 px from the fitted one, the
+network's colours there 13 dB worse, and its paint 0.64 -> 0.58 along whole trajectories), the layer keeps to a few
+frames.
 
 Conventions as in ``follow_flow``: working-size arrays, ``uv`` [T, H, W, 2] in the model's atlas units, ``owned``
 [T, H, W] bool, ``frames`` [T, H, W, 3] the plate's values as the fit reads them (``prepare.to_fitting_values``).
@@ -33,18 +34,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..data.flow import FlowField, sample_points
-from .follow_flow import LONG_WEIGHT, MIN_UV_PER_PX, SHORT_WEIGHT, follow_flow, uv_per_px
+from .follow_flow import LONG_WEIGHT, SHORT_WEIGHT, follow_flow, uv_per_px
+from .plate_splat import owned_points, splat
 
 #: Reaches by name, as the export's messages say them.
 SHORT, LONG = "over a few frames", "along whole trajectories"
-#: The texture of the test holds at most this many texels (64 MB per channel of float64 accumulators); a layer whose
-#: UVs spread wider is tested on texels that many working pixels wide as it takes to fit.
-MAX_TEXELS = 1 << 23
-#: ... and at most this many on a side (OpenCV reads images under 32767 pixels a side).
-MAX_SIDE = 1 << 14
 #: A reconstruction error below this is taken as this (PSNR capped at 100 dB: identical colours).
 MSE_FLOOR = 1e-10
-#: The long reach is not followed where the plate read through the layer's atlas texture at its UV loses more than
+#: The long reach is not followed where the plate read through the layer's atlas network at its UV loses more than
 #: this against the few-frames reach (half the signal's power; measured where it is followed: 0.8-2.0 dB, on a body
 #: turning 180 degrees: 12.8 dB; docs/bench/experiments.md).
 MAX_TEXTURE_LOSS_DB = 3.0
@@ -60,7 +57,7 @@ Colours = Callable[[np.ndarray], np.ndarray]
 @dataclass(frozen=True)
 class Reach:
     """One layer's choice: the correction it follows (``follow_flow``'s), the test's PSNR of each reach and, where
-    the long reach read back sharper, the plate's PSNR through the atlas texture at each reach's UV."""
+    the long reach read back sharper, the plate's PSNR through the atlas network's colours at each reach's UV."""
 
     correction: np.ndarray
     name: str
@@ -69,7 +66,7 @@ class Reach:
     short_texture_db: float | None = None
     long_texture_db: float | None = None
     held: bool = False
-    """The long reach read back sharper but was not followed: the texture guard (``MAX_TEXTURE_LOSS_DB``)."""
+    """The long reach read back sharper but was not followed: the guard (``MAX_TEXTURE_LOSS_DB``)."""
 
     @property
     def said(self) -> str:
@@ -82,8 +79,8 @@ class Reach:
         )
         if self.held:
             said += (
-                f"; {LONG} the atlas texture would no longer show the plate: {self.long_texture_db:.2f} dB against "
-                f"{self.short_texture_db:.2f} dB"
+                f"; {LONG} the points drift from where the fit placed them: its atlas shows the plate "
+                f"{self.long_texture_db:.2f} dB against {self.short_texture_db:.2f} dB"
             )
         return said + ")"
 
@@ -92,55 +89,21 @@ def splat_psnr(
     uv: np.ndarray, correction: np.ndarray, owned: np.ndarray, frames: np.ndarray, scale: float
 ) -> float | None:
     """PSNR (dB) of the plate's colours at the ``owned`` pixels read back from the texture they make through
-    ``uv + correction``: splatted bilinearly into texels ``scale`` UV units wide (one working pixel: ``uv_per_px``),
-    the texture the weighted mean of what landed, read back bilinearly at the same UVs. Frame by frame, so what it
-    holds beyond the texture is one frame's. None when no owned pixel has a finite UV."""
-    step = max(scale, MIN_UV_PER_PX)
-
-    def points(t: int) -> tuple[np.ndarray, np.ndarray]:
-        ys, xs = np.nonzero(owned[t])
-        pts = (uv[t, ys, xs] + correction[t, ys, xs]).astype(np.float64) / step
-        keep = np.isfinite(pts).all(1)
-        return pts[keep], frames[t, ys[keep], xs[keep]].astype(np.float64)
-
-    lo, hi = np.full(2, np.inf), np.full(2, -np.inf)
-    for t in range(len(owned)):
-        pts, _ = points(t)
-        if len(pts):
-            lo, hi = np.minimum(lo, pts.min(0)), np.maximum(hi, pts.max(0))
-    if not np.isfinite(lo).all():
+    ``uv + correction`` (``plate_splat.splat``: texels ``scale`` UV units wide, one working pixel), the texture the
+    mean of what landed, read back bilinearly at the same UVs. Frame by frame, so what it holds beyond the texture is
+    one frame's. None when no owned pixel has a finite UV."""
+    laid = splat(uv, correction, owned, frames, scale)
+    if laid is None:
         return None
-    origin = np.floor(lo) - 1.0
-    span = np.ceil(hi - origin) + 2.0
-    # wider texels for a UV spread too wide
-    cell = max(1.0, math.sqrt(float(span[0] * span[1]) / MAX_TEXELS), float(span.max()) / (MAX_SIDE - 3))
-    w, h = (int(v) for v in np.ceil(span / cell) + 2)
-    channels = frames.shape[-1]
-    weight, colour = np.zeros(h * w), np.zeros((h * w, channels))
-    for t in range(len(owned)):
-        pts, cols = points(t)
-        corner, frac = _corners((pts - origin) / cell)
-        for dx, dy in ((0, 0), (1, 0), (0, 1), (1, 1)):
-            share = (frac[:, 0] if dx else 1.0 - frac[:, 0]) * (frac[:, 1] if dy else 1.0 - frac[:, 1])
-            at = (corner[:, 1] + dy) * w + corner[:, 0] + dx
-            weight += np.bincount(at, share, h * w)
-            for c in range(channels):
-                colour[:, c] += np.bincount(at, share * cols[:, c], h * w)
-    texture = (colour / np.maximum(weight, MSE_FLOOR)[:, None]).reshape(h, w, channels).astype(np.float32)
+    texture = laid.texture()
     squared, count = 0.0, 0
     for t in range(len(owned)):
-        pts, cols = points(t)
-        back = sample_points(texture, (pts - origin) / cell)
+        pts, cols = owned_points(uv, correction, owned, frames, t)
+        back = sample_points(texture, laid.at(pts))
         squared += float(np.sum((back - cols) ** 2))
         count += cols.size
     mse = squared / count
     return 10.0 * math.log10(1.0 / max(mse, MSE_FLOOR))
-
-
-def _corners(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each point's texel corner (int) and where in the texel it lies ([0, 1) both ways)."""
-    corner = np.floor(pts)
-    return corner.astype(np.int64), pts - corner
 
 
 def layer_scale(uv: np.ndarray, owned: np.ndarray) -> float | None:
@@ -153,8 +116,8 @@ def texture_psnr(
     uv: np.ndarray, correction: np.ndarray, owned: np.ndarray, frames: np.ndarray, colours: Colours
 ) -> float | None:
     """PSNR (dB) of the plate at a fixed sample of the ``owned`` pixels (``TEXTURE_SAMPLES``) against the layer's
-    atlas colour at ``uv + correction`` there: how well the texture the export writes shows the plate through that
-    UV. None when no owned pixel has a finite UV."""
+    atlas network's colour at ``uv + correction`` there: how well the canvas the fit placed the object on shows the
+    plate through that UV. None when no owned pixel has a finite UV."""
     t_idx, ys, xs = _sample(owned)
     pts = uv[t_idx, ys, xs] + correction[t_idx, ys, xs]
     keep = np.isfinite(pts).all(1)
@@ -190,7 +153,7 @@ def choose_reach(
     uv: np.ndarray, owned: np.ndarray, flow: FlowField, frames: np.ndarray | None, colours: Colours | None = None
 ) -> Reach:
     """The correction of the reach whose UV lays ``frames`` on the atlas more consistently (``splat_psnr``), unless
-    along whole trajectories the layer's atlas texture (``colours``) would show the plate ``MAX_TEXTURE_LOSS_DB``
+    along whole trajectories the layer's atlas network (``colours``) would show the plate ``MAX_TEXTURE_LOSS_DB``
     worse; over a few frames when there are no ``frames`` (the plate could not be read) or nothing to test."""
     short = follow_flow(uv, owned, flow, SHORT_WEIGHT)
     scale = None if frames is None else layer_scale(uv, owned)
@@ -212,8 +175,6 @@ def choose_reach(
 
 __all__ = [
     "LONG",
-    "MAX_SIDE",
-    "MAX_TEXELS",
     "MAX_TEXTURE_LOSS_DB",
     "SHORT",
     "TEXTURE_SAMPLES",

@@ -60,9 +60,10 @@ MIN_SHARE = 0.99
 #: Floor of a frame's UV scale (UV units per pixel) when converting UV distances to pixels: a collapsed mapping.
 MIN_UV_PER_PX = 1e-9
 #: What following the flow holds in memory per working pixel and frame: each layer's UV (8 B), whether the layer
-#: owns the pixel (1 B) and its correction over each reach (2 x 8 B); once, the fit's flow both ways (16 B), their
-#: checks (2 B) and the plate at working size (12 B: the reach test).
-BYTES_PER_LAYER, FLOW_BYTES = 25, 30
+#: owns the pixel and whether it is solid there (2 x 1 B) and its correction over each reach (2 x 8 B); once, the
+#: fit's flow both ways (16 B), their checks (2 B) and the plate at working size (12 B: the reach test and the
+#: atlas texture).
+BYTES_PER_LAYER, FLOW_BYTES = 26, 30
 #: Follow the flow only while that fits in this share of the memory the system says is available, so an export that
 #: would once have fitted is not pushed into swap or the OOM killer by a long clip.
 MEMORY_SHARE = 0.8

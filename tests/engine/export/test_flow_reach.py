@@ -11,6 +11,7 @@ import pytest
 from engine.export import exporter
 from engine.export import flow_reach as R
 from engine.export import follow_flow as FF
+from engine.export import plate_splat as S
 from engine.export.manifest import Manifest
 from engine.io.images import read_image, write_png
 from tests.engine.export.test_follow_flow import UV_PER_PX, _drifted, _flow, _inner, _true_uv
@@ -76,7 +77,7 @@ def test_a_uv_spread_wider_than_the_texture_allows_is_read_through_wider_texels(
     assert np.isfinite(R.splat_psnr(wide, none, owned, frames, UV_PER_PX))
     assert np.isfinite(R.splat_psnr(truth, none, owned, frames, 0.0))  # no scale at all: the floor
     for h, w, _ in shapes:
-        assert h * w <= R.MAX_TEXELS * 1.01 and max(h, w) <= R.MAX_SIDE
+        assert h * w <= S.MAX_TEXELS * 1.01 and max(h, w) <= S.MAX_SIDE
 
 
 def test_the_reach_that_reads_back_sharper_is_chosen():
@@ -129,7 +130,8 @@ def test_the_long_reach_is_held_back_where_the_texture_would_no_longer_show_the_
     assert chosen.held == (reach == R.SHORT)
     if chosen.held:
         assert chosen.said.endswith(
-            f"{R.LONG} the atlas texture would no longer show the plate: 15.20 dB against 28.00 dB)"
+            f"{R.LONG} the points drift from where the fit placed them: its atlas shows the plate 15.20 dB against "
+            "28.00 dB)"
         )
         assert np.array_equal(chosen.correction, FF.follow_flow(_drifted(truth), owned, _flow(), FF.SHORT_WEIGHT))
 

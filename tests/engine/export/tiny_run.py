@@ -29,8 +29,9 @@ def make_run(root: Path) -> tuple[Path, Path, Path]:
 
 
 def export(run: Path, **kw) -> Path:  # type: ignore[no-untyped-def]
-    """Export quietly; the manifest's path."""
-    return export_run(run, atlas_size=kw.pop("atlas_size", ATLAS_SIZE), progress_bar=False, stream=io.StringIO(), **kw)
+    """Export quietly (or into ``stream``); the manifest's path."""
+    size, stream = kw.pop("atlas_size", ATLAS_SIZE), kw.pop("stream", None) or io.StringIO()
+    return export_run(run, atlas_size=size, progress_bar=False, stream=stream, **kw)
 
 
 def copy_root(src: Path, dest: Path) -> Path:
