@@ -314,8 +314,8 @@ def _colours(model: AtlasModel, layer: int, uv: np.ndarray) -> np.ndarray:
 @dataclass
 class _Planned:
     """What the passes and atlases are written from: the atlas plan and coverage, the flow-following UV corrections
-    by layer (``_flow_corrections``) and, where the export read the plate, each layer's plate laid through its
-    exported UV at working size (``plate_splat.splat``: its atlas texture)."""
+    by layer (``_flow_corrections``) and, where the export read the plate, each followed layer's plate laid through
+    its exported UV at working size (``plate_splat.splat``: its atlas texture)."""
 
     plan: Plan
     cov: list[_Coverage]
@@ -341,8 +341,8 @@ def _plate_splats(source: _FollowSource, corrections: dict[int, np.ndarray]) -> 
     """Each layer that follows the flow (``corrections``), its plate laid through its exported UV (the fitted one
     plus its correction) on texels one working pixel wide: the network's colours lie under the fitted UV, not the
     moved one. A layer left as fitted keeps them (its UV is the one they were fitted through: measured, the plate laid
-    there re-renders the object no better and its outline worse). None where the plate could not be read or a layer
-    owns too little to measure its scale."""
+    there re-renders the object no better and its outline worse). No entry where the plate could not be read or a
+    layer owns too little to measure its scale."""
     out: dict[int, Splat] = {}
     if source.frames is None:
         return out
@@ -350,7 +350,7 @@ def _plate_splats(source: _FollowSource, corrections: dict[int, np.ndarray]) -> 
     for i in corrections:
         uv, owned = working.uv[i], working.owned[i]
         scale = layer_scale(uv, owned)
-        laid = None if scale is None else splat(uv, corrections.get(i), working.solid[i], source.frames, scale)
+        laid = None if scale is None else splat(uv, corrections[i], working.solid[i], source.frames, scale)
         if laid is not None:
             out[i] = laid
     return out
