@@ -36,6 +36,19 @@ def frame_range(text: str) -> tuple[int, int]:
         ) from None
 
 
+def start_frame(text: str) -> int:
+    """``--start-frame``: a whole number from 0 to ``contract.MAX_START_FRAME`` (Blender's highest frame)."""
+    try:
+        number = int(text)
+    except ValueError:
+        number = -1
+    if not 0 <= number <= C.MAX_START_FRAME:
+        raise argparse.ArgumentTypeError(
+            f"start frame {text[:40]!r} must be a whole number from 0 to {C.MAX_START_FRAME}, e.g. 1001"
+        )
+    return number
+
+
 def frame_rate(text: str) -> Any:
     """``--fps``: ``24``, ``25``, ``23.976`` (taken as 24000/1001) or an exact ``24000/1001``."""
     from .io.timing import parse_rate

@@ -23,6 +23,7 @@ from .cli_options import (
     add_verb,
     frame_range,
     frame_rate,
+    start_frame,
 )
 
 DESCRIPTION = """\
@@ -149,7 +150,7 @@ def _add_fit_plate_options(f: argparse.ArgumentParser) -> None:
     )
     f.add_argument(
         "--start-frame",
-        type=int,
+        type=start_frame,
         default=None,
         metavar="N",
         help="number a movie's frames from N (e.g. 1001; default 0); a sequence is numbered by its file names",

@@ -47,6 +47,18 @@ def tree_digest(folder: Path) -> dict[str, str]:
     }
 
 
+def visible_digest(folder: Path) -> dict[str, str]:
+    """``tree_digest`` of the files a file browser shows (a render's hidden record left out: two exports of one fit
+    render the same frames, each recording its own manifest)."""
+    return {name: digest for name, digest in tree_digest(folder).items() if not name.startswith(".")}
+
+
+def visible_names(folder: Path) -> list[str]:
+    """The names of ``folder``'s entries a file browser shows (hidden ones, such as a render's record, left out),
+    sorted."""
+    return sorted(p.name for p in folder.iterdir() if not p.name.startswith("."))
+
+
 def non_utf8_folder(parent: Path, name: bytes) -> Path:
     """A new folder below ``parent`` whose name holds bytes that are not UTF-8 (a Latin-1 name on Linux: Python
     holds it as surrogate escapes); skips the calling test where the file system refuses such names."""

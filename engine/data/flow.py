@@ -12,10 +12,12 @@ in ``b``.
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import hashlib
 import logging
 import os
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +26,7 @@ from typing import BinaryIO, Protocol, runtime_checkable
 import cv2
 import numpy as np
 
+from .. import contract as C
 from ..config import FLOW_PRESETS
 from ..errors import DiskFullError, InputError
 from ..io.atomic import atomic_write
@@ -131,6 +134,9 @@ class FlowField:
     backward_ok: np.ndarray  # bool [T-1, H, W]
     backend: str
     threshold_px: float
+    key: str | None = None
+    """The content key it is cached under (``content_key``: ``RUN_DIR/flow_cache/KEY.npz``), which the fit records
+    (``clip.json``'s ``flow_key``) so an export finds this flow and no other; None where it was not cached."""
 
     @property
     def pairs(self) -> int:
@@ -238,16 +244,21 @@ def content_key(frames: np.ndarray, backend: FlowBackend, threshold_px: float) -
     return h.hexdigest()
 
 
-def cached_flow(cache_dir: Path, t: int, h: int, w: int, backend: str, threshold_px: float) -> FlowField | None:
-    """The adjacent-pair flow a fit left in ``cache_dir`` for its ``t`` frames at ``h`` x ``w`` with this backend
-    and threshold, found without the frames its file is named by (an export reads the run folder, not the plate);
-    None when there is none. Several (the plate was changed under the run folder and fitted again): the newest."""
-    files = [p for p in Path(cache_dir).glob("*.npz") if len(p.stem) == hashlib.sha256().digest_size * 2]
-    for path in sorted(files, key=lambda p: p.stat().st_mtime, reverse=True):
-        field = _load_cache(path, t, h, w, backend, threshold_px, quiet=True)
-        if field is not None:
-            return field
-    return None
+FLOW_KEY = re.compile(C.FLOW_KEY_PATTERN)
+
+
+def cached_flow(
+    cache_dir: Path, key: str, t: int, h: int, w: int, backend: str, threshold_px: float
+) -> FlowField | None:
+    """The adjacent-pair flow cached in ``cache_dir`` under ``key`` (the one the fit recorded, ``FlowField.key``) for
+    ``t`` frames at ``h`` x ``w`` with this backend and threshold; None when that file is not there, not whole or not
+    of this shape. Found by its key alone, never by looking for a likely file: the cache may hold another plate's flow
+    (a run folder refitted on other frames, a ``flow_cache`` shared between shots), and only the key says which is
+    this fit's. A ``key`` that is not a content key is a miss (``clip.json`` is a file a user can edit)."""
+    if not FLOW_KEY.fullmatch(key):
+        return None
+    field = _load_cache(Path(cache_dir) / f"{key}.npz", t, h, w, backend, threshold_px, quiet=True)
+    return None if field is None else dataclasses.replace(field, key=key)
 
 
 def _load_cache(
@@ -377,7 +388,7 @@ def compute_flow(
         if cached is not None:
             if progress is not None and n > 0:
                 progress(n, n)
-            return cached
+            return dataclasses.replace(cached, key=cache_path.stem)
 
     forward = np.zeros((n, h, w, 2), dtype=np.float32)
     backward = np.zeros((n, h, w, 2), dtype=np.float32)
@@ -394,7 +405,8 @@ def compute_flow(
         if progress is not None:
             progress(i + 1, n)
 
-    field = FlowField(forward, backward, forward_ok, backward_ok, backend.name, float(threshold_px))
+    key = None if cache_path is None else cache_path.stem
+    field = FlowField(forward, backward, forward_ok, backward_ok, backend.name, float(threshold_px), key)
     if cache_path is not None:
         _save_cache(cache_path, field)
     return field

@@ -18,6 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from .. import contract as C
 from ..errors import InputError
 from ..io.atomic import disk_full_as_one_line, disk_full_error, signals_held
 from ..io.clip_info import ClipInfo
@@ -31,15 +32,21 @@ def mask_file_names(info: ClipInfo) -> list[str]:
 
 
 def output_folder(info: ClipInfo, out: str | Path, what: str = "mask") -> Path:
-    """``out`` resolved (a link is followed: the files land where it points); a one-line error when it is a file or
-    the clip's own frame folder, reached by any path or link (files named like the frames, beside them, would be
-    read as frames)."""
+    """``out`` resolved (a link is followed: the files land where it points); a one-line error when it is a file, the
+    clip's own frame folder, reached by any path, pattern or link (files named like the frames, beside them, would be
+    read as frames), or a fit's run folder."""
     folder = Path(out).expanduser().resolve()
     if folder.exists() and not folder.is_dir():
         raise InputError(folder, "is a file, not a folder", f"pass a folder for the {what}s with --out")
-    if info.kind == "sequence" and folder == Path(info.source).resolve():
+    if info.kind == "sequence" and folder in {Path(f).resolve().parent for f in info.frame_files}:
         raise InputError(
             folder, "is the clip's own frame folder", f"write the {what}s to a folder of their own with --out"
+        )
+    if any((folder / name).exists() for name in (C.RUN_CLIP, C.RUN_CONFIG)):
+        raise InputError(
+            folder,
+            "is a fit's run folder: its own files would mix with the fit's",
+            f"write the {what}s to a folder of their own with --out (a fit's strokes go to its {C.AUTO_PARTS_DIR}/)",
         )
     return folder
 

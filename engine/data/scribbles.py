@@ -53,6 +53,10 @@ def resize_labels(labels: np.ndarray, size: tuple[int, int], count: int) -> np.n
     return out
 
 
+class NoScribbles(InputError):
+    """A scribble folder with no stroke on the clip's selected frames (``read_scribbles``)."""
+
+
 def read_scribbles(folder: str | Path, info: ClipInfo, size: tuple[int, int]) -> np.ndarray:
     """int8 [T, H, W] labels for the clip's selected frames at working ``size``; NO_LABEL where nothing is
     scribbled (every pixel of a frame without a scribble file). Files are matched by the frame number in
@@ -92,7 +96,7 @@ def read_scribbles(folder: str | Path, info: ClipInfo, size: tuple[int, int]) ->
         out[i] = resize_labels(labels_from_rgba(image), size, len(C.SCRIBBLE_COLOURS))
         used += 1
     if used == 0 or not (out != NO_LABEL).any():
-        raise InputError(
+        raise NoScribbles(
             path,
             "no scribbles for the selected frames",
             "scribble at least one frame in pure red and green (file named with the frame number)",
@@ -141,4 +145,12 @@ def scribble_layers(labels: np.ndarray) -> int:
     return int(labels.max()) + 1
 
 
-__all__ = ["NO_LABEL", "labels_from_rgba", "propagate_labels", "read_scribbles", "resize_labels", "scribble_layers"]
+__all__ = [
+    "NO_LABEL",
+    "NoScribbles",
+    "labels_from_rgba",
+    "propagate_labels",
+    "read_scribbles",
+    "resize_labels",
+    "scribble_layers",
+]

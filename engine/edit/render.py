@@ -12,7 +12,9 @@ What it writes can never destroy what it reads: an output folder that is (or dir
 or a mask folder, or lies inside the run folder, is refused before anything is written (``output_checks``). The
 frames are rendered into a hidden staging folder inside ``--out`` and moved into place together once every one is
 written (``staged_folder``); a failure, a full disk or a cancel removes the staging (and ``--out`` when the render
-created it), so no partial frame set is ever left and earlier files in ``--out`` are untouched.
+created it), so no partial frame set is ever left and earlier files in ``--out`` are untouched. Chunks of one
+render share ``--out``; a chunk of another export, other paint or other settings is refused there
+(``render_record``).
 """
 
 from __future__ import annotations
@@ -50,6 +52,7 @@ from ..io.images import exr_timing, native_path, read_spec, write_like, write_pn
 from .equations import FILTERS, composite_edits, composite_touched, edit_is_empty, load_edit
 from .movie import DEFAULT_FPS, MovieWriter, movie_writer
 from .output_checks import check_movie, check_output
+from .render_record import RECORD_NAME, claim_folder, render_record, write_record
 from .staged_folder import StagedFolder
 
 FORMATS = ("exr", "png", "plate")
@@ -338,8 +341,14 @@ def render_manifest(
     clip = manifest.clip
     output = _Output(like, frame_name_pattern(name, ext, C.frame_padding(clip["frame_files"], clip["frame_numbers"])),
                      fmt == FORMATS[0] and exr_half(manifest, depth))  # fmt: skip
+    record = render_record(manifest.path, edits, {"format": fmt, "names": output.pattern, "filter": filter,
+                                                  "half": output.half})  # fmt: skip
     try:
         with staged:
+            if frames is None:  # every frame: its record replaces the folder's with them
+                write_record(staged.path(RECORD_NAME), record)
+            else:  # a chunk: the folder's frames must be of this render
+                claim_folder(out, record)
             _render_into(manifest, staged, edits, output, filter, movie_path, progress_bar, sizes, chosen)
     except DISK_ERRORS as exc:
         full = _disk_full_needing(exc, staged, sizes.need())

@@ -30,7 +30,7 @@ import numpy as np
 from tqdm import tqdm
 
 from .. import contract as C
-from ..data.flow import DISFlow, FlowField, cached_flow
+from ..data.flow import DISFlow, FlowField, cached_flow, content_key
 from ..errors import InputError
 from ..fit.fitted_run import FittedRun, load_fitted
 from ..fit.prepare import fingerprint_of, fitted_plate
@@ -242,10 +242,10 @@ def _working_plate(fitted: FittedRun) -> np.ndarray | None:
 
 
 def _follow_source(job: _Job, fitted: FittedRun) -> _FollowSource | None:
-    """The fit's flow (``RUN_DIR/flow_cache``), an empty ``_WorkingUV`` and the plate at working size when this
-    export follows the flow; None when it does not: asked not to, nothing to follow (one frame), or (unless it was
-    insisted on: refused in one line) the run holds no flow of this fit or following it would not fit in the memory
-    available (``follow_flow.memory_needed``: a long clip)."""
+    """The fit's flow (``RUN_DIR/flow_cache``, by the key its clip record names), an empty ``_WorkingUV`` and the
+    plate at working size when this export follows the flow; None when it does not: asked not to, nothing to follow
+    (one frame), or (unless it was insisted on: refused in one line) the run holds no flow of this fit or following
+    it would not fit in the memory available (``follow_flow.memory_needed``: a long clip)."""
     model, clip, cfg = fitted.model, fitted.clip, fitted.cfg
     if job.follow_flow is False or clip.num_frames < 2:
         return None
@@ -253,11 +253,17 @@ def _follow_source(job: _Job, fitted: FittedRun) -> _FollowSource | None:
     if have is not None and need > MEMORY_SHARE * have:
         said = f"following the flow needs about {need / 2**30:.1f} GiB of memory, {have / 2**30:.1f} GiB is available"
         return _not_followed(job, job.run_dir, said, "free memory first")
-    (ww, wh), cache = clip.working_size, fitted.folder.flow_cache
-    flow = cached_flow(cache, clip.num_frames, wh, ww, DISFlow(cfg.flow_preset).name, cfg.flow_threshold_px)
+    (ww, wh), cache, backend = clip.working_size, fitted.folder.flow_cache, DISFlow(cfg.flow_preset)
+    frames, key, threshold = None, clip.flow_key, cfg.flow_threshold_px
+    if key is None:  # a record written before the fit kept its flow's key: the key of the plate it fitted
+        frames = _working_plate(fitted)
+        key = None if frames is None else content_key(frames.clip(0.0, 1.0), backend, threshold)
+    flow = None if key is None else cached_flow(cache, key, clip.num_frames, wh, ww, backend.name, threshold)
     if flow is None:
         return _not_followed(job, cache, "holds no flow of this fit", "fit the run again (it writes its flow there)")
-    return _FollowSource(flow, _WorkingUV(clip.num_frames, clip.working_size, model.num_layers), _working_plate(fitted))
+    if frames is None:
+        frames = _working_plate(fitted)
+    return _FollowSource(flow, _WorkingUV(clip.num_frames, clip.working_size, model.num_layers), frames)
 
 
 def _not_followed(job: _Job, where: Path, problem: str, remedy: str) -> None:

@@ -101,7 +101,7 @@ Device = Annotated[
 ]
 Flag = Annotated[StrictBool, Refusal("true or false", "true")]
 Chunk = Annotated[StrictInt, Field(ge=1), Refusal("a whole number", "50")]
-FrameNumber = Annotated[StrictInt, Field(ge=0), Refusal("a whole number", "50")]
+StartFrame = Annotated[StrictInt, Field(ge=0, le=C.MAX_START_FRAME), Refusal("a whole number", "1001")]
 AtlasSize = Annotated[
     StrictInt,
     Field(ge=C.ATLAS_SIZE_RANGE[0], le=C.ATLAS_SIZE_RANGE[1]),
@@ -141,7 +141,7 @@ class ShotTable(ShotDefaults):
     frames: Annotated[FrameRange, Field(default=None)]
     colorspace: Annotated[Utf8Text, Field(default=None)]
     fps: Annotated[Rate, Field(default=None)]
-    start_frame: Annotated[FrameNumber, Field(default=None)]
+    start_frame: Annotated[StartFrame, Field(default=None)]
     run: Annotated[Utf8Text, Field(default=None)]
     render: Annotated[Utf8Text, Field(default=None)]
 

@@ -30,7 +30,7 @@ from ..data.flow import FlowField
 from ..data.mask_files import output_folder
 from ..data.motion_parts import motion_parts
 from ..data.motion_parts_files import STROKE, NothingToSplit, require_something_to_split, write_strokes
-from ..data.scribbles import read_scribbles
+from ..data.scribbles import NoScribbles, read_scribbles
 from ..errors import InputError
 from ..io.clip_info import ClipInfo
 from .progress import Reporter
@@ -91,6 +91,45 @@ def strokes_in_run(run_dir: Path) -> str | None:
     return None
 
 
+#: The share of a stroke colour's pixels that must lie inside the fit's mask for strokes found in RUN_DIR/parts to
+#: count as this fit's: a search draws them inside the mask; an artist's fix may stray over its edge.
+STROKES_INSIDE = 0.5
+
+
+def is_run_strokes(run: RunFolder, scribble_dir: str | Path) -> bool:
+    """Whether ``scribble_dir`` is RUN_DIR/parts, the strokes the fit found there by looking (``strokes_in_run``)."""
+    return Path(scribble_dir).resolve() == run.auto_parts.resolve()
+
+
+def check_run_strokes(folder: str | Path, info: ClipInfo, size: tuple[int, int], masks: np.ndarray) -> np.ndarray:
+    """The strokes in RUN_DIR/parts read as ``--scribbles`` reads them (int8 [T, H, W] at the working ``size``),
+    refused in one line unless they belong to this fit: at least two colours of them on its frames, each with at
+    least ``STROKES_INSIDE`` of its pixels inside its mask (``masks``: bool [F, T, H, W]). Strokes an earlier fit
+    left there for another object or other frames (a ``--refit`` with another mask, ``--frames`` elsewhere) are
+    never fitted, nor answered as if the artist had drawn them; the line names what to do."""
+    problem = None
+    try:
+        labels = read_scribbles(folder, info, size)
+    except NoScribbles:
+        labels, problem = None, "hold no stroke on this fit's frames"
+    if labels is not None:
+        inside = masks.any(0)
+        counted = 0
+        for k in range(len(C.SCRIBBLE_COLOURS)):
+            drawn = labels == k
+            if drawn.any() and (drawn & inside).sum() >= STROKES_INSIDE * drawn.sum():
+                counted += 1
+        if counted < 2:
+            problem = "do not lie on this fit's mask in two colours"
+    if problem is not None:
+        raise InputError(
+            folder,
+            f"the strokes an earlier fit left here {problem} (another object, or other frames)",
+            f"delete the folder to have the parts found again, or fit with {C.FIT_NO_AUTO_PARTS_FLAG}",
+        )
+    return labels  # type: ignore[return-value]
+
+
 @dataclass(frozen=True)
 class PartsRequest:
     """A fit that starts asks ``prepare_clip`` to split its one mask into the parts that move apart. ``asked``: the
@@ -143,4 +182,14 @@ class PartsSearch:
         return read_scribbles(report.folder, self.info, size), str(Path(report.folder).resolve())
 
 
-__all__ = ["SAID_PREFIX", "PartsRequest", "PartsSearch", "check_auto_parts", "parts_wanted", "strokes_in_run"]
+__all__ = [
+    "SAID_PREFIX",
+    "STROKES_INSIDE",
+    "PartsRequest",
+    "PartsSearch",
+    "check_auto_parts",
+    "check_run_strokes",
+    "is_run_strokes",
+    "parts_wanted",
+    "strokes_in_run",
+]

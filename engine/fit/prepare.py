@@ -30,9 +30,10 @@ from ..data.scene_analysis import SceneAnalysis, analyse_scene
 from ..data.scribbles import propagate_labels, read_scribbles, scribble_layers
 from ..data.video import VideoTensors, build_video_tensors
 from ..errors import InputError
+from ..io.atomic import atomic_write_text
 from ..io.clip import ClipInfo, open_clip, read_frames, read_frames_at, read_masks, working_size
 from ..io.colour import legacy_linear_to_srgb, recorded_space, to_working
-from .auto_parts import PartsRequest, PartsSearch
+from .auto_parts import PartsRequest, PartsSearch, check_run_strokes, is_run_strokes
 from .progress import Reporter
 from .run_folder import ClipRecord, RunFolder
 
@@ -40,6 +41,9 @@ from .run_folder import ClipRecord, RunFolder
 FINGERPRINT_CHARS = 32
 #: A single frame has no motion: the message ``fit --auto-masks`` records instead of looking for masks.
 SINGLE_FRAME_NOTE = "a single frame has no motion to find an object by"
+#: Beside the masks a fit found (RUN_DIR/auto_masks): the fingerprint of the frames they were found on, so a later
+#: fit reuses them only on those frames (hidden: mask readers skip it).
+AUTO_MASKS_PLATE = ".plate_fingerprint"
 
 
 @dataclass
@@ -122,10 +126,12 @@ class PreparedClip:
             scribbles=self.scribble_dir,
             layers=1 + self.num_foreground,
             fingerprint=self.fingerprint,
+            scribbles_fingerprint=None if self.scribbles is None else fingerprint_of(self.scribbles),
             rate=None if info.rate is None else (info.rate.numerator, info.rate.denominator),
             pixel_aspect=info.pixel_aspect,
             timecode=info.timecode,
             start_frame=info.start_frame,
+            flow_key=self.flow.key,
         )
 
 
@@ -213,7 +219,7 @@ def prepare_clip(
     run_dir: Path,
     frame_range: tuple[int, int] | None,
     reporter: Reporter | None = None,
-    expect_fingerprint: str | None = None,
+    expect: ClipRecord | None = None,
     scribble_dir: str | Path | None = None,
     auto_masks: bool = False,
     before_writing: Callable[[], None] | None = None,
@@ -225,8 +231,10 @@ def prepare_clip(
 ) -> PreparedClip:
     """Read, validate and sanitise the clip and masks, and compute (or load from RUN_DIR/flow_cache) its flow.
 
-    ``expect_fingerprint`` (a resume): a clip whose frames changed is refused before its flow is computed,
-    so the refusal is quick and writes nothing into the run folder. ``auto_masks``: no masks are given; find
+    ``expect`` (a resume: the record it continues): a clip whose frames changed, or scribbles that changed since the
+    fit started, are refused before the flow is computed, so the refusal is quick and writes nothing into the run
+    folder. Strokes in RUN_DIR/parts that an earlier fit left (``scribble_dir`` is that folder) must lie on a new
+    fit's frames and mask (``auto_parts.check_run_strokes``). ``auto_masks``: no masks are given; find
     them from motion (written to RUN_DIR/auto_masks) and fit with them; nothing found: background only.
     ``before_writing``: called once everything is read and checked, before the first write into the run folder
     (the flow cache, the auto masks): ``fit`` takes the run folder's lock there, so bad input creates no folder.
@@ -247,14 +255,16 @@ def prepare_clip(
     masks, snaps = _read_masks(mask_dirs, info, size, frames, cfg)
     if search is not None:
         search.check(masks[0])
-    scribbles = None if scribble_dir is None else _read_scribbles(scribble_dir, info, size)
+    scribbles = None
+    if scribble_dir is not None and expect is None and is_run_strokes(run, scribble_dir):
+        scribbles = check_run_strokes(scribble_dir, info, size, masks)
+    elif scribble_dir is not None:
+        scribbles = _read_scribbles(scribble_dir, info, size)
     if scribbles is not None and finder is None:
         _check_one_mask(scribble_dir, len(mask_dirs))  # type: ignore[arg-type]
     fingerprint = fingerprint_of(frames)
-    if expect_fingerprint is not None and fingerprint != expect_fingerprint:
-        raise InputError(
-            info.source, "the clip changed since this run started", "fit it into a new --out instead of --resume"
-        )
+    if expect is not None:
+        _check_unchanged(expect, fingerprint, scribbles, scribble_dir, info)
     if info.colour_note:  # the colour space was assumed: said once, once the input is accepted (bad input: one line)
         print(info.colour_note, file=sys.stderr)
     if before_writing is not None:
@@ -403,6 +413,24 @@ def _clip_flow(
     return flow, long_flow
 
 
+def _check_unchanged(
+    expect: ClipRecord, fingerprint: str, scribbles: np.ndarray | None, scribble_dir: str | Path | None, info: ClipInfo
+) -> None:
+    """A resume continues on the frames and the strokes its fit started with: either changed is one line (a record
+    written before the strokes' fingerprint was kept checks the frames only)."""
+    if fingerprint != expect.fingerprint:
+        raise InputError(
+            info.source, "the clip changed since this run started", "fit it into a new --out instead of --resume"
+        )
+    recorded = expect.scribbles_fingerprint
+    if scribbles is not None and recorded is not None and fingerprint_of(scribbles) != recorded:
+        raise InputError(
+            scribble_dir,
+            "the strokes changed since this fit started",
+            "put them back to continue it, or fit with them by --refit (edits/ and exports/ are kept)",
+        )
+
+
 def _read_scribbles(scribble_dir: str | Path, info: ClipInfo, size: tuple[int, int]) -> np.ndarray:
     scribbles = read_scribbles(scribble_dir, info, size)
     if scribble_layers(scribbles) < 2:
@@ -464,6 +492,7 @@ class _AutoMasks:
         result = auto_masks(frames, cfg, flow=flow)
         native = resize_masks(result.masks, (self.info.width, self.info.height))
         write_mask_files(self.folder, self.names, native)
+        atomic_write_text(self.folder / AUTO_MASKS_PLATE, prepared.fingerprint)
         print(f"auto masks: {result.message} ({self.shown})", file=sys.stderr)
         prepared.masks_note = result.message
         if result.found:
@@ -478,7 +507,15 @@ class _AutoMasks:
 
     def _use_written(self, prepared: PreparedClip, reporter: Reporter) -> None:
         """The masks already in the folder, read as ``--mask`` reads a folder; all of them empty is what a search
-        that found nothing writes: a background-only fit, as then."""
+        that found nothing writes: a background-only fit, as then. Masks a search found on other frames (the
+        fingerprint beside them) are refused in one line; masks without one (the artist's) are used as they are."""
+        found_on = self.folder / AUTO_MASKS_PLATE
+        if found_on.is_file() and found_on.read_text(encoding="utf-8").strip() != prepared.fingerprint:
+            raise InputError(
+                self.shown,
+                "the masks an earlier fit found here are of other frames (another plate, range or colour space)",
+                "delete the folder to have them found again, or pass the masks you want with --mask",
+            )
         reporter.emit(C.EVENT_STAGE, stage="masks", message=f"using the masks already in {self.shown}")
         masks = read_masks(self.folder, self.info, prepared.size)
         if masks.any():
@@ -491,6 +528,7 @@ class _AutoMasks:
 
 
 __all__ = [
+    "AUTO_MASKS_PLATE",
     "PLATE_VALUE_LIMIT",
     "PlateFaults",
     "PreparedClip",

@@ -19,6 +19,7 @@ never reads these files, so the contract it imports stays standard-library only.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Annotated, Any
@@ -122,6 +123,8 @@ def _clip_problem(data: dict[str, Any]) -> str | None:
         problem = "clip record: layers and sizes must be positive"
     elif any(len(data.get(f"{k}_relative", data[k])) != len(data[k]) for k in ("frame_files", "masks")):
         problem = "clip record: its relative paths do not match its frame files and masks"
+    elif data.get("flow_key") is not None and not re.fullmatch(C.FLOW_KEY_PATTERN, data["flow_key"]):
+        problem = "clip record: flow_key is not the name of a flow cache file (64 hex digits)"
     else:
         problem = C.timing_problem(data)
         problem = problem and f"clip record: {problem}"
@@ -161,6 +164,8 @@ class ClipFile(RunFile):
     frame_files_relative: StrOrNullList = Field(default_factory=list)  # absent from records before they were kept
     masks_relative: StrOrNullList = Field(default_factory=list)
     scribbles_relative: StrOrNull = None
+    scribbles_fingerprint: StrOrNull = None  # of the strokes read at working size: a resume keeps to them
+    flow_key: StrOrNull = None  # the fit's flow in flow_cache/ (a SHA-256 in hex); absent from older records
 
     @model_validator(mode="wrap")
     @classmethod

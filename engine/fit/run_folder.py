@@ -74,6 +74,12 @@ class ClipRecord(NumberedFrames):
     frame_files_relative: tuple[str | None, ...] | None = dataclasses.field(default=None, compare=False)
     masks_relative: tuple[str | None, ...] | None = dataclasses.field(default=None, compare=False)
     scribbles_relative: str | None = dataclasses.field(default=None, compare=False)
+    scribbles_fingerprint: str | None = None
+    """The fingerprint of the strokes the fit split its object by (``scribbles``, read at the working size): a resume
+    continues on the same strokes; None without scribbles, and in records written before it was kept."""
+    flow_key: str | None = None
+    """The key of the adjacent-pair flow the fit learnt from in ``RUN_DIR/flow_cache`` (``flow.FlowField.key``): the
+    export follows that flow and no other; None in records written before it was kept, and for a single frame."""
 
     @property
     def exact_rate(self) -> Fraction | None:
@@ -145,6 +151,9 @@ class ClipRecord(NumberedFrames):
             del data["colour_config"]
         if data["colour_source"] is None:
             del data["colour_source"]
+        for key in ("flow_key", "scribbles_fingerprint"):
+            if data[key] is None:
+                del data[key]
         if self.frame_files_relative is None:  # a record from before the relative paths were kept
             for key in RELATIVE_FIELDS:
                 del data[key]
@@ -179,6 +188,9 @@ class ClipRecord(NumberedFrames):
             frame_files_relative=_tuple_or_none(data.get("frame_files_relative")),
             masks_relative=_tuple_or_none(data.get("masks_relative")),
             scribbles_relative=data.get("scribbles_relative"),
+            # absent from records written before they were kept
+            scribbles_fingerprint=data.get("scribbles_fingerprint"),
+            flow_key=data.get("flow_key"),
         )
 
 

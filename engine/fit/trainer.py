@@ -447,7 +447,7 @@ def fit(
                 reporter.job.resume_from(shown)
             record = resumed.record
             clip, mask_dirs, frame_range = record.source, list(record.masks), record.frame_range
-            scribble_dir, expect = record.scribbles, record.fingerprint
+            scribble_dir, expect = record.scribbles, record
             fps, start_frame = record.exact_rate, record.movie_start
             colorspace, colour_config = resumed.colorspace, resumed.colour_config
         # the input is read and validated before anything is written: bad input leaves no run folder behind

@@ -11,6 +11,7 @@ import itertools
 import os
 import re
 from dataclasses import dataclass
+from typing import NoReturn
 
 import fileseq
 
@@ -85,6 +86,8 @@ def list_images(folder: str, role: Role) -> list[NumberedFile]:
     for name in names:
         numbers = _NUMBER.findall(os.path.splitext(name)[0])
         digits = numbers[-1] if numbers else ""
+        if digits and _NEGATIVE.search(os.path.splitext(name)[0]):
+            _refuse_negative(os.path.join(folder, name), role)
         files.append(NumberedFile(os.path.join(folder, name), int(digits) if digits else None, digits))
     unnumbered = sorted((f.name for f in files if f.number is None), key=_natural_key)
     if unnumbered and len(unnumbered) < len(files):
@@ -102,6 +105,21 @@ def list_images(folder: str, role: Role) -> list[NumberedFile]:
                 f"keep one {role.noun} file per frame number",
             )
     return files
+
+
+#: A frame number below 0 in a file name: a minus sign before the stem's last number that follows a separator
+#: ("plate.-001", "plate_-001", "-001"); "plate-001" is frame 1 after a dash.
+_NEGATIVE = re.compile(r"(?:^|[._])-\d+$")
+
+
+def _refuse_negative(path: str, role: Role) -> NoReturn:
+    """One line for a frame numbered below 0: no verb reads such a plate (Blender's scenes, Nuke's scripts and the
+    exported passes number frames from 0), so it is refused before anything is read or written."""
+    raise InputError(
+        path,
+        f"{role.noun} file numbered below 0",
+        f"renumber the {role.noun} files from 0 or above (e.g. add an offset of 1001 to every number)",
+    )
 
 
 def sequence_files(source: str) -> tuple[str, list[NumberedFile]]:
@@ -129,6 +147,8 @@ def sequence_files(source: str) -> tuple[str, list[NumberedFile]]:
         hint = f" (the folder holds {name_list([_seq_label(q) for q in others])})" if others else ""
         raise InputError(source, f"no files match this pattern{hint}", "check the file name and the padding") from None
     numbers = [int(n) for n in found.frameSet() or []]  # whole frames: subframes are not read
+    if numbers and min(numbers) < 0:
+        _refuse_negative(found.frame(min(numbers)), FRAME)
     if wanted is not None:
         missing = sorted({int(n) for n in wanted} - set(numbers))
         if missing:

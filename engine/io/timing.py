@@ -24,6 +24,9 @@ NTSC_RATES: tuple[Fraction, ...] = tuple(Fraction(n * 1000, 1001) for n in (24, 
 RATE_SNAP = 1e-3
 #: The largest denominator accepted when a float rate is none of the above (25.0 -> 25, 12.5 -> 25/2).
 RATE_MAX_DENOMINATOR = 1001
+#: Frame rates (fps) a plate can play at: a rate outside is not a plate's (a broken header is taken as none, and
+#: ``--fps`` outside is refused): below 1 no timecode or movie holds it, above 1000 is a typo.
+RATE_RANGE = (1, 1000)
 #: Pixel aspect ratios outside this range are not a plate's (a broken header): taken as square pixels.
 PIXEL_ASPECT_RANGE = (0.01, 100.0)
 
@@ -31,16 +34,17 @@ _TIMECODE = re.compile(r"^(\d{2}):(\d{2}):(\d{2})([:;.])(\d{2,3})$")
 
 
 def exact_rate(value: float | Fraction | tuple[int, int] | None) -> Fraction | None:
-    """The rate as an exact positive fraction, or None when there is none (0, negative, NaN, missing)."""
+    """The rate as an exact positive fraction, or None when there is none (0, negative, NaN, missing, outside
+    ``RATE_RANGE``)."""
     if value is None:
         return None
     if isinstance(value, tuple):
         num, den = value
-        return Fraction(int(num), int(den)) if num > 0 and den > 0 else None
+        return _in_range(Fraction(int(num), int(den))) if num > 0 and den > 0 else None
     if isinstance(value, Fraction):
-        return value if value > 0 else None
+        return _in_range(value)
     rate = float(value)
-    if not math.isfinite(rate) or rate <= 0:
+    if not math.isfinite(rate) or not RATE_RANGE[0] <= rate <= RATE_RANGE[1]:
         return None
     for ntsc in NTSC_RATES:
         if abs(rate - float(ntsc)) < RATE_SNAP:
@@ -48,6 +52,10 @@ def exact_rate(value: float | Fraction | tuple[int, int] | None) -> Fraction | N
     if abs(rate - round(rate)) < RATE_SNAP:
         return Fraction(round(rate))
     return Fraction(rate).limit_denominator(RATE_MAX_DENOMINATOR)
+
+
+def _in_range(rate: Fraction) -> Fraction | None:
+    return rate if RATE_RANGE[0] <= rate <= RATE_RANGE[1] else None
 
 
 def parse_rate(text: str) -> Fraction:
@@ -58,7 +66,10 @@ def parse_rate(text: str) -> Fraction:
     except (ValueError, ZeroDivisionError):
         rate = None
     if rate is None:
-        raise ValueError(f"frame rate {text!r} is not a positive number or fraction (e.g. 24, 23.976, 24000/1001)")
+        low, high = RATE_RANGE
+        raise ValueError(
+            f"frame rate {text[:40]!r} is not a number or fraction of {low} to {high} fps (e.g. 24, 23.976, 24000/1001)"
+        )
     return rate
 
 

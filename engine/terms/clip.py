@@ -10,6 +10,9 @@ from fractions import Fraction
 from typing import Any
 
 CLIP_KINDS: tuple[str, ...] = ("sequence", "movie")
+#: The highest number a movie's first frame may be given (``fit --start-frame``, a shot's ``start_frame``): Blender's
+#: highest frame (its MAXFRAME), so a movie numbered from it can be laid on a Blender scene.
+MAX_START_FRAME = 1_048_574
 
 
 #: A frame file's number: the digits just before its extension (``plate.1001.exr``, ``plate_0012.png``).
@@ -79,6 +82,7 @@ __all__ = [
     "DEFAULT_LONG_EDGE",
     "FRAME_FILE_DIGITS",
     "MASK_THRESHOLD",
+    "MAX_START_FRAME",
     "SCRIBBLE_ALPHA_CUTOFF",
     "SCRIBBLE_ARG",
     "SCRIBBLE_COLOURS",

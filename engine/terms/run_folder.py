@@ -11,6 +11,9 @@ RUN_CHECKPOINT = "checkpoint.pt"
 RUN_CLIP = "clip.json"  # what was fitted: source, frame range, sizes, content fingerprint
 RUN_LOG = "fit.log"
 FLOW_CACHE_DIR = "flow_cache"
+#: The name (before ".npz") of a flow cache file: a SHA-256 in hex of what the flow was computed from (the frames,
+#: the flow's settings); clip.json's "flow_key" names the fit's own this way.
+FLOW_KEY_PATTERN = "[0-9a-f]{64}"
 #: The scene analysis of a fit (engine.data.scene_analysis.SceneAnalysis as JSON): which components the run computes,
 #: and why.
 #: {"schema": SCHEMA_VERSION, "components": "auto"|"all", "num_layers": int, "layers_source": SCENE_LAYERS_*,
@@ -95,6 +98,7 @@ __all__ = [
     "FIT_AUTO_PARTS_FLAG",
     "FIT_NO_AUTO_PARTS_FLAG",
     "FLOW_CACHE_DIR",
+    "FLOW_KEY_PATTERN",
     "RUN_CHECKPOINT",
     "RUN_CHECKPOINT_KEYS",
     "RUN_CHECKPOINT_SCHEMA",

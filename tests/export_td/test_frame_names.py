@@ -16,6 +16,7 @@ from engine.io.images import read_exr
 from tests.engine.export import nk_script as NK
 from tests.engine_cli import run_cli
 from tests.export_td.shots import fake_export, renumber
+from tests.folders import visible_names
 
 
 @pytest.mark.parametrize(
@@ -52,7 +53,7 @@ def shot(tmp_path) -> Path:
 def test_render_names_frames_with_the_plates_padding_by_default(shot, tmp_path):
     out = tmp_path / "out"
     assert run_cli(C.VERB_RENDER, shot, "--out", out, "--no-bar") == (0, [])
-    assert sorted(p.name for p in out.iterdir()) == ["edit.1001.exr", "edit.1002.exr", "edit.1003.exr"]
+    assert visible_names(out) == ["edit.1001.exr", "edit.1002.exr", "edit.1003.exr"]
     assert Manifest(shot).pass_path(1002).name == "atlas.1002.exr"  # the manifest's pattern, as every reader takes it
 
 
@@ -67,7 +68,7 @@ def test_render_names_frames_with_the_plates_padding_by_default(shot, tmp_path):
 def test_render_name_pattern(shot, tmp_path, name, files):
     out = tmp_path / "out"
     assert run_cli(C.VERB_RENDER, shot, "--out", out, "--name", name, "--no-bar") == (0, [])
-    assert sorted(p.name for p in out.iterdir()) == files
+    assert visible_names(out) == files
     default = tmp_path / "default"
     assert run_cli(C.VERB_RENDER, shot, "--out", default, "--no-bar") == (0, [])
     for f, got in zip((1001, 1002, 1003), files, strict=True):  # the same pixels under the chosen name
@@ -112,6 +113,6 @@ def test_an_export_made_with_five_digit_passes_still_reads(tmp_path):
     manifest.write_text(json.dumps(data))
     out = tmp_path / "out"
     assert run_cli(C.VERB_RENDER, manifest, "--out", out, "--no-bar") == (0, [])
-    assert sorted(p.name for p in out.iterdir()) == ["edit.1001.exr", "edit.1002.exr", "edit.1003.exr"]
+    assert visible_names(out) == ["edit.1001.exr", "edit.1002.exr", "edit.1003.exr"]
     nk = NK.parse(nuke_script(data, str(manifest)))
     assert nk.node("NA_Passes").knobs["file"] == "passes/atlas.%05d.exr"

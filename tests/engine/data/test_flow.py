@@ -13,6 +13,7 @@ from engine.data.flow import (
     DISFlow,
     FlowBackend,
     FlowField,
+    cached_flow,
     compute_flow,
     consistency_mask,
     content_key,
@@ -229,6 +230,25 @@ def test_cache_hit_skips_backend(tmp_path: Path) -> None:
         np.testing.assert_array_equal(getattr(first, name), getattr(second, name))
         assert getattr(first, name).dtype == getattr(second, name).dtype
     assert second.backend == "fake" and second.threshold_px == 1.0
+
+
+def test_the_flow_is_found_by_its_key_never_by_age(tmp_path: Path) -> None:
+    """``cached_flow`` opens the file its key names (the key ``compute_flow`` gives, which the fit records): another
+    plate's flow of the same shape written later is never taken; a key that is not a content key (a hand-edited
+    clip.json: a path, an empty string) or names no file is a miss."""
+    backend = CountingBackend()
+    own = compute_flow(_clip(seed=0), backend, cache_dir=tmp_path)
+    assert own.key == content_key(_clip(seed=0), backend, 1.0)
+    other = compute_flow(_clip(seed=5), backend, cache_dir=tmp_path)  # newer, same shape
+    assert other.key != own.key and compute_flow(_clip(seed=0), backend, cache_dir=tmp_path).key == own.key
+    found = cached_flow(tmp_path, own.key, 3, 32, 48, "fake", 1.0)
+    assert found is not None and found.key == own.key
+    np.testing.assert_array_equal(found.forward, own.forward)
+    assert cached_flow(tmp_path, own.key, 3, 32, 48, "fake", 0.5) is None  # another threshold
+    assert cached_flow(tmp_path, own.key, 4, 32, 48, "fake", 1.0) is None  # another length
+    for key in ("", "../" + own.key, own.key.upper(), own.key[:-1], "0" * 64):
+        assert cached_flow(tmp_path, key, 3, 32, 48, "fake", 1.0) is None
+    assert compute_flow(_clip(seed=0), backend).key is None  # not cached: no key
 
 
 def test_cache_roundtrip_is_exact(tmp_path: Path) -> None:

@@ -5,16 +5,20 @@ range. ``preview`` run again with the same arguments succeeds with the same file
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 
 import av
+import numpy as np
 import pytest
 
 from engine import contract as C
+from engine.edit.render_record import RECORD_FIX, RECORD_NAME
 from tests.engine.export.tiny_run import export, make_run
 from tests.engine_cli import run_cli
 from tests.folders import tree_digest
+from tests.media_files import write_image
 from tests.paths import ROOT
 
 
@@ -34,7 +38,7 @@ def test_chunks_into_one_folder_equal_a_whole_render(manifest, tmp_path):
     whole, chunked = tmp_path / "whole", tmp_path / "chunked"
     assert _render(manifest, whole) == (0, [])
     expected = tree_digest(whole)
-    assert sorted(expected) == [f"edit.{n:05d}.exr" for n in range(4)]
+    assert sorted(expected) == [RECORD_NAME, *(f"edit.{n:05d}.exr" for n in range(4))]
 
     argv = [sys.executable, "-m", "engine", "render", str(manifest), "--out", str(chunked), "--no-bar", "--frames"]
     procs = [
@@ -49,7 +53,7 @@ def test_chunks_into_one_folder_equal_a_whole_render(manifest, tmp_path):
     ]
     outs = [p.communicate(timeout=300) for p in procs]
     assert [p.returncode for p in procs] == [0, 0], [err for _, err in outs]
-    assert sorted(tree_digest(chunked)) == [f"edit.{n:05d}.exr" for n in range(3)]
+    assert sorted(tree_digest(chunked)) == [RECORD_NAME, *(f"edit.{n:05d}.exr" for n in range(3))]
     assert _render(manifest, chunked, "--frames", "3-3") == (0, [])
     assert tree_digest(chunked) == expected  # nothing else there: no staging left behind
     assert _render(manifest, chunked, "--frames", "1-2") == (0, [])  # a chunk run again
@@ -65,15 +69,42 @@ def test_a_chunks_movie_is_of_its_frames(manifest, tmp_path):
     assert _render(manifest, tmp_path / "frames", "--frames", "1-2", "--movie", movie) == (0, [])
     with av.open(str(movie)) as container:
         assert sum(1 for _ in container.decode(video=0)) == 2
-    assert sorted(tree_digest(tmp_path / "frames")) == ["edit.00001.exr", "edit.00002.exr"]
+    assert sorted(tree_digest(tmp_path / "frames")) == [RECORD_NAME, "edit.00001.exr", "edit.00002.exr"]
 
 
-def test_preview_run_again_succeeds_with_the_same_files(manifest, tmp_path):
-    out = tmp_path / "preview"
-    code, lines = run_cli("preview", manifest, "--out", out, "--no-movies")
-    assert code == 0, lines
-    first = tree_digest(out)
-    assert sorted(first) == ["atlases.png", "frames.png"]
-    code, lines = run_cli("preview", manifest, "--out", out, "--no-movies")
-    assert code == 0, lines
-    assert tree_digest(out) == first
+def test_chunks_of_another_export_other_paint_or_other_settings_never_mix_in_one_folder(manifest, tmp_path):
+    """The folder records what its first chunk rendered from and how (``render_record``): a chunk of another export
+    of the same run, with other paint (``--edit``), another format or other names is one line before it writes a
+    frame; the same render's chunks join, and a chunk that failed before its first frame leaves no record."""
+    out = tmp_path / "chunked"
+    assert _render(manifest, out, "--frames", "0-1") == (0, [])
+    before = tree_digest(out)
+    other_export = export(manifest.parent.parent.parent)
+    layer = json.loads(manifest.read_text())["layers"][1]["name"]
+    paint = tmp_path / "paint.png"
+    write_image(paint, np.full((32, 32, 4), 255, np.uint8))
+    for argv, said in (
+        ([other_export, "--out", out], "another export"),
+        ([manifest, "--out", out, "--edit", f"{layer}={paint}"], "other paint in the edit layers"),
+        ([manifest, "--out", out, "--format", "png"], "another format ('exr')"),
+        ([manifest, "--out", out, "--name", "shot.####.exr"], "another names ('edit.{frame:05d}.exr')"),
+    ):
+        code, lines = run_cli("render", *argv, "--no-bar", "--frames", "2-3")
+        assert code == C.EXIT_BAD_INPUT and len(lines) == 1, lines
+        assert lines[0] == f"error: {out}: holds frames rendered from {said} — {RECORD_FIX}", lines
+        assert tree_digest(out) == before
+    assert _render(manifest, out, "--frames", "2-3") == (0, [])
+    assert sorted(tree_digest(out)) == [RECORD_NAME, *(f"edit.{n:05d}.exr" for n in range(4))]
+
+
+def test_a_whole_render_replaces_the_record_with_its_frames(manifest, tmp_path):
+    """Rendering every frame again after painting more (``--edit``) is the artist's everyday work: allowed, and its
+    record replaces the folder's, so a chunk of the earlier paint is then refused there."""
+    out = tmp_path / "out"
+    assert _render(manifest, out) == (0, [])
+    layer = json.loads(manifest.read_text())["layers"][1]["name"]
+    paint = tmp_path / "paint.png"
+    write_image(paint, np.full((32, 32, 4), 255, np.uint8))
+    assert _render(manifest, out, "--edit", f"{layer}={paint}") == (0, [])
+    code, lines = _render(manifest, out, "--frames", "0-0")
+    assert code == C.EXIT_BAD_INPUT and "holds frames rendered from other paint in the edit layers" in lines[0], lines

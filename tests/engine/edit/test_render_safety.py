@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from engine import contract as C
+from engine.edit.render_record import RECORD_NAME
 from engine.errors import MB, InputError
 from engine.io.images import write_png
 from tests.engine.fake_export import make_fake_export
@@ -174,7 +175,7 @@ def test_sigterm_during_a_render_exits_3_and_leaves_the_output_as_it_was(tmp_pat
     again = subprocess.run([sys.executable, "-m", "engine", *args], cwd=ROOT, capture_output=True, text=True,
                            timeout=300)  # fmt: skip
     assert again.returncode == C.EXIT_OK, again.stderr
-    assert len(list(out.glob("edit.*.png"))) == 8 and not list(out.glob(".*"))
+    assert len(list(out.glob("edit.*.png"))) == 8 and [p.name for p in out.glob(".*")] == [RECORD_NAME]
 
 
 def test_preview_failing_at_its_last_file_leaves_no_preview(tmp_path, monkeypatch):

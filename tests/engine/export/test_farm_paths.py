@@ -14,7 +14,7 @@ from pathlib import Path
 from engine import contract as C
 from tests.engine.export.tiny_run import ATLAS_SIZE, TINY, make_run
 from tests.engine_cli import run_cli
-from tests.folders import tree_digest
+from tests.folders import tree_digest, visible_digest, visible_names
 
 
 def _export(run) -> tuple[int, list[str]]:  # type: ignore[no-untyped-def]
@@ -48,7 +48,7 @@ def test_a_run_moved_with_its_plate_and_without_it(tmp_path):
     manifest = json.loads((moved / "run" / C.EXPORTS_DIR / "v002" / C.MANIFEST_NAME).read_text())
     assert manifest["clip"]["source"] == "../../../clip/frames"
     assert _render(moved / "run", tmp_path / "after") == (0, [])
-    assert tree_digest(tmp_path / "after") == tree_digest(tmp_path / "before") != {}
+    assert visible_digest(tmp_path / "after") == visible_digest(tmp_path / "before") != {}
     # the farm's retried fit task, naming the plate where it now is: found finished, nothing changed
     sets = [a for k, v in TINY.items() for a in ("--set", f"{k}={v}")]
     argv = ["fit", moved / "clip" / "frames", "--mask", moved / "clip" / "masks", "--out", moved / "run",
@@ -105,7 +105,7 @@ def test_a_shot_folder_copied_whole_keeps_to_its_own_plate(tmp_path):
 
     shutil.rmtree(first)
     assert _render(copy / "run", tmp_path / "rendered") == (0, [])
-    assert len(list((tmp_path / "rendered").iterdir())) == 4
+    assert len(visible_names(tmp_path / "rendered")) == 4
 
 
 def test_a_run_moved_alone_renders_from_the_plate_it_left_where_it_was(tmp_path):

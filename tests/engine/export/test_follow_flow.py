@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from engine import contract as C
-from engine.data.flow import FlowField
+from engine.data.flow import FlowField, _save_cache
 from engine.errors import InputError
 from engine.export import exporter
 from engine.export import follow_flow as FF
@@ -271,6 +271,28 @@ def test_without_the_fits_flow_it_is_exported_as_fitted_or_refused_when_insisted
     manifest = Manifest(export(bare))  # the default: a warning, the UV as fitted
     assert "holds no flow of this fit: the layers' UV is exported as fitted" in capsys.readouterr().err
     assert not any(layer["follows_flow"] for layer in manifest.data["layers"])
+
+
+@pytest.mark.slow
+def test_another_plates_flow_in_the_cache_is_never_followed(tiny, tmp_path, monkeypatch):
+    """A run folder whose ``flow_cache`` also holds another plate's flow of the same shape, written later (fit A,
+    ``--refit`` on B, ``--refit`` on A again; or a cache shared between shots): the export follows the flow its clip
+    record names, as if the other were not there; a record from before the key was kept finds it by the key of the
+    plate it fitted."""
+    _gate_open(monkeypatch)
+    run = shutil.copytree(tiny, tmp_path / "run", ignore=shutil.ignore_patterns(C.EXPORTS_DIR))
+    own = Manifest(export(run))
+    assert all(layer["follows_flow"] for layer in own.layers)
+    cache, record = run / C.FLOW_CACHE_DIR, json.loads((run / C.RUN_CLIP).read_text())
+    assert [p.stem for p in cache.glob("*.npz")] == [record["flow_key"]]
+    with np.load(cache / f"{record['flow_key']}.npz") as z:
+        shape, backend, threshold = z["forward"].shape, str(z["backend"]), float(z["threshold_px"])
+    shift, trusted = np.full(shape, 3.0, np.float32), np.ones(shape[:3], bool)
+    _save_cache(cache / f"{'f' * 64}.npz", FlowField(shift, -shift, trusted, trusted.copy(), backend, threshold))
+    assert max(_moved(own, Manifest(export(run)))) == 0.0
+    del record["flow_key"]
+    (run / C.RUN_CLIP).write_text(json.dumps(record))
+    assert max(_moved(own, Manifest(export(run)))) == 0.0
 
 
 def test_the_memory_it_needs_and_the_memory_the_system_says_is_available(tmp_path):

@@ -93,6 +93,28 @@ def test_masks_already_in_the_run_folder_are_used_not_searched_again(tmp_path, m
     assert {p.name: p.read_bytes() for p in folder.iterdir()} == before, "nothing rewritten"
 
 
+def test_masks_a_fit_found_on_other_frames_are_refused_not_reused(tmp_path, monkeypatch):
+    """The fit records beside the masks it found the fingerprint of the frames it found them on: the same clip
+    again reuses them (not searched again); another plate with the same frame names (a ``--refit`` on other
+    footage) is one line naming the folder and the ways out, and the folder stays as it is."""
+    frames_dir, _ = write_scene(make_scene(SMALL), tmp_path / "clip")
+    other_dir, _ = write_scene(make_scene(SceneSpec(**{**SMALL.__dict__, "fg_start": (50.0, 30.0)})), tmp_path / "b")
+    run = tmp_path / "run"
+    cfg = apply_overrides(preset_config("draft"), {"long_edge": "512"})
+    prepare_clip(frames_dir, [], cfg, run, None, auto_masks=True)
+    folder = (run / C.AUTO_MASKS_DIR).resolve()
+    assert (folder / engine.fit.prepare.AUTO_MASKS_PLATE).is_file()
+    before = tree_digest(folder)
+    calls: dict[str, int] = {}
+    _count(monkeypatch, engine.fit.prepare, "auto_masks", calls)
+    prepare_clip(frames_dir, [], cfg, run, None, auto_masks=True)
+    assert calls == {} and tree_digest(folder) == before
+    with pytest.raises(InputError, match="the masks an earlier fit found here are of other frames") as err:
+        prepare_clip(other_dir, [], cfg, run, None, auto_masks=True)
+    assert str(err.value).startswith(str(run / C.AUTO_MASKS_DIR)) and "delete the folder" in str(err.value)
+    assert tree_digest(folder) == before
+
+
 def test_empty_masks_already_in_the_run_folder_give_a_background_only_fit(tmp_path):
     """What ``masks`` writes when nothing moves (every mask empty) makes ``fit --auto-masks`` fit the background
     only, as when its own search finds nothing, rather than a foreground layer that no frame has."""

@@ -81,15 +81,59 @@ def test_strokes_already_in_the_run_folder_are_used_as_they_are(rigid, tmp_path,
     assert tree_digest(strokes) == before
 
 
-def _stroke_in(run: Path, frames: Path) -> Path:
-    """RUN_DIR/parts holding one frame's strokes of two parts (drawn by hand, as an artist's fix)."""
+def _stroke_in(run: Path, frames: Path, shift: int = 0) -> Path:
+    """RUN_DIR/parts holding the first frame's strokes of two parts (drawn by hand, as an artist's fix) on the
+    object (its mask spans rows 41-69, columns 51-89 there), or ``shift`` pixels to the left."""
     strokes = RunFolder(run).auto_parts
     strokes.mkdir(parents=True)
     image = np.zeros((96, 160, 4), np.uint8)
-    image[30:40, 45:55] = (0, 0, 255, 255)  # red: Foreground1 (BGRA)
-    image[50:58, 70:80] = (0, 255, 0, 255)  # green: Foreground2
+    image[44:52, 55 - shift : 65 - shift] = (0, 0, 255, 255)  # red: Foreground1 (BGRA)
+    image[58:66, 72 - shift : 82 - shift] = (0, 255, 0, 255)  # green: Foreground2
     cv2.imwrite(str(strokes / f"{Path(open_clip(frames).frame_files[0]).stem}.png"), image)
     return strokes
+
+
+@pytest.mark.parametrize("flag", [[], [C.FIT_AUTO_PARTS_FLAG]], ids=["default", "auto-parts"])
+def test_strokes_an_earlier_fit_left_for_another_object_or_other_frames_are_one_line(rigid, tmp_path, flag):
+    """Strokes in RUN_DIR/parts that lie off this fit's mask (a ``--refit`` with another object's mask) or on none
+    of its frames (``--frames`` elsewhere) are not fitted, nor answered as if the artist had drawn scribbles: one
+    line naming the folder and the two ways out; the strokes stay as they are and no fit is written."""
+    frames, masks = rigid
+    numbers = open_clip(frames).frame_numbers
+    for shift, frame_args, said in (
+        (50, [], "do not lie on this fit's mask"),
+        (0, ["--frames", f"{numbers[1]}-{numbers[-1]}"], "hold no stroke on this fit's frames"),
+    ):
+        run = tmp_path / f"run{shift}"
+        strokes = _stroke_in(run, frames, shift)
+        before = tree_digest(strokes)
+        code, lines = run_cli("fit", frames, "--mask", masks, "--out", run, *TINY_FIT, *frame_args, *flag)
+        assert code == C.EXIT_BAD_INPUT and len(lines) == 1, lines
+        assert lines[0].startswith(f"error: {strokes}: the strokes an earlier fit left here {said}"), lines
+        assert "delete the folder" in lines[0] and C.FIT_NO_AUTO_PARTS_FLAG in lines[0], lines
+        assert "pure red" not in lines[0] and tree_digest(strokes) == before
+        assert not RunFolder(run).clip.exists() and not RunFolder(run).checkpoint.exists()
+
+
+def test_a_resume_after_the_strokes_changed_is_one_line(rigid, tmp_path):
+    """The fit records the strokes it split its object by (their fingerprint in clip.json): ``--resume`` after the
+    strokes in RUN_DIR/parts were edited continues on nothing else; one line names the folder and ``--refit``."""
+    frames, masks = rigid
+    run = tmp_path / "run"
+    strokes = _stroke_in(run, frames)
+    code, lines = run_cli("fit", frames, "--mask", masks, "--out", run, *TINY_FIT)
+    assert code == C.EXIT_OK, lines
+    assert RunFolder(run).read_clip().scribbles_fingerprint is not None
+    (RunFolder(run).metrics).unlink()  # a fit stopped before it finished
+    image_path = next(strokes.iterdir())
+    image = cv2.imread(str(image_path), cv2.IMREAD_UNCHANGED)
+    image[60:64, 60:64] = (0, 0, 255, 255)  # one more red stroke
+    cv2.imwrite(str(image_path), image)
+    before = tree_digest(run)
+    code, lines = run_cli("fit", frames, "--mask", masks, "--out", run, "--resume", "--no-bar")
+    assert code == C.EXIT_BAD_INPUT and len(lines) == 1, lines
+    assert lines[0].startswith(f"error: {strokes.resolve()}: the strokes changed since this fit started"), lines
+    assert "--refit" in lines[0] and tree_digest(run) == before
 
 
 def test_no_auto_parts_fits_one_layer_and_leaves_strokes_in_the_run_folder_unused(rigid, tmp_path):

@@ -30,6 +30,8 @@ RECORD = ClipRecord(
     layers=2,
     fingerprint="0123abcd",
     colour_source=C.COLOUR_SOURCE_ASSUMED,
+    flow_key="0123456789abcdef" * 4,
+    scribbles_fingerprint="89abcdef",
 )
 METRICS = {
     "psnr": 27.5,
@@ -86,6 +88,8 @@ def test_what_is_written_reads_back(tmp_path):
         (lambda d: d.update(pixel_aspect=-2.0), ("pixel_aspect -2.0 is not a positive number",)),
         (lambda d: d.update(timecode="1:00:00"), ("timecode '1:00:00' is not HH:MM:SS:FF",)),
         (lambda d: d.update(start_frame=-1), ("start_frame is negative",)),
+        (lambda d: d.update(flow_key="../../other/flow"), ("flow_key is not the name of a flow cache file",)),
+        (lambda d: d.update(flow_key=7), ("'flow_key' is not a str or null",)),
     ],
 )
 def test_a_clip_record_off_its_schema_is_one_line(tmp_path, edit, needles):
@@ -99,8 +103,9 @@ def test_a_clip_record_off_its_schema_is_one_line(tmp_path, edit, needles):
 
 
 def test_the_plate_timing_reads_back_and_a_record_written_before_it_reads_as_before(tmp_path):
-    """rate, pixel_aspect, timecode and start_frame are optional: clip.json of schema 2 without them (what the engine
-    wrote before it kept the plate's timing) reads as square pixels, no exact rate or timecode, a movie from 0."""
+    """rate, pixel_aspect, timecode, start_frame and flow_key are optional: clip.json of schema 2 without them (what
+    the engine wrote before it kept them) reads as square pixels, no exact rate or timecode, a movie from 0, and no
+    flow key (the export finds the fit's flow by the key of the plate it fitted)."""
     run = RunFolder(tmp_path)
     timed = dataclasses.replace(RECORD, rate=(24000, 1001), pixel_aspect=2.0, timecode="01:00:00:00", start_frame=0)
     run.write_clip(timed)
@@ -108,7 +113,8 @@ def test_the_plate_timing_reads_back_and_a_record_written_before_it_reads_as_bef
     old = {k: v for k, v in RECORD.to_dict().items() if k not in run_files.RUN_CLIP_OPTIONAL_FIELDS}
     run.clip.write_text(json.dumps(old))
     back = run.read_clip()
-    assert back == RECORD and (back.rate, back.pixel_aspect, back.timecode, back.start_frame) == (None, 1.0, None, 0)
+    assert back == dataclasses.replace(RECORD, flow_key=None, scribbles_fingerprint=None)
+    assert (back.rate, back.pixel_aspect, back.timecode, back.start_frame) == (None, 1.0, None, 0)
     assert back.frame_range == (2, 4) and back.frame_numbers == (1002, 1003, 1004)  # positions and plate numbers
 
 

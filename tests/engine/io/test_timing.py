@@ -42,9 +42,16 @@ def test_fps_text_is_read_as_the_rate_it_names():
     assert parse_rate("23.976") == NTSC_FILM
     assert parse_rate("25") == 25
     assert parse_rate("30000:1001") == NTSC_VIDEO
-    for bad in ("0", "fast", "24/0", "-25"):
-        with pytest.raises(ValueError, match="is not a positive number or fraction"):
+    assert parse_rate("1") == 1 and parse_rate("1000") == 1000
+    for bad in ("0", "fast", "24/0", "-25", "1e-300", "1e308", "0.5", "1001", "1/1000000", "9" * 400):
+        with pytest.raises(ValueError, match="is not a number or fraction of 1 to 1000 fps"):
             parse_rate(bad)
+
+
+def test_a_rate_no_plate_plays_at_is_none():
+    """A header's rate below 1 or above 1000 fps (a broken file) is taken as no rate, as 0 or NaN are."""
+    assert exact_rate(1e-300) is None and exact_rate(1e308) is None and exact_rate((1, 10**300)) is None
+    assert exact_rate(Fraction(10**9)) is None and exact_rate(0.5) is None and exact_rate(1000.0) == 1000
 
 
 def test_an_absurd_pixel_aspect_ratio_is_square():
