@@ -58,6 +58,29 @@ MIN_LONG_EDGE = 16
 #: by the gradient's running size, so no balance of terms needs a larger one; far beyond it a weight overflows
 #: float32 (1e308 is Inf there: the first loss is Inf and the fit diverges whatever its learning rate).
 MAX_LOSS_WEIGHT = 1e6
+#: Bounds no real shot needs to pass, checked before any work: beyond them a value allocates past any machine's
+#: memory (a grid's cells grow with the square of a density, a network's weights with the square of a width) or
+#: stalls a loop. Each is well above every preset and every value measured in docs/.
+#: Texels (cells) per working pixel of an atlas or alpha grid: the presets use 0.25-2.
+MAX_DENSITY = 16.0
+#: Units of a hidden layer of a network: the presets use 64.
+MAX_WIDTH = 4096
+#: Hidden layers, grid levels, features per level: the presets use 2-6.
+MAX_DEPTH = 32
+#: A distance in working pixels (a finite-difference step, a margin, a search, a warp cell): 4K at working size
+#: is 3840 pixels wide.
+MAX_PIXELS = 4096.0
+#: Pixels or samples drawn in one step or one evaluation: the presets draw 4000-20000.
+MAX_SAMPLES = 10_000_000
+#: A working size's long edge: a plate's, at most 16k (``contract.MAX_DECODED_BYTES``).
+MAX_LONG_EDGE = 16384
+#: Growth of a foreground atlas's box beyond the object, as a fraction of its size: the presets use 0.06.
+MAX_MARGIN = 10.0
+Density = Annotated[Float, Field(gt=0, le=MAX_DENSITY)]
+Width = Annotated[Int, Field(ge=1, le=MAX_WIDTH)]
+Depth = Annotated[Int, Field(ge=1, le=MAX_DEPTH)]
+Pixels = Annotated[Float, Field(gt=0, le=MAX_PIXELS)]
+Samples = Annotated[Int, Field(ge=1, le=MAX_SAMPLES)]
 #: A loss weight: finite, >= 0 (0 turns its term off) and at most MAX_LOSS_WEIGHT.
 Weight = Annotated[Float, Field(ge=0, le=MAX_LOSS_WEIGHT)]
 
@@ -72,7 +95,7 @@ class FitConfig:
     """Architecture: ``fast`` (multi-resolution grids + small MLPs, the default) or ``paper`` (the paper's MLPs)."""
     steps: Count = 6000
     """Optimisation steps."""
-    batch: Count = 4000
+    batch: Samples = 4000
     """Random pixels per step, spread over all frames (the paper uses 10k; the fast model gains more from
     more steps than from bigger batches)."""
     object_sample_share: Share = 0.0
@@ -80,7 +103,7 @@ class FitConfig:
     them (the rest uniform over the clip): a small object gets enough samples for its mapping to track it."""
     seed: NonNegativeInt = 0
     """Random seed (sampling and initialisation); the same seed gives the same result on CPU."""
-    long_edge: Annotated[Int, Field(ge=MIN_LONG_EDGE)] = 768
+    long_edge: Annotated[Int, Field(ge=MIN_LONG_EDGE, le=MAX_LONG_EDGE)] = 768
     """Working resolution: the clip is resized so its long edge has this many pixels (never enlarged)."""
 
     # --- preprocessing
@@ -107,7 +130,7 @@ class FitConfig:
     w_atlas_sparsity: Weight = 10.0
     """Two or more foreground layers (paper Sec. 4.3): l1 on atlas colours at random atlas points replaces
     the sparsity term above (which would blacken what one object hides of another)."""
-    atlas_sparsity_samples: Count = 1024
+    atlas_sparsity_samples: Samples = 1024
     """Random atlas points per foreground layer per step for ``w_atlas_sparsity``."""
     w_flow: Weight = 5.0
     """Flow consistency of the mappings (alpha-weighted per layer), in pixels."""
@@ -117,7 +140,7 @@ class FitConfig:
     """Long-range correspondences: flow between frames 2, 4, 8, ... (powers of two up to this) apart, kept where
     it survives the forward-backward check, ties mappings that far apart directly, so small per-pair errors cannot
     add up to a drift over the clip (0 or 1: off; computed with the flow and cached)."""
-    long_flow_samples: Count = 1024
+    long_flow_samples: Samples = 1024
     """Long-range correspondences drawn per step (``object_sample_share`` of them on the objects)."""
     w_long_flow: Weight = 5.0
     """Flow consistency of the mappings over the long-range correspondences (as ``w_flow``: atlas distance in
@@ -126,13 +149,13 @@ class FitConfig:
     """Long-range correspondences are kept on a pixel grid of this stride (memory: 1/stride^2 of the pixels)."""
     w_rigidity: Weight = 1.0
     """Local rigidity: symmetric Dirichlet energy of the mapping Jacobian (delta = rigidity_delta)."""
-    rigidity_delta: Positive = 1.0
+    rigidity_delta: Pixels = 1.0
     """Finite-difference step of the local rigidity term, in working pixels."""
     w_global_rigidity_fg: Weight = 5.0
     """Global rigidity of the foreground mapping (bootstrap only)."""
     w_global_rigidity_bg: Weight = 50.0
     """Global rigidity of the background mapping (bootstrap only)."""
-    global_rigidity_delta: Positive = 100.0
+    global_rigidity_delta: Pixels = 100.0
     """Finite-difference step of the global rigidity term, in working pixels."""
     global_rigidity_steps: NonNegativeInt = 5000
     """Global rigidity is active for steps < this."""
@@ -143,7 +166,7 @@ class FitConfig:
     w_scribble: Weight = 2000.0
     """Scribbles (paper Sec. 4.4, ``fit --scribbles``): -log(alpha_i) at layer i's scribbled pixels, during the
     bootstrap only, like the mask term it refines (same weight: a scribble is as sure as a mask)."""
-    scribble_samples: Count = 512
+    scribble_samples: Samples = 512
     """Scribbled pixels drawn per step (they are too sparse to be hit often by the random pixel batch)."""
     scribble_carry: Flag = False
     """The scribble term also at the strokes carried to every frame along the consistent flow (the labels that seed
@@ -153,7 +176,7 @@ class FitConfig:
     wrong where the parts cross (docs/bench/experiments.md)."""
     w_mask_prior: Weight = 0.0
     """After the bootstrap, a weak BCE far from the mask boundary keeps alpha from drifting (0 = paper)."""
-    mask_prior_margin_px: NonNegative = 12.0
+    mask_prior_margin_px: Annotated[NonNegative, Field(le=MAX_PIXELS)] = 12.0
     """The mask prior ignores pixels closer than this to a mask boundary (masks are coarse hints)."""
     mask_hold_coverage: Share = 0.4
     """After the bootstrap the mask prior holds only the pixels deeper inside a mask than ``mask_prior_margin_px``.
@@ -161,7 +184,7 @@ class FitConfig:
     holds. A mask layer whose prior keeps less than this share of its mask pixels as inside keeps the bootstrap's
     mask term (``w_mask``) for the whole fit (term ``mask_hold``; 0 = never). Thick objects (a swan, a car) are
     fitted as before."""
-    mask_snap_px: NonNegativeInt = 16
+    mask_snap_px: Annotated[NonNegativeInt, Field(le=256)] = 16
     """Loose masks: find, per mask layer, the offset (up to this many working pixels in or out) at which the masks'
     outline meets the clip's strongest edges, and move the masks there before fitting (engine/data/mask_snap.py;
     0 = fit the masks as drawn). A mask drawn 10 px wide otherwise teaches the foreground a ring of background;
@@ -181,46 +204,46 @@ class FitConfig:
     """Paper model: calibration steps of the mappings to (scaled) identity before training."""
 
     # --- fast model
-    mapping_hidden: Count = 64
+    mapping_hidden: Width = 64
     """Fast model: width of the residual mapping MLP (no positional encoding: mappings stay smooth)."""
-    mapping_layers: Count = 3
+    mapping_layers: Depth = 3
     """Fast model: hidden layers of the residual mapping MLP."""
-    mapping_hidden_fg: NonNegativeInt = 0
+    mapping_hidden_fg: Annotated[NonNegativeInt, Field(le=MAX_WIDTH)] = 0
     """Fast model: width of a foreground layer's residual mapping MLP; 0 = ``mapping_hidden``. An object that turns
     in depth shows the mapping new surface every frame: a wider mapping unwraps it onto more of its atlas."""
-    atlas_levels: Count = 6
+    atlas_levels: Depth = 6
     """Fast model: resolution levels of each layer's atlas grid (finest has ~1 texel per working pixel)."""
-    atlas_features: Count = 4
+    atlas_features: Depth = 4
     """Fast model: features per atlas grid level."""
-    atlas_density: Positive = 1.0
+    atlas_density: Density = 1.0
     """Fast model: finest atlas texels per working pixel."""
-    alpha_levels: Count = 5
+    alpha_levels: Depth = 5
     """Fast model: resolution levels of the alpha grid over (x, y, t)."""
-    alpha_features: Count = 2
+    alpha_features: Depth = 2
     """Fast model: features per alpha grid level."""
-    alpha_density: Positive = 0.25
+    alpha_density: Density = 0.25
     """Fast model: finest alpha grid cells per working pixel."""
-    alpha_atlas_density: NonNegative = 0.0
+    alpha_atlas_density: Annotated[NonNegative, Field(le=MAX_DENSITY)] = 0.0
     """Fast model: an opacity grid in each foreground layer's atlas, at this many finest cells per reference pixel,
     added to the (x, y, t) alpha's logit (0 = none). The (x, y, t) grid learns a thin part (a leg, a bike frame)
     separately in every frame, from the few samples that land on it there; in atlas space every frame's samples of
     that part train the same cells, so an object's shape is learned once and moves with its mapping."""
-    alpha_atlas_levels: Count = 3
+    alpha_atlas_levels: Depth = 3
     """Fast model: resolution levels of the atlas-space opacity grid (``alpha_atlas_density`` > 0)."""
-    decoder_hidden: Count = 64
+    decoder_hidden: Width = 64
     """Fast model: width of the colour and alpha decoder MLPs."""
-    warp_levels: NonNegativeInt = 2
+    warp_levels: Annotated[NonNegativeInt, Field(le=MAX_DEPTH)] = 2
     """Fast model: levels of the smooth per-frame warp grid added to each mapping (0 = similarity + MLP only)."""
     warp_foreground: Flag = False
     """Fast model: give foreground mappings a warp grid too (off: it lets an object's mapping slide and
     paint would swim; the background's non-rigid water and foliage are where the warp pays)."""
-    warp_cell_px: Positive = 8.0
+    warp_cell_px: Pixels = 8.0
     """Fast model: cell size, in working pixels, of the finest warp level (coarser levels double it)."""
     lr_warp: Positive = 0.01
     """Adam learning rate of the warp grid, in pixels per step (every fast preset: 0.05, see ``_fast``)."""
     init_motion: Flag = True
     """Fast model: initialise each layer's per-frame motion from the optical flow (robust similarity fit)."""
-    atlas_margin_fg: NonNegative = 0.06
+    atlas_margin_fg: Annotated[NonNegative, Field(le=MAX_MARGIN)] = 0.06
     """Fast model: a foreground atlas's content rectangle is the object's extent (its masks, mapped by the
     initial motion) grown by this fraction; outside it the atlas is empty. Kept small: empty atlas inside the box
     is black, and a mapping that drifts into it fits dark content for free (``w_anchor`` pins that drift)."""
@@ -241,7 +264,7 @@ class FitConfig:
     # --- bookkeeping
     eval_every: Count = 100
     """Steps between progress lines with PSNR on a fixed pixel sample."""
-    eval_pixels: Count = 20000
+    eval_pixels: Samples = 20000
     """Size of the fixed pixel sample for the live PSNR."""
     checkpoint_seconds: NonNegative = 120.0
     """Wall-clock seconds between checkpoints (and one at the end and on SIGINT/SIGTERM)."""

@@ -16,7 +16,7 @@ import numpy as np
 from .. import contract as C
 from ..errors import InputError
 from ..io.clip import ClipInfo, same_aspect
-from ..io.images import cv2_read
+from ..io.images import cv2_read, image_header
 from .flow import FlowField
 
 #: No scribble at this pixel.
@@ -24,7 +24,8 @@ NO_LABEL = -1
 #: After area-resizing a stroke to working resolution, a pixel keeps its label where the stroke covered at
 #: least this fraction of it: thin strokes survive downscaling, a stroke's faint fringe does not.
 MIN_STROKE_COVERAGE = 0.25
-_EXTENSIONS = (".png", ".tif", ".tiff")
+#: The stroke image files ``read_scribbles`` reads (and a fit finds in RUN_DIR/parts).
+SCRIBBLE_EXTENSIONS = (".png", ".tif", ".tiff")
 _NUMBER = re.compile(r"(\d+)(?!.*\d)")
 
 
@@ -53,6 +54,26 @@ def resize_labels(labels: np.ndarray, size: tuple[int, int], count: int) -> np.n
     return out
 
 
+#: How many times a side of the clip a scribble image may be: drawn at a proxy or at the plate's size, never a
+#: 16000x12000 image for a 2K clip (a 600 KB PNG that decodes to 4 GB).
+MAX_SCRIBBLE_SCALE = 2
+
+
+def _check_header(file: str, info: ClipInfo) -> None:
+    """A scribble image whose header declares a size beyond ``MAX_SCRIBBLE_SCALE`` times the clip's, refused in one
+    line before a pixel is decoded (a file that cannot be opened is left to the decoder's own message)."""
+    try:
+        w, h, _ = image_header(file)
+    except InputError:
+        return
+    if w > MAX_SCRIBBLE_SCALE * info.width or h > MAX_SCRIBBLE_SCALE * info.height:
+        raise InputError(
+            file,
+            f"scribble image is {w}x{h} but the clip is {info.width}x{info.height}",
+            "draw the scribbles at the clip's resolution",
+        )
+
+
 class NoScribbles(InputError):
     """A scribble folder with no stroke on the clip's selected frames (``read_scribbles``)."""
 
@@ -67,14 +88,21 @@ def read_scribbles(folder: str | Path, info: ClipInfo, size: tuple[int, int]) ->
         raise InputError(path, what, "pass the folder that holds the scribble images")
     by_number: dict[int, str] = {}
     for name in sorted(os.listdir(path)):
-        if name.startswith(".") or not name.lower().endswith(_EXTENSIONS):
+        if name.startswith(".") or not name.lower().endswith(SCRIBBLE_EXTENSIONS):
             continue
         m = _NUMBER.search(os.path.splitext(name)[0])
         if m is None:
             raise InputError(
                 os.path.join(path, name), "scribble file has no frame number", "name it like the frame: 00012.png"
             )
-        by_number[int(m.group(1))] = os.path.join(path, name)
+        number = int(m.group(1))
+        if number in by_number:  # 0.png and 00000.png: which one the artist meant is theirs to say
+            raise InputError(
+                os.path.join(path, name),
+                f"{os.path.basename(by_number[number])} and {name} both have frame number {number}",
+                "keep one scribble file per frame",
+            )
+        by_number[number] = os.path.join(path, name)
     w, h = size
     out = np.full((info.num_frames, h, w), NO_LABEL, dtype=np.int8)
     used = 0
@@ -82,6 +110,7 @@ def read_scribbles(folder: str | Path, info: ClipInfo, size: tuple[int, int]) ->
         file = by_number.get(number)
         if file is None:
             continue
+        _check_header(file, info)
         image = cv2_read(file)
         if image is None or image.ndim != 3 or image.dtype != np.uint8:
             raise InputError(file, "not an 8-bit RGB(A) image", "save scribbles as 8-bit RGB or RGBA PNG")
@@ -147,6 +176,7 @@ def scribble_layers(labels: np.ndarray) -> int:
 
 __all__ = [
     "NO_LABEL",
+    "SCRIBBLE_EXTENSIONS",
     "NoScribbles",
     "labels_from_rgba",
     "propagate_labels",

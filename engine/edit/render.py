@@ -62,6 +62,10 @@ OUTPUT_PREFIX = "edit."
 #: ``--name``'s frame token: one run of ``#`` (one per digit, as Blender and Nuke write it) or printf ``%0Nd``/``%d``.
 NAME_TOKEN = re.compile(r"#+|%0?(\d*)d")
 NAME_ARG = "--name"
+#: ``--name``'s longest padding (a frame number of 10 digits) and longest file name in bytes (most file systems'
+#: NAME_MAX): a name past either would be refused by the disk after the first frame was rendered.
+MAX_NAME_DIGITS = 10
+MAX_NAME_BYTES = 255
 #: ``--depth``: the bits of each channel of an EXR frame: 16 (half float) or 32 (float). Default: the plate's own
 #: when it is an EXR (a half plate gives half frames), else 32.
 EXR_DEPTHS = ("16", "32")
@@ -212,6 +216,17 @@ def frame_name_pattern(name: str | None, ext: str, padding: int) -> str:
         raise InputError(None, f"{NAME_ARG} {name!r} does not end in {ext}, the extension of these frames", example)
     token = tokens[0]
     digits = len(token.group()) if token.group().startswith("#") else int(token.group(1) or 1)
+    rest = name[: token.start()] + name[token.end() :]
+    if "%" in rest or not token.group().startswith(("#", "%0", "%d")):
+        problem = "pads its frame number with spaces" if "%" not in rest else "holds a % that is not its frame token"
+        raise InputError(None, f"{NAME_ARG} {name!r} {problem}", example)
+    if digits > MAX_NAME_DIGITS or len(os.fsencode(rest)) + max(digits, 10) > MAX_NAME_BYTES:
+        raise InputError(
+            None,
+            f"{NAME_ARG} {name[:40]!r}... is longer than a file name may be, or pads to more than {MAX_NAME_DIGITS} "
+            "digits",
+            example,
+        )
     head, tail = (part.replace("{", "{{").replace("}", "}}") for part in (name[: token.start()], name[token.end() :]))
     return f"{head}{{frame:0{digits}d}}{tail}"
 

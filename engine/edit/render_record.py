@@ -5,10 +5,11 @@ Chunks of one render (``render --frames``, one farm task each) write into the sa
 frames. A chunk of another export, of the same export with the artist's paint changed between chunks, or with
 another format, name or filter would add its frames beside theirs without a word, and the folder would hold a clip
 that no one render makes. So the folder records what its frames were rendered from (the manifest's content, not its
-path, which differs between farm workers that mount the run folder at different places; the edit layers' pixels) and how (format, names, filter, depth): a whole render commits its record with its frames (it
-replaces every one of them: the artist renders again after painting more), the first chunk creates it, and a chunk
-must find its own there, or is refused in one line before it writes a frame. A chunk creates it exclusively (a hard
-link of a finished temporary file: two chunks starting together agree on one record, or the second is refused).
+path, which differs between farm workers that mount the run folder at different places; the edit layers' pixels)
+and how (format, names, filter, depth): a whole render commits its record with its frames (it replaces every one
+of them: the artist renders again after painting more), the first chunk creates it, and a chunk must find its own
+there, or is refused in one line before it writes a frame. A chunk creates it exclusively (a hard link of a
+finished temporary file: two chunks starting together agree on one record, or the second is refused).
 """
 
 from __future__ import annotations

@@ -141,6 +141,10 @@ def script_colour(clip: dict[str, Any], ocio_config: str | None = None) -> Scrip
     from ..io.colour import SCENE_LINEAR, SRGB, load_config, recorded_space, resolve, role_space
 
     plate, config = recorded_space(clip["colorspace"], clip.get("colour_config"))
+    if ocio_config is not None and not ocio_config.isprintable():  # it would be written into the script as it is
+        raise InputError(
+            ocio_config.strip(), f"{OCIO_CONFIG_ARG} holds a newline or a control character", "give the path alone"
+        )
     if ocio_config is not None and ocio_config != config:
         if not ocio_config.startswith("ocio://") and not os.path.isfile(ocio_config):
             fix = f"give {OCIO_CONFIG_ARG} the path of an OCIO config file (or an ocio:// URI)"

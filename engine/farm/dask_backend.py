@@ -256,9 +256,31 @@ def _check_resources(client: Any, address: str, resources: dict[str, float]) -> 
             )
 
 
+def check_address(address: str) -> None:
+    """A scheduler address Dask can parse (``tcp://HOST:PORT``, a port 1-65535), else one line at once: Dask itself
+    would try to connect for the whole timeout and end in a traceback."""
+    from distributed.comm import parse_address
+    from distributed.comm.addressing import parse_host_port
+
+    problem: str | None = None
+    try:
+        scheme, location = parse_address(address)
+        port = parse_host_port(location)[1] if scheme in ("tcp", "tls") else 1
+    except (ValueError, TypeError) as exc:
+        problem = str(exc)
+    else:
+        if not 0 < int(port) < 65536:
+            problem = f"port {port} is not 1-65535"
+    if problem is not None:
+        raise InputError(
+            address, f"is not a Dask scheduler address ({problem[:120]})", "give --scheduler as tcp://HOST:PORT"
+        )
+
+
 def _connect(address: str, timeout: float) -> Any:
     from distributed import Client
 
+    check_address(address)
     try:
         return Client(address, timeout=timeout, set_as_default=False)
     except (OSError, TimeoutError) as exc:
@@ -469,6 +491,7 @@ def run_dask(args: argparse.Namespace) -> int:
 
     if args.retries < 0:
         raise InputError(None, f"--retries {args.retries} is negative", "pass 0 or more")
+    check_address(args.scheduler)  # before the plan is made
     plan = load_plan(args.shots)
     result = run_plan(
         plan,
@@ -491,6 +514,7 @@ __all__ = [
     "FarmResult",
     "TaskFailed",
     "add_dask_parser",
+    "check_address",
     "engine_argv",
     "parse_resources",
     "run_dask",

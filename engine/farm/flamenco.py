@@ -97,7 +97,8 @@ class ShotsPlan(Protocol):
 
 def job_type_script() -> str:
     """The job compiler script's text, from the package (it ships with the engine, so both always agree)."""
-    return (resources.files("engine.farm") / "flamenco" / JOB_TYPE_SCRIPT).read_text(encoding="utf-8")
+    # this package by its own name: "engine.farm" in a checkout, "neural_atlas.farm" in the installed wheel
+    return (resources.files(__package__ or "engine.farm") / "flamenco" / JOB_TYPE_SCRIPT).read_text(encoding="utf-8")
 
 
 def write_job_type(out_dir: str | Path) -> Path:

@@ -34,6 +34,7 @@ import json
 import os
 import re
 import tomllib
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -228,14 +229,14 @@ def _shot(file: Path, where: str, entry: dict[str, Any]) -> Shot:
             "give 'masks' exactly one folder (the whole object), or drop 'auto_parts'",
         )
     preset: str = v.get("preset", DEFAULT_PRESET)
-    if parts and preset == "paper":
+    overrides = tuple(v.get("set", []))
+    model = _check_overrides(file, where, preset, overrides)
+    if parts and model == "paper":  # the paper preset, or a set model=paper
         raise InputError(
             file,
-            f"{where}: 'auto_parts' with the paper preset, which fits one background and one foreground layer",
-            "use a fast preset (draft, balanced or final), or drop 'auto_parts'",
+            f"{where}: 'auto_parts' with the paper model, which fits one background and one foreground layer",
+            "use a fast preset (draft, balanced or final) without model=paper, or drop 'auto_parts'",
         )
-    overrides = tuple(v.get("set", []))
-    _check_overrides(file, where, preset, overrides)
     device = v.get("device")
     fps = v.rate("fps")
     colorspace = v.get("colorspace")
@@ -283,12 +284,13 @@ def _check_plate(file: Path, where: str, plate: str) -> None:
     )
 
 
-def _check_overrides(file: Path, where: str, preset: str, overrides: tuple[str, ...]) -> None:
-    """Each ``set`` entry as ``fit --set`` takes it: a known config key with a value of its type."""
+def _check_overrides(file: Path, where: str, preset: str, overrides: tuple[str, ...]) -> str:
+    """Each ``set`` entry as ``fit --set`` takes it: a known config key with a value of its type; the model the
+    shot's fit builds."""
     from ..config import apply_overrides, parse_set_args, preset_config
 
     try:
-        apply_overrides(preset_config(preset), parse_set_args(list(overrides)))
+        return apply_overrides(preset_config(preset), parse_set_args(list(overrides))).model
     except InputError as exc:
         raise InputError(file, f"{where}: 'set': {exc.problem}", exc.fix) from None
 
@@ -315,6 +317,14 @@ def _real(path: str) -> str:
     return os.path.normcase(os.path.realpath(path))
 
 
+def _parents(path: str) -> Iterator[str]:
+    """The folders above ``path``, nearest first, up to the root."""
+    parent = os.path.dirname(path)
+    while parent != path:
+        yield parent
+        path, parent = parent, os.path.dirname(parent)
+
+
 def _check_folders(file: Path, shots: list[Shot]) -> None:
     """No shot writes where any shot reads or writes: every run and render folder (by real path, through links)
     is neither equal to, inside, nor around another shot's (or its own) plate folder, mask folders, run folder
@@ -330,20 +340,23 @@ def _check_folders(file: Path, shots: list[Shot]) -> None:
         places.append((shot, "'plate'", plate_input(shot.plate)))
         places.extend((shot, f"'masks' folder {i + 1}", mask) for i, mask in enumerate(shot.masks))
     real = [_real(path) for _s, _w, path in places]
-    for i in range(outputs):
+    at: dict[str, list[int]] = {}  # a real path: the places there
+    below: dict[str, list[int]] = {}  # a real folder: the places inside it
+    for j, path in enumerate(real):
+        at.setdefault(path, []).append(j)
+        for parent in _parents(path):
+            below.setdefault(parent, []).append(j)
+    for i in range(outputs):  # each output against every place through the maps: linear in the shots, not square
         shot, what, path = places[i]
-        for j, (other, other_what, other_path) in enumerate(places):
-            if j == i or (j < outputs and j < i):  # each pair of outputs once
-                continue
-            mine, theirs = real[i], real[j]
-            if mine == theirs:
-                relation = "is"
-            elif C.is_within(mine, theirs):
-                relation = "is inside"
-            elif C.is_within(theirs, mine):
-                relation = "holds"
-            else:
-                continue
+        mine = real[i]
+        met = [(j, "is") for j in at.get(mine, ())]
+        met += [(j, "is inside") for parent in _parents(mine) for j in at.get(parent, ())]
+        met += [(j, "holds") for j in below.get(mine, ())]
+        met = [(j, relation) for j, relation in met if j != i and not (j < outputs and j < i)]  # each pair once
+        if met:
+            j, relation = min(met)
+            other, other_what, other_path = places[j]
+            theirs = real[j]
             whose = "its own" if other is shot else f"shot {other.name!r}'s"
             plain = os.path.normcase(path) == mine and os.path.normcase(other_path) == theirs
             seen = "" if plain else f" (through links: {_shown(mine)} and {_shown(theirs)})"

@@ -30,7 +30,7 @@ from ..data.flow import FlowField
 from ..data.mask_files import output_folder
 from ..data.motion_parts import motion_parts
 from ..data.motion_parts_files import STROKE, NothingToSplit, require_something_to_split, write_strokes
-from ..data.scribbles import NoScribbles, read_scribbles
+from ..data.scribbles import SCRIBBLE_EXTENSIONS, NoScribbles, read_scribbles
 from ..errors import InputError
 from ..io.clip_info import ClipInfo
 from .progress import Reporter
@@ -82,11 +82,13 @@ def parts_wanted(
 
 
 def strokes_in_run(run_dir: Path) -> str | None:
-    """RUN_DIR/parts when it holds stroke images (an earlier ``--auto-parts``'s, or the artist's fix of them): the
-    scribbles the fit uses as they are; None when there are none."""
+    """RUN_DIR/parts when it holds stroke images (an earlier ``--auto-parts``'s, or the artist's fix of them, of any
+    type ``--scribbles`` reads): the scribbles the fit uses as they are; None when there are none."""
     run = RunFolder(run_dir)
     folder = run.own_folder(run.auto_parts, "strokes")
-    if folder.is_dir() and any(p.suffix.lower() == ".png" and not p.name.startswith(".") for p in folder.iterdir()):
+    if folder.is_dir() and any(
+        p.suffix.lower() in SCRIBBLE_EXTENSIONS and not p.name.startswith(".") for p in folder.iterdir()
+    ):
         return str(folder)
     return None
 

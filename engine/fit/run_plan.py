@@ -209,6 +209,12 @@ def check_fit_inputs(
     find_masks = auto_masks and not resume
     if find_masks and mask_dirs:
         raise InputError(None, f"{C.FIT_AUTO_MASKS_FLAG} and --mask both given", "pass one of them")
+    seen: dict[str, str | Path] = {}
+    for mask in mask_dirs:  # one folder twice would fit two identical layers, each owning half of the object
+        real = os.path.normcase(os.path.realpath(mask))
+        if real in seen:
+            raise InputError(mask, f"given twice as --mask (also as {seen[real]})", "pass each object's masks once")
+        seen[real] = mask
     if cfg.model == "paper" and not resume:
         check_paper_layers(mask_dirs, find_masks, scribble_dir)
     return find_masks

@@ -25,6 +25,9 @@ IMAGE_EXTENSIONS: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".exr", ".dpx", ".
 _NUMBER = re.compile(r"\d+")
 #: A sequence pattern's frame field: ``#``/``@`` padding (with an optional range before it) or printf ``%04d``.
 _PATTERN = C.SEQUENCE_TOKEN
+#: The longest range a pattern may name: 70 minutes at 24 frames a second, longer than any shot; a range of
+#: 100 million frames would be expanded into numbers before the first file is looked for.
+MAX_PATTERN_FRAMES = 100_000
 #: How sequence patterns are read: one ``#`` per digit (``plate.####.exr`` is 4 digits, as in Nuke and Houdini).
 _PAD_STYLE = fileseq.PAD_STYLE_HASH1
 
@@ -135,8 +138,20 @@ def sequence_files(source: str) -> tuple[str, list[NumberedFile]]:
     folder = os.path.dirname(source)
     if not os.path.isdir(folder):
         raise InputError(folder, "folder of the sequence pattern does not exist", "check the path of the pattern")
-    pattern = fileseq.FileSequence(source, pad_style=_PAD_STYLE)
+    try:
+        pattern = fileseq.FileSequence(source, pad_style=_PAD_STYLE)
+    except (fileseq.ParseException, ValueError):  # fileseq's MaxSizeException is a ValueError
+        raise InputError(
+            source, "is not a sequence pattern this reads", f"name one frame token and a range of at most "
+            f"{MAX_PATTERN_FRAMES} frames, e.g. plate.1001-1100#.exr or plate.####.exr",
+        ) from None  # fmt: skip
     wanted = pattern.frameSet()
+    if wanted is not None and len(wanted) > MAX_PATTERN_FRAMES:  # before the range is expanded into numbers
+        raise InputError(
+            source,
+            f"the pattern's range names {len(wanted)} frames",
+            f"give it the shot's range (at most {MAX_PATTERN_FRAMES} frames), or drop the range to read every frame",
+        )
     ext = pattern.extension().lower()
     if ext not in IMAGE_EXTENSIONS:
         raise InputError(source, f"pattern names {ext or 'no'} files", f"name {ext_list(IMAGE_EXTENSIONS)} frames")

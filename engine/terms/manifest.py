@@ -201,6 +201,13 @@ def _check_clip(clip: dict[str, Any]) -> None:
         _check_size("'clip' working_resolution", clip["working_resolution"])
 
 
+#: A pass file pattern as the engine writes it: a name with one ``{frame:0Nd}`` token (``pass_pattern``), padded to
+#: at most PASS_PATTERN_MAX_DIGITS digits; anything else (a width of a billion digits would take gigabytes to
+#: format) does not name a pass file.
+PASS_PATTERN_TOKEN = re.compile(r"[^{}%]*\{frame:0?(\d{1,3})d\}[^{}%]*")
+PASS_PATTERN_MAX_DIGITS = 10
+
+
 def _check_passes(passes: dict[str, Any], clip: dict[str, Any]) -> None:
     """Every exported frame is one of the clip's, the passes are the clip's size, and the pattern names a file."""
     frames = passes["frames"]
@@ -212,10 +219,10 @@ def _check_passes(passes: dict[str, Any], clip: dict[str, Any]) -> None:
         raise ManifestError(f"manifest 'passes' frames {_quote(unknown or frames)} are not distinct frames of the clip")
     if passes["resolution"] != clip["resolution"]:
         raise ManifestError("manifest 'passes' resolution is not the clip's")
-    try:
+    token = PASS_PATTERN_TOKEN.fullmatch(passes["pattern"])
+    name = ""
+    if token is not None and int(token.group(1) or 1) <= PASS_PATTERN_MAX_DIGITS:  # checked before it is formatted
         name = passes["pattern"].format(frame=frames[0])
-    except (KeyError, IndexError, ValueError, AttributeError, TypeError):
-        name = ""
     if not name or os.path.basename(name) != name or name in (os.curdir, os.pardir) or "\\" in name:
         raise ManifestError(f"manifest 'passes' pattern {_quote(passes['pattern'])} does not name a pass file")
     if not passes["dir"] or not passes["exr_layer"]:
@@ -390,6 +397,8 @@ __all__ = [
     "MANIFEST_TAG",
     "MANIFEST_UV_CHANNEL_COUNT",
     "MANIFEST_VERSION",
+    "PASS_PATTERN_MAX_DIGITS",
+    "PASS_PATTERN_TOKEN",
     "SCENE_FIELDS",
     "TIMECODE_PATTERN",
     "ManifestError",

@@ -84,6 +84,12 @@ def test_render_name_pattern(shot, tmp_path, name, files):
         (["--name", "shot.####.png"], "does not end in .exr, the extension of these frames"),
         (["--name", "sub/shot.####.exr"], "is not a plain file name — give the folder to --out"),
         (["--name", "shot.####.exr", "--format", "png"], "does not end in .png"),
+        (["--name", "shot.%4d.exr"], "--name 'shot.%4d.exr' pads its frame number with spaces"),
+        (["--name", "shot.%999999999d.exr"], "pads its frame number with spaces"),
+        (["--name", "shot_%s.%04d.exr"], "holds a % that is not its frame token"),
+        (["--name", "shot.%%.%04d.exr"], "holds a % that is not its frame token"),
+        (["--name", "shot.%0999999999d.exr"], "pads to more than 10 digits"),
+        (["--name", f"{'s' * 300}.####.exr"], "is longer than a file name may be"),
     ],
 )
 def test_a_bad_name_is_one_line_and_writes_nothing(shot, tmp_path, args, said):

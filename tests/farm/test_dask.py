@@ -28,6 +28,7 @@ from engine.errors import InputError
 from engine.farm import dask_backend
 from engine.farm.dask_backend import TaskFailed, parse_resources, run_task
 from engine.farm.plan import load_plan
+from tests.engine_cli import run_cli
 from tests.paths import ROOT
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG and /proc are Linux's")
@@ -266,6 +267,16 @@ def test_farm_dask_without_a_scheduler_is_one_line(tmp_path: Path) -> None:
     assert proc.stderr.strip().splitlines() == [
         f"error: {address}: no Dask scheduler answers (OSError) — start `dask scheduler`, or fix --scheduler"
     ]
+
+
+@pytest.mark.parametrize("address", ["tcp://host:notaport", "foo bar", "tcp://", "tcp://[::1:8786", "tcp://h:99999"])
+def test_a_malformed_scheduler_address_is_one_line_at_once(tmp_path: Path, address: str) -> None:
+    """Before: Dask tried to connect for its whole timeout, then a traceback. Now: one line before the plan is made."""
+    shots_file = write_shots(tmp_path)
+    code, lines = run_cli(C.VERB_FARM, C.FARM_DASK, shots_file, "--scheduler", address)
+    assert code == C.EXIT_BAD_INPUT and len(lines) == 1, lines
+    assert lines[0].startswith(f"error: {address}: is not a Dask scheduler address ("), lines
+    assert lines[0].endswith("— give --scheduler as tcp://HOST:PORT"), lines
 
 
 @pytest.mark.slow

@@ -239,6 +239,9 @@ def two_plates(tmp_path) -> Path:
         ([{"name": "a", "plate": "plates/a", "atlas_size": 20000}], "'atlas_size' is 20000 — give atlas_size 8..16384"),
         ([{"name": "a", "plate": "plates/a", "colorspace": "ACEScgg"}], "shot 'a': 'colorspace' ACEScgg: "),
         ([{"name": "a", "plate": "plates/a", "fps": 1e-9}], "'1e-09' is not a number or fraction of 1 to 1000"),
+        ([{"name": "a", "plate": "plates/a", "masks": ["masks/a"], "auto_parts": True, "set": ["model=paper"]}],
+         "shot 'a': 'auto_parts' with the paper model"),
+        ([{"name": "a", "plate": "plates/a", "start_frame": 2000000}], "shot 'a': 'start_frame'"),
     ],
 )  # fmt: skip
 def test_what_the_farm_would_break_or_refuse_is_refused_at_plan_time(two_plates, shots, says):

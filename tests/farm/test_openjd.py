@@ -23,7 +23,7 @@ from engine import contract as C
 from engine.farm.plan import load_plan
 from tests.engine_cli import run_cli
 from tests.farm.farm_helpers import TINY_SET, openjd_commands, two_shot_file, write_clip, write_shots
-from tests.folders import tree_digest
+from tests.folders import tree_digest, visible_names
 from tests.paths import ROOT
 
 OPENJD = Path(sys.executable).parent / "openjd"
@@ -206,8 +206,8 @@ def test_openjd_render_chunks_equal_a_direct_render(runs):
     manifest = runs.direct / C.EXPORTS_DIR / "v001" / C.MANIFEST_NAME
     our_render, farm_render = runs.tmp / "direct_render", runs.tmp / "renders" / "sh010"
     _run([sys.executable, "-m", C.CLI_MODULE, "render", str(manifest), "--out", str(our_render), "--no-bar"], runs.tmp)
-    rendered = sorted(p.name for p in our_render.iterdir())
-    assert len(rendered) == 5 and sorted(p.name for p in farm_render.iterdir()) == rendered
+    rendered = visible_names(our_render)
+    assert len(rendered) == 5 and visible_names(farm_render) == rendered
     for name in rendered:
         farm_frame, our_frame = _pixels(farm_render / name), _pixels(our_render / name)
         assert farm_frame[0] == our_frame[0] and np.array_equal(farm_frame[1], our_frame[1]), name

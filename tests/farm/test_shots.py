@@ -110,7 +110,7 @@ GOOD = {"name": "sh010", "plate": "clip/frames"}
         ({**GOOD, "auto_parts": True}, None, "'auto_parts' splits one object, but the shot has 0 mask folder(s)"),
         ({**GOOD, "masks": ["clip/masks"] * 2, "auto_parts": True}, None, "has 2 mask folder(s)"),
         ({**GOOD, "masks": ["clip/masks"], "auto_parts": 1}, None, "'auto_parts' is int 1, not true or false"),
-        ({**GOOD, "masks": ["clip/masks"], "auto_parts": True, "preset": "paper"}, None, "with the paper preset"),
+        ({**GOOD, "masks": ["clip/masks"], "auto_parts": True, "preset": "paper"}, None, "with the paper model"),
         ({**GOOD, "preset": "drafty"}, None, "'preset' is 'drafty' — did you mean 'draft'?"),
         ({**GOOD, "set": ["stepz=3"]}, None, "shot 'sh010': 'set': unknown config key 'stepz' — did you mean 'steps'?"),
         ({**GOOD, "set": ["steps=x"]}, None, "'set': --set steps=x: not a valid int"),

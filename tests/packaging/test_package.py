@@ -234,3 +234,60 @@ def test_installed_engine_is_the_package_not_the_checkout(installed):
     assert names == f"another project {PACKAGE} {len(C.ENGINE_REQUIREMENTS)} True"
     shipped = [p for p in (ROOT / "engine").rglob("*.py") if "bench" not in p.parts and p.name != "__main__.py"]
     assert counts == f"{len(shipped) - 1} True True"  # every module but engine/__init__.py itself
+
+
+@pytest.mark.slow
+def test_every_verb_runs_from_an_empty_folder_with_the_installed_wheel(installed, tmp_path):
+    """The installed command, in a folder that holds nothing of the checkout, runs each verb's happy path on a tiny
+    clip: masks, parts, estimate, fit (and --refine), export (twice), render, project-frame, realign, preview,
+    nuke, the farm's plan, OpenJD bundle and Flamenco job type, and the demo on its embedded clip (each of these
+    reads files shipped with the package, not the checkout's)."""
+    from engine.data.synthetic import SceneSpec, make_scene, write_scene
+
+    work = tmp_path / "empty"
+    work.mkdir()
+    frames, masks = write_scene(
+        make_scene(SceneSpec(width=48, height=32, frames=4, fg_size=(16, 12), fg_start=(10.0, 8.0))), work / "clip"
+    )
+    command = str(installed / "bin" / CONSOLE_SCRIPT)
+    tiny = ["--preset", "draft", "--no-bar", "--set", "steps=4", "--set", "batch=128", "--set", "eval_pixels=256"]
+    manifest = work / "run" / C.EXPORTS_DIR / "v001" / C.MANIFEST_NAME
+    later = work / "run" / C.EXPORTS_DIR / "v002" / C.MANIFEST_NAME
+    paint = work / "paint.png"
+    shots = work / "shots.toml"
+    shots.write_text(
+        f'{C.SHOTS_TAG} = {C.SHOTS_VERSION}\n[[{C.SHOTS_LIST_KEY}]]\nname = "sh010"\nplate = "clip/frames"\n'
+        'masks = ["clip/masks"]\n',
+        encoding="utf-8",
+    )
+    steps: list[tuple[list[str], Path | None]] = [
+        ([C.VERB_MASKS, str(frames), "--out", str(work / "found")], work / "found"),
+        ([C.VERB_PARTS, str(frames), "--mask", str(masks), "--out", str(work / "strokes")], None),
+        ([C.VERB_ESTIMATE, str(frames), "--mask", str(masks), "--presets", "draft", "--calib-seconds", "0.01"], None),
+        ([C.VERB_FIT, str(frames), "--mask", str(masks), "--out", str(work / "run"), *tiny], work / "run"),
+        ([C.VERB_EXPORT, str(work / "run"), "--atlas-size", "32"], manifest),
+        ([C.VERB_RENDER, str(manifest), "--out", str(work / "rendered"), "--no-bar"], work / "rendered"),
+        ([C.VERB_PROJECT_FRAME, str(manifest), "--frame", "1", "--edit", str(paint)], None),
+        ([C.VERB_FIT, "--out", str(work / "run"), "--refine", "2", "--no-bar"], None),
+        ([C.VERB_EXPORT, str(work / "run"), "--atlas-size", "32"], later),
+        ([C.VERB_REALIGN, str(later)], None),
+        ([C.VERB_PREVIEW, str(manifest), "--out", str(work / "preview"), "--no-movies"], work / "preview"),
+        ([C.VERB_NUKE, str(manifest), "--out", str(work / "edit.nk")], work / "edit.nk"),
+        ([C.VERB_FARM, "plan", str(shots)], None),
+        ([C.VERB_FARM, "openjd", str(shots), "--out", str(work / "bundle")], work / "bundle" / "template.json"),
+        ([C.VERB_FARM, "flamenco", "--job-type-out", str(work / "flamenco")], work / "flamenco"),
+        ([C.VERB_DEMO, "--out", str(work / "demo"), *tiny[3:]], work / "demo" / "contact_sheet.png"),
+    ]
+    for argv, made in steps:
+        if argv[0] == C.VERB_PROJECT_FRAME:
+            import numpy as np
+
+            from tests.media_files import write_image
+
+            pixels = np.zeros((32, 48, 4), np.uint8)
+            pixels[10:20, 15:30] = (255, 0, 0, 255)
+            write_image(paint, pixels)
+        proc = _run(installed, command, *argv, cwd=work)
+        assert proc.returncode == C.EXIT_OK, (argv[:2], proc.stderr[-3000:])
+        assert made is None or made.exists(), (argv[:2], proc.stdout[-2000:], proc.stderr[-2000:])
+    assert sorted(p.name for p in (work / "flamenco").iterdir()) == ["neural-atlas.js"]

@@ -109,3 +109,99 @@ def test_masks_and_parts_never_write_into_the_plates_folder_named_by_a_pattern_o
         assert code == C.EXIT_BAD_INPUT and len(lines) == 1, (verb, lines)
         assert lines[0].startswith(f"error: {out.resolve()}: {said}"), lines
     assert sorted(p.name for p in plate.iterdir()) == before and sorted(p.name for p in run.iterdir()) == [C.RUN_CLIP]
+
+
+@pytest.mark.parametrize(
+    ("pattern", "good"),
+    [
+        ("atlas.{frame:04d}.exr", True),
+        ("atlas.{frame:05d}.exr", True),  # an export made before the padding followed the plate
+        ("atlas.{frame:010d}.exr", True),
+        ("atlas.{frame:011d}.exr", False),
+        ("atlas.{frame:0999999999d}.exr", False),  # formatting it would take gigabytes
+        ("atlas.{frame:04d}.{frame:04d}.exr", False),
+        ("atlas.%04d.{frame:04d}.exr", False),
+        ("atlas.{0}.exr", False),
+    ],
+)
+def test_a_manifests_pass_pattern_is_checked_before_it_is_formatted(tmp_path, pattern, good):
+    import json
+
+    from tests.export_td.shots import fake_export
+
+    data = json.loads(fake_export(tmp_path).read_text())
+    data["passes"]["pattern"] = pattern
+    if good:
+        C.validate_manifest(data)
+    else:
+        with pytest.raises(C.ManifestError, match="does not name a pass file"):
+            C.validate_manifest(data)
+
+
+def test_a_scribble_image_far_larger_than_the_clip_is_refused_before_it_is_decoded(tmp_path, monkeypatch):
+    """A 16000x12000 stroke image (a few hundred KB of PNG that decodes to gigabytes) for a 32x24 clip: one line
+    from its header, no pixel decoded."""
+    import cv2
+
+    from engine.data import scribbles
+
+    plate = _plate(tmp_path / "plate", ["0000.png", "0001.png"])
+    strokes = tmp_path / "strokes"
+    strokes.mkdir()
+    cv2.imwrite(str(strokes / "0000.png"), np.zeros((12000, 16000, 4), np.uint8))
+    decoded: list[str] = []
+    monkeypatch.setattr(scribbles, "cv2_read", lambda path, *a: decoded.append(str(path)))
+    info = open_clip(plate)
+    with pytest.raises(InputError, match="scribble image is 16000x12000 but the clip is 32x24") as err:
+        scribbles.read_scribbles(strokes, info, (32, 24))
+    assert str(err.value).startswith(str(strokes / "0000.png")) and decoded == []
+
+
+def test_one_mask_folder_given_twice_is_one_line(tmp_path):
+    """``--mask M --mask M`` (or M and a link to it) would fit two identical layers, each owning half the object."""
+    from engine.data.synthetic import SceneSpec, make_scene, write_scene
+
+    frames, masks = write_scene(make_scene(SceneSpec(width=32, height=24, frames=3, fg_size=(12, 10))), tmp_path)
+    (tmp_path / "same").symlink_to(masks)
+    for second in (masks, tmp_path / "same"):
+        code, lines = run_cli(
+            C.VERB_FIT, frames, "--mask", masks, "--mask", second, "--out", tmp_path / "run", *TINY_FIT
+        )
+        assert code == C.EXIT_BAD_INPUT and len(lines) == 1, lines
+        assert lines[0].startswith(f"error: {second}: given twice as --mask (also as {masks})"), lines
+        assert not (tmp_path / "run").exists()
+
+
+def test_two_stroke_files_of_one_frame_are_one_line(tmp_path):
+    """``0.png`` and ``00000.png`` in one scribble folder: the reader used to keep one of them without a word."""
+    from engine.data.scribbles import read_scribbles
+
+    plate = _plate(tmp_path / "plate", ["0000.png", "0001.png"])
+    strokes = tmp_path / "strokes"
+    strokes.mkdir()
+    for name in ("0.png", "00000.png"):
+        write_image(strokes / name, np.zeros((24, 32, 4), np.uint8))
+    with pytest.raises(InputError, match=r"0\.png and 00000\.png both have frame number 0"):
+        read_scribbles(strokes, open_clip(plate), (32, 24))
+
+
+def test_strokes_of_any_type_the_scribble_reader_reads_are_found_in_the_run_folder(tmp_path):
+    """A fit finds the artist's strokes in RUN_DIR/parts saved as TIFF as ``--scribbles`` reads them (it looked for
+    PNG only, so they were read by one and ignored by the other)."""
+    from engine.fit.auto_parts import strokes_in_run
+    from engine.fit.run_folder import RunFolder
+
+    folder = RunFolder(tmp_path / "run").auto_parts
+    folder.mkdir(parents=True)
+    assert strokes_in_run(tmp_path / "run") is None
+    write_image(folder / "0000.tif", np.zeros((24, 32, 4), np.uint8))
+    assert strokes_in_run(tmp_path / "run") == str(folder)
+
+
+def test_an_ocio_config_argument_with_a_newline_is_one_line(tmp_path):
+    """``nuke --ocio-config`` with a trailing newline (pasted from a shell) was written into the script as given."""
+    from engine.export.nuke import script_colour
+
+    clip = {"colorspace": "sRGB", "kind": "sequence"}
+    with pytest.raises(InputError, match="--ocio-config holds a newline or a control character"):
+        script_colour(clip, "ocio://default\n")

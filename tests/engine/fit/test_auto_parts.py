@@ -7,6 +7,7 @@ leaves alone what it does not apply to (two masks, the paper model, a single fra
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import cv2
@@ -242,8 +243,8 @@ def test_the_default_fits_what_it_cannot_split_as_given_where_auto_parts_is_one_
     which insists on it, is refused in one line and writes nothing."""
     frames, masks = rigid
     extra: list[str] = []
-    if case == "two-masks":
-        extra = ["--mask", str(masks)]
+    if case == "two-masks":  # a second object's masks (the same pixels in a folder of their own)
+        extra = ["--mask", str(shutil.copytree(masks, tmp_path / "second"))]
     elif case == "single-frame":
         first = open_clip(frames).frame_files[0]
         extra = ["--frames", f"{Path(first).stem}-{Path(first).stem}"]
