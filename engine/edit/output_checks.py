@@ -12,7 +12,9 @@ from pathlib import Path
 from .. import contract as C
 from ..errors import InputError
 from ..export.manifest import Manifest
+from ..io.sequences import image_sequences_in
 from .movie import MOVIE_SIZE_FIX, movie_size_problem
+from .render_record import RECORD_NAME
 
 
 def _same(a: str | Path, b: str | Path) -> bool:
@@ -31,10 +33,14 @@ def protected_folders(manifest: Manifest) -> list[tuple[Path, str, str]]:
     return found
 
 
-def check_output(manifest: Manifest, out: Path, option: str, allow: Path | None = None) -> None:
+def check_output(
+    manifest: Manifest, out: Path, option: str, allow: Path | None = None, writes: str | None = None
+) -> None:
     """One line, before anything is written, when the folder ``out`` (frames are written straight into it) is or
-    directly holds the plate's frames or a mask folder, or lies inside the run folder (RUN_DIR itself, its exports,
-    edits, records); ``allow`` is the one folder inside the run folder this writer may use."""
+    directly holds the plate's frames or a mask folder, lies inside the run folder (RUN_DIR itself, its exports,
+    edits, records), or holds a numbered image sequence that is neither a render's (its record there) nor named as
+    this writer names its frames (``writes``, a format pattern of ``frame``: a render made before renders recorded
+    themselves); ``allow`` is the one folder inside the run folder this writer may use."""
     if allow is not None and _same(out, allow):
         return
     root = manifest.run_root
@@ -47,6 +53,24 @@ def check_output(manifest: Manifest, out: Path, option: str, allow: Path | None 
     for folder, what, holds in protected_folders(manifest):
         if _same(out, folder):
             raise InputError(out, f"is {what}", f"choose another {option}: nothing is written over {holds}")
+    if out.is_dir() and not (out / RECORD_NAME).exists():
+        for label, names in image_sequences_in(out):
+            if writes is None or any(writes.format(frame=number) != name for number, name in _numbered(names)):
+                raise InputError(
+                    out,
+                    f"holds the frames {label}, which no render of these names wrote (another plate's frames?)",
+                    f"choose another {option}: nothing is written among another sequence's frames",
+                )
+
+
+def _numbered(names: list[str]) -> list[tuple[int, str]]:
+    """Each file name with the number its frame token holds (``C.FRAME_FILE_DIGITS``: the digits before the
+    extension)."""
+    out = []
+    for name in names:
+        m = C.FRAME_FILE_DIGITS.search(name)
+        out.append((int(m.group(1)) if m else -1, name))
+    return out
 
 
 def check_movie(manifest: Manifest, movie: Path) -> None:

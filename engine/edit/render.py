@@ -343,7 +343,11 @@ def render_manifest(
     manifest = Manifest(manifest_path)
     chosen = manifest.frames if frames is None else chunk_frames(manifest, frames)
     out = Path(out_dir)
-    check_output(manifest, out, "--out")
+    like, ext = _plate_file(manifest) if fmt == "plate" else (None, f".{fmt}")
+    clip = manifest.clip
+    output = _Output(like, frame_name_pattern(name, ext, C.frame_padding(clip["frame_files"], clip["frame_numbers"])),
+                     fmt == FORMATS[0] and exr_half(manifest, depth))  # fmt: skip
+    check_output(manifest, out, "--out", writes=output.pattern)
     movie_path = None if movie is None else Path(movie)
     if movie_path is not None:
         check_movie(manifest, movie_path)
@@ -352,10 +356,6 @@ def render_manifest(
     sizes = _Sizes(len(chosen), w * h * FRAME_BYTES_PER_PIXEL[fmt])
     what = OUTPUT_PREFIX.rstrip(".") if frames is None else f"{OUTPUT_PREFIX.rstrip('.')}-{frames[0]}-{frames[1]}"
     staged = StagedFolder(out, what, "--out", shared=frames is not None)
-    like, ext = _plate_file(manifest) if fmt == "plate" else (None, f".{fmt}")
-    clip = manifest.clip
-    output = _Output(like, frame_name_pattern(name, ext, C.frame_padding(clip["frame_files"], clip["frame_numbers"])),
-                     fmt == FORMATS[0] and exr_half(manifest, depth))  # fmt: skip
     record = render_record(manifest.path, edits, {"format": fmt, "names": output.pattern, "filter": filter,
                                                   "half": output.half})  # fmt: skip
     try:

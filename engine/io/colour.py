@@ -76,6 +76,10 @@ def active_config() -> str:
     return os.environ.get("OCIO", "").strip() or BUILTIN_CONFIG
 
 
+#: ``ColorConfig.configname()`` of OpenImageIO's own minimal config, which it takes in place of one it cannot use.
+OIIO_BUILT_IN = "built-in"
+
+
 @functools.lru_cache(maxsize=8)
 def _load(name: str) -> oiio.ColorConfig:
     """The config ``name``. OpenImageIO answers a config it cannot parse with its own minimal built-in one and an
@@ -84,6 +88,13 @@ def _load(name: str) -> oiio.ColorConfig:
     error = config.geterror()
     if error or config.getNumColorSpaces() < 1:
         raise InputError(name, f"cannot load this OCIO config ({_config_reason(error)})", _CONFIG_PARSE_FIX)
+    if config.configname() == OIIO_BUILT_IN:  # no error said, and yet not this config (one of data spaces only)
+        raise InputError(
+            name,
+            "OpenImageIO cannot use this OCIO config (its colour spaces are all data) and would take its own built-in "
+            "one",
+            "add a colour space that is not data to it, point $OCIO at another config, or unset $OCIO",
+        )
     return config
 
 

@@ -152,6 +152,12 @@ def sequence_files(source: str) -> tuple[str, list[NumberedFile]]:
             f"the pattern's range names {len(wanted)} frames",
             f"give it the shot's range (at most {MAX_PATTERN_FRAMES} frames), or drop the range to read every frame",
         )
+    if wanted is not None and len(wanted) != int(wanted.end()) - int(wanted.start()) + 1:
+        raise InputError(
+            source,
+            f"the pattern's range {wanted} skips frames, but a fit follows the motion from each frame to the next",
+            f"give the range without a step or gap (e.g. {wanted.start()}-{wanted.end()}), or copy the frames to fit",
+        )
     ext = pattern.extension().lower()
     if ext not in IMAGE_EXTENSIONS:
         raise InputError(source, f"pattern names {ext or 'no'} files", f"name {ext_list(IMAGE_EXTENSIONS)} frames")
@@ -189,6 +195,17 @@ def _sequences_in(folder: str) -> list[fileseq.FileSequence]:
         (q for q in found if q.frameSet() is not None and q.extension().lower() in IMAGE_EXTENSIONS),
         key=lambda q: (q.extension().lower(), _natural_key(q.basename())),
     )
+
+
+def image_sequences_in(folder: str | os.PathLike[str]) -> list[tuple[str, list[str]]]:
+    """The numbered image sequences of two frames or more in ``folder``: each as a message names it
+    (``plate.####.exr (1001..1100)``) with its files' names."""
+    found = []
+    for seq in _sequences_in(os.fspath(folder)):
+        frames = [int(n) for n in seq.frameSet() or ()]
+        if len(frames) >= 2:
+            found.append((_seq_label(seq), [os.path.basename(seq.frame(n)) for n in frames]))
+    return found
 
 
 def _seq_label(seq: fileseq.FileSequence) -> str:

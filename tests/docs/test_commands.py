@@ -296,6 +296,7 @@ class Places:
 
     frames: str = "clip/frames"
     masks: str = "clip/masks"
+    masks2: str = "clip/masks2"
     clip_folder: str = "clip"
     run: Callable[[], str] = lambda: "run"
     manifest: Callable[[], str] = lambda: "run/exports/v001/manifest.json"
@@ -308,7 +309,8 @@ class Places:
 #: (pattern of a whole word, what it becomes). A pattern that is an output after --out/--work gets a new folder.
 SUBSTITUTIONS: list[tuple[str, Callable[[Places, str], str]]] = [
     (r"PLATE|CLIP|clip/frames|CLIPS/[^/]+/frames|<plate>", lambda p, w: p.frames),
-    (r"MASKS2?|GT_MASKS|clip/masks|CLIPS/[^/]+/masks", lambda p, w: p.masks),
+    (r"MASKS2", lambda p, w: p.masks2),  # a second object's masks: a folder of its own (one folder twice is refused)
+    (r"MASKS|GT_MASKS|clip/masks|CLIPS/[^/]+/masks", lambda p, w: p.masks),
     (r"CLIPS/[^/]+", lambda p, w: p.clip_folder),
     (r"(RUN_DIR|RUN|run|runs/[^/]+)/exports/v001/manifest\.json|MANIFEST", lambda p, w: p.manifest()),
     (r"RUN_DIR|RUN|run|runs/[^/]+", lambda p, w: p.run()),
@@ -513,6 +515,7 @@ class Scratch:
         self.places = Places(
             frames=str(frames),
             masks=str(masks),
+            masks2=str(shutil.copytree(masks, folder / "masks2")),
             clip_folder=str(folder / "clip"),
             run=self._run_copy,
             manifest=lambda: str(Path(self._run_copy()) / "exports" / "v001" / C.MANIFEST_NAME),

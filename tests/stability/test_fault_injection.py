@@ -30,6 +30,7 @@ import pytest
 
 from engine import contract as C
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
+from engine.edit.render_record import RECORD_NAME
 from engine.export.manifest import Manifest
 from engine.fit.run_folder import RunFolder
 from engine.io.images import read_exr, read_image, write_png
@@ -235,8 +236,9 @@ def test_sigkill_during_a_render_leaves_whole_frames_and_a_rerun_matches(base, t
         assert tree_digest(base.run) == run_before, delay
         out = _engine("render", str(base.manifest), "--out", str(out_dir), "--no-bar")
         assert out.returncode == C.EXIT_OK, (delay, out.stderr)
-        # the re-run clears what the killed render left (hidden temp files, its staging): only the frames remain
-        assert sorted(p.name for p in out_dir.iterdir()) == sorted(expected), delay
+        # the re-run clears what the killed render left (hidden temp files, its staging): only the frames and the
+        # render's record remain
+        assert sorted(p.name for p in out_dir.iterdir()) == sorted([RECORD_NAME, *expected]), delay
         for name, channels in expected.items():
             got = read_exr(out_dir / name)
             assert all(np.array_equal(got[c], channels[c]) for c in channels), (delay, name)

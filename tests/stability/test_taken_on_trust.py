@@ -205,3 +205,29 @@ def test_an_ocio_config_argument_with_a_newline_is_one_line(tmp_path):
     clip = {"colorspace": "sRGB", "kind": "sequence"}
     with pytest.raises(InputError, match="--ocio-config holds a newline or a control character"):
         script_colour(clip, "ocio://default\n")
+
+
+@pytest.mark.parametrize("pattern", ["plate.100-107x2#.png", "plate.100-102,105-107#.png"])
+def test_a_pattern_range_that_skips_frames_is_one_line_naming_it(tmp_path, pattern):
+    """Every frame 100-107 exists; a stepped range used to be reported as missing frame 101."""
+    plate = _plate(tmp_path / "plate", [f"plate.{n}.png" for n in range(100, 108)])
+    with pytest.raises(InputError, match="skips frames, but a fit follows the motion from each frame to the next"):
+        open_clip(plate / pattern)
+    assert open_clip(plate / "plate.100-107#.png").frame_numbers == tuple(range(100, 108))
+
+
+def test_an_ocio_config_openimageio_would_replace_by_its_own_is_one_line(tmp_path):
+    """A config whose only colour space is data (``raw``): OpenImageIO takes its own built-in config in its place
+    without an error, so a run would record the studio file and convert with other spaces."""
+    from engine.io.colour import load_config
+
+    config = tmp_path / "raw.ocio"
+    config.write_text(
+        "ocio_profile_version: 2.1\nroles:\n  default: raw\ncolorspaces:\n  - !<ColorSpace>\n    name: raw\n"
+        "    isdata: true\n"
+    )
+    with pytest.raises(InputError, match="OpenImageIO cannot use this OCIO config") as err:
+        load_config(str(config))
+    assert str(err.value).startswith(str(config))
+    config.write_text(config.read_text() + "  - !<ColorSpace>\n    name: lin\n")
+    assert load_config(str(config)).getColorSpaceNames() == ["raw", "lin"]

@@ -108,3 +108,23 @@ def test_a_whole_render_replaces_the_record_with_its_frames(manifest, tmp_path):
     assert _render(manifest, out, "--edit", f"{layer}={paint}") == (0, [])
     code, lines = _render(manifest, out, "--frames", "0-0")
     assert code == C.EXIT_BAD_INPUT and "holds frames rendered from other paint in the edit layers" in lines[0], lines
+
+
+def test_render_and_preview_never_write_among_another_plates_frames(manifest, tmp_path):
+    """An --out that holds a numbered image sequence no render of these names wrote (another shot's plate): one
+    line, nothing added; the same render's own earlier frames (a folder rendered before renders recorded
+    themselves) are rendered over as before."""
+    other = tmp_path / "other_plate"
+    other.mkdir()
+    for n in range(1001, 1004):
+        write_image(other / f"plate.{n}.png", np.zeros((8, 8, 3), np.uint8))
+    before = tree_digest(other)
+    for verb, extra in (("render", ["--no-bar"]), ("preview", ["--no-movies"])):
+        code, lines = run_cli(verb, manifest, "--out", other, *extra)
+        assert code == C.EXIT_BAD_INPUT and len(lines) == 1, lines
+        assert lines[0].startswith(f"error: {other}: holds the frames plate.####.png (1001..1003)"), lines
+        assert tree_digest(other) == before
+    earlier = tmp_path / "earlier"
+    assert _render(manifest, earlier) == (0, [])
+    (earlier / RECORD_NAME).unlink()  # rendered before renders recorded themselves
+    assert _render(manifest, earlier) == (0, [])
