@@ -55,8 +55,9 @@ def real_files(tmp_path_factory) -> dict[str, Any]:
     return {name: json.loads((d / "run" / name).read_text()) for name in NAMES}
 
 
-def _load(name: str, text: str) -> None:
-    """Write ``text`` as run file ``name`` in a fresh folder and load it: a valid object, or one line."""
+def _load(name: str, text: str) -> bool:
+    """Write ``text`` as run file ``name`` in a fresh folder and load it: a valid object (True), or one line
+    (False)."""
     loader, use = LOADERS[name]
     with tempfile.TemporaryDirectory() as tmp:
         run = RunFolder(tmp)
@@ -67,9 +68,10 @@ def _load(name: str, text: str) -> None:
         except InputError as exc:
             message = str(exc)
             assert message.startswith(f"{path}: ") and "\n" not in message and " — " in message, message
-            return
+            return False
         assert result is not None
         use(result)
+        return True
 
 
 def _dumps(value: Any) -> str:
@@ -128,5 +130,6 @@ def test_property_a_real_file_with_one_part_changed_loads_or_is_one_line(real_fi
 
 
 def test_the_real_files_load(real_files):
+    """Each file a real fit wrote loads (a refusal in one line would pass ``_load`` too: it must not be one)."""
     for name in NAMES:
-        _load(name, _dumps(real_files[name]))
+        assert _load(name, _dumps(real_files[name])), name
