@@ -21,7 +21,7 @@ import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO, Protocol, runtime_checkable
+from typing import Any, BinaryIO, Protocol, TypeVar, runtime_checkable
 
 import cv2
 import numpy as np
@@ -32,6 +32,8 @@ from ..errors import DiskFullError, InputError
 from ..io.atomic import atomic_write
 
 log = logging.getLogger(__name__)
+#: What a cache reader makes of a file's arrays (``read_cache``).
+_Read = TypeVar("_Read")
 
 #: Bump when the flow computation or the cache layout changes: old cache files then miss instead of lying.
 FLOW_CACHE_VERSION = 1
@@ -265,24 +267,23 @@ def _load_cache(
     path: Path, t: int, h: int, w: int, backend: str, threshold_px: float, quiet: bool = False
 ) -> FlowField | None:
     """A cache file that is missing, truncated or from something else is a miss, never an error (``quiet``: a
-    search through several files, where a miss is no news)."""
-    if not path.is_file():
+    lookup where a miss is no news)."""
+
+    def read(z: Any) -> tuple[FlowField, int]:
+        field = FlowField(
+            forward=np.asarray(z["forward"]),
+            backward=np.asarray(z["backward"]),
+            forward_ok=np.asarray(z["forward_ok"]),
+            backward_ok=np.asarray(z["backward_ok"]),
+            backend=str(z["backend"]),
+            threshold_px=float(z["threshold_px"]),
+        )
+        return field, int(z["version"])
+
+    found = read_cache(path, "flow cache", read, quiet)
+    if found is None:
         return None
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            field = FlowField(
-                forward=np.asarray(z["forward"]),
-                backward=np.asarray(z["backward"]),
-                forward_ok=np.asarray(z["forward_ok"]),
-                backward_ok=np.asarray(z["backward_ok"]),
-                backend=str(z["backend"]),
-                threshold_px=float(z["threshold_px"]),
-            )
-            version = int(z["version"])
-    except Exception as exc:  # zipfile.BadZipFile, EOFError, KeyError, ValueError, OSError, ...
-        if not quiet:
-            log.warning("ignoring unreadable flow cache %s (%s); recomputing", path, exc)
-        return None
+    field, version = found
     n = t - 1
     good = (
         version == FLOW_CACHE_VERSION
@@ -295,10 +296,29 @@ def _load_cache(
         and bool(np.isfinite(field.forward).all() and np.isfinite(field.backward).all())
     )
     if not good:
-        if not quiet:
-            log.warning("ignoring flow cache %s: it does not match this clip; recomputing", path)
+        foreign_cache(path, "flow cache", quiet)
         return None
     return field
+
+
+def read_cache(path: Path, what: str, read: Callable[[Any], _Read], quiet: bool = False) -> _Read | None:
+    """``read`` of the npz file at ``path`` (its arrays by name); None where the file is missing or cannot be read
+    (a warning naming ``what``, unless ``quiet``): a cache is an optimisation, and a bad file is computed again."""
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return read(z)
+    except Exception as exc:  # zipfile.BadZipFile, EOFError, KeyError, ValueError, OSError, ...
+        if not quiet:
+            log.warning("ignoring unreadable %s %s (%s); recomputing", what, path, exc)
+        return None
+
+
+def foreign_cache(path: Path, what: str, quiet: bool = False) -> None:
+    """Warn (unless ``quiet``) that the cache file read is not of this clip: a miss, computed again."""
+    if not quiet:
+        log.warning("ignoring %s %s: it does not match this clip; recomputing", what, path)
 
 
 #: Bytes of an npz file beyond its arrays' data, per array (zip headers, zip64 extras, the .npy header): the cache

@@ -19,12 +19,12 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
 
-from .flow import DISFlow, FlowField, _sanitize, _save_arrays, consistency_mask
+from .flow import DISFlow, FlowField, _sanitize, _save_arrays, consistency_mask, foreign_cache, read_cache
 
 log = logging.getLogger(__name__)
 
@@ -120,23 +120,23 @@ def _load_long_cache(
     path: Path, t: int, h: int, w: int, gaps: tuple[int, ...], stride: int, backend: str, threshold_px: float
 ) -> LongFlow | None:
     """A missing, truncated, foreign or out-of-range cache file is a miss, never an error."""
-    if not path.is_file():
+
+    def read(z: Any) -> tuple[LongFlow, int]:
+        lf = LongFlow(
+            src=np.asarray(z["src"]),
+            dst_xy=np.asarray(z["dst_xy"]),
+            dst_t=np.asarray(z["dst_t"]),
+            gaps=tuple(int(k) for k in np.asarray(z["gaps"]).reshape(-1)),
+            stride=int(z["stride"]),
+            backend=str(z["backend"]),
+            threshold_px=float(z["threshold_px"]),
+        )
+        return lf, int(z["version"])
+
+    found = read_cache(path, "long-range flow cache", read)
+    if found is None:
         return None
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            lf = LongFlow(
-                src=np.asarray(z["src"]),
-                dst_xy=np.asarray(z["dst_xy"]),
-                dst_t=np.asarray(z["dst_t"]),
-                gaps=tuple(int(k) for k in np.asarray(z["gaps"]).reshape(-1)),
-                stride=int(z["stride"]),
-                backend=str(z["backend"]),
-                threshold_px=float(z["threshold_px"]),
-            )
-            version = int(z["version"])
-    except Exception as exc:  # zipfile.BadZipFile, EOFError, KeyError, ValueError, OSError, ...
-        log.warning("ignoring unreadable long-range flow cache %s (%s); recomputing", path, exc)
-        return None
+    lf, version = found
     src_type, t_type = _index_types(t, h, w)
     n = lf.src.shape[0] if lf.src.ndim == 1 else -1
     good = (
@@ -153,7 +153,7 @@ def _load_long_cache(
         and bool(np.isfinite(lf.dst_xy).all())
     )
     if not good:
-        log.warning("ignoring long-range flow cache %s: it does not match this clip; recomputing", path)
+        foreign_cache(path, "long-range flow cache")
         return None
     return lf
 
