@@ -48,34 +48,26 @@ def build_model(cfg: FitConfig, clip: PreparedClip, scene: SceneAnalysis | None 
     if clip.scribbles is not None:
         # each part moves like its scribbles (carried to every frame by the flow); its atlas spans the object
         carried = propagate_labels(clip.scribbles, flow, clip.masks[0])
-        for k in range(clip.num_foreground):
-            region = carried == k
-            motions.append(
-                estimate_layer_motion(
-                    flow,
-                    region,
-                    clip.size,
-                    cfg.init_motion,
-                    margin=cfg.atlas_margin_fg,
-                    extent_masks=fg_regions[0],
-                    background=motions[0],
-                )
-            )
+        layers = [(carried == k, fg_regions[0]) for k in range(clip.num_foreground)]
     else:
         # motion from the eroded mask (flow at object boundaries is unreliable), atlas box from the whole mask
         # (an eroded box cut the rim off small objects)
-        for region, full in zip(fg_regions, clip.masks, strict=True):
-            motions.append(
-                estimate_layer_motion(
-                    flow,
-                    region,
-                    clip.size,
-                    cfg.init_motion,
-                    margin=cfg.atlas_margin_fg,
-                    extent_masks=full if cfg.atlas_box_full_mask else None,
-                    background=motions[0],
-                )
+        layers = [
+            (region, full if cfg.atlas_box_full_mask else None)
+            for region, full in zip(fg_regions, clip.masks, strict=True)
+        ]
+    for region, extent in layers:  # (where the layer's motion is fitted, where its atlas box is drawn from)
+        motions.append(
+            estimate_layer_motion(
+                flow,
+                region,
+                clip.size,
+                cfg.init_motion,
+                margin=cfg.atlas_margin_fg,
+                extent_masks=extent,
+                background=motions[0],
             )
+        )
     return assemble_model(cfg, clip.size, t, len(motions), scene, motions)
 
 
