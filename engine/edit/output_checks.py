@@ -54,23 +54,13 @@ def check_output(
         if _same(out, folder):
             raise InputError(out, f"is {what}", f"choose another {option}: nothing is written over {holds}")
     if out.is_dir() and not (out / RECORD_NAME).exists():
-        for label, names in image_sequences_in(out):
-            if writes is None or any(writes.format(frame=number) != name for number, name in _numbered(names)):
+        for label, frames in image_sequences_in(out):
+            if writes is None or any(writes.format(frame=number) != name for number, name in frames):
                 raise InputError(
                     out,
                     f"holds the frames {label}, which no render of these names wrote (another plate's frames?)",
                     f"choose another {option}: nothing is written among another sequence's frames",
                 )
-
-
-def _numbered(names: list[str]) -> list[tuple[int, str]]:
-    """Each file name with the number its frame token holds (``C.FRAME_FILE_DIGITS``: the digits before the
-    extension)."""
-    out = []
-    for name in names:
-        m = C.FRAME_FILE_DIGITS.search(name)
-        out.append((int(m.group(1)) if m else -1, name))
-    return out
 
 
 def check_movie(manifest: Manifest, movie: Path) -> None:

@@ -197,14 +197,14 @@ def _sequences_in(folder: str) -> list[fileseq.FileSequence]:
     )
 
 
-def image_sequences_in(folder: str | os.PathLike[str]) -> list[tuple[str, list[str]]]:
+def image_sequences_in(folder: str | os.PathLike[str]) -> list[tuple[str, list[tuple[int, str]]]]:
     """The numbered image sequences of two frames or more in ``folder``: each as a message names it
-    (``plate.####.exr (1001..1100)``) with its files' names."""
+    (``plate.####.exr (1001..1100)``) with its frames' numbers and files' names."""
     found = []
     for seq in _sequences_in(os.fspath(folder)):
         frames = [int(n) for n in seq.frameSet() or ()]
         if len(frames) >= 2:
-            found.append((_seq_label(seq), [os.path.basename(seq.frame(n)) for n in frames]))
+            found.append((_seq_label(seq), [(n, os.path.basename(seq.frame(n))) for n in frames]))
     return found
 
 
