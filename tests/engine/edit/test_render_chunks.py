@@ -15,7 +15,7 @@ import pytest
 
 from engine import contract as C
 from engine.edit.render_record import RECORD_FIX, RECORD_NAME
-from tests.engine.export.tiny_run import export, make_run
+from tests.engine.export.tiny_run import ATLAS_SIZE, export, make_run
 from tests.engine_cli import run_cli
 from tests.folders import tree_digest
 from tests.media_files import write_image
@@ -79,7 +79,9 @@ def test_chunks_of_another_export_other_paint_or_other_settings_never_mix_in_one
     out = tmp_path / "chunked"
     assert _render(manifest, out, "--frames", "0-1") == (0, [])
     before = tree_digest(out)
-    other_export = export(manifest.parent.parent.parent)
+    # another export that differs in content (an export of the same run with the same settings in the same second
+    # is the same file, and its frames are these frames)
+    other_export = export(manifest.parent.parent.parent, atlas_size=ATLAS_SIZE * 2)
     layer = json.loads(manifest.read_text())["layers"][1]["name"]
     paint = tmp_path / "paint.png"
     write_image(paint, np.full((32, 32, 4), 255, np.uint8))
