@@ -134,6 +134,8 @@ def fit_and_export(
     )  # fmt: skip
     follow = [] if follow_flow is None else [C.EXPORT_FOLLOW_FLOW_FLAG if follow_flow else C.EXPORT_NO_FOLLOW_FLOW_FLAG]
     out = _engine([C.VERB_EXPORT, str(run), C.EXPORT_INTO_ARG, EXPORT_VERSION, "--no-bar", *follow], log_path, threads)
+    with log_path.open("a", encoding="utf-8") as log:  # the export's messages: each layer's reach and why
+        log.write(out)
     lines = [line for line in out.strip().splitlines() if line.strip()]
     if not lines:
         raise InputError(log_path, "engine export printed no manifest path", "read the log, run again")
