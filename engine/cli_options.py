@@ -118,6 +118,16 @@ def add_device(parser: argparse.ArgumentParser, default: str) -> None:
     parser.add_argument("--device", default=default, help=f"auto | cpu | cuda | mps (default: {default})")
 
 
+def add_threads(parser: argparse.ArgumentParser, help: str = "torch CPU threads (default: torch's choice)") -> None:
+    """``--threads N``: torch's CPU threads for the work the command runs (None: torch's choice)."""
+    parser.add_argument("--threads", type=int, default=None, help=help)
+
+
+def add_preset(parser: argparse.ArgumentParser, default: str | None, help: str) -> None:
+    """``--preset NAME``: the fit preset (``engine.config.PRESETS``; checked where the config is built)."""
+    parser.add_argument("--preset", default=default, help=help)
+
+
 def add_no_bar(parser: argparse.ArgumentParser, help: str = "no progress bar on stderr") -> None:
     """``--no-bar``: a verb whose progress shows as a bar on stderr."""
     parser.add_argument("--no-bar", action="store_true", help=help)

@@ -19,7 +19,9 @@ from .cli_options import (
     add_no_bar,
     add_output_options,
     add_plate_frames,
+    add_preset,
     add_set,
+    add_threads,
     add_verb,
     frame_range,
     frame_rate,
@@ -127,11 +129,7 @@ def _add_fit_parser(sub: argparse._SubParsersAction) -> None:
         help="run folder (created; a folder that holds a fit takes --resume or --refit; one in use by another "
         "process is refused)",
     )
-    f.add_argument(
-        "--preset",
-        default=None,
-        help=f"draft | balanced | final | paper (default: {DEFAULT_PRESET}; not with --resume)",
-    )
+    add_preset(f, None, f"draft | balanced | final | paper (default: {DEFAULT_PRESET}; not with --resume)")
     add_device(f, "auto")
     _add_fit_plate_options(f)
     _add_fit_run_options(f)
@@ -216,7 +214,7 @@ def _add_demo_parser(sub: argparse._SubParsersAction) -> None:
         description="Generate the demo plate, fit it, and write a contact sheet. Idempotent.",
     )
     d.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
-    d.add_argument("--preset", default="draft", help="preset (default: draft)")
+    add_preset(d, "draft", "preset (default: draft)")
     add_set(d, "override a config field")
 
 
@@ -237,7 +235,7 @@ def _add_estimate_parser(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--work", default=None, metavar="RUN_DIR", help="keep the flow cache here (a fit reuses it)")
     add_set(e, "override a config field")
     add_device(e, "auto")
-    e.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+    add_threads(e)
     e.add_argument("--json", action="store_true", help="print one JSON object (contract.ESTIMATE_TAG) instead")
 
 

@@ -1,4 +1,4 @@
-"""``python -m engine.bench clips`` end to end on two tiny synthetic clip folders, a few steps each: degraded masks
+"""``python -m bench clips`` end to end on two tiny synthetic clip folders, a few steps each: degraded masks
 written per clip, every clip fitted and scored against its own precise masks, the markdown table and the JSON
 agree with each other and with each clip's bench record."""
 
@@ -12,12 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bench.__main__ import main as bench_main
+from bench.all_clips import CLIPS_JSON, CLIPS_MD, COLUMNS, find_clips, format_table
+from bench.bench import BENCH_JSON
+from bench.degrade import dropped_frames, read_gt
+from bench.tracking import Tracks, save_tracks
 from engine import contract as C
-from engine.bench.__main__ import main as bench_main
-from engine.bench.all_clips import CLIPS_JSON, CLIPS_MD, COLUMNS, find_clips, format_table
-from engine.bench.bench import BENCH_JSON
-from engine.bench.degrade import dropped_frames, read_gt
-from engine.bench.tracking import Tracks, save_tracks
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.errors import InputError
 

@@ -1,4 +1,4 @@
-"""A seconds-long ``bench`` (``python -m engine.bench bench``) and ``estimate`` on a tiny synthetic clip: the
+"""A seconds-long ``bench`` (``python -m bench bench``) and ``estimate`` on a tiny synthetic clip: the
 JSON schema, monotone best-so-far PSNR, scores in range, the recorded ETA, the plot; how clips and per-preset
 overrides are resolved; the measurement tools stay out of the product. No timed assertions, and no outcome that
 depends on the machine's speed: the bench's run reads a steady training clock (``SteadyClock``)."""
@@ -13,19 +13,19 @@ import numpy as np
 import pytest
 import torch
 
-from engine import contract as C
-from engine.bench.__main__ import main as bench_main
-from engine.bench.__main__ import parse_eval_at
-from engine.bench.bench import (
+from bench.__main__ import main as bench_main
+from bench.__main__ import parse_eval_at
+from bench.bench import (
     BENCH_JSON,
     BENCH_PNG,
     BENCH_TAG,
     bench_configs,
-    resolve_clip,
     run_bench,
 )
-from engine.bench.finished_fit import fit_eta_errors
-from engine.bench.tracking import Tracks, save_tracks
+from bench.bench_clip import resolve_clip
+from bench.finished_fit import fit_eta_errors
+from bench.tracking import Tracks, save_tracks
+from engine import contract as C
 from engine.cli import main
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.errors import InputError
@@ -91,7 +91,7 @@ def test_bench_json_schema(bench_record):
     assert {"cpu", "cores", "torch_threads", "load_average_at_start"} <= set(rec["machine"])
     assert {"engine", "torch", "numpy", "python"} <= set(rec["versions"])
     assert rec["settings"]["budget_seconds"] == 2.0 and rec["settings"]["mode"] == "interleaved"
-    assert rec["command"][:4] == ["python", "-m", "engine.bench", "bench"]
+    assert rec["command"][:4] == ["python", "-m", "bench", "bench"]
     (clip,) = rec["clips"]
     assert clip["name"] == "synth" and clip["working_size"] == [SPEC.width, SPEC.height]
     assert clip["eval_frames"] == [0, SPEC.frames - 1] and clip["track_queries"] == 3
@@ -216,7 +216,7 @@ def test_expected_psnr_is_recorded_from_a_finished_fit(tmp_path):
     """``estimate``'s expected PSNR is data written from a fit's metrics.json, not numbers typed into code."""
     import shutil
 
-    from engine.bench.finished_fit import record_expected_psnr
+    from bench.finished_fit import record_expected_psnr
     from engine.fit.estimate import EXPECTED_PSNR_FILE
 
     table = tmp_path / "expected_psnr.json"
@@ -304,7 +304,7 @@ def test_sequential_bench_runs_presets_in_turn(clip, tmp_path):
 
 
 def test_eval_schedule_adds_the_target_marks_within_the_budget():
-    from engine.bench.bench import _eval_schedule
+    from bench.bench import _eval_schedule
 
     assert _eval_schedule(3600.0, 2, parse_eval_at("180, 600,1200,3600,9000")) == [112.5, 180.0, 600.0, 1200.0, 3600.0]
     assert _eval_schedule(60.0, 1) == [60.0]
@@ -314,8 +314,8 @@ def test_eval_schedule_adds_the_target_marks_within_the_budget():
 
 @pytest.mark.slow
 def test_the_tools_run_outside_the_product_cli(clip, tmp_path, capsys):
-    """``bench``, ``speed`` and ``scene-speed`` are ``python -m engine.bench`` tools: the product CLI has no such
-    verbs, and nothing in the product (engine/ outside engine/bench, which the extension zip leaves out) imports
+    """``bench``, ``speed`` and ``scene-speed`` are ``python -m bench`` tools: the product CLI has no such
+    verbs, and nothing in the product (engine/ outside bench, which the extension zip leaves out) imports
     the bench."""
     import ast
 
@@ -331,7 +331,7 @@ def test_the_tools_run_outside_the_product_cli(clip, tmp_path, capsys):
             names = [a.name for a in node.names] if isinstance(node, ast.Import) else []
             if isinstance(node, ast.ImportFrom):
                 names = [node.module or ""] + [f"{node.module}.{a.name}" for a in node.names]
-            assert not any(n.startswith("engine.bench") for n in names), f"{py} imports the bench"
+            assert not any(n.startswith("bench") for n in names), f"{py} imports the bench"
     args = [str(clip / "frames"), "--mask", str(clip / "masks"), "--presets", "draft,paper", "--steps", "1"]
     assert bench_main(["speed", *args, "--rounds", "1", "--device", "cpu", "--work", str(tmp_path)]) == C.EXIT_OK
     table = capsys.readouterr().out
@@ -348,7 +348,7 @@ def test_speed_times_a_preset_beside_its_variant(clip, tmp_path, capsys):
     """``--presets draft,draft:KEY=VALUE`` times a candidate change beside the preset it changes, each entry its own
     row and model: the wider foreground mapping has more parameters, the background's is untouched; a bad key is
     one line."""
-    from engine.bench.speed import measure_step_times
+    from bench.speed import measure_step_times
 
     rows = measure_step_times(
         clip / "frames", [clip / "masks"], ["draft", "draft:mapping_hidden_fg=96"], tmp_path, steps=1, rounds=1,

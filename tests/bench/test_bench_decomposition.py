@@ -11,13 +11,14 @@ import numpy as np
 import pytest
 import torch
 
+from bench.__main__ import main as bench_main
+from bench.bench import BENCH_JSON, run_bench
+from bench.bench_clip import resolve_clip
+from bench.bench_evaluation import FG_ALPHA_THRESHOLD, evaluate, foreground
+from bench.bench_runs import Run, _prepare
+from bench.bench_summary import summary_table
+from bench.degrade import Degradation, write_degraded
 from engine import contract as C
-from engine.bench.__main__ import main as bench_main
-from engine.bench.bench import BENCH_JSON, resolve_clip, run_bench
-from engine.bench.bench_evaluation import FG_ALPHA_THRESHOLD, evaluate, foreground
-from engine.bench.bench_runs import Run, _prepare
-from engine.bench.bench_summary import summary_table
-from engine.bench.degrade import Degradation, write_degraded
 from engine.config import apply_overrides, preset_config
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.fit.device import torch_threads

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from engine.bench.tracking import (
+from bench.tracking import (
     Tracks,
     anchor_spread,
     atlas_tracks,
@@ -203,7 +203,7 @@ def test_tracks_file_round_trip(tmp_path):
 
 def test_track_scores_split_by_the_query_mask(tmp_path):
     """Points on the masked object and background points are scored apart (bench JSON: ``by_query_mask``)."""
-    from engine.bench.bench_evaluation import _track_scores
+    from bench.tracking import track_scores
 
     t = 4
     gt = np.zeros((2, t, 2), np.float32)
@@ -216,7 +216,7 @@ def test_track_scores_split_by_the_query_mask(tmp_path):
     np.testing.assert_array_equal(back.on_mask, [True, False])
     pred = gt.copy()
     pred[1] = 0.0  # the background point is left where it started
-    s = _track_scores(pred, back.subset(np.array([True, True]), t))
+    s = track_scores(pred, back.subset(np.array([True, True]), t))
     assert s["by_query_mask"]["on_mask"]["delta_avg"] == pytest.approx(1.0)
     # 5, 10, 15 px off: within 8 px once, within 16 px thrice -> (0 + 0 + 0 + 1/3 + 1) / 5
     assert s["by_query_mask"]["off_mask"]["delta_avg"] == pytest.approx(4 / 15)
@@ -230,7 +230,7 @@ def test_track_scores_split_by_the_query_mask(tmp_path):
 def test_per_point_scores_weighted_by_their_counts_give_the_aggregate():
     """``per_point`` is a breakdown, not a second metric: count-weighted it is ``delta_avg`` exactly, with
     occluded frames and each track's own query frame left out as TAP-Vid does."""
-    from engine.bench.bench_evaluation import _track_scores
+    from bench.tracking import track_scores
 
     rng = np.random.default_rng(3)
     n, t = 6, 9
@@ -241,7 +241,7 @@ def test_per_point_scores_weighted_by_their_counts_give_the_aggregate():
     occ[np.arange(n), qt] = False
     query = np.c_[qt, gt[np.arange(n), qt]].astype(np.float32)
     pred = gt + rng.normal(0, 6, gt.shape)
-    s = _track_scores(pred, Tracks(gt, occ, query, (64, 48)))
+    s = track_scores(pred, Tracks(gt, occ, query, (64, 48)))
     pts = s["per_point"]
     assert len(pts) == n and pts[5] == {"delta_avg": None, "scored_points": 0, "median_px": None}
     total = sum(p["scored_points"] for p in pts)
@@ -254,7 +254,7 @@ def test_scores_by_frame_gap_tell_imprecision_from_drift():
     """A tracker that drifts 0.5 px a frame is exact one frame away and lost 32 frames away: ``by_gap`` shows
     where it goes wrong. Each band scores only its own positions (query frame and occluded ones left out), and
     the bands together are the aggregate."""
-    from engine.bench.bench_evaluation import _track_scores
+    from bench.tracking import track_scores
 
     t = 40
     gt = np.zeros((2, t, 2), np.float32)
@@ -264,7 +264,7 @@ def test_scores_by_frame_gap_tell_imprecision_from_drift():
     qt = np.array([0, 10])
     pred = gt.copy()
     pred[:, :, 0] = 0.5 * np.abs(frames[None, :] - qt[:, None])
-    s = _track_scores(pred, Tracks(gt, occ, np.c_[qt, np.zeros((2, 2))].astype(np.float32), (64, 48)))
+    s = track_scores(pred, Tracks(gt, occ, np.c_[qt, np.zeros((2, 2))].astype(np.float32), (64, 48)))
     bands = {tuple(b["gap"]): b for b in s["by_gap"]}
     assert list(bands) == [(1, 3), (3, 8), (8, 16), (16, 32), (32, None)]
     # gaps 1 and 2: track 0 at frames 1, 2; track 1 at 8, 9, 11, 12 -> three positions 0.5 px off, three 1.0 px
@@ -275,7 +275,7 @@ def test_scores_by_frame_gap_tell_imprecision_from_drift():
     assert bands[(32, None)]["median_px"] == pytest.approx(17.75)
     assert sum(b["scored_points"] for b in s["by_gap"]) == s["scored_points"]
     # a band nothing falls in
-    empty = _track_scores(pred[:, :3], Tracks(gt[:, :3], occ[:, :3], np.zeros((2, 3), np.float32), (64, 48)))
+    empty = track_scores(pred[:, :3], Tracks(gt[:, :3], occ[:, :3], np.zeros((2, 3), np.float32), (64, 48)))
     assert {tuple(b["gap"]): b for b in empty["by_gap"]}[(8, 16)] == {
         "gap": [8, 16],
         "delta_avg": None,

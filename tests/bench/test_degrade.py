@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from engine.bench.degrade import (
+from bench.degrade import (
     RECIPES,
     Degradation,
     degrade_mask,
@@ -122,8 +122,8 @@ def test_the_standard_recipe_on_the_real_clips(tmp_path):
     """``dilated10_dropped10`` on every real clip: the same file names, a tenth of the frames empty, the kept
     ones holding the whole object; on these objects (2% to 14% of the frame) the grown masks' IoU against the
     precise ones is about 0.4 (the smallest) to 0.85 (the largest)."""
-    from engine.bench.all_clips import find_clips
-    from engine.bench.degrade import mask_files
+    from bench.all_clips import find_clips
+    from bench.degrade import mask_files
 
     for clip in find_clips(CLIPS):
         files = mask_files(clip / "masks")

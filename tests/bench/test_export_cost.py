@@ -7,9 +7,9 @@ import json
 
 import pytest
 
+from bench.__main__ import main as bench_main
+from bench.export_cost import measure_export_cost
 from engine import contract as C
-from engine.bench.__main__ import main as bench_main
-from engine.bench.export_cost import measure_export_cost
 from engine.errors import InputError
 from tests.engine.export.tiny_run import make_run
 

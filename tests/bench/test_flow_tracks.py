@@ -13,13 +13,13 @@ import cv2
 import numpy as np
 import pytest
 
+from bench.__main__ import main as bench_main
+from bench.all_clips import dis_flow_fields
+from bench.bench_clip import BenchClip
+from bench.flow_tracks import clip_flow_tracks, dis_flow, dis_flow_tracks, plate_codes, score_clip
+from bench.report_file import read_tracks
+from bench.tracking import Tracks, chained_flow_tracks, save_tracks
 from engine import contract as C
-from engine.bench.__main__ import main as bench_main
-from engine.bench.all_clips import dis_flow_fields
-from engine.bench.bench import BenchClip
-from engine.bench.flow_tracks import clip_flow_tracks, dis_flow, dis_flow_tracks, plate_codes, score_clip
-from engine.bench.report_file import read_tracks
-from engine.bench.tracking import Tracks, chained_flow_tracks, save_tracks
 from engine.io.images import write_png
 from tests.paths import CLIPS, NO_CLIPS
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from bench.__main__ import main as bench_main
+from bench.degrade import Degradation, write_degraded
+from bench.mask_check import check_all, check_clip, pooled_iou
 from engine import contract as C
-from engine.bench.__main__ import main as bench_main
-from engine.bench.degrade import Degradation, write_degraded
-from engine.bench.mask_check import check_all, check_clip, pooled_iou
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 
 SPEC = SceneSpec(width=160, height=112, frames=5, fg_size=(60, 44), fg_start=(40.0, 30.0))

@@ -1,4 +1,4 @@
-"""The two bodies of ``engine.bench.motion_bodies`` do what their scenes are named for, checked against geometry
+"""The two bodies of ``bench.motion_bodies`` do what their scenes are named for, checked against geometry
 computed here: the turning body is seen in perspective and its sides hide where their normals turn away; the limbs
 hide the torso and each other where their capsules cover it, and the body jumps on its parabola."""
 
@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from engine.bench.motion_bodies import BACK_LIMB, FRONT_LIMB, TORSO, LimbsJump, TurningDepth, rotate
-from engine.bench.motion_builders import CAMERA_DISTANCE, DEPTH_HEIGHT, JUMP_HEIGHT, JUMP_PERIOD, SWING_PERIOD
-from engine.bench.motion_scenes import MotionScene, make_motion_scene
-from engine.bench.motion_tracks import NEIGHBOUR_FRAMES
+from bench.motion_bodies import BACK_LIMB, FRONT_LIMB, TORSO, LimbsJump, TurningDepth, rotate
+from bench.motion_builders import CAMERA_DISTANCE, DEPTH_HEIGHT, JUMP_HEIGHT, JUMP_PERIOD, SWING_PERIOD
+from bench.motion_scenes import MotionScene, make_motion_scene
+from bench.motion_tracks import NEIGHBOUR_FRAMES
 
 
 @pytest.fixture(scope="module")

@@ -1,6 +1,6 @@
 """The synthetic motion scenes: their ground truth agrees with their pixels, each shows the motion it is named for,
 the clip folders are byte-identical on rewrite, and the ``clips`` bench scores one end to end. The two bodies of
-``engine.bench.motion_bodies`` have their own motion checked in tests/bench/test_motion_bodies.py."""
+``bench.motion_bodies`` have their own motion checked in tests/bench/test_motion_bodies.py."""
 
 from __future__ import annotations
 
@@ -12,29 +12,29 @@ import cv2
 import numpy as np
 import pytest
 
-from engine import contract as C
-from engine.bench.__main__ import main as bench_main
-from engine.bench.all_clips import run_all_clips
-from engine.bench.degrade import RECIPES, degrade_mask, dropped_frames, read_gt
-from engine.bench.motion_bodies import FRONT_LIMB, LimbsJump, TurningDepth
-from engine.bench.motion_builders import ARM_LENGTH, BAR_WIDTH, DESCRIPTIONS, SMALL_AREA, SMALL_SPEED
-from engine.bench.motion_scenes import (
+from bench.__main__ import main as bench_main
+from bench.all_clips import run_all_clips
+from bench.bench_clip import TRACKS_FILE
+from bench.degrade import RECIPES, degrade_mask, dropped_frames, read_gt
+from bench.motion_bodies import FRONT_LIMB, LimbsJump, TurningDepth
+from bench.motion_builders import ARM_LENGTH, BAR_WIDTH, DESCRIPTIONS, SMALL_AREA, SMALL_SPEED
+from bench.motion_scenes import (
     GT_UV_NPZ,
     PART_MASKS,
     ROUGH_MASKS,
     ROUGH_RECIPE,
     TEXTURE_PNG,
-    TRACKS_NPZ,
     ZIP_DATE,
     MotionScene,
     make_motion_scene,
     part_masks,
     write_motion_clip,
 )
-from engine.bench.motion_spec import DEFAULT_FRAMES, DEFAULT_SIZE, KINDS, MotionSpec
-from engine.bench.motion_tracks import TRACKS
-from engine.bench.tool_parsers import build_parser
-from engine.bench.tracking import load_tracks
+from bench.motion_spec import DEFAULT_FRAMES, DEFAULT_SIZE, KINDS, MotionSpec
+from bench.motion_tracks import TRACKS
+from bench.tool_parsers import build_parser
+from bench.tracking import load_tracks
+from engine import contract as C
 
 SIZE = {"width": 128, "height": 96, "frames": 8}
 #: The texture re-sampled through the exact UV field (bicubic) matches the frames' unblended object pixels to this.
@@ -243,10 +243,10 @@ def test_clip_folder_is_written_byte_identical(tmp_path):
     a, b = write_motion_clip(scene, tmp_path / "a"), write_motion_clip(scene, tmp_path / "b")
     names = sorted(str(p.relative_to(a)) for p in a.rglob("*") if p.is_file())
     pngs = [f"{d}/{t:05d}.png" for d in ("frames", "masks", ROUGH_MASKS) for t in range(5)]
-    assert names == sorted([*pngs, GT_UV_NPZ, TRACKS_NPZ, TEXTURE_PNG])
+    assert names == sorted([*pngs, GT_UV_NPZ, TRACKS_FILE, TEXTURE_PNG])
     for n in names:
         assert (a / n).read_bytes() == (b / n).read_bytes(), n
-    for npz in (GT_UV_NPZ, TRACKS_NPZ):
+    for npz in (GT_UV_NPZ, TRACKS_FILE):
         with zipfile.ZipFile(a / npz) as z:
             assert {i.date_time for i in z.infolist()} == {ZIP_DATE}
     for t in range(5):
@@ -255,7 +255,7 @@ def test_clip_folder_is_written_byte_identical(tmp_path):
         np.testing.assert_array_equal(png, np.rint(scene.frames[t] * 255).astype(np.uint8))
     texture = cv2.cvtColor(cv2.imread(str(a / TEXTURE_PNG)), cv2.COLOR_BGR2RGB)
     np.testing.assert_array_equal(texture, np.rint(scene.texture * 255).astype(np.uint8))
-    tracks = load_tracks(a / TRACKS_NPZ)
+    tracks = load_tracks(a / TRACKS_FILE)
     visible = ~scene.tracks.occluded
     np.testing.assert_array_equal(tracks.occluded, scene.tracks.occluded)
     np.testing.assert_array_equal(tracks.xy[visible], scene.tracks.xy[visible])

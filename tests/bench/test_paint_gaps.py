@@ -9,9 +9,9 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 
+from bench.__main__ import main
+from bench.paint_gaps import gap_series, plot_paint_gaps, read_table, table_label
 from engine import contract as C
-from engine.bench.__main__ import main
-from engine.bench.paint_gaps import gap_series, plot_paint_gaps, read_table, table_label
 from engine.errors import InputError
 
 

@@ -11,9 +11,9 @@ import cv2
 import numpy as np
 import pytest
 
+from bench.__main__ import main as bench_main
+from bench.paint_slip import ROUND_TRIP_PX, export_slip, frame_slip
 from engine import contract as C
-from engine.bench.__main__ import main as bench_main
-from engine.bench.paint_slip import ROUND_TRIP_PX, export_slip, frame_slip
 from engine.errors import InputError
 from tests.engine.fake_export import make_fake_export
 

@@ -15,16 +15,16 @@ import cv2
 import numpy as np
 import pytest
 
+from bench.__main__ import main as bench_main
+from bench.flow_tracks import score_clip
+from bench.motion_scenes import TEXTURE_PNG, write_motion_clips
+from bench.paint_picture import draw_dots, grid_points, picture_frames
+from bench.paint_slip import export_slip
+from bench.paint_table import PAINT_JSON, PAINT_MD, export_fg_iou, run_paint_table, true_sharpness
+from bench.paint_tracking import score_export
+from bench.report_file import read_tracks
+from bench.sharpness import atlas_sharpness
 from engine import contract as C
-from engine.bench.__main__ import main as bench_main
-from engine.bench.flow_tracks import score_clip
-from engine.bench.motion_scenes import TEXTURE_PNG, write_motion_clips
-from engine.bench.paint_picture import draw_dots, grid_points, picture_frames
-from engine.bench.paint_slip import export_slip
-from engine.bench.paint_table import PAINT_JSON, PAINT_MD, export_fg_iou, run_paint_table, true_sharpness
-from engine.bench.paint_tracking import score_export
-from engine.bench.report_file import read_tracks
-from engine.bench.sharpness import atlas_sharpness
 from engine.edit.preview import TILE_W
 from engine.io.images import read_image, write_png
 from tests.engine.fake_export import make_fake_export
@@ -187,7 +187,7 @@ def test_the_fit_gets_the_split_flag_the_table_asks_for(monkeypatch, tmp_path, a
     """The table's default fits and exports as the product does (no flag: the parts wherever that applies, and the
     export's own choice of following the flow, which leaves those parts as fitted); ``--auto-parts`` and
     ``--no-auto-parts`` (``one_layer``) reach the fit as those flags, the export gets neither."""
-    import engine.bench.paint_table as paint_table
+    import bench.paint_table as paint_table
 
     calls: list[list[str]] = []
 

@@ -13,17 +13,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from engine import contract as C
-from engine.bench.__main__ import main as bench_main
-from engine.bench.paint_tracking import (
+from bench.__main__ import main as bench_main
+from bench.paint_tracking import (
     MAX_STEP_PX,
     MISS,
     UV_JACOBIAN_MIN_DET,
     nearest_positions,
     score_export,
 )
-from engine.bench.report_file import REPORT_TAG
-from engine.bench.tracking import Tracks, save_tracks
+from bench.report_file import REPORT_TAG
+from bench.tracking import Tracks, save_tracks
+from engine import contract as C
 from tests.engine.fake_export import make_fake_export
 
 W, H, T = 64, 48, 6

@@ -7,11 +7,11 @@ import cv2
 import numpy as np
 import pytest
 
+from bench.motion_scenes import PART_MASKS, write_motion_clips
+from bench.paint_table import part_queries, run_paint_table
+from bench.part_scribbles import INSET_PX, part_stroke, write_part_scribbles
+from bench.report_file import read_tracks
 from engine import contract as C
-from engine.bench.motion_scenes import PART_MASKS, write_motion_clips
-from engine.bench.paint_table import part_queries, run_paint_table
-from engine.bench.part_scribbles import INSET_PX, part_stroke, write_part_scribbles
-from engine.bench.report_file import read_tracks
 from engine.data.scribbles import NO_LABEL, read_scribbles
 from engine.io.clip import open_clip
 from tests.bench.test_paint_table import tiny_limbs_table

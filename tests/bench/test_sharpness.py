@@ -13,9 +13,8 @@ import cv2
 import numpy as np
 import pytest
 
-from engine import contract as C
-from engine.bench.__main__ import main as bench_main
-from engine.bench.sharpness import (
+from bench.__main__ import main as bench_main
+from bench.sharpness import (
     MIN_MASK_PIXELS,
     PSNR_CAP_DB,
     UNPREMULT_MIN_COVERAGE,
@@ -23,6 +22,7 @@ from engine.bench.sharpness import (
     masked_psnr,
     rerender,
 )
+from engine import contract as C
 from engine.export.manifest import LayerPasses
 from engine.io.colour import linear_to_srgb, srgb_to_linear
 from engine.io.images import write_exr, write_png
@@ -136,7 +136,7 @@ def test_the_networks_ceiling_over_every_pixel_is_the_fits_own_psnr(tmp_path):
     """``sharpness --run``: the fit's networks rendered at the working size against the plate. With a mask over every
     pixel it is the PSNR the fit itself reports (evaluate_full, a separate path) to 1e-4 dB; inside the object's
     mask it is a number of its own, pooled from the per-frame values."""
-    from engine.bench.network_sharpness import network_sharpness
+    from bench.network_sharpness import network_sharpness
     from engine.data.synthetic import SceneSpec, make_scene, write_scene
     from tests.engine_cli import run_cli
     from tests.stability.bad_inputs import TINY_FIT

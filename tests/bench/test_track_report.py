@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from engine.bench.tracking import Tracks, track_report
+from bench.tracking import Tracks, track_report
 
 W, H, T = 512, 256, 5  # 256x256 halves x and keeps y
 

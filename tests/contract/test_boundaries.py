@@ -168,13 +168,12 @@ def test_engine_reaches_the_addon_only_through_the_contracts_headless_script():
 
 
 def test_product_never_imports_the_development_bench():
-    """engine/bench (accuracy-vs-time curves, speed tables) is left out of the extension zip: nothing else in
-    engine/ may import it, or the installed extension would fail on a missing module."""
-    for py in _files("engine"):
-        if _inside(".".join(py.relative_to(ROOT).with_suffix("").parts), "engine.bench"):
-            continue
+    """The bench (``bench/``: accuracy-vs-time curves, speed tables) is a tool beside the product, in neither the
+    wheel nor the extension zip: nothing in engine/ or addon/ may import it, or the installed product would fail on
+    a missing module."""
+    for py in [*_files("engine"), *_files("addon")]:
         for mod, line in imports(py):
-            assert not _inside(mod, "engine.bench"), f"{py}:{line} imports {mod}"
+            assert not _inside(mod, "bench"), f"{py}:{line} imports {mod}"
 
 
 def test_contract_is_standard_library_only():

@@ -1,10 +1,10 @@
 """Every command line that README.md and docs/*.md document is a real command, and the quick ones run as written.
 
 **Which lines.** In a fenced code block: every command that starts with ``python -m engine``,
-``.venv/bin/python -m engine``, ``python -m engine.bench`` or ``bash run.sh`` (after environment assignments such
+``.venv/bin/python -m engine``, ``python -m bench`` or ``bash run.sh`` (after environment assignments such
 as ``OMP_NUM_THREADS=1``, a ``/usr/bin/time -v`` prefix, ``&&``, ``;``, a pipe or a loop's ``do``). In running
 text: every inline code span that is such a command. A span that names only the program or a verb
-(`python -m engine render`, `python -m engine.bench bench|speed`) refers to it; its verbs must exist.
+(`python -m engine render`, `python -m bench bench|speed`) refers to it; its verbs must exist.
 
 **Synopses.** ``[...]`` is optional, ``a|b`` and ``[x | y]`` are alternatives, ``...`` is repetition. The
 command as written (every optional left out) and every variant that adds one optional part (each alternative,
@@ -22,7 +22,7 @@ after ``--out`` or ``--work`` (``MASKS``, ``RUN_DIR``, ``DIR``, ``edited/``,
 ``/tmp/auto/$c``...) is a new folder of its own.
 
 **Checks** (``test_every_documented_command_parses``): each variant parses with the real parser
-(``engine.cli.build_parser``, or ``engine.bench``'s); every ``--set KEY=VALUE`` names a real config key with a
+(``engine.cli.build_parser``, or ``bench``'s); every ``--set KEY=VALUE`` names a real config key with a
 valid value, for the preset the command names (the bench: ``PRESET.KEY`` as the bench reads it); every preset
 name is real; ``bash run.sh X``: ``X`` is one of run.sh's commands.
 
@@ -30,7 +30,7 @@ name is real; ``bash run.sh X``: ``X`` is one of run.sh's commands.
 (the commands' own relative paths land there) on the synthetic clip, with budget caps appended (``CAPS``: fits
 ``--set steps=2`` and a small batch, estimates a short calibration), and must exit 0 and write what they
 document (``_assert_outputs``). Parse-only, with the reason (``parse_only_reason``): ``bash run.sh`` (the demo and the
-whole suite take minutes: tests/engine/test_demo.py and CI run them), the bench (``python -m engine.bench``: minutes
+whole suite take minutes: tests/engine/test_demo.py and CI run them), the bench (``python -m bench``: minutes
 of training by design; tests/bench runs it on budgets of seconds), blocks that tests/docs/test_examples.py
 already runs (``<!-- test -->``: they fail on purpose or build on earlier blocks), ``--device cuda|mps`` (needs that
 hardware), ``--scribbles`` (needs strokes drawn on the clip; tests/engine/data/test_scribbles.py and the fit
@@ -102,7 +102,7 @@ class Documented:
     page: str
     line: int
     text: str
-    program: str  # "engine", "engine.bench" or "run.sh"
+    program: str  # "engine", "bench" or "run.sh"
     words: tuple[str, ...]
     inline: bool
     tested_block: bool  # in a <!-- test --> block that tests/docs/test_examples.py runs
@@ -148,12 +148,7 @@ def _commands_in(words: list[str]) -> Iterator[tuple[str, list[str]]]:
     for segment in segments:
         while segment and (ENV_ASSIGNMENT.match(segment[0]) or segment[0] in PREFIXES):
             segment = segment[1:]
-        if (
-            len(segment) >= 3
-            and segment[0] in PYTHONS
-            and segment[1] == "-m"
-            and segment[2] in ("engine", "engine.bench")
-        ):
+        if len(segment) >= 3 and segment[0] in PYTHONS and segment[1] == "-m" and segment[2] in ("engine", "bench"):
             yield segment[2], segment[3:]
         elif len(segment) >= 2 and segment[0] == "bash" and segment[1] == "run.sh":
             yield "run.sh", segment[2:]
@@ -349,8 +344,8 @@ def substitute(words: list[str], places: Places) -> list[list[str]]:
 
 
 def _parser(program: str) -> argparse.ArgumentParser:
-    if program == "engine.bench":
-        from engine.bench.tool_parsers import build_parser as bench_parser
+    if program == "bench":
+        from bench.tool_parsers import build_parser as bench_parser
 
         return bench_parser()
     from engine.cli import build_parser
@@ -389,8 +384,8 @@ def _values_problem(program: str, args: argparse.Namespace) -> str | None:
     variants: list[str] = []
     if getattr(args, "presets", None):
         presets = [p.strip() for p in args.presets.split(",")]
-        if program == "engine.bench":  # `speed` takes PRESET:KEY=VALUE entries (engine.bench.speed.variant_config)
-            from engine.bench.speed import VARIANT_SEP
+        if program == "bench":  # `speed` takes PRESET:KEY=VALUE entries (bench.speed.variant_config)
+            from bench.speed import VARIANT_SEP
 
             variants = [p for p in presets if VARIANT_SEP in p]
             presets = list(dict.fromkeys(p.split(VARIANT_SEP, 1)[0] for p in presets))
@@ -400,12 +395,12 @@ def _values_problem(program: str, args: argparse.Namespace) -> str | None:
     sets = getattr(args, "set", None) or []
     try:
         if variants:
-            from engine.bench.speed import variant_config
+            from bench.speed import variant_config
 
             for entry in variants:
                 variant_config(entry)
-        if program == "engine.bench":
-            from engine.bench.bench import bench_configs
+        if program == "bench":
+            from bench.bench import bench_configs
 
             bench_configs(presets, parse_set_args(sets))
         else:
@@ -437,7 +432,7 @@ ALL = documented_commands()
 def test_the_documented_commands_are_found():
     """The extraction finds the commands the pages show (a regression here would silently check nothing)."""
     where = {(c.page, c.program) for c in ALL}
-    assert {("README.md", "engine"), ("README.md", "run.sh"), ("accuracy-vs-time.md", "engine.bench")} <= where
+    assert {("README.md", "engine"), ("README.md", "run.sh"), ("accuracy-vs-time.md", "bench")} <= where
     assert sum(not c.is_reference for c in ALL) >= 40
     assert not any(c.page == "architecture.md" and not c.inline for c in ALL)  # its layout tree holds no command
 
@@ -472,7 +467,7 @@ def parse_only_reason(cmd: Documented, argv: list[str]) -> str | None:
     """Why a documented command is parse-checked here and not run (None: it runs)."""
     if cmd.program == "run.sh":
         return "bash run.sh: the demo and the whole suite take minutes (tests/engine/test_demo.py, CI)"
-    if cmd.program == "engine.bench":
+    if cmd.program == "bench":
         return "the bench trains for minutes by design (tests/bench runs it on budgets of seconds)"
     if cmd.tested_block:
         return "a <!-- test --> block: tests/docs/test_examples.py runs it, in order with its page"

@@ -1,5 +1,5 @@
-"""The module map of docs/architecture.md (the tree under "Layout") names every Python module of the engine and
-the add-on, names nothing that does not exist, and keeps each folder's entries in name order.
+"""The module map of docs/architecture.md (the tree under "Layout") names every Python module of the engine, the
+add-on and the bench, names nothing that does not exist, and keeps each folder's entries in name order.
 
 **The tree's format.** One entry a line: the name at two spaces per level (a folder ends with ``/``), its
 description from column ``DESCRIPTION_COLUMN`` on, or on the next line when the name reaches that column; a line
@@ -25,7 +25,7 @@ HEADING = "## Layout"
 DESCRIPTION_COLUMN = 22
 INDENT = 2
 #: The trees the map must cover: every Python module under these folders.
-PACKAGES = ("engine", "addon")
+PACKAGES = ("engine", "addon", "bench")
 SKIPPED_DIRS = {"__pycache__"}
 
 
@@ -117,7 +117,7 @@ def problems(entries: list[Entry], root: Path) -> list[str]:
 
 def _order_problems(entries: list[Entry]) -> list[str]:
     """Entries of one folder out of name order (a folder sorts by its name without the slash); the top level is
-    in the page's own order (the engine, then the add-on)."""
+    in the page's own order (the engine, the add-on, the bench)."""
     by_parent: dict[str, list[Entry]] = {}
     for e in entries:
         by_parent.setdefault(e.path.rpartition("/")[0], []).append(e)
@@ -151,7 +151,7 @@ def test_the_tree_is_read_as_the_page_writes_it():
     # a name too long for its column has its description on the next line
     assert "addon/core/engine_commands.py" in entries
     assert "engine/fit/expected_psnr.json" in entries
-    assert entries["engine/bench"].is_folder and entries["addon/core"].is_folder
+    assert entries["bench"].is_folder and entries["addon/core"].is_folder
     assert len([p for p in entries if p.endswith(".py")]) >= 100
 
 

@@ -21,8 +21,8 @@ from typing import Any
 
 import pytest
 
+from bench.farm import local_dask, stop_process
 from engine import contract as C
-from engine.bench.farm import local_dask, stop_process
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.errors import InputError
 from engine.farm import dask_backend

@@ -1,4 +1,4 @@
-"""``python -m engine.bench farm``: two tiny synthetic shots one after another and through local Dask workers.
+"""``python -m bench farm``: two tiny synthetic shots one after another and through local Dask workers.
 
 The table names both routes with their wall times and the ratio of the two, and both routes' exports are the
 same files with the same bytes (the same argv but for the run folder, the same seeds)."""
@@ -11,9 +11,9 @@ from pathlib import Path
 
 import pytest
 
+from bench.__main__ import main
+from bench.farm import FARM_BENCH_JSON, ROUTE_DASK, ROUTE_SEQUENTIAL, export_files
 from engine import contract as C
-from engine.bench.__main__ import main
-from engine.bench.farm import FARM_BENCH_JSON, ROUTE_DASK, ROUTE_SEQUENTIAL, export_files
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the farm's engines die with their worker")
@@ -37,7 +37,7 @@ def test_bench_farm_times_both_routes_and_their_exports_agree(
     printed = capsys.readouterr().out.splitlines()
     assert printed[-1] == str(out / FARM_BENCH_JSON)
     record = json.loads((out / FARM_BENCH_JSON).read_text())
-    assert record["command"] == ["python -m engine.bench", *argv]
+    assert record["command"] == ["python -m bench", *argv]
     assert record["machine"]["cores_used"] == 1 and record["machine"]["cpu"]
     routes = record["routes"]
     assert routes[ROUTE_SEQUENTIAL]["threads_per_engine"] == 1 and routes[ROUTE_SEQUENTIAL]["workers"] == 1
@@ -52,7 +52,7 @@ def test_bench_farm_times_both_routes_and_their_exports_agree(
         f"| Dask, 2 workers | 2 | 1 | {seconds[1]:.1f} |",
     ]
     assert f"Ratio (one after another / Dask): **{record['ratio']:.2f}x**." in printed
-    assert any(line == "Command: `python -m engine.bench " + " ".join(argv) + "`" for line in printed)
+    assert any(line == "Command: `python -m bench " + " ".join(argv) + "`" for line in printed)
     # both routes published one export per shot with every frame's pass; one torch thread per engine in both,
     # so the same bytes but for the manifest's creation time and training seconds
     for name in ("shot-a", "shot-b"):

@@ -40,8 +40,6 @@ ENTRY_POINT = f"{PACKAGE}.cli:console_main"
 NOT_SOURCE = shutil.ignore_patterns(
     ".venv*", ".git", "__pycache__", "*.pyc", ".*_cache", "build", "dist", "*.egg-info", "runs", "demo_out"
 )
-#: The engine's development bench stays out of the package, as it stays out of the extension.
-NOT_SHIPPED = ("engine/bench/",)
 PIP_TIMEOUT = 300
 
 
@@ -74,12 +72,10 @@ def test_pyproject_reads_the_requirements_from_the_engines_files_and_lists_every
     assert project["name"] == "neural-atlas" and project["version"] == C.ENGINE_VERSION
     assert project["scripts"] == {CONSOLE_SCRIPT: ENTRY_POINT}
     assert setuptools["package-dir"] == {PACKAGE: "engine"}
-    # every folder of engine/ with Python in it, less the bench, is a package of the wheel
+    # every folder of engine/ with Python in it is a package of the wheel
     folders = {p.parent for p in (ROOT / "engine").rglob("*") if p.suffix in (".py", ".js")}
     folders = {f.relative_to(ROOT / "engine").parts for f in folders if "__pycache__" not in f.parts}
-    assert sorted(setuptools["packages"]) == sorted(
-        ".".join((PACKAGE, *parts)) for parts in folders if parts[:1] != ("bench",)
-    )
+    assert sorted(setuptools["packages"]) == sorted(".".join((PACKAGE, *parts)) for parts in folders)
 
 
 def test_requirements_are_ranges_and_the_constraints_pin_each_inside_its_range():
@@ -119,7 +115,7 @@ def test_wheel_holds_the_engine_under_its_own_name_and_nothing_else(wheel):
     engine_files = {"engine/" + n.split("/", 1)[1] for n in names if n.startswith(f"{PACKAGE}/")}
     # every file of the engine in the checkout (a data file too: pyproject.toml's package-data must name it)
     files = [p.relative_to(ROOT).as_posix() for p in (ROOT / "engine").rglob("*") if p.is_file()]
-    files = [f for f in files if "__pycache__" not in f and not f.startswith(NOT_SHIPPED)]
+    files = [f for f in files if "__pycache__" not in f]
     ignored = subprocess.run(  # none without git: then every file counts
         ["git", "check-ignore", "--stdin"], input="\n".join(files), capture_output=True, text=True, cwd=ROOT
     ).stdout.split()
@@ -127,7 +123,6 @@ def test_wheel_holds_the_engine_under_its_own_name_and_nothing_else(wheel):
     assert engine_files == expected
     shipped = {"engine/py.typed", "engine/fit/expected_psnr.json", "engine/cli.py", "engine/constraints.txt"}
     assert shipped <= engine_files
-    assert not any(n.startswith(NOT_SHIPPED) for n in names)
 
 
 def test_wheel_metadata_declares_the_ranges_and_the_command(wheel):
@@ -232,7 +227,7 @@ def test_installed_engine_is_the_package_not_the_checkout(installed):
     root, counts, names = proc.stdout.split("\n")[:3]
     assert Path(root).is_relative_to(installed)
     assert names == f"another project {PACKAGE} {len(C.ENGINE_REQUIREMENTS)} True"
-    shipped = [p for p in (ROOT / "engine").rglob("*.py") if "bench" not in p.parts and p.name != "__main__.py"]
+    shipped = [p for p in (ROOT / "engine").rglob("*.py") if p.name != "__main__.py"]
     assert counts == f"{len(shipped) - 1} True True"  # every module but engine/__init__.py itself
 
 

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bench.motion_scenes import make_motion_scene, part_masks, write_motion_clip
 from engine import cli
 from engine import contract as C
-from engine.bench.motion_scenes import make_motion_scene, part_masks, write_motion_clip
 from engine.data.scribbles import NO_LABEL, read_scribbles
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.io.clip import open_clip

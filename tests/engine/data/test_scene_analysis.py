@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import torch
 
+from bench.scenes import SCENES, make_named_scene
 from engine import contract as C
-from engine.bench.scenes import SCENES, make_named_scene
 from engine.config import apply_overrides, preset_config
 from engine.data.flow import DISFlow, compute_flow
 from engine.data.scene_analysis import (
@@ -293,7 +293,7 @@ def test_pan_builds_a_small_residual_and_no_warp_grid(tmp_path):
 def test_scene_speed_compares_the_same_fit_with_and_without_the_analysis(tmp_path):
     """The measurement helper behind the docs' speed-up table: both fits, same steps; numbers only, no
     timing assertion (the ratio depends on the machine)."""
-    from engine.bench.scene_speed import compare_components
+    from bench.scene_speed import compare_components
 
     s = make_named_scene("lighting_change", width=48, height=32, frames=3)
     frames_dir, _ = _write_clip(tmp_path / "clip", np.repeat(s.frames[:1], 3, axis=0))

@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from engine.bench.sharpness import atlas_sharpness
+from bench.sharpness import atlas_sharpness
 from engine.export import exporter
 from engine.export import plate_splat as S
 from engine.export.atlas_frame import LayerFrame

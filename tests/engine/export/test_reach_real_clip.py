@@ -11,8 +11,8 @@ import io
 
 import pytest
 
-from engine.bench.paint_tracking import score_export
-from engine.bench.tracking import load_tracks
+from bench.paint_tracking import score_export
+from bench.tracking import load_tracks
 from engine.config import apply_overrides, preset_config
 from engine.export import exporter
 from engine.export import flow_reach as R

@@ -14,8 +14,8 @@ import cv2
 import numpy as np
 import pytest
 
+from bench.motion_scenes import make_motion_scene, write_motion_clip
 from engine import contract as C
-from engine.bench.motion_scenes import make_motion_scene, write_motion_clip
 from engine.config import preset_config
 from engine.data.scribbles import NO_LABEL, read_scribbles
 from engine.data.synthetic import SceneSpec, make_scene, write_scene

@@ -191,6 +191,44 @@ def track_report(pred_native: np.ndarray, tracks: Tracks) -> dict:
     return out
 
 
+def track_scores(pred_native: np.ndarray, tracks: Tracks) -> dict:
+    qt = np.rint(tracks.query_txy[:, 0]).astype(int)
+    native = tapvid_scores(pred_native, tracks.xy, tracks.occluded, qt)
+    w, h = tracks.image_size
+    s256 = tapvid_scores(
+        pred_native, tracks.xy, tracks.occluded, qt, scale=(TAPVID_EVAL_SIZE[0] / w, TAPVID_EVAL_SIZE[1] / h)
+    )
+    out = {**native, "coords": "native", "delta_avg_256": s256["delta_avg"]}
+    out["per_point"] = _per_point(pred_native, tracks)
+    out["by_gap"] = scores_by_gap(pred_native, tracks.xy, tracks.occluded, qt)
+    if tracks.on_mask is not None:  # where an atlas falls short: on the masked object or in the background
+        out["by_query_mask"] = {
+            name: tapvid_scores(pred_native[sel], tracks.xy[sel], tracks.occluded[sel], qt[sel])
+            for name, sel in (("on_mask", tracks.on_mask), ("off_mask", ~tracks.on_mask))
+        }
+    return out
+
+
+def _per_point(pred_native: np.ndarray, tracks: Tracks) -> list[dict]:
+    """Each track's own score, in the file's order: an aggregate hides which points fall short, and a few
+    points on something a layer cannot follow (seen through a window, driving through the background) can
+    decide a clip. ``delta_avg`` weighted by ``scored_points`` gives the aggregate back."""
+    qt = np.rint(tracks.query_txy[:, 0]).astype(int)
+    err = np.linalg.norm(np.asarray(pred_native, np.float64) - tracks.xy, axis=-1)
+    scored = scored_positions(tracks.occluded, qt)
+    out = []
+    for i in range(len(qt)):
+        s = tapvid_scores(pred_native[i : i + 1], tracks.xy[i : i + 1], tracks.occluded[i : i + 1], qt[i : i + 1])
+        out.append(
+            {
+                "delta_avg": s["delta_avg"],
+                "scored_points": s["scored_points"],
+                "median_px": round(float(np.median(err[i][scored[i]])), 3) if scored[i].any() else None,
+            }
+        )
+    return out
+
+
 def sample_bilinear(field: np.ndarray, xy: np.ndarray) -> np.ndarray:
     """``field`` [H, W, C] at continuous points ``xy`` [N, 2] (pixel centre i + 0.5), edge-clamped."""
     h, w = field.shape[:2]
@@ -452,4 +490,5 @@ __all__ = [
     "scores_by_gap",
     "tapvid_scores",
     "track_report",
+    "track_scores",
 ]

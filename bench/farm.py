@@ -1,6 +1,6 @@
 """What the Dask back end buys: the same shots run one after another, then through ``farm dask`` with local workers.
 
-``python -m engine.bench farm CLIP CLIP ... --out OUT`` writes a shots file for the clips (each a clip folder with
+``python -m bench farm CLIP CLIP ... --out OUT`` writes a shots file for the clips (each a clip folder with
 frames/ and masks/), plans it once per route (``engine.farm.plan``), and times
 
 1. one after another: every task's engine command of the plan, in plan order, each in a subprocess with all the
@@ -30,8 +30,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
+from bench.bench_clip import BenchClip
 from engine import contract as C
-from engine.bench.bench import BenchClip
 from engine.errors import InputError
 from engine.farm.dask_backend import engine_argv, run_plan
 

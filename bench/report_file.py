@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from engine.bench.tracking import Tracks, load_tracks
+from bench.tracking import Tracks, load_tracks
 from engine.errors import InputError
 from engine.io.atomic import atomic_write_text
 

@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from engine.bench.report_file import to_plate_scale
-from engine.bench.tracking import Tracks, sample_bilinear, scored_positions, track_report
+from bench.report_file import to_plate_scale
+from bench.tracking import Tracks, sample_bilinear, scored_positions, track_report
 from engine.errors import InputError
 from engine.export.manifest import LayerPasses, Manifest
 

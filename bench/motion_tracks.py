@@ -6,10 +6,10 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from engine.bench.motion_bodies import LimbsJump
-from engine.bench.motion_models import _Model
-from engine.bench.motion_spec import MotionSpec
-from engine.bench.tracking import Tracks
+from bench.motion_bodies import LimbsJump
+from bench.motion_models import _Model
+from bench.motion_spec import MotionSpec
+from bench.tracking import Tracks
 
 #: Tracks per part of the object (one part but for limbs_jump), their query frames spread evenly over the clip
 #: (TRACKS / QUERY_FRAMES points of each part each).

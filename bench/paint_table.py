@@ -3,7 +3,7 @@
 
 Per clip (a folder with ``frames/``, ``masks/`` and maybe ``tracks_tapvid.npz``; a synthetic scene of
 ``bench motion-scenes`` also has ``gt_uv.npz`` and ``texture.png``), with its masks degraded by a named recipe
-(``engine.bench.degrade``: ``exact`` or a rough roto):
+(``bench.degrade``: ``exact`` or a rough roto):
 
 * **paint**: where a dot painted on the exported atlases shows in every frame (``paint_tracking``), TAP-Vid
   delta_avg in native pixels;
@@ -37,16 +37,17 @@ from typing import Any
 import cv2
 import numpy as np
 
+from bench.all_clips import find_clips
+from bench.bench_clip import TRACKS_FILE
+from bench.degrade import DEFAULT_SEED, masks_iou, recipe, write_degraded
+from bench.flow_tracks import score_clip
+from bench.motion_scenes import GT_UV_NPZ, PART_MASKS, TEXTURE_PNG
+from bench.paint_slip import export_slip
+from bench.paint_tracking import score_export
+from bench.report_file import read_tracks
+from bench.sharpness import MSE_FLOOR, atlas_sharpness
+from bench.tracking import Tracks
 from engine import contract as C
-from engine.bench.all_clips import find_clips
-from engine.bench.degrade import DEFAULT_SEED, masks_iou, recipe, write_degraded
-from engine.bench.flow_tracks import score_clip
-from engine.bench.motion_scenes import GT_UV_NPZ, PART_MASKS, TEXTURE_PNG
-from engine.bench.paint_slip import export_slip
-from engine.bench.paint_tracking import score_export
-from engine.bench.report_file import read_tracks
-from engine.bench.sharpness import MSE_FLOOR, atlas_sharpness
-from engine.bench.tracking import Tracks
 from engine.errors import InputError
 from engine.export.manifest import Manifest
 from engine.fit.auto_parts import SAID_PREFIX
@@ -58,7 +59,6 @@ PAINT_JSON = "paint.json"
 PAINT_MD = "paint.md"
 PAINT_TAG = "neural_atlas_paint_table"
 PAINT_VERSION = 1
-TRACKS_NPZ = "tracks_tapvid.npz"
 #: The export every clip is scored on (``export --into``): run again, it is reused when it holds the same frames.
 EXPORT_VERSION = "v001"
 #: The recipe that leaves the masks as they are.
@@ -239,10 +239,10 @@ def score_clip_export(folder: Path, manifest: Path, out: Path) -> dict:
     frames, precise = folder / "frames", folder / "masks"
     row: dict[str, Any] = {"paint": None, "paint_256": None, "flow": None, "flow_256": None, "ratio": None,
                            "ratio_object": None}  # fmt: skip
-    if (folder / TRACKS_NPZ).is_file():
-        tracks = read_tracks(folder / TRACKS_NPZ)
+    if (folder / TRACKS_FILE).is_file():
+        tracks = read_tracks(folder / TRACKS_FILE)
         paint = score_export(manifest, tracks)
-        flow = flow_baseline(frames, folder / TRACKS_NPZ, out / "flow" / f"{folder.name}.json")
+        flow = flow_baseline(frames, folder / TRACKS_FILE, out / "flow" / f"{folder.name}.json")
         row.update(
             paint=paint["delta_avg"],
             paint_256=paint["delta_avg_256"],
@@ -318,7 +318,7 @@ def run_paint_table(
         row = _clip_row(folder, out, preset, degrade, seed, sets or [], threads, split, scribble_frames, follow_flow,
                         say)  # fmt: skip
         if pictures and (folder / "masks").is_dir():
-            from engine.bench.paint_picture import paint_picture
+            from bench.paint_picture import paint_picture
 
             row["picture"] = str(paint_picture(Path(row["manifest"]), folder / "frames", folder / "masks",
                                                out / "pictures" / f"{folder.name}.png"))  # fmt: skip
@@ -385,7 +385,7 @@ def _clip_row(
     found = None
     layers = len(masks) + 1
     if how == "scribbles" and split:
-        from engine.bench.part_scribbles import write_part_scribbles
+        from bench.part_scribbles import write_part_scribbles
 
         at = tuple(float(a) for a in np.linspace(0.0, 1.0, max(2, scribble_frames)))
         strokes, _ = write_part_scribbles(split, out / "scribbles" / folder.name, at)

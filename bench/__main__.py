@@ -1,4 +1,4 @@
-"""``python -m engine.bench TOOL ...``: parse the command line (``engine.bench.tool_parsers``, which lists the
+"""``python -m bench TOOL ...``: parse the command line (``bench.tool_parsers``, which lists the
 tools), run the tool (each imports its module only when it runs) and print its result, and map its errors to
 the exit codes of ``engine.contract``. The tools are not part of the product and not in the extension zip.
 """
@@ -11,8 +11,7 @@ import tempfile
 import traceback
 from pathlib import Path
 
-from engine import contract as C
-from engine.bench.tool_parsers import (
+from bench.tool_parsers import (
     BENCH,
     CLIPS,
     EXPECTED_PSNR,
@@ -31,6 +30,7 @@ from engine.bench.tool_parsers import (
     SPEED,
     build_parser,
 )
+from engine import contract as C
 from engine.errors import InputError
 
 
@@ -44,7 +44,7 @@ def parse_eval_at(text: str) -> tuple[float, ...]:
 
 
 def _paint_table(args: argparse.Namespace) -> int:
-    from engine.bench.paint_table import PAINT_JSON, format_table, run_paint_table
+    from bench.paint_table import PAINT_JSON, format_table, run_paint_table
 
     table = run_paint_table(
         args.root,
@@ -80,8 +80,8 @@ def _tracking_line(tool: str, report: dict) -> str:
 
 
 def _paint_tracks(args: argparse.Namespace) -> int:
-    from engine.bench.paint_tracking import score_export
-    from engine.bench.report_file import read_tracks, write_report
+    from bench.paint_tracking import score_export
+    from bench.report_file import read_tracks, write_report
 
     report = score_export(args.manifest, read_tracks(args.tracks))
     print(_tracking_line(PAINT_TRACKS, report) + f", {report['misses']} misses (layer covers nothing)")
@@ -91,8 +91,8 @@ def _paint_tracks(args: argparse.Namespace) -> int:
 
 
 def _flow_tracks(args: argparse.Namespace) -> int:
-    from engine.bench.flow_tracks import score_clip
-    from engine.bench.report_file import read_tracks, write_report
+    from bench.flow_tracks import score_clip
+    from bench.report_file import read_tracks, write_report
 
     report = score_clip(args.frames, read_tracks(args.tracks))
     print(_tracking_line(FLOW_TRACKS, report))
@@ -107,8 +107,8 @@ def _measure(value: float | None, unit: str) -> str:
 
 
 def _sharpness(args: argparse.Namespace) -> int:
-    from engine.bench.report_file import write_report
-    from engine.bench.sharpness import atlas_sharpness
+    from bench.report_file import write_report
+    from bench.sharpness import atlas_sharpness
 
     report = atlas_sharpness(args.manifest, args.plate, args.masks)
     print(
@@ -116,7 +116,7 @@ def _sharpness(args: argparse.Namespace) -> int:
         f"pooled {_measure(report['psnr_pooled'], 'dB')}, {report['frames_scored']} frames"
     )
     if args.run is not None:
-        from engine.bench.network_sharpness import network_sharpness
+        from bench.network_sharpness import network_sharpness
 
         report["network"] = network_sharpness(args.run, args.plate, args.masks)
         print(f"{SHARPNESS}: the fit's networks, pooled {_measure(report['network']['psnr_pooled'], 'dB')}")
@@ -126,8 +126,8 @@ def _sharpness(args: argparse.Namespace) -> int:
 
 
 def _paint_slip(args: argparse.Namespace) -> int:
-    from engine.bench.paint_slip import export_slip
-    from engine.bench.report_file import write_report
+    from bench.paint_slip import export_slip
+    from bench.report_file import write_report
 
     report = export_slip(args.manifest, args.plate)
     for name, layer in report["layers"].items():
@@ -142,14 +142,14 @@ def _paint_slip(args: argparse.Namespace) -> int:
 
 
 def _masks(args: argparse.Namespace) -> int:
-    from engine.bench.mask_check import check_all, format_rows
+    from bench.mask_check import check_all, format_rows
 
     print(format_rows(check_all(args.root, args.out, args.degrade, args.seed, args.reach), args.degrade))
     return C.EXIT_OK
 
 
 def _clips(args: argparse.Namespace) -> int:
-    from engine.bench.all_clips import CLIPS_JSON, format_table, run_all_clips
+    from bench.all_clips import CLIPS_JSON, format_table, run_all_clips
     from engine.config import parse_set_args
 
     table = run_all_clips(
@@ -172,8 +172,9 @@ def _clips(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from engine.bench.bench import BENCH_JSON, resolve_clip, run_bench
-    from engine.bench.bench_summary import summary_table
+    from bench.bench import BENCH_JSON, run_bench
+    from bench.bench_clip import resolve_clip
+    from bench.bench_summary import summary_table
     from engine.config import parse_set_args
 
     if (args.mask or args.tracks or args.score_masks) and len(args.clips) != 1:
@@ -193,7 +194,7 @@ def _bench(args: argparse.Namespace) -> int:
         sequential=args.sequential,
         device_name=args.device,
         stride=args.stride,
-        command=["python", "-m", "engine.bench", *args.argv],
+        command=["python", "-m", "bench", *args.argv],
         threads=args.threads,
         eval_at_start=args.eval_at_start,
         eval_at=parse_eval_at(args.eval_at),
@@ -204,7 +205,7 @@ def _bench(args: argparse.Namespace) -> int:
 
 
 def _speed(args: argparse.Namespace) -> int:
-    from engine.bench.speed import format_table, measure_step_times
+    from bench.speed import format_table, measure_step_times
 
     with tempfile.TemporaryDirectory() as tmp:
         rows = measure_step_times(
@@ -222,7 +223,7 @@ def _speed(args: argparse.Namespace) -> int:
 
 
 def _scene_speed(args: argparse.Namespace) -> int:
-    from engine.bench.scene_speed import compare_components, print_comparison
+    from bench.scene_speed import compare_components, print_comparison
 
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(args.out) if args.out else Path(tmp)
@@ -232,15 +233,15 @@ def _scene_speed(args: argparse.Namespace) -> int:
 
 
 def _expected_psnr(args: argparse.Namespace) -> int:
-    from engine.bench.finished_fit import record_expected_psnr
+    from bench.finished_fit import record_expected_psnr
 
     print(record_expected_psnr(args.preset, args.run, args.clip, args.note))
     return C.EXIT_OK
 
 
 def _farm(args: argparse.Namespace) -> int:
-    from engine.bench.bench import resolve_clip
-    from engine.bench.farm import FARM_BENCH_JSON, format_table, run_farm_bench
+    from bench.bench_clip import resolve_clip
+    from bench.farm import FARM_BENCH_JSON, format_table, run_farm_bench
 
     record = run_farm_bench(
         [resolve_clip(c) for c in args.clips],
@@ -258,8 +259,8 @@ def _farm(args: argparse.Namespace) -> int:
 
 
 def _motion_scenes(args: argparse.Namespace) -> int:
-    from engine.bench.motion_scenes import write_motion_clips
-    from engine.bench.motion_spec import KINDS
+    from bench.motion_scenes import write_motion_clips
+    from bench.motion_spec import KINDS
 
     kinds = tuple(k.strip() for k in args.kinds.split(",") if k.strip()) if args.kinds else KINDS
     unknown = [k for k in kinds if k not in KINDS]
@@ -272,7 +273,7 @@ def _motion_scenes(args: argparse.Namespace) -> int:
 
 
 def _paint_gaps(args: argparse.Namespace) -> int:
-    from engine.bench.paint_gaps import plot_paint_gaps, read_table
+    from bench.paint_gaps import plot_paint_gaps, read_table
 
     if args.label and len(args.label) != len(args.tables):
         problem = f"{len(args.label)} --label for {len(args.tables)} tables"
@@ -284,8 +285,8 @@ def _paint_gaps(args: argparse.Namespace) -> int:
 
 
 def _export_cost(args: argparse.Namespace) -> int:
-    from engine.bench.export_cost import format_cost, measure_export_cost
-    from engine.bench.report_file import write_report
+    from bench.export_cost import format_cost, measure_export_cost
+    from bench.report_file import write_report
 
     report = measure_export_cost(Path(args.run), args.repeats, args.threads, Path(args.work) if args.work else None)
     print(format_cost(report))

@@ -1,6 +1,6 @@
 """What the scene analysis saves: the same clip fitted with ``components=auto`` and ``components=all``.
 
-    python -m engine.bench scene-speed CLIP [--mask FOLDER] [--frames A:B] [--preset draft] [--steps N]
+    python -m bench scene-speed CLIP [--mask FOLDER] [--frames A:B] [--preset draft] [--steps N]
                                         [--long-edge PX] [--out DIR]
 
 Both fits use the same config, seed and steps; only ``components`` differs. Prints one line per fit

@@ -1,5 +1,5 @@
 """What decides a motion scene: its kind, its size and length, its texture seed and the camera's pan. The same
-``MotionSpec`` always gives the same pixels (``engine.bench.motion_scenes`` renders it)."""
+``MotionSpec`` always gives the same pixels (``bench.motion_scenes`` renders it)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The measurement tools for developing the engine, run as ``python -m engine.bench TOOL ...``. They are not
+"""The measurement tools for developing the engine, run as ``python -m bench TOOL ...``. They are not
 part of the product (its CLI is ``python -m engine``) and not in the extension zip.
 
     bench        accuracy against training time of several presets, in one process (docs/accuracy-vs-time.md)
@@ -20,14 +20,14 @@ part of the product (its CLI is ``python -m engine``) and not in the extension z
     export-cost  an export following the flow against one as fitted, in turn: wall time and peak memory
 
 The tools' command-line parser: each tool's options; the options several tools share are defined once and given to
-them as argparse parents, so their help cannot drift apart. ``engine.bench.__main__`` runs the tool.
+them as argparse parents, so their help cannot drift apart. ``bench.__main__`` runs the tool.
 """
 
 from __future__ import annotations
 
 import argparse
 
-from engine.cli_options import add_follow_flow, frame_range
+from engine.cli_options import add_device, add_follow_flow, add_preset, add_set, add_threads, frame_range
 
 BENCH = "bench"
 CLIPS = "clips"
@@ -44,7 +44,7 @@ PAINT_SLIP = "paint-slip"
 PAINT_TABLE = "paint-table"
 PAINT_GAPS = "paint-gaps"
 EXPORT_COST = "export-cost"
-PROG = "python -m engine.bench"
+PROG = "python -m bench"
 
 BENCH_EPILOG = """\
 clips: a folder holding frames/ and masks/ (and tracks_tapvid.npz: then atlas tracking is scored), or a frame
@@ -52,7 +52,7 @@ clips: a folder holding frames/ and masks/ (and tracks_tapvid.npz: then atlas tr
 --set KEY=VALUE applies to every preset, --set PRESET.KEY=VALUE to one (e.g. paper.batch=2000).
 writes OUT/bench.json (curves, machine, versions, command) and OUT/bench.png; see docs/accuracy-vs-time.md.
 """
-#: The degraded masks of clips and masks by default: as rough as a quick roto (engine.bench.degrade).
+#: The degraded masks of clips and masks by default: as rough as a quick roto (bench.degrade).
 CLIPS_RECIPE = "dilated10_dropped10"
 
 
@@ -87,21 +87,21 @@ def _parent() -> argparse.ArgumentParser:
 def _fit_device_parent() -> argparse.ArgumentParser:
     """Where the fits of bench and clips run: the device and torch's CPU threads."""
     p = _parent()
-    p.add_argument("--device", default="auto")
-    p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+    add_device(p, "auto")
+    add_threads(p)
     return p
 
 
 def _preset_parent() -> argparse.ArgumentParser:
     """The one fit preset of clips and paint-table."""
     p = _parent()
-    p.add_argument("--preset", default="draft", help="fit preset (default: draft)")
+    add_preset(p, "draft", "fit preset (default: draft)")
     return p
 
 
 def _mask_recipe_parent(default: str) -> argparse.ArgumentParser:
-    """The degraded masks of clips, masks and paint-table: a recipe of engine.bench.degrade and its seed."""
-    from engine.bench.degrade import DEFAULT_SEED, RECIPES
+    """The degraded masks of clips, masks and paint-table: a recipe of bench.degrade and its seed."""
+    from bench.degrade import DEFAULT_SEED, RECIPES
 
     p = _parent()
     p.add_argument("--degrade", default=default, choices=list(RECIPES), help="mask recipe (default: %(default)s)")
@@ -205,7 +205,7 @@ def _add_speed_parsers(sub: argparse._SubParsersAction) -> None:
     )
     sp.add_argument("--steps", type=int, default=10, help="steps per block (default: 10)")
     sp.add_argument("--rounds", type=int, default=3, help="interleaved rounds (default: 3)")
-    sp.add_argument("--device", default="auto")
+    add_device(sp, "auto")
     sp.add_argument("--work", default=None, help="folder for the flow cache (default: a temp folder)")
     ss = sub.add_parser(
         SCENE_SPEED,
@@ -216,7 +216,7 @@ def _add_speed_parsers(sub: argparse._SubParsersAction) -> None:
     ss.add_argument("clip")
     ss.add_argument("--mask", action="append", default=[])
     ss.add_argument("--frames", type=frame_range, default=None, metavar="A:B")
-    ss.add_argument("--preset", default="draft")
+    add_preset(ss, "draft", "fit preset (default: draft)")
     ss.add_argument("--steps", type=int, default=300)
     ss.add_argument("--long-edge", type=int, default=384)
     ss.add_argument("--out", default=None, help="folder for the two runs (default: a temporary folder)")
@@ -269,7 +269,7 @@ def _clips_options() -> argparse.ArgumentParser:
     c.add_argument("--budget-seconds", type=float, default=None, help="training seconds per clip (default: its steps)")
     c.add_argument("--eval-frames", type=int, default=0, help="frames evaluated (default: 0 = all)")
     c.add_argument("--stride", type=int, default=4, help="pixel grid of the consistency and tracking search")
-    c.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
+    add_set(c, "config override")
     return c
 
 
@@ -350,8 +350,8 @@ def _add_paint_table_parser(sub: argparse._SubParsersAction) -> None:
     pt.add_argument("root", metavar="CLIPS_ROOT", help="folder of clip folders")
     pt.add_argument("--out", default="paint_out", help="output folder (default: paint_out)")
     _add_only(pt)
-    pt.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="fit config override")
-    pt.add_argument("--threads", type=int, default=None, help="CPU threads of each fit (default: torch's choice)")
+    add_set(pt, "fit config override")
+    add_threads(pt, "CPU threads of each fit (default: torch's choice)")
     pt.add_argument("--pictures", action="store_true", help="also write OUT/pictures/CLIP.png")
     split = pt.add_mutually_exclusive_group()
     split.add_argument(
@@ -423,7 +423,7 @@ def _add_export_cost_parser(sub: argparse._SubParsersAction) -> None:
     )
     ec.add_argument("run", metavar="RUN_DIR", help="the --out folder of a finished fit")
     ec.add_argument("--repeats", type=int, default=2, help="exports of each kind (default: 2)")
-    ec.add_argument("--threads", type=int, default=None, help="CPU threads of each export (default: torch's choice)")
+    add_threads(ec, "CPU threads of each export (default: torch's choice)")
     ec.add_argument("--work", default=None, metavar="DIR", help="where the copy goes (default: the temp folder)")
     _add_json(ec)
 
@@ -438,8 +438,8 @@ def _add_farm_parser(sub: argparse._SubParsersAction) -> None:
     )
     fb.add_argument("clips", nargs="+", metavar="CLIP", help="clip folder holding frames/ and masks/")
     fb.add_argument("--out", default="farm_bench_out", help="output folder, replaced (default: farm_bench_out)")
-    fb.add_argument("--preset", default="draft", help="fit preset of every shot (default: draft)")
-    fb.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="fit config override")
+    add_preset(fb, "draft", "fit preset of every shot (default: draft)")
+    add_set(fb, "fit config override")
     fb.add_argument("--workers", type=int, default=2, help="Dask workers, one engine each (default: 2)")
     fb.add_argument("--cores", type=int, default=None, help="torch threads in all (default: the machine's cores)")
     fb.add_argument("--export-chunk", type=int, default=None, metavar="N", help="frames per export-passes task")

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.flow_tracks import dis_flow, plate_codes
+from bench.paint_tracking import OWNED_COVERAGE, nearest_positions, texel_uv
 from engine import contract as C
-from engine.bench.flow_tracks import dis_flow, plate_codes
-from engine.bench.paint_tracking import OWNED_COVERAGE, nearest_positions, texel_uv
 from engine.errors import InputError
 from engine.export.manifest import Manifest
 from engine.io.clip import open_clip

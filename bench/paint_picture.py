@@ -15,7 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from engine.bench.flow_tracks import dis_flow_tracks, plate_codes
+from bench.flow_tracks import dis_flow_tracks, plate_codes
 from engine.edit.preview import checker_edits, grid, label, tile, write_png_u8
 from engine.edit.render import render_frames, to_display_u8
 from engine.errors import InputError

@@ -12,7 +12,7 @@ texture everywhere to lock on to):
     turning_depth  an elongated textured body turning 180 degrees about its vertical axis under a pinhole camera:
                 from side-on through end-on to its other side, near parts larger, its two sides unlike each other
     limbs_jump  a torso with two limbs swinging across it in opposite phase (one in front of it, one behind)
-                while the body jumps: parts hide each other and come back (``engine.bench.motion_bodies``)
+                while the body jumps: parts hide each other and come back (``bench.motion_bodies``)
 
 Every scene is a forward model with an exact inverse: ``surface(t, x, y)`` gives the surface coordinate (the
 object's texture coordinate, in texture pixels) and the anti-aliased coverage at any frame point, and
@@ -22,16 +22,16 @@ at the exact surface coordinate of every pixel, so a surface point has the same 
 it. The ground truth is the surface-coordinate field (``gt_uv.npz``: NaN where the object is not visible), the
 texture itself (``texture.png``, one texel per surface unit: re-sampled through the field it gives the object's
 pixels) and TAP-Vid tracks of points spread over the object's parts (``tracks_tapvid.npz``), solved from the forward
-model, so ``python -m engine.bench clips`` scores atlas tracking on them against chained optical flow with no other
+model, so ``python -m bench clips`` scores atlas tracking on them against chained optical flow with no other
 code. ``masks/`` holds the exact visible object, ``masks_rough/`` the rough roto the ``clips`` bench makes of it by
-default (``engine.bench.degrade``), for fitting a clip by hand as the bench does.
+default (``bench.degrade``), for fitting a clip by hand as the bench does.
 
 Conventions: a scene's own functions use points with pixel ``[y, x]`` at ``(x, y)`` (as ``engine.data.synthetic``);
 tracks, ``colour_at`` and ``uv_at`` use the tracks' convention, pixel ``i``'s centre at ``i + 0.5``.
 
-Here: the rendered scene and its clip folder. What decides a scene is ``engine.bench.motion_spec``'s
-``MotionSpec``; each kind's build (sizes, speeds, texture, description) is ``engine.bench.motion_builders``; the
-first four forward models are ``engine.bench.motion_models``; the ground-truth tracks ``engine.bench.motion_tracks``.
+Here: the rendered scene and its clip folder. What decides a scene is ``bench.motion_spec``'s
+``MotionSpec``; each kind's build (sizes, speeds, texture, description) is ``bench.motion_builders``; the
+first four forward models are ``bench.motion_models``; the ground-truth tracks ``bench.motion_tracks``.
 """
 
 from __future__ import annotations
@@ -47,18 +47,18 @@ from typing import Any
 import cv2
 import numpy as np
 
-from engine.bench.degrade import write_degraded
-from engine.bench.motion_bodies import BACK_LIMB, FRONT_LIMB, TORSO, LimbsJump
-from engine.bench.motion_builders import BUILDERS, DESCRIPTIONS
-from engine.bench.motion_models import _Model
-from engine.bench.motion_spec import DEFAULT_FRAMES, DEFAULT_SIZE, KINDS, MotionSpec
-from engine.bench.motion_tracks import ground_truth_tracks
-from engine.bench.tracking import Tracks, save_tracks
+from bench.bench_clip import TRACKS_FILE
+from bench.degrade import write_degraded
+from bench.motion_bodies import BACK_LIMB, FRONT_LIMB, TORSO, LimbsJump
+from bench.motion_builders import BUILDERS, DESCRIPTIONS
+from bench.motion_models import _Model
+from bench.motion_spec import DEFAULT_FRAMES, DEFAULT_SIZE, KINDS, MotionSpec
+from bench.motion_tracks import ground_truth_tracks
+from bench.tracking import Tracks, save_tracks
 from engine.data.synthetic import _Background, _textures, write_pngs
 from engine.io.images import cv2_write
 
 GT_UV_NPZ = "gt_uv.npz"
-TRACKS_NPZ = "tracks_tapvid.npz"
 TEXTURE_PNG = "texture.png"
 #: The rough roto written beside the exact masks: the ``clips`` bench's default recipe, with its default seed.
 ROUGH_MASKS = "masks_rough"
@@ -210,9 +210,9 @@ def write_motion_clip(scene: MotionScene, folder: str | Path) -> Path:
     write_degraded(masks_dir, rough_dir, ROUGH_RECIPE)
     texture8 = np.clip(np.rint(scene.texture * 255.0), 0, 255).astype(np.uint8)
     cv2_write(out / TEXTURE_PNG, cv2.cvtColor(texture8, cv2.COLOR_RGB2BGR))
-    save_tracks(out / TRACKS_NPZ, scene.tracks)
+    save_tracks(out / TRACKS_FILE, scene.tracks)
     np.savez_compressed(out / GT_UV_NPZ, uv=scene.uv, kind=np.asarray(scene.spec.kind))
-    for name in (TRACKS_NPZ, GT_UV_NPZ):
+    for name in (TRACKS_FILE, GT_UV_NPZ):
         _repack_fixed_date(out / name)
     return out
 

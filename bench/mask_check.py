@@ -1,11 +1,11 @@
 """The mask snap alone, on every clip of a folder: how far it moves degraded masks and how close they come to
 the precise ones, without fitting anything (seconds per clip instead of minutes).
 
-Each clip's precise ``masks/`` are degraded by a named recipe (``engine.bench.degrade``) into
+Each clip's precise ``masks/`` are degraded by a named recipe (``bench.degrade``) into
 ``OUT/masks/RECIPE/CLIP``, read at the fit's working size exactly as ``fit`` reads them, snapped with the fit's
 ``engine.data.mask_snap.snap_masks``, and scored against the precise masks at that size (pooled over the frames the
 degraded masks have). It also gives the share of the snapped masks the fit's mask prior holds, and whether the fit
-will hold the masks for all its steps for that (``mask_hold_coverage``). ``python -m engine.bench masks CLIPS
+will hold the masks for all its steps for that (``mask_hold_coverage``). ``python -m bench masks CLIPS
 --degrade RECIPE`` prints the table.
 """
 
@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.all_clips import find_clips
+from bench.degrade import DEFAULT_SEED, recipe, write_degraded
 from engine import contract as C
-from engine.bench.all_clips import find_clips
-from engine.bench.degrade import DEFAULT_SEED, recipe, write_degraded
 from engine.config import FitConfig
 from engine.data.mask_snap import snap_masks
 from engine.data.video import mask_hold_layers, mask_prior, prior_coverage

@@ -1,5 +1,5 @@
 """Each kind of motion scene built from its ``MotionSpec``: the sizes, speeds and textures that make a scene the
-motion it is named for, its forward model (``engine.bench.motion_models``, ``engine.bench.motion_bodies``), the
+motion it is named for, its forward model (``bench.motion_models``, ``bench.motion_bodies``), the
 plate it moves over, and a line describing it."""
 
 from __future__ import annotations
@@ -8,9 +8,9 @@ from collections.abc import Callable
 
 import numpy as np
 
-from engine.bench.motion_bodies import Capsule, LimbsJump, TurningDepth, atlas_texture, solid_texture
-from engine.bench.motion_models import _Deforming, _Model, _Rigid, _Turning, _WrappedTexture
-from engine.bench.motion_spec import DEFORMING, LIMBS_JUMP, SMALL_FAST, THIN, TURNING, TURNING_DEPTH, MotionSpec
+from bench.motion_bodies import Capsule, LimbsJump, TurningDepth, atlas_texture, solid_texture
+from bench.motion_models import _Deforming, _Model, _Rigid, _Turning, _WrappedTexture
+from bench.motion_spec import DEFORMING, LIMBS_JUMP, SMALL_FAST, THIN, TURNING, TURNING_DEPTH, MotionSpec
 from engine.data.synthetic import _FG_SPOTS, MIN_BUMP_RADIUS_PX, MIN_WAVELENGTH_PX, SceneSpec, _textures
 
 #: turning: the cylinder's radius and height as fractions of the frame height, its turn over the whole clip

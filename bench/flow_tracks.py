@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from engine.bench.report_file import to_plate_scale
-from engine.bench.tracking import Tracks, chain_flow, track_report
+from bench.report_file import to_plate_scale
+from bench.tracking import Tracks, chain_flow, track_report
 from engine.data.flow import DISFlow
 from engine.io.clip import iter_frames, open_clip
 from engine.io.colour import to_working

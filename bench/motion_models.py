@@ -1,5 +1,5 @@
 """The forward models of the first four motion scenes (turning, deforming, small_fast, thin; the last two are
-``engine.bench.motion_bodies``'): each maps a frame point to the surface coordinate and coverage it shows
+``bench.motion_bodies``'): each maps a frame point to the surface coordinate and coverage it shows
 (``surface``) and a surface point to where it is in a frame and whether the camera sees it (``position``), exactly,
 so the scenes' ground truth is solved rather than estimated."""
 
@@ -10,9 +10,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from engine.bench.motion_bodies import LimbsJump, TurningDepth
-from engine.bench.motion_bodies import rotate as _rotate
-from engine.bench.motion_bodies import smooth_coverage as _smooth_coverage
+from bench.motion_bodies import LimbsJump, TurningDepth
+from bench.motion_bodies import rotate as _rotate
+from bench.motion_bodies import smooth_coverage as _smooth_coverage
 from engine.data.synthetic import _FG_STRIPES, _bump, _Sprite
 
 #: turning: query points lie within this angle of facing the camera (the limb is foreshortened to nothing).

@@ -1,5 +1,5 @@
 """Forward models of the two motions that make paint slide off real bodies: a body turning in depth under a
-pinhole camera, and a jumping body whose limbs swing across it. ``engine.bench.motion_scenes`` renders them.
+pinhole camera, and a jumping body whose limbs swing across it. ``bench.motion_scenes`` renders them.
 
 Each model has the interface of the other motion scenes' models: ``surface(t, x, y)`` gives the surface coordinate
 (texture pixels) and the anti-aliased coverage at any frame point, ``position(t, uv)`` where a surface point is in

@@ -13,7 +13,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from engine.bench.bench import differing_shared_field
+from bench.bench import differing_shared_field
 from engine.config import FitConfig, apply_overrides, parse_set_args, preset_config
 from engine.errors import InputError
 from engine.fit.device import select_device, synchronize

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from engine.bench.sharpness import PooledPSNR
+from bench.sharpness import PooledPSNR
 from engine.errors import InputError
 from engine.fit.evaluation import render_frame
 from engine.fit.fitted_run import load_fitted

@@ -9,21 +9,17 @@ import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
-from engine.bench.bench_evaluation import _track_scores
-from engine.bench.tracking import Tracks, chained_flow_tracks, load_tracks
+from bench.bench_clip import BenchClip
+from bench.tracking import Tracks, chained_flow_tracks, load_tracks, track_scores
 from engine.config import FitConfig
 from engine.data.video import VideoTensors
 from engine.fit.prepare import PreparedClip, prepare_clip
 from engine.fit.trainer import Trainer
 from engine.io.clip import read_masks
-
-if TYPE_CHECKING:
-    from engine.bench.bench import BenchClip
 
 #: Fractions of a run's steps at which the fit's ETA is recorded (compared with the actual remaining time).
 ETA_FRACTIONS: tuple[float, ...] = (0.1, 0.25, 0.5)
@@ -90,7 +86,7 @@ def _prepare(spec: BenchClip, cfg: FitConfig, work: Path, eval_frames: int, devi
     if tracks is not None and len(qt):
         flow = prepared.flow
         pred = chained_flow_tracks(flow.forward, flow.backward, np.c_[qt, qxy], n_tr) * scale
-        state.baseline = _track_scores(pred, tracks)
+        state.baseline = track_scores(pred, tracks)
     return state
 
 

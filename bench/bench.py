@@ -7,8 +7,8 @@ comparable. Runs are interleaved in short slices by default, so machine noise hi
 Writes ``bench.json`` (rewritten after every evaluation, so a killed bench keeps its curves) and ``bench.png``.
 
 Here: the bench's inputs (clips, configs), its evaluation schedule and its loop. A clip's state and a run are
-``engine.bench.bench_runs``; a curve point ``engine.bench.bench_evaluation``; the machine and versions of the record
-``engine.bench.bench_machine``; the plot and table ``engine.bench.bench_summary``.
+``bench.bench_runs``; a curve point ``bench.bench_evaluation``; the machine and versions of the record
+``bench.bench_machine``; the plot and table ``bench.bench_summary``.
 """
 
 from __future__ import annotations
@@ -17,17 +17,17 @@ import datetime as _dt
 import json
 import math
 import sys
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-from engine.bench.bench_evaluation import evaluate
-from engine.bench.bench_machine import machine, rss_mb, versions
-from engine.bench.bench_runs import ClipState, Run, _advance, _prepare
-from engine.bench.bench_summary import plot_bench
+from bench.bench_clip import BenchClip
+from bench.bench_evaluation import evaluate
+from bench.bench_machine import machine, rss_mb, versions
+from bench.bench_runs import ClipState, Run, _advance, _prepare
+from bench.bench_summary import plot_bench
 from engine.config import FitConfig, apply_overrides, preset_config
 from engine.errors import InputError
 from engine.fit.device import select_device, torch_threads
@@ -39,7 +39,6 @@ BENCH_VERSION = 1
 BENCH_TAG = "neural_atlas_bench"
 BENCH_JSON = "bench.json"
 BENCH_PNG = "bench.png"
-TRACKS_FILE = "tracks_tapvid.npz"
 #: The first evaluation is at this fraction of the budget (then geometric up to the budget: dense early on).
 FIRST_EVAL_FRACTION = 1.0 / 32.0
 #: Config fields that decide the prepared clip (frames, flow, mask prior); every preset of a bench shares it.
@@ -50,45 +49,6 @@ SHARED_FIELDS: tuple[str, ...] = (
     "mask_prior_margin_px",
     "mask_snap_px",
 )
-
-
-@dataclass
-class BenchClip:
-    name: str
-    frames: Path
-    masks: list[Path]
-    tracks: Path | None
-    #: Precise masks the decomposition is scored against (``fg_iou``); empty: not scored.
-    score_masks: list[Path] = field(default_factory=list)
-
-
-def resolve_clip(
-    path: str | Path,
-    masks: list[str | Path] | None = None,
-    tracks: str | Path | None = None,
-    score_masks: list[str | Path] | None = None,
-) -> BenchClip:
-    """A clip given as ``<clip>/`` with ``frames/``, ``masks/`` and maybe ``tracks_tapvid.npz`` inside (a clip
-    folder), or as a frame folder whose masks come from ``masks`` (tracks then default to
-    ``tracks_tapvid.npz`` beside the frame folder). The decomposition is scored against ``score_masks``, by
-    default against a clip folder's own ``masks/`` (also when the fit is given other masks)."""
-    p = Path(path).expanduser().resolve()
-    if not p.is_dir():
-        raise InputError(p, "is not a folder", "pass a frame folder, or a clip folder holding frames/ and masks/")
-    if (p / "frames").is_dir():
-        frames, name, home = p / "frames", p.name, p
-        mask_dirs = [Path(m) for m in masks] if masks else ([p / "masks"] if (p / "masks").is_dir() else [])
-    else:
-        frames, home = p, p.parent
-        name = p.parent.name if p.name == "frames" else p.name
-        mask_dirs = [Path(m) for m in masks or []]
-    if tracks is None and (home / TRACKS_FILE).is_file():
-        tracks = home / TRACKS_FILE
-    if score_masks:
-        score = [Path(m) for m in score_masks]
-    else:
-        score = [p / "masks"] if (p / "frames").is_dir() and (p / "masks").is_dir() else []
-    return BenchClip(name, frames, mask_dirs, Path(tracks) if tracks else None, score)
 
 
 def bench_configs(presets: list[str], overrides: dict[str, str]) -> list[FitConfig]:
@@ -303,7 +263,5 @@ def _evaluate_and_log(run: Run, device: torch.device, stride: int, log: Any) -> 
 __all__ = [
     "BENCH_JSON",
     "BENCH_PNG",
-    "BenchClip",
-    "resolve_clip",
     "run_bench",
 ]

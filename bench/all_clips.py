@@ -1,7 +1,7 @@
 """Every clip under one folder, fitted with degraded masks and judged against the precise ones: one table.
 
 Each clip folder (``frames/`` and ``masks/``, maybe ``tracks_tapvid.npz``) gets its masks degraded by a named
-recipe (``engine.bench.degrade``) into ``OUT/masks/RECIPE/CLIP``; one preset is fitted on each clip with those
+recipe (``bench.degrade``) into ``OUT/masks/RECIPE/CLIP``; one preset is fitted on each clip with those
 masks by ``run_bench`` (one clip after another, each to its preset's steps unless a budget ends it first) and
 evaluated once at the end on every frame (by default): PSNR, the foreground alpha's IoU against the clip's own
 precise ``masks/`` (``fg_iou``, next to the given masks' own IoU against them), TAP-Vid delta_avg of atlas
@@ -20,10 +20,11 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from engine.bench.bench import BENCH_JSON, BenchClip, resolve_clip, run_bench
-from engine.bench.degrade import DEFAULT_SEED, masks_iou, recipe, write_degraded
-from engine.bench.flow_tracks import score_clip
-from engine.bench.report_file import read_tracks
+from bench.bench import BENCH_JSON, run_bench
+from bench.bench_clip import BenchClip, resolve_clip
+from bench.degrade import DEFAULT_SEED, masks_iou, recipe, write_degraded
+from bench.flow_tracks import score_clip
+from bench.report_file import read_tracks
 from engine.errors import InputError
 from engine.io.atomic import atomic_write_text
 
