@@ -16,22 +16,11 @@ if [ -z "$PY" ]; then
 fi
 [ -n "$PY" ] || { echo "error: no python3 found — install Python 3.11" >&2; exit 2; }
 
-# The engine's requirements are engine/requirements.txt and engine/requirements-farm.txt (ranges, also the wheel's),
-# installed with the exact versions of engine/constraints.txt; the development ones (the test tools, bpy) are
-# engine/contract.py's DEV_REQUIREMENTS and BPY5_REQUIREMENTS, read as literals (no engine code runs), so any
-# Python 3 can read them before the venv exists.
-contract_list() {  # the named tuples of engine/contract.py, one item per line
-  "$PY" - "$@" <<'PYEOF'
-import ast, pathlib, sys
-values = {}
-for node in ast.parse(pathlib.Path("engine/contract.py").read_text()).body:
-    if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name) and node.target.id in sys.argv[1:]:
-        values[node.target.id] = ast.literal_eval(node.value)
-print("\n".join(item for name in sys.argv[1:] for item in values[name]))
-PYEOF
-}
+# The engine's requirements are engine/requirements.txt and engine/requirements-farm.txt (ranges, also the wheel's);
+# the development ones (the test tools, bpy 4.5) tests/requirements.txt, and Blender 5.0's venv
+# tests/requirements-bpy5.txt: each installed with the exact versions of engine/constraints.txt.
 CONSTRAINTS="engine/constraints.txt"
-REQS="$(cat engine/requirements.txt engine/requirements-farm.txt; contract_list DEV_REQUIREMENTS)"
+REQS="$(cat engine/requirements.txt engine/requirements-farm.txt tests/requirements.txt)"
 STAMP=".venv/.requirements.sha256"
 WANT="$(printf '%s\n' "$REQS" | cat - "$CONSTRAINTS" | sha256sum | cut -d' ' -f1)"
 if [ ! -x .venv/bin/python ] || [ "$(cat "$STAMP" 2>/dev/null)" != "$WANT" ]; then
@@ -45,7 +34,7 @@ if [ ! -x .venv/bin/python ] || [ "$(cat "$STAMP" 2>/dev/null)" != "$WANT" ]; th
 fi
 
 # Blender 5.0 for the add-on tests: a second venv (bpy 4.5 lives in .venv; one bpy per interpreter).
-BPY5_REQS="$(contract_list BPY5_REQUIREMENTS)"
+BPY5_REQS="$(cat tests/requirements-bpy5.txt)"
 setup_bpy5() {
   local want
   want="$(printf '%s\n' "$BPY5_REQS" | cat - "$CONSTRAINTS" | sha256sum | cut -d' ' -f1)"

@@ -43,25 +43,3 @@ def requirement_lines(name: str) -> tuple[str, ...]:
 ENGINE_REQUIREMENTS: tuple[str, ...] = requirement_lines(REQUIREMENTS_FILE)
 #: The farm back ends' own requirements (the wheel's ``farm`` extra; the test venv has them).
 FARM_REQUIREMENTS: tuple[str, ...] = requirement_lines(FARM_REQUIREMENTS_FILE)
-
-#: Extra requirements for development and the test suite (same venv).
-DEV_REQUIREMENTS: tuple[str, ...] = (
-    "pytest>=8",
-    "pytest-xdist>=3.6",  # run.sh runs the suite on every core
-    "hypothesis>=6.100",
-    "ruff>=0.6",
-    "matplotlib>=3.8",
-    "bpy==4.5.*",  # Blender as a module, for the add-on tests (4.5 LTS; needs numpy<2)
-    "mypy==2.4.1",  # type-checks the modules listed in pyproject.toml ([tool.mypy] files)
-)
-
-#: The add-on tests run a second time on Blender 5.0, in a second venv (run.sh's .venv-bpy5): one bpy per
-#: interpreter, so these are installed beside .venv's bpy 4.5 rather than into it.
-BPY5_REQUIREMENTS: tuple[str, ...] = (
-    "bpy==5.0.1",
-    "numpy<2",
-    "OpenEXR==3.5.*",
-    "pydantic>=2.7,<3",  # the farm test helpers load a shots file (engine.farm.shots) in this interpreter
-    "pytest>=8",
-    "pytest-xdist>=3.6",
-)
