@@ -5,6 +5,7 @@ a bad argument answer at once."""
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 from pathlib import Path
 
@@ -72,6 +73,16 @@ def build_parser(prog: str = f"python -m {C.CLI_MODULE}") -> argparse.ArgumentPa
     _add_farm_parser(sub)
     add_output_options(p)
     return p
+
+
+@functools.cache
+def verb_flags(verb: str) -> dict[str, str]:
+    """Each option of ``verb`` (``C.VERB_*``) by its destination, as this parser declares it (``start_frame``:
+    ``--start-frame``): a command line built for the engine (the farm's plan) names the flags from here, so a flag
+    renamed here cannot leave a farm task asking for the old one."""
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    parser = sub.choices[verb]
+    return {a.dest: a.option_strings[-1] for a in parser._actions if a.option_strings and a.dest != "help"}
 
 
 def _add_fit_parser(sub: argparse._SubParsersAction) -> None:

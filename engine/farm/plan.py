@@ -166,41 +166,45 @@ def shot_tasks(sp: ShotPlan) -> list[Task]:
 
     fit_after: list[str] = []
     if shot.auto_masks:
-        found = add(MASKS, [C.VERB_MASKS, shot.plate, "--out", sp.masks_out, *_masks_options(shot, sp)], [])
+        m = verb_flags(C.VERB_MASKS)
+        found = add(MASKS, [C.VERB_MASKS, shot.plate, m["out"], sp.masks_out, *_masks_options(shot, sp)], [])
         fit_after = [found.id]
-    fit_args = [C.VERB_FIT, shot.plate, "--out", shot.run, C.FIT_RESUME_IF_STARTED_FLAG, "--preset", shot.preset]
+    f = verb_flags(C.VERB_FIT)
+    fit_args = [C.VERB_FIT, shot.plate, f["out"], shot.run, C.FIT_RESUME_IF_STARTED_FLAG, f["preset"], shot.preset]
     for override in shot.set:
-        fit_args += ["--set", override]
+        fit_args += [f["set"], override]
     for mask in shot.masks:
-        fit_args += ["--mask", mask]
+        fit_args += [f["mask"], mask]
     if shot.auto_masks:
         fit_args.append(C.FIT_AUTO_MASKS_FLAG)
     if shot.auto_parts is not None:  # not given: the fit's default (the parts wherever that applies)
         fit_args.append(C.FIT_AUTO_PARTS_FLAG if shot.auto_parts else C.FIT_NO_AUTO_PARTS_FLAG)
-    fit_args += ["--frames", frames]
-    fit_args += _option("--colorspace", shot.colorspace) + _option("--fps", shot.fps)
-    fit_args += _option("--start-frame", shot.start_frame) + _option("--device", shot.device) + ["--no-bar"]
+    fit_args += [f["frames"], frames]
+    fit_args += _option(f["colorspace"], shot.colorspace) + _option(f["fps"], shot.fps)
+    fit_args += _option(f["start_frame"], shot.start_frame) + _option(f["device"], shot.device) + [f["no_bar"]]
     fit = add(FIT, fit_args, fit_after)
 
+    e = verb_flags(C.VERB_EXPORT)
     export = [C.VERB_EXPORT, shot.run, C.EXPORT_INTO_ARG, sp.version, C.EXPORT_STAGE_ARG]
-    device = _option("--device", shot.device)
+    device = _option(e["device"], shot.device)
     atlases = add(
-        ATLASES, [*export, ATLASES, "--frames", frames, *_option("--atlas-size", shot.atlas_size), *device,
-                  *([] if shot.follow_flow else [C.EXPORT_NO_FOLLOW_FLOW_FLAG]), "--no-bar"],
+        ATLASES, [*export, ATLASES, e["frames"], frames, *_option(e["atlas_size"], shot.atlas_size), *device,
+                  *([] if shot.follow_flow else [C.EXPORT_NO_FOLLOW_FLOW_FLAG]), e["no_bar"]],
         [fit.id],
     )  # fmt: skip
     numbers = list(sp.numbers) or list(range(first, last + 1))
     passes = [
-        add(PASSES, [*export, PASSES, "--frames", f"{a}-{b}", *device, "--no-bar"], [atlases.id], (a, b))
+        add(PASSES, [*export, PASSES, e["frames"], f"{a}-{b}", *device, e["no_bar"]], [atlases.id], (a, b))
         for a, b in chunk_ranges(numbers, shot.export_chunk)
     ]
-    publish = add(PUBLISH, [*export, PUBLISH, "--no-bar"], [p.id for p in passes])
+    publish = add(PUBLISH, [*export, PUBLISH, e["no_bar"]], [p.id for p in passes])
     if shot.render is not None:
-        fmt = _option("--format", shot.render_format)
+        r = verb_flags(C.VERB_RENDER)
+        fmt = _option(r["format"], shot.render_format)
         for a, b in chunk_ranges(numbers, shot.render_chunk):
             add(
                 RENDER,
-                [C.VERB_RENDER, sp.manifest, "--out", shot.render, "--frames", f"{a}-{b}", *fmt, "--no-bar"],
+                [C.VERB_RENDER, sp.manifest, r["out"], shot.render, r["frames"], f"{a}-{b}", *fmt, r["no_bar"]],
                 [publish.id],
                 (a, b),
             )
@@ -273,13 +277,21 @@ def _in_range(shots_file: Path, shot: Shot, numbers: list[int]) -> list[int]:
 
 def _masks_options(shot: Shot, sp: ShotPlan) -> list[str]:
     """``masks --frames`` speaks the plate's frame numbers, and a movie's from 0 (the verb has no --start-frame)."""
-    offset = shot.start_frame or 0
-    options = ["--frames", f"{sp.frames[0] - offset}-{sp.frames[1] - offset}"]
-    return options + _option("--colorspace", shot.colorspace)
+    offset, m = shot.start_frame or 0, verb_flags(C.VERB_MASKS)
+    options = [m["frames"], f"{sp.frames[0] - offset}-{sp.frames[1] - offset}"]
+    return options + _option(m["colorspace"], shot.colorspace)
 
 
 def _option(flag: str, value: object) -> list[str]:
     return [] if value is None else [flag, str(value)]
+
+
+def verb_flags(verb: str) -> dict[str, str]:
+    """``cli_parser.verb_flags``: the flags of ``verb`` as the engine's parser declares them (imported when a plan
+    is made: the parser's farm verb imports the back ends, which import this module)."""
+    from ..cli_parser import verb_flags as declared
+
+    return declared(verb)
 
 
 def task_graph_text(plan: Plan) -> str:

@@ -87,6 +87,29 @@ def test_every_option_of_a_shot_reaches_its_command(tmp_path):
     assert plan.task("x.render.3-3").args[-3:] == ("--format", "png", "--no-bar")
 
 
+def test_every_command_of_a_plan_is_one_the_engines_parser_reads(tmp_path):
+    """Each task's command line parses with the engine's own CLI parser, every option in it as that verb declares
+    it (the plan names its flags from the parser: ``cli_parser.verb_flags``), with every optional field of a shot
+    given, a movie's start frame and auto masks too."""
+    write_clip(tmp_path / "c")
+    shots = [
+        {"name": "x", "plate": "c/frames", "colorspace": "sRGB Encoded Rec.709 (sRGB)", "fps": 25, "device": "cpu",
+         "atlas_size": 64, "render": "out", "render_format": "png", "render_chunk": 2, "frames": "1-3",
+         "set": ["seed=2"], "follow_flow": False, "masks": ["c/masks"], "auto_parts": False},
+        {"name": "y", "plate": "c/frames", "auto_masks": True, "preview": True},
+    ]  # fmt: skip
+    plan = load_plan(write_shots(tmp_path, shots))
+    parser = cli.build_parser()
+    assert {t.kind for t in plan.tasks} == set(TASK_KINDS)
+    for task in plan.tasks:
+        with contextlib.redirect_stderr(io.StringIO()) as err:
+            try:
+                args = parser.parse_args(list(task.args))
+            except SystemExit:
+                pytest.fail(f"{task.id}: {list(task.args)}: {err.getvalue()}")
+        assert args.verb == task.args[0]
+
+
 def test_auto_parts_reaches_the_fit_only(tmp_path):
     write_clip(tmp_path / "c")
     path = write_shots(tmp_path, [{"name": "x", "plate": "c/frames", "masks": ["c/masks"], "auto_parts": True}])
