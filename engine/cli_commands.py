@@ -190,22 +190,9 @@ def _cmd_farm(args: argparse.Namespace) -> int:
         else:
             print(task_graph_text(plan))
         return C.EXIT_OK
-    from .farm.openjd import write_bundle
+    from .farm.openjd import run_openjd
 
-    files = write_bundle(
-        plan,
-        shot_plans,
-        args.out,
-        name=args.name or f"Neural Atlas {shots.path.stem}",
-        gpu=not args.no_gpu,
-        python=args.engine_python,
-        engine_path=args.engine_path,
-    )
-    for sp in shot_plans:
-        name, count = sp.shot.name, len(plan.shot_tasks(sp.shot.name))
-        message = f"{name}: {count} tasks, export {sp.version}"
-        print(C.progress_line(C.EVENT_STAGE, stage=C.VERB_FARM, shot=name, tasks=count, message=message))
-    return print_paths(files[:1])
+    return print_paths(run_openjd(args, plan, shot_plans, shots.path)[:1])
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:

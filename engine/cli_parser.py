@@ -6,8 +6,6 @@ from __future__ import annotations
 
 import argparse
 import functools
-import sys
-from pathlib import Path
 
 from . import contract as C
 from .cli_options import (
@@ -529,30 +527,9 @@ def _add_farm_parser(sub: argparse._SubParsersAction) -> None:
     plan = commands.add_parser(C.FARM_PLAN, help="print every task's engine arguments and dependencies")
     plan.add_argument("shots", metavar="SHOTS", help=shots_help)
     plan.add_argument("--json", action="store_true", help="one JSON object: the shots and their tasks")
-    oj = commands.add_parser(
-        C.FARM_OPENJD,
-        help="write an Open Job Description bundle (AWS Deadline Cloud; `openjd run`)",
-        description="Write BUNDLE_DIR/template.json, parameter_values.json and asset_references.json (Deadline "
-        "Cloud's job bundle) and job_parameters.json (`openjd run BUNDLE_DIR/template.json -p "
-        "file://BUNDLE_DIR/job_parameters.json`). The last line printed is the template's path.",
-    )
-    oj.add_argument("shots", metavar="SHOTS", help=shots_help)
-    oj.add_argument("--out", required=True, metavar="BUNDLE_DIR", help="the bundle's folder (created)")
-    oj.add_argument(
-        "--engine-python",
-        default=sys.executable,
-        metavar="PYTHON",
-        help="the engine's Python on the workers (default: this one; the EnginePython job parameter)",
-    )
-    oj.add_argument(
-        "--engine-path",
-        default=str(Path(__file__).resolve().parent.parent),
-        metavar="DIR",
-        help="the folder holding engine/ on the workers, put on PYTHONPATH (default: this engine's; '' when the "
-        "engine is installed in the workers' Python)",
-    )
-    oj.add_argument("--no-gpu", action="store_true", help="no GPU host requirement on the fit and export steps")
-    oj.add_argument("--name", default=None, help="the job's name (default: the shots file's name)")
+    from .farm.openjd import add_openjd_parser
+
+    add_openjd_parser(commands, shots_help)
     try:
         from .farm.dask_backend import add_dask_parser
 

@@ -32,9 +32,11 @@ they would refuse is never written.
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import re
+import sys
 import unicodedata
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -388,4 +390,59 @@ def _identifier(text: str) -> str:
     return name[:_IDENTIFIER_MAX]
 
 
-__all__ = ["TEMPLATE_FILE", "job_template", "step_name", "steps_of", "write_bundle"]
+def add_openjd_parser(sub: argparse._SubParsersAction, shots_help: str) -> argparse.ArgumentParser:
+    """The ``openjd`` sub-command of ``farm``."""
+    oj: argparse.ArgumentParser = sub.add_parser(
+        C.FARM_OPENJD,
+        help="write an Open Job Description bundle (AWS Deadline Cloud; `openjd run`)",
+        description="Write BUNDLE_DIR/template.json, parameter_values.json and asset_references.json (Deadline "
+        "Cloud's job bundle) and job_parameters.json (`openjd run BUNDLE_DIR/template.json -p "
+        "file://BUNDLE_DIR/job_parameters.json`). The last line printed is the template's path.",
+    )
+    oj.add_argument("shots", metavar="SHOTS", help=shots_help)
+    oj.add_argument("--out", required=True, metavar="BUNDLE_DIR", help="the bundle's folder (created)")
+    oj.add_argument(
+        "--engine-python",
+        default=sys.executable,
+        metavar="PYTHON",
+        help="the engine's Python on the workers (default: this one; the EnginePython job parameter)",
+    )
+    oj.add_argument(
+        "--engine-path",
+        default=str(Path(__file__).resolve().parents[2]),
+        metavar="DIR",
+        help="the folder holding engine/ on the workers, put on PYTHONPATH (default: this engine's; '' when the "
+        "engine is installed in the workers' Python)",
+    )
+    oj.add_argument("--no-gpu", action="store_true", help="no GPU host requirement on the fit and export steps")
+    oj.add_argument("--name", default=None, help="the job's name (default: the shots file's name)")
+    return oj
+
+
+def run_openjd(args: argparse.Namespace, plan: Plan, shot_plans: list[ShotPlan], shots_path: Path) -> list[Path]:
+    """``farm openjd``: the bundle of ``plan`` written (its files, the template first), a progress line per shot."""
+    files = write_bundle(
+        plan,
+        shot_plans,
+        args.out,
+        name=args.name or f"Neural Atlas {shots_path.stem}",
+        gpu=not args.no_gpu,
+        python=args.engine_python,
+        engine_path=args.engine_path,
+    )
+    for sp in shot_plans:
+        name, count = sp.shot.name, len(plan.shot_tasks(sp.shot.name))
+        message = f"{name}: {count} tasks, export {sp.version}"
+        print(C.progress_line(C.EVENT_STAGE, stage=C.VERB_FARM, shot=name, tasks=count, message=message))
+    return files
+
+
+__all__ = [
+    "TEMPLATE_FILE",
+    "add_openjd_parser",
+    "job_template",
+    "run_openjd",
+    "step_name",
+    "steps_of",
+    "write_bundle",
+]
