@@ -33,10 +33,10 @@ def _on_write_mattes(self, context):
 
 
 def _on_filter(self, context):
-    from . import compositor, preview
+    from . import compositor, preview_plane
 
     compositor.set_filter(context.scene, self.filter_type)
-    preview.set_filter(self.filter_type)
+    preview_plane.set_filter(self.filter_type)
 
 
 class NEURALATLAS_PG_layer(bpy.types.PropertyGroup):

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import bpy
 
-from . import blend_paths, ops, preferences, preview, properties, save_paint, ui
+from . import blend_paths, ops, preferences, preview_plane, properties, save_paint, ui
 from .core import running
 from .ops import frame_paint, import_run
 
@@ -23,7 +23,7 @@ def _fresh_file(*_args) -> None:
     """``load_post`` (File > Open, Revert, another shot): what the add-on remembers of the file that was open is
     forgotten, so the live preview shows the loaded file's paint and Land reads its frame paint afresh; a file saved
     before a refine follows the export its paint was re-aligned to (``import_run.follow_realigned``)."""
-    preview.forget_copies()
+    preview_plane.forget_copies()
     frame_paint.forget_painted()
     if bpy.context.scene is not None:
         import_run.follow_realigned(bpy.context)
@@ -42,14 +42,14 @@ def register() -> None:
             handlers.append(handler)
     save_paint.register()  # Save (Ctrl+S) writes the paint too; before the paths are rebased for the file
     blend_paths.register()  # the add-on's paths stay relative to the .blend across saves
-    preview.start_live()  # a saved file's preview follows the paint too (the timer idles while none is shown)
+    preview_plane.start_live()  # a saved file's preview follows the paint too (the timer idles while none is shown)
 
 
 def unregister() -> None:
     _cancel_jobs()
     blend_paths.unregister()
     save_paint.unregister()
-    preview.stop_live()
+    preview_plane.stop_live()
     for handlers, handler in HANDLERS:
         for h in [h for h in handlers if getattr(h, "__name__", "") == handler.__name__]:
             handlers.remove(h)

@@ -16,7 +16,7 @@ from typing import Any
 import bpy
 
 from ..engine import contract as C
-from . import paint
+from . import edit_layers
 from .core import tree_plan as P
 
 
@@ -34,7 +34,7 @@ def _save_frame_paint() -> list[str]:
 def save_paint_with_file(*_args: Any) -> None:
     """``save_pre``: every edit layer and the frame paint with unsaved strokes written to its file."""
     try:
-        saved = paint.save_edits() + _save_frame_paint()
+        saved = edit_layers.save_edits() + _save_frame_paint()
     except (ValueError, OSError, RuntimeError, C.RunLocked) as exc:
         print(f"Neural Atlas: the paint was not saved with the .blend: {exc}", file=sys.stderr)
         return

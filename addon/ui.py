@@ -7,7 +7,7 @@ import json
 
 import bpy
 
-from . import paint, preferences, scribbles
+from . import edit_layers, preferences, scribbles
 from .core import estimate, needs, running
 from .core import farm as FM
 from .core import scribble_math as S
@@ -161,7 +161,7 @@ def _draw_layers(col, props, context) -> None:
     layers = [name.strip() for name in props.imported_layers.split(",") if name.strip()]
     if not layers:
         return
-    painted = paint.painted_layer(context)
+    painted = edit_layers.painted_layer(context)
     row = col.row(align=True)
     row.label(text="Paint", icon="RENDERLAYERS")
     for layer in layers:

@@ -1,5 +1,5 @@
 """The live preview as plain data: a plate-shaped plane whose material is the engine's render equation, and the
-orthographic camera that frames it. No bpy here (``addon/preview.py`` builds it).
+orthographic camera that frames it. No bpy here (``addon/preview_plane.py`` builds it).
 
 Per pixel of the plane (its UVs 0..1 cover the plate), for layers i with UV pass (u_i, v_i, Z_i) and edit image
 E_i (float, linear, premultiplied) sampled at (u_i, v_i)
@@ -42,7 +42,7 @@ PLANE_GAP = 0.2
 #: The camera looks down -Z from this height above the plane.
 CAMERA_HEIGHT = 2.0
 
-# shader node kinds (``addon/preview.py`` knows their bpy types)
+# shader node kinds (``addon/preview_plane.py`` knows their bpy types)
 TEX_COORD = "tex_coord"  # output "UV"
 TEX_IMAGE = "tex_image"  # input "Vector"; outputs "Color", "Alpha"
 SEPARATE_XYZ = "separate_xyz"  # input "Vector"; outputs "X", "Y", "Z"

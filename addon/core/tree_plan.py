@@ -69,7 +69,8 @@ BILINEAR_GROUP = f"{PREFIX}Bilinear"
 VIEWER_NODE = f"{PREFIX}Viewer"
 PLATE_CLIP = f"{PREFIX}Plate"
 PASSES_IMAGE = f"{PREFIX}Passes"
-#: The live preview: a plate-sized plane in the 3D viewport whose material is the composite (``addon/preview.py``).
+#: The live preview: a plate-sized plane in the 3D viewport whose material is the composite
+#: (``addon/preview_plane.py``).
 PREVIEW_OBJECT = f"{PREFIX}Preview"
 #: Paint laid on one plate frame (plate-sized RGBA, transparent where unpainted), shown over the preview and landed on
 #: the atlases by ``engine project-frame``.

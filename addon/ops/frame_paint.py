@@ -19,7 +19,7 @@ import bpy
 import numpy as np
 
 from ...engine import contract as C
-from .. import compositor, paint, preview
+from .. import compositor, edit_layers, preview_plane
 from ..core import engine_process as EP
 from ..core import frame_paint as FP
 from ..core import needs, running, unsaved_paint
@@ -94,7 +94,7 @@ def _blank_png(path: str, size: tuple[int, int]) -> None:
         tmp.filepath_raw = path
         tmp.file_format = "PNG"
         os.makedirs(os.path.dirname(path), exist_ok=True)
-        paint.save_atomically(tmp, path)
+        edit_layers.save_atomically(tmp, path)
     finally:
         bpy.data.images.remove(tmp)
 
@@ -105,7 +105,7 @@ def save_frame_paint(img: Any) -> str:
     if img.is_dirty:
         img.filepath_raw = path
         img.file_format = "PNG"
-        paint.save_atomically(img, path)
+        edit_layers.save_atomically(img, path)
     return path
 
 
@@ -162,7 +162,7 @@ def _preview_plan(context: Any) -> Any:
         for s in obj.material_slots
     ):
         return None
-    return preview.plan_rebuild(context.scene)
+    return preview_plane.plan_rebuild(context.scene)
 
 
 def show_frame_paint(context: Any, img: Any, planned: Any = None) -> None:
@@ -170,7 +170,8 @@ def show_frame_paint(context: Any, img: Any, planned: Any = None) -> None:
     the image every Image Editor shows. ``planned``: the preview's plan when it needs that node (``_preview_plan``)."""
     obj = bpy.data.objects.get(P.PREVIEW_OBJECT)
     if planned is not None:
-        obj = preview.rebuild(context.scene, planned)  # a preview built before the frame paint existed has no node
+        # a preview built before the frame paint existed has no node for it
+        obj = preview_plane.rebuild(context.scene, planned)
     for slot in obj.material_slots if obj is not None else ():
         mat = slot.material
         node = mat.node_tree.nodes.get(PREVIEW_NODE) if mat is not None and mat.node_tree is not None else None
@@ -266,7 +267,7 @@ class NEURALATLAS_OT_frame_paint_land(EngineJobOperator, bpy.types.Operator):
         try:
             path = save_frame_paint(img)
             # project-frame composites OVER the edit layer files: unsaved atlas paint goes to them first
-            paint.save_before_reload(self.bl_label)
+            edit_layers.save_before_reload(self.bl_label)
         except (ValueError, C.RunLocked) as exc:  # no file for some paint; a run folder in use
             raise UserError(str(exc)) from None
         return ProjectFrameJob(python, I.abspath(props.manifest), frame, path)

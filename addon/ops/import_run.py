@@ -9,7 +9,7 @@ import bpy
 from bpy.props import BoolProperty, StringProperty
 
 from ...engine import contract as C
-from .. import compat, compositor, line_up, paint, preview
+from .. import compat, compositor, edit_layers, line_up, preview_plane
 from ..core import frames as F
 from ..core import run_files
 from ..core import tree_plan as P
@@ -34,18 +34,18 @@ def import_manifest(
     them).
 
     Building reloads or replaces the edit images, so unsaved paint is saved to its files first
-    (``paint.save_before_reload``; ``action`` names what refuses when it cannot be); a refusal reloads nothing."""
+    (``edit_layers.save_before_reload``; ``action`` names what refuses when it cannot be); a refusal reloads nothing."""
     props = context.scene.neural_atlas
     manifest = C.load_manifest(manifest_path)
     plate = compositor.known_plate(context.scene, manifest_path)
     plan = P.plan_tree(
         manifest, manifest_path, props.filter_type, edits, compat.colorspace_names(), plate, compat.BILINEAR_TAPS
     )
-    paint.save_before_reload(action)
+    edit_layers.save_before_reload(action)
     compositor.build(context.scene, plan, set_range)
     if setup_paint:
-        paint.setup_canvases(context, plan.layers)
-        preview.build(context.scene, plan, manifest, manifest_path, props.filter_type)
+        edit_layers.setup_canvases(context, plan.layers)
+        preview_plane.build(context.scene, plan, manifest, manifest_path, props.filter_type)
     props.manifest = compositor.blend_path(os.path.abspath(manifest_path))  # relative to the .blend where it can be
     props.imported_layers = ", ".join(plan.layers)
     return plan

@@ -8,7 +8,7 @@ import bpy
 from bpy.props import StringProperty
 
 from ...engine import contract as C
-from .. import paint
+from .. import edit_layers
 from ..core import needs, run_files
 from ..core import tree_plan as P
 from .import_run import import_manifest
@@ -50,7 +50,7 @@ class NEURALATLAS_OT_float_edits(bpy.types.Operator):
             manifest = C.load_manifest(manifest_path)
             # the import below reloads every edit image: unsaved paint goes to its file first (a PNG that becomes an
             # EXR too, so its file holds the paint as well as the EXR made from the same pixels does)
-            paint.save_before_reload(self.bl_label)
+            edit_layers.save_before_reload(self.bl_label)
             with run_files.edits_lock(manifest_path, run_files.FLOAT_EDITS_HOLDER):
                 for layer in manifest["layers"]:
                     img = bpy.data.images.get(P.edit_image_name(layer["name"]))
@@ -60,7 +60,7 @@ class NEURALATLAS_OT_float_edits(bpy.types.Operator):
                     if abspath(img.filepath) != run_edit:
                         skipped.append(layer["name"])  # another image was given for this layer: not the run's edit
                         continue
-                    made.append(paint.make_float_edit(layer["name"], P.float_edit_path(manifest_path, layer)))
+                    made.append(edit_layers.make_float_edit(layer["name"], P.float_edit_path(manifest_path, layer)))
             keep = {name: abspath(bpy.data.images[P.edit_image_name(name)].filepath) for name in skipped}
             import_manifest(context, manifest_path, True, keep, action=self.bl_label)  # the tree, canvases: the EXRs
         except (ValueError, OSError, C.RunLocked) as exc:  # ManifestError, PlanError, an existing EXR, a full disk
@@ -88,7 +88,7 @@ class NEURALATLAS_OT_save_edits(bpy.types.Operator):
 
     def execute(self, context):
         try:
-            saved = paint.save_edits()
+            saved = edit_layers.save_edits()
         except (ValueError, OSError, C.RunLocked) as exc:  # a run folder in use (one line naming it), a full disk
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
@@ -110,7 +110,7 @@ class NEURALATLAS_OT_paint_setup(bpy.types.Operator):
     def execute(self, context):
         prefix = P.edit_image_name("")
         layers = [img.name.removeprefix(prefix) for img in edit_images()]
-        objs = paint.setup_canvases(context, layers)
+        objs = edit_layers.setup_canvases(context, layers)
         self.report({"INFO"}, f"{len(objs)} canvas(es): select one and switch to Texture Paint")
         return {"FINISHED"}
 
@@ -134,10 +134,10 @@ class NEURALATLAS_OT_paint_layer(bpy.types.Operator):
         if edit is None:
             self.report({"ERROR"}, f"no edit layer {self.layer!r} is imported: Import Atlas first")
             return {"CANCELLED"}
-        canvas = bpy.data.objects.get(paint.canvas_name(self.layer))
+        canvas = bpy.data.objects.get(edit_layers.canvas_name(self.layer))
         if canvas is None or canvas.name not in context.view_layer.objects:
-            canvas = next(iter(paint.setup_canvases(context, [self.layer])), None)
-        shown = paint.show_layer(context, self.layer, canvas)
+            canvas = next(iter(edit_layers.setup_canvases(context, [self.layer])), None)
+        shown = edit_layers.show_layer(context, self.layer, canvas)
         self.report({"INFO"}, f"painting {self.layer}: its canvas is active, {shown} Image Editor(s) show it")
         return {"FINISHED"}
 

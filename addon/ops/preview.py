@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import bpy
 
-from .. import preview
+from .. import preview_plane
 from ..core import needs
 from .import_run import IMPORT_ERRORS
 
@@ -23,12 +23,12 @@ class NEURALATLAS_OT_live_preview(bpy.types.Operator):
 
     def execute(self, context):
         scene = context.scene
-        if preview.is_shown(scene):
-            preview.hide(scene)
+        if preview_plane.is_shown(scene):
+            preview_plane.hide(scene)
             self.report({"INFO"}, "live preview hidden")
             return {"FINISHED"}
         try:
-            preview.rebuild(scene)
+            preview_plane.rebuild(scene)
         except IMPORT_ERRORS as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}

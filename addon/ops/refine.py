@@ -1,7 +1,7 @@
 """Refine: continue the Run Folder's finished fit for more steps (or with a better preset's schedule) and carry the
 artist's paint over to it.
 
-The paint is saved to the edit layer files first (``paint.save_before_reload``: the engine reads those files, and
+The paint is saved to the edit layer files first (``edit_layers.save_before_reload``: the engine reads those files, and
 the import at the end reloads the images). The job (``core.jobs.RefineJob``) runs ``fit --refine``, ``export`` (a new
 ``exports/vNNN``; the earlier exports stay) and ``realign`` (the edit layers moved from the export they were painted
 on onto the new mapping, the old ones kept in ``edits/history``); then the new export is imported like a finished
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import bpy
 
-from .. import paint
+from .. import edit_layers
 from ..core import engine_process as EP
 from ..core import needs, running
 from ..core.errors import UserError
@@ -60,7 +60,7 @@ class NEURALATLAS_OT_refine(EngineJobOperator, bpy.types.Operator):
         preset = None if props.refine_preset == REFINE_SAME_PRESET else props.refine_preset
         job = RefineJob(python, run_dir, props.refine_steps, preset, props.follow_flow)
         try:
-            paint.save_before_reload(ACTION)  # the engine carries over what is in the files
+            edit_layers.save_before_reload(ACTION)  # the engine carries over what is in the files
         except (ValueError, OSError) as exc:
             raise UserError(f"{ACTION}: {exc}") from None
         return job

@@ -16,7 +16,7 @@ import bpy
 from bpy.props import EnumProperty, StringProperty
 
 from ...engine import contract as C
-from .. import compositor, paint
+from .. import compositor, edit_layers
 from ..core import colorspaces, needs
 from ..core import render_job as RJ
 from ..core import tree_plan as P
@@ -156,7 +156,7 @@ class NEURALATLAS_OT_render(bpy.types.Operator):
             if not session.frames():  # the scene's range lies outside the export: nothing it could render
                 scene = context.scene
                 raise ValueError(RJ.no_exported_frames((scene.frame_start, scene.frame_end), exported))
-            paint.save_edits()
+            edit_layers.save_edits()
         except (RuntimeError, ValueError, OSError, C.RunLocked) as exc:
             self.report({"ERROR"}, str(exc))
             return None

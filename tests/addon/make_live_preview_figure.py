@@ -22,7 +22,7 @@ import numpy as np  # noqa: E402
 from fake_export import blender_read_rgba8, read_exr_rgba, write_png  # noqa: E402
 from make_figure import _checker, fit_synthetic_clip  # noqa: E402
 from neural_atlas import addon  # noqa: E402
-from neural_atlas.addon import preview  # noqa: E402
+from neural_atlas.addon import preview_plane  # noqa: E402
 
 FRAMES = (0, 11)
 
@@ -43,7 +43,7 @@ def main(out_png: Path) -> None:
     read = blender_read_rgba8(bpy)
     panels = [read(work / "clip" / "frames" / f"{FRAMES[0]:05d}.png")]
     for f in FRAMES:
-        rgba = read_exr_rgba(Path(preview.render_frame(scene, f, str(work / f"preview.{f}.exr"))))
+        rgba = read_exr_rgba(Path(preview_plane.render_frame(scene, f, str(work / f"preview.{f}.exr"))))
         panels.append(np.concatenate([_srgb8(rgba[..., :3]), np.full((*rgba.shape[:2], 1), 255, np.uint8)], -1))
     gap = np.full((panels[0].shape[0], 4, 4), 255, np.uint8)
     row = np.concatenate([panels[0], gap, panels[1], gap, panels[2]], axis=1)

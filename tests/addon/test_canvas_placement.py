@@ -13,7 +13,7 @@ bpy = pytest.importorskip("bpy")
 
 import fake_export as X  # noqa: E402
 from mathutils import Vector  # noqa: E402
-from neural_atlas.addon import paint  # noqa: E402
+from neural_atlas.addon import edit_layers  # noqa: E402
 from neural_atlas.addon.core import placement as L  # noqa: E402
 
 TAG = f"[bpy {bpy.app.version_string}]"
@@ -58,7 +58,7 @@ def test_canvases_are_placed_beyond_the_scene_objects(blender, tmp_path):
 
     cube.location.x = 8.0  # the artist moves the cube; Paint Canvases places the row again
     layers = [o.name.removeprefix("NA_Canvas_") for o in _canvases(blender)]
-    paint.setup_canvases(blender.context, layers)
+    edit_layers.setup_canvases(blender.context, layers)
     gap = _check_clear(blender, [cube, turned])
     assert gap == pytest.approx(L.MARGIN, abs=1e-5)
 

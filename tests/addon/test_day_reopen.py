@@ -27,7 +27,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 import fake_export as X  # noqa: E402
-from neural_atlas.addon import preview  # noqa: E402
+from neural_atlas.addon import preview_plane  # noqa: E402
 from neural_atlas.addon.core import preview_plan as V  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 
@@ -87,7 +87,7 @@ def _shot(blender, root: Path, seed: int, paint: tuple[float, float, float, floa
 
 
 def _preview(path: Path) -> np.ndarray:
-    return X.read_exr_rgba(Path(preview.render_frame(bpy.context.scene, FRAME, str(path))))
+    return X.read_exr_rgba(Path(preview_plane.render_frame(bpy.context.scene, FRAME, str(path))))
 
 
 def _twins_show_the_paint() -> float:
@@ -166,8 +166,8 @@ def test_after_a_relink_every_operator_works_as_before_the_move(blender, tmp_pat
         P.plan_tree(data, str(new_manifest))
     assert bpy.ops.neural_atlas.relink("EXEC_DEFAULT", filepath=str(moved)) == {"FINISHED"}
     ops = bpy.ops.neural_atlas
-    assert ops.live_preview("EXEC_DEFAULT") == {"FINISHED"} and not preview.is_shown(bpy.context.scene)
-    assert ops.live_preview("EXEC_DEFAULT") == {"FINISHED"} and preview.is_shown(bpy.context.scene)  # built again
+    assert ops.live_preview("EXEC_DEFAULT") == {"FINISHED"} and not preview_plane.is_shown(bpy.context.scene)
+    assert ops.live_preview("EXEC_DEFAULT") == {"FINISHED"} and preview_plane.is_shown(bpy.context.scene)  # built again
     err = float(np.abs(_preview(tmp_path / "relinked.exr") - before).max())
     bpy.context.scene.frame_set(FRAME)
     assert ops.frame_paint_start("EXEC_DEFAULT") == {"FINISHED"}

@@ -13,7 +13,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 import fake_export as X  # noqa: E402
-from neural_atlas.addon import paint  # noqa: E402
+from neural_atlas.addon import edit_layers  # noqa: E402
 from neural_atlas.addon.core import needs  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 from neural_atlas.addon.ops.import_run import import_manifest  # noqa: E402
@@ -58,7 +58,7 @@ def test_float_edit_layers_convert_switch_and_never_overwrite(blender, tmp_path)
         blender.ops.neural_atlas.float_edits("EXEC_DEFAULT")
     assert os.stat(edits / "Foreground.exr").st_mtime_ns == stamp
     with pytest.raises(ValueError, match="already a float edit layer"):
-        paint.make_float_edit("Foreground")
+        edit_layers.make_float_edit("Foreground")
 
     out = tmp_path / "out"
     assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out), file_format="exr") == {"FINISHED"}
@@ -72,13 +72,13 @@ def test_float_edit_layers_leave_an_edit_override_alone(blender, tmp_path):
     """A layer showing another image than the run's edit layer (headless --edit) is not converted, and stays."""
     manifest = X.make_export(tmp_path)
     edits = tmp_path / "run" / "edits"
-    other = tmp_path / "elsewhere" / "paint.png"
+    other = tmp_path / "elsewhere" / "edit_layers.png"
     other.parent.mkdir()
     shutil.copy(edits / "Foreground.png", other)
     import_manifest(blender.context, str(manifest), True, {"Foreground": str(other)})
     assert blender.ops.neural_atlas.float_edits("EXEC_DEFAULT") == {"FINISHED"}
     assert (edits / "Background.exr").exists()
-    assert not (edits / "Foreground.exr").exists() and not (other.parent / "paint.exr").exists()
+    assert not (edits / "Foreground.exr").exists() and not (other.parent / "edit_layers.exr").exists()
     fg = bpy.data.images[P.edit_image_name("Foreground")]
     assert os.path.samefile(bpy.path.abspath(fg.filepath), other)
     assert bpy.data.images[P.edit_image_name("Background")].filepath.endswith("Background.exr")

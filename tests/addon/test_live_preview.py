@@ -19,7 +19,7 @@ bpy = pytest.importorskip("bpy")
 
 import fake_export as X  # noqa: E402
 from helpers import engine_python  # noqa: E402
-from neural_atlas.addon import compat, preview  # noqa: E402
+from neural_atlas.addon import compat, preview_plane  # noqa: E402
 from neural_atlas.addon.core import preview_plan as V  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 
@@ -115,7 +115,7 @@ def test_preview_render_equals_engine_render(blender, tmp_path, filt):
     _engine_render(manifest, _edit_files(tmp_path / "edits"), tmp_path / "engine", engine_filter)
     errors = {}
     for frame in (FRAME_A, FRAME_B):
-        got = X.read_exr_rgba(Path(preview.render_frame(scene, frame, str(tmp_path / f"preview.{frame}.exr"))))
+        got = X.read_exr_rgba(Path(preview_plane.render_frame(scene, frame, str(tmp_path / f"preview.{frame}.exr"))))
         want = X.read_exr_rgba(tmp_path / "engine" / f"edit.{frame:05d}.exr")
         assert got.shape == want.shape == (X.H, X.W, 4)
         errors[frame] = float(np.abs(got[..., :3] - want[..., :3]).max())
@@ -133,19 +133,19 @@ def test_a_stroke_shows_in_the_preview_at_once(blender, tmp_path):
     """A stroke on each layer (unsaved) changes the next preview render where the layer shows, by what the render
     equation says, and the files on disk are untouched."""
     manifest, scene = _import(blender, tmp_path)
-    before = X.read_exr_rgba(Path(preview.render_frame(scene, FRAME_A, str(tmp_path / "before.exr"))))
+    before = X.read_exr_rgba(Path(preview_plane.render_frame(scene, FRAME_A, str(tmp_path / "before.exr"))))
     disk = {p: p.read_bytes() for p in (tmp_path / "run" / C.EDITS_DIR).iterdir()}
     for layer, colour in (("Background", (0.0, 0.0, 1.0, 1.0)), ("Foreground", (1.0, 1.0, 0.0, 1.0))):
         _paint(bpy.data.images[P.edit_image_name(layer)], colour, (0.0, 0.0, 1.0, 1.0))  # the whole atlas
     # what the viewport shows: the timer's tick (no event loop runs headless: called as the timer would) copies the
     # paint into the float twins the material samples, and asks again within a second
-    assert bpy.app.timers.is_registered(preview._tick)
-    assert preview.SYNC_INTERVAL <= preview._tick() <= 1.0
+    assert bpy.app.timers.is_registered(preview_plane._tick)
+    assert preview_plane.SYNC_INTERVAL <= preview_plane._tick() <= 1.0
     for layer, want_px in (("Background", (0.0, 0.0, 1.0, 1.0)), ("Foreground", (1.0, 1.0, 0.0, 1.0))):
         twin = _pixels(bpy.data.images[V.mirror_image_name(layer)])
         assert np.abs(twin - np.array(want_px, np.float32)).max() <= 1e-7, layer
-    assert preview.sync() == 0  # nothing changed since: nothing copied
-    after = X.read_exr_rgba(Path(preview.render_frame(scene, FRAME_A, str(tmp_path / "after.exr"))))
+    assert preview_plane.sync() == 0  # nothing changed since: nothing copied
+    after = X.read_exr_rgba(Path(preview_plane.render_frame(scene, FRAME_A, str(tmp_path / "after.exr"))))
     assert {p: p.read_bytes() for p in disk} == disk
     # the whole atlas painted opaque: out = plate * (1 - Zb - Zf) + blue * Zb + yellow * Zf (Z: the passes' alphas)
     with OpenEXR.File(str(manifest.parent / C.PASSES_DIR / C.pass_file_name(FRAME_A))) as f:
@@ -189,9 +189,9 @@ def test_the_preview_frames_the_plate_and_rebuilds_in_place(blender, tmp_path):
     bpy.data.images.new(P.FRAME_PAINT_IMAGE, X.W, X.H, alpha=True, float_buffer=True)
     counts = (len(bpy.data.objects), len(bpy.data.materials), len(bpy.data.images), len(bpy.data.cameras))
     assert bpy.ops.neural_atlas.live_preview("EXEC_DEFAULT") == {"FINISHED"}  # shown: hides it
-    assert not preview.is_shown(scene)
+    assert not preview_plane.is_shown(scene)
     assert bpy.ops.neural_atlas.live_preview("EXEC_DEFAULT") == {"FINISHED"}  # builds again, shows it
-    assert preview.is_shown(scene)
+    assert preview_plane.is_shown(scene)
     assert (len(bpy.data.objects), len(bpy.data.materials), len(bpy.data.images), len(bpy.data.cameras)) == counts
     nodes = bpy.data.materials[V.PREVIEW_MATERIAL].node_tree.nodes
     assert nodes[V.FRAME_PAINT_NODE].image.name == P.FRAME_PAINT_IMAGE
@@ -199,5 +199,5 @@ def test_the_preview_frames_the_plate_and_rebuilds_in_place(blender, tmp_path):
     # the frame paint lies over the composite by its alpha: an opaque red frame paint shows red
     fp = bpy.data.images[P.FRAME_PAINT_IMAGE]
     fp.pixels.foreach_set(np.tile(np.array([1.0, 0.0, 0.0, 1.0], np.float32), X.W * X.H))
-    got = X.read_exr_rgba(Path(preview.render_frame(scene, FRAME_A, str(tmp_path / "fp.exr"))))
+    got = X.read_exr_rgba(Path(preview_plane.render_frame(scene, FRAME_A, str(tmp_path / "fp.exr"))))
     assert np.abs(got[..., :3] - np.array([1.0, 0.0, 0.0])).max() <= 1e-6

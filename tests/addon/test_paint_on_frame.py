@@ -28,7 +28,7 @@ bpy = pytest.importorskip("bpy")
 
 import fake_export as X  # noqa: E402
 from helpers import RecordingLayout, drive_modal, engine_python  # noqa: E402
-from neural_atlas.addon import compositor, preview, ui  # noqa: E402
+from neural_atlas.addon import compositor, preview_plane, ui  # noqa: E402
 from neural_atlas.addon.core import frame_paint as FP  # noqa: E402
 from neural_atlas.addon.core import running  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
@@ -182,10 +182,10 @@ def test_the_preview_plane_shows_the_frame_paint_and_paints_it(blender, export, 
     node = mat.node_tree.nodes[fp_ops.PREVIEW_NODE]
     assert node.image == img and mat.node_tree.nodes.active == node
     scene = blender.context.scene
-    before = X.read_exr_rgba(Path(preview.render_frame(scene, N, str(tmp_path / "before.exr"))))
+    before = X.read_exr_rgba(Path(preview_plane.render_frame(scene, N, str(tmp_path / "before.exr"))))
     _stroke(img)
     img.save()
-    after = X.read_exr_rgba(Path(preview.render_frame(scene, N, str(tmp_path / "after.exr"))))
+    after = X.read_exr_rgba(Path(preview_plane.render_frame(scene, N, str(tmp_path / "after.exr"))))
     c = np.float64(STROKE8[:3]) / 255
     want = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)  # IEC 61966-2-1
     stroke_err = float(np.abs(after[ROWS, COLS, :3] - want).max())

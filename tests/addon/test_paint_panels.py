@@ -12,7 +12,7 @@ bpy = pytest.importorskip("bpy")
 
 import fake_export as X  # noqa: E402
 from helpers import RecordingLayout  # noqa: E402
-from neural_atlas.addon import paint, ui  # noqa: E402
+from neural_atlas.addon import edit_layers, ui  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 
 #: The paint-side buttons every Paint & Render panel shows once an atlas is imported.
@@ -63,11 +63,11 @@ def test_paint_layer_makes_the_layer_the_one_painted(blender, tmp_path):
     for layer in ("Foreground", "Background"):
         assert blender.ops.neural_atlas.paint_layer("EXEC_DEFAULT", layer=layer) == {"FINISHED"}
         active = blender.context.view_layer.objects.active
-        assert active.name == paint.canvas_name(layer)
+        assert active.name == edit_layers.canvas_name(layer)
         selected = {o.name for o in blender.context.view_layer.objects if o.select_get()}
-        assert selected == {paint.canvas_name(layer)}
+        assert selected == {edit_layers.canvas_name(layer)}
         assert area.spaces.active.image == bpy.data.images[P.edit_image_name(layer)]
-        assert paint.painted_layer(blender.context) == layer
+        assert edit_layers.painted_layer(blender.context) == layer
         calls = RecordingLayout().draw(ui.NEURALATLAS_PT_edit_view3d, blender.context)
         pressed = [kw.get("text") for n, a, kw in calls if n == "operator" and kw.get("depress")]
         assert pressed == [layer]

@@ -18,7 +18,7 @@ bpy = pytest.importorskip("bpy")
 
 import fake_export as X  # noqa: E402
 from helpers import engine_python  # noqa: E402
-from neural_atlas.addon import preview  # noqa: E402
+from neural_atlas.addon import preview_plane  # noqa: E402
 from neural_atlas.addon.core import preview_plan as V  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 from test_day_reopen import _pixels  # noqa: E402
@@ -85,7 +85,8 @@ def preview_render(folder: Path) -> dict[int, np.ndarray]:
     """The live preview at each exported frame, as the viewport's Rendered shading shows it; RGBA per frame."""
     scene = bpy.context.scene
     return {
-        f: X.read_exr_rgba(Path(preview.render_frame(scene, f, str(folder / f"preview.{f}.exr")))) for f in X.FRAMES
+        f: X.read_exr_rgba(Path(preview_plane.render_frame(scene, f, str(folder / f"preview.{f}.exr"))))
+        for f in X.FRAMES
     }
 
 
