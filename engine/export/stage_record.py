@@ -13,10 +13,13 @@ from __future__ import annotations
 import hashlib
 import json
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
+
+from pydantic import Field, ValidatorFunctionWrapHandler, model_validator
 
 from .. import contract as C
 from ..errors import InputError
+from ..fit.run_files import Bool, Int, IntList, IntPair, Kind, NumberList, RunFile, Str, checked, record_problem
 
 #: The record's name in the staging folder (removed when the version is published).
 STAGE_RECORD = "stage.json"
@@ -51,38 +54,62 @@ def fit_source(run_dir: Path) -> dict[str, str]:
         raise InputError(exc.filename, "cannot be read", "pass the --out folder of a finished `fit`") from None
 
 
+class StageLayer(RunFile):
+    """One layer of a staged export: its name and its atlas frame (the box in atlas units, the texture's size)."""
+
+    name: Str
+    atlas_box: Annotated[NumberList, Field(min_length=4, max_length=4)]
+    atlas_size: IntPair
+
+
+def _stage_problem(data: dict[str, Any]) -> str | None:
+    """What a stage record's fields say of each other (their types are checked already)."""
+    if set(data["source"]) != set(SOURCE_FILES) or not all(isinstance(v, str) for v in data["source"].values()):
+        return f"its source names {sorted(data['source'])[:4]}, not the digests of {sorted(SOURCE_FILES)}"
+    if any(not 0 <= i < len(data["layers"]) for i in data.get("follows", [])):
+        return f"it follows layers {data['follows'][:8]} of its {len(data['layers'])}"
+    return None
+
+
+class StageFile(RunFile):
+    """``stage.json`` (``STAGE_SCHEMA``): what the atlases stage decided, which the passes and publish stages
+    follow; ``follow_flow`` and ``follows`` are absent from records written before the flow was followed."""
+
+    frames: IntPair  # [first, last] plate frame numbers
+    atlas_size: Int
+    layers: Annotated[list[StageLayer], Kind("layer list")]
+    source: Annotated[dict[str, Any], Kind("dict")]  # ``fit_source``: SOURCE_FILES' keys, hex digests
+    follow_flow: Bool = False
+    follows: IntList = Field(default_factory=list)
+
+    @model_validator(mode="wrap")
+    @classmethod
+    def values_agree(cls, data: Any, handler: ValidatorFunctionWrapHandler) -> Any:
+        return checked(data, handler, _stage_problem)
+
+
 def read_stage(chunks: Path) -> dict[str, Any] | None:
-    """A staged export's record (None: no atlases stage finished there), every field checked; a damaged one, or one
-    that does not say what it was made from, is one line."""
+    """A staged export's record (None: no atlases stage finished there), checked against ``StageFile``; a damaged
+    one, or one that does not say what it was made from, is one line."""
     path = chunks / STAGE_RECORD
     if not path.is_file():
         return None
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-        if isinstance(data, dict) and data.get("schema") == STAGE_SCHEMA_WITHOUT_SOURCE:
-            raise InputError(
-                path,
-                "this staged export does not record the fit it was made from (an earlier engine staged it)",
-                DAMAGED_FIX,
-            )
-        if data.get("schema") != STAGE_SCHEMA:
-            raise ValueError
-        int(data["atlas_size"])
-        [int(n) for n in data["frames"][:2]]
-        [
-            (str(r["name"]), [float(b) for b in r["atlas_box"]], [int(s) for s in r["atlas_size"]])
-            for r in data["layers"]
-        ]
-        if {k: str(v) for k, v in data["source"].items()} != data["source"] or set(data["source"]) != set(SOURCE_FILES):
-            raise ValueError
-        follows = data.get("follows", [])  # absent in records written before the flow was followed: none
-        if not isinstance(data.get("follow_flow", False), bool) or not isinstance(follows, list):
-            raise ValueError
-        if not all(type(i) is int and 0 <= i < len(data["layers"]) for i in follows):
-            raise ValueError
-        return dict(data)
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
-        raise InputError(path, "staged export record is damaged", DAMAGED_FIX) from None
+    except (OSError, ValueError):
+        raise InputError(path, "staged export record is damaged (not JSON)", DAMAGED_FIX) from None
+    schema = data.get("schema") if isinstance(data, dict) else None
+    if schema == STAGE_SCHEMA_WITHOUT_SOURCE:
+        raise InputError(
+            path, "this staged export does not record the fit it was made from (an earlier engine staged it)",
+            DAMAGED_FIX,
+        )  # fmt: skip
+    if schema != STAGE_SCHEMA:
+        raise InputError(path, f"staged export record of schema {str(schema)[:40]!r}, not {STAGE_SCHEMA}", DAMAGED_FIX)
+    problem = record_problem("staged export record", StageFile, data)
+    if problem is not None:
+        raise InputError(path, f"staged export record is damaged: {problem}", DAMAGED_FIX)
+    return dict(data)
 
 
 def changed_since(record: dict[str, Any], source: dict[str, str]) -> list[str]:

@@ -84,7 +84,7 @@ def _problem(text: str) -> PydanticCustomError:
     return PydanticCustomError("run_file", "{problem}", {"problem": text})
 
 
-def _checked(data: Any, handler: ValidatorFunctionWrapHandler, check: Callable[[dict[str, Any]], str | None]) -> Any:
+def checked(data: Any, handler: ValidatorFunctionWrapHandler, check: Callable[[dict[str, Any]], str | None]) -> Any:
     """A model's check of its fields against each other, run on the file's own values once every field has its
     type (a refusal of a type comes first, as it names the key)."""
     model = handler(data)
@@ -170,7 +170,7 @@ class ClipFile(RunFile):
     @model_validator(mode="wrap")
     @classmethod
     def values_agree(cls, data: Any, handler: ValidatorFunctionWrapHandler) -> Any:
-        return _checked(data, handler, _clip_problem)
+        return checked(data, handler, _clip_problem)
 
 
 class MetricsFile(RunFile):
@@ -233,7 +233,7 @@ class SceneFile(RunFile):
     @model_validator(mode="wrap")
     @classmethod
     def values_agree(cls, data: Any, handler: ValidatorFunctionWrapHandler) -> Any:
-        return _checked(data, handler, _scene_problem)
+        return checked(data, handler, _scene_problem)
 
 
 #: Each run file's model.
@@ -289,12 +289,20 @@ def validate_run_file(name: str, data: Any) -> dict[str, Any]:
     if version != RUN_FILE_SCHEMAS[name]:
         problem = f"{what} schema {version!r} is not supported (this engine writes {RUN_FILE_SCHEMAS[name]})"
         raise RunFileError(problem, C.RUN_FILE_OTHER_VERSION_FIX)
-    model = RUN_FILE_MODELS[name]
+    wrong = record_problem(what, RUN_FILE_MODELS[name], data)
+    if wrong is not None:
+        raise RunFileError(wrong, C.RUN_FILE_DAMAGED_FIX)
+    return data
+
+
+def record_problem(what: str, model: type[RunFile], data: dict[str, Any]) -> str | None:
+    """A decoded record (``data``, its "schema" left out) against its ``model``: None, or the first thing wrong as one
+    line naming the record as ``what`` (the one adapter from a validation error to the engine's words)."""
     try:
         model.model_validate({k: v for k, v in data.items() if k != "schema"})
     except ValidationError as exc:
-        raise RunFileError(_one_line(what, model, data, exc), C.RUN_FILE_DAMAGED_FIX) from None
-    return data
+        return _one_line(what, model, data, exc)
+    return None
 
 
 def _one_line(what: str, model: type[RunFile], data: dict[str, Any], exc: ValidationError) -> str:
@@ -309,7 +317,8 @@ def _one_line(what: str, model: type[RunFile], data: dict[str, Any], exc: Valida
         return f"{what} has no {key!r}"
     if error["type"] == "extra_forbidden":
         return f"{what} has an unknown key {key[: C.MANIFEST_QUOTE_CHARS]!r}"
-    return f"{what} {key!r} is not a {_kind(model, key)}: {data[key]!r}"
+    kind = _kind(model, key)
+    return f"{what} {key!r} is not {'an' if kind[:1] in 'aeiou' else 'a'} {kind}: {data[key]!r}"
 
 
-__all__ = ["RUN_FILE_MODELS", "RunFileError", "validate_run_file"]
+__all__ = ["RUN_FILE_MODELS", "RunFile", "RunFileError", "checked", "record_problem", "validate_run_file"]

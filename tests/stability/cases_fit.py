@@ -208,7 +208,7 @@ CASES: tuple[Case, ...] = (
         "clip_json_wrong_type",
         '--resume of a run whose clip.json says layers "two"',
         _edited(C.RUN_CLIP, lambda data: data.update(layers="two")),
-        ("clip.json", "'layers' is not a int"),
+        ("clip.json", "'layers' is not an int"),
     ),
     Case(
         "scene_json_wrong_value",

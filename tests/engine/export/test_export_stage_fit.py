@@ -134,3 +134,38 @@ def test_a_stage_record_of_an_earlier_engine_is_refused_in_one_line(root):
         ],
     )
     assert tree_digest(chunks) == staged and digest_outside(root.parent, run) == outside
+
+
+GOOD_STAGE = {
+    "schema": stage_record.STAGE_SCHEMA,
+    "frames": [0, 3],
+    "atlas_size": 64,
+    "layers": [{"name": "Background", "atlas_box": [-1.0, -1.0, 1.0, 1.0], "atlas_size": [64, 64]}],
+    "source": {key: "0" * 64 for key in stage_record.SOURCE_FILES},
+    "follow_flow": True,
+    "follows": [0],
+}
+
+
+@pytest.mark.parametrize(
+    ("change", "said"),
+    [
+        ({"atlas_size": "64"}, "staged export record 'atlas_size' is not an int: '64'"),
+        ({"frames": [0]}, "staged export record 'frames' is not an int pair"),
+        ({"follows": [3]}, "it follows layers [3] of its 1"),
+        ({"source": {"checkpoint_sha256": "0"}}, "its source names ['checkpoint_sha256'], not the digests of"),
+        ({"layers": [{"name": "B", "atlas_box": [0, 0, 1], "atlas_size": [1, 1]}]}, "'layers' is not a layer list"),
+        ({"extra": 1}, "staged export record has an unknown key 'extra'"),
+        ({"schema": "other/9"}, "staged export record of schema 'other/9'"),
+    ],
+)
+def test_a_stage_record_is_checked_field_by_field_in_one_line(tmp_path, change, said):
+    """Every field of ``stage.json`` has its type in one declaration (``stage_record.StageFile``); what is wrong is
+    named in one line with the fix, and a good record reads back as it was written."""
+    path = tmp_path / stage_record.STAGE_RECORD
+    path.write_text(json.dumps(GOOD_STAGE), encoding="utf-8")
+    assert stage_record.read_stage(tmp_path) == GOOD_STAGE
+    path.write_text(json.dumps({**GOOD_STAGE, **change}), encoding="utf-8")
+    with pytest.raises(InputError) as info:
+        stage_record.read_stage(tmp_path)
+    assert said in str(info.value) and stage_record.DAMAGED_FIX in str(info.value) and "\n" not in str(info.value)

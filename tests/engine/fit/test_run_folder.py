@@ -77,13 +77,13 @@ def test_what_is_written_reads_back(tmp_path):
     [
         (lambda d: d.update(schema=1), ("clip record schema 1 is not supported (this engine writes 2)", "new run")),
         (lambda d: d.pop("layers"), ("clip record has no 'layers'", "restore it")),
-        (lambda d: d.update(native_size=[1920]), ("'native_size' is not a int pair",)),
+        (lambda d: d.update(native_size=[1920]), ("'native_size' is not an int pair",)),
         (lambda d: d.update(fps="25"), ("'fps' is not a number or null",)),
         (lambda d: d.update(frame_range=[2, 9]), ("frame_range 2..9 does not span its 3 frames",)),
         (lambda d: d.update(frame_files=["/a.exr"]), ("1 frame files for 3 frames",)),
         (lambda d: d.update(kind="stream"), ("unknown kind",)),
         (lambda d: d.update(layers=0), ("layers and sizes must be positive",)),
-        (lambda d: d.update(rate=[24000]), ("'rate' is not a int pair or null",)),
+        (lambda d: d.update(rate=[24000]), ("'rate' is not an int pair or null",)),
         (lambda d: d.update(rate=[24000, 0]), ("rate [24000, 0] is not a positive fraction",)),
         (lambda d: d.update(pixel_aspect=-2.0), ("pixel_aspect -2.0 is not a positive number",)),
         (lambda d: d.update(timecode="1:00:00"), ("timecode '1:00:00' is not HH:MM:SS:FF",)),
@@ -133,7 +133,7 @@ def test_damaged_or_missing_files_are_one_line(tmp_path):
     run.metrics.write_text(json.dumps({"schema": 1, **METRICS, "steps": "800"}))
     with pytest.raises(InputError) as err:
         run.read_metrics()
-    _one_line(err, run.metrics, "metrics 'steps' is not a int")
+    _one_line(err, run.metrics, "metrics 'steps' is not an int")
     with pytest.raises(InputError) as err:
         run.read_scene()
     _one_line(err, run.scene, "no scene analysis", "fit into a new --out")
@@ -205,7 +205,7 @@ def test_the_contract_validates_without_the_engine():
         run_files.validate_run_file(C.RUN_METRICS, [1, 2])
     assert err.value.problem == "metrics is not a JSON object" and err.value.fix == C.RUN_FILE_DAMAGED_FIX
     assert run_files.validate_run_file(C.RUN_METRICS, {"schema": 1, **METRICS, "psnr": float("inf")})  # a perfect fit
-    with pytest.raises(run_files.RunFileError, match="'steps' is not a int"):
+    with pytest.raises(run_files.RunFileError, match="'steps' is not an int"):
         run_files.validate_run_file(C.RUN_METRICS, {"schema": 1, **METRICS, "steps": True})
 
 
