@@ -12,7 +12,7 @@ import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 
@@ -20,13 +20,23 @@ from .. import contract as C
 from ..errors import InputError
 from ..fit.fitted_run import FittedRun
 from ..fit.progress import Reporter
+from ..fit.run_files import Kind, RunFile, record_problem
 from ..fit.run_folder import ClipRecord
 from .atlas_frame import LayerFrame, _Coverage, layer_frame_for
 from .sampling import eval_pixels, pixel_grid
-from .stage_record import STAGE_SCHEMA
+from .stage_record import STAGE_SCHEMA, LayerFrameRecord
+
+
+class EditLayout(RunFile):
+    """``edits/layout.json``: the atlas frame each edit layer was painted in, by layer name (an export keeps a
+    painted layer's frame, so its paint does not shift)."""
+
+    layers: Annotated[dict[str, LayerFrameRecord], Kind("dict of atlas frames")]
 
 
 def read_layout(edits_dir: Path) -> dict[str, Any]:
+    """The run's edit layout (an empty one when there is none), checked against ``EditLayout``; one that cannot be
+    read is one line: restoring it keeps the paint where it was painted."""
     path = edits_dir / C.EDITS_LAYOUT
     if not path.exists():
         return {"schema": C.SCHEMA_VERSION, "layers": {}}
@@ -34,8 +44,11 @@ def read_layout(edits_dir: Path) -> dict[str, Any]:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, json.JSONDecodeError):
         raise InputError(path, "edit layout is not valid JSON", "restore it from a backup or delete it") from None
-    if data.get("schema") != C.SCHEMA_VERSION or not isinstance(data.get("layers"), dict):
+    if not isinstance(data, dict) or data.get("schema") != C.SCHEMA_VERSION:
         raise InputError(path, "edit layout has an unknown schema", "restore it or delete it (paint may shift)")
+    problem = record_problem("edit layout", EditLayout, data)
+    if problem is not None:
+        raise InputError(path, problem, "restore it or delete it (paint may shift)")
     return data
 
 
@@ -137,6 +150,7 @@ def plan_export(
 
 
 __all__ = [
+    "EditLayout",
     "Plan",
     "plan_export",
     "read_layout",

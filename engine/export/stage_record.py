@@ -54,12 +54,18 @@ def fit_source(run_dir: Path) -> dict[str, str]:
         raise InputError(exc.filename, "cannot be read", "pass the --out folder of a finished `fit`") from None
 
 
-class StageLayer(RunFile):
-    """One layer of a staged export: its name and its atlas frame (the box in atlas units, the texture's size)."""
+class LayerFrameRecord(RunFile):
+    """A layer's atlas frame as records keep it: the box in atlas units (``atlas_frame.LayerFrame``) and the
+    texture's size in texels."""
 
-    name: Str
     atlas_box: Annotated[NumberList, Field(min_length=4, max_length=4)]
     atlas_size: IntPair
+
+
+class StageLayer(LayerFrameRecord):
+    """One layer of a staged export: its name and its atlas frame."""
+
+    name: Str
 
 
 def _stage_problem(data: dict[str, Any]) -> str | None:
@@ -144,6 +150,8 @@ def continues_fit(run_dir: Path, chunks: Path) -> bool:
 __all__ = [
     "STAGE_RECORD",
     "STAGE_SCHEMA",
+    "LayerFrameRecord",
+    "StageFile",
     "changed_since",
     "continues_fit",
     "file_sha256",

@@ -313,8 +313,8 @@ def _one_line(what: str, model: type[RunFile], data: dict[str, Any], exc: Valida
     if error["type"] == "run_file":
         return str(error["ctx"]["problem"])
     key = str(error["loc"][0])
-    if error["type"] == "missing":
-        return f"{what} has no {key!r}"
+    if error["type"] == "missing":  # a nested record names its whole path: layers.Foreground.atlas_size
+        return f"{what} has no {'.'.join(str(part) for part in error['loc'])!r}"
     if error["type"] == "extra_forbidden":
         return f"{what} has an unknown key {key[: C.MANIFEST_QUOTE_CHARS]!r}"
     kind = _kind(model, key)
