@@ -58,7 +58,7 @@ def versions() -> dict:
 
     commit = None
     try:
-        root = Path(__file__).resolve().parents[2]  # the checkout
+        root = Path(__file__).resolve().parents[1]  # the checkout
         commit = (
             subprocess.run(
                 ["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=GIT_TIMEOUT_S

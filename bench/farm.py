@@ -129,7 +129,7 @@ def local_dask(
     """A scheduler and ``workers`` workers on 127.0.0.1 for the ``with`` block; all stopped at its end."""
     folder.mkdir(parents=True, exist_ok=True)
     base = dict(os.environ if env is None else env)
-    root = str(Path(__file__).resolve().parents[2])  # the workers unpickle engine's task function
+    root = str(Path(__file__).resolve().parents[1])  # the workers unpickle engine's task function
     base["PYTHONPATH"] = os.pathsep.join([root, *[p for p in base.get("PYTHONPATH", "").split(os.pathsep) if p]])
     cluster = LocalDask(folder, base, resources)
     try:
@@ -173,7 +173,7 @@ def _threads_env(threads: int) -> dict[str, str]:
     env = dict(os.environ)
     env["OMP_NUM_THREADS"] = env["MKL_NUM_THREADS"] = str(threads)
     env["PYTHONPATH"] = os.pathsep.join(
-        [str(Path(__file__).resolve().parents[2]), *[p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]]
+        [str(Path(__file__).resolve().parents[1]), *[p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]]
     )
     return env
 
