@@ -77,7 +77,9 @@ def build_parser(prog: str = f"python -m {C.CLI_MODULE}") -> argparse.ArgumentPa
 def verb_flags(verb: str) -> dict[str, str]:
     """Each option of ``verb`` (``C.VERB_*``) by its destination, as this parser declares it (``start_frame``:
     ``--start-frame``): a command line built for the engine (the farm's plan) names the flags from here, so a flag
-    renamed here cannot leave a farm task asking for the old one."""
+    renamed here cannot leave a farm task asking for the old one. A pair of flags that share a destination
+    (``--auto-parts`` / ``--no-auto-parts``) keeps only the last here: the contract names each of those
+    (``C.FIT_AUTO_PARTS_FLAG``, ...)."""
     sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
     parser = sub.choices[verb]
     return {a.dest: a.option_strings[-1] for a in parser._actions if a.option_strings and a.dest != "help"}
