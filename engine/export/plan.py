@@ -34,6 +34,10 @@ class EditLayout(RunFile):
     layers: Annotated[dict[str, LayerFrameRecord], Kind("dict of atlas frames")]
 
 
+#: The fix of an edit layout that cannot be used.
+LAYOUT_FIX = "restore it or delete it (paint may shift)"
+
+
 def read_layout(edits_dir: Path) -> dict[str, Any]:
     """The run's edit layout (an empty one when there is none), checked against ``EditLayout``; one that cannot be
     read is one line: restoring it keeps the paint where it was painted."""
@@ -45,10 +49,10 @@ def read_layout(edits_dir: Path) -> dict[str, Any]:
     except (OSError, json.JSONDecodeError):
         raise InputError(path, "edit layout is not valid JSON", "restore it from a backup or delete it") from None
     if not isinstance(data, dict) or data.get("schema") != C.SCHEMA_VERSION:
-        raise InputError(path, "edit layout has an unknown schema", "restore it or delete it (paint may shift)")
+        raise InputError(path, "edit layout has an unknown schema", LAYOUT_FIX)
     problem = record_problem("edit layout", EditLayout, data)
     if problem is not None:
-        raise InputError(path, problem, "restore it or delete it (paint may shift)")
+        raise InputError(path, problem, LAYOUT_FIX)
     return data
 
 

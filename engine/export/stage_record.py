@@ -70,7 +70,7 @@ class StageLayer(LayerFrameRecord):
 
 def _stage_problem(data: dict[str, Any]) -> str | None:
     """What a stage record's fields say of each other (their types are checked already)."""
-    if set(data["source"]) != set(SOURCE_FILES) or not all(isinstance(v, str) for v in data["source"].values()):
+    if set(data["source"]) != set(SOURCE_FILES):
         return f"its source names {sorted(data['source'])[:4]}, not the digests of {sorted(SOURCE_FILES)}"
     if any(not 0 <= i < len(data["layers"]) for i in data.get("follows", [])):
         return f"it follows layers {data['follows'][:8]} of its {len(data['layers'])}"
@@ -84,7 +84,7 @@ class StageFile(RunFile):
     frames: IntPair  # [first, last] plate frame numbers
     atlas_size: Int
     layers: Annotated[list[StageLayer], Kind("layer list")]
-    source: Annotated[dict[str, Any], Kind("dict")]  # ``fit_source``: SOURCE_FILES' keys, hex digests
+    source: Annotated[dict[str, Str], Kind("dict of str")]  # ``fit_source``: SOURCE_FILES' keys, hex digests
     follow_flow: Bool = False
     follows: IntList = Field(default_factory=list)
 

@@ -155,6 +155,7 @@ GOOD_STAGE = {
         ({"follows": [3]}, "it follows layers [3] of its 1"),
         ({"source": {"checkpoint_sha256": "0"}}, "its source names ['checkpoint_sha256'], not the digests of"),
         ({"layers": [{"name": "B", "atlas_box": [0, 0, 1], "atlas_size": [1, 1]}]}, "'layers' is not a layer list"),
+        ({"source": {key: 1 for key in stage_record.SOURCE_FILES}}, "'source' is not a dict of str"),
         ({"extra": 1}, "staged export record has an unknown key 'extra'"),
         ({"schema": "other/9"}, "staged export record of schema 'other/9'"),
     ],
