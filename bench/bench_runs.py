@@ -17,6 +17,7 @@ from bench.bench_clip import BenchClip
 from bench.tracking import Tracks, chained_flow_tracks, load_tracks, track_scores
 from engine.config import FitConfig
 from engine.data.video import VideoTensors
+from engine.fit.fit_inputs import FitInputs
 from engine.fit.prepare import PreparedClip, prepare_clip
 from engine.fit.trainer import Trainer
 from engine.io.clip import read_masks
@@ -66,7 +67,7 @@ class ClipState:
 
 def _prepare(spec: BenchClip, cfg: FitConfig, work: Path, eval_frames: int, device: torch.device) -> ClipState:
     t0 = time.perf_counter()
-    prepared = prepare_clip(spec.frames, list(spec.masks), cfg, work, None)
+    prepared = prepare_clip(FitInputs(spec.frames, tuple(spec.masks)), cfg, work)
     video = prepared.tensors(cfg, device)
     t_count = int(video.shape[0])
     count = t_count if eval_frames <= 0 else min(eval_frames, t_count)  # 0: every frame

@@ -19,7 +19,9 @@ from pathlib import Path
 from typing import Any
 
 from engine.config import apply_overrides, preset_config
+from engine.fit.fit_inputs import FitInputs
 from engine.fit.run_folder import RunFolder
+from engine.fit.run_plan import PLAN_START, FitPlan
 from engine.fit.trainer import fit
 
 #: A checkpoint interval longer than any of these fits: the comparison times training, not checkpoints.
@@ -54,16 +56,8 @@ def compare_components(
             },
         )
         run = Path(out) / comp
-        metrics = fit(
-            clip,
-            list(masks),
-            run,
-            cfg,
-            device_name="cpu",
-            frame_range=frame_range,
-            progress_bar=False,
-            stream=io.StringIO(),
-        )
+        plan = FitPlan(PLAN_START, cfg, FitInputs(clip, tuple(masks), frame_range))
+        metrics = fit(run, plan, device_name="cpu", progress_bar=False, stream=io.StringIO())
         scene = RunFolder(run).read_scene()
         rows[comp] = {
             "seconds_per_step": metrics["seconds_per_step"],

@@ -17,6 +17,7 @@ from bench.bench import differing_shared_field
 from engine.config import FitConfig, apply_overrides, parse_set_args, preset_config
 from engine.errors import InputError
 from engine.fit.device import select_device, synchronize
+from engine.fit.fit_inputs import FitInputs
 from engine.fit.prepare import prepare_clip
 from engine.fit.trainer import Trainer
 
@@ -65,7 +66,7 @@ def measure_step_times(
     if differ is not None:
         raise InputError(None, f"the entries differ in {differ}", f"give every entry the same {differ}")
     device = select_device(device_name)
-    prepared = prepare_clip(clip, mask_dirs, cfgs[0], work_dir, None)
+    prepared = prepare_clip(FitInputs(clip, tuple(mask_dirs)), cfgs[0], work_dir)
     video = prepared.tensors(cfgs[0], device)
     trainers = [Trainer(cfg, prepared, prepared.analyse(cfg), device, video=video) for cfg in cfgs]
     times: list[list[float]] = [[] for _ in cfgs]

@@ -45,16 +45,15 @@ def _positions(clip: str | None, frames: tuple[int, int] | None, start_frame: in
 def _cmd_estimate(args: argparse.Namespace) -> int:
     from .config import parse_set_args
     from .fit.estimate import estimate, format_estimate
+    from .fit.fit_inputs import FitInputs
     from .fit.progress import Reporter
 
     result = estimate(
-        args.clip,
-        args.mask,
+        FitInputs(args.clip, tuple(args.mask), _positions(args.clip, args.frames)),
         presets=[p.strip() for p in args.presets.split(",")] if args.presets else None,
         work_dir=args.work,
         calib_seconds=args.calib_seconds,
         device_name=args.device,
-        frame_range=_positions(args.clip, args.frames),
         overrides=parse_set_args(args.set),
         threads=args.threads,
         # --json is for a program (the add-on): progress lines (``job``) before the result; the table stays plain
@@ -206,30 +205,29 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         return C.EXIT_OK
     if args.out is None:
         raise InputError(None, "no run folder given", "pass --out RUN_DIR (a new folder, or a fit's to --resume)")
-    from .fit.auto_parts import PartsRequest, parts_wanted, strokes_in_run
-    from .fit.run_plan import PLAN_DONE, PLAN_REFINE, plan_fit
+    from .fit.fit_inputs import FitInputs
+    from .fit.run_plan import PLAN_DONE, PLAN_REFINE, FitMode, plan_fit
     from .fit.trainer import FitCancelled, fit
 
     run_dir = Path(args.out)
-    scribbles = args.scribbles
-    if args.auto_parts and scribbles is None:  # strokes an earlier --auto-parts wrote, or the artist fixed
-        scribbles = strokes_in_run(run_dir)  # (the default looks after the plan: a resume keeps what it recorded)
+    inputs = FitInputs(
+        clip=args.clip,
+        masks=tuple(args.mask),
+        frames=args.frames,
+        scribbles=args.scribbles,
+        auto_masks=args.auto_masks,
+        colorspace=args.colorspace,
+        fps=args.fps,
+        start_frame=args.start_frame,
+    )
     plan = plan_fit(
         run_dir,
-        args.clip,
-        args.mask,
+        inputs,
+        FitMode(args.resume, args.refit, args.resume_if_started, args.refine),
         preset=args.preset,
         default_preset=DEFAULT_PRESET,
         set_args=args.set,
-        frames=args.frames,
-        start_frame=args.start_frame,
-        scribble_dir=scribbles,
-        colorspace=args.colorspace,
-        auto_masks=args.auto_masks,
-        resume=args.resume,
-        refit=args.refit,
-        resume_if_started=args.resume_if_started,
-        refine=args.refine,
+        auto_parts=args.auto_parts,
     )
     if plan.action == PLAN_DONE:  # --resume-if-started: this fit is finished already
         metrics = plan.metrics or {}
@@ -238,31 +236,8 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         return C.EXIT_OK
     if plan.action == PLAN_REFINE:
         return _cmd_refine(args, run_dir, plan)
-    parts = None
-    if not plan.resume and parts_wanted(args.auto_parts, plan.cfg, args.mask, args.scribbles, args.auto_masks):
-        asked = args.auto_parts is True
-        if scribbles is None and not asked:
-            scribbles = strokes_in_run(run_dir)
-        if scribbles is None:  # the search runs in the fit, on its own frames, mask and flow
-            parts = PartsRequest(asked)
     try:
-        metrics = fit(
-            args.clip,
-            args.mask,
-            run_dir,
-            plan.cfg,
-            device_name=args.device,
-            resume=plan.resume,
-            frame_range=plan.frames,
-            progress_bar=not args.no_bar,
-            scribble_dir=scribbles,
-            auto_masks=args.auto_masks,
-            refit=args.refit,
-            colorspace=args.colorspace,
-            fps=args.fps,
-            start_frame=args.start_frame,
-            parts=parts,
-        )
+        metrics = fit(run_dir, plan, device_name=args.device, progress_bar=not args.no_bar)
     except FitCancelled as exc:
         print(f"cancelled: {exc}; continue with: {RESUME_COMMAND} {run_dir}", file=sys.stderr)
         return C.EXIT_CANCELLED
@@ -286,17 +261,7 @@ def _cmd_refine(args: argparse.Namespace, run_dir: Path, plan: FitPlan) -> int:
     from .fit.trainer import FitCancelled, fit
 
     try:
-        metrics = fit(
-            args.clip,
-            args.mask,
-            run_dir,
-            plan.cfg,
-            device_name=args.device,
-            resume=True,
-            progress_bar=not args.no_bar,
-            scribble_dir=args.scribbles,
-            colorspace=args.colorspace,
-        )
+        metrics = fit(run_dir, plan, device_name=args.device, progress_bar=not args.no_bar)
     except FitCancelled as exc:
         record_paint_export(run_dir)
         print(f"cancelled: {exc}; continue with: {RESUME_COMMAND} {run_dir}", file=sys.stderr)

@@ -39,8 +39,10 @@ from .edit.render import plate_frames, render_frames, render_manifest, to_displa
 from .export.exporter import export_run
 from .export.manifest import Manifest
 from .fit.contact_sheet import write_contact_sheet
+from .fit.fit_inputs import FitInputs
 from .fit.fitted_run import load_run
 from .fit.run_folder import RunFolder
+from .fit.run_plan import PLAN_RESUME, PLAN_START, FitPlan
 from .fit.trainer import FitCancelled, fit
 from .io.atomic import atomic_write_text
 from .io.images import read_image, write_png
@@ -249,7 +251,8 @@ def _fit_step(
         _say(f"1/6 {'resuming' if resume else 'fitting'} ({preset}) -> {run}")
         try:
             # the bar on stderr is for people; the JSON progress lines go to the run's fit.log only
-            fit(frames_dir, [masks_dir], run, cfg, resume=resume, stream=io.StringIO())
+            plan = FitPlan(PLAN_RESUME if resume else PLAN_START, cfg, FitInputs(frames_dir, (masks_dir,)))
+            fit(run, plan, stream=io.StringIO())
         except FitCancelled:
             _say(f"cancelled; run the same command again to resume {run}")
             raise

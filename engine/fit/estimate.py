@@ -30,6 +30,7 @@ from ..io.images import display_path
 from .device import select_device, synchronize, torch_threads
 from .eta import PRE_TRAIN_SHARE
 from .evaluation import EVAL_CHUNK
+from .fit_inputs import FitInputs
 from .prepare import prepare_clip
 from .progress import Reporter
 from .trainer import Trainer
@@ -122,42 +123,37 @@ def _time_render(model: Any, size: tuple[int, int], device: torch.device) -> flo
 
 
 def estimate(
-    clip: str | Path,
-    mask_dirs: list[str | Path],
+    inputs: FitInputs,
     presets: list[str] | None = None,
     work_dir: str | Path | None = None,
     calib_seconds: float = 2.0,
     device_name: str = "auto",
-    frame_range: tuple[int, int] | None = None,
     overrides: dict[str, str] | None = None,
     threads: int | None = None,
     reporter: Reporter | None = None,
 ) -> dict[str, Any]:
-    """Estimate every preset's fit time on ``clip``. ``work_dir`` holds the flow cache in a run folder's
-    layout (``work_dir/flow_cache``): pass the future run folder and ``fit`` reuses the flow. ``reporter``: where
-    the progress goes (``job`` messages: the flow's pairs, then each preset timed; default: nowhere)."""
+    """Estimate every preset's fit time on ``inputs`` (the clip, its masks and frames). ``work_dir`` holds the flow
+    cache in a run folder's layout (``work_dir/flow_cache``): pass the future run folder and ``fit`` reuses the flow.
+    ``reporter``: where the progress goes (``job`` messages: the flow's pairs, then each preset timed; default:
+    nowhere)."""
     with torch_threads(threads):
         return _estimate(
-            clip,
-            list(mask_dirs),
+            inputs,
             presets or list(PRESETS),
             work_dir,
             calib_seconds,
             device_name,
-            frame_range,
             overrides or {},
             reporter or Reporter.null(),
         )
 
 
 def _estimate(
-    clip: str | Path,
-    mask_dirs: list[str | Path],
+    inputs: FitInputs,
     presets: list[str],
     work_dir: str | Path | None,
     calib_seconds: float,
     device_name: str,
-    frame_range: tuple[int, int] | None,
     overrides: dict[str, str],
     reporter: Reporter,
 ) -> dict[str, Any]:
@@ -166,7 +162,7 @@ def _estimate(
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(work_dir) if work_dir else Path(tmp)
         t0 = time.perf_counter()
-        prepared = prepare_clip(clip, list(mask_dirs), cfgs[0], work, frame_range, reporter)
+        prepared = prepare_clip(inputs, cfgs[0], work, reporter)
         prepare_seconds = time.perf_counter() - t0
     timing = _PresetProgress(reporter, len(cfgs))
     video = prepared.tensors(cfgs[0], device)

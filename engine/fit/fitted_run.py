@@ -11,6 +11,7 @@ from ..config import FitConfig
 from ..data.scene_analysis import SceneAnalysis
 from ..model.atlas_model import AtlasModel
 from .device import select_device
+from .fit_inputs import FitInputs
 from .model_build import checkpoint_fits, rebuild_model
 from .prepare import PreparedClip, prepare_clip
 from .run_folder import ClipRecord, RunFolder
@@ -52,17 +53,6 @@ def load_run(run_dir: str | Path, device_name: str = "cpu") -> tuple[AtlasModel,
     missing = record.missing_input(fitted.folder.path)
     if missing is not None:
         raise missing
-    prepared = prepare_clip(
-        record.source,
-        list(record.masks),
-        fitted.cfg,
-        fitted.folder.path,
-        record.frame_range,
-        scribble_dir=record.scribbles,
-        # the plate as it was fitted: its recorded colour space, rate and movie numbering, not today's defaults
-        colorspace=record.colorspace,
-        colour_config=record.colour_config,
-        fps=record.exact_rate,
-        start_frame=record.movie_start,
-    )
+    # the plate as it was fitted: its recorded colour space, rate and movie numbering, not today's defaults
+    prepared = prepare_clip(FitInputs.of_record(record), fitted.cfg, fitted.folder.path)
     return fitted.model, prepared, fitted.cfg

@@ -13,7 +13,6 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from fractions import Fraction
 from pathlib import Path
 
 import cv2
@@ -33,7 +32,8 @@ from ..errors import InputError
 from ..io.atomic import atomic_write_text
 from ..io.clip import ClipInfo, open_clip, read_frames, read_frames_at, read_masks, working_size
 from ..io.colour import legacy_linear_to_srgb, recorded_space, to_working
-from .auto_parts import PartsRequest, PartsSearch, check_run_strokes, is_run_strokes
+from .auto_parts import PartsSearch, check_run_strokes, is_run_strokes
+from .fit_inputs import FitInputs
 from .progress import Reporter
 from .run_folder import ClipRecord, RunFolder
 
@@ -213,43 +213,33 @@ def _fit_flow(
 
 
 def prepare_clip(
-    clip: str | Path,
-    mask_dirs: list[str | Path],
+    inputs: FitInputs,
     cfg: FitConfig,
     run_dir: Path,
-    frame_range: tuple[int, int] | None,
     reporter: Reporter | None = None,
     expect: ClipRecord | None = None,
-    scribble_dir: str | Path | None = None,
-    auto_masks: bool = False,
     before_writing: Callable[[], None] | None = None,
-    colorspace: str | None = None,
-    colour_config: str | None = None,
-    fps: Fraction | None = None,
-    start_frame: int | None = None,
-    parts: PartsRequest | None = None,
 ) -> PreparedClip:
     """Read, validate and sanitise the clip and masks, and compute (or load from RUN_DIR/flow_cache) its flow.
 
     ``expect`` (a resume: the record it continues): a clip whose frames changed, or scribbles that changed since the
     fit started, are refused before the flow is computed, so the refusal is quick and writes nothing into the run
-    folder. Strokes in RUN_DIR/parts that an earlier fit left (``scribble_dir`` is that folder) must lie on a new
-    fit's frames and mask (``auto_parts.check_run_strokes``). ``auto_masks``: no masks are given; find
+    folder. Strokes in RUN_DIR/parts that an earlier fit left (``inputs.scribbles`` is that folder) must lie on a
+    new fit's frames and mask (``auto_parts.check_run_strokes``). ``inputs.auto_masks``: no masks are given; find
     them from motion (written to RUN_DIR/auto_masks) and fit with them; nothing found: background only.
     ``before_writing``: called once everything is read and checked, before the first write into the run folder
     (the flow cache, the auto masks): ``fit`` takes the run folder's lock there, so bad input creates no folder.
-    ``colorspace`` / ``colour_config``: the plate's colour space (``fit --colorspace``; a resume: the recorded one).
-    ``fps`` and ``start_frame``: the plate's rate and a movie's first frame number (``open_clip``); recorded only.
-    ``parts``: split the one mask (no scribbles given) into the parts that move apart, found from the fit's own
-    snapped mask and flow once it is computed (``auto_parts.PartsSearch``; the strokes go to RUN_DIR/parts and are
-    the fit's scribbles); an object that moves as one piece is fitted as without it.
+    ``inputs.parts``: split the one mask (no scribbles given) into the parts that move apart, found from the fit's
+    own snapped mask and flow once it is computed (``auto_parts.PartsSearch``; the strokes go to RUN_DIR/parts and
+    are the fit's scribbles); an object that moves as one piece is fitted as without it.
     """
     reporter = reporter or Reporter.null()
-    info, legacy_space = open_plate(clip, frame_range, colorspace, colour_config, fps, start_frame)
+    info, legacy_space = open_plate(inputs)
     size = working_size(info.width, info.height, cfg.long_edge)
     run = RunFolder(run_dir)
-    finder = _AutoMasks(info, run) if auto_masks else None
-    search = None if parts is None else PartsSearch(parts, info, run, mask_dirs[0])
+    mask_dirs, scribble_dir = inputs.masks, inputs.scribbles
+    finder = _AutoMasks(info, run) if inputs.auto_masks else None
+    search = None if inputs.parts is None else PartsSearch(inputs.parts, info, run, mask_dirs[0])
     reporter.emit(C.EVENT_STAGE, stage="read", message=f"reading {info.num_frames} frames at {size[0]}x{size[1]}")
     frames, raw, analysis_raw = _read_plate(info, size, finder, legacy_space)
     masks, snaps = _read_masks(mask_dirs, info, size, frames, cfg)
@@ -288,7 +278,7 @@ def prepare_clip(
         fingerprint,
         scribbles,
         None if scribble_dir is None else str(Path(scribble_dir).resolve()),
-        frame_range,
+        inputs.frames,
         long_flow=long_flow,
         mask_snaps=tuple(snaps),
     )
@@ -299,31 +289,21 @@ def prepare_clip(
     return prepared
 
 
-def open_plate(
-    clip: str | Path,
-    frame_range: tuple[int, int] | None,
-    colorspace: str | None,
-    colour_config: str | None,
-    fps: Fraction | None = None,
-    start_frame: int | None = None,
-) -> tuple[ClipInfo, str | None]:
+def open_plate(inputs: FitInputs) -> tuple[ClipInfo, str | None]:
     """The plate opened in its colour space (``fit --colorspace``, or the one a run recorded) and, for a run made
     before colour management ("sRGB"/"linear", no config), that legacy space: it is read with the values it fitted
     (``_read_plate``); None otherwise."""
-    legacy = colour_config is None and colorspace in C.COLORSPACES
-    space, config = recorded_space(colorspace, None) if legacy else (colorspace, colour_config)
-    info = open_clip(clip, frame_range, space, config, fps=fps, start_frame=start_frame)
-    return info, colorspace if legacy else None
+    legacy = inputs.colour_config is None and inputs.colorspace in C.COLORSPACES
+    space, config = recorded_space(inputs.colorspace, None) if legacy else (inputs.colorspace, inputs.colour_config)
+    info = open_clip(inputs.plate, inputs.frames, space, config, fps=inputs.fps, start_frame=inputs.start_frame)
+    return info, inputs.colorspace if legacy else None
 
 
 def fitted_plate(record: ClipRecord) -> np.ndarray:
     """The plate of a run at its working size, as its fit read it (its recorded colour space, rate and movie
     numbering; ``fingerprint_of`` it to check it is still the plate fitted). The faults it repairs were said by the
     fit: not again. An ``InputError`` where it cannot be read."""
-    info, legacy_space = open_plate(
-        record.source, record.frame_range, record.colorspace, record.colour_config, record.exact_rate,
-        record.movie_start,
-    )  # fmt: skip
+    info, legacy_space = open_plate(FitInputs.of_record(record))
     frames, _, _ = _read_plate(info, record.working_size, None, legacy_space, say_faults=False)
     return frames
 

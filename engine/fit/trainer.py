@@ -12,7 +12,6 @@ import dataclasses
 import signal
 import sys
 import time
-from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +28,6 @@ from ..errors import FitDiverged, InputError
 from ..model.atlas_model import AtlasModel
 from ..model.losses import psnr_from_mse
 from ..model.objective import compute_losses
-from .auto_parts import PartsRequest
 from .checkpoint import nonfinite_entries
 from .device import select_device, synchronize
 from .divergence import NonFinite, all_finite, diverged_message, nonfinite_groups, nonfinite_terms, require_finite
@@ -40,7 +38,7 @@ from .optimisation import make_optimizer, make_scheduler
 from .prepare import PreparedClip, prepare_clip
 from .progress import Reporter, logged_fraction
 from .run_folder import RunFolder
-from .run_plan import ResumedFit, check_fit_inputs, read_resume
+from .run_plan import PLAN_DONE, FitPlan, ResumedFit, check_fit_inputs, read_resume
 
 #: The live PSNR's fixed pixel sample is drawn with seed ``cfg.seed + EVAL_SEED_OFFSET`` (apart from training's).
 EVAL_SEED_OFFSET = 7919
@@ -392,83 +390,45 @@ class Trainer:
         self.save(run, reporter)
 
 
-def fit(
-    clip: str | Path | None,
-    mask_dirs: list[str | Path],
-    run_dir: str | Path,
-    cfg: FitConfig,
-    device_name: str = "auto",
-    resume: bool = False,
-    frame_range: tuple[int, int] | None = None,
-    progress_bar: bool = True,
-    stream: Any = None,
-    scribble_dir: str | Path | None = None,
-    auto_masks: bool = False,
-    refit: bool = False,
-    colorspace: str | None = None,
-    fps: Fraction | None = None,
-    start_frame: int | None = None,
-    parts: PartsRequest | None = None,
-) -> dict[str, Any]:
-    """Fit a layered atlas to ``clip``; writes config, clip record, scene analysis, checkpoint and metrics
-    into ``run_dir``. ``auto_masks``: no masks given, find them from motion (written to RUN_DIR/auto_masks
-    for the artist to check) and fit with them; nothing moving gives a background-only fit. ``scribble_dir``:
-    red/green/... strokes that split the one mask's object into several foreground layers (paper Sec. 4.4).
-    ``parts`` (a new fit of one mask, no scribbles): those strokes found from the motion where the object's parts
-    move apart (``auto_parts``; ``fit``'s default and ``--auto-parts``).
-    ``fps``: the plate's rate where its files state none; ``start_frame``: a movie's first frame number (both
-    recorded in clip.json, neither changes the fit; a resume keeps the recorded ones).
+def fit(run_dir: str | Path, plan: FitPlan, device_name: str = "auto", progress_bar: bool = True,
+        stream: Any = None) -> dict[str, Any]:  # fmt: skip
+    """Fit a layered atlas to ``plan.inputs`` as ``plan`` says (start, resume, refit, refine); writes config, clip
+    record, scene analysis, checkpoint and metrics into ``run_dir``. The inputs' ``auto_masks``: no masks given,
+    find them from motion (written to RUN_DIR/auto_masks for the artist to check) and fit with them; nothing moving
+    gives a background-only fit. ``scribbles``: red/green/... strokes that split the one mask's object into several
+    foreground layers (paper Sec. 4.4). ``parts`` (a new fit of one mask, no scribbles): those strokes found from
+    the motion where the object's parts move apart (``auto_parts``; ``fit``'s default and ``--auto-parts``).
 
     The run folder is written under its lock (``RunFolder.lock``), taken once the input is read and checked (at
     once when the folder exists): a second ``fit`` into it is refused with one line. A folder that holds a fit
-    (``RunFolder.fit_contents``) takes ``resume`` (continue it: the same clip, masks and config, but for the
-    schedule's ``RESUMABLE_FIELDS``) or ``refit`` (fit again: edits/ and exports/ are kept). ``colorspace``: the
-    plate's colour space (``fit --colorspace``; default from the config's file rules or the file type)."""
+    (``RunFolder.fit_contents``) takes a resume (continue it: the same clip, masks and config, but for the
+    schedule's ``RESUMABLE_FIELDS``; the plate read as recorded) or a refit (fit again: edits/ and exports/ are
+    kept)."""
+    if plan.action == PLAN_DONE:
+        raise ValueError("a plan with nothing to do (PLAN_DONE) is not fitted: its metrics are the plan's")
+    cfg, inputs, resume = plan.cfg, plan.inputs, plan.resume
     check_config(cfg)
-    if resume and refit:
-        raise InputError(
-            None, "--resume and --refit both given", "pass --resume to continue the fit, or --refit to fit again"
-        )
     run = RunFolder(run_dir)
-    find_masks = check_fit_inputs(cfg, clip, mask_dirs, resume, auto_masks, scribble_dir)
+    check_fit_inputs(cfg, inputs, resume)
     run.check_writable()
     device = select_device(device_name)
     reporter = Reporter(stream=stream)
     with contextlib.ExitStack() as stack:
-        lock = _WriteLock(run, stack, plain=not (resume or refit))
+        lock = _WriteLock(run, stack, plain=not (resume or plan.refit))
         if run.path.is_dir():
             lock()  # a folder that exists: another process writing it is refused before the clip is read
-        resumed = expect = colour_config = None
+        resumed = expect = None
         if resume:
-            resumed = read_resume(run, cfg, device, clip, mask_dirs, frame_range, scribble_dir, colorspace)
+            resumed = read_resume(run, cfg, device, inputs)
             # the bar continues where the stopped fit showed it, from the first message (the flow's) on
             shown = logged_fraction(run.log, int(resumed.state["step"]), cfg.steps)
             if shown is not None:
                 reporter.job.resume_from(shown)
-            record = resumed.record
-            clip, mask_dirs, frame_range = record.source, list(record.masks), record.frame_range
-            scribble_dir, expect = record.scribbles, record
-            fps, start_frame = record.exact_rate, record.movie_start
-            colorspace, colour_config = resumed.colorspace, resumed.colour_config
+            inputs, expect = resumed.inputs, resumed.record
         # the input is read and validated before anything is written: bad input leaves no run folder behind
-        prepared = prepare_clip(
-            clip,  # type: ignore[arg-type]  # a resume's clip is the recorded one; a new fit's was checked above
-            mask_dirs,
-            cfg,
-            run.path,
-            frame_range,
-            reporter,
-            expect,
-            scribble_dir,
-            auto_masks=find_masks,
-            before_writing=lock,  # the lock from the first write (the flow cache) on
-            colorspace=colorspace,
-            colour_config=colour_config,
-            fps=fps,
-            start_frame=start_frame,
-            parts=None if resumed is not None else parts,
-        )
-        trainer = _start_trainer(run, cfg, prepared, device, resumed, refit)
+        # (the lock from the first write, the flow cache, on)
+        prepared = prepare_clip(inputs, cfg, run.path, reporter, expect, before_writing=lock)
+        trainer = _start_trainer(run, cfg, prepared, device, resumed, plan.refit)
         reporter.log_path = run.log
         return _fit_locked(run, trainer, reporter, progress_bar)
 

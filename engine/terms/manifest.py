@@ -13,7 +13,7 @@ from .cli import CLI_MODULE
 from .clip import CLIP_KINDS
 from .colour import COLOUR_SOURCE_ASKED, COLOUR_SOURCES, valid_colour_record
 from .export_names import ROLE_BACKGROUND, ROLE_FOREGROUND, UV_CHANNELS
-from .run_folder import BG_MOTIONS, SCENE_KEYS
+from .run_folder import BG_MOTIONS, SCENE_FIELDS, SCENE_KEYS
 
 MANIFEST_NAME = "manifest.json"
 #: Version of manifest.json; the add-on refuses a manifest whose version it does not know.
@@ -291,18 +291,6 @@ def validate_manifest(data: Any) -> dict[str, Any]:
     return data
 
 
-#: Types of a scene record's fields (SCENE_FILE and a manifest's "scene").
-SCENE_FIELDS: dict[str, str] = {
-    "components": "str",
-    "num_layers": "int",
-    "layers_source": "str",
-    "background_motion": "str",
-    "flow": "bool",
-    "active_terms": "str list",
-    "reasons": "dict",
-}
-
-
 def validate_scene(scene: Any, num_layers: int | None = None) -> dict[str, Any]:
     """Check a scene analysis record (SCENE_FILE, or a manifest's "scene"); raises ManifestError (one line)."""
     if not isinstance(scene, dict):
@@ -399,7 +387,6 @@ __all__ = [
     "MANIFEST_VERSION",
     "PASS_PATTERN_MAX_DIGITS",
     "PASS_PATTERN_TOKEN",
-    "SCENE_FIELDS",
     "TIMECODE_PATTERN",
     "ManifestError",
     "is_layer_name",

@@ -21,15 +21,17 @@ FLOW_KEY_PATTERN = "[0-9a-f]{64}"
 #:  "active_terms": [str], "reasons": {decision: one line}, "measured": {name: number|null},
 #:  "overrides": [str] (what components=all forced on that the analysis would have left off)}
 SCENE_FILE = "scene.json"
-SCENE_KEYS: tuple[str, ...] = (
-    "components",
-    "num_layers",
-    "layers_source",
-    "background_motion",
-    "flow",
-    "active_terms",
-    "reasons",
-)
+#: The part of it a manifest carries ("scene"), each key with its type: one declaration for both readers.
+SCENE_FIELDS: dict[str, str] = {
+    "components": "str",
+    "num_layers": "int",
+    "layers_source": "str",
+    "background_motion": "str",
+    "flow": "bool",
+    "active_terms": "str list",
+    "reasons": "dict",
+}
+SCENE_KEYS: tuple[str, ...] = tuple(SCENE_FIELDS)
 #: Where the layers came from: --mask folders, masks found from motion (--auto-masks), or none (background only).
 SCENE_LAYERS_GIVEN = "given"
 SCENE_LAYERS_AUTO = "auto"
@@ -113,6 +115,7 @@ __all__ = [
     "RUN_METRICS",
     "RUN_METRICS_SCHEMA",
     "RUN_SCENE_SCHEMA",
+    "SCENE_FIELDS",
     "SCENE_FILE",
     "SCENE_KEYS",
     "SCENE_LAYERS_AUTO",

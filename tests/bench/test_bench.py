@@ -32,6 +32,7 @@ from engine.errors import InputError
 from engine.fit import trainer as trainer_module
 from engine.fit.estimate import BENCHMARK_TABLE
 from engine.fit.eta import StepClock
+from engine.fit.fit_inputs import FitInputs
 from engine.fit.run_folder import RunFolder
 
 SPEC = SceneSpec(width=64, height=48, frames=6, fg_size=(24, 18), fg_start=(12.0, 10.0), fg_velocity=(3.0, 1.0))
@@ -272,7 +273,7 @@ def test_regime_cost_ratio_leaves_the_fit_untouched(clip):
     from engine.fit.trainer import regime_cost_ratio
 
     cfg = apply_overrides(preset_config("draft"), {"batch": "300"})
-    prepared = prepare_clip(clip / "frames", [clip / "masks"], cfg, clip / "work", None)
+    prepared = prepare_clip(FitInputs(clip / "frames", [clip / "masks"]), cfg, clip / "work")
     cpu = torch.device("cpu")
     video = build_video_tensors(prepared.frames, prepared.masks, prepared.flow, cfg.mask_prior_margin_px, cpu)
     model = build_model(cfg, prepared)

@@ -10,7 +10,9 @@ import torch
 
 from engine.config import apply_overrides, preset_config
 from engine.data.synthetic import SceneSpec, SyntheticScene, make_scene, write_scene
+from engine.fit.fit_inputs import FitInputs
 from engine.fit.fitted_run import load_run
+from engine.fit.run_plan import PLAN_START, FitPlan
 from engine.fit.trainer import fit
 
 TINY_OVERRIDES = {
@@ -27,7 +29,13 @@ def fit_scene(tmp: Path, spec: SceneSpec | None = None, **overrides: str) -> tup
     frames_dir, masks_dir = write_scene(scene, tmp / "clip")
     cfg = apply_overrides(preset_config("draft"), {**TINY_OVERRIDES, **overrides})
     run = tmp / "run"
-    metrics = fit(frames_dir, [masks_dir], run, cfg, device_name="cpu", progress_bar=False, stream=io.StringIO())
+    metrics = fit(
+        run,
+        FitPlan(PLAN_START, cfg, FitInputs(frames_dir, [masks_dir])),
+        device_name="cpu",
+        progress_bar=False,
+        stream=io.StringIO(),
+    )
     return scene, run, metrics
 
 

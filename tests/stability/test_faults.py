@@ -30,7 +30,9 @@ import torch
 from engine import contract as C
 from engine.config import apply_overrides, parse_set_args, preset_config
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
+from engine.fit.fit_inputs import FitInputs
 from engine.fit.run_folder import RunFolder
+from engine.fit.run_plan import PLAN_START, FitPlan
 from engine.fit.trainer import fit
 from tests.engine_cli import progress_until, start_engine
 from tests.paths import ROOT
@@ -67,7 +69,13 @@ def uninterrupted(clip, tmp_path_factory):
     frames, masks = clip
     cfg = apply_overrides(preset_config("draft"), parse_set_args(SETS))
     run = tmp_path_factory.mktemp("faults_ref") / "run"
-    return fit(frames, [masks], run, cfg, device_name="cpu", progress_bar=False, stream=io.StringIO())
+    return fit(
+        run,
+        FitPlan(PLAN_START, cfg, FitInputs(frames, [masks])),
+        device_name="cpu",
+        progress_bar=False,
+        stream=io.StringIO(),
+    )
 
 
 def _resume(run: Path) -> tuple[int, dict, list[dict]]:

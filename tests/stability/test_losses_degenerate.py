@@ -19,6 +19,7 @@ from hypothesis import strategies as st
 from engine.config import apply_overrides, preset_config
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.data.video import build_video_tensors
+from engine.fit.fit_inputs import FitInputs
 from engine.fit.model_build import build_model
 from engine.fit.prepare import prepare_clip
 from engine.model import losses as L
@@ -221,7 +222,7 @@ def built(tmp_path_factory):
     spec = SceneSpec(width=32, height=24, frames=3, fg_size=(12, 10), fg_start=(8.0, 6.0))
     frames, masks = write_scene(make_scene(spec), tmp / "clip")
     cfg = apply_overrides(preset_config("draft"), QUICK)
-    prepared = prepare_clip(frames, [masks], cfg, tmp / "run", None)
+    prepared = prepare_clip(FitInputs(frames, [masks]), cfg, tmp / "run")
     return prepared, cfg
 
 

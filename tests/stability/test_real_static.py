@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 
 from engine.config import apply_overrides, preset_config
+from engine.fit.fit_inputs import FitInputs
 from engine.fit.fitted_run import load_run
+from engine.fit.run_plan import PLAN_START, FitPlan
 from engine.fit.trainer import fit
 from tests.paths import CLIPS
 from tests.stability.fitcheck import background_mapping_motion
@@ -32,12 +34,9 @@ def test_real_static_camera_background_holds_still(tmp_path):
     cfg = apply_overrides(preset_config("draft"), overrides)
     run = tmp_path / "run"
     metrics = fit(
-        CLIP / "frames",
-        [CLIP / "masks"],
         run,
-        cfg,
+        FitPlan(PLAN_START, cfg, FitInputs(CLIP / "frames", [CLIP / "masks"], frames=(0, 7))),
         device_name="cpu",
-        frame_range=(0, 7),
         progress_bar=False,
         stream=io.StringIO(),
     )

@@ -16,6 +16,7 @@ from engine.data.mask_snap import (
     snap_masks,
 )
 from engine.data.synthetic import SceneSpec, make_scene
+from engine.fit.fit_inputs import FitInputs
 
 REACH = 12
 
@@ -172,11 +173,13 @@ def test_the_fit_prepares_snapped_masks_and_says_so(scene, tmp_path, capsys):
     write_pngs(scene.frames, frames_dir, {masks_dir: loose})
     cfg = preset_config("draft")
     assert all(preset_config(p).mask_snap_px >= REACH for p in ("draft", "balanced", "final", "paper"))
-    snapped = prepare_clip(frames_dir, [masks_dir], cfg, tmp_path / "run", None)
+    snapped = prepare_clip(FitInputs(frames_dir, [masks_dir]), cfg, tmp_path / "run")
     assert snapped.mask_snaps[0].offset_px < 0
     assert _iou(snapped.masks[0], scene.masks) > 0.95
     assert "outline moved" in capsys.readouterr().err
-    drawn = prepare_clip(frames_dir, [masks_dir], apply_overrides(cfg, {"mask_snap_px": "0"}), tmp_path / "run2", None)
+    drawn = prepare_clip(
+        FitInputs(frames_dir, [masks_dir]), apply_overrides(cfg, {"mask_snap_px": "0"}), tmp_path / "run2"
+    )
     assert np.array_equal(drawn.masks[0], loose) and drawn.mask_snaps == ()
 
 

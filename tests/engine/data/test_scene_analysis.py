@@ -24,11 +24,13 @@ from engine.data.scene_analysis import (
 )
 from engine.data.video import build_video_tensors, sample_pixels
 from engine.errors import InputError
+from engine.fit.fit_inputs import FitInputs
 from engine.fit.fitted_run import load_run
 from engine.fit.model_build import build_model
 from engine.fit.prepare import prepare_clip
 from engine.fit.progress import Reporter
 from engine.fit.run_folder import RunFolder
+from engine.fit.run_plan import PLAN_START, FitPlan
 from engine.fit.trainer import fit
 from engine.io.images import write_png
 from engine.model.atlas_model import FastModel
@@ -141,7 +143,7 @@ def test_static_background_only_evaluates_fewer_modules_and_terms(tmp_path):
     results = {}
     for comp in ("auto", "all"):
         cfg = apply_overrides(preset_config("draft"), {"components": comp})
-        prep = prepare_clip(frames_dir, [], cfg, tmp_path / comp, None, Reporter(None, io.StringIO()))
+        prep = prepare_clip(FitInputs(frames_dir), cfg, tmp_path / comp, Reporter(None, io.StringIO()))
         scene = analyse_scene(len(prep.frames), prep.flow, prep.masks, cfg)
         model = build_model(cfg, prep, scene)
         video = build_video_tensors(prep.frames, prep.masks, prep.flow, cfg.mask_prior_margin_px, torch.device("cpu"))
@@ -177,7 +179,9 @@ def test_fit_records_scene_and_export_has_one_layer(tmp_path):
         cfg = apply_overrides(preset_config("draft"), {**TINY, "components": comp})
         stream = io.StringIO()
         run = tmp_path / f"run_{comp}"
-        metrics = fit(frames_dir, [], run, cfg, device_name="cpu", progress_bar=False, stream=stream)
+        metrics = fit(
+            run, FitPlan(PLAN_START, cfg, FitInputs(frames_dir)), device_name="cpu", progress_bar=False, stream=stream
+        )
         psnr[comp] = metrics["psnr"]
     print(f"\nbackground-only still plate, 60 steps: psnr auto {psnr['auto']:.2f} dB, all {psnr['all']:.2f} dB")
     assert psnr["auto"] > 25.0 and psnr["auto"] > psnr["all"] - 0.5 and metrics["alpha_iou"] == []
@@ -228,7 +232,13 @@ def test_single_frame_fit_computes_no_flow(tmp_path):
     cfg = apply_overrides(preset_config("draft"), {**TINY, "steps": "20"})
     stream = io.StringIO()
     run = tmp_path / "run"
-    metrics = fit(frames_dir, [masks_dir], run, cfg, device_name="cpu", progress_bar=False, stream=stream)
+    metrics = fit(
+        run,
+        FitPlan(PLAN_START, cfg, FitInputs(frames_dir, [masks_dir])),
+        device_name="cpu",
+        progress_bar=False,
+        stream=stream,
+    )
     assert np.isfinite(metrics["psnr"])
     assert not (run / C.FLOW_CACHE_DIR).exists()
     stages = [m["stage"] for m in map(C.parse_progress_line, stream.getvalue().splitlines()) if m and "stage" in m]
@@ -248,7 +258,13 @@ def test_auto_masks_fit_uses_found_masks_or_falls_back(tmp_path):
     frames_dir, masks_dir = _write_clip(tmp_path / "obj", s.frames, s.masks)
     cfg = apply_overrides(preset_config("draft"), {**TINY, "steps": "20"})
     run = tmp_path / "run_obj"
-    fit(frames_dir, [], run, cfg, device_name="cpu", progress_bar=False, stream=io.StringIO(), auto_masks=True)
+    fit(
+        run,
+        FitPlan(PLAN_START, cfg, FitInputs(frames_dir, auto_masks=True)),
+        device_name="cpu",
+        progress_bar=False,
+        stream=io.StringIO(),
+    )
     scene = RunFolder(run).read_scene()
     assert scene.layers_source == C.SCENE_LAYERS_AUTO and scene.num_layers == 2
     info = open_clip(frames_dir)
@@ -261,7 +277,13 @@ def test_auto_masks_fit_uses_found_masks_or_falls_back(tmp_path):
     still = make_named_scene("lighting_change", width=128, height=80, frames=6)
     frames_dir, _ = _write_clip(tmp_path / "still", still.frames)
     run = tmp_path / "run_still"
-    fit(frames_dir, [], run, cfg, device_name="cpu", progress_bar=False, stream=io.StringIO(), auto_masks=True)
+    fit(
+        run,
+        FitPlan(PLAN_START, cfg, FitInputs(frames_dir, auto_masks=True)),
+        device_name="cpu",
+        progress_bar=False,
+        stream=io.StringIO(),
+    )
     scene = RunFolder(run).read_scene()
     assert scene.num_layers == 1 and scene.layers_source == C.SCENE_LAYERS_AUTO
     assert "no moving object was found" in scene.reasons["layers"]
@@ -277,7 +299,7 @@ def test_pan_builds_a_small_residual_and_no_warp_grid(tmp_path):
     built = {}
     for comp in ("auto", "all"):
         cfg = apply_overrides(preset_config("draft"), {"components": comp})
-        prep = prepare_clip(frames_dir, [masks_dir], cfg, tmp_path / comp, None, Reporter(None, io.StringIO()))
+        prep = prepare_clip(FitInputs(frames_dir, [masks_dir]), cfg, tmp_path / comp, Reporter(None, io.StringIO()))
         scene = analyse_scene(len(prep.frames), prep.flow, prep.masks, cfg)
         built[comp] = (scene, build_model(cfg, prep, scene))
     scene, model = built["auto"]
@@ -321,5 +343,10 @@ def test_auto_masks_and_masks_together_is_one_line_error(tmp_path):
     frames_dir, masks_dir = _write_clip(tmp_path / "clip", s.frames, s.masks)
     cfg = apply_overrides(preset_config("draft"), TINY)
     with pytest.raises(InputError, match="--auto-masks and --mask"):
-        fit(frames_dir, [masks_dir], tmp_path / "run", cfg, device_name="cpu", progress_bar=False, auto_masks=True)
+        fit(
+            tmp_path / "run",
+            FitPlan(PLAN_START, cfg, FitInputs(frames_dir, [masks_dir], auto_masks=True)),
+            device_name="cpu",
+            progress_bar=False,
+        )
     assert not (tmp_path / "run").exists()

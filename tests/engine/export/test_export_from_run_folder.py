@@ -16,7 +16,9 @@ from engine.config import apply_overrides, preset_config
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.errors import InputError
 from engine.export.exporter import export_run
+from engine.fit.fit_inputs import FitInputs
 from engine.fit.fitted_run import load_fitted
+from engine.fit.run_plan import PLAN_START, FitPlan
 from engine.fit.trainer import fit
 from engine.io.images import read_exr, read_image
 
@@ -33,7 +35,13 @@ def test_export_without_the_plate_equals_export_with_it(tmp_path, monkeypatch):
     frames_dir, masks_dir = write_scene(make_scene(SPEC), tmp_path / "clip")
     cfg = apply_overrides(preset_config("draft"), {**TINY, "long_edge": "48"})
     run = tmp_path / "run"
-    fit(frames_dir, [masks_dir], run, cfg, device_name="cpu", progress_bar=False, stream=io.StringIO())
+    fit(
+        run,
+        FitPlan(PLAN_START, cfg, FitInputs(frames_dir, [masks_dir])),
+        device_name="cpu",
+        progress_bar=False,
+        stream=io.StringIO(),
+    )
     with_plate = _export(run, follow_flow=False)
 
     shutil.rmtree(tmp_path / "clip")  # the plate and its masks
@@ -73,7 +81,13 @@ def test_export_of_a_run_without_its_records_is_one_line(tmp_path):
     frames_dir, masks_dir = write_scene(make_scene(SPEC), tmp_path / "clip")
     run = tmp_path / "run"
     cfg = apply_overrides(preset_config("draft"), TINY)
-    fit(frames_dir, [masks_dir], run, cfg, device_name="cpu", progress_bar=False, stream=io.StringIO())
+    fit(
+        run,
+        FitPlan(PLAN_START, cfg, FitInputs(frames_dir, [masks_dir])),
+        device_name="cpu",
+        progress_bar=False,
+        stream=io.StringIO(),
+    )
     record = json.loads((run / C.RUN_CLIP).read_text())
     del record["layers"]
     (run / C.RUN_CLIP).write_text(json.dumps(record))

@@ -109,7 +109,6 @@ def test_the_models_name_the_contracts_fields_and_values():
         assert _fields(model) == (set(C.MANIFEST_FIELDS[section]), set(C.MANIFEST_OPTIONAL_FIELDS.get(section, {})))
     assert _fields(S.Layer) == (set(C.MANIFEST_LAYER_FIELDS), set(C.MANIFEST_OPTIONAL_LAYER_FIELDS))
     assert _fields(S.Scene) == (set(C.SCENE_KEYS), set())
-    assert set(C.SCENE_FIELDS) == set(C.SCENE_KEYS)
     assert _enum(S.Clip, "kind") == C.CLIP_KINDS
     assert _enum(S.Clip, "colour_source") == C.COLOUR_SOURCES
     assert _enum(S.Layer, "role") == (C.ROLE_BACKGROUND, C.ROLE_FOREGROUND)

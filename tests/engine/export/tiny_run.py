@@ -10,6 +10,8 @@ from pathlib import Path
 from engine.config import apply_overrides, preset_config
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.export.exporter import export_run
+from engine.fit.fit_inputs import FitInputs
+from engine.fit.run_plan import PLAN_START, FitPlan
 from engine.fit.trainer import fit
 
 SPEC = SceneSpec(width=48, height=32, frames=4, fg_size=(16, 12), fg_start=(10.0, 8.0))
@@ -24,7 +26,13 @@ def make_run(root: Path) -> tuple[Path, Path, Path]:
     frames, masks = write_scene(make_scene(SPEC), root / "clip")
     cfg = apply_overrides(preset_config("draft"), TINY)
     run = root / "run"
-    fit(frames, [masks], run, cfg, device_name="cpu", progress_bar=False, stream=io.StringIO())
+    fit(
+        run,
+        FitPlan(PLAN_START, cfg, FitInputs(frames, [masks])),
+        device_name="cpu",
+        progress_bar=False,
+        stream=io.StringIO(),
+    )
     return frames, masks, run
 
 

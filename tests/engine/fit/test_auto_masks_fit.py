@@ -17,6 +17,7 @@ from engine.config import apply_overrides, preset_config
 from engine.data.auto_masks import mask_iou, write_auto_masks
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.errors import InputError
+from engine.fit.fit_inputs import FitInputs
 from engine.fit.prepare import prepare_clip
 from engine.io.clip import open_clip, read_masks
 from engine.io.images import read_image
@@ -50,7 +51,7 @@ def test_one_pass_over_the_clip(tmp_path, monkeypatch, long_edge, flows):
     _count(monkeypatch, engine.fit.prepare, "read_masks", calls)
     _count(monkeypatch, engine.io.clip, "iter_frames", calls)  # every decoding pass over the frames goes through it
     run = tmp_path / "run"
-    prepared = prepare_clip(frames_dir, [], cfg, run, None, auto_masks=True)
+    prepared = prepare_clip(FitInputs(frames_dir, auto_masks=True), cfg, run)
     assert calls == {"open_clip": 1, "iter_frames": 1, "compute_flow": flows}  # no mask file is read back
     assert len(list((run / C.FLOW_CACHE_DIR).glob("*.npz"))) == flows
 
@@ -85,7 +86,7 @@ def test_masks_already_in_the_run_folder_are_used_not_searched_again(tmp_path, m
     calls: dict[str, int] = {}
     _count(monkeypatch, engine.fit.prepare, "auto_masks", calls)
     cfg = apply_overrides(preset_config("draft"), {"long_edge": "512"})
-    prepared = prepare_clip(frames_dir, [], cfg, run, None, auto_masks=True)
+    prepared = prepare_clip(FitInputs(frames_dir, auto_masks=True), cfg, run)
     assert calls == {}, "the motion search ran again"
     assert prepared.mask_dirs == [str(folder)] and prepared.layers_source == C.SCENE_LAYERS_AUTO
     assert np.array_equal(prepared.masks[0], read_masks(folder, open_clip(frames_dir), prepared.size))
@@ -101,16 +102,16 @@ def test_masks_a_fit_found_on_other_frames_are_refused_not_reused(tmp_path, monk
     other_dir, _ = write_scene(make_scene(SceneSpec(**{**SMALL.__dict__, "fg_start": (50.0, 30.0)})), tmp_path / "b")
     run = tmp_path / "run"
     cfg = apply_overrides(preset_config("draft"), {"long_edge": "512"})
-    prepare_clip(frames_dir, [], cfg, run, None, auto_masks=True)
+    prepare_clip(FitInputs(frames_dir, auto_masks=True), cfg, run)
     folder = (run / C.AUTO_MASKS_DIR).resolve()
     assert (folder / engine.fit.prepare.AUTO_MASKS_PLATE).is_file()
     before = tree_digest(folder)
     calls: dict[str, int] = {}
     _count(monkeypatch, engine.fit.prepare, "auto_masks", calls)
-    prepare_clip(frames_dir, [], cfg, run, None, auto_masks=True)
+    prepare_clip(FitInputs(frames_dir, auto_masks=True), cfg, run)
     assert calls == {} and tree_digest(folder) == before
     with pytest.raises(InputError, match="the masks an earlier fit found here are of other frames") as err:
-        prepare_clip(other_dir, [], cfg, run, None, auto_masks=True)
+        prepare_clip(FitInputs(other_dir, auto_masks=True), cfg, run)
     assert str(err.value).startswith(str(run / C.AUTO_MASKS_DIR)) and "delete the folder" in str(err.value)
     assert tree_digest(folder) == before
 
@@ -125,7 +126,7 @@ def test_empty_masks_already_in_the_run_folder_give_a_background_only_fit(tmp_pa
     for path in sorted(frames_dir.iterdir()):
         cv2.imwrite(str(folder / f"{path.stem}.png"), np.zeros((SMALL.height, SMALL.width), np.uint8))
     cfg = apply_overrides(preset_config("draft"), {"long_edge": "512"})
-    prepared = prepare_clip(frames_dir, [], cfg, run, None, auto_masks=True)
+    prepared = prepare_clip(FitInputs(frames_dir, auto_masks=True), cfg, run)
     assert prepared.mask_dirs == [] and prepared.masks.shape[0] == 0
     assert prepared.masks_note is not None and "background-only" in prepared.masks_note
 
@@ -138,7 +139,7 @@ def test_a_partial_set_of_masks_in_the_run_folder_is_still_refused(tmp_path):
     cv2.imwrite(str(folder / f"{first.stem}.png"), np.zeros((SMALL.height, SMALL.width), np.uint8))
     cfg = preset_config("draft")
     with pytest.raises(InputError, match="already holds"):
-        prepare_clip(frames_dir, [], cfg, tmp_path / "run", None, auto_masks=True)
+        prepare_clip(FitInputs(frames_dir, auto_masks=True), cfg, tmp_path / "run")
 
 
 def test_a_link_planted_at_the_run_folders_auto_masks_is_refused_and_nothing_is_written(tmp_path):

@@ -29,8 +29,10 @@ from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.errors import FitDiverged
 from engine.fit import trainer
 from engine.fit.checkpoint import nonfinite_entries
+from engine.fit.fit_inputs import FitInputs
 from engine.fit.prepare import PLATE_VALUE_LIMIT, prepare_clip, to_fitting_values
 from engine.fit.run_folder import RunFolder
+from engine.fit.run_plan import PLAN_START, FitPlan
 from engine.io.colour import BUILTIN_CONFIG, SCENE_LINEAR, legacy_linear_to_srgb, to_working
 from tests.paths import ROOT
 from tests.stability.fitcheck import write_masks, write_sequence
@@ -87,7 +89,7 @@ def test_a_huge_learning_rate_exits_4_in_one_line_and_resume_with_a_lower_one_fi
 def _trainer(clip: tuple[Path, Path], tmp_path: Path, **overrides: str) -> trainer.Trainer:
     frames, masks = clip
     cfg = apply_overrides(preset_config("draft"), {"batch": "256", **overrides})
-    prepared = prepare_clip(frames, [masks], cfg, tmp_path / "run", None)
+    prepared = prepare_clip(FitInputs(frames, [masks]), cfg, tmp_path / "run")
     return trainer.Trainer(cfg, prepared, prepared.analyse(cfg), CPU)
 
 
@@ -173,7 +175,13 @@ def test_a_checkpoint_holding_nan_is_never_written(tmp_path, clip, monkeypatch):
     run = tmp_path / "run"
     stream = io.StringIO()
     with pytest.raises(FitDiverged, match="diverged at step 6: the parameters") as err:
-        trainer.fit(frames, [masks], run, cfg, device_name="cpu", progress_bar=False, stream=stream)
+        trainer.fit(
+            run,
+            FitPlan(PLAN_START, cfg, FitInputs(frames, [masks])),
+            device_name="cpu",
+            progress_bar=False,
+            stream=stream,
+        )
     assert "keeps step 5, the last good one" in str(err.value) and "\n" not in str(err.value)
     state = RunFolder(run).load_checkpoint(CPU)  # loads: nothing non-finite in it
     assert state["step"] == 5 and not nonfinite_entries(state)
@@ -193,7 +201,13 @@ def test_the_finite_checks_do_not_change_the_maths(tmp_path, clip, monkeypatch):
 
     def run_fit(name: str) -> tuple[float, dict[str, torch.Tensor]]:
         run = tmp_path / name
-        metrics = trainer.fit(frames, [masks], run, cfg, device_name="cpu", progress_bar=False, stream=io.StringIO())
+        metrics = trainer.fit(
+            run,
+            FitPlan(PLAN_START, cfg, FitInputs(frames, [masks])),
+            device_name="cpu",
+            progress_bar=False,
+            stream=io.StringIO(),
+        )
         return metrics["psnr"], RunFolder(run).load_checkpoint(CPU)["model"]
 
     checked = run_fit("checked")

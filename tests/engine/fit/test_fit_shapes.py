@@ -9,6 +9,8 @@ import pytest
 
 from engine.config import apply_overrides, preset_config
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
+from engine.fit.fit_inputs import FitInputs
+from engine.fit.run_plan import PLAN_START, FitPlan
 from engine.fit.trainer import fit
 
 QUICK = {"steps": "120", "batch": "500", "eval_every": "40", "bootstrap_steps": "60", "global_rigidity_steps": "30"}
@@ -22,10 +24,8 @@ def _fit(tmp_path, spec: SceneSpec, masks: bool = True, preset: str = "draft", *
     frames, mask_dir = write_scene(make_scene(spec), tmp_path / "clip")
     cfg = apply_overrides(preset_config(preset), {**QUICK, **extra})
     return fit(
-        frames,
-        [mask_dir] if masks else [],
         tmp_path / "run",
-        cfg,
+        FitPlan(PLAN_START, cfg, FitInputs(frames, [mask_dir] if masks else [])),
         device_name="cpu",
         progress_bar=False,
         stream=io.StringIO(),

@@ -17,6 +17,7 @@ import pytest
 from engine import contract as C
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.fit.eta import PRE_TRAIN_SHARE, JobClock
+from engine.fit.fit_inputs import FitInputs
 from tests.engine_cli import progress_until, start_engine
 from tests.paths import ROOT
 
@@ -137,7 +138,8 @@ def test_estimate_reports_each_preset(tmp_path):
 
     frames, masks = write_scene(make_scene(SPEC), tmp_path / "clip")
     out = io.StringIO()
-    result = estimate(frames, [masks], presets=["draft", "balanced"], calib_seconds=0.05, reporter=Reporter(stream=out))
+    inputs = FitInputs(frames, [masks])
+    result = estimate(inputs, presets=["draft", "balanced"], calib_seconds=0.05, reporter=Reporter(stream=out))
     events = [e for e in _events(out.getvalue()) if e["event"] == C.EVENT_JOB]
     assert [e["stage"] for e in events][: SPEC.frames - 1] == ["flow"] * (SPEC.frames - 1)
     timed = [e for e in events if e["stage"] == "estimate"]

@@ -19,9 +19,11 @@ from engine.data.long_flow import long_flow_pairs
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.data.video import build_video_tensors
 from engine.errors import InputError
+from engine.fit.fit_inputs import FitInputs
 from engine.fit.prepare import prepare_clip
 from engine.fit.progress import Reporter
 from engine.fit.run_folder import RunFolder
+from engine.fit.run_plan import PLAN_START, FitPlan
 from engine.fit.trainer import Trainer, fit
 
 SPEC = SceneSpec(width=64, height=48, frames=6, bg_velocity=(2.0, 0.5), fg_start=(16.0, 12.0), fg_size=(20, 14))
@@ -48,7 +50,13 @@ def test_fit_with_long_range_correspondences(tmp_path: Path) -> None:
     cfg = apply_overrides(preset_config("draft"), SETS)
     run = tmp_path / "run"
     out = io.StringIO()
-    fit(frames_dir, [masks_dir], run, cfg, device_name="cpu", progress_bar=False, stream=out)
+    fit(
+        run,
+        FitPlan(PLAN_START, cfg, FitInputs(frames_dir, [masks_dir])),
+        device_name="cpu",
+        progress_bar=False,
+        stream=out,
+    )
     events = _events(out.getvalue())
 
     # the flow stage counts the adjacent and the long-range pairs as one, and only forward
@@ -72,7 +80,7 @@ def test_fit_with_long_range_correspondences(tmp_path: Path) -> None:
     (long_file,) = cache.glob("long-*.npz")
     stamp = long_file.stat().st_mtime_ns
     again = io.StringIO()
-    prepared = prepare_clip(frames_dir, [masks_dir], cfg, run, None, Reporter(None, again))
+    prepared = prepare_clip(FitInputs(frames_dir, [masks_dir]), cfg, run, Reporter(None, again))
     assert long_file.stat().st_mtime_ns == stamp
     assert prepared.long_flow is not None and prepared.long_flow.count > 1000
     flow = [(e["done"], e["total"]) for e in _events(again.getvalue()) if e["event"] == C.EVENT_JOB]
@@ -82,7 +90,7 @@ def test_fit_with_long_range_correspondences(tmp_path: Path) -> None:
 def test_off_prepares_nothing_extra(tmp_path: Path) -> None:
     frames_dir, masks_dir = write_scene(make_scene(SPEC), tmp_path / "clip")
     cfg = apply_overrides(preset_config("draft"), {"long_flow_max_gap": "1"})
-    prepared = prepare_clip(frames_dir, [masks_dir], cfg, tmp_path / "run", None)
+    prepared = prepare_clip(FitInputs(frames_dir, [masks_dir]), cfg, tmp_path / "run")
     assert prepared.long_flow is None
     assert not list(RunFolder(tmp_path / "run").flow_cache.glob("long-*.npz"))
     assert "long_flow" not in prepared.analyse(cfg).active_terms
@@ -116,7 +124,7 @@ def test_shared_tensors_must_hold_the_configs_correspondences(tmp_path: Path) ->
     correspondences than the clip was prepared with is refused, not fitted without them."""
     frames_dir, masks_dir = write_scene(make_scene(SPEC), tmp_path / "clip")
     cfg = apply_overrides(preset_config("draft"), {"long_flow_max_gap": "4"})
-    prepared = prepare_clip(frames_dir, [masks_dir], cfg, tmp_path / "run", None)
+    prepared = prepare_clip(FitInputs(frames_dir, [masks_dir]), cfg, tmp_path / "run")
     video = build_video_tensors(prepared.frames, prepared.masks, prepared.flow, 2.0, CPU, long_flow=prepared.long_flow)
     Trainer(cfg, prepared, prepared.analyse(cfg), CPU, video=video)  # the same settings: fine
     off = preset_config("draft")

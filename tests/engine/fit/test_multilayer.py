@@ -29,7 +29,9 @@ from engine.edit.render import plate_frames, render_frames, render_manifest
 from engine.export.exporter import export_run
 from engine.export.manifest import Manifest
 from engine.fit.evaluation import render_frame
+from engine.fit.fit_inputs import FitInputs
 from engine.fit.fitted_run import load_run
+from engine.fit.run_plan import PLAN_START, FitPlan
 from engine.fit.trainer import fit
 from engine.io.colour import srgb_to_linear
 from engine.io.images import read_exr, write_png
@@ -54,7 +56,13 @@ def fitted(tmp_path_factory):
     frames_dir, mask_dirs = write_two_object_scene(scene, tmp / "clip")
     cfg = apply_overrides(preset_config("draft"), OVERRIDES)
     run = tmp / "run"
-    metrics = fit(frames_dir, mask_dirs, run, cfg, device_name="cpu", progress_bar=False, stream=io.StringIO())
+    metrics = fit(
+        run,
+        FitPlan(PLAN_START, cfg, FitInputs(frames_dir, mask_dirs)),
+        device_name="cpu",
+        progress_bar=False,
+        stream=io.StringIO(),
+    )
     model, prepared, _ = load_run(run)
     weights = np.stack(
         [render_frame(model, t, prepared.size, torch.device("cpu"))[1] for t in range(scene.spec.frames)]

@@ -11,6 +11,8 @@ import io
 import pytest
 
 from engine.config import apply_overrides, preset_config
+from engine.fit.fit_inputs import FitInputs
+from engine.fit.run_plan import PLAN_START, FitPlan
 from engine.fit.trainer import fit
 from tests.paths import CLIPS, NO_CLIPS
 
@@ -31,12 +33,9 @@ def test_blackswan_short_fit(tmp_path):
         },
     )
     m = fit(
-        DATA / "frames",
-        [DATA / "masks"],
         tmp_path / "run",
-        cfg,
+        FitPlan(PLAN_START, cfg, FitInputs(DATA / "frames", [DATA / "masks"], frames=(0, 9))),
         device_name="cpu",
-        frame_range=(0, 9),
         progress_bar=False,
         stream=io.StringIO(),
     )

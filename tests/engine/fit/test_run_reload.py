@@ -18,8 +18,10 @@ from engine.config import apply_overrides, preset_config
 from engine.data.synthetic import make_scene, write_scene
 from engine.errors import InputError
 from engine.fit.checkpoint import load_checkpoint, save_checkpoint
+from engine.fit.fit_inputs import FitInputs
 from engine.fit.fitted_run import load_run
 from engine.fit.prepare import to_fitting_values
+from engine.fit.run_plan import PLAN_START, FitPlan
 from engine.fit.trainer import fit
 from engine.io.clip import open_clip, read_frames
 from tests.engine.fit_helpers import TINY_OVERRIDES, fit_scene
@@ -69,8 +71,13 @@ def test_a_run_reloads_its_plate_in_the_colour_space_it_was_fitted_in(tmp_path):
     frames_dir, masks_dir = write_scene(scene, tmp_path / "clip")
     cfg = apply_overrides(preset_config("draft"), {**TINY_OVERRIDES, "steps": "4", "eval_every": "4"})
     run = tmp_path / "run"
-    fit(frames_dir, [masks_dir], run, cfg, device_name="cpu", progress_bar=False, stream=io.StringIO(),
-        colorspace="ACEScg")  # fmt: skip
+    fit(
+        run,
+        FitPlan(PLAN_START, cfg, FitInputs(frames_dir, [masks_dir], colorspace="ACEScg")),
+        device_name="cpu",
+        progress_bar=False,
+        stream=io.StringIO(),
+    )
     _, prepared, _ = load_run(run)
     assert prepared.info.colorspace == "ACEScg"
     fresh = open_clip(frames_dir)

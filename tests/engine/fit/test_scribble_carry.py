@@ -8,6 +8,7 @@ import torch
 
 from engine.config import apply_overrides, preset_config
 from engine.data.scribbles import propagate_labels
+from engine.fit.fit_inputs import FitInputs
 from engine.fit.prepare import prepare_clip
 from tests.engine.fit.test_scribble_fit import write_strokes
 from tests.two_object_scene import make_two_object_scene, write_two_object_scene
@@ -18,8 +19,9 @@ def test_carried_strokes_reach_every_frame_inside_the_object_and_keep_the_drawn_
     frames_dir, mask_dirs = write_two_object_scene(scene, tmp_path / "clip", union=True)
     write_strokes(scene, tmp_path / "clip" / "scribbles")
     cfg = preset_config("draft")
-    prepared = prepare_clip(frames_dir, mask_dirs, cfg, tmp_path / "run", None,
-                            scribble_dir=tmp_path / "clip" / "scribbles")  # fmt: skip
+    prepared = prepare_clip(
+        FitInputs(frames_dir, mask_dirs, scribbles=tmp_path / "clip" / "scribbles"), cfg, tmp_path / "run"
+    )
     cpu = torch.device("cpu")
     drawn = prepared.tensors(cfg, cpu)
     carried = prepared.tensors(apply_overrides(cfg, {"scribble_carry": "true"}), cpu)
