@@ -4,16 +4,25 @@ from __future__ import annotations
 
 import io
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 
-from engine.config import apply_overrides, preset_config
+from engine.config import FitConfig, apply_overrides, preset_config
 from engine.data.synthetic import SceneSpec, SyntheticScene, make_scene, write_scene
 from engine.fit.fit_inputs import FitInputs
 from engine.fit.fitted_run import load_run
 from engine.fit.run_plan import PLAN_START, FitPlan
 from engine.fit.trainer import fit
+
+
+def quiet_fit(run: Path, cfg: FitConfig, inputs: FitInputs, stream: Any = None) -> dict[str, Any]:
+    """A new fit of ``inputs`` into ``run`` on the CPU: no bar, its progress lines into ``stream`` (default:
+    nowhere); the metrics."""
+    plan = FitPlan(PLAN_START, cfg, inputs)
+    return fit(run, plan, device_name="cpu", progress_bar=False, stream=stream or io.StringIO())
+
 
 TINY_OVERRIDES = {
     "steps": "400",
@@ -29,13 +38,7 @@ def fit_scene(tmp: Path, spec: SceneSpec | None = None, **overrides: str) -> tup
     frames_dir, masks_dir = write_scene(scene, tmp / "clip")
     cfg = apply_overrides(preset_config("draft"), {**TINY_OVERRIDES, **overrides})
     run = tmp / "run"
-    metrics = fit(
-        run,
-        FitPlan(PLAN_START, cfg, FitInputs(frames_dir, [masks_dir])),
-        device_name="cpu",
-        progress_bar=False,
-        stream=io.StringIO(),
-    )
+    metrics = quiet_fit(run, cfg, FitInputs(frames_dir, [masks_dir]))
     return scene, run, metrics
 
 

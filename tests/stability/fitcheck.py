@@ -20,7 +20,7 @@ from engine import contract as C
 from engine.config import apply_overrides, preset_config
 from engine.fit import trainer
 from engine.fit.fit_inputs import FitInputs
-from engine.fit.run_plan import PLAN_START, FitPlan
+from tests.engine.fit_helpers import quiet_fit
 from tests.media_files import write_image
 
 #: A short schedule that still crosses every phase: global rigidity, mask bootstrap, then the mask prior.
@@ -182,13 +182,7 @@ def monitored_fit(
     mon = install_probes(monkeypatch)
     cfg = apply_overrides(preset_config(preset), {**QUICK, **overrides})
     stream = io.StringIO()
-    metrics = trainer.fit(
-        run,
-        FitPlan(PLAN_START, cfg, FitInputs(frames_dir, list(mask_dirs))),
-        device_name="cpu",
-        progress_bar=False,
-        stream=stream,
-    )
+    metrics = quiet_fit(run, cfg, FitInputs(frames_dir, list(mask_dirs)), stream)
     mon.psnr_curve = [
         (m["step"], m["psnr"])
         for m in map(C.parse_progress_line, stream.getvalue().splitlines())

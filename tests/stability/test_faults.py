@@ -15,7 +15,6 @@ full-frame PSNR within ``SAME_QUALITY_DB`` of the uninterrupted fit (docs/robust
 
 from __future__ import annotations
 
-import io
 import json
 import os
 import signal
@@ -32,8 +31,7 @@ from engine.config import apply_overrides, parse_set_args, preset_config
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.fit.fit_inputs import FitInputs
 from engine.fit.run_folder import RunFolder
-from engine.fit.run_plan import PLAN_START, FitPlan
-from engine.fit.trainer import fit
+from tests.engine.fit_helpers import quiet_fit
 from tests.engine_cli import progress_until, start_engine
 from tests.paths import ROOT
 
@@ -69,13 +67,7 @@ def uninterrupted(clip, tmp_path_factory):
     frames, masks = clip
     cfg = apply_overrides(preset_config("draft"), parse_set_args(SETS))
     run = tmp_path_factory.mktemp("faults_ref") / "run"
-    return fit(
-        run,
-        FitPlan(PLAN_START, cfg, FitInputs(frames, [masks])),
-        device_name="cpu",
-        progress_bar=False,
-        stream=io.StringIO(),
-    )
+    return quiet_fit(run, cfg, FitInputs(frames, [masks]))
 
 
 def _resume(run: Path) -> tuple[int, dict, list[dict]]:

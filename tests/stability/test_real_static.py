@@ -5,16 +5,13 @@ Skipped when the real clips are absent (a user's fresh clone)."""
 
 from __future__ import annotations
 
-import io
-
 import numpy as np
 import pytest
 
 from engine.config import apply_overrides, preset_config
 from engine.fit.fit_inputs import FitInputs
 from engine.fit.fitted_run import load_run
-from engine.fit.run_plan import PLAN_START, FitPlan
-from engine.fit.trainer import fit
+from tests.engine.fit_helpers import quiet_fit
 from tests.paths import CLIPS
 from tests.stability.fitcheck import background_mapping_motion
 
@@ -33,13 +30,7 @@ def test_real_static_camera_background_holds_still(tmp_path):
     overrides = {"long_edge": "192", "steps": "150", "batch": "1000", "eval_every": "75"}
     cfg = apply_overrides(preset_config("draft"), overrides)
     run = tmp_path / "run"
-    metrics = fit(
-        run,
-        FitPlan(PLAN_START, cfg, FitInputs(CLIP / "frames", [CLIP / "masks"], frames=(0, 7))),
-        device_name="cpu",
-        progress_bar=False,
-        stream=io.StringIO(),
-    )
+    metrics = quiet_fit(run, cfg, FitInputs(CLIP / "frames", [CLIP / "masks"], frames=(0, 7)))
     assert np.isfinite(metrics["psnr"])
     model, prepared, _ = load_run(run)
     frames = prepared.frames.shape[0]

@@ -30,11 +30,10 @@ from engine.fit.model_build import build_model
 from engine.fit.prepare import prepare_clip
 from engine.fit.progress import Reporter
 from engine.fit.run_folder import RunFolder
-from engine.fit.run_plan import PLAN_START, FitPlan
-from engine.fit.trainer import fit
 from engine.io.images import write_png
 from engine.model.atlas_model import FastModel
 from engine.model.objective import compute_losses
+from tests.engine.fit_helpers import quiet_fit
 
 TINY = {"steps": "60", "batch": "512", "eval_every": "30", "bootstrap_steps": "30", "global_rigidity_steps": "20"}
 
@@ -179,9 +178,7 @@ def test_fit_records_scene_and_export_has_one_layer(tmp_path):
         cfg = apply_overrides(preset_config("draft"), {**TINY, "components": comp})
         stream = io.StringIO()
         run = tmp_path / f"run_{comp}"
-        metrics = fit(
-            run, FitPlan(PLAN_START, cfg, FitInputs(frames_dir)), device_name="cpu", progress_bar=False, stream=stream
-        )
+        metrics = quiet_fit(run, cfg, FitInputs(frames_dir), stream)
         psnr[comp] = metrics["psnr"]
     print(f"\nbackground-only still plate, 60 steps: psnr auto {psnr['auto']:.2f} dB, all {psnr['all']:.2f} dB")
     assert psnr["auto"] > 25.0 and psnr["auto"] > psnr["all"] - 0.5 and metrics["alpha_iou"] == []
@@ -232,13 +229,7 @@ def test_single_frame_fit_computes_no_flow(tmp_path):
     cfg = apply_overrides(preset_config("draft"), {**TINY, "steps": "20"})
     stream = io.StringIO()
     run = tmp_path / "run"
-    metrics = fit(
-        run,
-        FitPlan(PLAN_START, cfg, FitInputs(frames_dir, [masks_dir])),
-        device_name="cpu",
-        progress_bar=False,
-        stream=stream,
-    )
+    metrics = quiet_fit(run, cfg, FitInputs(frames_dir, [masks_dir]), stream)
     assert np.isfinite(metrics["psnr"])
     assert not (run / C.FLOW_CACHE_DIR).exists()
     stages = [m["stage"] for m in map(C.parse_progress_line, stream.getvalue().splitlines()) if m and "stage" in m]
@@ -258,13 +249,7 @@ def test_auto_masks_fit_uses_found_masks_or_falls_back(tmp_path):
     frames_dir, masks_dir = _write_clip(tmp_path / "obj", s.frames, s.masks)
     cfg = apply_overrides(preset_config("draft"), {**TINY, "steps": "20"})
     run = tmp_path / "run_obj"
-    fit(
-        run,
-        FitPlan(PLAN_START, cfg, FitInputs(frames_dir, auto_masks=True)),
-        device_name="cpu",
-        progress_bar=False,
-        stream=io.StringIO(),
-    )
+    quiet_fit(run, cfg, FitInputs(frames_dir, auto_masks=True))
     scene = RunFolder(run).read_scene()
     assert scene.layers_source == C.SCENE_LAYERS_AUTO and scene.num_layers == 2
     info = open_clip(frames_dir)
@@ -277,13 +262,7 @@ def test_auto_masks_fit_uses_found_masks_or_falls_back(tmp_path):
     still = make_named_scene("lighting_change", width=128, height=80, frames=6)
     frames_dir, _ = _write_clip(tmp_path / "still", still.frames)
     run = tmp_path / "run_still"
-    fit(
-        run,
-        FitPlan(PLAN_START, cfg, FitInputs(frames_dir, auto_masks=True)),
-        device_name="cpu",
-        progress_bar=False,
-        stream=io.StringIO(),
-    )
+    quiet_fit(run, cfg, FitInputs(frames_dir, auto_masks=True))
     scene = RunFolder(run).read_scene()
     assert scene.num_layers == 1 and scene.layers_source == C.SCENE_LAYERS_AUTO
     assert "no moving object was found" in scene.reasons["layers"]
@@ -343,10 +322,5 @@ def test_auto_masks_and_masks_together_is_one_line_error(tmp_path):
     frames_dir, masks_dir = _write_clip(tmp_path / "clip", s.frames, s.masks)
     cfg = apply_overrides(preset_config("draft"), TINY)
     with pytest.raises(InputError, match="--auto-masks and --mask"):
-        fit(
-            tmp_path / "run",
-            FitPlan(PLAN_START, cfg, FitInputs(frames_dir, [masks_dir], auto_masks=True)),
-            device_name="cpu",
-            progress_bar=False,
-        )
+        quiet_fit(tmp_path / "run", cfg, FitInputs(frames_dir, [masks_dir], auto_masks=True))
     assert not (tmp_path / "run").exists()

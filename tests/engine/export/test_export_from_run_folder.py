@@ -18,9 +18,8 @@ from engine.errors import InputError
 from engine.export.exporter import export_run
 from engine.fit.fit_inputs import FitInputs
 from engine.fit.fitted_run import load_fitted
-from engine.fit.run_plan import PLAN_START, FitPlan
-from engine.fit.trainer import fit
 from engine.io.images import read_exr, read_image
+from tests.engine.fit_helpers import quiet_fit
 
 #: 96x64 fitted at 48x32: the passes (96x64) can only get their size from the run folder's record.
 SPEC = SceneSpec(width=96, height=64, frames=4, fg_size=(28, 20), fg_start=(20.0, 20.0))
@@ -35,13 +34,7 @@ def test_export_without_the_plate_equals_export_with_it(tmp_path, monkeypatch):
     frames_dir, masks_dir = write_scene(make_scene(SPEC), tmp_path / "clip")
     cfg = apply_overrides(preset_config("draft"), {**TINY, "long_edge": "48"})
     run = tmp_path / "run"
-    fit(
-        run,
-        FitPlan(PLAN_START, cfg, FitInputs(frames_dir, [masks_dir])),
-        device_name="cpu",
-        progress_bar=False,
-        stream=io.StringIO(),
-    )
+    quiet_fit(run, cfg, FitInputs(frames_dir, [masks_dir]))
     with_plate = _export(run, follow_flow=False)
 
     shutil.rmtree(tmp_path / "clip")  # the plate and its masks
@@ -81,13 +74,7 @@ def test_export_of_a_run_without_its_records_is_one_line(tmp_path):
     frames_dir, masks_dir = write_scene(make_scene(SPEC), tmp_path / "clip")
     run = tmp_path / "run"
     cfg = apply_overrides(preset_config("draft"), TINY)
-    fit(
-        run,
-        FitPlan(PLAN_START, cfg, FitInputs(frames_dir, [masks_dir])),
-        device_name="cpu",
-        progress_bar=False,
-        stream=io.StringIO(),
-    )
+    quiet_fit(run, cfg, FitInputs(frames_dir, [masks_dir]))
     record = json.loads((run / C.RUN_CLIP).read_text())
     del record["layers"]
     (run / C.RUN_CLIP).write_text(json.dumps(record))

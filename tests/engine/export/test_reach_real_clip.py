@@ -18,8 +18,7 @@ from engine.export import exporter
 from engine.export import flow_reach as R
 from engine.export.exporter import export_run
 from engine.fit.fit_inputs import FitInputs
-from engine.fit.run_plan import PLAN_START, FitPlan
-from engine.fit.trainer import fit
+from tests.engine.fit_helpers import quiet_fit
 from tests.paths import CLIPS, NO_CLIPS
 
 DATA = CLIPS / "cows"
@@ -33,13 +32,7 @@ def test_a_walking_cow_follows_the_flow_along_whole_trajectories(tmp_path, monke
         {"steps": "300", "bootstrap_steps": "150", "global_rigidity_steps": "80"},
     )
     run = tmp_path / "run"
-    fit(
-        run,
-        FitPlan(PLAN_START, cfg, FitInputs(DATA / "frames", [DATA / "masks"], frames=(0, 23))),
-        device_name="cpu",
-        progress_bar=False,
-        stream=io.StringIO(),
-    )
+    quiet_fit(run, cfg, FitInputs(DATA / "frames", [DATA / "masks"], frames=(0, 23)))
     reaches: list[R.Reach] = []
     choose = exporter.choose_reach
 

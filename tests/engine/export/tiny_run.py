@@ -11,8 +11,7 @@ from engine.config import apply_overrides, preset_config
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.export.exporter import export_run
 from engine.fit.fit_inputs import FitInputs
-from engine.fit.run_plan import PLAN_START, FitPlan
-from engine.fit.trainer import fit
+from tests.engine.fit_helpers import quiet_fit
 
 SPEC = SceneSpec(width=48, height=32, frames=4, fg_size=(16, 12), fg_start=(10.0, 8.0))
 TINY = {"steps": "12", "batch": "256", "eval_every": "12", "eval_pixels": "500", "bootstrap_steps": "6",
@@ -26,13 +25,7 @@ def make_run(root: Path) -> tuple[Path, Path, Path]:
     frames, masks = write_scene(make_scene(SPEC), root / "clip")
     cfg = apply_overrides(preset_config("draft"), TINY)
     run = root / "run"
-    fit(
-        run,
-        FitPlan(PLAN_START, cfg, FitInputs(frames, [masks])),
-        device_name="cpu",
-        progress_bar=False,
-        stream=io.StringIO(),
-    )
+    quiet_fit(run, cfg, FitInputs(frames, [masks]))
     return frames, masks, run
 
 

@@ -32,8 +32,8 @@ from engine.fit.checkpoint import nonfinite_entries
 from engine.fit.fit_inputs import FitInputs
 from engine.fit.prepare import PLATE_VALUE_LIMIT, prepare_clip, to_fitting_values
 from engine.fit.run_folder import RunFolder
-from engine.fit.run_plan import PLAN_START, FitPlan
 from engine.io.colour import BUILTIN_CONFIG, SCENE_LINEAR, legacy_linear_to_srgb, to_working
+from tests.engine.fit_helpers import quiet_fit
 from tests.paths import ROOT
 from tests.stability.fitcheck import write_masks, write_sequence
 
@@ -175,13 +175,7 @@ def test_a_checkpoint_holding_nan_is_never_written(tmp_path, clip, monkeypatch):
     run = tmp_path / "run"
     stream = io.StringIO()
     with pytest.raises(FitDiverged, match="diverged at step 6: the parameters") as err:
-        trainer.fit(
-            run,
-            FitPlan(PLAN_START, cfg, FitInputs(frames, [masks])),
-            device_name="cpu",
-            progress_bar=False,
-            stream=stream,
-        )
+        quiet_fit(run, cfg, FitInputs(frames, [masks]), stream)
     assert "keeps step 5, the last good one" in str(err.value) and "\n" not in str(err.value)
     state = RunFolder(run).load_checkpoint(CPU)  # loads: nothing non-finite in it
     assert state["step"] == 5 and not nonfinite_entries(state)
@@ -201,13 +195,7 @@ def test_the_finite_checks_do_not_change_the_maths(tmp_path, clip, monkeypatch):
 
     def run_fit(name: str) -> tuple[float, dict[str, torch.Tensor]]:
         run = tmp_path / name
-        metrics = trainer.fit(
-            run,
-            FitPlan(PLAN_START, cfg, FitInputs(frames, [masks])),
-            device_name="cpu",
-            progress_bar=False,
-            stream=io.StringIO(),
-        )
+        metrics = quiet_fit(run, cfg, FitInputs(frames, [masks]))
         return metrics["psnr"], RunFolder(run).load_checkpoint(CPU)["model"]
 
     checked = run_fit("checked")

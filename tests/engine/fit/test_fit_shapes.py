@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import io
 import math
 
 import pytest
@@ -10,8 +9,7 @@ import pytest
 from engine.config import apply_overrides, preset_config
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.fit.fit_inputs import FitInputs
-from engine.fit.run_plan import PLAN_START, FitPlan
-from engine.fit.trainer import fit
+from tests.engine.fit_helpers import quiet_fit
 
 QUICK = {"steps": "120", "batch": "500", "eval_every": "40", "bootstrap_steps": "60", "global_rigidity_steps": "30"}
 
@@ -23,13 +21,7 @@ MIN_PSNR = 18.0
 def _fit(tmp_path, spec: SceneSpec, masks: bool = True, preset: str = "draft", **extra: str) -> dict:
     frames, mask_dir = write_scene(make_scene(spec), tmp_path / "clip")
     cfg = apply_overrides(preset_config(preset), {**QUICK, **extra})
-    return fit(
-        tmp_path / "run",
-        FitPlan(PLAN_START, cfg, FitInputs(frames, [mask_dir] if masks else [])),
-        device_name="cpu",
-        progress_bar=False,
-        stream=io.StringIO(),
-    )
+    return quiet_fit(tmp_path / "run", cfg, FitInputs(frames, [mask_dir] if masks else []))
 
 
 def test_portrait_clip(tmp_path):

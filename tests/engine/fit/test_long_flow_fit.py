@@ -23,8 +23,8 @@ from engine.fit.fit_inputs import FitInputs
 from engine.fit.prepare import prepare_clip
 from engine.fit.progress import Reporter
 from engine.fit.run_folder import RunFolder
-from engine.fit.run_plan import PLAN_START, FitPlan
-from engine.fit.trainer import Trainer, fit
+from engine.fit.trainer import Trainer
+from tests.engine.fit_helpers import quiet_fit
 
 SPEC = SceneSpec(width=64, height=48, frames=6, bg_velocity=(2.0, 0.5), fg_start=(16.0, 12.0), fg_size=(20, 14))
 CPU = torch.device("cpu")
@@ -50,13 +50,7 @@ def test_fit_with_long_range_correspondences(tmp_path: Path) -> None:
     cfg = apply_overrides(preset_config("draft"), SETS)
     run = tmp_path / "run"
     out = io.StringIO()
-    fit(
-        run,
-        FitPlan(PLAN_START, cfg, FitInputs(frames_dir, [masks_dir])),
-        device_name="cpu",
-        progress_bar=False,
-        stream=out,
-    )
+    quiet_fit(run, cfg, FitInputs(frames_dir, [masks_dir]), out)
     events = _events(out.getvalue())
 
     # the flow stage counts the adjacent and the long-range pairs as one, and only forward

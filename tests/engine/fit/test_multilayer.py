@@ -14,7 +14,6 @@ other. The bounds leave room for BLAS drift.
 
 from __future__ import annotations
 
-import io
 import json
 
 import cv2
@@ -31,11 +30,9 @@ from engine.export.manifest import Manifest
 from engine.fit.evaluation import render_frame
 from engine.fit.fit_inputs import FitInputs
 from engine.fit.fitted_run import load_run
-from engine.fit.run_plan import PLAN_START, FitPlan
-from engine.fit.trainer import fit
 from engine.io.colour import srgb_to_linear
 from engine.io.images import read_exr, write_png
-from tests.engine.fit_helpers import TINY_OVERRIDES, object_drift_per_frame
+from tests.engine.fit_helpers import TINY_OVERRIDES, object_drift_per_frame, quiet_fit
 from tests.two_object_scene import make_two_object_scene, write_two_object_scene
 
 pytestmark = pytest.mark.slow
@@ -56,13 +53,7 @@ def fitted(tmp_path_factory):
     frames_dir, mask_dirs = write_two_object_scene(scene, tmp / "clip")
     cfg = apply_overrides(preset_config("draft"), OVERRIDES)
     run = tmp / "run"
-    metrics = fit(
-        run,
-        FitPlan(PLAN_START, cfg, FitInputs(frames_dir, mask_dirs)),
-        device_name="cpu",
-        progress_bar=False,
-        stream=io.StringIO(),
-    )
+    metrics = quiet_fit(run, cfg, FitInputs(frames_dir, mask_dirs))
     model, prepared, _ = load_run(run)
     weights = np.stack(
         [render_frame(model, t, prepared.size, torch.device("cpu"))[1] for t in range(scene.spec.frames)]

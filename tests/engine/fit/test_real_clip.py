@@ -6,14 +6,11 @@ bounds leave room for machine differences. The full-length numbers are in docs/e
 
 from __future__ import annotations
 
-import io
-
 import pytest
 
 from engine.config import apply_overrides, preset_config
 from engine.fit.fit_inputs import FitInputs
-from engine.fit.run_plan import PLAN_START, FitPlan
-from engine.fit.trainer import fit
+from tests.engine.fit_helpers import quiet_fit
 from tests.paths import CLIPS, NO_CLIPS
 
 DATA = CLIPS / "blackswan"
@@ -32,13 +29,7 @@ def test_blackswan_short_fit(tmp_path):
             "eval_every": "100",
         },
     )
-    m = fit(
-        tmp_path / "run",
-        FitPlan(PLAN_START, cfg, FitInputs(DATA / "frames", [DATA / "masks"], frames=(0, 9))),
-        device_name="cpu",
-        progress_bar=False,
-        stream=io.StringIO(),
-    )
+    m = quiet_fit(tmp_path / "run", cfg, FitInputs(DATA / "frames", [DATA / "masks"], frames=(0, 9)))
     assert m["working_size"] == [384, 216] and m["frames"] == 10
     assert m["psnr"] >= PSNR_MIN
     assert m["alpha_iou"][0] >= 0.85

@@ -9,7 +9,6 @@ others try, so the folder is provably unchanged by them (a running fit keeps wri
 
 from __future__ import annotations
 
-import io
 import os
 import signal
 import subprocess
@@ -25,7 +24,7 @@ from engine.errors import InputError
 from engine.fit import trainer
 from engine.fit.fit_inputs import FitInputs
 from engine.fit.run_folder import RunFolder
-from engine.fit.run_plan import PLAN_START, FitPlan
+from tests.engine.fit_helpers import quiet_fit
 from tests.folders import tree_digest
 from tests.paths import ROOT
 
@@ -142,13 +141,7 @@ def test_the_refit_rule_is_checked_again_under_the_lock(tmp_path, clip, monkeypa
     monkeypatch.setattr(trainer, "prepare_clip", prepare)
     cfg = apply_overrides(preset_config("draft"), {"steps": "2", "batch": "64"})
     with pytest.raises(InputError, match="already holds a fit") as err:
-        trainer.fit(
-            run,
-            FitPlan(PLAN_START, cfg, FitInputs(frames, [masks])),
-            device_name="cpu",
-            progress_bar=False,
-            stream=io.StringIO(),
-        )
+        quiet_fit(run, cfg, FitInputs(frames, [masks]))
     assert "\n" not in str(err.value)
     assert (run / C.RUN_CHECKPOINT).read_bytes() == b"the other fit's checkpoint"
     assert sorted(p.name for p in run.iterdir()) == sorted([C.RUN_CHECKPOINT, C.RUN_LOCK])

@@ -6,7 +6,6 @@ derive them differently, and an earlier fit must still export and resume: the ch
 
 from __future__ import annotations
 
-import io
 import json
 
 import numpy as np
@@ -21,10 +20,8 @@ from engine.fit.checkpoint import load_checkpoint, save_checkpoint
 from engine.fit.fit_inputs import FitInputs
 from engine.fit.fitted_run import load_run
 from engine.fit.prepare import to_fitting_values
-from engine.fit.run_plan import PLAN_START, FitPlan
-from engine.fit.trainer import fit
 from engine.io.clip import open_clip, read_frames
-from tests.engine.fit_helpers import TINY_OVERRIDES, fit_scene
+from tests.engine.fit_helpers import TINY_OVERRIDES, fit_scene, quiet_fit
 
 
 def test_checkpoint_motions_rebuild_the_fitted_model_even_when_the_box_rule_changes(tmp_path):
@@ -71,13 +68,7 @@ def test_a_run_reloads_its_plate_in_the_colour_space_it_was_fitted_in(tmp_path):
     frames_dir, masks_dir = write_scene(scene, tmp_path / "clip")
     cfg = apply_overrides(preset_config("draft"), {**TINY_OVERRIDES, "steps": "4", "eval_every": "4"})
     run = tmp_path / "run"
-    fit(
-        run,
-        FitPlan(PLAN_START, cfg, FitInputs(frames_dir, [masks_dir], colorspace="ACEScg")),
-        device_name="cpu",
-        progress_bar=False,
-        stream=io.StringIO(),
-    )
+    quiet_fit(run, cfg, FitInputs(frames_dir, [masks_dir], colorspace="ACEScg"))
     _, prepared, _ = load_run(run)
     assert prepared.info.colorspace == "ACEScg"
     fresh = open_clip(frames_dir)

@@ -13,7 +13,6 @@ NOT solved: part A's own atlas is rigid only piecewise (see test_part_atlas_rigi
 
 from __future__ import annotations
 
-import io
 import json
 
 import cv2
@@ -27,9 +26,7 @@ from engine.errors import InputError
 from engine.fit.evaluation import render_frame
 from engine.fit.fit_inputs import FitInputs
 from engine.fit.fitted_run import load_run
-from engine.fit.run_plan import PLAN_START, FitPlan
-from engine.fit.trainer import fit
-from tests.engine.fit_helpers import TINY_OVERRIDES, object_drift_per_frame
+from tests.engine.fit_helpers import TINY_OVERRIDES, object_drift_per_frame, quiet_fit
 from tests.two_object_scene import make_two_object_scene, write_two_object_scene
 
 pytestmark = pytest.mark.slow
@@ -55,13 +52,7 @@ def fitted(tmp_path_factory):
     write_strokes(scene, tmp / "clip" / "scribbles")
     cfg = apply_overrides(preset_config("draft"), {**TINY_OVERRIDES, "atlas_margin_fg": "0.3"})
     run = tmp / "run"
-    metrics = fit(
-        run,
-        FitPlan(PLAN_START, cfg, FitInputs(frames_dir, mask_dirs, scribbles=tmp / "clip" / "scribbles")),
-        device_name="cpu",
-        progress_bar=False,
-        stream=io.StringIO(),
-    )
+    metrics = quiet_fit(run, cfg, FitInputs(frames_dir, mask_dirs, scribbles=tmp / "clip" / "scribbles"))
     return scene, run, metrics, tmp
 
 
@@ -104,24 +95,12 @@ def test_scribbles_need_one_mask_and_two_colours(fitted, tmp_path):
     frames_dir = tmp / "clip" / "frames"
     cfg = apply_overrides(preset_config("draft"), {"steps": "1"})
     with pytest.raises(InputError, match="exactly one --mask"):
-        fit(
-            tmp_path / "a",
-            FitPlan(PLAN_START, cfg, FitInputs(frames_dir, scribbles=tmp / "clip" / "scribbles")),
-            device_name="cpu",
-            progress_bar=False,
-            stream=io.StringIO(),
-        )
+        quiet_fit(tmp_path / "a", cfg, FitInputs(frames_dir, scribbles=tmp / "clip" / "scribbles"))
     red_only = tmp_path / "red"
     red_only.mkdir()
     img = np.zeros((*scene.frames.shape[1:3], 3), np.uint8)
     img[10:20, 10:20] = (0, 0, 255)
     cv2.imwrite(str(red_only / "00000.png"), img)
     with pytest.raises(InputError, match="green"):
-        fit(
-            tmp_path / "b",
-            FitPlan(PLAN_START, cfg, FitInputs(frames_dir, [tmp / "clip" / "masks"], scribbles=red_only)),
-            device_name="cpu",
-            progress_bar=False,
-            stream=io.StringIO(),
-        )
+        quiet_fit(tmp_path / "b", cfg, FitInputs(frames_dir, [tmp / "clip" / "masks"], scribbles=red_only))
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()  # bad input writes nothing
