@@ -67,7 +67,7 @@ class ClipState:
 
 def _prepare(spec: BenchClip, cfg: FitConfig, work: Path, eval_frames: int, device: torch.device) -> ClipState:
     t0 = time.perf_counter()
-    prepared = prepare_clip(FitInputs(spec.frames, tuple(spec.masks)), cfg, work)
+    prepared = prepare_clip(FitInputs(spec.frames, spec.masks), cfg, work)
     video = prepared.tensors(cfg, device)
     t_count = int(video.shape[0])
     count = t_count if eval_frames <= 0 else min(eval_frames, t_count)  # 0: every frame

@@ -56,7 +56,7 @@ def compare_components(
             },
         )
         run = Path(out) / comp
-        plan = FitPlan(PLAN_START, cfg, FitInputs(clip, tuple(masks), frame_range))
+        plan = FitPlan(PLAN_START, cfg, FitInputs(clip, masks, frame_range))
         metrics = fit(run, plan, device_name="cpu", progress_bar=False, stream=io.StringIO())
         scene = RunFolder(run).read_scene()
         rows[comp] = {

@@ -66,7 +66,7 @@ def measure_step_times(
     if differ is not None:
         raise InputError(None, f"the entries differ in {differ}", f"give every entry the same {differ}")
     device = select_device(device_name)
-    prepared = prepare_clip(FitInputs(clip, tuple(mask_dirs)), cfgs[0], work_dir)
+    prepared = prepare_clip(FitInputs(clip, mask_dirs), cfgs[0], work_dir)
     video = prepared.tensors(cfgs[0], device)
     trainers = [Trainer(cfg, prepared, prepared.analyse(cfg), device, video=video) for cfg in cfgs]
     times: list[list[float]] = [[] for _ in cfgs]

@@ -49,7 +49,7 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     from .fit.progress import Reporter
 
     result = estimate(
-        FitInputs(args.clip, tuple(args.mask), _positions(args.clip, args.frames)),
+        FitInputs(args.clip, args.mask, _positions(args.clip, args.frames)),
         presets=[p.strip() for p in args.presets.split(",")] if args.presets else None,
         work_dir=args.work,
         calib_seconds=args.calib_seconds,
@@ -212,7 +212,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     run_dir = Path(args.out)
     inputs = FitInputs(
         clip=args.clip,
-        masks=tuple(args.mask),
+        masks=args.mask,
         frames=args.frames,
         scribbles=args.scribbles,
         auto_masks=args.auto_masks,

@@ -19,6 +19,7 @@ motion*).
 from __future__ import annotations
 
 import sys
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,7 +41,9 @@ from .run_folder import RunFolder
 SAID_PREFIX = "auto parts: "
 
 
-def check_auto_parts(cfg: FitConfig, mask_dirs: list[str | Path], scribble_dir: str | None, auto_masks: bool) -> None:
+def check_auto_parts(
+    cfg: FitConfig, mask_dirs: Sequence[str | Path], scribble_dir: str | Path | None, auto_masks: bool
+) -> None:
     """The flags ``--auto-parts`` cannot go with, refused in one line before anything is read: it splits exactly one
     --mask object, its strokes are the scribbles (so not beside --scribbles), and the paper model fits one
     foreground layer only."""
@@ -68,7 +71,11 @@ def check_auto_parts(cfg: FitConfig, mask_dirs: list[str | Path], scribble_dir: 
 
 
 def parts_wanted(
-    flag: bool | None, cfg: FitConfig, mask_dirs: list[str | Path], scribble_dir: str | None, auto_masks: bool
+    flag: bool | None,
+    cfg: FitConfig,
+    mask_dirs: Sequence[str | Path],
+    scribble_dir: str | Path | None,
+    auto_masks: bool,
 ) -> bool:
     """Whether a fit that starts splits its object into parts: ``--auto-parts`` (``flag`` True) always, after
     ``check_auto_parts`` refused what it cannot go with; ``--no-auto-parts`` never; neither (None) wherever it

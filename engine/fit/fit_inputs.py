@@ -47,7 +47,7 @@ class FitInputs:
         space, rate and movie numbering, not today's defaults (a resume, a reload, the export's plate)."""
         return cls(
             clip=record.source,
-            masks=tuple(record.masks),
+            masks=record.masks,
             frames=record.frame_range,
             scribbles=record.scribbles,
             colorspace=record.colorspace,

@@ -7,6 +7,7 @@ required of every resume, in one line naming the first difference."""
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -154,7 +155,7 @@ def _plan_parts(run_dir: Path, plan: FitPlan, flag: bool | None, given_scribbles
     flag, or where it applies by default). Strokes found in RUN_DIR/parts are the scribbles (an earlier search's,
     or the artist's fix of them); else the search runs in the fit, on its own frames, mask and flow."""
     inputs = plan.inputs
-    if not parts_wanted(flag, plan.cfg, list(inputs.masks), given_scribbles, inputs.auto_masks):
+    if not parts_wanted(flag, plan.cfg, inputs.masks, given_scribbles, inputs.auto_masks):
         return plan
     asked = flag is True
     scribbles = inputs.scribbles
@@ -236,10 +237,10 @@ def check_fit_inputs(cfg: FitConfig, inputs: FitInputs, resume: bool) -> None:
             raise InputError(mask, f"given twice as --mask (also as {seen[real]})", "pass each object's masks once")
         seen[real] = mask
     if cfg.model == "paper" and not resume:
-        check_paper_layers(list(mask_dirs), find_masks, inputs.scribbles)
+        check_paper_layers(mask_dirs, find_masks, inputs.scribbles)
 
 
-def check_paper_layers(mask_dirs: list[str | Path], auto_masks: bool, scribble_dir: str | Path | None) -> None:
+def check_paper_layers(mask_dirs: Sequence[str | Path], auto_masks: bool, scribble_dir: str | Path | None) -> None:
     """The paper's architecture has one background and one foreground layer: exactly one --mask (masks found by
     motion may be none, and scribbles split the object into several), checked before anything is read."""
     given = None
