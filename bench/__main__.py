@@ -44,25 +44,23 @@ def parse_eval_at(text: str) -> tuple[float, ...]:
 
 
 def _paint_table(args: argparse.Namespace) -> int:
-    from bench.paint_table import PAINT_JSON, format_table, run_paint_table
+    from bench.paint_table import PAINT_JSON, TableFit, format_table, run_paint_table
 
-    table = run_paint_table(
-        args.root,
-        args.out,
+    how = TableFit.of_flags(
+        parts=args.parts,
+        scribbles=args.scribbles,
+        auto_parts=args.auto_parts,
+        one_layer=args.one_layer,
         preset=args.preset,
         degrade=args.degrade,
         seed=args.seed,
-        sets=args.set,
+        sets=tuple(args.set),
         threads=args.threads,
-        only=args.only,
-        pictures=args.pictures,
-        parts=args.parts,
-        scribbles=args.scribbles,
         scribble_frames=args.scribble_frames,
-        auto_parts=args.auto_parts,
-        one_layer=args.one_layer,
         follow_flow=args.follow_flow,
-        command=[PROG, *args.argv],
+    )
+    table = run_paint_table(
+        args.root, args.out, how, only=args.only, pictures=args.pictures, command=[PROG, *args.argv]
     )
     print(format_table(table))
     print(str((Path(args.out) / PAINT_JSON).resolve()))

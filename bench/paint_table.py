@@ -30,7 +30,7 @@ import os
 import subprocess
 import sys
 from collections.abc import Callable
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -85,6 +85,50 @@ COLUMNS: tuple[tuple[str, str, int], ...] = (
 )
 
 Log = Callable[[str], None]
+#: The ways a table's clips are split (``TableFit.split``): one layer per part mask where a clip has
+#: ``masks_parts/`` (``parts``), its one mask split by strokes drawn from those (``scribbles``), by the strokes the
+#: fit draws from the motion (``auto``: ``fit --auto-parts``), or one layer per mask (``one``: ``--no-auto-parts``).
+#: None: the fit's default (its own search, wherever it applies).
+SPLITS: tuple[str, ...] = ("parts", "scribbles", "auto", "one")
+
+
+@dataclass(frozen=True)
+class TableFit:
+    """How every clip of a table is fitted and exported: one value from the command line to each clip's fit.
+    ``scribble_frames``: with ``split="scribbles"``, the frames with strokes, spread evenly from the first to the
+    last; ``follow_flow``: None, exported as ``export`` does by default (each layer follows the flow where it slips,
+    the parts of one split object stay as fitted), True ``--follow-flow`` (every layer), False ``--no-follow-flow``."""
+
+    preset: str = "draft"
+    degrade: str = EXACT
+    seed: int = DEFAULT_SEED
+    sets: tuple[str, ...] = ()
+    threads: int | None = None
+    split: str | None = None
+    scribble_frames: int = 3
+    follow_flow: bool | None = None
+
+    def __post_init__(self) -> None:
+        recipe(self.degrade)  # an unknown name is refused before anything runs
+        if self.split is not None and self.split not in SPLITS:
+            raise ValueError(f"unknown split {self.split!r}; expected one of {SPLITS} or None")
+        object.__setattr__(self, "sets", tuple(self.sets))
+
+    @classmethod
+    def of_flags(
+        cls, *, parts: bool = False, scribbles: bool = False, auto_parts: bool = False, one_layer: bool = False,
+        **fields: Any,
+    ) -> TableFit:  # fmt: skip
+        """The value of the command line's flags: at most one way to split a clip."""
+        chosen = [name for name, on in zip(SPLITS, (parts, scribbles, auto_parts, one_layer), strict=True) if on]
+        if len(chosen) > 1:
+            raise ValueError("parts, scribbles, auto_parts and one_layer are ways to split a clip: choose one")
+        return cls(split=chosen[0] if chosen else None, **fields)
+
+    @property
+    def auto_parts(self) -> bool | None:
+        """The fit's parts flag: True ``--auto-parts``, False ``--no-auto-parts``, None neither (its default)."""
+        return {"auto": True, "one": False}.get(self.split or "")
 
 
 def _engine(args: list[str], log_path: Path, threads: int | None) -> str:
@@ -107,33 +151,29 @@ def _engine(args: list[str], log_path: Path, threads: int | None) -> str:
 
 
 def fit_and_export(
-    frames: Path,
-    masks: list[Path],
-    run: Path,
-    preset: str,
-    sets: list[str],
-    threads: int | None,
-    log_path: Path,
-    scribbles: Path | None = None,
-    follow_flow: bool | None = None,
-    auto_parts: bool | None = None,
+    frames: Path, masks: list[Path], run: Path, how: TableFit, log_path: Path, scribbles: Path | None = None
 ) -> Path:
-    """Fit (or continue, or leave a finished fit: ``--resume-if-started``) with one layer per mask folder (or the
-    one mask split by ``scribbles``, or by the parts the fit finds: ``auto_parts`` None, its default, or True,
-    ``--auto-parts``; False: ``--no-auto-parts``) and export into ``EXPORT_VERSION`` (``follow_flow`` None: the
-    export's default, True ``--follow-flow``, False ``--no-follow-flow``); returns the manifest's path."""
-    set_args = [a for kv in sets for a in ("--set", kv)]
+    """Fit (or continue, or leave a finished fit: ``--resume-if-started``) ``how.preset`` with one layer per mask
+    folder (or the one mask split by ``scribbles``, or by the parts the fit finds: ``how.auto_parts``) and export
+    into ``EXPORT_VERSION`` (``how.follow_flow``); returns the manifest's path."""
+    set_args = [a for kv in how.sets for a in ("--set", kv)]
     mask_args = [a for m in masks for a in ("--mask", str(m))]
     split_args = [C.SCRIBBLE_ARG, str(scribbles)] if scribbles is not None else []
-    if auto_parts is not None:
-        split_args += [C.FIT_AUTO_PARTS_FLAG if auto_parts else C.FIT_NO_AUTO_PARTS_FLAG]
+    if how.auto_parts is not None:
+        split_args += [C.FIT_AUTO_PARTS_FLAG if how.auto_parts else C.FIT_NO_AUTO_PARTS_FLAG]
     _engine(
-        [C.VERB_FIT, str(frames), *mask_args, *split_args, "--out", str(run), "--preset", preset,
+        [C.VERB_FIT, str(frames), *mask_args, *split_args, "--out", str(run), "--preset", how.preset,
          C.FIT_RESUME_IF_STARTED_FLAG, "--no-bar", *set_args],
-        log_path, threads,
+        log_path, how.threads,
     )  # fmt: skip
-    follow = [] if follow_flow is None else [C.EXPORT_FOLLOW_FLOW_FLAG if follow_flow else C.EXPORT_NO_FOLLOW_FLOW_FLAG]
-    out = _engine([C.VERB_EXPORT, str(run), C.EXPORT_INTO_ARG, EXPORT_VERSION, "--no-bar", *follow], log_path, threads)
+    follow = (
+        []
+        if how.follow_flow is None
+        else [C.EXPORT_FOLLOW_FLOW_FLAG if how.follow_flow else C.EXPORT_NO_FOLLOW_FLOW_FLAG]
+    )
+    out = _engine(
+        [C.VERB_EXPORT, str(run), C.EXPORT_INTO_ARG, EXPORT_VERSION, "--no-bar", *follow], log_path, how.threads
+    )
     with log_path.open("a", encoding="utf-8") as log:  # the export's messages: each layer's reach and why
         log.write(out)
     lines = [line for line in out.strip().splitlines() if line.strip()]
@@ -278,45 +318,28 @@ def score_clip_export(folder: Path, manifest: Path, out: Path) -> dict:
 def run_paint_table(
     root: str | Path,
     out_dir: str | Path,
-    preset: str = "draft",
-    degrade: str = EXACT,
-    seed: int = DEFAULT_SEED,
-    sets: list[str] | None = None,
-    threads: int | None = None,
+    how: TableFit | None = None,
     only: list[str] | None = None,
     pictures: bool = False,
-    parts: bool = False,
-    scribbles: bool = False,
-    scribble_frames: int = 3,
-    auto_parts: bool = False,
-    one_layer: bool = False,
-    follow_flow: bool | None = None,
     command: list[str] | None = None,
     log: Log | None = None,
 ) -> dict:
-    """Fit, export and score ``preset`` on every clip under ``root`` (or the ``only`` ones); returns the table
-    record, also written to ``out_dir/paint.json`` and ``out_dir/paint.md``. ``parts``: a clip with
-    ``masks_parts/`` (``motion_scenes.part_masks``) is fitted with one layer per part; scores are unchanged (the
-    foreground is every layer after the background). ``scribbles``: such a clip is fitted the product's way
-    instead, its one mask split by strokes drawn from the part masks on ``scribble_frames`` frames spread evenly from
-    the first to the last (3: first, middle, last; ``part_scribbles``). ``auto_parts``: each clip fitted with
-    ``fit --auto-parts``, its one (degraded) mask split by the strokes the fit draws from the motion where it splits
-    it (the row's ``auto_parts``: what the fit said it found; ``scribbles``: the strokes it wrote, ``RUN/parts``);
-    without any of these the fit's default does the same wherever it applies. ``one_layer``: each clip fitted with
-    ``fit --no-auto-parts``, one layer per mask.
-    ``follow_flow``: None, exported as ``export`` does by default (each layer follows the flow where it slips, the
-    parts of one split object stay as fitted); True ``--follow-flow`` (every layer), False ``--no-follow-flow``."""
+    """Fit, export and score every clip under ``root`` (or the ``only`` ones) as ``how`` says (default: ``draft``,
+    the clips' own masks, the fit's and the export's defaults); returns the table record, also written to
+    ``out_dir/paint.json`` and ``out_dir/paint.md``. A split clip's scores are the same (the foreground is every
+    layer after the background): ``parts`` fits a clip with ``masks_parts/`` (``motion_scenes.part_masks``) with
+    one layer per part; ``scribbles`` the product's way instead, its one mask split by strokes drawn from the part
+    masks on ``how.scribble_frames`` frames (3: first, middle, last; ``part_scribbles``); ``auto`` with ``fit
+    --auto-parts``, its one (degraded) mask split by the strokes the fit draws from the motion where it splits it
+    (the row's ``auto_parts``: what the fit said it found; ``scribbles``: the strokes it wrote, ``RUN/parts``);
+    ``one`` with ``fit --no-auto-parts``, one layer per mask."""
+    how = how or TableFit()
     say = log or (lambda line: print(line, file=sys.stderr, flush=True))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    recipe(degrade)  # an unknown name is refused before anything runs
-    if parts + scribbles + auto_parts + one_layer > 1:
-        raise ValueError("parts, scribbles, auto_parts and one_layer are ways to split a clip: choose one")
     rows = []
-    split = "parts" if parts else "scribbles" if scribbles else "auto" if auto_parts else "one" if one_layer else None
     for folder in _selected_clips(root, only):
-        row = _clip_row(folder, out, preset, degrade, seed, sets or [], threads, split, scribble_frames, follow_flow,
-                        say)  # fmt: skip
+        row = _clip_row(folder, out, how, say)
         if pictures and (folder / "masks").is_dir():
             from bench.paint_picture import paint_picture
 
@@ -328,17 +351,17 @@ def run_paint_table(
         PAINT_TAG: PAINT_VERSION,
         "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
         "command": command if command is not None else list(sys.argv),
-        "preset": preset,
-        "degrade": degrade,
-        "degradation": asdict(recipe(degrade)),
-        "seed": seed,
-        "sets": sets or [],
-        "parts": parts,
-        "scribbles": scribbles,
-        "scribble_frames": scribble_frames if scribbles else None,
-        "auto_parts": auto_parts,
-        "one_layer": one_layer,
-        "follow_flow": follow_flow,
+        "preset": how.preset,
+        "degrade": how.degrade,
+        "degradation": asdict(recipe(how.degrade)),
+        "seed": how.seed,
+        "sets": list(how.sets),
+        "parts": how.split == "parts",
+        "scribbles": how.split == "scribbles",
+        "scribble_frames": how.scribble_frames if how.split == "scribbles" else None,
+        "auto_parts": how.split == "auto",
+        "one_layer": how.split == "one",
+        "follow_flow": how.follow_flow,
         "rows": rows,
         "mean": mean_row(rows),
     }
@@ -358,45 +381,33 @@ def _selected_clips(root: str | Path, only: list[str] | None) -> list[Path]:
     return folders
 
 
-def _clip_row(
-    folder: Path,
-    out: Path,
-    preset: str,
-    degrade: str,
-    seed: int,
-    sets: list[str],
-    threads: int | None,
-    how: str | None,
-    scribble_frames: int,
-    follow_flow: bool | None,
-    say: Log,
-) -> dict:
-    """One clip fitted and exported as ``run_paint_table`` says, and its export scored: the table's row. ``how`` a
-    clip is split: ``parts``, ``scribbles``, ``auto``, ``one`` (``run_paint_table``'s flags) or None (the fit's
-    default)."""
+def _clip_row(folder: Path, out: Path, how: TableFit, say: Log) -> dict:
+    """One clip fitted and exported as ``how`` says, and its export scored: the table's row."""
     given = [folder / "masks"]
     split = part_folders(folder)
-    if how == "parts" and split:
+    if how.split == "parts" and split:
         given = split
     masks = given  # exact: the clip's own masks, as a user passes them
-    if recipe(degrade) != recipe(EXACT):
-        masks = [write_degraded(m, out / "masks" / degrade / folder.name / m.name, degrade, seed) for m in given]
+    if recipe(how.degrade) != recipe(EXACT):
+        masks = [
+            write_degraded(m, out / "masks" / how.degrade / folder.name / m.name, how.degrade, how.seed) for m in given
+        ]
     strokes = None
     found = None
     layers = len(masks) + 1
-    if how == "scribbles" and split:
+    if how.split == "scribbles" and split:
         from bench.part_scribbles import write_part_scribbles
 
-        at = tuple(float(a) for a in np.linspace(0.0, 1.0, max(2, scribble_frames)))
+        at = tuple(float(a) for a in np.linspace(0.0, 1.0, max(2, how.scribble_frames)))
         strokes, _ = write_part_scribbles(split, out / "scribbles" / folder.name, at)
         layers = len(split) + 1
     run = out / "runs" / folder.name
     log_path = out / "logs" / f"{folder.name}.log"
-    say(f"paint-table: {folder.name}: fit {preset} + export -> {run}")
-    flag = {"auto": True, "one": False}.get(how or "")
-    manifest = fit_and_export(folder / "frames", masks, run, preset, sets, threads, log_path, strokes, follow_flow,
-                              auto_parts=flag)  # fmt: skip
-    if strokes is None and len(masks) == 1 and flag is not False:  # the fit's own search (asked, or its default):
+    say(f"paint-table: {folder.name}: fit {how.preset} + export -> {run}")
+    manifest = fit_and_export(folder / "frames", masks, run, how, log_path, strokes)
+    if (
+        strokes is None and len(masks) == 1 and how.auto_parts is not False
+    ):  # the fit's own search (asked, or its default):
         # what it said it found, and the strokes it wrote
         found = _auto_parts_line(log_path)
         if found is not None:
@@ -459,6 +470,8 @@ __all__ = [
     "EXPORT_VERSION",
     "PAINT_JSON",
     "PAINT_MD",
+    "SPLITS",
+    "TableFit",
     "export_fg_iou",
     "fit_and_export",
     "flow_baseline",

@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import json
-from dataclasses import fields
+from collections.abc import Collection, Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal, get_args
 
@@ -324,6 +324,11 @@ RESUMABLE_FIELDS: tuple[str, ...] = (
     "eval_pixels",
     "checkpoint_seconds",
 )
+#: Loss phases measured in steps (``loss_weights``: a term is on while ``step < field``). One that reaches the fit's
+#: last step (``field >= steps``: draft's and balanced's mask bootstrap) is on for the whole fit, and stays so when the
+#: fit goes on: ``fit --refine`` moves it to the new last step (let go there, the alpha hands a body that spins or
+#: bends to the background: docs/accuracy-vs-time.md), and a resume or a checkpoint may record it so.
+PHASE_FIELDS: tuple[str, ...] = ("bootstrap_steps", "global_rigidity_steps")
 #: Fields that decide only how a new fit starts (the fast model's starting motions and atlas boxes, the paper
 #: model's calibration): a checkpoint carries their result, so a run loaded from its folder never reads them,
 #: and a checkpoint and a config.json that differ only there still belong together.
@@ -443,11 +448,32 @@ def apply_overrides(cfg: FitConfig, overrides: dict[str, Any], source: str | Pat
     return dataclasses.replace(cfg, **values)
 
 
+def whole_fit_phase(values: Mapping[str, Any], name: str) -> bool:
+    """Whether the loss phase ``name`` (``PHASE_FIELDS``) of a config's ``values`` lasts the whole fit."""
+    return name in PHASE_FIELDS and int(values[name]) >= int(values["steps"])
+
+
+def same_phases(saved: Mapping[str, Any], new: Mapping[str, Any], name: str) -> bool:
+    """Whether two configs' values of ``name`` run the same loss phase: the same step, or both the whole fit (a
+    fit continued for more steps keeps a phase it had on from its first step to its last)."""
+    return saved[name] == new[name] or (whole_fit_phase(saved, name) and whole_fit_phase(new, name))
+
+
+def run_on(cfg: FitConfig, last: int, steps: int, keep: Collection[str] = ()) -> FitConfig:
+    """``cfg``, whose fit was to end at step ``last``, run on to ``steps``: each loss phase that lasted to ``last`` on
+    to the new last step, the others (and those in ``keep``: set by hand) as they were."""
+    changes: dict[str, Any] = {"steps": steps}
+    changes.update((name, steps) for name in PHASE_FIELDS if name not in keep and last <= getattr(cfg, name) < steps)
+    return dataclasses.replace(cfg, **changes)
+
+
 def resume_changes(saved: FitConfig, new: FitConfig) -> tuple[list[str], list[str]]:
-    """The fields ``new`` changes from ``saved``: (those a resume may change, those it may not)."""
-    changed = [f.name for f in fields(FitConfig) if getattr(saved, f.name) != getattr(new, f.name)]
-    allowed = [name for name in changed if name in RESUMABLE_FIELDS]
-    return allowed, [name for name in changed if name not in RESUMABLE_FIELDS]
+    """The fields ``new`` changes from ``saved``: (those a resume may change, those it may not). A loss phase that
+    lasts the whole fit in both (``same_phases``) is a change a resume may make."""
+    old, now = dataclasses.asdict(saved), dataclasses.asdict(new)
+    changed = [name for name in old if old[name] != now[name]]
+    free = [name for name in changed if name in RESUMABLE_FIELDS or same_phases(old, now, name)]
+    return free, [name for name in changed if name not in free]
 
 
 def parse_set_args(items: list[str]) -> dict[str, str]:
@@ -556,6 +582,7 @@ def config_help() -> str:
 __all__ = [
     "LATER_FIELDS",
     "LR_FIELDS",
+    "PHASE_FIELDS",
     "PRESETS",
     "RESUMABLE_FIELDS",
     "START_FIELDS",
@@ -570,5 +597,8 @@ __all__ = [
     "parse_set_args",
     "preset_config",
     "resume_changes",
+    "run_on",
+    "same_phases",
     "weight_ever_on",
+    "whole_fit_phase",
 ]

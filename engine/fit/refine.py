@@ -6,8 +6,10 @@ P`` the schedule is P's (its learning rates, evaluation and checkpoint settings:
 without STEPS the fit runs on to P's step budget. Everything else must be what the fit ran with, because the
 checkpoint was trained with it:
 
-- the loss-phase lengths (``bootstrap_steps``, ``global_rigidity_steps``) stay as the fit ran them: the refine
-  continues the fit's own phases (a finished fit is past them; a preset's longer bootstrap is not replayed);
+- the loss phases (``config.PHASE_FIELDS``: ``bootstrap_steps``, ``global_rigidity_steps``) go on as the fit ran
+  them: one the fit is past stays past (a preset's longer bootstrap is not replayed), and one the fit had on to its
+  last step stays on to the refine's (``draft`` and ``balanced`` fit their masks for all of their steps: let go at
+  the end of a refine's first phase, the alpha would hand a body that spins or bends to the background);
 - the fields that decide only how a fit starts (``config.START_FIELDS``) are carried by the checkpoint;
 - any other difference (the model, a loss weight, the sampling) is refused in one line: fit P into a new folder.
 
@@ -23,12 +25,9 @@ import dataclasses
 from pathlib import Path
 
 from .. import contract as C
-from ..config import START_FIELDS, FitConfig, preset_config, resume_changes
+from ..config import PHASE_FIELDS, START_FIELDS, FitConfig, preset_config, resume_changes, run_on
 from ..errors import InputError
 from .run_folder import RunFolder
-
-#: Loss phases measured in steps: kept as the fit ran them (a finished fit is past them).
-PHASE_FIELDS: tuple[str, ...] = ("bootstrap_steps", "global_rigidity_steps")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,7 +76,7 @@ def refine_config(run_dir: str | Path, more_steps: int | None, preset: str | Non
         more_steps = target - done
     if more_steps < 1:
         raise InputError(None, f"{flag} {more_steps}: no steps to add", f"pass a positive number, e.g. {flag} 1000")
-    return RefinePlan(dataclasses.replace(cfg, steps=done + more_steps), done)
+    return RefinePlan(run_on(cfg, done, done + more_steps), done)
 
 
 def _with_preset(run: RunFolder, saved: FitConfig, target: FitConfig) -> FitConfig:
@@ -88,18 +87,18 @@ def _with_preset(run: RunFolder, saved: FitConfig, target: FitConfig) -> FitConf
         if key == "preset" or key in START_FIELDS:
             continue
         if key in PHASE_FIELDS:
-            continue  # the fit's own phases go on as they ran
+            continue  # the fit's own phases go on as they ran (``run_on``)
         raise InputError(
             run.config,
             f"{C.FIT_REFINE_FLAG} --preset {target.preset}: the preset has {key} {getattr(target, key)!r}, this fit "
             f"was trained with {getattr(saved, key)!r} (preset {saved.preset})",
             f"refine with --preset {saved.preset} (or without --preset), or fit {target.preset} into a new --out",
         )
-    return dataclasses.replace(saved, **{key: getattr(target, key) for key in allowed})
+    schedule = {key: getattr(target, key) for key in allowed if key not in PHASE_FIELDS}  # phases: ``run_on``
+    return dataclasses.replace(saved, **schedule)
 
 
 __all__ = [
-    "PHASE_FIELDS",
     "RefinePlan",
     "refine_config",
 ]

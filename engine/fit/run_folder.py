@@ -24,7 +24,7 @@ from typing import Any
 import torch
 
 from .. import contract as C
-from ..config import LATER_FIELDS, RESUMABLE_FIELDS, START_FIELDS, FitConfig
+from ..config import LATER_FIELDS, RESUMABLE_FIELDS, START_FIELDS, FitConfig, same_phases
 from ..data.scene_analysis import SceneAnalysis
 from ..errors import InputError
 from ..io.atomic import atomic_write_text
@@ -441,7 +441,8 @@ class RunFolder:
         """One line unless the checkpoint ``state`` was saved by this folder's fit: the clip it fitted (its
         fingerprint in clip.json) and every field of config.json that decides what the loaded model computes
         (``RESUMABLE_FIELDS`` may differ: a resume records its new schedule in config.json before the next
-        checkpoint; ``START_FIELDS`` too: the checkpoint carries what they decided)."""
+        checkpoint; ``START_FIELDS`` too: the checkpoint carries what they decided; a loss phase that lasts the whole
+        fit in both, ``same_phases``: a refine carries it to its new last step)."""
         if state["fingerprint"] != record.fingerprint:
             raise InputError(
                 self.checkpoint,
@@ -456,7 +457,8 @@ class RunFolder:
         free = (*RESUMABLE_FIELDS, *START_FIELDS)
         # a field the checkpoint predates (LATER_FIELDS): it was fitted with the value that reproduces the old engine
         missing = object()
-        differ = [k for k in ours if k not in free and saved.get(k, LATER_FIELDS.get(k, missing)) != ours[k]]
+        theirs = {k: saved.get(k, LATER_FIELDS.get(k, missing)) for k in ours}
+        differ = [k for k in ours if k not in free and theirs[k] != ours[k] and not same_phases(theirs, ours, k)]
         if differ:
             raise InputError(
                 self.checkpoint,

@@ -15,7 +15,15 @@ from typing import Any
 import torch
 
 from .. import contract as C
-from ..config import RESUMABLE_FIELDS, FitConfig, apply_overrides, parse_set_args, preset_config, resume_changes
+from ..config import (
+    RESUMABLE_FIELDS,
+    FitConfig,
+    apply_overrides,
+    parse_set_args,
+    preset_config,
+    resume_changes,
+    run_on,
+)
 from ..data.scene_analysis import SceneAnalysis
 from ..errors import InputError
 from ..io.clip import frame_positions
@@ -132,7 +140,10 @@ def plan_fit(
         cfg = preset_config(preset or default_preset)
     if mode.if_started and resume:  # the config the fit started with, as the same argv builds it
         cfg = preset_config(preset or default_preset)
-    cfg = apply_overrides(cfg, parse_set_args(set_args))
+    overrides = parse_set_args(set_args)
+    last, cfg = cfg.steps, apply_overrides(cfg, overrides)
+    if resume and not mode.if_started:  # a phase that lasted the whole fit lasts the new schedule too
+        cfg = run_on(cfg, last, cfg.steps, keep=overrides)
     frames = inputs.frames
     if resume and frames is not None:  # the recorded plate, numbered as it was fitted
         record = record or run.read_clip()

@@ -20,7 +20,7 @@ from bench.flow_tracks import score_clip
 from bench.motion_scenes import TEXTURE_PNG, write_motion_clips
 from bench.paint_picture import draw_dots, grid_points, picture_frames
 from bench.paint_slip import export_slip
-from bench.paint_table import PAINT_JSON, PAINT_MD, export_fg_iou, run_paint_table, true_sharpness
+from bench.paint_table import PAINT_JSON, PAINT_MD, TableFit, export_fg_iou, run_paint_table, true_sharpness
 from bench.paint_tracking import score_export
 from bench.report_file import read_tracks
 from bench.sharpness import atlas_sharpness
@@ -29,7 +29,7 @@ from engine.edit.preview import TILE_W
 from engine.io.images import read_image, write_png
 from tests.engine.fake_export import make_fake_export
 
-STEPS = ["steps=100", "bootstrap_steps=100", "global_rigidity_steps=20"]
+STEPS = ("steps=100", "bootstrap_steps=100", "global_rigidity_steps=20")
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +42,7 @@ def scene_root(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def table(scene_root, tmp_path_factory) -> tuple[dict, Path]:
     out = tmp_path_factory.mktemp("paint")
-    return run_paint_table(scene_root, out, sets=STEPS, threads=1, pictures=True, log=lambda _: None), out
+    return run_paint_table(scene_root, out, TableFit(sets=STEPS, threads=1), pictures=True, log=lambda _: None), out
 
 
 @pytest.mark.slow
@@ -80,7 +80,7 @@ def test_a_second_run_fits_and_exports_nothing(scene_root, table):
     record, out = table
     run = out / "runs" / "turning_depth"
     before = {p: p.stat().st_mtime_ns for p in (run / "checkpoint.pt", Path(record["rows"][0]["manifest"]))}
-    again = run_paint_table(scene_root, out, sets=STEPS, threads=1, log=lambda _: None)
+    again = run_paint_table(scene_root, out, TableFit(sets=STEPS, threads=1), log=lambda _: None)
     assert {p: p.stat().st_mtime_ns for p in before} == before
     keep = ("paint", "flow", "fg_iou", "sharpness", "psnr", "train_seconds")
     assert [{k: r[k] for k in keep} for r in again["rows"]] == [{k: r[k] for k in keep} for r in record["rows"]]
@@ -152,8 +152,10 @@ def tiny_limbs_table(tmp_path: Path, **split: bool) -> tuple[Path, dict]:
     ``split`` says (``parts=True`` or ``scribbles=True``); (the clips' root, the record)."""
     root = tmp_path / "scenes"
     write_motion_clips(root, width=96, height=64, frames=4, kinds=("limbs_jump",))
-    sets = ["steps=20", "bootstrap_steps=20", "global_rigidity_steps=5"]
-    return root, run_paint_table(root, tmp_path / "out", sets=sets, threads=1, log=lambda _: None, **split)
+    sets = ("steps=20", "bootstrap_steps=20", "global_rigidity_steps=5")
+    return root, run_paint_table(
+        root, tmp_path / "out", TableFit.of_flags(sets=sets, threads=1, **split), log=lambda _: None
+    )
 
 
 @pytest.mark.slow
@@ -196,8 +198,9 @@ def test_the_fit_gets_the_split_flag_the_table_asks_for(monkeypatch, tmp_path, a
         return str(tmp_path / "manifest.json")
 
     monkeypatch.setattr(paint_table, "_engine", engine)
-    paint_table.fit_and_export(tmp_path / "f", [tmp_path / "m"], tmp_path / "run", "draft", [], 1, tmp_path / "log",
-                               auto_parts=auto_parts)  # fmt: skip
+    split = {None: None, True: "auto", False: "one"}[auto_parts]
+    how = paint_table.TableFit(threads=1, split=split)
+    paint_table.fit_and_export(tmp_path / "f", [tmp_path / "m"], tmp_path / "run", how, tmp_path / "log")
     fit, export = calls
     parts = {C.FIT_AUTO_PARTS_FLAG, C.FIT_NO_AUTO_PARTS_FLAG}
     assert [a for a in fit if a in parts] == flags and not parts & set(export)
@@ -206,13 +209,13 @@ def test_the_fit_gets_the_split_flag_the_table_asks_for(monkeypatch, tmp_path, a
 
 def test_one_way_to_split_a_clip_at_a_time(scene_root, tmp_path):
     with pytest.raises(ValueError, match="choose one"):
-        run_paint_table(scene_root, tmp_path / "o", parts=True, auto_parts=True, log=lambda _: None)
+        TableFit.of_flags(parts=True, auto_parts=True)
     err = io.StringIO()
     with contextlib.redirect_stderr(err), pytest.raises(SystemExit):
         bench_main(["paint-table", str(scene_root), "--scribbles", "--auto-parts"])
     assert "not allowed with argument" in err.getvalue()
     with pytest.raises(ValueError, match="choose one"):
-        run_paint_table(scene_root, tmp_path / "o", auto_parts=True, one_layer=True, log=lambda _: None)
+        TableFit.of_flags(auto_parts=True, one_layer=True)
     err = io.StringIO()
     with contextlib.redirect_stderr(err), pytest.raises(SystemExit):
         bench_main(["paint-table", str(scene_root), "--auto-parts", "--no-auto-parts"])

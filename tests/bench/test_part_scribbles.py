@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from bench.motion_scenes import PART_MASKS, write_motion_clips
-from bench.paint_table import part_queries, run_paint_table
+from bench.paint_table import TableFit, part_queries
 from bench.part_scribbles import INSET_PX, part_stroke, write_part_scribbles
 from bench.report_file import read_tracks
 from engine import contract as C
@@ -79,4 +79,4 @@ def test_the_table_fits_the_one_mask_split_by_the_strokes(tmp_path):
     assert set(row["paint_by_part"]) == {name for name, keep in owned.items() if keep.any()}
     assert all(0.0 <= v <= 1.0 for v in row["paint_by_part"].values())
     with pytest.raises(ValueError, match="choose one"):
-        run_paint_table(root, tmp_path / "o2", parts=True, scribbles=True)
+        TableFit.of_flags(parts=True, scribbles=True)

@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import shutil
@@ -20,6 +21,7 @@ import pytest
 import torch
 
 from engine import contract as C
+from engine.config import PRESETS, loss_weights, resume_changes, same_phases
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.errors import InputError
 from engine.fit.fitted_run import load_fitted
@@ -244,3 +246,54 @@ def test_a_checkpoint_from_before_configs_were_recorded_still_exports_and_resume
     assert code == C.EXIT_OK, lines
     saved = torch.load(path, map_location="cpu", weights_only=True)
     assert saved["schema"] == C.RUN_CHECKPOINT_SCHEMA and isinstance(saved["config"], dict)
+
+
+@pytest.mark.parametrize(("bootstrap", "after"), [(2, 5), (1, 1)])
+def test_a_refine_keeps_the_masks_held_when_the_fit_held_them_to_its_last_step(fitted, tmp_path, bootstrap, after):
+    """``fit --refine 3`` of a 2-step fit: a mask bootstrap that lasted the whole fit (2 of 2 steps, as `draft` and
+    `balanced` fit) lasts the whole refine (5 of 5, in config.json and in the checkpoint, the mask term on at its
+    last step); one the fit was past (1 of 2) stays where it ended. A ``--resume`` of the refined fit accepts both."""
+    frames, masks, _ = fitted
+    run = tmp_path / "run"
+    argv = ("fit", str(frames), "--mask", str(masks), "--out", str(run), *TINY_FIT)
+    assert run_cli(*argv, "--set", f"bootstrap_steps={bootstrap}")[0] == C.EXIT_OK
+    code, lines = run_cli("fit", "--out", str(run), C.FIT_REFINE_FLAG, "3", "--no-bar")
+    assert code == C.EXIT_OK, lines
+    cfg = RunFolder(run).read_config()
+    assert (cfg.steps, cfg.bootstrap_steps, cfg.global_rigidity_steps) == (
+        5,
+        after,
+        PRESETS["draft"].global_rigidity_steps,
+    )
+    assert (loss_weights(cfg, 4)["mask"] > 0) == (after == 5)
+    state = torch.load(run / C.RUN_CHECKPOINT, weights_only=True)
+    assert (state["step"], state["config"]["bootstrap_steps"]) == (5, after)
+    code, lines = run_cli("fit", "--resume", "--out", str(run), "--no-bar", "--set", "steps=6")
+    assert code == C.EXIT_OK, lines
+    assert RunFolder(run).read_config().bootstrap_steps == (6 if after == 5 else 1)  # a resume's new steps likewise
+    by_hand = ("--set", "steps=7", "--set", "bootstrap_steps=6")
+    code, lines = run_cli("fit", "--resume", "--out", str(run), "--no-bar", *by_hand)
+    if after == 5:  # a phase given by hand is not moved on (here it ends where it ended: a change a resume may make)
+        assert code == C.EXIT_OK and RunFolder(run).read_config().bootstrap_steps == 6, lines
+    else:  # 1 -> 6 changes what the fit computes
+        assert code == C.EXIT_BAD_INPUT and "bootstrap_steps" in lines[0], lines
+
+
+def test_only_a_phase_that_lasts_both_fits_may_move_on_a_resume():
+    """``resume_changes``: a loss phase moved with the steps so that it lasts the whole fit before and after is the
+    same phase; moved anywhere else it changes what the fit computes and is refused."""
+    held = dataclasses.replace(PRESETS["draft"], steps=800, bootstrap_steps=800)
+    assert resume_changes(held, dataclasses.replace(held, steps=1800, bootstrap_steps=1800)) == (
+        ["steps", "bootstrap_steps"],
+        [],
+    )
+    assert resume_changes(held, dataclasses.replace(held, steps=1800, bootstrap_steps=5000)) == (
+        ["steps", "bootstrap_steps"],
+        [],
+    )
+    assert resume_changes(held, dataclasses.replace(held, steps=1800, bootstrap_steps=1000))[1] == ["bootstrap_steps"]
+    released = dataclasses.replace(held, bootstrap_steps=300)
+    assert resume_changes(released, dataclasses.replace(released, steps=1800, bootstrap_steps=1800))[1] == [
+        "bootstrap_steps"
+    ]
+    assert not same_phases({"steps": 10, "w_rgb": 1.0}, {"steps": 20, "w_rgb": 2.0}, "w_rgb")
