@@ -75,7 +75,7 @@ class NEURALATLAS_AP_preferences(bpy.types.AddonPreferences):
         subtype="FILE_PATH",
         description="A Python 3.11 with the engine's requirements (Set up engine creates one)",
     )
-    setup_status: StringProperty(default="")
+    setup_status: StringProperty(default="", description="What Set up engine last said")
     torch_build: EnumProperty(
         name="Torch Build",
         items=[
@@ -94,6 +94,7 @@ class NEURALATLAS_AP_preferences(bpy.types.AddonPreferences):
             (FM.FARM_OPENJD, "OpenJD bundle (Deadline Cloud)", "Write an Open Job Description bundle to submit"),
         ],
         default=FM.FARM_FLAMENCO,
+        description="Where Submit to Farm sends the shot",
     )
     farm_manager_url: StringProperty(
         name="Manager URL",

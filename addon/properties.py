@@ -47,6 +47,7 @@ class NEURALATLAS_PG_layer(bpy.types.PropertyGroup):
             ("FOLDER", "Images", "A folder with one mask image per frame"),
         ],
         default="MASK",
+        description="Where this layer's masks come from: a Blender Mask, or a folder of mask images",
     )
     mask: PointerProperty(name="Mask", type=bpy.types.Mask, description="Roto of this foreground object")
     folder: StringProperty(
@@ -72,7 +73,12 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
         description="Long edge of the resolution the fit runs at",
         update=_forget_estimate,
     )
-    preset: EnumProperty(name="Preset", items=estimate.preset_items(), default="draft")
+    preset: EnumProperty(
+        name="Preset",
+        items=estimate.preset_items(),
+        default="draft",
+        description="How long the fit trains, and so how closely it follows the plate (Estimate Time measures each)",
+    )
     overrides: StringProperty(
         name="Overrides",
         default="",
@@ -101,8 +107,8 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
         description="Refine with this preset's learning rates and schedule (a preset the fit was not trained for "
         "is refused by the engine, saying why)",
     )
-    layers: CollectionProperty(type=NEURALATLAS_PG_layer)
-    layer_index: IntProperty()
+    layers: CollectionProperty(type=NEURALATLAS_PG_layer, description="The foreground objects to fit, a layer each")
+    layer_index: IntProperty(description="The layer selected in the list")
     use_scribbles: BoolProperty(
         name="Split with Scribbles",
         default=False,
@@ -113,9 +119,7 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
         name="Find Parts",
         default=True,
         description="Split the one foreground layer into the parts that move apart (a limb swinging across the "
-        "body), found from motion when the fit starts; the strokes are written to the run folder's parts/ to check "
-        "(fix them there, or delete the folder to find them again). An object moving as one piece stays one layer, "
-        "fitted as with this off. Applies to one foreground layer without Split with Scribbles",
+        "body), found from its motion when the fit starts; an object that moves as one piece stays one layer",
     )
     run_dir: StringProperty(
         name="Run Folder",
@@ -149,10 +153,15 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
             ),
         ],
         default=P.FILTER_DEFAULT,
+        description="How the paint is read from the atlases, in the Live Preview and the render alike",
         update=_on_filter,
     )
     render_dir: StringProperty(
-        name="Output", subtype="DIR_PATH", default="//neural_atlas_render/", options=compat.PATH_OPTIONS
+        name="Output",
+        subtype="DIR_PATH",
+        default="//neural_atlas_render/",
+        description="The folder Render Edited Clip writes the edited frames to",
+        options=compat.PATH_OPTIONS,
     )
     write_mattes: BoolProperty(
         name="Write Mattes",
@@ -169,19 +178,24 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
             ("movie", "Movie", "H.264 MP4"),
         ],
         default="exr",
+        description="The file format of the edited frames",
     )
     # Render Edited Clip's progress (written by its operator, shown by the Paint & Render panel)
-    render_progress: FloatProperty(default=0.0, min=0.0, max=1.0, subtype="FACTOR")
-    render_status: StringProperty(default="")
+    render_progress: FloatProperty(
+        default=0.0, min=0.0, max=1.0, subtype="FACTOR", description="How far Render Edited Clip has got"
+    )
+    render_status: StringProperty(default="", description="What Render Edited Clip last said")
     estimate_json: StringProperty(default="", description="The engine's time estimate per preset (JSON)")
     # live state of an engine job (written by the operators, shown by the panel)
-    running: BoolProperty(default=False)
-    progress: FloatProperty(default=0.0, min=0.0, max=1.0, subtype="FACTOR")
-    status: StringProperty(default="")
-    log_path: StringProperty(default="")
-    can_resume: BoolProperty(default=False)
+    running: BoolProperty(default=False, description="Whether the engine is working for this scene")
+    progress: FloatProperty(
+        default=0.0, min=0.0, max=1.0, subtype="FACTOR", description="How far the engine's job has got"
+    )
+    status: StringProperty(default="", description="What the engine's job last said")
+    log_path: StringProperty(default="", description="The log file of the engine's last job")
+    can_resume: BoolProperty(default=False, description="Whether the Run Folder holds a stopped fit to resume")
     # what Submit to Farm last said (the Manager's job, the bundle folder, or why not)
-    farm_status: StringProperty(default="")
+    farm_status: StringProperty(default="", description="What Submit to Farm last said")
 
 
 classes = (NEURALATLAS_PG_layer, NEURALATLAS_PG_scene)

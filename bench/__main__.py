@@ -147,30 +147,26 @@ def _masks(args: argparse.Namespace) -> int:
 
 
 def _clips(args: argparse.Namespace) -> int:
-    from bench.all_clips import CLIPS_JSON, format_table, run_all_clips
+    from bench.all_clips import CLIPS_JSON, clips_plan, format_table, run_all_clips
     from engine.config import parse_set_args
 
-    table = run_all_clips(
-        args.root,
-        args.out,
-        preset=args.preset,
-        degrade=args.degrade,
-        seed=args.seed,
+    plan = clips_plan(
+        args.preset,
+        args.budget_seconds,
         overrides=parse_set_args(args.set),
-        budget_seconds=args.budget_seconds,
         eval_frames=args.eval_frames,
         device_name=args.device,
         stride=args.stride,
         threads=args.threads,
-        command=[PROG, *args.argv],
     )
+    table = run_all_clips(args.root, args.out, plan, args.degrade, args.seed, command=[PROG, *args.argv])
     print(format_table(table))
     print(str((Path(args.out) / CLIPS_JSON).resolve()))
     return C.EXIT_OK
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from bench.bench import BENCH_JSON, run_bench
+    from bench.bench import BENCH_JSON, BenchPlan, run_bench
     from bench.bench_clip import resolve_clip
     from bench.bench_summary import summary_table
     from engine.config import parse_set_args
@@ -180,23 +176,21 @@ def _bench(args: argparse.Namespace) -> int:
             None, "--mask, --tracks and --score-masks need exactly one clip", "bench one clip, or use clip folders"
         )
     clips = [resolve_clip(c, args.mask or None, args.tracks, args.score_masks or None) for c in args.clips]
-    record = run_bench(
-        clips,
-        [p.strip() for p in args.presets.split(",") if p.strip()],
+    plan = BenchPlan(
+        tuple(p.strip() for p in args.presets.split(",") if p.strip()),
         args.budget_seconds,
-        args.out,
         overrides=parse_set_args(args.set),
         evals=args.evals,
         eval_frames=args.eval_frames,
+        eval_at_start=args.eval_at_start,
+        eval_at=parse_eval_at(args.eval_at),
+        stride=args.stride,
         slice_seconds=args.slice_seconds,
         sequential=args.sequential,
         device_name=args.device,
-        stride=args.stride,
-        command=["python", "-m", "bench", *args.argv],
         threads=args.threads,
-        eval_at_start=args.eval_at_start,
-        eval_at=parse_eval_at(args.eval_at),
     )
+    record = run_bench(clips, plan, args.out, command=["python", "-m", "bench", *args.argv])
     print(summary_table(record))
     print(str((Path(args.out) / BENCH_JSON).resolve()))
     return C.EXIT_OK

@@ -20,7 +20,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from bench.bench import BENCH_JSON, run_bench
+from bench.bench import BENCH_JSON, BenchPlan, run_bench
 from bench.bench_clip import BenchClip, resolve_clip
 from bench.degrade import DEFAULT_SEED, masks_iou, recipe, write_degraded
 from bench.flow_tracks import score_clip
@@ -155,55 +155,45 @@ def format_table(table: dict) -> str:
     return "\n".join(lines)
 
 
+def clips_plan(preset: str = "draft", budget_seconds: float | None = None, **fields: Any) -> BenchPlan:
+    """The bench each clip of a table gets: ``preset`` alone, trained to its own steps (``budget_seconds`` None)
+    or for that long, evaluated once at the end, ``fields`` as ``BenchPlan``'s (its overrides, evaluation frames,
+    stride, device, threads)."""
+    budget = NO_BUDGET_SECONDS if budget_seconds is None else budget_seconds
+    return BenchPlan((preset,), budget, **{"eval_frames": 0, **fields, "evals": 1, "sequential": True})
+
+
 def run_all_clips(
     root: str | Path,
     out_dir: str | Path,
-    preset: str = "draft",
+    plan: BenchPlan | None = None,
     degrade: str = "dilated10_dropped10",
     seed: int = DEFAULT_SEED,
-    overrides: dict[str, str] | None = None,
-    budget_seconds: float | None = None,
-    eval_frames: int = 0,
-    device_name: str = "auto",
-    stride: int = 4,
-    threads: int | None = None,
     command: list[str] | None = None,
     log: Any = None,
 ) -> dict:
-    """Fit ``preset`` on every clip under ``root`` with masks degraded by ``degrade`` and score it; returns the
-    table record (also ``out_dir/clips.json`` and ``out_dir/clips.md``)."""
+    """Fit ``plan``'s preset (``clips_plan``; default ``draft``) on every clip under ``root`` with masks degraded by
+    ``degrade`` and score it; returns the table record (also ``out_dir/clips.json`` and ``out_dir/clips.md``)."""
+    plan = plan or clips_plan()
+    if len(plan.presets) != 1:
+        raise ValueError(f"a clips table fits one preset, not {list(plan.presets)}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     clips = degraded_clips(root, out, degrade, seed)
     rows, benches = [], []
     for clip in clips:  # one bench per clip: only one clip's frames, flow and model are in memory at a time
-        record = run_bench(
-            [clip],
-            [preset],
-            NO_BUDGET_SECONDS if budget_seconds is None else budget_seconds,
-            out / "runs" / clip.name,
-            overrides=overrides,
-            evals=1,
-            eval_frames=eval_frames,
-            sequential=True,
-            device_name=device_name,
-            stride=stride,
-            command=command,
-            log=log or sys.stderr,
-            plot=False,
-            threads=threads,
-        )
+        record = run_bench([clip], plan, out / "runs" / clip.name, command=command, log=log, plot=False)
         rows += [{**row, **dis_flow_fields(clip)} for row in clip_rows(record)]
         benches.append(f"runs/{clip.name}/{BENCH_JSON}")
     table = {
         CLIPS_TAG: CLIPS_VERSION,
         "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
         "command": command if command is not None else list(sys.argv),
-        "preset": preset,
+        "preset": plan.presets[0],
         "degrade": degrade,
         "degradation": asdict(recipe(degrade)),
         "seed": seed,
-        "eval_frames": eval_frames,
+        "eval_frames": plan.eval_frames,
         "benches": benches,
         "rows": rows,
         "mean": mean_row(rows),
@@ -217,6 +207,7 @@ __all__ = [
     "CLIPS_JSON",
     "CLIPS_MD",
     "clip_rows",
+    "clips_plan",
     "degraded_clips",
     "dis_flow_fields",
     "find_clips",

@@ -17,6 +17,7 @@ import datetime as _dt
 import json
 import math
 import sys
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -82,108 +83,87 @@ def _eval_schedule(budget: float, evals: int, extra: tuple[float, ...] = ()) -> 
     return sorted(set(round(x, 6) for x in times))
 
 
+@dataclass(frozen=True)
+class BenchPlan:
+    """What a bench trains and how it measures: one value from the command line (``bench``, ``bench all-clips``)
+    to every run. Each of ``presets`` trains for ``budget_seconds`` (or until its steps end), with ``overrides``
+    (``KEY`` for every preset, ``PRESET.KEY`` for one: ``bench_configs``); it is evaluated ``evals`` times,
+    geometrically over the budget, and at the ``eval_at`` training seconds (with ``eval_at_start`` also before its
+    first step), on ``eval_frames`` frames, tracking from every ``stride``-th pixel. Runs take turns in slices of
+    ``slice_seconds`` of training, or one after the other (``sequential``), on ``device_name`` with ``threads``
+    torch threads (None: torch's choice)."""
+
+    presets: tuple[str, ...]
+    budget_seconds: float
+    overrides: dict[str, str] = field(default_factory=dict)
+    evals: int = 6
+    eval_frames: int = 5
+    eval_at_start: bool = False
+    eval_at: tuple[float, ...] = ()
+    stride: int = 4
+    slice_seconds: float = 5.0
+    sequential: bool = False
+    device_name: str = "auto"
+    threads: int | None = None
+
+
 def run_bench(
     clips: list[BenchClip],
-    presets: list[str],
-    budget_seconds: float,
+    plan: BenchPlan,
     out_dir: str | Path,
-    overrides: dict[str, str] | None = None,
-    evals: int = 6,
-    eval_frames: int = 5,
-    slice_seconds: float = 5.0,
-    sequential: bool = False,
-    device_name: str = "auto",
-    stride: int = 4,
     command: list[str] | None = None,
     log: Any = None,
     plot: bool = True,
-    threads: int | None = None,
-    eval_at_start: bool = False,
-    eval_at: tuple[float, ...] = (),
 ) -> dict:
-    """Run every preset on every clip for ``budget_seconds`` of training each; returns the bench record
-    (also written to ``out_dir/bench.json``, with the plot in ``out_dir/bench.png``). ``eval_at``: training
-    seconds to evaluate at besides the geometric ``evals``."""
-    log = log or sys.stderr
-    with torch_threads(threads):
-        return _run_bench(
-            clips,
-            presets,
-            budget_seconds,
-            Path(out_dir),
-            overrides or {},
-            evals,
-            eval_frames,
-            slice_seconds,
-            sequential,
-            device_name,
-            stride,
-            command,
-            log,
-            plot,
-            eval_at_start,
-            eval_at,
-        )
+    """Run ``plan`` on every clip; returns the bench record (also written to ``out_dir/bench.json``, with the plot
+    in ``out_dir/bench.png``)."""
+    with torch_threads(plan.threads):
+        return _run_bench(clips, plan, Path(out_dir), command, log or sys.stderr, plot)
 
 
 def _run_bench(
-    clips: list[BenchClip],
-    presets: list[str],
-    budget_seconds: float,
-    out: Path,
-    overrides: dict[str, str],
-    evals: int,
-    eval_frames: int,
-    slice_seconds: float,
-    sequential: bool,
-    device_name: str,
-    stride: int,
-    command: list[str] | None,
-    log: Any,
-    plot: bool,
-    eval_at_start: bool,
-    eval_at: tuple[float, ...],
+    clips: list[BenchClip], plan: BenchPlan, out: Path, command: list[str] | None, log: Any, plot: bool
 ) -> dict:
     out.mkdir(parents=True, exist_ok=True)
-    device = select_device(device_name)
-    cfgs = bench_configs(presets, overrides or {})
-    schedule = _eval_schedule(budget_seconds, evals, eval_at)
+    device = select_device(plan.device_name)
+    cfgs = bench_configs(list(plan.presets), plan.overrides)
+    schedule = _eval_schedule(plan.budget_seconds, plan.evals, plan.eval_at)
     record = _new_record(
         command,
         {
-            "presets": presets,
-            "budget_seconds": budget_seconds,
+            "presets": list(plan.presets),
+            "budget_seconds": plan.budget_seconds,
             "eval_times": [round(x, 3) for x in schedule],
-            "eval_frames": eval_frames,
-            "mode": "sequential" if sequential else "interleaved",
-            "slice_seconds": slice_seconds,
-            "overrides": overrides or {},
+            "eval_frames": plan.eval_frames,
+            "mode": "sequential" if plan.sequential else "interleaved",
+            "slice_seconds": plan.slice_seconds,
+            "overrides": dict(plan.overrides),
             "device": device.type,
-            "stride": stride,
-            "eval_at_start": eval_at_start,
+            "stride": plan.stride,
+            "eval_at_start": plan.eval_at_start,
             "clock": "training seconds: optimisation steps and model calibration; evaluation excluded",
         },
     )
-    states = _prepare_clips(clips, cfgs[0], out, eval_frames, device, log)
+    states = _prepare_clips(clips, cfgs[0], out, plan.eval_frames, device, log)
     record["clips"] = [s.record() for s in states]
-    runs = _start_runs(states, cfgs, schedule, device, stride, eval_at_start)
+    runs = _start_runs(states, cfgs, schedule, device, plan.stride, plan.eval_at_start)
 
     def write() -> None:
         record["runs"] = [r.record() for r in runs]
         record["peak_rss_mb"] = rss_mb()[1]
         atomic_write_text(out / BENCH_JSON, json.dumps(record, indent=1))
 
-    active = list(runs)
+    active, budget = list(runs), plan.budget_seconds
     while active:
-        for run in active[:1] if sequential else list(active):
-            until = math.inf if sequential else run.trainer.train_seconds + slice_seconds
-            _advance(run, min(until, run.eval_times[0] if run.eval_times else math.inf), budget_seconds)
-            over = run.trainer.train_seconds >= budget_seconds or run.trainer.finished or run.failed is not None
+        for run in active[:1] if plan.sequential else list(active):
+            until = math.inf if plan.sequential else run.trainer.train_seconds + plan.slice_seconds
+            _advance(run, min(until, run.eval_times[0] if run.eval_times else math.inf), budget)
+            over = run.trainer.train_seconds >= budget or run.trainer.finished or run.failed is not None
             due = bool(run.eval_times) and run.trainer.train_seconds >= run.eval_times[0]
             if due or over:
                 while run.eval_times and run.trainer.train_seconds >= run.eval_times[0]:
                     run.eval_times.pop(0)
-                _evaluate_and_log(run, device, stride, log)
+                _evaluate_and_log(run, device, plan.stride, log)
                 write()
             if over:
                 run.done = True
@@ -263,5 +243,6 @@ def _evaluate_and_log(run: Run, device: torch.device, stride: int, log: Any) -> 
 __all__ = [
     "BENCH_JSON",
     "BENCH_PNG",
+    "BenchPlan",
     "run_bench",
 ]

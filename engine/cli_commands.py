@@ -80,19 +80,11 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 
 def _cmd_render(args: argparse.Namespace) -> int:
-    from .edit.render import parse_edit_args, render_manifest
+    from .edit.render import RenderSettings, parse_edit_args, render_manifest
 
+    settings = RenderSettings(args.format, args.filter, args.name, args.depth)
     out = render_manifest(
-        args.manifest,
-        args.out,
-        parse_edit_args(args.edit),
-        fmt=args.format,
-        filter=args.filter,
-        movie=args.movie,
-        progress_bar=not args.no_bar,
-        frames=args.frames,
-        name=args.name,
-        depth=args.depth,
+        args.manifest, args.out, parse_edit_args(args.edit), settings, args.movie, not args.no_bar, args.frames
     )
     return print_paths([Path(out).resolve()])
 

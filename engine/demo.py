@@ -35,7 +35,7 @@ from .config import apply_overrides, preset_config
 from .data.synthetic import demo_spec, make_scene, write_scene
 from .edit.equations import load_edit
 from .edit.preview import checker_edits, grid, label, tile, write_png_u8, write_previews
-from .edit.render import plate_frames, render_frames, render_manifest, to_display_u8
+from .edit.render import RenderSettings, plate_frames, render_frames, render_manifest, to_display_u8
 from .export.exporter import export_run
 from .export.manifest import Manifest
 from .fit.contact_sheet import write_contact_sheet
@@ -305,7 +305,7 @@ def _render_step(
     last_frame = edited / f"edit.{manifest.frames[-1]:05d}.png"
     if not _up_to_date([last_frame, movie], [*edits, manifest_path]):
         _say(f"5/6 render the edited clip -> {edited}, {movie}")
-        render_manifest(manifest_path, edited, overrides_edit, fmt="png", movie=movie)
+        render_manifest(manifest_path, edited, overrides_edit, RenderSettings("png"), movie=movie)
     else:
         _say(f"5/6 edited clip already rendered: {edited}")
 

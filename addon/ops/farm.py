@@ -19,8 +19,9 @@ from .driver import EngineJobOperator
 
 
 class NEURALATLAS_OT_submit_farm(EngineJobOperator, bpy.types.Operator):
-    """Send the clip, its masks and preset to the farm set in the add-on's preferences: a Flamenco Manager job,
-    or an OpenJD bundle for Deadline Cloud. The farm fills the Run Folder; Import Atlas reads it as after Fit Atlas"""
+    """Send the clip, its masks and preset to the farm chosen in the preferences, which fills the Run Folder"""
+
+    # a Flamenco Manager job, or an OpenJD bundle for Deadline Cloud; Import Atlas reads the Run Folder as after Fit
 
     bl_idname = "neural_atlas.submit_farm"
     bl_label = "Submit to Farm"

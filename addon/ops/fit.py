@@ -49,7 +49,9 @@ class NEURALATLAS_OT_fit(EngineJobOperator, bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}  # noqa: RUF012 (Blender reads a set)
 
     # hidden: a visible property would give Adjust Last Operation, which undoes the import and runs the fit again
-    resume: BoolProperty(name="Resume", default=False, options={"SKIP_SAVE", "HIDDEN"})
+    resume: BoolProperty(
+        name="Resume", default=False, options={"SKIP_SAVE", "HIDDEN"}, description="Continue the stopped fit"
+    )
     timeout: _timeout()
 
     @classmethod
@@ -88,8 +90,7 @@ class NEURALATLAS_OT_fit(EngineJobOperator, bpy.types.Operator):
 
 
 class NEURALATLAS_OT_find_masks(EngineJobOperator, bpy.types.Operator):
-    """Find the moving object's masks from motion with the engine and add them as a foreground layer to check
-    (and fix) before fitting"""
+    """Find the moving object's masks from its motion and add them as a foreground layer to check before fitting"""
 
     bl_idname = "neural_atlas.find_masks"
     bl_label = "Find Masks"

@@ -207,8 +207,7 @@ def _need_land(context, cached: bool = True) -> str | None:
 
 
 class NEURALATLAS_OT_frame_paint_start(bpy.types.Operator):
-    """Paint over the plate at the current frame: a transparent layer the size of the plate, landed on the atlases
-    by Land Paint on Atlases"""
+    """Paint over the plate at the current frame, on a clear layer that Land Paint on Atlases puts on the atlases"""
 
     bl_idname = "neural_atlas.frame_paint_start"
     bl_label = FP.START_LABEL
@@ -237,8 +236,9 @@ class NEURALATLAS_OT_frame_paint_start(bpy.types.Operator):
 
 
 class NEURALATLAS_OT_frame_paint_land(EngineJobOperator, bpy.types.Operator):
-    """Land the paint laid on the plate frame on the atlases of the layers it covers (engine project-frame), so it
-    shows on every frame; the previous edit layers are kept in edits/history"""
+    """Put the paint laid on this frame onto the atlases of the layers it covers, so it shows on every frame"""
+
+    # the previous edit layers are kept in RUN/edits/history (engine project-frame writes the new ones)
 
     bl_idname = "neural_atlas.frame_paint_land"
     bl_label = FP.LAND_LABEL

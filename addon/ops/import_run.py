@@ -127,9 +127,11 @@ class NEURALATLAS_OT_import(bpy.types.Operator):
     bl_label = "Import Atlas"
     bl_options = {"REGISTER", "UNDO"}  # noqa: RUF012 (Blender reads a set)
 
-    filepath: StringProperty(subtype="FILE_PATH")
-    filter_glob: StringProperty(default=C.MANIFEST_NAME, options={"HIDDEN"})
-    setup_paint: BoolProperty(name="Paint Canvases", default=True)
+    filepath: StringProperty(subtype="FILE_PATH", description="The export's manifest.json")
+    filter_glob: StringProperty(default=C.MANIFEST_NAME, options={"HIDDEN"}, description="The files to list")
+    setup_paint: BoolProperty(
+        name="Paint Canvases", default=True, description="Also set up a paint canvas for each layer's atlas"
+    )
     set_range: BoolProperty(
         name="Set Scene Range",
         description="Set the scene's range to the imported frames even where the current range lies within them",

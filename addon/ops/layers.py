@@ -45,14 +45,15 @@ class NEURALATLAS_OT_layer_remove(bpy.types.Operator):
 
 
 class NEURALATLAS_OT_scribble_layers(bpy.types.Operator):
-    """Add annotation layers in the scribble colours to the clip (part 1 red, part 2 green, ...); draw on them
-    with the Annotate tool"""
+    """Add annotation layers in the scribble colours to the clip (part 1 red, part 2 green, ...) to draw the parts on"""
 
     bl_idname = "neural_atlas.scribble_layers"
     bl_label = "Add Scribble Layers"
     bl_options = {"REGISTER", "UNDO"}  # noqa: RUF012 (Blender reads a set)
 
-    parts: IntProperty(name="Parts", default=2, min=2, max=len(C.SCRIBBLE_COLOURS))
+    parts: IntProperty(
+        name="Parts", default=2, min=2, max=len(C.SCRIBBLE_COLOURS), description="How many parts to draw, a colour each"
+    )
 
     @classmethod
     def poll(cls, context):

@@ -116,8 +116,7 @@ class NEURALATLAS_OT_paint_setup(bpy.types.Operator):
 
 
 class NEURALATLAS_OT_paint_layer(bpy.types.Operator):
-    """Paint this layer: its canvas becomes the active object (Texture Paint in the 3D viewport) and every Image
-    Editor shows its edit image (Paint mode there)"""
+    """Paint this layer: its canvas becomes active in the 3D Viewport and its edit image shows in each Image Editor"""
 
     bl_idname = "neural_atlas.paint_layer"
     bl_label = "Paint Layer"

@@ -10,8 +10,9 @@ from .import_run import IMPORT_ERRORS
 
 
 class NEURALATLAS_OT_live_preview(bpy.types.Operator):
-    """Show the edited plate at the current frame in the 3D viewport (Material Preview or Rendered shading), updated
-    as you paint; press again to hide it"""
+    """Show the edited plate at the current frame in the 3D Viewport, updated as you paint; press again to hide it"""
+
+    # it shows in Material Preview or Rendered shading
 
     bl_idname = "neural_atlas.live_preview"
     bl_label = "Live Preview"

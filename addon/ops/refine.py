@@ -37,8 +37,7 @@ def finished_fit(props) -> bool:
 
 
 class NEURALATLAS_OT_refine(EngineJobOperator, bpy.types.Operator):
-    """Continue the finished fit for more steps (or with the chosen preset's schedule), then carry the edit layers'
-    paint over to the refined atlas and import it"""
+    """Continue the finished fit for more steps, then carry the paint over to the refined atlases and import them"""
 
     bl_idname = "neural_atlas.refine"
     bl_label = "Refine"

@@ -76,15 +76,16 @@ def apply(context: Any, plan: relink.RelinkPlan, links: list[relink.Link]) -> No
 
 
 class NEURALATLAS_OT_relink(bpy.types.Operator):
-    """Point the imported atlas's images, plate and settings at the run folder's new place (choose its manifest.json,
-    or the run folder)"""
+    """Point the imported atlas's images, plate and settings at the run folder's new place"""
 
     bl_idname = "neural_atlas.relink"
     bl_label = "Relink Run Folder"
     bl_options = {"REGISTER", "UNDO"}  # noqa: RUF012 (Blender reads a set)
 
-    filepath: StringProperty(subtype="FILE_PATH", options={"SKIP_SAVE"})
-    filter_glob: StringProperty(default=C.MANIFEST_NAME, options={"HIDDEN"})
+    filepath: StringProperty(
+        subtype="FILE_PATH", options={"SKIP_SAVE"}, description="The moved export's manifest.json, or its run folder"
+    )
+    filter_glob: StringProperty(default=C.MANIFEST_NAME, options={"HIDDEN"}, description="The files to list")
 
     @classmethod
     def poll(cls, context):

@@ -119,11 +119,19 @@ class NEURALATLAS_OT_render(bpy.types.Operator):
     # no UNDO: what it makes is files, which an undo cannot take back; the output settings it sets are put back
     bl_options = {"REGISTER"}  # noqa: RUF012 (Blender reads a set)
 
-    directory: StringProperty(subtype="DIR_PATH", options={"SKIP_SAVE"})
+    directory: StringProperty(
+        subtype="DIR_PATH", options={"SKIP_SAVE"}, description="The folder to write to (empty: the scene's Output)"
+    )
     file_format: EnumProperty(
-        items=[("", "Scene setting", ""), ("exr", "EXR", ""), ("png", "PNG", ""), ("movie", "Movie", "")],
+        items=[
+            ("", "Scene setting", "The scene's Format"),
+            ("exr", "EXR", "Float, linear"),
+            ("png", "PNG", "8-bit sRGB"),
+            ("movie", "Movie", "H.264 MP4"),
+        ],
         default="",
         options={"SKIP_SAVE"},
+        description="The file format (empty: the scene's Format)",
     )
     _timer: Any = None
     _run: RenderRun | None = None

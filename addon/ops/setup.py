@@ -29,7 +29,9 @@ class NEURALATLAS_OT_setup_engine(EngineJobOperator, bpy.types.Operator):
     # no UNDO: it changes the preferences (Engine Python), which are not in the undo history
     bl_options = {"REGISTER"}  # noqa: RUF012 (Blender reads a set)
 
-    venv_dir: StringProperty(name="Folder", default="", options={"SKIP_SAVE", "HIDDEN"})
+    venv_dir: StringProperty(
+        name="Folder", default="", options={"SKIP_SAVE", "HIDDEN"}, description="Where to create the engine's Python"
+    )
     timeout = ES.SETUP_TIMEOUT_SECONDS
     redraw_areas = ("PREFERENCES",)
     cancel_where = "the add-on's preferences"

@@ -312,41 +312,60 @@ def _disk_full_needing(exc: BaseException, staged: StagedFolder, need: int) -> D
     return as_disk_full(exc, where, need)
 
 
+@dataclass(frozen=True)
+class RenderSettings:
+    """How each rendered frame is made and written: ``fmt`` (``FORMATS``: float EXR, 8-bit PNG, or the plate's own
+    format and header), the atlas read through ``filter`` (``equations.FILTERS``), ``name`` the frames' file name
+    with a frame token (``shot.####.exr``; None: ``edit.`` and the number padded as the plate's frames) and
+    ``depth`` (EXR only): "16" or "32" bits a channel (None: the plate's, when it is an EXR; else 32). A value that
+    is none of these is one line when the settings are made, before anything is read."""
+
+    fmt: str = "exr"
+    filter: str = "bilinear"
+    name: str | None = None
+    depth: str | None = None
+
+    def __post_init__(self) -> None:
+        fmt, depth = self.fmt, self.depth
+        if fmt not in FORMATS:
+            raise InputError(None, f"unknown --format {fmt!r}", f"use one of {', '.join(FORMATS)}")
+        if self.filter not in FILTERS:
+            raise InputError(None, f"unknown --filter {self.filter!r}", f"use one of {', '.join(FILTERS)}")
+        if depth is not None and (depth not in EXR_DEPTHS or fmt != FORMATS[0]):
+            problem = f"{DEPTH_ARG} {depth!r} is not one of {', '.join(EXR_DEPTHS)}"
+            if depth in EXR_DEPTHS:
+                problem = (
+                    f"{DEPTH_ARG} is for --format exr, not {fmt} (png is 8-bit, plate keeps the plate's own depth)"
+                )
+            raise InputError(
+                None, problem, f"use {DEPTH_ARG} {' or '.join(EXR_DEPTHS)} with --format exr, or leave it out"
+            )
+
+
 def render_manifest(
     manifest_path: str | Path,
     out_dir: str | Path,
     edit_overrides: dict[str, str] | None = None,
-    fmt: str = "exr",
-    filter: str = "bilinear",
+    settings: RenderSettings | None = None,
     movie: str | Path | None = None,
     progress_bar: bool = True,
     frames: tuple[int, int] | None = None,
-    name: str | None = None,
-    depth: str | None = None,
 ) -> Path:
     """Render every exported frame (``frames``: those of that inclusive range of plate frame numbers) with the
-    edits into ``out_dir``; returns the folder (or the movie). All frames (and the movie) appear together, or none
-    does. A render of a range is one chunk of a render several processes share: its frames join those the others
-    committed into ``out_dir`` (the same files one whole render writes), and run again it writes the same files
-    again; its movie is of that range. ``name``: the frames' file name with a frame token (``shot.####.exr``;
-    default ``edit.`` and the number padded as the plate's frames); ``depth`` (EXR only): "16" or "32" bits a
-    channel (default: the plate's, when it is an EXR; else 32)."""
-    if fmt not in FORMATS:
-        raise InputError(None, f"unknown --format {fmt!r}", f"use one of {', '.join(FORMATS)}")
-    if filter not in FILTERS:
-        raise InputError(None, f"unknown --filter {filter!r}", f"use one of {', '.join(FILTERS)}")
-    if depth is not None and (depth not in EXR_DEPTHS or fmt != FORMATS[0]):
-        problem = f"{DEPTH_ARG} {depth!r} is not one of {', '.join(EXR_DEPTHS)}"
-        if depth in EXR_DEPTHS:
-            problem = f"{DEPTH_ARG} is for --format exr, not {fmt} (png is 8-bit, plate keeps the plate's own depth)"
-        raise InputError(None, problem, f"use {DEPTH_ARG} {' or '.join(EXR_DEPTHS)} with --format exr, or leave it out")
+    edits into ``out_dir`` as ``settings`` say (default: float EXR, bilinear); returns the folder (or the movie).
+    All frames (and the movie) appear together, or none does. A render of a range is one chunk of a render several
+    processes share: its frames join those the others committed into ``out_dir`` (the same files one whole render
+    writes), and run again it writes the same files again; its movie is of that range."""
+    settings = settings or RenderSettings()
+    fmt = settings.fmt
     manifest = Manifest(manifest_path)
     chosen = manifest.frames if frames is None else chunk_frames(manifest, frames)
     out = Path(out_dir)
     like, ext = _plate_file(manifest) if fmt == "plate" else (None, f".{fmt}")
     clip = manifest.clip
-    output = _Output(like, frame_name_pattern(name, ext, C.frame_padding(clip["frame_files"], clip["frame_numbers"])),
-                     fmt == FORMATS[0] and exr_half(manifest, depth))  # fmt: skip
+    padding = C.frame_padding(clip["frame_files"], clip["frame_numbers"])
+    output = _Output(like, frame_name_pattern(settings.name, ext, padding),
+                     fmt == FORMATS[0] and exr_half(manifest, settings.depth), settings.filter)  # fmt: skip
     check_output(manifest, out, "--out", writes=output.pattern)
     movie_path = None if movie is None else Path(movie)
     if movie_path is not None:
@@ -356,7 +375,7 @@ def render_manifest(
     sizes = _Sizes(len(chosen), w * h * FRAME_BYTES_PER_PIXEL[fmt])
     what = OUTPUT_PREFIX.rstrip(".") if frames is None else f"{OUTPUT_PREFIX.rstrip('.')}-{frames[0]}-{frames[1]}"
     staged = StagedFolder(out, what, "--out", shared=frames is not None)
-    record = render_record(manifest.path, edits, {"format": fmt, "names": output.pattern, "filter": filter,
+    record = render_record(manifest.path, edits, {"format": fmt, "names": output.pattern, "filter": output.filter,
                                                   "half": output.half})  # fmt: skip
     try:
         with staged:
@@ -364,7 +383,7 @@ def render_manifest(
                 write_record(staged.path(RECORD_NAME), record)
             else:  # a chunk: the folder's frames must be of this render
                 claim_folder(out, record)
-            _render_into(manifest, staged, edits, output, filter, movie_path, progress_bar, sizes, chosen)
+            _render_into(manifest, staged, edits, output, movie_path, progress_bar, sizes, chosen)
     except DISK_ERRORS as exc:
         full = _disk_full_needing(exc, staged, sizes.need())
         if full is None:
@@ -376,11 +395,13 @@ def render_manifest(
 @dataclass(frozen=True)
 class _Output:
     """How each frame is written: like a plate frame's header (``--format plate``; None: EXR or PNG), named by
-    ``pattern`` (a format pattern of ``frame``), EXR channels as half floats (``half``) or float32."""
+    ``pattern`` (a format pattern of ``frame``), EXR channels as half floats (``half``) or float32, the atlases read
+    through ``filter``."""
 
     like: oiio.ImageSpec | None
     pattern: str
     half: bool
+    filter: str
 
     @property
     def png(self) -> bool:
@@ -392,7 +413,6 @@ def _render_into(
     staged: StagedFolder,
     edits: list[np.ndarray | None],
     output: _Output,
-    filter: str,
     movie: Path | None,
     progress_bar: bool,
     sizes: _Sizes,
@@ -409,7 +429,7 @@ def _render_into(
         plate_is_srgb = space == role_space(SRGB, config)
         exr_space = space if is_linear(space, config) else role_space(SCENE_LINEAR, config)
         clip = manifest.clip
-        for number, in_plate, frame in render_plate_frames(manifest, edits, frames, filter=filter):
+        for number, in_plate, frame in render_plate_frames(manifest, edits, frames, filter=output.filter):
             path = staged.path(output.pattern.format(frame=number))
             if output.like is not None:
                 write_like(path, in_plate, output.like)
@@ -445,6 +465,7 @@ __all__ = [
     "DEFAULT_FPS",
     "EXR_DEPTHS",
     "FORMATS",
+    "RenderSettings",
     "chunk_frames",
     "exr_half",
     "frame_name_pattern",

@@ -99,6 +99,9 @@ def export_run(
     the run holds the fit's flow, True insists (refused without it), False exports the UV as fitted. A staged
     export decides it in its atlases stage; its passes and publish follow the record (asked otherwise: refused). A
     version ``into`` already holds is returned as it is, whatever is asked.
+
+    Nine parameters: ``engine export``'s flags one for one, and where its progress goes (``stream``); the CLI, the
+    demo, the bench and the farm's tasks each pass the few they need by name.
     """
     run_dir = Path(run_dir).resolve()
     low, high = C.ATLAS_SIZE_RANGE

@@ -133,15 +133,16 @@ def _step(
     owned: np.ndarray,
     neighbour: np.ndarray,
     neighbour_owned: np.ndarray,
-    flow: np.ndarray,
-    flow_ok: np.ndarray,
+    carry: tuple[np.ndarray, np.ndarray],
     weight: float,
     grid: tuple[np.ndarray, np.ndarray],
     fill: bool,
 ) -> np.ndarray:
     """One recursion step of either pass: the correction [H, W, 2] that pulls ``u`` toward the filtered neighbour
     (``neighbour``, its filtered UV) where the flow carries it; with ``fill``, elsewhere toward what the carried
-    pixels around were pulled by, times ``weight``."""
+    pixels around were pulled by, times ``weight``. ``carry``: the flow to the neighbour [H, W, 2] and where it
+    passed the fit's forward-backward check [H, W]."""
+    flow, flow_ok = carry
     looked, share = _carried(neighbour, neighbour_owned, flow, grid)
     use = owned & flow_ok & (share >= MIN_SHARE)
     pulled = np.zeros_like(u)
@@ -171,13 +172,15 @@ def follow_flow(
     for t in range(1, frames):
         k = t - 1  # pair (t-1, t): backward[k] carries frame t to t-1
         prev = uv[t - 1] + out[t - 1]
-        out[t] = _step(uv[t], owned[t], prev, owned[t - 1], flow.backward[k], flow.backward_ok[k], weight, grid, fill)
+        back = (flow.backward[k], flow.backward_ok[k])
+        out[t] = _step(uv[t], owned[t], prev, owned[t - 1], back, weight, grid, fill)
     after = np.zeros(uv.shape[1:], np.float32)  # the backward pass's correction of frame t + 1
     for t in range(frames - 1, -1, -1):
         here = np.zeros_like(after)
         if t < frames - 1:
             nxt = uv[t + 1] + after
-            here = _step(uv[t], owned[t], nxt, owned[t + 1], flow.forward[t], flow.forward_ok[t], weight, grid, fill)
+            fwd = (flow.forward[t], flow.forward_ok[t])
+            here = _step(uv[t], owned[t], nxt, owned[t + 1], fwd, weight, grid, fill)
         # (F + B - (1 - w) u) / (1 + w) - u: exactly 0 where neither pass took a step or filled one
         out[t] = np.where(owned[t][..., None], (out[t] + here) / (1.0 + weight), 0.0)
         after = here

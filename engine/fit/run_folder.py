@@ -161,45 +161,19 @@ class ClipRecord(NumberedFrames):
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> ClipRecord:
-        """From a record that passed ``run_files.validate_run_file``."""
-        return cls(
-            source=data["source"],
-            kind=data["kind"],
-            frame_range=(data["frame_range"][0], data["frame_range"][1]),
-            frame_numbers=tuple(data["frame_numbers"]),
-            frame_files=tuple(data["frame_files"]),
-            native_size=(data["native_size"][0], data["native_size"][1]),
-            working_size=(data["working_size"][0], data["working_size"][1]),
-            fps=data["fps"],
-            colorspace=data["colorspace"],
-            masks=tuple(data["masks"]),
-            scribbles=data["scribbles"],
-            layers=data["layers"],
-            fingerprint=data["fingerprint"],
-            colour_config=data.get("colour_config"),
-            colour_source=data.get("colour_source"),
-            # the plate's timing: absent from records written before it was kept (square pixels, movies from 0)
-            rate=(data["rate"][0], data["rate"][1]) if data.get("rate") else None,
-            pixel_aspect=data.get("pixel_aspect", 1.0),
-            timecode=data.get("timecode"),
-            start_frame=data.get("start_frame", 0),
-            # the paths relative to the run folder: absent from records written before they were kept
-            source_relative=data.get("source_relative"),
-            frame_files_relative=_tuple_or_none(data.get("frame_files_relative")),
-            masks_relative=_tuple_or_none(data.get("masks_relative")),
-            scribbles_relative=data.get("scribbles_relative"),
-            # absent from records written before they were kept
-            scribbles_fingerprint=data.get("scribbles_fingerprint"),
-            flow_key=data.get("flow_key"),
-        )
+        """From a record that passed ``run_files.validate_run_file`` (``ClipFile``, which declares the same fields:
+        ``tests/engine/fit/test_record_declarations.py``): each of its lists as a tuple; a field it lacks (a record
+        written before the field was kept) takes its default here."""
+        return cls(**{f.name: _tuple_of(data[f.name]) for f in dataclasses.fields(cls) if f.name in data})
+
+
+def _tuple_of(value: Any) -> Any:
+    """A JSON list as a tuple (the record is frozen and compared by value); anything else as it is."""
+    return tuple(value) if isinstance(value, list) else value
 
 
 #: clip.json's fields that say the paths relative to the run folder (``ClipRecord.located``).
 RELATIVE_FIELDS = ("source_relative", "frame_files_relative", "masks_relative", "scribbles_relative")
-
-
-def _tuple_or_none(value: list[str | None] | None) -> tuple[str | None, ...] | None:
-    return None if value is None else tuple(value)
 
 
 def _relative(path: str, run_dir: str | Path) -> str | None:

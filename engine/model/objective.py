@@ -126,13 +126,7 @@ def compute_losses(
     The groups run in a fixed order (each one's tensors are created in the same sequence on every step, so the
     backward pass sums the gradients in the same order and a resumed fit continues bit for bit).
     """
-    wts = loss_weights(cfg, step)
-    active = model.active_terms
-
-    def on(term: str) -> bool:
-        return active is None or term in active
-
-    b = _evaluate_fields(model, video, cfg, step, ix, iy, t, wts, on)
+    b = _evaluate_fields(model, video, cfg, step, ix, iy, t)
     terms: dict[str, torch.Tensor] = {}
     _photometric_terms(terms, b)
     _rigidity_terms(terms, b)
@@ -142,7 +136,7 @@ def compute_losses(
     _anchor_term(terms, b)
     _mask_terms(terms, b)
 
-    total = sum(wts[k] * v for k, v in terms.items() if wts.get(k, 0.0) != 0.0)
+    total = sum(b.wts[k] * v for k, v in terms.items() if b.wts.get(k, 0.0) != 0.0)
     return total, terms
 
 
@@ -154,12 +148,16 @@ def _evaluate_fields(
     ix: torch.Tensor,
     iy: torch.Tensor,
     t: torch.Tensor,
-    wts: dict[str, float],
-    on: Callable[[str], bool],
 ) -> _Batch:
     """Every point a field is asked about this step, and its answers: the samples and their +x/+y neighbours,
-    the rigidity neighbours, the flow targets both ways and the long-range correspondences."""
+    the rigidity neighbours, the flow targets both ways and the long-range correspondences; with the step's loss
+    weights and which terms the scene calls for."""
+    wts = loss_weights(cfg, step)
     active = model.active_terms
+
+    def on(term: str) -> bool:
+        return active is None or term in active
+
     n = ix.shape[0]
     nl = model.num_layers
     xy = torch.stack((ix, iy), -1).float() + 0.5
@@ -206,7 +204,7 @@ def _evaluate_fields(
         if long_pts is not None:
             chunks += [(long_pts[0], long_pts[1]), (long_pts[2], long_pts[3])]
         uv_parts.append(_evaluate(lambda a, b, _i=i: model.uv(_i, a, b), chunks))
-    alpha_parts = _layer_alphas(model, xy3, t3, flow_parts, long_pts, uv_parts, flow_at, want_flow, want_alpha_flow)
+    alpha_parts = _layer_alphas(model, (xy3, t3), flow_parts, long_pts, uv_parts, flow_at, want_flow, want_alpha_flow)
 
     weights3 = alpha_parts[0]  # [3N, L]
     uvs = [parts[0] for parts in uv_parts]
@@ -246,8 +244,7 @@ def _flow_targets(
 
 def _layer_alphas(
     model: AtlasModel,
-    xy3: torch.Tensor,
-    t3: torch.Tensor,
+    samples: tuple[torch.Tensor, torch.Tensor],
     flow_parts: list[FlowPart],
     long_pts: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor] | None,
     uv_parts: list[list[torch.Tensor]],
@@ -255,9 +252,10 @@ def _layer_alphas(
     want_flow: bool,
     want_alpha_flow: bool,
 ) -> list[torch.Tensor]:
-    """The layer weights at the samples (and their neighbours), the flow targets and the long-range sources."""
+    """The layer weights at the ``samples`` (their points and their +x/+y neighbours, with their frames), the flow
+    targets and the long-range sources."""
     nl = model.num_layers
-    alpha_chunks = [(xy3, t3)] + ([(q, tq) for _, q, tq in flow_parts] if want_alpha_flow else [])
+    alpha_chunks = [samples] + ([(q, tq) for _, q, tq in flow_parts] if want_alpha_flow else [])
     if long_pts is not None:
         alpha_chunks.append((long_pts[0], long_pts[1]))
     # the alpha's points are among the mappings' (the samples, their flow targets, the long-range sources): an

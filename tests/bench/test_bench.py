@@ -19,6 +19,7 @@ from bench.bench import (
     BENCH_JSON,
     BENCH_PNG,
     BENCH_TAG,
+    BenchPlan,
     bench_configs,
     run_bench,
 )
@@ -293,10 +294,9 @@ def test_regime_cost_ratio_leaves_the_fit_untouched(clip):
 
 def test_sequential_bench_runs_presets_in_turn(clip, tmp_path):
     spec = resolve_clip(clip)
-    rec = run_bench(
-        [spec], ["draft", "final"], 30.0, tmp_path, overrides={"steps": "4", "batch": "200"}, evals=1,
-        eval_frames=0, sequential=True, device_name="cpu", threads=1, plot=False, eval_at_start=True,
-    )  # fmt: skip
+    plan = BenchPlan(("draft", "final"), 30.0, {"steps": "4", "batch": "200"}, evals=1, eval_frames=0,
+                     eval_at_start=True, sequential=True, device_name="cpu", threads=1)  # fmt: skip
+    rec = run_bench([spec], plan, tmp_path, plot=False)
     assert rec["settings"]["mode"] == "sequential" and rec["clips"][0]["eval_frames"] == list(range(SPEC.frames))
     for run in rec["runs"]:
         assert run["finished_steps"] and run["steps"] == 4  # its steps ended it, long before the budget

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from bench.__main__ import main as bench_main
-from bench.bench import BENCH_JSON, run_bench
+from bench.bench import BENCH_JSON, BenchPlan, run_bench
 from bench.bench_clip import resolve_clip
 from bench.bench_evaluation import FG_ALPHA_THRESHOLD, evaluate, foreground
 from bench.bench_runs import Run, _prepare
@@ -93,18 +93,16 @@ def _fit_and_evaluate(spec, cfg, work, device) -> tuple[dict, dict[int, np.ndarr
 
 def test_the_bench_records_fg_iou_in_every_point(clip, dilated, tmp_path):
     spec = resolve_clip(clip, [dilated])
-    rec = run_bench(
-        [spec], ["draft"], 30.0, tmp_path, overrides={"steps": "4", "batch": "200"}, evals=1, eval_frames=0,
-        sequential=True, device_name="cpu", threads=1, plot=False,
-    )  # fmt: skip
+    plan = BenchPlan(("draft",), 30.0, {"steps": "4", "batch": "200"}, evals=1, eval_frames=0, sequential=True,
+                     device_name="cpu", threads=1)  # fmt: skip
+    rec = run_bench([spec], plan, tmp_path, plot=False)
     assert rec["clips"][0]["score_masks"] == [str((clip / "masks").resolve())]
     assert rec["clips"][0]["masks"] == [str(dilated.resolve())]
     for point in rec["runs"][0]["curve"]:
         assert 0.0 <= point["fg_iou"] <= 1.0
     assert json.loads((tmp_path / BENCH_JSON).read_text())["runs"][0]["curve"][-1]["fg_iou"] == point["fg_iou"]
     assert f"| {point['fg_iou']:.3f} |" in summary_table(rec).splitlines()[-1]
-    bare = run_bench(
-        [resolve_clip(clip / "frames", [dilated])], ["draft"], 30.0, tmp_path / "bare",
-        overrides={"steps": "2", "batch": "200"}, evals=1, sequential=True, device_name="cpu", threads=1, plot=False,
-    )  # fmt: skip
+    plan = BenchPlan(("draft",), 30.0, {"steps": "2", "batch": "200"}, evals=1, sequential=True, device_name="cpu",
+                     threads=1)  # fmt: skip
+    bare = run_bench([resolve_clip(clip / "frames", [dilated])], plan, tmp_path / "bare", plot=False)
     assert bare["runs"][0]["curve"][-1]["fg_iou"] is None  # nothing to score against

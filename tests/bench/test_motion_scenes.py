@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from bench.__main__ import main as bench_main
-from bench.all_clips import run_all_clips
+from bench.all_clips import clips_plan, run_all_clips
 from bench.bench_clip import TRACKS_FILE
 from bench.degrade import RECIPES, degrade_mask, dropped_frames, read_gt
 from bench.motion_bodies import FRONT_LIMB, LimbsJump, TurningDepth
@@ -323,15 +323,8 @@ def test_clips_bench_scores_a_motion_clip(tmp_path):
     root = tmp_path / "root"
     write_motion_clip(make_motion_scene("deforming", width=64, height=48, frames=6), root / "deforming")
     with contextlib.redirect_stderr(io.StringIO()):
-        table = run_all_clips(
-            root,
-            tmp_path / "out",
-            preset="draft",
-            degrade="exact",
-            overrides={"steps": "30", "batch": "400"},
-            device_name="cpu",
-            threads=1,
-        )
+        plan = clips_plan("draft", overrides={"steps": "30", "batch": "400"}, device_name="cpu", threads=1)
+        table = run_all_clips(root, tmp_path / "out", plan, degrade="exact")
     (row,) = table["rows"]
     assert row["clip"] == "deforming" and not row["failed"] and row["steps"] == 30
     assert 0.0 <= row["atlas_delta_avg"] <= 1.0 and 0.0 <= row["flow_delta_avg"] <= 1.0

@@ -12,7 +12,7 @@ import pytest
 from engine import contract as C
 from engine.edit.equations import load_edit
 from engine.edit.movie import MOVIE_COLOUR_TAGS
-from engine.edit.render import render_manifest
+from engine.edit.render import RenderSettings, render_manifest
 from engine.errors import InputError
 from engine.fit import run_files
 from engine.fit.prepare import to_fitting_values
@@ -27,7 +27,7 @@ from tests.engine_cli import run_cli
 @pytest.mark.parametrize("kind", list(KINDS))
 def test_an_empty_edit_renders_the_plate_back_exactly(tmp_path, kind):
     manifest, _ = export_plate(tmp_path, kind)
-    out = render_manifest(manifest, tmp_path / "out", fmt="plate", progress_bar=False)
+    out = render_manifest(manifest, tmp_path / "out", settings=RenderSettings("plate"), progress_bar=False)
     ext = KINDS[kind][0]
     for t in range(T):
         plate, render = tmp_path / "clip" / f"plate.{t:04d}{ext}", out / f"edit.{t:04d}{ext}"
@@ -45,7 +45,7 @@ def test_a_painted_colour_lands_with_its_value(tmp_path, kind):
     right."""
     manifest, _ = export_plate(tmp_path, kind, _half_layer)
     edit = paint(manifest)
-    out = render_manifest(manifest, tmp_path / "out", fmt="plate", progress_bar=False)
+    out = render_manifest(manifest, tmp_path / "out", settings=RenderSettings("plate"), progress_bar=False)
     ext, _, space = KINDS[kind]
     linear = load_edit(edit)[0, 0, :3]
     expected = colour.from_linear(linear[None, None], space, C.COLOUR_BUILTIN_CONFIG)[0, 0]

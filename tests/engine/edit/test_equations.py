@@ -8,7 +8,7 @@ import pytest
 
 from engine.edit.equations import composite_edits, edit_to_premultiplied, load_edit, sample_texture
 from engine.edit.project_frame import over, project_frame
-from engine.edit.render import render_frames, render_manifest
+from engine.edit.render import RenderSettings, render_frames, render_manifest
 from engine.export.manifest import LayerPasses, Manifest
 from engine.io.colour import linear_to_srgb, srgb_to_linear
 from engine.io.images import read_exr, write_png, write_rgba_exr
@@ -193,7 +193,9 @@ def test_render_writes_png_frames_and_a_movie(tmp_path):
     smooth = np.stack([0.2 + 0.6 * xx, 0.3 + 0.5 * yy, 0.5 + 0.2 * xx * yy], -1).astype(np.float32)
     plate = np.stack([smooth] * 4)  # odd sizes: the movie pads to even sides; smooth, as chroma is subsampled
     manifest = make_fake_export(tmp_path, plate, [_identity_layer(31, 23)])
-    out = render_manifest(manifest, tmp_path / "png", fmt="png", movie=tmp_path / "edit.mp4", progress_bar=False)
+    out = render_manifest(
+        manifest, tmp_path / "png", settings=RenderSettings("png"), movie=tmp_path / "edit.mp4", progress_bar=False
+    )
     assert out == tmp_path / "edit.mp4"
     pngs = sorted((tmp_path / "png").glob("edit.*.png"))
     assert [p.name for p in pngs] == [f"edit.{t:05d}.png" for t in range(4)]
