@@ -3,8 +3,9 @@
 Blender itself rebases the ``//`` paths of images and clips when the .blend is saved somewhere else (Save As's
 Remap Relative), but not the add-on's settings, and an import into a .blend never saved yet has nothing to be
 relative to. So, before each save: the imported manifest (a setting) is written relative to the file being saved;
-and on the first save of a .blend the ``NA_`` images and clips, absolute until then, become relative to it (no image
-is reloaded: unsaved paint stays). After a Save Copy the open file's own values are put back.
+and on the first save of a .blend the ``NA_`` images and clips and the Run Folder, absolute until then (an import
+into a file never saved, as ``headless.py`` makes one), become relative to it (no image is reloaded: unsaved paint
+stays). After a Save Copy the open file's own values are put back.
 """
 
 from __future__ import annotations
@@ -50,6 +51,14 @@ def relative_before_save(filepath: str = "", *_args: Any) -> None:
             props.manifest = stored
     if old:
         return  # Blender rebases the datablocks' relative paths itself
+    for scene in bpy.data.scenes:
+        props = getattr(scene, "neural_atlas", None)
+        if props is None or not props.run_dir or props.run_dir.startswith(relink.BLEND_PREFIX):
+            continue
+        stored = relink.relative_path(props.run_dir.rstrip("/\\"), filepath) + "/"
+        if stored.startswith(relink.BLEND_PREFIX):
+            _changed.append(("run_dir", scene.name, props.run_dir))
+            props.run_dir = stored
     for img in _ours(bpy.data.images):
         stored = relink.relative_path(img.filepath, filepath)
         if stored != img.filepath:
@@ -73,6 +82,8 @@ def restore_after_copy(filepath: str = "", *_args: Any) -> None:
     for kind, name, value in changed:
         if kind == "scene" and name in bpy.data.scenes:
             bpy.data.scenes[name].neural_atlas.manifest = value
+        elif kind == "run_dir" and name in bpy.data.scenes:
+            bpy.data.scenes[name].neural_atlas.run_dir = value
         elif kind == "image" and name in bpy.data.images:
             bpy.data.images[name].filepath_raw = value
         elif kind == "clip" and name in bpy.data.movieclips:

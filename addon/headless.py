@@ -68,7 +68,7 @@ def run(ns: argparse.Namespace) -> dict:
     addon = load_addon()
     from neural_atlas.addon import compositor
     from neural_atlas.addon.core import tree_plan as P
-    from neural_atlas.addon.ops.import_run import import_manifest
+    from neural_atlas.addon.ops.import_run import import_manifest, set_run_folder
     from neural_atlas.engine import contract as C  # the add-on's only engine import, through the extension package
 
     edits: dict[str, str] = {}
@@ -90,6 +90,7 @@ def run(ns: argparse.Namespace) -> dict:
         scene.neural_atlas.filter_type = filt
         # a factory scene's 1-250 is no artist's range: the render is every exported frame (an export of 0-299 too)
         plan = import_manifest(bpy.context, manifest_path, setup_paint=True, edits=edits, set_range=True)
+        set_run_folder(bpy.context, manifest_path)  # as Import Atlas does: the opened .blend refines its own run
         blend = os.path.abspath(ns.blend)
         os.makedirs(os.path.dirname(blend), exist_ok=True)
         tmp = blend[: -len(".blend")] + ".tmp.blend" if blend.endswith(".blend") else blend + ".tmp"

@@ -8,9 +8,10 @@ import json
 import bpy
 
 from . import edit_layers, preferences, scribbles
-from .core import estimate, needs, running
+from .core import engine_commands, estimate, needs, running
 from .core import farm as FM
 from .core import scribble_math as S
+from .core.errors import UserError
 from .ops import refine
 from .ops.render import active_render, imported_manifest, passes_file
 
@@ -42,7 +43,14 @@ def _estimate_text(props) -> str:
     if clip is None:
         return ""
     frames = clip.frame_duration if props.use_clip_range else max(1, props.frame_end - props.frame_start + 1)
-    seconds = estimate.estimate_seconds(props.preset, frames, clip.size[0], clip.size[1], props.long_edge)
+    try:
+        items = engine_commands.split_overrides(props.overrides)
+    except UserError:  # an unclosed quote: Fit Atlas says so; the estimate is the preset's
+        items = []
+    long_edge = estimate.overridden_int(items, "long_edge") or props.long_edge  # the last one given wins
+    seconds = estimate.estimate_seconds(
+        props.preset, frames, clip.size[0], clip.size[1], long_edge, estimate.overridden_int(items, "steps")
+    )
     try:
         engine_rows = json.loads(props.estimate_json) if props.estimate_json else {}
     except ValueError:

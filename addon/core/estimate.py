@@ -41,12 +41,27 @@ def preset_items() -> list[tuple[str, str, str]]:
     ]
 
 
-def estimate_seconds(preset: str, frames: int, width: int, height: int, long_edge: int = C.DEFAULT_LONG_EDGE) -> float:
-    """The documented fit time of ``frames`` frames of a ``width`` x ``height`` clip."""
+def estimate_seconds(
+    preset: str, frames: int, width: int, height: int, long_edge: int = C.DEFAULT_LONG_EDGE, steps: int | None = None
+) -> float:
+    """The documented fit time of ``frames`` frames of a ``width`` x ``height`` clip (``steps``: the artist's
+    ``steps=`` override; None: the preset's budget)."""
     name = preset if preset in C.PRESET_STEPS else FALLBACK_PRESET
     w, h = C.working_size(width, height, long_edge)
-    training = C.PRESET_STEPS[name] * SECONDS_PER_STEP[name]
+    training = (C.PRESET_STEPS[name] if steps is None else steps) * SECONDS_PER_STEP[name]
     return training + OVERHEAD_SECONDS_PER_FRAME_MPX * frames * (w * h / PIXELS_PER_MEGAPIXEL)
+
+
+def overridden_int(items: list[str], key: str) -> int | None:
+    """The last ``KEY=N`` among the artist's overrides (``engine_commands.split_overrides``) as a positive whole
+    number, as the engine reads it (the last one given wins); None when there is none or it is not one (the engine
+    refuses that with its own line)."""
+    value = next((item.partition("=")[2] for item in reversed(items) if item.partition("=")[0].strip() == key), None)
+    try:
+        number = int(value.strip()) if value is not None else None
+    except ValueError:
+        return None
+    return number if number is not None and number > 0 else None
 
 
 def _engine_row(row: dict[str, Any]) -> dict[str, Any]:

@@ -71,6 +71,9 @@ def test_headless_builds_the_blend_and_renders_the_equation(blender, tmp_path):
     assert Path(bpy.path.abspath(edit.filepath)).resolve() == other.resolve()
     assert bpy.data.objects.get("NA_Canvas_Foreground") is not None
     assert bpy.context.scene.frame_start == X.FRAMES[0] and bpy.context.scene.frame_end == X.FRAMES[-1]
+    # the Run Folder is the export's run, relative to the .blend as Import Atlas stores it: Refine is not greyed
+    run_dir = bpy.context.scene.neural_atlas.run_dir
+    assert run_dir.startswith("//") and Path(bpy.path.abspath(run_dir)).resolve() == (tmp_path / "run").resolve()
 
 
 def test_headless_bad_input_is_one_line_exit_2(tmp_path):

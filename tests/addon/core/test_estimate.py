@@ -20,6 +20,21 @@ def test_estimate_grows_with_frames_and_preset():
     assert C.working_size(854, 480, 768) == (768, 432)
 
 
+def test_the_documented_estimate_follows_the_overrides_steps_and_working_size():
+    """``steps=`` and ``long_edge=`` typed in Overrides change what the fit does, so they change the estimate too:
+    the last one given wins, as in the engine; a value the engine would refuse leaves the preset's."""
+    items = ["lr=1e-3", "steps=400", "steps=1600"]
+    assert estimate.overridden_int(items, "steps") == 1600
+    assert estimate.overridden_int(["steps=abc"], "steps") is None and estimate.overridden_int([], "steps") is None
+    assert (
+        estimate.overridden_int(["steps=0"], "steps") is None and estimate.overridden_int(["step=9"], "steps") is None
+    )
+    base = estimate.estimate_seconds("draft", 50, 854, 480)
+    doubled = estimate.estimate_seconds("draft", 50, 854, 480, steps=1600)
+    assert doubled - base == pytest.approx(800 * estimate.SECONDS_PER_STEP["draft"])
+    assert estimate.estimate_seconds("draft", 50, 854, 480, 384) < base  # a quarter of the working pixels
+
+
 def test_working_size_rounds_half_up_like_the_engine():
     """One definition (``contract.working_size``): a half rounds up, where Python's ``round`` rounds to even."""
     assert C.working_size(10, 5, 5) == (5, 3) and round(5 * 0.5) == 2
