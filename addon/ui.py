@@ -8,7 +8,7 @@ import json
 import bpy
 
 from . import edit_layers, preferences, scribbles
-from .core import engine_commands, estimate, needs, running
+from .core import estimate, needs, running
 from .core import farm as FM
 from .core import scribble_math as S
 from .core.errors import UserError
@@ -43,11 +43,11 @@ def _estimate_text(props) -> str:
     if clip is None:
         return ""
     frames = clip.frame_duration if props.use_clip_range else max(1, props.frame_end - props.frame_start + 1)
-    try:
-        items = engine_commands.split_overrides(props.overrides)
+    try:  # the --set items the fit gets: Working Size, then the overrides (the last one given wins)
+        items = FM.set_items(props.long_edge, props.overrides)
     except UserError:  # an unclosed quote: Fit Atlas says so; the estimate is the preset's
-        items = []
-    long_edge = estimate.overridden_int(items, "long_edge") or props.long_edge  # the last one given wins
+        items = ()
+    long_edge = estimate.overridden_int(items, "long_edge") or props.long_edge
     seconds = estimate.estimate_seconds(
         props.preset, frames, clip.size[0], clip.size[1], long_edge, estimate.overridden_int(items, "steps")
     )

@@ -10,6 +10,7 @@ docs/accuracy-vs-time.md (its data: docs/bench/blackswan-60min.json).
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from typing import Any
 
 from ...engine import contract as C  # type: ignore[import-not-found]
@@ -52,16 +53,18 @@ def estimate_seconds(
     return training + OVERHEAD_SECONDS_PER_FRAME_MPX * frames * (w * h / PIXELS_PER_MEGAPIXEL)
 
 
-def overridden_int(items: list[str], key: str) -> int | None:
-    """The last ``KEY=N`` among the artist's overrides (``engine_commands.split_overrides``) as a positive whole
-    number, as the engine reads it (the last one given wins); None when there is none or it is not one (the engine
-    refuses that with its own line)."""
+def overridden_int(items: Sequence[str], key: str) -> int | None:
+    """The last ``KEY=N`` among the fit's ``--set`` items (``farm.set_items``) as a positive whole number, as the
+    engine reads it (the last one given wins); None when there is none or it is not one (the engine refuses that
+    with its own line)."""
     value = next((item.partition("=")[2] for item in reversed(items) if item.partition("=")[0].strip() == key), None)
+    if value is None:
+        return None
     try:
-        number = int(value.strip()) if value is not None else None
+        number = int(value)
     except ValueError:
         return None
-    return number if number is not None and number > 0 else None
+    return number if number > 0 else None
 
 
 def _engine_row(row: dict[str, Any]) -> dict[str, Any]:
