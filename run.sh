@@ -20,6 +20,21 @@ fi
 # the development ones (the test tools, bpy 4.5) tests/requirements.txt, and Blender 5.0's venv
 # tests/requirements-bpy5.txt: each installed with the exact versions of engine/constraints.txt.
 CONSTRAINTS="engine/constraints.txt"
+
+# pip without its wheel cache (a fresh machine installs once; the cache would hold a second copy of torch and bpy,
+# ~1 GB), resuming an interrupted download many times, and the whole install tried a second time after a pause:
+# a dropped connection to the package registry is the usual reason a fresh set-up fails
+pip_install() {
+  local py="$1"; shift
+  local opts=(--quiet --no-cache-dir)
+  local help
+  help="$("$py" -m pip install --help 2>/dev/null || true)"
+  [[ "$help" != *--resume-retries* ]] || opts+=(--resume-retries 30)
+  "$py" -m pip install "${opts[@]}" "$@" && return 0
+  echo "== pip install failed; trying once more in 30 s" >&2
+  sleep 30
+  "$py" -m pip install "${opts[@]}" "$@"
+}
 REQS="$(cat engine/requirements.txt engine/requirements-farm.txt tests/requirements.txt)"
 STAMP=".venv/.requirements.sha256"
 WANT="$(printf '%s\n' "$REQS" | cat - "$CONSTRAINTS" | sha256sum | cut -d' ' -f1)"
@@ -28,8 +43,8 @@ if [ ! -x .venv/bin/python ] || [ "$(cat "$STAMP" 2>/dev/null)" != "$WANT" ]; th
   [ -x .venv/bin/python ] || "$PY" -m venv .venv
   # shellcheck disable=SC2086
   printf '%s\n' "$REQS" > .venv/requirements.txt
-  .venv/bin/python -m pip install --quiet --upgrade pip >/dev/null 2>&1 || true
-  .venv/bin/python -m pip install --quiet -r .venv/requirements.txt -c "$CONSTRAINTS"
+  .venv/bin/python -m pip install --quiet --no-cache-dir --upgrade pip >/dev/null 2>&1 || true
+  pip_install .venv/bin/python -r .venv/requirements.txt -c "$CONSTRAINTS"
   echo "$WANT" > "$STAMP"
 fi
 
@@ -42,9 +57,9 @@ setup_bpy5() {
     echo "== setting up .venv-bpy5 (bpy 5.0.1 for the add-on tests)" >&2
     [ -x .venv-bpy5/bin/python ] || "$PY" -m venv .venv-bpy5
     printf '%s\n' "$BPY5_REQS" > .venv-bpy5/requirements.txt
-    .venv-bpy5/bin/python -m pip install --quiet --upgrade pip >/dev/null 2>&1 || true
+    .venv-bpy5/bin/python -m pip install --quiet --no-cache-dir --upgrade pip >/dev/null 2>&1 || true
     grep -v '^bpy==' "$CONSTRAINTS" > .venv-bpy5/constraints.txt  # the same versions, less .venv's bpy 4.5
-    .venv-bpy5/bin/python -m pip install --quiet -r .venv-bpy5/requirements.txt -c .venv-bpy5/constraints.txt
+    pip_install .venv-bpy5/bin/python -r .venv-bpy5/requirements.txt -c .venv-bpy5/constraints.txt
     echo "$want" > .venv-bpy5/.requirements.sha256
   fi
 }
