@@ -119,6 +119,9 @@ class FitConfig:
     """Adam learning rate of the grid features and per-frame motion (fast model)."""
     lr_final_ratio: Ratio = 0.1
     """The learning rates decay exponentially to this fraction of their start by the last step."""
+    lr_mapping_steps: NonNegativeInt = 0
+    """The mappings' learning rate reaches ``lr_final_ratio`` of its start at this step and stays there (0: at the
+    last step, as the other rates): a long fit whose atlas sharpens keeps its mappings where the flow put them."""
 
     # --- loss weights (the paper's, App. A and the reference config)
     w_rgb: Weight = 5000.0
@@ -320,6 +323,7 @@ RESUMABLE_FIELDS: tuple[str, ...] = (
     "lr_grid",
     "lr_warp",
     "lr_final_ratio",
+    "lr_mapping_steps",
     "eval_every",
     "eval_pixels",
     "checkpoint_seconds",
@@ -347,6 +351,7 @@ LATER_FIELDS: dict[str, Any] = {
     "mask_hold_coverage": 0.0,
     "scribble_carry": False,
     "mapping_hidden_fg": 0,
+    "lr_mapping_steps": 0,
 }
 #: The learning rates (``fit`` names them when a fit diverges).
 LR_FIELDS: tuple[str, ...] = ("lr", "lr_grid", "lr_warp")

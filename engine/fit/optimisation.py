@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import torch
 
 from ..config import FitConfig
@@ -21,7 +23,14 @@ def make_optimizer(model: AtlasModel, cfg: FitConfig, device: torch.device) -> t
 
 
 def make_scheduler(optim: torch.optim.Optimizer, cfg: FitConfig) -> torch.optim.lr_scheduler.LambdaLR:
-    """The fit's learning-rate schedule: exponential decay to ``lr_final_ratio`` at ``cfg.steps``."""
+    """The fit's learning-rate schedule: exponential decay to ``lr_final_ratio`` at ``cfg.steps``; the mappings' group
+    there by ``cfg.lr_mapping_steps`` when that is sooner."""
     ratio = max(cfg.lr_final_ratio, MIN_LR_RATIO)
-    steps = max(cfg.steps, 1)
-    return torch.optim.lr_scheduler.LambdaLR(optim, lambda s: ratio ** (min(s, steps) / steps))
+
+    def decay(last: int) -> Callable[[int], float]:
+        steps = max(last, 1)
+        return lambda s: ratio ** (min(s, steps) / steps)
+
+    mapping_last = min(cfg.lr_mapping_steps, cfg.steps) if cfg.lr_mapping_steps > 0 else cfg.steps
+    lambdas = [decay(mapping_last if group.get("name") == "mappings" else cfg.steps) for group in optim.param_groups]
+    return torch.optim.lr_scheduler.LambdaLR(optim, lambdas)

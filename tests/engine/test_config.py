@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import dataclasses
 from dataclasses import fields
 
 import pytest
@@ -302,3 +303,18 @@ def test_every_field_added_since_checkpoints_recorded_their_config_says_how_olde
     assert set(LATER_FIELDS) <= names
     for name, value in LATER_FIELDS.items():  # the old behaviour is a value the field accepts
         assert getattr(apply_overrides(FitConfig(), {name: str(value).lower()}), name) == value
+
+
+def test_the_mappings_rate_reaches_its_final_ratio_at_lr_mapping_steps_and_stays_there():
+    import torch
+
+    from engine.fit.optimisation import make_scheduler
+
+    groups = [{"params": [torch.zeros(1, requires_grad=True)], "lr": 1.0, "name": n} for n in ("grids", "mappings")]
+    cfg = apply_overrides(preset_config("draft"), {"steps": "100", "lr_final_ratio": "0.1"})
+    for mapping_steps, at_50, at_100 in ((0, 0.1**0.5, 0.1), (50, 0.1, 0.1), (400, 0.1**0.5, 0.1)):
+        sched = make_scheduler(torch.optim.SGD(groups), dataclasses.replace(cfg, lr_mapping_steps=mapping_steps))
+        grids, mappings = sched.lr_lambdas
+        assert grids(50) == pytest.approx(0.1**0.5) and grids(100) == pytest.approx(0.1)
+        assert mappings(50) == pytest.approx(at_50) and mappings(100) == pytest.approx(at_100)
+        assert mappings(75) == pytest.approx(at_100 if mapping_steps == 50 else 0.1**0.75)
