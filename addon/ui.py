@@ -13,7 +13,7 @@ from .core import farm as FM
 from .core import scribble_math as S
 from .core.errors import UserError
 from .ops import refine
-from .ops.render import active_render, imported_manifest, passes_file
+from .ops.render import active_render, imported_manifest, passes_file, plate_file
 
 #: Theme colour-set icons that show the scribble colours in the panel (default theme: red, green, blue, yellow).
 COLOUR_ICONS = {
@@ -90,8 +90,8 @@ def _draw_farm(col, props, context) -> None:
 
 
 def _moved_line(context) -> str | None:
-    """The line saying the imported manifest or passes are not on disk (``needs.moved_need``): Relink Run Folder."""
-    return needs.moved_need(imported_manifest(context), passes_file())
+    """The line saying the imported manifest, passes or plate are not on disk (``needs.moved_need``): Relink."""
+    return needs.moved_need(imported_manifest(context), passes_file(), plate_file=plate_file())
 
 
 class _SidebarPanel:

@@ -123,6 +123,15 @@ def _cmd_nuke(args: argparse.Namespace) -> int:
     return print_paths([write_nuke_script(args.manifest, args.out, args.filter, args.ocio_config)])
 
 
+def _cmd_relink(args: argparse.Namespace) -> int:
+    from .export.manifest import Manifest
+    from .export.relink import relink_plate
+
+    for line in relink_plate(args.manifest, args.plate):
+        print(line, file=sys.stderr)
+    return print_paths([Manifest(args.manifest).path])
+
+
 def _cmd_masks(args: argparse.Namespace) -> int:
     """Progress goes to stdout as a JSON stage line, so stderr holds nothing but a failure's one line; the folder
     is printed last (``print_paths``: as text any terminal takes, a name that is not UTF-8 showing its bytes as
@@ -294,6 +303,7 @@ HANDLERS: dict[str, Callable[[argparse.Namespace], int]] = {
     C.VERB_MASKS: _cmd_masks,
     C.VERB_PARTS: _cmd_parts,
     C.VERB_NUKE: _cmd_nuke,
+    C.VERB_RELINK: _cmd_relink,
     C.VERB_FARM: _cmd_farm,
     C.VERB_DEMO: _cmd_demo,
 }

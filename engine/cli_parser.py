@@ -68,6 +68,7 @@ def build_parser(prog: str = f"python -m {C.CLI_MODULE}") -> argparse.ArgumentPa
     _add_masks_parser(sub)
     _add_parts_parser(sub)
     _add_nuke_parser(sub)
+    _add_relink_parser(sub)
     _add_farm_parser(sub)
     add_output_options(p)
     return p
@@ -432,6 +433,27 @@ def _add_preview_parser(sub: argparse._SubParsersAction) -> None:
     pv.add_argument("manifest", metavar="MANIFEST")
     pv.add_argument("--out", default=None, metavar="DIR")
     pv.add_argument("--no-movies", action="store_true", help="contact sheets only")
+
+
+def _add_relink_parser(sub: argparse._SubParsersAction) -> None:
+    """``relink``: an export told where its plate is now."""
+    r = add_verb(
+        sub,
+        C.VERB_RELINK,
+        help="point an export at its plate after the plate or the run folder moved",
+        description="Rewrites MANIFEST's plate paths (relative to the manifest, and absolute) to the plate at "
+        f"PATH, and the export's {C.NUKE_SCRIPT_NAME} with them while it is the one the export wrote (a script saved "
+        "over it is left as it is). A sequence's folder must hold every frame file the export names. Prints one "
+        "line per file, the manifest's path last.",
+    )
+    r.add_argument("manifest", metavar="MANIFEST", help=MANIFEST_HELP)
+    r.add_argument(
+        C.RELINK_PLATE_ARG,
+        dest="plate",
+        required=True,
+        metavar="PATH",
+        help="the plate: the folder of its frames (or one of them), or the movie",
+    )
 
 
 def _add_nuke_parser(sub: argparse._SubParsersAction) -> None:

@@ -38,6 +38,11 @@ def engine_argv(python: str, verb: str, *args: str) -> list[str]:
     return [python, "-m", C.CLI_MODULE, verb, *args]
 
 
+def relink_argv(python: str, manifest: str, plate: str) -> list[str]:
+    """``engine relink``: the export at ``manifest`` told its plate is at ``plate``."""
+    return engine_argv(python, C.VERB_RELINK, manifest, C.RELINK_PLATE_ARG, plate)
+
+
 def version_argv(python: str) -> list[str]:
     return [python, "-m", C.CLI_MODULE, "--version"]
 

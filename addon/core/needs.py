@@ -27,7 +27,7 @@ EDIT_GONE = "An edit layer is not on disk: put it back, or Relink Run Folder: "
 #: An atlas image not on disk: the canvases and the preview would show nothing under the paint.
 ATLAS_GONE = "An atlas is not on disk: Relink Run Folder, or put it back: "
 #: The imported plate clip without its file: the render would be black.
-PLATE_GONE = "The plate is not on disk (the render would be black): put it back, or Relink Run Folder: "
+PLATE_GONE = "The plate is not on disk (preview and render would be black): put it back, or Relink Run Folder to it: "
 #: An import without its plate clip (removed from the file since).
 NO_PLATE = "The imported atlas has no plate clip: import the atlas again"
 #: Save Edits with nothing painted since the last save.
@@ -88,9 +88,15 @@ def render_need(
     return None
 
 
-def moved_need(manifest: str, passes_file: str | None, exists: Callable[[str], bool] = os.path.isfile) -> str | None:
-    """An import whose manifest and passes are on disk (None), else the line saying what is gone: the panel shows it
-    above Relink Run Folder (a run folder moved since the import), Render greys out with it."""
+def moved_need(
+    manifest: str,
+    passes_file: str | None,
+    exists: Callable[[str], bool] = os.path.isfile,
+    plate_file: str | None = "",
+) -> str | None:
+    """An import whose manifest, passes and plate (``plate_file``: the plate clip's file, '' or None not checked here)
+    are on disk (None), else the line saying what is gone: the panel shows it above Relink Run Folder (a run folder
+    or plate moved since the import); Render, Live Preview and Paint on Frame refuse with it."""
     if not manifest:
         return NO_IMPORT
     if not exists(manifest):
@@ -99,6 +105,8 @@ def moved_need(manifest: str, passes_file: str | None, exists: Callable[[str], b
         return NO_PASSES
     if not exists(passes_file):
         return PASSES_GONE + passes_file
+    if plate_file and not exists(plate_file):
+        return PLATE_GONE + plate_file
     return None
 
 

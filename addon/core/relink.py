@@ -5,6 +5,11 @@ Blender writes a path relative to the .blend as ``//`` + the path from the .blen
 which keeps working when the .blend and the files it uses are copied together. A file on another drive (Windows)
 has no relative path and stays absolute, as Blender leaves it.
 
+The plate moved on its own is found again from one of its files (or its folder): the scene's plate clip takes the
+file of its own name there (``plate_choice``). After either, the export itself is told where the plate is
+(``plate_sync``: ``engine relink``), so ``engine render``, the export's ``.nk`` and every operator read the one plate
+the scene shows.
+
 A run folder moved on its own is found again from one file: the new manifest (or the run folder, whose newest
 export's manifest is taken). The old and the new manifest paths end alike (``run/exports/v001/manifest.json``);
 what comes before that common ending is the old root and the new root, and every path under the old root is
@@ -15,15 +20,20 @@ from __future__ import annotations
 
 import os
 import re
+import subprocess
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from typing import Any
 
 from ...engine import contract as C  # type: ignore[import-not-found]
+from .engine_commands import engine_env, relink_argv
 
 #: How Blender marks a path relative to the .blend's folder.
 BLEND_PREFIX = "//"
 #: What Relink says when the file chosen is neither a manifest nor a run or export folder holding one.
 NO_MANIFEST = "no manifest.json there: choose the run folder, or the manifest.json of its export: "
+#: ... nor, for the plate, a file or folder of it.
+NOT_PLATE = "choose the run folder, the manifest.json of its export, or the plate's new place (a frame, or the movie)"
 
 
 def relative_path(path: str, blend_file: str) -> str:
@@ -152,3 +162,58 @@ def find_manifest(
         if isfile(candidate):
             return candidate
     raise ValueError(NO_MANIFEST + path)
+
+
+def plate_choice(
+    chosen: str,
+    clip_file: str,
+    sequence: bool,
+    isfile: Callable[[str], bool] = os.path.isfile,
+    isdir: Callable[[str], bool] = os.path.isdir,
+) -> str:
+    """The plate clip's new file when the artist chose the plate's new place ``chosen``: a sequence's frame of the clip
+    file's name (``clip_file``, its first) in ``chosen``'s folder (or in ``chosen``, a folder); a movie's file itself.
+    ValueError (one line) when that is not there."""
+    if sequence:
+        folder = chosen if isdir(chosen) else os.path.dirname(chosen)
+        new = os.path.join(folder, os.path.basename(clip_file))
+        if not isfile(new):
+            raise ValueError(f"{folder}: has no plate frame {os.path.basename(clip_file)} — {NOT_PLATE}")
+        return os.path.normpath(new)
+    if not isfile(chosen):
+        raise ValueError(f"{chosen}: not a file — {NOT_PLATE}")
+    return os.path.normpath(chosen)
+
+
+def plate_sync(
+    manifest_path: str, clip: dict, plate_file: str, realpath: Callable[[str], str] = os.path.realpath
+) -> str | None:
+    """What to tell the export at ``manifest_path`` (its manifest's ``clip``) with ``engine relink``: the scene's
+    plate file ``plate_file`` where the manifest reads its plate elsewhere (or nowhere); None where it reads it."""
+    if clip["kind"] == C.CLIP_KINDS[0]:
+        if not clip["frame_files"]:
+            return None
+        reads, shows = os.path.dirname(C.resolve_plate_path(manifest_path, clip, 0)), os.path.dirname(plate_file)
+    else:
+        reads, shows = C.resolve_plate_path(manifest_path, clip), plate_file
+    return None if realpath(reads) == realpath(shows) else plate_file
+
+
+#: How long ``engine relink`` may take (it reads and writes two small files; the engine's start is most of it).
+RELINK_SECONDS = 120.0
+
+
+def tell_export(python: str, manifest_path: str, plate: str, run: Callable[..., Any] = subprocess.run) -> str:
+    """Run ``engine relink`` (``plate_sync``'s plate) with the engine interpreter ``python``: the line Relink adds to
+    its report, what the engine fixed or left (its own lines), or why the export could not be told."""
+    if not python:
+        return "the export still reads its plate elsewhere (engine render, .nk): run Set up engine, then Relink again"
+    try:
+        done = run(relink_argv(python, manifest_path, plate), env=engine_env(), capture_output=True, text=True,
+                   timeout=RELINK_SECONDS)  # fmt: skip
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        return f"the export still reads its plate elsewhere: engine relink did not run ({exc})"
+    lines = [line for line in (done.stderr or "").splitlines() if line.strip()]
+    if done.returncode != C.EXIT_OK:
+        return f"the export still reads its plate elsewhere: {lines[-1] if lines else f'exit {done.returncode}'}"
+    return "; ".join(lines)

@@ -78,7 +78,7 @@ FRAME_PAINT_IMAGE = f"{PREFIX}FramePaint"
 
 
 #: The fix of a plate that is not where the manifest says.
-PLATE_FIX = "put the plate back where the export was made from (its path is relative to the manifest), or export again"
+PLATE_FIX = "put the plate back, or choose where it is now with Relink Run Folder"
 
 
 #: The render folder's subfolder of the mattes: ``<render dir>/mattes/<Matte>/matte.#####.exr``.
@@ -446,15 +446,15 @@ def plate_path(manifest_path: str, path: str, what: str, known_plate: str | None
     """A plate file the manifest names (relative to it first, like every manifest path), checked to be a file: one
     line naming it and the fix, instead of Blender's silent placeholder.
 
-    ``known_plate``: a file of the same plate where the scene's plate clip shows it (``None``: none). A run folder
-    moved on its own takes the manifest's relative plate paths with it, so they name a plate that is not there; the
-    clip (left where the plate is by Relink Run Folder) says where it is: the file of the same name in the clip's
-    folder (a movie: the clip's file itself, when its name is the same) is taken when the manifest's is missing."""
+    ``known_plate``: a file of the same plate where the scene's plate clip shows it (``None``: none). The scene has one
+    plate, the same for every operator (import, Live Preview, Paint on Frame, Render): where it has a plate clip, the
+    file of the manifest's name in the clip's folder (a movie: the clip's file) is the plate, whatever else the
+    manifest names (its relative paths after the run folder moved alone, or the paths as at export, maybe another shot
+    folder's copy of the plate); where that is missing, the error says so."""
     full = C.resolve_manifest_path(manifest_path, path)
-    if not os.path.isfile(full) and known_plate:
-        beside = os.path.join(os.path.dirname(os.path.abspath(known_plate)), os.path.basename(full))
-        if os.path.isfile(beside):
-            return os.path.normpath(beside)
+    if known_plate:
+        known = os.path.normpath(os.path.abspath(known_plate))
+        full = known if what == "plate movie" else os.path.join(os.path.dirname(known), os.path.basename(full))
     if not os.path.isfile(full):
         problem = f"{what} does not exist" if not os.path.exists(full) else f"{what} is not a file"
         raise PlanError(f"{full}: {problem} — {PLATE_FIX}")

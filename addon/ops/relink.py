@@ -11,11 +11,16 @@ import bpy
 from bpy.props import StringProperty
 
 from ...engine import contract as C
-from .. import compositor
+from .. import compositor, preferences, preview_plane
 from ..core import needs, relink
 from ..core import tree_plan as P
+from .import_run import IMPORT_ERRORS
 from .render import imported_manifest
 from .scene_inputs import abspath
+
+#: What the file browser lists: manifests, and the plate's frames or movie.
+PLATE_EXTENSIONS = ("png", "jpg", "jpeg", "exr", "tif", "tiff", "dpx", "mov", "mp4", "mkv", "avi")
+PLATE_AND_MANIFEST = ";".join([C.MANIFEST_NAME, *(f"*.{e}" for e in PLATE_EXTENSIONS)])
 
 
 def _from_file(block: Any) -> bool:
@@ -75,17 +80,74 @@ def apply(context: Any, plan: relink.RelinkPlan, links: list[relink.Link]) -> No
             props.layers[index].folder = _folder(stored)
 
 
+def _chosen_manifest(chosen: str) -> str:
+    """The manifest the file chosen names (``core.relink.find_manifest``), loaded to check it; ValueError (one line)
+    when it names none (a plate's frame or movie, a folder without an export)."""
+    if os.path.isfile(chosen) and not chosen.lower().endswith(".json"):
+        raise ValueError(relink.NO_MANIFEST + chosen)
+    new = relink.find_manifest(chosen)
+    C.load_manifest(new)  # ManifestError: one line naming the file and the fix
+    return new
+
+
+def _moved_plate(chosen: str, not_manifest: str) -> str | tuple[str]:
+    """The plate clip pointed at the plate's new place ``chosen`` (``core.relink.plate_choice``): (its new file,), or
+    the error line (``not_manifest``'s where ``chosen`` is a manifest, or the scene has no plate clip from a file)."""
+    clip = bpy.data.movieclips.get(P.PLATE_CLIP)
+    if clip is None or not _from_file(clip) or chosen.lower().endswith(".json"):
+        return not_manifest
+    try:
+        new = relink.plate_choice(chosen, abspath(clip.filepath), clip.source == "SEQUENCE")
+    except ValueError as exc:
+        return str(exc)
+    start = clip.frame_start
+    clip.filepath = compositor.blend_path(new)
+    clip.frame_start = start
+    return (new,)
+
+
+def _tell_export(context: Any, manifest_path: str) -> str:
+    """The export at ``manifest_path`` told where the scene's plate clip is (``core.relink.plate_sync``), so
+    ``engine render`` and its ``.nk`` read the plate the scene shows: the report's line about it."""
+    clip = bpy.data.movieclips.get(P.PLATE_CLIP)
+    plate = abspath(clip.filepath) if clip is not None and _from_file(clip) else ""
+    if not plate or not os.path.isfile(plate):
+        return "the plate is not on disk: choose its new place with Relink"
+    try:
+        target = relink.plate_sync(manifest_path, C.load_manifest(manifest_path)["clip"], plate)
+    except ValueError as exc:
+        return f"the export still reads its plate elsewhere: {exc}"
+    if target is None:
+        return f"the export reads the plate at {os.path.dirname(plate) if clip.source == 'SEQUENCE' else plate}"
+    return relink.tell_export(preferences.engine_python(context), manifest_path, target)
+
+
+def _show_again(scene: Any) -> str:
+    """The live preview built again where it is shown (its plate image is its own copy of the plate clip's path);
+    '' or the line saying why it could not be."""
+    if not preview_plane.is_shown(scene):
+        return ""
+    try:
+        preview_plane.rebuild(scene)
+    except IMPORT_ERRORS as exc:
+        preview_plane.hide(scene)
+        return f"live preview hidden: {exc}"
+    return ""
+
+
 class NEURALATLAS_OT_relink(bpy.types.Operator):
-    """Point the imported atlas's images, plate and settings at the run folder's new place"""
+    """Point the imported atlas's images, plate and settings at the run folder's or the plate's new place"""
 
     bl_idname = "neural_atlas.relink"
     bl_label = "Relink Run Folder"
     bl_options = {"REGISTER", "UNDO"}  # noqa: RUF012 (Blender reads a set)
 
     filepath: StringProperty(
-        subtype="FILE_PATH", options={"SKIP_SAVE"}, description="The moved export's manifest.json, or its run folder"
+        subtype="FILE_PATH",
+        options={"SKIP_SAVE"},
+        description="The moved export's manifest.json or run folder, or the moved plate (a frame of it, or the movie)",
     )
-    filter_glob: StringProperty(default=C.MANIFEST_NAME, options={"HIDDEN"}, description="The files to list")
+    filter_glob: StringProperty(default=PLATE_AND_MANIFEST, options={"HIDDEN"}, description="The files to list")
 
     @classmethod
     def poll(cls, context):
@@ -97,16 +159,24 @@ class NEURALATLAS_OT_relink(bpy.types.Operator):
         if not old:  # poll says so; this holds for a call that skips poll
             self.report({"ERROR"}, needs.NO_IMPORT)
             return {"CANCELLED"}
+        chosen = abspath(self.filepath)
         try:
-            new = relink.find_manifest(abspath(self.filepath))
-            C.load_manifest(new)  # ManifestError: one line naming the file and the fix
+            new = _chosen_manifest(chosen)
         except ValueError as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
-        links = scene_links(context)
-        plan = relink.plan_relink(links, old, new)
-        apply(context, plan, links)
-        self.report({"WARNING" if plan.missing else "INFO"}, relink.message(plan))
+            moved = _moved_plate(chosen, str(exc))
+            if isinstance(moved, str):
+                self.report({"ERROR"}, moved)
+                return {"CANCELLED"}
+            new, line, missing = old, f"the plate clip now shows {moved}", False
+        else:
+            links = scene_links(context)
+            plan = relink.plan_relink(links, old, new)
+            apply(context, plan, links)
+            line, missing = relink.message(plan), bool(plan.missing)
+        told = _tell_export(context, new)
+        shown = _show_again(context.scene)
+        warn = missing or told.startswith("the export still") or bool(shown)
+        self.report({"WARNING" if warn else "INFO"}, "; ".join(s for s in (line, told, shown) if s))
         return {"FINISHED"}
 
     def invoke(self, context, event):

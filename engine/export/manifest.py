@@ -25,8 +25,8 @@ from ..io.images import read_exr
 EXPORT_AGAIN = f"run `python -m {C.CLI_MODULE} export RUN_DIR` again"
 #: The fix of a plate that is not where the manifest says.
 PLATE_FIX = (
-    "put the plate back where the export was made from (its path is relative to the manifest), or export the run again "
-    "once the plate is where it was fitted from or at the same place relative to the run folder"
+    "put the plate back where the export was made from (its path is relative to the manifest), or tell the export "
+    f"where it is now: python -m {C.CLI_MODULE} {C.VERB_RELINK} MANIFEST {C.RELINK_PLATE_ARG} PLATE"
 )
 
 

@@ -25,6 +25,10 @@ VERB_MASKS = "masks"  # masks CLIP --out FOLDER [--frames FIRST-LAST]; last stdo
 #: object into the parts that move apart; last stdout line = the strokes folder, or the line saying nothing was split
 VERB_PARTS = "parts"
 VERB_NUKE = "nuke"  # nuke MANIFEST [--out FILE.nk] [--filter ...]: a Nuke script of the edit; last line = its path
+#: relink MANIFEST --plate PATH: the export reads its plate at PATH (the manifest's plate paths and the export's own
+#: .nk rewritten); one line per file it fixed or left, the manifest's path last
+VERB_RELINK = "relink"
+RELINK_PLATE_ARG = "--plate"
 #: realign MANIFEST [--from vNNN|OLD_MANIFEST] [--layer NAME ...] [--frame-step N] [--measure]: move the edit layers
 #: painted against an earlier export of the run onto MANIFEST's mapping (after ``fit --refine``); last line = MANIFEST
 VERB_REALIGN = "realign"
@@ -92,6 +96,7 @@ __all__ = [
     "HEADLESS_SCRIPT",
     "INSTALLED_MODULE",
     "PRESET_STEPS",
+    "RELINK_PLATE_ARG",
     "VERB_DEMO",
     "VERB_ESTIMATE",
     "VERB_EXPORT",
@@ -102,5 +107,6 @@ __all__ = [
     "VERB_PREVIEW",
     "VERB_PROJECT_FRAME",
     "VERB_REALIGN",
+    "VERB_RELINK",
     "VERB_RENDER",
 ]

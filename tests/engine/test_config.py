@@ -4,9 +4,9 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
 import json
-import dataclasses
 from dataclasses import fields
 
 import pytest

@@ -46,13 +46,19 @@ def test_a_relinked_run_finds_its_plate_where_the_plate_clip_is(tmp_path):
         P.plan_tree(m, str(moved), known_plate=str(tmp_path / "elsewhere" / "00003.png"))
 
 
-def test_the_manifests_plate_wins_when_it_is_there(tmp_path):
+def test_the_scenes_plate_clip_is_the_plate_even_where_the_manifest_names_another(tmp_path):
+    """One plate per shot: the manifest's plate is there (another shot folder's copy, say), but the scene's plate
+    clip shows a plate elsewhere: the clip's is read; where the clip's folder lacks the frame, the plan says so
+    rather than reading the manifest's."""
     manifest = make_export(tmp_path)
     other = tmp_path / "other"
     other.mkdir()
     (other / f"{FRAMES[0]:05d}.png").write_bytes(b"")
     plan = P.plan_tree(C.load_manifest(str(manifest)), str(manifest), known_plate=str(other / "x.png"))
-    assert plan.plate.filepath == str(tmp_path / "plate" / f"{FRAMES[0]:05d}.png")
+    assert plan.plate.filepath == str(other / f"{FRAMES[0]:05d}.png")
+    shutil.rmtree(other)
+    with pytest.raises(P.PlanError, match=f"{other / f'{FRAMES[0]:05d}.png'}: plate frame does not exist"):
+        P.plan_tree(C.load_manifest(str(manifest)), str(manifest), known_plate=str(other / "x.png"))
 
 
 def test_a_render_takes_the_exported_frames_and_names_the_others():
