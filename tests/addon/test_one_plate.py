@@ -23,13 +23,13 @@ bpy = pytest.importorskip("bpy")
 
 import fake_export as X  # noqa: E402
 from helpers import engine_python  # noqa: E402
+from neural_atlas.addon import preferences  # noqa: E402
+from neural_atlas.addon.core import needs  # noqa: E402
+from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 from test_day_reopen import FRAME, _preview, _relative_manifest  # noqa: E402
 from test_relink import _panel, _refused  # noqa: E402
 
 from engine import contract as C  # noqa: E402
-from neural_atlas.addon import preferences  # noqa: E402
-from neural_atlas.addon.core import needs  # noqa: E402
-from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 
 
 @pytest.fixture

@@ -31,7 +31,8 @@ def test_the_moved_line_and_relink():
     assert needs.moved_need("/gone/m.json", "/r/p.exr", on_disk) == needs.MANIFEST_GONE + "/gone/m.json"
     assert needs.moved_need("/r/m.json", "/gone/p.exr", on_disk) == needs.PASSES_GONE + "/gone/p.exr"
     assert needs.moved_need("", None, on_disk) == needs.NO_IMPORT
-    assert needs.moved_need("/r/m.json", "/r/p.exr", on_disk, plate_file="/gone/1.png") == needs.PLATE_GONE + "/gone/1.png"
+    plate_gone = needs.moved_need("/r/m.json", "/r/p.exr", on_disk, plate_file="/gone/1.png")
+    assert plate_gone == needs.PLATE_GONE + "/gone/1.png"
     assert needs.moved_need("/r/m.json", "/r/p.exr", on_disk, plate_file="") is None  # not checked
     assert needs.relink_need("") == needs.NO_IMPORT and needs.relink_need("//run/m.json") is None
 
