@@ -30,6 +30,7 @@ _NODE_TYPES = {
     V.MIX: "ShaderNodeMix",
     V.EMISSION: "ShaderNodeEmission",
     V.OUTPUT: "ShaderNodeOutputMaterial",
+    V.VALUE: "ShaderNodeValue",
 }
 
 
@@ -72,6 +73,8 @@ def _material(plan: V.PreviewPlan, images: dict[str, Any]) -> Any:
     mat = bpy.data.materials.get(V.PREVIEW_MATERIAL) or bpy.data.materials.new(V.PREVIEW_MATERIAL)
     compat.ensure_material_nodes(mat)
     nt = mat.node_tree
+    if nt.animation_data is not None:
+        nt.animation_data_clear()  # the drivers of the nodes cleared next
     nt.nodes.clear()
     users = {spec.name: spec.user for spec in plan.images}
     made: dict[str, Any] = {}
@@ -97,6 +100,12 @@ def _material(plan: V.PreviewPlan, images: dict[str, Any]) -> Any:
             node.operation = params["operation"]
             if spec.kind == V.MATH:
                 node.use_clamp = False
+        elif spec.kind == V.VALUE:
+            node.outputs[0].default_value = params.get("value", 0.0)
+            if "driver" in params:
+                driver = node.outputs[0].driver_add("default_value").driver
+                driver.type = "SCRIPTED"
+                driver.expression = params["driver"]
         elif spec.kind == V.MIX:
             node.data_type = "RGBA"
             node.blend_type = "MIX"
@@ -111,7 +120,15 @@ def _material(plan: V.PreviewPlan, images: dict[str, Any]) -> Any:
         )
     if V.FRAME_PAINT_NODE in made:
         nt.nodes.active = made[V.FRAME_PAINT_NODE]
+    mat[V.EXPORT_FRAMES_PROP] = list(plan.export_frames)
     return mat
+
+
+def export_frames() -> tuple[int, int] | None:
+    """The exported frames the live preview shows paint on (None: no preview built)."""
+    mat = bpy.data.materials.get(V.PREVIEW_MATERIAL)
+    frames = mat.get(V.EXPORT_FRAMES_PROP) if mat is not None else None
+    return (int(frames[0]), int(frames[1])) if frames is not None and len(frames) == 2 else None
 
 
 def _collection(scene: Any) -> Any:

@@ -7,9 +7,10 @@ import json
 
 import bpy
 
-from . import edit_layers, preferences, scribbles
+from . import edit_layers, preferences, preview_plane, scribbles
 from .core import estimate, needs, running
 from .core import farm as FM
+from .core import preview_plan as V
 from .core import scribble_math as S
 from .core.errors import UserError
 from .ops import refine
@@ -189,15 +190,19 @@ def draw_paint_render(layout, context) -> None:
             col.label(text=moved, icon="ERROR")
         col.operator("neural_atlas.relink", icon="FILE_REFRESH")
     _draw_layers(col, props, context)
-    col.prop(props, "filter_type")
     row = col.row(align=True)
     row.operator("neural_atlas.paint_setup", icon="BRUSH_DATA")
     row.operator("neural_atlas.save_edits", icon="FILE_TICK")
     col.operator("neural_atlas.float_edits", icon="IMAGE_DATA")
-    col.operator("neural_atlas.live_preview", icon="HIDE_OFF")
+    shown = preview_plane.is_shown(context.scene)  # a toggle: pressed while the preview is on screen
+    col.operator("neural_atlas.live_preview", icon="HIDE_OFF" if shown else "HIDE_ON", depress=shown)
+    outside = V.outside_export(context.scene.frame_current, preview_plane.export_frames()) if shown else None
+    if outside:
+        col.label(text=outside, icon="INFO")
     row = col.row(align=True)  # paint over one plate frame, landed on the atlases (engine project-frame)
     row.operator("neural_atlas.frame_paint_start", icon="TPAINT_HLT")
     row.operator("neural_atlas.frame_paint_land", icon="IMPORT")
+    col.prop(props, "filter_type")  # how the edit layers are sampled, in the preview and the render alike
     if running.is_running(context.scene.name):
         col.progress(factor=props.progress, type="BAR", text=props.status or "running…")
         col.operator("neural_atlas.cancel", icon="CANCEL")

@@ -35,6 +35,11 @@ PREVIEW_PLATE_IMAGE = f"{P.PREFIX}PreviewPlate"
 PREVIEW_UV_DIR = "preview_uv"
 #: The node that shows ``tree_plan.FRAME_PAINT_IMAGE`` (its name is the paint slot's, kept stable).
 FRAME_PAINT_NODE = "FramePaint"
+#: The node whose value is 1 on the exported frames and 0 elsewhere (a driver on the scene frame): outside the export
+#: the layers' passes hold their last frame, so the paint is gated off and the plate shows alone.
+IN_EXPORT_NODE = "InExport"
+#: The material's custom property holding the exported frames [first, last] (the panel's "outside the export" line).
+EXPORT_FRAMES_PROP = "na_export_frames"
 
 #: The plane is 1 unit high; its right edge this far left of x = 0, where the paint canvases start.
 PLANE_HEIGHT = 1.0
@@ -50,6 +55,7 @@ COMBINE_XYZ = "combine_xyz"  # inputs "X", "Y", "Z"; output "Vector"
 MATH = "math"  # inputs 0, 1; output "Value"; params "operation"
 VECTOR_MATH = "vector_math"  # inputs 0, 1, "Scale"; output "Vector"; params "operation"
 MIX = "mix"  # RGBA mix: inputs "Factor", "A", "B"; output "Result"
+VALUE = "value"  # output "Value"; params "value", and "driver": an expression Blender evaluates at each frame
 EMISSION = "emission"  # input "Color"; output "Emission"
 OUTPUT = "output"  # input "Surface"
 
@@ -126,6 +132,23 @@ class PreviewPlan:
     layers: list[str]
     mirrors: dict[str, str] = field(default_factory=dict)
     """Each layer -> the float twin of its edit image that the material samples (``preview.sync`` copies the paint)."""
+    export_frames: tuple[int, int] = (1, 1)
+    """The exported frames (first, last): the paint shows on them; elsewhere the plate alone (``IN_EXPORT_NODE``)."""
+
+
+def in_export_expression(first: int, last: int) -> str:
+    """The driver of ``IN_EXPORT_NODE``: 1 on scene frames ``first`` .. ``last``, else 0. A simple expression (only
+    ``frame``, comparisons and arithmetic), which Blender evaluates without running Python, so it works in a file
+    opened with scripts disabled."""
+    return f"(frame >= {first}) * (frame <= {last})"
+
+
+def outside_export(frame: int, export_frames: tuple[int, int] | None) -> str | None:
+    """The panel's line when the live preview is shown at ``frame`` outside the exported frames; None inside."""
+    if export_frames is None or export_frames[0] <= frame <= export_frames[1]:
+        return None
+    first, last = export_frames
+    return f"Frame {frame} is outside the export ({first}-{last}): the preview shows the plate without paint"
 
 
 def mirror_image_name(layer: str) -> str:
@@ -204,13 +227,19 @@ def plan_preview(
         raise P.PlanError(f"unknown filter {filter_type!r}")
     count = tree.frame_end - tree.frame_start + 1
     plate = tree.plate
+    # the plate follows the scene frame over all of its frames, not only the exported ones: outside the export the
+    # preview shows the plate alone (``IN_EXPORT_NODE``), not a frame held from the export's end
+    numbers = [int(n) for n in manifest["clip"].get("frame_numbers") or (tree.frame_start, tree.frame_end)]
+    plate_first, plate_last = min(min(numbers), tree.frame_start), max(max(numbers), tree.frame_end)
     if plate.sequence:
         number = file_number(plate.filepath)
-        user = sequence_user(tree.frame_start, tree.frame_start if number is None else number, count)
+        number = tree.frame_start if number is None else number
+        before = tree.frame_start - plate_first
+        user = sequence_user(plate_first, number - before, plate_last - plate_first + 1)
         plate_image = PreviewImage(PREVIEW_PLATE_IMAGE, plate.filepath, plate.colorspace, "SEQUENCE", user)
     else:
         # a movie's frame numbered ``frame_start`` (TreePlan: its first) is its frame 1
-        span = tree.frame_end - plate.frame_start + 1
+        span = plate_last - plate.frame_start + 1
         user = SequenceUser(plate.frame_start, 0, span)
         plate_image = PreviewImage(PREVIEW_PLATE_IMAGE, plate.filepath, plate.colorspace, "MOVIE", user)
     images = [plate_image]
@@ -228,17 +257,22 @@ def plan_preview(
         user = sequence_user(tree.frame_start, tree.frame_start, count)
         images.append(PreviewImage(uv_image_name(name), files[0][1], "Non-Color", "SEQUENCE", user))
     sampled = {name: mirror_image_name(name) for name in tree.layers}
-    nodes, links = shader_graph(sampled, filter_type, frame_paint)
+    exported = (tree.frame_start, tree.frame_end)
+    nodes, links = shader_graph(sampled, filter_type, frame_paint, exported)
     mirrors = dict(sampled)
     fit = framing(tree.resolution, tree.pixel_aspect)
-    return PreviewPlan(nodes, links, images, splits, fit, list(tree.layers), mirrors)
+    return PreviewPlan(nodes, links, images, splits, fit, list(tree.layers), mirrors, exported)
 
 
 def shader_graph(
-    layers: dict[str, str], filter_type: str, frame_paint: bool = False
+    layers: dict[str, str],
+    filter_type: str,
+    frame_paint: bool = False,
+    export_frames: tuple[int, int] | None = None,
 ) -> tuple[list[ShaderNode], list[ShaderLink]]:
     """The material's nodes and links: the render equation per pixel, then the frame paint over it. ``layers``: each
-    layer's image to sample (its float edit image, or the float twin of its 8-bit one)."""
+    layer's image to sample (its float edit image, or the float twin of its 8-bit one). ``export_frames``: the
+    layers' sums are gated by ``IN_EXPORT_NODE`` (the plate alone outside them)."""
     nodes = [
         ShaderNode("UVMap", TEX_COORD, (-1600.0, 300.0)),
         ShaderNode("Plate", TEX_IMAGE, (-1300.0, 300.0), {"image": PREVIEW_PLATE_IMAGE, "interpolation": "Closest"}),
@@ -266,6 +300,20 @@ def shader_graph(
         rgb, alpha = (add_c, "Vector"), (add_a, "Value")
     if rgb is None or alpha is None:
         raise P.PlanError("the export has no layers; export again")
+    if export_frames is not None:
+        expression = in_export_expression(*export_frames)
+        nodes += [
+            ShaderNode(IN_EXPORT_NODE, VALUE, (-100.0, 500.0), {"value": 1.0, "driver": expression}),
+            ShaderNode("RGBInExport", VECTOR_MATH, (150.0, 400.0), {"operation": "SCALE"}),
+            ShaderNode("AInExport", MATH, (150.0, 250.0), {"operation": "MULTIPLY"}),
+        ]
+        links += [
+            ShaderLink(rgb[0], rgb[1], "RGBInExport", 0),
+            ShaderLink(IN_EXPORT_NODE, "Value", "RGBInExport", "Scale"),
+            ShaderLink(alpha[0], alpha[1], "AInExport", 0),
+            ShaderLink(IN_EXPORT_NODE, "Value", "AInExport", 1),
+        ]
+        rgb, alpha = ("RGBInExport", "Vector"), ("AInExport", "Value")
     _composite_shader(nodes, links, rgb, alpha, frame_paint)
     return nodes, links
 

@@ -201,3 +201,42 @@ def test_the_preview_frames_the_plate_and_rebuilds_in_place(blender, tmp_path):
     fp.pixels.foreach_set(np.tile(np.array([1.0, 0.0, 0.0, 1.0], np.float32), X.W * X.H))
     got = X.read_exr_rgba(Path(preview_plane.render_frame(scene, FRAME_A, str(tmp_path / "fp.exr"))))
     assert np.abs(got[..., :3] - np.array([1.0, 0.0, 0.0])).max() <= 1e-6
+
+
+def test_outside_the_export_the_preview_shows_the_plate_and_says_so(blender, tmp_path):
+    """A plate of frames 3-7 exported for 3-5 only: at frame 7 the preview is plate frame 7 (not frame 5 held, not
+    the paint over it), and the panel says the frame is outside the export; inside, the paint shows again. Live
+    Preview is drawn as a toggle that is pressed while the preview is on screen."""
+    from helpers import RecordingLayout
+    from neural_atlas.addon import ui
+    from test_relink import _panel
+
+    manifest = X.make_export(tmp_path, frames=(3, 4, 5, 6, 7))
+    data = C.load_manifest(str(manifest))
+    data["passes"]["frames"] = [3, 4, 5]
+    manifest.write_text(__import__("json").dumps(data))
+    scene = blender.context.scene
+    scene.neural_atlas.filter_type = P.FILTER_NEAREST
+    assert blender.ops.neural_atlas.import_run("EXEC_DEFAULT", filepath=str(manifest)) == {"FINISHED"}
+    plate7 = X.srgb_to_linear(X.read_png_rgba8(tmp_path / "plate" / "00007.png")[..., :3] / 255.0)
+    got7 = X.read_exr_rgba(Path(preview_plane.render_frame(scene, 7, str(tmp_path / "preview.7.exr"))))[..., :3]
+    got5 = X.read_exr_rgba(Path(preview_plane.render_frame(scene, 5, str(tmp_path / "preview.5.exr"))))[..., :3]
+    want5 = X.reference_frame(manifest, 5, P.FILTER_NEAREST)
+    err7, err5 = float(np.abs(got7 - plate7).max()), float(np.abs(got5 - want5).max())
+    print(f"{TAG} preview outside the export: frame 7 vs plate {err7:.1e}; frame 5 vs the edit {err5:.1e}")
+    assert err7 <= TOLERANCE and err5 <= TOLERANCE
+    plate5 = X.srgb_to_linear(X.read_png_rgba8(tmp_path / "plate" / "00005.png")[..., :3] / 255.0)
+    assert float(np.abs(want5 - plate5).max()) > 0.1  # inside the export the edit shows over the plate
+
+    line = "Frame 7 is outside the export (3-5): the preview shows the plate without paint"
+    scene.frame_set(7)
+    assert line in _panel()[0]
+    scene.frame_set(4)
+    assert not any(text.startswith("Frame ") for text in _panel()[0])
+    calls = RecordingLayout().draw(ui.NEURALATLAS_PT_edit, bpy.context)
+    (toggle,) = [kw for name, a, kw in calls if name == "operator" and a[0] == "neural_atlas.live_preview"]
+    assert toggle.get("depress") is True
+    assert blender.ops.neural_atlas.live_preview("EXEC_DEFAULT") == {"FINISHED"}  # hidden
+    calls = RecordingLayout().draw(ui.NEURALATLAS_PT_edit, bpy.context)
+    (toggle,) = [kw for name, a, kw in calls if name == "operator" and a[0] == "neural_atlas.live_preview"]
+    assert toggle.get("depress") is False

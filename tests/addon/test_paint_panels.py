@@ -69,7 +69,11 @@ def test_paint_layer_makes_the_layer_the_one_painted(blender, tmp_path):
         assert area.spaces.active.image == bpy.data.images[P.edit_image_name(layer)]
         assert edit_layers.painted_layer(blender.context) == layer
         calls = RecordingLayout().draw(ui.NEURALATLAS_PT_edit_view3d, blender.context)
-        pressed = [kw.get("text") for n, a, kw in calls if n == "operator" and kw.get("depress")]
+        pressed = [
+            kw.get("text")
+            for n, a, kw in calls
+            if n == "operator" and a[0] == "neural_atlas.paint_layer" and kw.get("depress")
+        ]
         assert pressed == [layer]
     with pytest.raises(RuntimeError, match="no edit layer 'Sky' is imported: Import Atlas first"):
         blender.ops.neural_atlas.paint_layer("EXEC_DEFAULT", layer="Sky")

@@ -58,6 +58,8 @@ def _evaluate(plan: V.PreviewPlan, values: dict[str, dict[str, float]]) -> float
             return inp(name, "A") * (1 - f) + inp(name, "B") * f
         if node.kind == V.EMISSION:
             return inp(name, "Color")
+        if node.kind == V.VALUE:  # a driven value: the test's, else the node's own
+            return float(values.get(name, {}).get("Value", node.params["value"]))
         raise AssertionError(node.kind)
 
     return out("Emission", "Emission")
@@ -82,6 +84,27 @@ def test_the_material_is_the_render_equation(tmp_path):
         assert _evaluate(plan, vals) == pytest.approx(plate * (1 - want_a) + want_rgb, abs=1e-12)
     kinds = Counter(n.kind for n in plan.nodes)
     assert kinds[V.TEX_IMAGE] == 1 + 2 * 3 and kinds[V.OUTPUT] == 1 and V.FRAME_PAINT_NODE not in kinds
+
+
+def test_outside_the_exported_frames_the_plate_shows_alone(tmp_path):
+    """The layers' sums are gated by a value driven by the scene frame: 1 on the exported frames, 0 elsewhere (where
+    the passes would hold their last frame), so the preview is the plate there; the panel's line says so."""
+    _, plan = _plan(tmp_path)
+    first, last = plan.export_frames
+    node = next(n for n in plan.nodes if n.name == V.IN_EXPORT_NODE)
+    for frame, want in ((first - 1, 0.0), (first, 1.0), (last, 1.0), (last + 1, 0.0)):
+        assert float(eval(node.params["driver"], {"frame": frame})) == want  # as Blender's simple expression does
+    vals: dict[str, dict[str, float]] = {"Plate": {"Color": 0.25}}
+    for layer in plan.layers:
+        vals[f"UV_{layer}"] = {"X": 0.0, "Y": 0.0, "Z": 1.0}
+        vals[f"Edit_{layer}"] = {"Color": 0.5, "Alpha": 0.5}
+    assert _evaluate(plan, vals) != pytest.approx(0.25)
+    assert _evaluate(plan, {**vals, V.IN_EXPORT_NODE: {"Value": 0.0}}) == pytest.approx(0.25)
+    assert V.outside_export(first, plan.export_frames) is None
+    assert V.outside_export(last + 2, (first, last)) == (
+        f"Frame {last + 2} is outside the export ({first}-{last}): the preview shows the plate without paint"
+    )
+    assert V.outside_export(first, None) is None
 
 
 def test_frame_paint_lies_over_the_composite_by_its_alpha(tmp_path):
