@@ -149,7 +149,12 @@ class NEURALATLAS_PT_fit(_SidebarPanel, bpy.types.Panel):
             col.operator("neural_atlas.cancel", icon="CANCEL")
         else:
             row = col.row(align=True)
-            row.operator("neural_atlas.fit", icon="PLAY")
+            used = refine.holds_fit(props)  # a fit there: greyed with the reason, not a button that refuses
+            sub = row.row(align=True)
+            sub.enabled = not used
+            sub.operator("neural_atlas.fit", icon="PLAY")
+            if used:
+                col.label(text=needs.USED_RUN_FOLDER, icon="INFO")
             if props.can_resume:
                 row.operator("neural_atlas.fit", text="Resume", icon="RECOVER_LAST").resume = True
             if refine.finished_fit(props):  # the Run Folder holds a finished fit: continue it, keep the paint

@@ -30,6 +30,8 @@ ATLAS_GONE = "An atlas is not on disk: Relink Run Folder, or put it back: "
 PLATE_GONE = "The plate is not on disk (preview and render would be black): put it back, or Relink Run Folder to it: "
 #: An import without its plate clip (removed from the file since).
 NO_PLATE = "The imported atlas has no plate clip: import the atlas again"
+#: Fit Atlas on a Run Folder that holds a fit (greyed in the panel; the fit would refuse to overwrite it).
+USED_RUN_FOLDER = "This Run Folder holds a fit: Resume or Refine it, or choose a new Run Folder to fit again"
 #: Save Edits with nothing painted since the last save.
 NOTHING_TO_SAVE = "Nothing to save: every edit layer is saved (paint first)"
 #: Float Edit Layers when every imported edit layer is a float EXR already.

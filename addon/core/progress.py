@@ -41,6 +41,10 @@ class JobState:
     stage_done: int = 0
     stage_total: int = 0
     stage_eta: float | None = None
+    #: the parts search's finding (``contract.STAGE_PARTS_FIELD``: how many parts the object was split into, 0: none;
+    #: None before it has searched) and its message
+    parts: int | None = None
+    parts_message: str = ""
     #: the last stdout line that is no progress message (pip's "Collecting ...", the path `export` prints)
     last_stdout: str = ""
     stderr_tail: list[str] = field(default_factory=list)
@@ -57,6 +61,10 @@ class JobState:
         if event == C.EVENT_STAGE:
             self.stage = str(msg.get("stage", ""))
             self.message = str(msg.get("message", self.stage))
+            if self.stage == C.VERB_PARTS:
+                self.parts_message = self.message
+                if C.STAGE_PARTS_FIELD in msg:
+                    self.parts = int(msg[C.STAGE_PARTS_FIELD])
         elif event == C.EVENT_PROGRESS:
             self.step = int(msg.get("step", self.step))
             self.total = int(msg.get("total", self.total))
@@ -96,7 +104,12 @@ class JobState:
         frames) and its ETA, saying what the ETA covers: ``whole`` ("fit": flow, training, evaluation, export),
         or only the running stage while the whole job's is not measured yet."""
         stage = self.job_stage
-        if stage == "flow":
+        flow_done = stage == "flow" and 0 < self.stage_total <= self.stage_done
+        if self.stage == C.VERB_PARTS and stage in ("", "flow"):  # looking for parts, or what it found
+            return self.parts_message
+        if flow_done and self.stage not in ("", "flow") and self.total == 0:
+            text = self.message  # after the flow, before the first step: what the engine says it does
+        elif stage == "flow":
             text = f"optical flow {self.stage_done}/{self.stage_total}"
         elif stage == "evaluate":
             text = "evaluating every pixel"
@@ -117,7 +130,24 @@ class JobState:
             text += f" · ETA {format_seconds(self.stage_eta)} for {what}"
         elif self.job_fraction is None and self.eta is not None:
             text += f" · ETA {format_seconds(self.eta)}"  # an engine without whole-job estimates: training's
+        if self.parts is not None and self.parts >= 2:
+            text += f" · {split_text(self.parts)}"
         return text
+
+
+def split_text(parts: int) -> str:
+    """What the status line says of a split: the object fitted as ``parts`` layers."""
+    return f"Find Parts: the object split into {parts} parts that move apart"
+
+
+def parts_finding(log_path: str) -> tuple[int, str] | None:
+    """The parts search's last finding in a fit's log (a resumed fit's too: its log goes on): (parts, its message);
+    None when the fit did not search."""
+    found = None
+    for msg in logged_events(log_path, C.EVENT_STAGE):
+        if msg.get("stage") == C.VERB_PARTS and C.STAGE_PARTS_FIELD in msg:
+            found = (int(msg[C.STAGE_PARTS_FIELD]), str(msg.get("message", "")))
+    return found
 
 
 def format_seconds(seconds: float) -> str:

@@ -89,6 +89,10 @@ MATTE_EXT = ".exr"
 #: The matte of the paint: where the edit layers cover the plate, ``sum_i A_i`` (the alpha the Blend frame puts over
 #: the plate). Not a layer name: layers are Background, Foreground, Foreground1, ... (``contract.layer_name``).
 PAINT_MATTE = "Paint"
+#: The matte of every foreground layer together, ``sum_i a_i`` over the foregrounds' alpha passes, offered when there
+#: are two or more: the whole object when Find Parts split it into the parts that move apart (one holdout for "the
+#: dog", not a sum the artist builds). Not a layer name either.
+FOREGROUNDS_MATTE = "Foregrounds"
 
 
 class PlanError(ValueError):
@@ -151,7 +155,8 @@ class TreePlan:
     pixel_aspect: tuple[float, float] = (1.0, 1.0)
     """The scene's ``(pixel_aspect_x, pixel_aspect_y)``: the plate's pixel aspect ratio."""
     mattes: list[str] = field(default_factory=list)
-    """The mattes the tree offers and writes: each layer's (its alpha pass), then ``PAINT_MATTE``."""
+    """The mattes the tree offers and writes: each layer's (its alpha pass), then ``PAINT_MATTE``, then
+    ``FOREGROUNDS_MATTE`` where there are two foreground layers or more."""
     groups: list[GroupPlan] = field(default_factory=list)
     """The node groups the nodes use (built before them): ``bilinear_group`` where Map UV has no bilinear filter."""
 
@@ -279,6 +284,10 @@ def plan_tree(
 
     sources = [(layer["name"], n_passes, layer["alpha_pass"]) for layer in manifest["layers"]]
     sources.append((PAINT_MATTE, alpha_node, alpha_socket))
+    nodes.append(frame_spec(FRAME_MATTES, "Mattes", FRAME_MATTES))
+    foregrounds = [layer["alpha_pass"] for layer in manifest["layers"] if layer["role"] == C.ROLE_FOREGROUND]
+    if len(foregrounds) >= 2:
+        sources.append((FOREGROUNDS_MATTE, *_summed(nodes, links, n_passes, foregrounds)))
     _matte_nodes(nodes, links, sources)
     res = passes["resolution"]
     size = (int(res[0]), int(res[1]))
@@ -414,10 +423,23 @@ def _separate(nodes: list[NodeSpec], links: list[LinkSpec], src_node: str, paren
     return n_sep, "alpha"
 
 
-def _matte_nodes(nodes: list[NodeSpec], links: list[LinkSpec], sources: list[tuple[str, str, str]]) -> None:
-    """The Mattes frame: each matte (name, source node, socket) as a named Reroute and the File Output writing it."""
+def _summed(nodes: list[NodeSpec], links: list[LinkSpec], n_passes: str, sockets: list[str]) -> tuple[str, str]:
+    """The sum of the passes image's ``sockets`` (Math Add nodes in the Mattes frame): (node, socket) of the sum."""
     f_mattes = frame_node_name(FRAME_MATTES)
-    nodes.append(frame_spec(FRAME_MATTES, "Mattes", FRAME_MATTES))
+    node, socket = n_passes, sockets[0]
+    for i, other in enumerate(sockets[1:], start=1):
+        n_add = f"{PREFIX}AddForeground_{i}"
+        nodes.append(NodeSpec(n_add, ADD_VALUE, (550.0, -400.0 - 120.0 * i), parent=f_mattes))
+        links.append(LinkSpec(node, socket, n_add, "a"))
+        links.append(LinkSpec(n_passes, other, n_add, "b"))
+        node, socket = n_add, "value"
+    return node, socket
+
+
+def _matte_nodes(nodes: list[NodeSpec], links: list[LinkSpec], sources: list[tuple[str, str, str]]) -> None:
+    """In the Mattes frame (made before: ``plan_tree``): each matte (name, source node, socket) as a named Reroute and
+    the File Output writing it."""
+    f_mattes = frame_node_name(FRAME_MATTES)
     for k, (matte, src_node, src_socket) in enumerate(sources):
         y = 200.0 - 130.0 * k
         n_matte, n_file = matte_node_name(matte), matte_file_node_name(matte)

@@ -13,7 +13,7 @@ import bpy
 from bpy.props import BoolProperty, FloatProperty
 
 from ..core import engine_process as EP
-from ..core import estimate, needs, running
+from ..core import estimate, needs, progress, running
 from ..core import frames as F
 from ..core import tree_plan as P
 from ..core.errors import UserError
@@ -38,6 +38,16 @@ def _clip_poll(cls: Any, context: Any, has_clip: bool, line: str) -> bool:
 def _timeout() -> Any:
     """The blocking path's limit in seconds, after which the job is cancelled (scripts, tests; 0: none)."""
     return FloatProperty(name="Timeout", default=0.0, options={"SKIP_SAVE", "HIDDEN"}, description="0: none")
+
+
+def done_text(layers: list[str], parts: tuple[int, str] | None) -> str:
+    """The status line once Fit Atlas imported its export: the layers, and where Find Parts split the object, which
+    layers its parts are and the matte of the whole object."""
+    text = f"done: {len(layers)} layers in the compositor ({', '.join(layers)})"
+    if parts is None or parts[0] < 2:
+        return text
+    found = ", ".join(name for name in layers[1:])
+    return f"{text}; {progress.split_text(parts[0])}: {found}, together the {P.FOREGROUNDS_MATTE} matte"
 
 
 class NEURALATLAS_OT_fit(EngineJobOperator, bpy.types.Operator):
@@ -79,7 +89,7 @@ class NEURALATLAS_OT_fit(EngineJobOperator, bpy.types.Operator):
                 self.report({"ERROR"}, f"{props.status} (log: {job.log_path})")
                 return {"CANCELLED"}
             props.progress = 1.0
-            props.status = f"done: {len(plan.layers)} layers in the compositor ({', '.join(plan.layers)})"
+            props.status = done_text(plan.layers, progress.parts_finding(job.log_path))
             props.can_resume = False
             self.report({"INFO"}, f"Fit Atlas done; imported {job.manifest}")
             return {"FINISHED"}

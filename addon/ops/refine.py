@@ -28,6 +28,14 @@ from .import_run import IMPORT_ERRORS, import_manifest
 ACTION = "Refine"
 
 
+def holds_fit(props) -> bool:
+    """Whether the panel's Run Folder holds a fit, finished or stopped (Fit Atlas would refuse to overwrite it)."""
+    try:
+        return RunFiles(I.run_dir(props)).has_fit()
+    except UserError:
+        return False
+
+
 def finished_fit(props) -> bool:
     """Whether the panel's Run Folder holds a finished fit (False when no Run Folder can be named yet)."""
     try:

@@ -180,12 +180,12 @@ class PartsSearch:
         report = write_strokes(self.info, folder, motion_parts(masks, flow))
         if report.folder is None:
             said = f"{report.result.message}: fitted as one layer"
-            reporter.emit(C.EVENT_STAGE, stage=C.VERB_PARTS, message=said)
+            reporter.emit(C.EVENT_STAGE, stage=C.VERB_PARTS, message=said, **{C.STAGE_PARTS_FIELD: 0})
             if self.asked:
                 print(f"{SAID_PREFIX}{said}", file=sys.stderr)
             return None
         said = f"{report.result.message} ({self.shown})"
-        reporter.emit(C.EVENT_STAGE, stage=C.VERB_PARTS, message=said)
+        reporter.emit(C.EVENT_STAGE, stage=C.VERB_PARTS, message=said, **{C.STAGE_PARTS_FIELD: report.result.parts})
         print(f"{SAID_PREFIX}{said}", file=sys.stderr)
         size = (masks.shape[2], masks.shape[1])
         return read_scribbles(report.folder, self.info, size), str(Path(report.folder).resolve())

@@ -9,7 +9,10 @@ from typing import Any
 from .versions import SCHEMA_VERSION
 
 PROGRESS_TAG = "neural_atlas"  # every machine-readable line carries {"neural_atlas": SCHEMA_VERSION, ...}
-EVENT_STAGE = "stage"  # {"stage": "flow"|"init"|"train"|"evaluate", "message": str}
+EVENT_STAGE = "stage"  # {"stage": "flow"|"init"|"train"|"evaluate"|"parts", "message": str}
+#: The parts search's finding, on its "parts" stage message once it has searched: how many parts that move apart it
+#: split the one object into (0: it moves as one piece, fitted as one layer). The looking message has none.
+STAGE_PARTS_FIELD = "parts"
 EVENT_PROGRESS = "progress"  # step, total, psnr, elapsed, eta, losses{}; optional job_fraction, job_eta
 EVENT_CHECKPOINT = "checkpoint"  # step, path
 EVENT_DONE = "done"  # metrics{}; job_fraction 1.0 and job_eta 0.0 (the fit's last message: its job is done)
@@ -86,6 +89,7 @@ __all__ = [
     "JOB_STAGES",
     "OPENJD_PROGRESS_ENV",
     "PROGRESS_TAG",
+    "STAGE_PARTS_FIELD",
     "parse_progress_line",
     "progress_line",
 ]

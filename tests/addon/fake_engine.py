@@ -1,5 +1,5 @@
 """A stand-in for ``python -m engine`` in the add-on tests: speaks the progress protocol and misbehaves on
-request (FAKE_ENGINE_MODE = ok | crash | traceback | hang | bad_input). Run as a script: argv[1:] are
+request (FAKE_ENGINE_MODE = ok | crash | traceback | hang | bad_input | parts). Run as a script: argv[1:] are
 what the engine would get after ``-m engine`` (the wrapper drops those two)."""
 
 from __future__ import annotations
@@ -51,7 +51,9 @@ def main(argv: list[str]) -> int:
         # a scribble fit splits its one object: Background, Foreground1, Foreground2
         fit_argv = Path(out) / "fake_fit_argv.txt"
         scribbled = fit_argv.exists() and C.SCRIBBLE_ARG in fit_argv.read_text().split("\n")
-        manifest = make_export(Path(out).parent / (Path(out).name + ".fake_export"), foregrounds=2 if scribbled else 1)
+        split = (Path(out) / "fake_parts.txt").exists()  # parts mode: the search split the object in two
+        foregrounds = 2 if scribbled or split else 1
+        manifest = make_export(Path(out).parent / (Path(out).name + ".fake_export"), foregrounds=foregrounds)
         say(C.EVENT_EXPORTED, manifest=str(manifest))
         print(manifest)
         return 0
@@ -71,6 +73,15 @@ def main(argv: list[str]) -> int:
         print(json.dumps({C.ESTIMATE_TAG: 1, "presets": rows, "argv": argv}), flush=True)
         return 0
     print("tqdm-like noise 10%|#", flush=True)
+    if mode == "parts":  # as `fit` says it: the flow's last pair, the search, its finding (it split the object)
+        say(C.EVENT_JOB, stage="flow", done=4, total=4, stage_eta=0.0, job_fraction=0.1, job_eta=None)
+        say(C.EVENT_STAGE, stage=C.VERB_PARTS, message=f"looking for parts that move apart ({out}/parts)")
+        time.sleep(0.3)
+        found = f"2 parts that move apart, strokes on 5 frame(s) (0, 1, 2, 3, 4) ({out}/parts)"
+        say(C.EVENT_STAGE, stage=C.VERB_PARTS, message=found, **{C.STAGE_PARTS_FIELD: 2})
+        time.sleep(0.3)
+        Path(out).mkdir(parents=True, exist_ok=True)
+        (Path(out) / "fake_parts.txt").write_text(found)
     say(C.EVENT_STAGE, stage="train", message="training")
     if mode == "bad_input":
         print(f"error: {out}/masks: mask folder does not exist — pass the folder that holds the masks", file=sys.stderr)
@@ -82,6 +93,9 @@ def main(argv: list[str]) -> int:
     while True:
         step += 1
         say(C.EVENT_PROGRESS, step=step, total=total, psnr=20.0 + step, elapsed=0.1 * step, eta=0.1 * (total - step))
+        if mode == "parts":  # as `fit` says it: the training stage's count, and the whole job's
+            say(C.EVENT_JOB, stage="train", done=step, total=total, stage_eta=0.05 * (total - step),
+                job_fraction=0.1 + 0.8 * step / total, job_eta=0.05 * (total - step))  # fmt: skip
         if mode == "crash" and step == 2:
             os.kill(os.getpid(), signal.SIGKILL)
         if mode == "traceback" and step == 2:

@@ -74,10 +74,14 @@ def stand_in_pip(venv, release: Path | None = None) -> None:
 
 class RecordingLayout:
     """A stand-in for a panel's ``layout`` (``draw()`` never runs headless: there is no region): every call is
-    recorded in ``calls`` as (name, args, kwargs) and returns the layout again."""
+    recorded in ``calls`` as (name, args, kwargs) and returns the layout again; a property set on it (``enabled``,
+    ``active``) is recorded as ("set", (name, value), {})."""
 
     def __init__(self):
-        self.calls: list[tuple[str, tuple, dict]] = []
+        object.__setattr__(self, "calls", [])
+
+    def __setattr__(self, name, value):
+        self.calls.append(("set", (name, value), {}))
 
     def __getattr__(self, name):
         def record(*args, **kwargs):

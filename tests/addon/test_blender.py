@@ -129,9 +129,9 @@ def test_compositor_three_layers_matches_render_equation(blender, tmp_path, lut)
     scene = _import(blender, manifest, P.FILTER_NEAREST)
     tree = _tree(scene)
     ours = {n.name for n in tree.nodes if n.name.startswith(P.PREFIX)}
-    # + 7 frames, and a Reroute and a File Output per matte (3 layers + paint); 4.x: a bilinear group and a Switch
-    # per layer
-    assert len(ours) == 19 + 15 + (0 if compat.V5 else 6)
+    # + 7 frames, and a Reroute and a File Output per matte (3 layers, paint, the foregrounds with their Add node);
+    # 4.x: a bilinear group and a Switch per layer
+    assert len(ours) == 19 + 15 + 3 + (0 if compat.V5 else 6)
     assert {"NA_MapUV_Background", "NA_MapUV_Foreground1", "NA_MapUV_Foreground2"} <= ours
     out_dir = tmp_path / "out"
     assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out_dir), file_format="exr") == {"FINISHED"}
@@ -318,6 +318,24 @@ def test_fit_operator_runs_engine_exports_and_imports(fit_scene, tmp_path):
     assert " export " in log
 
 
+def test_a_split_is_announced_and_the_whole_object_has_a_matte(fit_scene, monkeypatch):
+    """Find Parts split the object: the panel's status line says so after the import and names the layers that are
+    its parts, and the compositor offers their matte together (the whole object)."""
+    props, _ = fit_scene
+    monkeypatch.setenv("FAKE_ENGINE_MODE", "parts")
+    assert _fit() == {"FINISHED"}
+    assert props.status == (
+        "done: 3 layers in the compositor (Background, Foreground1, Foreground2); Find Parts: the object split into 2 "
+        f"parts that move apart: Foreground1, Foreground2, together the {P.FOREGROUNDS_MATTE} matte"
+    )
+    assert P.matte_node_name(P.FOREGROUNDS_MATTE) in _tree(bpy.context.scene).nodes
+    from helpers import RecordingLayout
+    from neural_atlas.addon import ui
+
+    calls = RecordingLayout().draw(ui.NEURALATLAS_PT_fit, bpy.context)
+    assert props.status in [kw.get("text") for name, _, kw in calls if name == "label"]
+
+
 def test_fit_operator_on_a_movie_clip(fit_scene, tmp_path):
     """A movie plate: the engine gets the file; masks are named by position (the engine matches by count)."""
     props, src = fit_scene
@@ -366,7 +384,14 @@ def test_fit_operator_cancel_then_resume(fit_scene, monkeypatch):
     stopped = re.fullmatch(r"cancelled at step (\d+); Resume continues from the checkpoint", props.status)
     assert pressed and stopped and int(stopped[1]) >= pressed[0] >= 3 and props.can_resume, props.status
     assert 0.0 < props.progress < 1.0  # the bar moved with the engine's progress lines (hang mode: total 1000)
-    _fit_error("already holds a fit")  # a second plain fit refuses to overwrite the run
+    from helpers import RecordingLayout
+    from neural_atlas.addon import ui
+
+    calls = RecordingLayout().draw(ui.NEURALATLAS_PT_fit, bpy.context)  # Fit Atlas greyed, saying why
+    at = next(i for i, (name, a, _) in enumerate(calls) if name == "operator" and a[0] == "neural_atlas.fit")
+    assert calls[at - 1] == ("set", ("enabled", False), {})
+    assert needs.USED_RUN_FOLDER in [kw.get("text") for name, _, kw in calls if name == "label"]
+    _fit_error("already holds a fit")  # a second plain fit, called anyway, refuses to overwrite the run
     assert "already holds a fit" in props.status
     monkeypatch.setenv("FAKE_ENGINE_MODE", "ok")
     assert _fit(resume=True) == {"FINISHED"}

@@ -67,3 +67,26 @@ def test_fit_bar_moves_through_every_stage_and_resume_continues(tmp_path):
     assert bars2 == sorted(bars2) and bars2[-1] == 1.0, second  # nor does the export's start
     exporting = [line for label, _, line in second if label == "export"]
     assert any(line.startswith("exporting passes ") and "for the whole fit" in line for line in exporting), exporting
+
+
+def test_the_status_line_says_what_find_parts_found_while_and_after_the_fit(tmp_path, monkeypatch):
+    """The parts search (after the flow, before training) is the status line while it runs and once it has found
+    the parts, not "optical flow 4/4"; training's line then says the object was split; the fit's log keeps the
+    finding for the line once it is imported (``progress.parts_finding``), a resumed fit's too."""
+    from helpers import fake_python
+    from neural_atlas.addon.core import progress
+
+    monkeypatch.setenv("FAKE_ENGINE_MODE", "parts")
+    run = str(tmp_path / "run")
+    clip = EC.ClipInputs(str(tmp_path / "frames"), (str(tmp_path / "masks"),), 0, 4)
+    job = FitJob(fake_python(tmp_path), run, lambda: clip, "draft", [])
+    lines = [line for _, _, line in _drive(job)]
+    assert job.result is not None and job.result.status == EP.STATUS_OK, job.result
+    looking, found = f"looking for parts that move apart ({run}/parts)", progress.parts_finding(job.log_path)
+    assert found == (2, f"2 parts that move apart, strokes on 5 frame(s) (0, 1, 2, 3, 4) ({run}/parts)")
+    assert looking in lines and found[1] in lines
+    assert not any(line.startswith("optical flow") for line in lines[lines.index(looking) :]), sorted(set(lines))
+    training = [line for line in lines if line.startswith("step ")]
+    assert training and all(line.endswith(" · Find Parts: the object split into 2 parts that move apart")
+                            for line in training)  # fmt: skip
+    assert progress.parts_finding(str(tmp_path / "no.log")) is None

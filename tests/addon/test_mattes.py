@@ -62,8 +62,10 @@ def test_render_writes_each_layers_matte_and_the_paints_per_plate_frame(blender,
     out = tmp_path / "out"
     assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out), file_format="exr") == {"FINISHED"}
     layers = X.layer_names(2)
-    assert sorted(p.name for p in (out / P.MATTES_DIR).iterdir()) == sorted([*layers, P.PAINT_MATTE])
-    worst_layer = worst_paint = 0.0
+    assert sorted(p.name for p in (out / P.MATTES_DIR).iterdir()) == sorted(
+        [*layers, P.PAINT_MATTE, P.FOREGROUNDS_MATTE]
+    )
+    worst_layer = worst_paint = worst_object = 0.0
     for frame in FRAMES:
         ch = _passes(manifest, frame)
         for layer in layers:
@@ -73,8 +75,15 @@ def test_render_writes_each_layers_matte_and_the_paints_per_plate_frame(blender,
         # the paint's coverage: sum_i A_i, the alpha the render puts over the plate (plate * (1 - A) + rgb)
         paint = _read_matte(P.matte_path(str(out), P.PAINT_MATTE, frame))
         worst_paint = max(worst_paint, float(np.abs(paint - _paint_coverage(manifest, frame)).max()))
-    print(f"{TAG} mattes vs alpha passes: max abs err {worst_layer:.1e}; paint matte vs sum A_i: {worst_paint:.1e}")
-    assert worst_layer <= 1e-6 and worst_paint <= 1e-5
+        # the whole object (every foreground layer: the parts Find Parts split it into) as one matte
+        whole = _read_matte(P.matte_path(str(out), P.FOREGROUNDS_MATTE, frame))
+        alphas = sum(ch[C.channel_name(C.alpha_pass(layer), "V")] for layer in layers[1:])
+        worst_object = max(worst_object, float(np.abs(whole - alphas).max()))
+    print(
+        f"{TAG} mattes vs alpha passes: max abs err {worst_layer:.1e}; paint matte vs sum A_i: {worst_paint:.1e}; "
+        f"foregrounds matte vs their alphas' sum {worst_object:.1e}"
+    )
+    assert worst_layer <= 1e-6 and worst_paint <= 1e-5 and worst_object <= 1e-6
 
 
 def test_write_mattes_off_writes_none_and_the_render_is_the_same(blender, tmp_path):
@@ -140,7 +149,8 @@ def test_frames_and_mattes_leave_the_render_bit_for_bit_the_same(blender, tmp_pa
     assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(with_all), file_format="exr") == {"FINISHED"}
     tree = compat.scene_tree(scene)
     extra = [n for n in tree.nodes if n.bl_idname in ("NodeFrame", "NodeReroute", "CompositorNodeOutputFile")]
-    assert len(extra) == 7 + 4 + 4
+    extra += [n for n in tree.nodes if n.name.startswith(f"{P.PREFIX}AddForeground_")]  # the Foregrounds matte's sum
+    assert len(extra) == 7 + 5 + 5 + 1
     for node in extra:
         tree.nodes.remove(node)
     bare = tmp_path / "bare"

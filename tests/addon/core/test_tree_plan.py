@@ -61,7 +61,9 @@ def test_plan_three_layers_sums_every_layer(tmp_path):
     m["layers"].append(extra)
     plan = P.plan_tree(m, str(mp))
     k = kinds(plan)
-    assert (k[P.MAP_UV], k[P.ADD_COLOR], k[P.ADD_VALUE], k[P.SEPARATE]) == (3, 2, 2, 3)
+    assert (k[P.MAP_UV], k[P.ADD_COLOR], k[P.ADD_VALUE], k[P.SEPARATE]) == (3, 2, 2 + 1, 3)  # + the Foregrounds sum
+    assert plan.mattes == ["Background", "Foreground", "Foreground2", P.PAINT_MATTE, P.FOREGROUNDS_MATTE]
+    assert P.plan_tree(C.load_manifest(str(mp)), str(mp)).mattes == ["Background", "Foreground", P.PAINT_MATTE]
 
 
 def test_float_edit_layer_wins_over_the_png_when_both_exist(tmp_path):
@@ -89,7 +91,8 @@ def test_plan_from_a_three_layer_export(tmp_path):
     plan = P.plan_tree(m, str(mp), P.FILTER_NEAREST)
     assert plan.layers == ["Background", "Foreground1", "Foreground2"]
     k = kinds(plan)
-    assert (k[P.IMAGE], k[P.MAP_UV], k[P.SEPARATE], k[P.ADD_COLOR], k[P.ADD_VALUE]) == (4, 3, 3, 2, 2)
+    # ADD_VALUE: the paint's alpha sum (2) and the Foregrounds matte's (1)
+    assert (k[P.IMAGE], k[P.MAP_UV], k[P.SEPARATE], k[P.ADD_COLOR], k[P.ADD_VALUE]) == (4, 3, 3, 2, 3)
     assert (k[P.SET_ALPHA], k[P.ALPHA_OVER], k[P.OUTPUT], k[P.PLATE]) == (1, 1, 1, 1)
     links = {(lk.from_node, lk.from_socket, lk.to_node, lk.to_socket) for lk in plan.links}
     for name in plan.layers:
