@@ -405,7 +405,8 @@ def _add_realign_parser(sub: argparse._SubParsersAction) -> None:
         default=None,
         metavar="vNNN|MANIFEST",
         help="the export the edit layers were painted on (default: the one edits/aligned.json records, which "
-        "fit --refine writes; else the export before MANIFEST's)",
+        "fit --refine writes; else the export before MANIFEST's); an export of another fit of the same plate "
+        "(another run folder: other layers, another preset) has its paint carried onto MANIFEST's edit layers",
     )
     add_layers(ra)
     ra.add_argument(

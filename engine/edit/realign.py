@@ -174,10 +174,12 @@ def resolve_exports(target: str | Path, source: str | Path | None) -> tuple[Mani
                 "is not an export of this run (the paint's export is needed to carry it over)",
                 "pass --from with the export the edit layers were painted on",
             )
-    old = Manifest(src)
-    if old.run_root.resolve() != run.resolve():
-        raise InputError(old.path, f"is an export of another run than {new.path}", "pass an export of the same run")
-    return old, new
+    return Manifest(src), new  # an export of another run: its paint is carried (``carry``)
+
+
+def _other_fit(old: Manifest, new: Manifest) -> bool:
+    """Whether ``old`` is an export of another fit (run folder) than ``new``: then its paint is carried (``carry``)."""
+    return old.run_root.resolve() != new.run_root.resolve()
 
 
 def realign(
@@ -190,6 +192,8 @@ def realign(
     Returns the new manifest and the edit layers changed (name -> file). Already aligned to ``target``: nothing."""
     old, new = resolve_exports(target, source)
     new.check_layers(layers)
+    if _other_fit(old, new):
+        return new, _carry(old, new, layers, frame_step)
     if old.folder.resolve() == new.folder.resolve() or aligned_export(new.run_root) == new.folder.name:
         print(f"edit layers already match {new.folder.name}: nothing to realign", file=sys.stderr)
         return new, {}
@@ -223,6 +227,34 @@ def realign(
     return new, written
 
 
+def _carry(old: Manifest, new: Manifest, layers: list[str] | None, frame_step: int) -> dict[str, Path]:
+    """The paint of ``old`` (an export of another fit of the same plate) laid onto ``new``'s edit layers
+    (``carry.carry_edits``); the edit layers changed (name -> file)."""
+    from .carry import carry_edits, check_same_plate
+
+    check_same_plate(old, new)
+    frames = common_frames(old, new, frame_step)
+    with C.run_lock(new.run_root, C.VERB_REALIGN):
+        targets = [new.edit_file(layer) for layer in new.layers]
+        lacking = next((p for p in targets if not p.exists()), None)
+        if lacking is not None:
+            raise InputError(lacking, "edit layer does not exist", "export the new fit again, then carry the paint")
+        changed = carry_edits(old, new, frames, load_edits(old), [load_edit(p) for p in targets])
+        changes = [
+            _Change(new.layers[j], targets[j], edit)
+            for j, edit in sorted(changed.items())
+            if layers is None or new.layers[j]["name"] in layers
+        ]
+        _replace_edit_layers(new, changes)
+        write_aligned(new.run_root, new.folder.name)
+    written = {c.layer["name"]: c.path for c in changes}
+    for name, path in written.items():
+        print(f"{name}: paint carried from {old.path} in {path}", file=sys.stderr)
+    if not written:
+        print(f"no painted texel of {old.path} is seen where {new.path} shows the plate", file=sys.stderr)
+    return written
+
+
 def realign_measured(
     target: str | Path, source: str | Path | None = None, layers: list[str] | None = None, frame_step: int = 1
 ) -> tuple[Manifest, dict[str, Any]]:
@@ -230,14 +262,15 @@ def realign_measured(
     re-aligned edit layers (``realigned``) and with the edit layers as they were (``not_realigned``)."""
     old, new = resolve_exports(target, source)
     before = load_edits(new)
+    painted = load_edits(old) if _other_fit(old, new) else before  # the paint as it was painted
     manifest, written = realign(new.path, old.path, layers, frame_step)
     after = load_edits(new)
     return manifest, {
-        "from": old.folder.name,
+        "from": old.folder.name if not _other_fit(old, new) else str(old.path),
         "to": new.folder.name,
         "layers": sorted(written),
-        "realigned": placement_error(old, new, before, after),
-        "not_realigned": placement_error(old, new, before, before),
+        "realigned": placement_error(old, new, painted, after),
+        "not_realigned": placement_error(old, new, painted, before),
     }
 
 
@@ -262,8 +295,9 @@ def placement_error(
 ) -> dict[str, Any]:
     """How far the paint ``new_edits`` rendered through ``new`` lands from ``old_edits`` through ``old`` over the
     frames both share: mean and max absolute colour difference (premultiplied linear, the channels' max) over the
-    pixels painted in either, and the IoU of the painted areas (cover >= ``PAINTED_COVER``)."""
-    total = inter = union = 0
+    pixels painted in either, the IoU of the painted areas (cover >= ``PAINTED_COVER``), and ``landed``: the share
+    of the old paint's pixels that the new paint covers."""
+    total = inter = union = painted_old = 0
     err_sum, err_max = 0.0, 0.0
     frames = common_frames(old, new, step)
     for frame in frames:
@@ -272,6 +306,7 @@ def placement_error(
         a, b = cov_old >= PAINTED_COVER, cov_new >= PAINTED_COVER
         inter += int((a & b).sum())
         union += int((a | b).sum())
+        painted_old += int(a.sum())
         region = (cov_old > 0.0) | (cov_new > 0.0)
         if region.any():
             diff = np.abs(np.concatenate((rgb_old, cov_old[..., None]), -1) -
@@ -285,6 +320,7 @@ def placement_error(
         "mean_error": err_sum / max(total, 1),
         "max_error": err_max,
         "iou": inter / union if union else 1.0,
+        "landed": inter / painted_old if painted_old else 1.0,
     }
 
 
