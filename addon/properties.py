@@ -107,6 +107,11 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
         description="Refine with this preset's learning rates and schedule (a preset the fit was not trained for "
         "is refused by the engine, saying why)",
     )
+    carry_from: StringProperty(
+        name="Paint From",
+        subtype="FILE_PATH",
+        description="Another fit of this plate (its run folder or manifest.json) whose paint Carry Paint takes",
+    )
     layers: CollectionProperty(type=NEURALATLAS_PG_layer, description="The foreground objects to fit, a layer each")
     layer_index: IntProperty(description="The layer selected in the list")
     use_scribbles: BoolProperty(

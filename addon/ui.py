@@ -204,6 +204,9 @@ def draw_paint_render(layout, context) -> None:
     outside = V.outside_export(context.scene.frame_current, preview_plane.export_frames()) if shown else None
     if outside:
         col.label(text=outside, icon="INFO")
+    row = col.row(align=True)  # another fit's paint, laid on this one's atlases (engine realign --from)
+    row.prop(props, "carry_from")
+    row.operator("neural_atlas.carry_paint", icon="PASTEDOWN")
     row = col.row(align=True)  # paint over one plate frame, landed on the atlases (engine project-frame)
     row.operator("neural_atlas.frame_paint_start", icon="TPAINT_HLT")
     row.operator("neural_atlas.frame_paint_land", icon="IMPORT")

@@ -117,6 +117,12 @@ def realign_argv(python: str, run_dir: str) -> list[str]:
     return engine_argv(python, C.VERB_REALIGN, run_dir)
 
 
+def carry_argv(python: str, manifest: str, source: str) -> list[str]:
+    """``realign MANIFEST --from SOURCE --measure``: the paint of ``source`` (an export of another fit of the same
+    plate) laid onto ``manifest``'s edit layers, and how much of it landed (one JSON line)."""
+    return engine_argv(python, C.VERB_REALIGN, manifest, "--from", source, "--measure")
+
+
 def export_argv(python: str, run_dir: str, follow_flow: bool = True) -> list[str]:
     """``export RUN``: with the engine's default (the UV follows the flow where the fit's flow is there), or the
     UV as fitted (``follow_flow`` False: ``--no-follow-flow``)."""

@@ -9,11 +9,13 @@ is then the last command's, as each kind of job reads it:
 - ``RefineJob``: ``engine fit --refine``, ``engine export``, then ``engine realign`` (the paint carried over).
 - ``MasksJob``: ``engine masks`` into a fresh folder; what it found comes from the log's ``masks`` event.
 - ``EstimateJob``: ``engine estimate --json``; the rows per preset come from the log.
+- ``CarryJob``: ``engine realign --from`` another fit of the plate, measured; how much paint landed from the log.
 - ``engine_setup.SetupJob``: create the engine's environment, then pip-install its requirements.
 """
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -289,3 +291,46 @@ class EstimateJob(Job):
         if result.status == EP.STATUS_OK and not self.rows:
             return failed(result, "the engine printed no estimate")
         return result
+
+
+class CarryJob(Job):
+    """Carry Paint: ``engine realign MANIFEST --from SOURCE --measure`` (``EC.carry_argv``): the paint of another fit of
+    the same plate laid onto this fit's edit layers; ``report`` (the engine's measure: ``landed``, ``iou``, the layers
+    changed) once it has finished."""
+
+    idle_text = "carrying the paint over…"
+
+    def __init__(self, python: str, manifest: str, source: str, run_dir: str):
+        self.manifest, self.source = manifest, source
+        argv = EC.carry_argv(python, manifest, source)
+        super().__init__([Command("carry", argv)], RunFiles(run_dir).carry_log, EC.engine_env())
+        self.report: dict | None = None
+
+    def finish(self, result: EP.JobResult) -> EP.JobResult:
+        if result.status == EP.STATUS_OK:
+            self.report = carry_report(self.log_path)
+            if self.report is None:
+                return failed(result, "realign printed no measure")
+        return result
+
+
+def carry_report(log_path: str) -> dict | None:
+    """The measure ``realign --measure`` printed (its last JSON line holding ``realigned``); None without one."""
+    found = None
+    for line in progress.read_log(log_path).splitlines():
+        if line.startswith("{") and '"realigned"' in line:
+            try:
+                found = json.loads(line)
+            except ValueError:
+                continue
+    return found
+
+
+def carry_text(source: str, report: dict) -> str:
+    """The status line once the paint was carried: which layers took it and how much of it landed."""
+    done = report.get("realigned", {})
+    layers = ", ".join(report.get("layers") or []) or "no layer"
+    return (
+        f"paint carried from {source}: {done.get('landed', 0.0):.0%} of its pixels landed on this fit "
+        f"({layers}; IoU {done.get('iou', 0.0):.2f} over {done.get('frames', 0)} frames)"
+    )

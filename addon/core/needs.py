@@ -122,6 +122,17 @@ def clip_need(has_clip: bool, line: str = NO_FIT_CLIP) -> str | None:
     return None if has_clip else line
 
 
+#: Carry Paint without a fit to take the paint from.
+NO_CARRY_SOURCE = "Choose Paint From: another fit of this plate (its run folder or manifest.json)"
+
+
+def carry_need(manifest: str, source: str) -> str | None:
+    """Carry Paint: an import to carry onto, and another fit to carry from."""
+    if not manifest:
+        return NO_IMPORT
+    return None if source else NO_CARRY_SOURCE
+
+
 def save_edits_need(edit_layers: int, unsaved: int) -> str | None:
     """Save Edits: edit layers loaded (``edit_layers``: how many) and paint not yet saved in ``unsaved`` of them."""
     if edit_layers == 0:

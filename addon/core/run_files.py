@@ -9,6 +9,7 @@ for the engine and what it logged:
     RUN.blender.log       the fit and export commands' output
     RUN.masks.log         Find Masks' output
     RUN.estimate.log      Estimate Time's output
+    RUN.carry.log         Carry Paint's output
     RUN.farm/shots.json   Submit to Farm's shots file (the clip as the farm's engine reads it)
     RUN.farm/openjd/      Submit to Farm's OpenJD bundles (openjd_2, ... for later submissions)
     RUN.farm.log          Submit to Farm's output
@@ -54,6 +55,7 @@ class RunFiles:
         self.fit_log = run_dir + ".blender.log"
         self.masks_log = run_dir + ".masks.log"
         self.estimate_log = run_dir + ".estimate.log"
+        self.carry_log = run_dir + ".carry.log"
         self.scribbles = run_dir + ".scribbles"
         self.farm_dir = run_dir + ".farm"
         self.farm_log = run_dir + ".farm.log"

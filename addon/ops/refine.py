@@ -6,17 +6,22 @@ the import at the end reloads the images). The job (``core.jobs.RefineJob``) run
 ``exports/vNNN``; the earlier exports stay) and ``realign`` (the edit layers moved from the export they were painted
 on onto the new mapping, the old ones kept in ``edits/history``); then the new export is imported like a finished
 Fit Atlas.
+
+Carry Paint does the same for another fit of the same plate (another Run Folder: a better preset, other masks, Find
+Parts on or off): ``realign --from`` that fit's export lays its paint onto the imported fit's edit layers, whatever
+layers either has, and says how much of it landed (``core.jobs.CarryJob``).
 """
 
 from __future__ import annotations
 
 import bpy
 
+from ...engine import contract as C
 from .. import edit_layers
 from ..core import engine_process as EP
-from ..core import needs, running
+from ..core import needs, relink, running
 from ..core.errors import UserError
-from ..core.jobs import RefineJob
+from ..core.jobs import CarryJob, RefineJob, carry_text
 from ..core.run_files import RunFiles
 from ..properties import REFINE_SAME_PRESET
 from . import scene_inputs as I
@@ -94,4 +99,73 @@ class NEURALATLAS_OT_refine(EngineJobOperator, bpy.types.Operator):
         return {"CANCELLED"}
 
 
-classes = (NEURALATLAS_OT_refine,)
+#: What the carried paint's reload is called in its lines (``edit_layers.save_before_reload``).
+CARRY_ACTION = "Carry Paint"
+
+
+def carry_source(props) -> str:
+    """The manifest Carry Paint takes the paint from: the Paint From setting (a run folder: its newest export's
+    manifest; ``core.relink.find_manifest``); UserError (one line) when it names none, or names this fit."""
+    if not props.carry_from:
+        raise UserError("choose Paint From: another fit of this plate (its run folder, or its manifest.json)")
+    try:
+        source = relink.find_manifest(I.abspath(props.carry_from))
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    if C.manifest_run_root(source) == C.manifest_run_root(imported_manifest_path(props)):
+        raise UserError("Paint From is this fit's own run folder: Refine carries its paint; choose another fit")
+    return source
+
+
+def imported_manifest_path(props) -> str:
+    return I.abspath(props.manifest) if props.manifest else ""
+
+
+class NEURALATLAS_OT_carry_paint(EngineJobOperator, bpy.types.Operator):
+    """Lay the paint of another fit of this plate (Paint From) onto this fit's edit layers, whatever its layers"""
+
+    bl_idname = "neural_atlas.carry_paint"
+    bl_label = "Carry Paint"
+    # no undo step: it rewrites the edit layer files (their old pixels are in edits/history), which undo cannot restore
+    bl_options = {"REGISTER"}  # noqa: RUF012 (Blender reads a set)
+
+    timeout: _timeout()
+
+    @classmethod
+    def poll(cls, context) -> bool:
+        if context.scene is None or not EngineJobOperator.poll.__func__(cls, context):  # type: ignore[attr-defined]
+            return False
+        props = context.scene.neural_atlas
+        return needs.poll(cls, needs.carry_need(props.manifest, props.carry_from))
+
+    def make_job(self, context) -> CarryJob:
+        props = context.scene.neural_atlas
+        python, manifest = I.engine_python(context), imported_manifest_path(props)
+        job = CarryJob(python, manifest, carry_source(props), C.manifest_run_root(manifest))
+        try:
+            edit_layers.save_before_reload(CARRY_ACTION)  # the engine lays the paint over what is in the files
+        except (ValueError, OSError) as exc:
+            raise UserError(f"{CARRY_ACTION}: {exc}") from None
+        return job
+
+    def finish(self, context, job: CarryJob, result: EP.JobResult) -> set[str]:
+        props = context.scene.neural_atlas
+        props.log_path = job.log_path
+        if result.status == EP.STATUS_OK and job.report is not None:
+            try:
+                import_manifest(context, job.manifest, action=CARRY_ACTION)  # the edit layers reloaded
+            except (*IMPORT_ERRORS, RuntimeError) as exc:
+                props.status = f"import failed: {exc}"
+                self.report({"ERROR"}, f"{props.status} (log: {job.log_path})")
+                return {"CANCELLED"}
+            props.progress = 1.0
+            props.status = carry_text(job.source, job.report)
+            self.report({"INFO"}, props.status)
+            return {"FINISHED"}
+        props.status = result.message
+        level = "WARNING" if result.status == EP.STATUS_CANCELLED else "ERROR"
+        self.report({level}, f"{CARRY_ACTION} {result.status}: {result.message} (log: {job.log_path})")
+        return {"CANCELLED"}
+
+
+classes = (NEURALATLAS_OT_refine, NEURALATLAS_OT_carry_paint)

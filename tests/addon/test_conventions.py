@@ -52,9 +52,10 @@ NO_UNDO = {
     "render",
     "frame_paint_land",
     "render_cancel",
+    "carry_paint",
 }
 #: The engine job operators (ops/driver.py): run modal from their buttons.
-JOBS = ("fit", "refine", "find_masks", "estimate", "setup_engine", "submit_farm", "frame_paint_land")
+JOBS = ("fit", "refine", "find_masks", "estimate", "setup_engine", "submit_farm", "frame_paint_land", "carry_paint")
 
 
 def _name(cls) -> str:
