@@ -100,7 +100,7 @@ class _SidebarPanel:
 
     bl_space_type = "CLIP_EDITOR"
     bl_region_type = "UI"
-    bl_category = "Fit Atlas"
+    bl_category = "Neural Atlas"  # the add-on's tab in every editor: it holds Fit Atlas and Paint & Render
 
 
 class NEURALATLAS_PT_fit(_SidebarPanel, bpy.types.Panel):
