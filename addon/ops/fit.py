@@ -46,7 +46,7 @@ def done_text(layers: list[str], parts: tuple[int, str] | None) -> str:
     text = f"done: {len(layers)} layers in the compositor ({', '.join(layers)})"
     if parts is None or parts[0] < 2:
         return text
-    found = ", ".join(name for name in layers[1:])
+    found = ", ".join([f"{layers[1]} (the largest)", *layers[2:]])  # the search numbers the parts largest first
     return f"{text}; {progress.split_text(parts[0])}: {found}, together the {P.FOREGROUNDS_MATTE} matte"
 
 

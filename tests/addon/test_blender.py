@@ -326,7 +326,7 @@ def test_a_split_is_announced_and_the_whole_object_has_a_matte(fit_scene, monkey
     assert _fit() == {"FINISHED"}
     assert props.status == (
         "done: 3 layers in the compositor (Background, Foreground1, Foreground2); Find Parts: the object split into 2 "
-        f"parts that move apart: Foreground1, Foreground2, together the {P.FOREGROUNDS_MATTE} matte"
+        f"parts that move apart: Foreground1 (the largest), Foreground2, together the {P.FOREGROUNDS_MATTE} matte"
     )
     assert P.matte_node_name(P.FOREGROUNDS_MATTE) in _tree(bpy.context.scene).nodes
     from helpers import RecordingLayout
