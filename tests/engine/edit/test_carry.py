@@ -130,3 +130,30 @@ def test_a_fit_without_paint_carries_nothing(tmp_path, paint):
     code, lines = run_cli(C.VERB_REALIGN, whole, "--from", split)
     assert code == C.EXIT_OK and lines == [f"no painted texel of {split} is seen where {whole} shows the plate"], lines
     assert _edit(whole, "Foreground").read_bytes() == before
+
+
+@pytest.mark.slow
+def test_paint_carried_from_one_real_fit_to_another_of_the_same_clip(tmp_path):
+    """Two tiny real fits of one clip (the draft schedule, and twice its steps with another seed: a better preset
+    in miniature), each exported: paint on the first's foreground atlas lands on the second's where the object is."""
+    from engine.data.synthetic import SceneSpec, make_scene, write_scene
+    from tests.engine.export.tiny_run import TINY, export
+
+    spec = SceneSpec(width=64, height=48, frames=5, fg_size=(24, 18), fg_start=(12.0, 12.0))
+    frames, masks = write_scene(make_scene(spec), tmp_path / "clip")
+    for run, steps, seed in (("a", 100, 0), ("b", 200, 1)):  # long enough for the alpha to hold the object
+        held = {**TINY, "steps": str(steps), "bootstrap_steps": str(steps), "seed": str(seed), "batch": "4096"}
+        sets = [a for k, v in held.items() for a in ("--set", f"{k}={v}")]
+        code, lines = run_cli("fit", frames, "--mask", masks, "--out", tmp_path / run / "run", "--preset", "draft",
+                              *sets, "--no-bar")  # fmt: skip
+        assert code == C.EXIT_OK, lines
+    old, new = export(tmp_path / "a" / "run"), export(tmp_path / "b" / "run")
+    edit = load_edit(_edit(old, "Foreground"))
+    h, w = edit.shape[:2]
+    edit[h // 4 : 3 * h // 4, w // 4 : 3 * w // 4] = (0.7, 0.2, 0.1, 1.0)  # the middle of the object's atlas
+    save_edit_like(_edit(old, "Foreground"), edit)
+    _, report = realign_measured(new, old)
+    done = report["realigned"]
+    print(f"carried between two real fits: landed {done['landed']:.3f}, IoU {done['iou']:.3f}, "
+          f"over {done['painted_pixels']} painted pixels")  # fmt: skip
+    assert report["layers"] == ["Foreground"] and done["landed"] > 0.8 and done["iou"] > 0.7
