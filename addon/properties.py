@@ -197,6 +197,9 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
         default=0.0, min=0.0, max=1.0, subtype="FACTOR", description="How far the engine's job has got"
     )
     status: StringProperty(default="", description="What the engine's job last said")
+    fit_result: StringProperty(
+        default="", description="What the last Fit Atlas, Refine or Carry Paint made (kept while other jobs run)"
+    )
     log_path: StringProperty(default="", description="The log file of the engine's last job")
     can_resume: BoolProperty(default=False, description="Whether the Run Folder holds a stopped fit to resume")
     # what Submit to Farm last said (the Manager's job, the bundle folder, or why not)

@@ -165,6 +165,8 @@ class NEURALATLAS_PT_fit(_SidebarPanel, bpy.types.Panel):
                 box.operator("neural_atlas.refine", icon="FILE_REFRESH")
             if props.status:
                 col.label(text=props.status)
+            if props.fit_result and props.fit_result != props.status:  # the last fit's outcome, kept in view
+                col.label(text=props.fit_result, icon="CHECKMARK")
             if props.log_path:
                 col.label(text=f"log: {props.log_path}")
         _draw_farm(col, props, context)

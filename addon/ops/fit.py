@@ -89,7 +89,7 @@ class NEURALATLAS_OT_fit(EngineJobOperator, bpy.types.Operator):
                 self.report({"ERROR"}, f"{props.status} (log: {job.log_path})")
                 return {"CANCELLED"}
             props.progress = 1.0
-            props.status = done_text(plan.layers, progress.parts_finding(job.log_path))
+            props.status = props.fit_result = done_text(plan.layers, progress.parts_finding(job.log_path))
             props.can_resume = False
             self.report({"INFO"}, f"Fit Atlas done; imported {job.manifest}")
             return {"FINISHED"}

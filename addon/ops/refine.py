@@ -89,7 +89,9 @@ class NEURALATLAS_OT_refine(EngineJobOperator, bpy.types.Operator):
                 return {"CANCELLED"}
             props.progress = 1.0
             props.can_resume = False
-            props.status = f"refined: {len(plan.layers)} layers, the paint carried over ({job.manifest})"
+            props.status = props.fit_result = (
+                f"refined: {len(plan.layers)} layers, the paint carried over ({job.manifest})"
+            )
             self.report({"INFO"}, f"Refine done; imported {job.manifest}")
             return {"FINISHED"}
         props.can_resume = result.status == EP.STATUS_CANCELLED and job.can_resume()
@@ -159,7 +161,7 @@ class NEURALATLAS_OT_carry_paint(EngineJobOperator, bpy.types.Operator):
                 self.report({"ERROR"}, f"{props.status} (log: {job.log_path})")
                 return {"CANCELLED"}
             props.progress = 1.0
-            props.status = carry_text(job.source, job.report)
+            props.status = props.fit_result = carry_text(job.source, job.report)
             self.report({"INFO"}, props.status)
             return {"FINISHED"}
         props.status = result.message

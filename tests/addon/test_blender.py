@@ -334,6 +334,11 @@ def test_a_split_is_announced_and_the_whole_object_has_a_matte(fit_scene, monkey
 
     calls = RecordingLayout().draw(ui.NEURALATLAS_PT_fit, bpy.context)
     assert props.status in [kw.get("text") for name, _, kw in calls if name == "label"]
+    done = props.status
+    assert bpy.ops.neural_atlas.estimate("EXEC_DEFAULT") == {"FINISHED"}  # the next job has its own line ...
+    assert props.status != done and props.fit_result == done
+    calls = RecordingLayout().draw(ui.NEURALATLAS_PT_fit, bpy.context)
+    assert done in [kw.get("text") for name, _, kw in calls if name == "label"]  # ... and the fit's stays in view
 
 
 def test_fit_operator_on_a_movie_clip(fit_scene, tmp_path):
