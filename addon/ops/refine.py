@@ -41,6 +41,15 @@ def holds_fit(props) -> bool:
         return False
 
 
+def save_paint_first(action: str) -> None:
+    """The edit layers' unsaved paint saved to their files before ``action``'s engine job reads them (and its import
+    reloads them); UserError (one line) when some paint cannot be saved, before anything runs."""
+    try:
+        edit_layers.save_before_reload(action)
+    except (ValueError, OSError) as exc:
+        raise UserError(f"{action}: {exc}") from None
+
+
 def finished_fit(props) -> bool:
     """Whether the panel's Run Folder holds a finished fit (False when no Run Folder can be named yet)."""
     try:
@@ -71,10 +80,7 @@ class NEURALATLAS_OT_refine(EngineJobOperator, bpy.types.Operator):
         python, run_dir = I.engine_python(context), I.run_dir(props)
         preset = None if props.refine_preset == REFINE_SAME_PRESET else props.refine_preset
         job = RefineJob(python, run_dir, props.refine_steps, preset, props.follow_flow)
-        try:
-            edit_layers.save_before_reload(ACTION)  # the engine carries over what is in the files
-        except (ValueError, OSError) as exc:
-            raise UserError(f"{ACTION}: {exc}") from None
+        save_paint_first(ACTION)
         return job
 
     def finish(self, context, job: RefineJob, result: EP.JobResult) -> set[str]:
@@ -144,10 +150,7 @@ class NEURALATLAS_OT_carry_paint(EngineJobOperator, bpy.types.Operator):
         props = context.scene.neural_atlas
         python, manifest = I.engine_python(context), imported_manifest_path(props)
         job = CarryJob(python, manifest, carry_source(props), C.manifest_run_root(manifest))
-        try:
-            edit_layers.save_before_reload(CARRY_ACTION)  # the engine lays the paint over what is in the files
-        except (ValueError, OSError) as exc:
-            raise UserError(f"{CARRY_ACTION}: {exc}") from None
+        save_paint_first(CARRY_ACTION)
         return job
 
     def finish(self, context, job: CarryJob, result: EP.JobResult) -> set[str]:
