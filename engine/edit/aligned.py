@@ -25,11 +25,25 @@ def aligned_export(run_dir: str | Path) -> str | None:
         raise InputError(path, "is not an edit-alignment record", "delete it and pass realign --from vNNN") from None
 
 
-def write_aligned(run_dir: str | Path, version: str) -> Path:
-    """Record that the edit layers match export ``version`` (atomically)."""
+def write_aligned(run_dir: str | Path, version: str, carried_from: list[str] | None = None) -> Path:
+    """Record that the edit layers match export ``version`` (atomically), and ``carried_from``: the manifests of
+    other fits whose paint was carried onto it (``carry``), so the same paint is never laid on twice."""
     path = Path(run_dir) / C.EDITS_DIR / C.EDITS_ALIGNED
-    atomic_write_text(path, json.dumps({C.EDITS_ALIGNED_TAG: 1, "export": version}, indent=2))
+    record: dict[str, object] = {C.EDITS_ALIGNED_TAG: 1, "export": version}
+    if carried_from:
+        record["carried_from"] = list(carried_from)
+    atomic_write_text(path, json.dumps(record, indent=2))
     return path
+
+
+def carried_sources(run_dir: str | Path, version: str) -> list[str]:
+    """The manifests whose paint was carried onto export ``version`` of the run (``write_aligned``); [] when the
+    record is of another export, or has none."""
+    if aligned_export(run_dir) != version:
+        return []
+    data = json.loads((Path(run_dir) / C.EDITS_DIR / C.EDITS_ALIGNED).read_text(encoding="utf-8"))
+    found = data.get("carried_from")
+    return [str(p) for p in found] if isinstance(found, list) else []
 
 
 def published_exports(run_dir: str | Path) -> list[str]:
@@ -53,4 +67,4 @@ def record_paint_export(run_dir: str | Path) -> str | None:
     return versions[-1]
 
 
-__all__ = ["aligned_export", "published_exports", "record_paint_export", "write_aligned"]
+__all__ = ["aligned_export", "carried_sources", "published_exports", "record_paint_export", "write_aligned"]

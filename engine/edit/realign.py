@@ -33,7 +33,7 @@ import numpy as np
 from .. import contract as C
 from ..errors import InputError
 from ..export.manifest import Manifest
-from .aligned import aligned_export, published_exports, write_aligned
+from .aligned import aligned_export, carried_sources, published_exports, write_aligned
 from .equations import composite_touched, load_edit, sample_texture
 from .project_frame import REACH_PX, _Change, _replace_edit_layers, _sample_spacing, owners
 
@@ -234,7 +234,12 @@ def _carry(old: Manifest, new: Manifest, layers: list[str] | None, frame_step: i
 
     check_same_plate(old, new)
     frames = common_frames(old, new, frame_step)
+    source = str(old.path.resolve())
     with C.run_lock(new.run_root, C.VERB_REALIGN):
+        earlier = carried_sources(new.run_root, new.folder.name)
+        if source in earlier:
+            print(f"{new.folder.name} already holds the paint of {old.path}: nothing to carry", file=sys.stderr)
+            return {}
         targets = [new.edit_file(layer) for layer in new.layers]
         lacking = next((p for p in targets if not p.exists()), None)
         if lacking is not None:
@@ -246,7 +251,7 @@ def _carry(old: Manifest, new: Manifest, layers: list[str] | None, frame_step: i
             if layers is None or new.layers[j]["name"] in layers
         ]
         _replace_edit_layers(new, changes)
-        write_aligned(new.run_root, new.folder.name)
+        write_aligned(new.run_root, new.folder.name, [*earlier, source])
     written = {c.layer["name"]: c.path for c in changes}
     for name, path in written.items():
         print(f"{name}: paint carried from {old.path} in {path}", file=sys.stderr)

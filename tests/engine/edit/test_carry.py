@@ -94,6 +94,11 @@ def test_a_split_fits_paint_lands_on_a_one_layer_fit_and_back(tmp_path):
     fg = load_edit(_edit(whole, "Foreground"))
     assert (fg[..., 0] > 0.5).sum() > 20 and (fg[..., 2] > 0.5).sum() > 20
     assert len(list((_edit(whole, "Foreground").parent / "history").iterdir())) == 1
+    # carried again from the same fit: nothing is laid on twice
+    painted = _edit(whole, "Foreground").read_bytes()
+    code, lines = run_cli(C.VERB_REALIGN, whole, "--from", split)
+    assert code == C.EXIT_OK and lines == [f"v001 already holds the paint of {split}: nothing to carry"], lines
+    assert _edit(whole, "Foreground").read_bytes() == painted
 
     # and back: the one layer's paint onto a fresh split fit of the same plate, each half on its part's atlas
     again = tmp_path / "again"
