@@ -16,6 +16,7 @@ from bench.tool_parsers import (
     CLIPS,
     EXPECTED_PSNR,
     EXPORT_COST,
+    EXPORT_SIZE,
     FARM,
     FLOW_TRACKS,
     MASKS,
@@ -287,6 +288,22 @@ def _export_cost(args: argparse.Namespace) -> int:
     return C.EXIT_OK
 
 
+def _export_size(args: argparse.Namespace) -> int:
+    from bench.export_size import format_sizes, measure_export_size
+    from bench.report_file import write_report
+    from engine.export.manifest import Manifest
+
+    export = Path(args.export)
+    rows = measure_export_size(export, args.frames)
+    folder = export.parent if export.name == C.MANIFEST_NAME else export
+    resolution = tuple(Manifest(folder).resolution) if (folder / C.MANIFEST_NAME).is_file() else None
+    print(format_sizes(folder, rows, resolution))  # type: ignore[arg-type]
+    if args.json:
+        report = {"export": str(folder), "resolution": resolution, "rows": [vars(r) for r in rows]}
+        print(str(write_report(args.json, EXPORT_SIZE, report).resolve()))
+    return C.EXIT_OK
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -308,6 +325,7 @@ def main(argv: list[str] | None = None) -> int:
         PAINT_GAPS: _paint_gaps,
         PAINT_SLIP: _paint_slip,
         EXPORT_COST: _export_cost,
+        EXPORT_SIZE: _export_size,
     }
     if args.tool not in tools:
         parser.print_help()

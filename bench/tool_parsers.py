@@ -18,6 +18,7 @@ part of the product (its CLI is ``python -m engine``) and not in the extension z
                  IoU, sharpness, PSNR, training seconds; with a picture per clip
     paint-gaps   paint against chained flow by frame gap, one panel per clip, one line per paint table
     export-cost  an export following the flow against one as fitted, in turn: wall time and peak memory
+    export-size  an export's pass files rewritten with other channels, precision and compression: MB a frame
 
 The tools' command-line parser: each tool's options; the options several tools share are defined once and given to
 them as argparse parents, so their help cannot drift apart. ``bench.__main__`` runs the tool.
@@ -44,6 +45,7 @@ PAINT_SLIP = "paint-slip"
 PAINT_TABLE = "paint-table"
 PAINT_GAPS = "paint-gaps"
 EXPORT_COST = "export-cost"
+EXPORT_SIZE = "export-size"
 PROG = "python -m bench"
 
 BENCH_EPILOG = """\
@@ -71,6 +73,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_paint_table_parser(sub)
     _add_paint_gaps_parser(sub)
     _add_export_cost_parser(sub)
+    _add_export_size_parser(sub)
     _add_motion_scenes_parser(sub)
     return p
 
@@ -426,6 +429,20 @@ def _add_export_cost_parser(sub: argparse._SubParsersAction) -> None:
     add_threads(ec, "CPU threads of each export (default: torch's choice)")
     ec.add_argument("--work", default=None, metavar="DIR", help="where the copy goes (default: the temp folder)")
     _add_json(ec)
+
+
+def _add_export_size_parser(sub: argparse._SubParsersAction) -> None:
+    es = sub.add_parser(
+        EXPORT_SIZE,
+        help="an export's pass files rewritten with other channels, precision and compression: MB a frame",
+        description="Rewrite FRAMES of EXPORT's pass files (spread over the clip) into a scratch folder with each "
+        "choice of channels (the STMap copy kept or left out), precision (alpha and coverage in half float; u and v "
+        "rounded) and compression (ZIP, PIZ): the mean MB a frame, scaled to 1080p and 4K by pixel count, the "
+        "seconds to write one, and the largest error each choice puts in a value. The export is only read.",
+    )
+    es.add_argument("export", metavar="EXPORT", help="an export folder (RUN/exports/vNNN) or its manifest.json")
+    es.add_argument("--frames", type=int, default=10, help="pass files to rewrite (default: 10)")
+    _add_json(es)
 
 
 def _add_farm_parser(sub: argparse._SubParsersAction) -> None:
