@@ -85,15 +85,16 @@ def relink_plate(manifest_path: str | os.PathLike[str], plate: str | os.PathLike
         ours = False
     data = {**manifest.data, "clip": clip}
     C.validate_manifest(data)
-    atomic_write_text(manifest.path, json.dumps(data, indent=2))
     lines = [f"{manifest.path}: reads the plate at {clip['source_absolute']}"]
-    if ours:
-        try:
-            atomic_write_text(script, nuke_script(data, str(manifest.path)))
-            lines.append(f"{script}: reads the plate at {clip['source_absolute']}")
-        except (NukeScriptError, InputError) as exc:
-            lines.append(f"{script}: not rewritten ({exc})")
-    elif script.exists():
+    with C.run_lock(manifest.run_root, C.VERB_RELINK):  # not while a fit or an export writes the run folder
+        atomic_write_text(manifest.path, json.dumps(data, indent=2))
+        if ours:
+            try:
+                atomic_write_text(script, nuke_script(data, str(manifest.path)))
+                lines.append(f"{script}: reads the plate at {clip['source_absolute']}")
+            except (NukeScriptError, InputError) as exc:
+                lines.append(f"{script}: not rewritten ({exc})")
+    if not ours and script.exists():
         lines.append(
             f"{script}: left as it is (saved since the export); write a new script with "
             f"`python -m {C.CLI_MODULE} {C.VERB_NUKE} {manifest.path} --out NEW.nk`"
