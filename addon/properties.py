@@ -66,7 +66,7 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
     frame_start: IntProperty(name="Start", default=1, description="First scene frame to fit")
     frame_end: IntProperty(name="End", default=50, description="Last scene frame to fit")
     long_edge: IntProperty(
-        name="Working Size",
+        name="Fit Resolution",
         default=C.DEFAULT_LONG_EDGE,
         min=64,
         max=4096,
@@ -80,14 +80,14 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
         description="How long the fit trains, and so how closely it follows the plate (Estimate Time measures each)",
     )
     overrides: StringProperty(
-        name="Overrides",
+        name="Engine Settings",
         default="",
         description="Engine settings for Fit Atlas, Estimate Time and Submit to Farm, space separated KEY=VALUE, "
         "e.g. steps=2000 (advanced; python -m engine fit --help-config lists the keys)",
         update=_forget_estimate,
     )
     follow_flow: BoolProperty(
-        name="Follow Flow",
+        name="Follow Motion",
         default=True,
         description="Export: average each layer's UV along the fit's optical flow where it slips "
         "against it, so paint follows legs and bending, turning bodies: over a few frames or along whole "

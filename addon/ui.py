@@ -44,7 +44,7 @@ def _estimate_text(props) -> str:
     if clip is None:
         return ""
     frames = clip.frame_duration if props.use_clip_range else max(1, props.frame_end - props.frame_start + 1)
-    try:  # the --set items the fit gets: Working Size, then the overrides (the last one given wins)
+    try:  # the --set items the fit gets: Fit Resolution, then the overrides (the last one given wins)
         items = FM.set_items(props.long_edge, props.overrides)
     except UserError:  # an unclosed quote: Fit Atlas says so; the estimate is the preset's
         items = ()

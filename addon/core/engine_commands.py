@@ -17,7 +17,7 @@ from .errors import UserError
 #: The fit's own progress bar is for terminals: the add-on reads the JSON progress lines instead.
 NO_BAR_FLAG = "--no-bar"
 #: The panel's field the artist types engine overrides into (named in its messages).
-OVERRIDES_FIELD = "Overrides"
+OVERRIDES_FIELD = "Engine Settings"
 
 
 def extension_root() -> str:

@@ -1,7 +1,7 @@
 """Blender's conventions for the add-on's operators (bpy 4.5 and 5.0): an undo step where an operator changes the
 scene and none where it only writes files or runs a process; a poll on every operator that needs something (the
 button greyed, the line saying why, the same line for a script); the engine operators never repeated by Blender;
-the Overrides field in the Fit Atlas panel."""
+the Engine Settings field in the Fit Atlas panel."""
 
 from __future__ import annotations
 
@@ -180,8 +180,8 @@ def test_import_is_one_undo_step(blender, tmp_path):
 
 
 def test_overrides_field_is_drawn_under_the_preset(blender):
-    """The field the docs and the engine's messages name ("the panel's Overrides field")."""
+    """The field the docs and the engine's messages name ("the panel's Engine Settings field")."""
     calls = RecordingLayout().draw(ui.NEURALATLAS_PT_fit, blender.context)
     drawn = [a[1] for name, a, _ in calls if name == "prop"]
     assert "overrides" in drawn and drawn.index("overrides") == drawn.index("preset") + 1
-    assert blender.context.scene.neural_atlas.bl_rna.properties["overrides"].name == "Overrides"
+    assert blender.context.scene.neural_atlas.bl_rna.properties["overrides"].name == "Engine Settings"

@@ -48,7 +48,7 @@ def test_find_parts_on_leaves_the_split_to_the_engine_and_off_tells_it_not_to():
 def test_resume_export_masks_and_version():
     assert EC.resume_argv("py", "/run") == ["py", "-m", "engine", C.VERB_FIT, "--resume", "--out", "/run", "--no-bar"]
     assert EC.export_argv("py", "/run") == ["py", "-m", "engine", C.VERB_EXPORT, "/run"]
-    no_follow = ["py", "-m", "engine", C.VERB_EXPORT, "/run", C.EXPORT_NO_FOLLOW_FLOW_FLAG]  # Follow Flow off
+    no_follow = ["py", "-m", "engine", C.VERB_EXPORT, "/run", C.EXPORT_NO_FOLLOW_FLOW_FLAG]  # Follow Motion off
     assert EC.export_argv("py", "/run", follow_flow=False) == no_follow
     assert EC.masks_argv("py", "/clip/plate", "/run/auto_masks", 0, 5) == [
         *("py", "-m", "engine", C.VERB_MASKS, "/clip/plate", "--out", "/run/auto_masks", "--frames", "0:5")

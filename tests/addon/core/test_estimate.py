@@ -21,7 +21,7 @@ def test_estimate_grows_with_frames_and_preset():
 
 
 def test_the_documented_estimate_follows_the_overrides_steps_and_working_size():
-    """``steps=`` and ``long_edge=`` typed in Overrides change what the fit does, so they change the estimate too:
+    """``steps=`` and ``long_edge=`` typed in Engine Settings change what the fit does, so they change the estimate too:
     the last one given wins, as in the engine; a value the engine would refuse leaves the preset's."""
     items = ["lr=1e-3", "steps=400", "steps=1600"]
     assert estimate.overridden_int(items, "steps") == 1600
