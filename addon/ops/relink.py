@@ -167,7 +167,7 @@ class NEURALATLAS_OT_relink(bpy.types.Operator):
             if isinstance(moved, str):
                 self.report({"ERROR"}, moved)
                 return {"CANCELLED"}
-            new, line, missing = old, f"the plate clip now shows {moved}", False
+            new, line, missing = old, f"the plate clip now shows {moved[0]}", False
         else:
             links = scene_links(context)
             plan = relink.plan_relink(links, old, new)
@@ -175,7 +175,7 @@ class NEURALATLAS_OT_relink(bpy.types.Operator):
             line, missing = relink.message(plan), bool(plan.missing)
         told = _tell_export(context, new)
         shown = _show_again(context.scene)
-        warn = missing or told.startswith("the export still") or bool(shown)
+        warn = missing or told.startswith(("the export still", "the plate is not")) or bool(shown)
         self.report({"WARNING" if warn else "INFO"}, "; ".join(s for s in (line, told, shown) if s))
         return {"FINISHED"}
 
