@@ -17,30 +17,18 @@ pixels the new paint covers, ``landed``, the IoU, the colour error).
 
 from __future__ import annotations
 
-import contextlib
-from dataclasses import dataclass, field
-
 import numpy as np
 
 from ..errors import InputError
 from ..export.manifest import Manifest
 from .equations import sample_texture
-from .project_frame import REACH_PX, _sample_spacing, over, owners
-
-
-@dataclass
-class _Pairs:
-    """One (old layer, new layer): per new texel (row-major, rows from the top) the summed new texel positions and
-    old UVs of the pixels both own, and how many; the texel spacing of the new layer per frame."""
-
-    new_xy: np.ndarray  # float64 [N, 2]
-    old_uv: np.ndarray  # float64 [N, 2]
-    count: np.ndarray  # int64 [N]
-    spacing: list[float] = field(default_factory=list)
+from .project_frame import over, owners
+from .realign import _add_pairs, _empty_pairs, _interpolated_near, _Pairs
 
 
 def check_same_plate(old: Manifest, new: Manifest) -> None:
-    """Two exports whose paint can be carried: the same plate size and frames in common; else one line."""
+    """Two exports whose paint can be carried: the same plate size; else one line (``realign.common_frames`` asks
+    for frames in common)."""
     if tuple(old.resolution) != tuple(new.resolution):
         raise InputError(
             old.path,
@@ -53,8 +41,8 @@ def check_same_plate(old: Manifest, new: Manifest) -> None:
 def gather_pairs(
     old: Manifest, new: Manifest, frames: list[int], painted: list[int], sizes: list[tuple[int, int]]
 ) -> dict[tuple[int, int], _Pairs]:
-    """Per (old layer in ``painted``, new layer) that own pixels in common, their pairs (``_Pairs``); ``sizes``: each
-    new layer's edit texture size (w, h)."""
+    """Per (old layer in ``painted``, new layer) that own pixels in common, their pairs binned by new texel
+    (``realign._Pairs``); ``sizes``: each new layer's edit texture size (w, h)."""
     acc: dict[tuple[int, int], _Pairs] = {}
     for frame in frames:
         p_old, p_new = old.read_passes(frame), new.read_passes(frame)
@@ -63,21 +51,9 @@ def gather_pairs(
             seen_old = own_old[i] & (p_old[i].z > 0.0)
             for j, (tw, th) in enumerate(sizes):
                 sel = seen_old & own_new[j] & (p_new[j].z > 0.0)
-                if not sel.any():
-                    continue
-                n = tw * th
-                a = acc.setdefault((i, j), _Pairs(np.zeros((n, 2)), np.zeros((n, 2)), np.zeros(n, np.int64)))
-                x = p_new[j].uv[..., 0][sel].astype(np.float64) * tw - 0.5
-                y = (1.0 - p_new[j].uv[..., 1][sel].astype(np.float64)) * th - 0.5
-                key = np.clip(np.rint(y).astype(np.int64), 0, th - 1) * tw + np.clip(
-                    np.rint(x).astype(np.int64), 0, tw - 1
-                )
-                a.new_xy[:, 0] += np.bincount(key, x, n)
-                a.new_xy[:, 1] += np.bincount(key, y, n)
-                a.old_uv[:, 0] += np.bincount(key, p_old[i].uv[..., 0][sel].astype(np.float64), n)
-                a.old_uv[:, 1] += np.bincount(key, p_old[i].uv[..., 1][sel].astype(np.float64), n)
-                a.count += np.bincount(key, minlength=n)
-                a.spacing.append(_sample_spacing(p_new[j].uv, sel, tw, th))
+                if sel.any():
+                    pair = acc.setdefault((i, j), _empty_pairs(tw * th))
+                    _add_pairs(pair, p_new[j].uv, p_old[i].uv, sel, (tw, th))
     return acc
 
 
@@ -85,35 +61,19 @@ def carried_paint(old_edit: np.ndarray, pairs: _Pairs, size: tuple[int, int]) ->
     """Old edit layer ``old_edit`` (premultiplied linear [h, w, 4]) as it lands on a new layer's texture of ``size``
     (w, h) through ``pairs``: premultiplied RGBA, transparent where no pair reaches or the old paint is empty;
     None when nothing lands."""
-    import cv2
-    from scipy.interpolate import LinearNDInterpolator
     from scipy.spatial import cKDTree
 
     tw, th = size
-    hit = pairs.count > 0
-    if not hit.any():
+    if not (pairs.count > 0).any():
         return None
-    n = pairs.count[hit][:, None].astype(np.float64)
-    pos, old_uv = pairs.new_xy[hit] / n, pairs.old_uv[hit] / n
+    pos, old_uv = pairs.mean()
     # only the pairs whose old point is on (or next to) the old paint bring any: the rest are left out of the map
     painted = sample_texture(old_edit, old_uv.astype(np.float32), "bilinear")[..., 3] > 0.0
     if not painted.any():
         return None
-    spacing = float(np.median(pairs.spacing)) if pairs.spacing else 1.0
-    reach = max(1.0, REACH_PX * spacing)
+    reach = pairs.reach()
     near = cKDTree(pos[painted]).query(pos, distance_upper_bound=2.0 * reach + 2.0)[0] < np.inf
-    pos, old_uv = pos[near], old_uv[near]
-    marks = np.zeros((th, tw), np.uint8)
-    marks[np.clip(np.rint(pos[:, 1]).astype(int), 0, th - 1), np.clip(np.rint(pos[:, 0]).astype(int), 0, tw - 1)] = 1
-    gy, gx = np.nonzero(cv2.distanceTransform(1 - marks, cv2.DIST_L2, 5) <= reach)
-    targets = np.stack((gx, gy), -1).astype(np.float64)
-    got = np.full((len(targets), 2), np.nan)
-    if len(pos) >= 3 and np.linalg.matrix_rank(pos - pos.mean(0)) == 2:
-        with contextlib.suppress(Exception):  # Qhull refuses degenerate input: the nearest pair's UV below
-            got = LinearNDInterpolator(pos, old_uv, fill_value=np.nan)(targets)
-    miss = ~np.isfinite(got).all(-1)
-    if miss.any():
-        got[miss] = old_uv[cKDTree(pos).query(targets[miss])[1]]
+    gy, gx, got = _interpolated_near(pos[near], old_uv[near], reach, size)
     out = np.zeros((th, tw, 4), np.float32)
     out[gy, gx] = sample_texture(old_edit, got.astype(np.float32), "bilinear")
     out[..., 3] = np.clip(out[..., 3], 0.0, 1.0)

@@ -52,9 +52,64 @@ class _Pairs:
     count: np.ndarray  # int64 [N]
     spacing: list[float]  # texels per frame pixel, per frame
 
+    def mean(self) -> tuple[np.ndarray, np.ndarray]:
+        """(new texel position, old UV) of every texel some pair landed on, averaged over its pairs."""
+        hit = self.count > 0
+        n = self.count[hit][:, None].astype(np.float64)
+        return self.new_xy[hit] / n, self.old_uv[hit] / n
+
+    def reach(self) -> float:
+        """How far (texels) from a pair the map is interpolated: ``REACH_PX`` frame pixels at the pairs' spacing."""
+        return max(1.0, REACH_PX * (float(np.median(self.spacing)) if self.spacing else 1.0))
+
 
 def _empty_pairs(n: int) -> _Pairs:
     return _Pairs(np.zeros((n, 2)), np.zeros((n, 2)), np.zeros(n, np.int64), [])
+
+
+def _add_pairs(a: _Pairs, new_uv: np.ndarray, old_uv: np.ndarray, sel: np.ndarray, size: tuple[int, int]) -> None:
+    """Bin the pixels ``sel`` (the new layer's UV ``new_uv`` and the old layer's ``old_uv``, [H, W, 2]) into ``a`` by
+    the new texture's texel (``size``: w, h), with the frame's texel spacing."""
+    tw, th = size
+    x = new_uv[..., 0][sel].astype(np.float64) * tw - 0.5
+    y = (1.0 - new_uv[..., 1][sel].astype(np.float64)) * th - 0.5
+    ix = np.clip(np.rint(x).astype(np.int64), 0, tw - 1)
+    iy = np.clip(np.rint(y).astype(np.int64), 0, th - 1)
+    key = iy * tw + ix
+    n = tw * th
+    a.new_xy[:, 0] += np.bincount(key, x, n)
+    a.new_xy[:, 1] += np.bincount(key, y, n)
+    a.old_uv[:, 0] += np.bincount(key, old_uv[..., 0][sel].astype(np.float64), n)
+    a.old_uv[:, 1] += np.bincount(key, old_uv[..., 1][sel].astype(np.float64), n)
+    a.count += np.bincount(key, minlength=n)
+    a.spacing.append(_sample_spacing(new_uv, sel, tw, th))
+
+
+def _interpolated_near(
+    pos: np.ndarray, values: np.ndarray, reach: float, size: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``values`` known at the texel positions ``pos`` [N, 2], interpolated linearly over their Delaunay triangulation
+    at every texel of a texture of ``size`` (w, h) within ``reach`` texels of one (the nearest one's value where the
+    triangulation does not cover it): (rows, columns, values there)."""
+    from scipy.interpolate import LinearNDInterpolator
+    from scipy.spatial import cKDTree
+
+    tw, th = size
+    marks = np.zeros((th, tw), np.uint8)
+    marks[np.clip(np.rint(pos[:, 1]).astype(int), 0, th - 1), np.clip(np.rint(pos[:, 0]).astype(int), 0, tw - 1)] = 1
+    dist = cv2.distanceTransform(1 - marks, cv2.DIST_L2, 5)
+    gy, gx = np.nonzero(dist <= reach)
+    targets = np.stack((gx, gy), -1).astype(np.float64)
+    got = np.full((len(targets), 2), np.nan)
+    if len(pos) >= 3 and np.linalg.matrix_rank(pos - pos.mean(0)) == 2:
+        # Qhull refuses degenerate (collinear) input: then the nearest pair's value below
+        with contextlib.suppress(Exception):
+            got = LinearNDInterpolator(pos, values, fill_value=np.nan)(targets)
+    miss = ~np.isfinite(got).all(-1)
+    if miss.any():
+        _, nearest = cKDTree(pos).query(targets[miss])
+        got[miss] = values[nearest]
+    return gy, gx, got
 
 
 def _gather(old: Manifest, new: Manifest, frames: list[int], sizes: dict[int, tuple[int, int]]) -> dict[int, _Pairs]:
@@ -64,43 +119,23 @@ def _gather(old: Manifest, new: Manifest, frames: list[int], sizes: dict[int, tu
     for frame in frames:
         p_old, p_new = old.read_passes(frame), new.read_passes(frame)
         own_old, own_new = owners(p_old), owners(p_new)
-        for i, (tw, th) in sizes.items():
+        for i, size in sizes.items():
             sel = own_old[i] & own_new[i] & (p_old[i].z > 0.0) & (p_new[i].z > 0.0)
-            if not sel.any():
-                continue
-            x = p_new[i].uv[..., 0][sel].astype(np.float64) * tw - 0.5
-            y = (1.0 - p_new[i].uv[..., 1][sel].astype(np.float64)) * th - 0.5
-            ix = np.clip(np.rint(x).astype(np.int64), 0, tw - 1)
-            iy = np.clip(np.rint(y).astype(np.int64), 0, th - 1)
-            key = iy * tw + ix
-            n = tw * th
-            a = acc[i]
-            a.new_xy[:, 0] += np.bincount(key, x, n)
-            a.new_xy[:, 1] += np.bincount(key, y, n)
-            a.old_uv[:, 0] += np.bincount(key, p_old[i].uv[..., 0][sel].astype(np.float64), n)
-            a.old_uv[:, 1] += np.bincount(key, p_old[i].uv[..., 1][sel].astype(np.float64), n)
-            a.count += np.bincount(key, minlength=n)
-            a.spacing.append(_sample_spacing(p_new[i].uv, sel, tw, th))
+            if sel.any():
+                _add_pairs(acc[i], p_new[i].uv, p_old[i].uv, sel, size)
     return acc
 
 
 def realign_texture(edit: np.ndarray, pairs: _Pairs) -> tuple[np.ndarray, int]:
     """The edit layer ``edit`` (premultiplied linear [H, W, 4], painted against the old mapping) moved onto the new
     one, and how many texels were re-sampled. Texels beyond every pair's reach keep their value (identity map)."""
-    from scipy.interpolate import LinearNDInterpolator
-    from scipy.spatial import cKDTree
-
     th, tw = edit.shape[:2]
     painted = (edit[..., 3] > 0.0).astype(np.uint8)
-    hit = pairs.count > 0
-    if not painted.any() or not hit.any():
+    if not painted.any() or not (pairs.count > 0).any():
         return edit.copy(), 0
-    n = pairs.count[hit][:, None].astype(np.float64)
-    pos = pairs.new_xy[hit] / n  # texel coordinates (x right, y down; centres at integers)
-    old_uv = pairs.old_uv[hit] / n
+    pos, old_uv = pairs.mean()  # texel coordinates (x right, y down; centres at integers)
     old_xy = np.stack((old_uv[:, 0] * tw - 0.5, (1.0 - old_uv[:, 1]) * th - 0.5), -1)
-    spacing = float(np.median(pairs.spacing)) if pairs.spacing else 1.0
-    reach = max(1.0, REACH_PX * spacing)
+    reach = pairs.reach()
     k = 2 * int(np.ceil(reach + PAINT_MARGIN_TEXELS)) + 1
     near_paint = cv2.dilate(painted, np.ones((k, k), np.uint8)).astype(bool)
 
@@ -114,27 +149,13 @@ def realign_texture(edit: np.ndarray, pairs: _Pairs) -> tuple[np.ndarray, int]:
         return edit.copy(), 0
     pos, old_xy = pos[keep_pairs], old_xy[keep_pairs]
     shift = old_xy - pos  # texels: where the new texel's point of the object was in the old atlas
-    # the texels to re-sample: within reach of a pair
-    marks = np.zeros((th, tw), np.uint8)
-    marks[np.clip(np.rint(pos[:, 1]).astype(int), 0, th - 1), np.clip(np.rint(pos[:, 0]).astype(int), 0, tw - 1)] = 1
-    dist = cv2.distanceTransform(1 - marks, cv2.DIST_L2, 5)
-    gy, gx = np.nonzero(dist <= reach)
-    targets = np.stack((gx, gy), -1).astype(np.float64)
-    got = np.full((len(targets), 2), np.nan)
-    if len(pos) >= 3 and np.linalg.matrix_rank(pos - pos.mean(0)) == 2:
-        # Qhull refuses degenerate (collinear) input: then the nearest pair's shift below
-        with contextlib.suppress(Exception):
-            got = LinearNDInterpolator(pos, shift, fill_value=np.nan)(targets)
-    miss = ~np.isfinite(got).all(-1)
-    if miss.any():
-        _, nearest = cKDTree(pos).query(targets[miss])
-        got[miss] = shift[nearest]
-    src = targets + got  # old texel coordinates
+    gy, gx, got = _interpolated_near(pos, shift, reach, (tw, th))  # the texels within reach of a pair
+    src = np.stack((gx, gy), -1).astype(np.float64) + got  # old texel coordinates
     uv = np.stack(((src[:, 0] + 0.5) / tw, 1.0 - (src[:, 1] + 0.5) / th), -1)
     out = edit.copy()
     out[gy, gx] = sample_texture(edit, uv, "bilinear")
     out[..., 3] = np.clip(out[..., 3], 0.0, 1.0)
-    return out, len(targets)
+    return out, len(gy)
 
 
 def common_frames(old: Manifest, new: Manifest, step: int = 1) -> list[int]:
