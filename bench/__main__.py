@@ -281,7 +281,8 @@ def _export_cost(args: argparse.Namespace) -> int:
     from bench.export_cost import format_cost, measure_export_cost
     from bench.report_file import write_report
 
-    report = measure_export_cost(Path(args.run), args.repeats, args.threads, Path(args.work) if args.work else None)
+    work = Path(args.work) if args.work else None
+    report = measure_export_cost(Path(args.run), args.repeats, args.threads, work, args.compare)
     print(format_cost(report))
     if args.json:
         print(str(write_report(args.json, EXPORT_COST, report).resolve()))

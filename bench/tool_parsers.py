@@ -17,7 +17,7 @@ part of the product (its CLI is ``python -m engine``) and not in the extension z
     paint-table  one preset fitted and exported on every clip of a folder, scored on the export: paint, flow,
                  IoU, sharpness, PSNR, training seconds; with a picture per clip
     paint-gaps   paint against chained flow by frame gap, one panel per clip, one line per paint table
-    export-cost  an export following the flow against one as fitted, in turn: wall time and peak memory
+    export-cost  two kinds of export in turn (following the flow or not; passes written ahead or not): time, memory
     export-size  an export's pass files rewritten with other channels, precision and compression: MB a frame
 
 The tools' command-line parser: each tool's options; the options several tools share are defined once and given to
@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 
+from bench.export_cost import COMPARISONS
 from engine.cli_options import add_device, add_follow_flow, add_preset, add_set, add_threads, frame_range
 
 BENCH = "bench"
@@ -419,15 +420,24 @@ def _add_paint_gaps_parser(sub: argparse._SubParsersAction) -> None:
 def _add_export_cost_parser(sub: argparse._SubParsersAction) -> None:
     ec = sub.add_parser(
         EXPORT_COST,
-        help="an export following the flow against one as fitted, in turn: wall time and peak memory, as ratios",
-        description="Export a copy of RUN_DIR (its exports and edit layers are not touched) REPEATS times each way, "
-        "following the flow and as fitted (--no-follow-flow), in turn with the order swapped each round, each in "
-        "its own process: the medians of wall seconds and of peak resident memory, and their ratios.",
+        help="two kinds of export of one run, in turn: wall time and peak memory, as ratios",
+        description="Export a copy of RUN_DIR (its exports and edit layers are not touched) REPEATS times each way "
+        "(--compare: following the flow and as fitted, or the pass files written ahead and in turn), in turn with "
+        "the order swapped each round, each in its own process: the medians of wall seconds and of peak resident "
+        "memory, and their ratios.",
     )
     ec.add_argument("run", metavar="RUN_DIR", help="the --out folder of a finished fit")
     ec.add_argument("--repeats", type=int, default=2, help="exports of each kind (default: 2)")
     add_threads(ec, "CPU threads of each export (default: torch's choice)")
     ec.add_argument("--work", default=None, metavar="DIR", help="where the copy goes (default: the temp folder)")
+    ec.add_argument(
+        "--compare",
+        default="follow-flow",
+        choices=tuple(COMPARISONS),
+        help="follow-flow (default): following the flow against the UV as fitted (--no-follow-flow); write-ahead: "
+        "each frame's pass file written while the next frame is evaluated against one after another; "
+        "render-write-ahead: the same for `render` (EXR frames, paint on half of every atlas) of one export",
+    )
     _add_json(ec)
 
 

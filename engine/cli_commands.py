@@ -75,6 +75,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
         into=args.into,
         stage=args.stage,
         follow_flow=args.follow_flow,
+        precision=args.precision,
     )
     return print_paths([path])
 

@@ -309,6 +309,16 @@ def _add_export_parser(sub: argparse._SubParsersAction) -> None:
         f"insists (refused without it). A staged export decides it in its {C.EXPORT_STAGES[0]} stage",
         "export each layer's UV as fitted (the atlas alone, as exports before the flow was followed)",
     )
+    x.add_argument(
+        C.EXPORT_PASS_PRECISION_ARG,
+        dest="precision",
+        default=None,
+        choices=C.PASS_PRECISIONS,
+        help=f"the bits the pass files keep, every channel float32 either way: {C.PASS_PRECISION_COMPACT} (default) "
+        "rounds alpha and coverage to half float's precision (at most 2.4e-4 off) and u, v to multiples of 2^-17 "
+        f"(0.03 texel on a 4096 atlas): half the bytes; {C.PASS_PRECISION_FULL} keeps every bit the networks give. "
+        f"A staged export decides it in its {C.EXPORT_STAGES[0]} stage",
+    )
     add_no_bar(x)
 
 

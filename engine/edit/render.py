@@ -49,6 +49,7 @@ from ..io.colour import (
     to_linear,
 )
 from ..io.images import exr_timing, native_path, read_spec, write_like, write_png, write_rgba_exr
+from ..io.write_ahead import FRAMES_AHEAD, WriteAhead
 from .equations import FILTERS, composite_edits, composite_touched, edit_is_empty, load_edit
 from .movie import DEFAULT_FPS, MovieWriter, movie_writer
 from .output_checks import check_movie, check_output
@@ -408,6 +409,10 @@ class _Output:
         return self.like is None and self.pattern.lower().endswith(".png")
 
 
+#: Frames written by a second thread while the next is rendered (``io.write_ahead``); 0: one after another.
+RENDER_WRITE_AHEAD = FRAMES_AHEAD
+
+
 def _render_into(
     manifest: Manifest,
     staged: StagedFolder,
@@ -429,25 +434,31 @@ def _render_into(
         plate_is_srgb = space == role_space(SRGB, config)
         exr_space = space if is_linear(space, config) else role_space(SCENE_LINEAR, config)
         clip = manifest.clip
-        for number, in_plate, frame in render_plate_frames(manifest, edits, frames, filter=output.filter):
-            path = staged.path(output.pattern.format(frame=number))
-            if output.like is not None:
-                write_like(path, in_plate, output.like)
-            elif not output.png:
-                timing = exr_timing(C.clip_rate(clip), clip.get("pixel_aspect", 1.0), clip.get("timecode"),
-                                    number - clip["first_frame"])  # fmt: skip
-                rgb = in_plate if exr_space == space else frame
-                rgba = np.concatenate((rgb, np.ones((*frame.shape[:2], 1), np.float32)), -1)
-                write = write_half_rgba_exr if output.half else write_rgba_exr
-                write(path, rgba, chromaticities(exr_space, config), exr_space, attributes=timing)
-            else:
-                write_png(path, np.clip(in_plate if plate_is_srgb else linear_to_srgb(frame), 0.0, 1.0), 8)
+
+        def written(_number: int, path: Path) -> None:
             sizes.frames += 1
             sizes.frame_bytes += path.stat().st_size
-            if writer is not None:
-                writer.write(to_display_u8(frame))
-                sizes.movie_bytes = writer.written_bytes()
             bar.update(1)
+
+        with WriteAhead[Path](RENDER_WRITE_AHEAD, written, "frames") as files:
+            for number, in_plate, frame in render_plate_frames(manifest, edits, frames, filter=output.filter):
+                path = staged.path(output.pattern.format(frame=number))
+                if output.like is not None:
+                    files.submit(number, write_like, path, in_plate, output.like)
+                elif not output.png:
+                    timing = exr_timing(C.clip_rate(clip), clip.get("pixel_aspect", 1.0), clip.get("timecode"),
+                                        number - clip["first_frame"])  # fmt: skip
+                    rgb = in_plate if exr_space == space else frame
+                    rgba = np.concatenate((rgb, np.ones((*frame.shape[:2], 1), np.float32)), -1)
+                    write = write_half_rgba_exr if output.half else write_rgba_exr
+                    files.submit(number, write, path, rgba, chromaticities(exr_space, config), exr_space,
+                                 attributes=timing)  # fmt: skip
+                else:
+                    srgb = np.clip(in_plate if plate_is_srgb else linear_to_srgb(frame), 0.0, 1.0)
+                    files.submit(number, write_png, path, srgb, 8)
+                if writer is not None:
+                    writer.write(to_display_u8(frame))
+                    sizes.movie_bytes = writer.written_bytes()
         bar.close()
         if writer is not None:
             writer.finish()

@@ -19,13 +19,11 @@ from __future__ import annotations
 import json
 import shutil
 import sys
-import time
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 from tqdm import tqdm
 
@@ -37,17 +35,18 @@ from ..fit.prepare import fingerprint_of, fitted_plate
 from ..fit.progress import Reporter
 from ..fit.run_folder import RunFolder
 from ..io.atomic import DISK_ERRORS, as_disk_full, atomic_write_text
-from ..io.colour import RAW, REC709_CHROMATICITIES, SCENE_LINEAR, srgb_to_linear
-from ..io.images import exr_timing, write_exr, write_png
+from ..io.colour import REC709_CHROMATICITIES, SCENE_LINEAR, srgb_to_linear
+from ..io.images import write_exr, write_png
 from ..model.atlas_model import AtlasModel
 from .atlas_frame import _Coverage
 from .flow_reach import choose_reach, layer_scale
 from .follow_flow import MEMORY_SHARE, MIN_SLIP_PX, available_memory, layer_slip_px, memory_needed
 from .manifest_writer import _write_nuke_script, build_manifest
-from .pass_files import pass_file, stmap_values
+from .pass_files import pass_file
+from .pass_writer import write_passes
 from .plan import Plan, plan_export, read_layout, selected_frames
 from .plate_splat import Splat, plate_texture, splat
-from .sampling import atlas_colours, colours_at, eval_pixels, pixel_grid
+from .sampling import atlas_colours, colours_at
 from .stage_record import DAMAGED_FIX, STAGE_RECORD, fit_source
 from .stage_record import read_stage as _read_stage
 from .staging import (
@@ -81,6 +80,7 @@ def export_run(
     into: str | None = None,
     stage: str | None = None,
     follow_flow: bool | None = None,
+    precision: str | None = None,
 ) -> Path:
     """Export ``run_dir``; returns the path of the manifest.json written. Reads the run folder only (its
     ``clip.json`` says what export needs of the clip): the plate is not decoded. Holds the run folder's lock for
@@ -98,9 +98,11 @@ def export_run(
     along the fit's optical flow where it slips against it (``engine.export.follow_flow``): None (the default) when
     the run holds the fit's flow, True insists (refused without it), False exports the UV as fitted. A staged
     export decides it in its atlases stage; its passes and publish follow the record (asked otherwise: refused). A
-    version ``into`` already holds is returned as it is, whatever is asked.
+    version ``into`` already holds is returned as it is, whatever is asked. ``precision``
+    (``contract.PASS_PRECISIONS``; None: compact, or a staged export's record): the bits the pass files keep
+    (``pass_files.kept_precision``), decided with the flow in the atlases stage.
 
-    Nine parameters: ``engine export``'s flags one for one, and where its progress goes (``stream``); the CLI, the
+    Ten parameters: ``engine export``'s flags one for one, and where its progress goes (``stream``); the CLI, the
     demo, the bench and the farm's tasks each pass the few they need by name.
     """
     run_dir = Path(run_dir).resolve()
@@ -116,8 +118,12 @@ def export_run(
             f"{C.EXPORT_STAGE_ARG} {stage} without {C.EXPORT_INTO_ARG}",
             f"name the version its stages share: {C.EXPORT_INTO_ARG} {C.EXPORT_VERSION_FORMAT.format(1)}",
         )
+    if precision is not None and precision not in C.PASS_PRECISIONS:
+        raise InputError(
+            None, f"unknown {C.EXPORT_PASS_PRECISION_ARG} {precision!r}", f"use one of {', '.join(C.PASS_PRECISIONS)}"
+        )
     RunFolder(run_dir).require_fit()
-    job = _Job(run_dir, device_name, progress_bar, stream, follow_flow)
+    job = _Job(run_dir, device_name, progress_bar, stream, follow_flow, precision)
     if stage == C.EXPORT_STAGES[1]:
         assert version is not None
         return _export_passes(job, version, frames)  # no lock: its chunks run at once on several hosts
@@ -154,6 +160,7 @@ class _Job:
     progress_bar: bool
     stream: Any
     follow_flow: bool | None = None
+    precision: str | None = None  # None: compact (a staged export: its record's)
 
     def __post_init__(self) -> None:
         self.reporter = Reporter(stream=self.stream)
@@ -338,8 +345,10 @@ def _plan(job: _Job, fitted: FittedRun, atlas_size: int, frames: tuple[int, int]
     source = _follow_source(job, fitted)
     if source is None:
         plan, cov = plan_export(job.reporter, fitted, atlas_size, frames, bar)
+        plan.precision = job.precision or C.PASS_PRECISION_COMPACT
         return _Planned(plan, cov, {}, {})
     plan, cov = plan_export(job.reporter, fitted, atlas_size, frames, bar, source.working.add)
+    plan.precision = job.precision or C.PASS_PRECISION_COMPACT
     parts = split_parts(fitted.clip.scribbles is not None, job.follow_flow, len(plan.names))
     corrections = _flow_corrections(job, plan.names, source.flow, source.working, parts, source.frames, fitted.model)
     plan.follow_flow, plan.follows = True, frozenset(corrections)
@@ -365,66 +374,6 @@ def _plate_splats(source: _FollowSource, corrections: dict[int, np.ndarray]) -> 
     return out
 
 
-def _write_passes(
-    job: _Job,
-    fitted: FittedRun,
-    plan: Plan,
-    todo: list[int],
-    dest: Path,
-    bar: Any,
-    written: Any = None,
-    corrections: dict[int, np.ndarray] | None = None,
-) -> None:
-    """The UV + alpha passes of the run frames ``todo`` at native resolution into ``dest/passes``, each file
-    atomic (a frame's pass exists whole or not at all); ``written(path)`` is told of each. ``corrections``
-    (``_flow_corrections``) are added, upsampled, to their layers' UV."""
-    corrections = corrections or {}
-    model, clip = fitted.model, fitted.clip
-    device = next(model.parameters()).device
-    job.reporter.emit(C.EVENT_STAGE, stage="passes", message=f"{len(todo)} frames of UV + alpha passes")
-    nw, nh = clip.native_size
-    ww, wh = clip.working_size
-    xy_native = pixel_grid((nw, nh), (ww / nw, wh / nh), device)
-    frame_numbers = list(clip.frame_numbers)
-    started = time.perf_counter()
-    for k, t in enumerate(todo):
-        uvs, wts = eval_pixels(model, xy_native, t)
-        chans: dict[str, np.ndarray] = {}
-        for i, name in enumerate(plan.names):
-            uv = uvs[i]
-            if i in corrections:  # working size -> native, pixel centres on pixel centres
-                uv = uv + cv2.resize(corrections[i][t], (nw, nh), interpolation=cv2.INTER_LINEAR).reshape(-1, 2)
-            tex_uv, inside = plan.frames_by_layer[i].to_texture_uv(uv)
-            a = wts[:, i]
-            uv_pass, alpha_pass = C.uv_pass(name), C.alpha_pass(name)
-            u_name, v_name, coverage_name = (C.channel_name(uv_pass, c) for c in C.UV_CHANNELS)
-            chans[u_name] = tex_uv[:, 0].reshape(nh, nw)
-            chans[v_name] = tex_uv[:, 1].reshape(nh, nw)
-            chans[coverage_name] = (a * inside).reshape(nh, nw)
-            chans[C.channel_name(alpha_pass, C.ALPHA_CHANNELS[0])] = a.reshape(nh, nw)
-            for channel, values in zip(C.STMAP_CHANNELS, stmap_values(chans, uv_pass), strict=True):
-                chans[C.stmap_channel_name(name, channel)] = values
-        timing = exr_timing(clip.rate, clip.pixel_aspect, clip.timecode, frame_numbers[t] - frame_numbers[0])
-        tags = {C.EXR_COLORSPACE_ATTRIBUTE: RAW, **timing}  # data, with the plate's timing
-        path = write_exr(pass_file(dest, frame_numbers[t], clip), chans, attributes=tags)
-        if written is not None:
-            written(path)
-        bar.update(1)
-        job.reporter.emit(C.EVENT_PROGRESS, step=k + 1, total=len(todo), psnr=None, elapsed=None, eta=None)
-        # the export's own whole job (a fit's reader places it after the fit's share): its frames, at their rate
-        left = (time.perf_counter() - started) / (k + 1) * (len(todo) - k - 1)
-        fraction = round((k + 1) / len(todo), 4)
-        job.reporter.emit(
-            C.EVENT_JOB,
-            stage="export",
-            done=k + 1,
-            total=len(todo),
-            stage_eta=round(left, 1),
-            job_fraction=fraction,
-            job_eta=round(left, 1),
-        )
-
-
 def _export_whole(job: _Job, atlas_size: int, frames: tuple[int, int] | None, version: str | None) -> Path:
     """A whole export, under the lock: into the next free version, or ``version``."""
     fitted = job.load()
@@ -436,7 +385,7 @@ def _export_whole(job: _Job, atlas_size: int, frames: tuple[int, int] | None, ve
         plan = planned.plan
         final, staging = out.begin(version)
         _write_atlases(job, fitted, planned, staging)
-        _write_passes(job, fitted, plan, plan.selected, staging, bar, out.pass_written, planned.corrections)
+        write_passes(job.reporter, fitted, plan, plan.selected, staging, bar, out.pass_written, planned.corrections)
         bar.close()
         _publish(job, fitted, plan, out)
     except BaseException as exc:
@@ -468,9 +417,7 @@ def _publish(job: _Job, fitted: FittedRun, plan: Plan, out: ExportOutput) -> Non
             layout["layers"][name] = {"atlas_box": list(fr.box), "atlas_size": list(fr.size)}
     if json.dumps(layout, indent=2) != recorded or not (edits_dir / C.EDITS_LAYOUT).exists():
         atomic_write_text(out.stage_edit(edits_dir / C.EDITS_LAYOUT), json.dumps(layout, indent=2))
-    manifest = build_manifest(
-        job.run_dir, out.final, fitted, plan.names, plan.frames_by_layer, plan.selected, plan.follows
-    )
+    manifest = build_manifest(job.run_dir, out.final, fitted, plan)
     C.validate_manifest(manifest)
     atomic_write_text(out.staging / C.MANIFEST_NAME, json.dumps(manifest, indent=2))
     _write_nuke_script(out.staging, manifest)
@@ -491,7 +438,7 @@ def _export_atlases(job: _Job, version: str, atlas_size: int, frames: tuple[int,
         require_same_fit(job.run_dir, chunks, version, record, source)
         clip = RunFolder(job.run_dir).read_clip()
         numbers = [clip.frame_numbers[t] for t in selected_frames(clip, frames)]
-        _require_same_follow(job, chunks, version, record)
+        _require_same_choices(job, chunks, version, record)
         if [numbers[0], numbers[-1]] != list(record["frames"]) or atlas_size != record["atlas_size"]:
             first, last = record["frames"]
             raise InputError(
@@ -522,9 +469,16 @@ def _export_atlases(job: _Job, version: str, atlas_size: int, frames: tuple[int,
     return chunks
 
 
-def _require_same_follow(job: _Job, chunks: Path, version: str, record: dict[str, Any]) -> None:
-    """A stage asked explicitly to follow the flow, or not to, continues only a staged export that decided the
-    same in its atlases stage (asked nothing: it follows the record)."""
+def _require_same_choices(job: _Job, chunks: Path, version: str, record: dict[str, Any]) -> None:
+    """A stage asked explicitly to follow the flow, or not to, or for a pass precision, continues only a staged
+    export that decided the same in its atlases stage (asked nothing: it follows the record)."""
+    precision = str(record.get("precision", C.PASS_PRECISION_FULL))
+    if job.precision is not None and job.precision != precision:
+        raise InputError(
+            chunks / STAGE_RECORD,
+            f"{version} is staged with {C.EXPORT_PASS_PRECISION_ARG} {precision}, not {job.precision}",
+            f"run this stage without {C.EXPORT_PASS_PRECISION_ARG}, or stage another {C.EXPORT_INTO_ARG} version",
+        )
     staged = bool(record.get("follow_flow", False))
     if job.follow_flow is not None and job.follow_flow != staged:
         flag = C.EXPORT_FOLLOW_FLOW_FLAG if job.follow_flow else C.EXPORT_NO_FOLLOW_FLOW_FLAG
@@ -567,7 +521,7 @@ def _export_passes(job: _Job, version: str, frames: tuple[int, int] | None) -> P
         if done is not None:
             return done
         raise no_stage_error(version, chunks)
-    _require_same_follow(job, chunks, version, record)
+    _require_same_choices(job, chunks, version, record)
     plan = Plan.from_record(record, clip)
     staged = plan.numbers(clip)
     if frames is not None and not (staged[0] <= frames[0] <= frames[1] <= staged[-1]):
@@ -585,7 +539,7 @@ def _export_passes(job: _Job, version: str, frames: tuple[int, int] | None) -> P
         fitted = job.load()
         require_same_fit(job.run_dir, chunks, version, record)
         bar = job.bar(len(todo))
-        _write_passes(job, fitted, plan, todo, chunks, bar, corrections=_staged_corrections(chunks, plan))
+        write_passes(job.reporter, fitted, plan, todo, chunks, bar, corrections=_staged_corrections(chunks, plan))
         bar.close()
     return chunks
 
@@ -598,7 +552,7 @@ def _export_publish(job: _Job, version: str, atlas_size: int | None, frames: tup
     if record is None:
         raise no_stage_error(version, chunks)
     require_same_fit(job.run_dir, chunks, version, record)
-    _require_same_follow(job, chunks, version, record)
+    _require_same_choices(job, chunks, version, record)
     clip = RunFolder(job.run_dir).read_clip()
     plan = Plan.from_record(record, clip)
     numbers = plan.numbers(clip)

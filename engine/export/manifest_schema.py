@@ -125,6 +125,9 @@ class Passes(BaseModel):
     exr_layer: Text
     resolution: Size
     """[width, height]: the clip's."""
+    precision: Literal["compact", "full"] = _absent()
+    """The bits the pass files keep (absent: full): compact rounds alpha and coverage to half float's precision
+    and u, v to multiples of 2^-17, in float32 channels."""
 
 
 class Layer(BaseModel):

@@ -22,7 +22,7 @@ from .pass_files import pass_padding
 if TYPE_CHECKING:
     from ..fit.fitted_run import FittedRun
     from ..fit.run_folder import ClipRecord
-    from .atlas_frame import LayerFrame
+    from .plan import Plan
 
 
 def layer_record(
@@ -82,20 +82,18 @@ def build_manifest(
     run_dir: Path,
     final: Path,
     fitted: FittedRun,
-    names: list[str],
-    frames_by_layer: list[LayerFrame],
-    selected: list[int],
-    follows: frozenset[int] = frozenset(),
+    plan: Plan,
 ) -> dict[str, Any]:
-    """The manifest of ``fitted``'s export into ``final`` (the run frames ``selected``): what Blender, Nuke and
-    render read the passes, atlases and edit layers by. Paths are relative to ``final``; the plate's are also kept
-    absolute, for a run folder moved without its plate. ``follows``: the layers whose UV follows the flow."""
+    """The manifest of ``fitted``'s export into ``final`` by ``plan`` (its layers' atlas frames, the run frames
+    selected, the layers whose UV follows the flow, the bits its passes keep): what Blender, Nuke and render read
+    the passes, atlases and edit layers by. Paths are relative to ``final``; the plate's are also kept absolute, for
+    a run folder moved without its plate."""
     clip, cfg, metrics = fitted.clip, fitted.cfg, fitted.metrics or {}
     numbers = list(clip.frame_numbers)
     rel_edits = relative_path(fitted.folder.edits, final)
     layers = [
-        layer_record(name, i, fr.size, fr.box, f"{rel_edits}/{name}{C.EDIT_LAYER_EXT}", i in follows)
-        for i, (name, fr) in enumerate(zip(names, frames_by_layer, strict=True))
+        layer_record(name, i, fr.size, fr.box, f"{rel_edits}/{name}{C.EDIT_LAYER_EXT}", i in plan.follows)
+        for i, (name, fr) in enumerate(zip(plan.names, plan.frames_by_layer, strict=True))
     ]
     return {
         C.MANIFEST_TAG: C.MANIFEST_VERSION,
@@ -125,9 +123,10 @@ def build_manifest(
             "dir": C.PASSES_DIR,
             "pattern": C.pass_pattern(pass_padding(clip)),
             "blender_pattern": C.blender_pattern(pass_padding(clip)),
-            "frames": [numbers[t] for t in selected],
+            "frames": [numbers[t] for t in plan.selected],
             "exr_layer": C.EXR_LAYER,
             "resolution": list(clip.native_size),
+            "precision": plan.precision,
         },
         "layers": layers,
         "fit": {

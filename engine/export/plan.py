@@ -84,6 +84,9 @@ class Plan:
     #: slip against the flow (``engine.export.follow_flow``).
     follow_flow: bool = False
     follows: frozenset[int] = frozenset()
+    #: The bits the pass files keep (``contract.PASS_PRECISIONS``; ``pass_files.kept_precision``); a record
+    #: written before it was chosen: full.
+    precision: str = C.PASS_PRECISION_FULL
 
     def numbers(self, clip: ClipRecord) -> list[int]:
         return [clip.frame_numbers[t] for t in self.selected]
@@ -99,7 +102,7 @@ class Plan:
         ]
         return {"schema": STAGE_SCHEMA, "frames": [numbers[0], numbers[-1]], "atlas_size": self.atlas_size,
                 "layers": layers, "source": source, "follow_flow": self.follow_flow,
-                "follows": sorted(self.follows)}  # fmt: skip
+                "follows": sorted(self.follows), "precision": self.precision}  # fmt: skip
 
     @classmethod
     def from_record(cls, data: dict[str, Any], clip: ClipRecord) -> Plan:
@@ -112,6 +115,7 @@ class Plan:
             int(data["atlas_size"]),
             bool(data.get("follow_flow", False)),  # a record written before the flow was followed: not followed
             frozenset(int(i) for i in data.get("follows", [])),
+            str(data.get("precision", C.PASS_PRECISION_FULL)),
         )
 
 

@@ -25,7 +25,8 @@ from ..fit.run_files import Bool, Int, IntList, IntPair, Kind, NumberList, RunFi
 STAGE_RECORD = "stage.json"
 #: The record's schema: frames, atlas size, each layer's atlas frame, ``source`` (what it was made from) and, when
 #: written by an engine that follows the flow, ``follow_flow`` (bool) and ``follows`` (the layers whose
-#: UV corrections are staged beside it: ``staging.FOLLOW_FLOW_DIR``).
+#: UV corrections are staged beside it: ``staging.FOLLOW_FLOW_DIR``) and, once it was chosen, ``precision`` (the bits
+#: the pass files keep: ``contract.PASS_PRECISIONS``).
 STAGE_SCHEMA = "neural_atlas.export_stage/2"
 #: The schema of records written before they said what they were made from: such a stage cannot be continued.
 STAGE_SCHEMA_WITHOUT_SOURCE = "neural_atlas.export_stage/1"
@@ -74,6 +75,8 @@ def _stage_problem(data: dict[str, Any]) -> str | None:
         return f"its source names {sorted(data['source'])[:4]}, not the digests of {sorted(SOURCE_FILES)}"
     if any(not 0 <= i < len(data["layers"]) for i in data.get("follows", [])):
         return f"it follows layers {data['follows'][:8]} of its {len(data['layers'])}"
+    if data.get("precision", C.PASS_PRECISION_FULL) not in C.PASS_PRECISIONS:
+        return f"its pass precision {str(data['precision'])[:40]!r} is not one of {', '.join(C.PASS_PRECISIONS)}"
     return None
 
 
@@ -87,6 +90,7 @@ class StageFile(RunFile):
     source: Annotated[dict[str, Str], Kind("dict of str")]  # ``fit_source``: SOURCE_FILES' keys, hex digests
     follow_flow: Bool = False
     follows: IntList = Field(default_factory=list)
+    precision: Str = C.PASS_PRECISION_FULL  # absent from records written before it was chosen: every bit kept
 
     @model_validator(mode="wrap")
     @classmethod

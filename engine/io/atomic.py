@@ -33,9 +33,23 @@ DISK_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
 DISK_FULL_SLACK = 1024 * 1024
 
 
+_UMASK_LOCK = threading.Lock()
+
+
 def _current_umask() -> int:
-    mask = os.umask(0o022)
-    os.umask(mask)
+    """The process's umask. Linux states it in /proc/self/status; elsewhere it can only be read by setting it and
+    back, which is process-wide, so that is done under a lock (files are written from a second thread too:
+    ``io.write_ahead``)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    with _UMASK_LOCK:
+        mask = os.umask(0o022)
+        os.umask(mask)
     return mask
 
 

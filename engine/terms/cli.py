@@ -47,6 +47,9 @@ EXPORT_STAGES: tuple[str, ...] = ("atlases", "passes", "publish")
 #: refused), ``--no-follow-flow`` exports the UV as fitted. A staged export decides it in its ``atlases`` stage.
 EXPORT_FOLLOW_FLOW_FLAG = "--follow-flow"
 EXPORT_NO_FOLLOW_FLOW_FLAG = "--no-follow-flow"
+#: ``export --pass-precision compact|full`` (``PASS_PRECISIONS``; default compact): the bits the pass files keep.
+#: A staged export decides it in its ``atlases`` stage.
+EXPORT_PASS_PRECISION_ARG = "--pass-precision"
 #: ``fit ... --resume-if-started``: a retried farm task: continue the checkpoint of this same fit in RUN_DIR, leave
 #: a finished one as it is (exit 0), or start it.
 FIT_RESUME_IF_STARTED_FLAG = "--resume-if-started"
@@ -89,6 +92,7 @@ __all__ = [
     "EXPORT_FOLLOW_FLOW_FLAG",
     "EXPORT_INTO_ARG",
     "EXPORT_NO_FOLLOW_FLOW_FLAG",
+    "EXPORT_PASS_PRECISION_ARG",
     "EXPORT_STAGES",
     "EXPORT_STAGE_ARG",
     "FIT_REFINE_FLAG",

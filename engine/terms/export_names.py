@@ -37,7 +37,9 @@ PASS_FILE_EXT = ".exr"
 #: so one Image node exposes one socket per pass.
 EXR_LAYER = "Atlas"
 UV_PASS_PREFIX = "UV"  # UV<Layer>: channels U, V, A = u, v (0..1, origin bottom-left), the layer's alpha
-ALPHA_PASS_PREFIX = "Alpha"  # Alpha<Layer>: one channel V, the layer's alpha (opacity weight; sums to 1)
+#: Alpha<Layer>: one channel V, the layer's alpha (opacity weight; the layers' sum to 1, within 2^-12 per layer in a
+#: compact export: PASS_PRECISIONS)
+ALPHA_PASS_PREFIX = "Alpha"
 #: A UV pass's channels in the order u, v, coverage: Blender's own name for its UV render pass (``UV.U``, ``UV.V``,
 #: ``UV.A``), which its Image node gives Map UV as one vector (it orders U, V, A by letter). OpenImageIO takes a channel
 #: named "Z" or "*.Z" as depth (its z_channel) and one named "A" or "*.A" as alpha: the coverage is an alpha.
@@ -53,6 +55,15 @@ ALPHA_CHANNELS: tuple[str, ...] = ("V",)
 #: what STMap reads and whose alpha is the coverage. Blender's Image node skips one-dot names: its passes are unchanged.
 STMAP_PASS_PREFIX = "STMap"
 STMAP_CHANNELS: tuple[str, ...] = ("R", "G", "B", "A")
+#: How many of the networks' bits the pass files keep (the manifest's passes "precision"; absent: "full", as exports
+#: made before it was chosen). Every channel is float32 in both, so every reader reads both alike. ``compact`` (the
+#: default) rounds the alpha and the coverage to half float's precision (at most 2^-12 = 2.4e-4 off: invisible in a
+#: matte) and u, v to multiples of PASS_UV_STEP (0.03 texel on a 4096 atlas): the low bits the networks leave are
+#: noise that ZIP cannot compress, and without them a frame of passes takes half the bytes. ``full`` keeps every bit.
+PASS_PRECISION_COMPACT = "compact"
+PASS_PRECISION_FULL = "full"
+PASS_PRECISIONS: tuple[str, ...] = (PASS_PRECISION_COMPACT, PASS_PRECISION_FULL)
+PASS_UV_STEP = 2.0**-17
 #: The Nuke script an export writes next to its manifest (``engine nuke`` writes one anywhere).
 NUKE_SCRIPT_NAME = "neural_atlas.nk"
 
@@ -178,6 +189,10 @@ __all__ = [
     "PASS_FILE_DIGITS",
     "PASS_FILE_EXT",
     "PASS_FILE_PREFIX",
+    "PASS_PRECISIONS",
+    "PASS_PRECISION_COMPACT",
+    "PASS_PRECISION_FULL",
+    "PASS_UV_STEP",
     "ROLE_BACKGROUND",
     "ROLE_FOREGROUND",
     "STMAP_CHANNELS",

@@ -12,7 +12,7 @@ from typing import Any
 from .cli import CLI_MODULE
 from .clip import CLIP_KINDS
 from .colour import COLOUR_SOURCE_ASKED, COLOUR_SOURCES, valid_colour_record
-from .export_names import ROLE_BACKGROUND, ROLE_FOREGROUND, UV_CHANNELS
+from .export_names import PASS_PRECISION_FULL, PASS_PRECISIONS, ROLE_BACKGROUND, ROLE_FOREGROUND, UV_CHANNELS
 from .run_folder import BG_MOTIONS, SCENE_FIELDS, SCENE_KEYS
 
 MANIFEST_NAME = "manifest.json"
@@ -40,7 +40,8 @@ MANIFEST_TAG = "neural_atlas_manifest"  # {"neural_atlas_manifest": MANIFEST_VER
 #:  "passes": {"dir": str, "pattern": "atlas.{frame:04d}.exr" (padded as the plate's frames: ``pass_pattern``),
 #:             "blender_pattern": "atlas.####.exr" (the same for Blender: ``blender_pattern``),
 #:             "frames": [int] (plate frame numbers exported, each one of the clip's), "exr_layer": "Atlas",
-#:             "resolution": [W, H] (the clip's)},
+#:             "resolution": [W, H] (the clip's), "precision": one of PASS_PRECISIONS (optional, absent: "full":
+#:             the bits the pass files keep)},
 #:  "layers": [{"name": str (unique), "index": int (its position; 0 is the background), "role":
 #:              "background"|"foreground", "uv_pass": str, "alpha_pass": str, "uv_channels": [3 str] (u, v,
 #:              coverage: UV_CHANNELS, or LEGACY_UV_CHANNELS in older exports),
@@ -92,6 +93,7 @@ MANIFEST_OPTIONAL_FIELDS: dict[str, dict[str, str]] = {
         "source_absolute": "str",
         "frame_files_absolute": "str list",
     },
+    "passes": {"precision": "str"},
     "fit": {"alpha_iou": "number list or null"},
 }
 MANIFEST_LAYER_FIELDS: dict[str, str] = {
@@ -227,6 +229,8 @@ def _check_passes(passes: dict[str, Any], clip: dict[str, Any]) -> None:
         raise ManifestError(f"manifest 'passes' pattern {_quote(passes['pattern'])} does not name a pass file")
     if not passes["dir"] or not passes["exr_layer"]:
         raise ManifestError("manifest 'passes' has an empty dir or exr_layer")
+    if passes.get("precision", PASS_PRECISION_FULL) not in PASS_PRECISIONS:
+        raise ManifestError(f"manifest 'passes' has unknown precision {_quote(passes['precision'])}")
 
 
 def is_layer_name(name: str) -> bool:

@@ -126,23 +126,30 @@ def test_render_on_a_really_full_disk_leaves_nothing(tmp_path, size_kb):
 
 #: A real render (``engine.cli.main`` on argv[2:]) that stops once argv[1] frames are in its staging folder, says
 #: so on stdout and waits there for the test's SIGTERM: the signal lands in the middle of the frames at the same
-#: point on every machine, however loaded (a render left to run on could end before a racing signal).
+#: point on every machine, however loaded (a render left to run on could end before a racing signal). It waits in
+#: the render's own thread, before the next frame, once the frames handed to the writer thread are written.
 _RENDER_PAUSED = """
 import sys, time
 import engine.edit.render as R
 from engine.cli import main
 
-real, written = R.write_png, []
+real_png, real_frames, written, stop = R.write_png, R.render_plate_frames, [], int(sys.argv[1])
 
 def write_png(path, *args, **kwargs):
-    done = real(path, *args, **kwargs)
+    done = real_png(path, *args, **kwargs)
     written.append(path)
-    if len(written) == int(sys.argv[1]):
-        print("paused", flush=True)
-        time.sleep(600)  # the SIGTERM handler raises out of the sleep
     return done
 
-R.write_png = write_png
+def render_plate_frames(*args, **kwargs):
+    for k, frame in enumerate(real_frames(*args, **kwargs)):
+        if k == stop:
+            while len(written) < stop:
+                time.sleep(0.01)
+            print("paused", flush=True)
+            time.sleep(600)  # the SIGTERM handler raises out of the sleep
+        yield frame
+
+R.write_png, R.render_plate_frames = write_png, render_plate_frames
 sys.exit(main(sys.argv[2:]))
 """
 

@@ -4,7 +4,6 @@ changed. Real child processes (``python -m engine``) where another process is th
 
 from __future__ import annotations
 
-import errno
 import json
 import math
 import os
@@ -21,7 +20,7 @@ import pytest
 from engine import contract as C
 from engine.errors import MB
 from engine.io.images import write_png
-from tests.engine.export.tiny_run import copy_root, export, make_run
+from tests.engine.export.tiny_run import copy_root, export, fail_exr_writes_after, make_run
 from tests.engine_cli import run_cli
 from tests.folders import hold_lock, tree_digest
 from tests.paths import ROOT
@@ -139,19 +138,9 @@ def test_sigterm_during_export_exits_3_and_leaves_nothing(root):
 def _fill_disk_after(monkeypatch, writes: int) -> None:
     """The export's EXR writer fails with ENOSPC once ``writes`` files were written, and the disk has 0 bytes free:
     the message's N MB is then everything the export needs."""
-    import engine.export.exporter as ex
     import engine.io.atomic as atomic
 
-    calls = {"n": 0}
-    real = ex.write_exr
-
-    def full(path, channels, **kw):  # type: ignore[no-untyped-def]
-        calls["n"] += 1
-        if calls["n"] > writes:
-            raise OSError(errno.ENOSPC, "No space left on device", str(path))
-        return real(path, channels, **kw)
-
-    monkeypatch.setattr(ex, "write_exr", full)
+    fail_exr_writes_after(monkeypatch, writes)
     monkeypatch.setattr(atomic, "free_bytes", lambda folder: 0)
 
 

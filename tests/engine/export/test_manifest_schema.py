@@ -112,6 +112,7 @@ def test_the_models_name_the_contracts_fields_and_values():
     assert _enum(S.Clip, "kind") == C.CLIP_KINDS
     assert _enum(S.Clip, "colour_source") == C.COLOUR_SOURCES
     assert _enum(S.Layer, "role") == (C.ROLE_BACKGROUND, C.ROLE_FOREGROUND)
+    assert _enum(S.Passes, "precision") == C.PASS_PRECISIONS
     assert _enum(S.Scene, "background_motion") == C.BG_MOTIONS
 
 

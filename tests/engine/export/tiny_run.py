@@ -39,3 +39,24 @@ def copy_root(src: Path, dest: Path) -> Path:
     """A copy of a test root (clip and run side by side), as a run folder moved with its plate would be."""
     shutil.copytree(src, dest, symlinks=True)
     return dest
+
+
+def fail_exr_writes_after(monkeypatch, files: int) -> None:  # type: ignore[no-untyped-def]
+    """Every EXR the export writes (atlases and passes) fails with ENOSPC, naming the file, once ``files`` were
+    written: a disk that fills during the export."""
+    import errno
+
+    import engine.export.exporter as ex
+    import engine.export.pass_writer as pass_writer
+
+    calls = {"n": 0}
+    real = ex.write_exr
+
+    def full(path, channels, **kw):  # type: ignore[no-untyped-def]
+        calls["n"] += 1
+        if calls["n"] > files:
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        return real(path, channels, **kw)
+
+    monkeypatch.setattr(ex, "write_exr", full)
+    monkeypatch.setattr(pass_writer, "write_exr", full)
