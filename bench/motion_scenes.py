@@ -36,7 +36,6 @@ first four forward models are ``bench.motion_models``; the ground-truth tracks `
 
 from __future__ import annotations
 
-import io
 import os
 import re
 import zipfile
@@ -53,7 +52,7 @@ from bench.motion_bodies import BACK_LIMB, FRONT_LIMB, TORSO, LimbsJump
 from bench.motion_builders import BUILDERS, DESCRIPTIONS
 from bench.motion_models import _Model
 from bench.motion_spec import DEFAULT_FRAMES, DEFAULT_SIZE, KINDS, MotionSpec
-from bench.motion_tracks import ground_truth_tracks
+from bench.motion_tracks import ground_truth_tracks, query_frames
 from bench.tracking import Tracks, save_tracks
 from engine.data.synthetic import _Background, _textures, write_pngs
 from engine.io.images import cv2_write
@@ -69,6 +68,8 @@ PART_MASKS = "masks_parts"
 LIMBS_PARTS: dict[str, tuple[int, ...]] = {"body": (TORSO, BACK_LIMB), "front_limb": (FRONT_LIMB,)}
 #: Zip members get this timestamp, so a rewritten clip's .npz files are byte-identical.
 ZIP_DATE = (1980, 1, 1, 0, 0, 0)
+#: Bytes of a zip member copied at a time when it is re-dated.
+REPACK_BLOCK = 1 << 24
 _FRAME_NAME = re.compile(r"^\d{5}\.png$")
 
 
@@ -122,24 +123,39 @@ def _composite(
     return img, uv, cov
 
 
+def _pixel_grid(spec: MotionSpec) -> tuple[np.ndarray, ...]:
+    """Every pixel's (x, y) of a frame, and the columns and rows alone (the background's separable grid)."""
+    ys, xs = np.mgrid[0 : spec.height, 0 : spec.width].astype(np.float64)
+    return xs, ys, np.arange(spec.width, dtype=np.float64), np.arange(spec.height, dtype=np.float64)
+
+
+def _render_frame(
+    spec: MotionSpec, model: _Model, background: _Background, t: int, grid: tuple[np.ndarray, ...]
+) -> tuple[np.ndarray, ...]:
+    """Frame ``t``: its colours (float32), the mask, the surface coordinate (float32, NaN off the mask), the
+    coverage (float32) and the part each pixel shows (int8, -1 off the mask)."""
+    xs, ys, xv, yv = grid
+    plate = background.grid(xv + spec.pan[0] * t, yv + spec.pan[1] * t)  # = background(xs + ..., ys + ...)
+    frame, uv, cov = _composite(model, t, xs, ys, plate)
+    mask = cov > 0.5
+    uv_field = np.full((*mask.shape, 2), np.nan, np.float32)
+    uv_field[mask] = uv[mask]
+    part = model.visible_part(t, xs, ys) if isinstance(model, LimbsJump) else np.where(mask, 0, -1)
+    return frame.astype(np.float32), mask, uv_field, cov.astype(np.float32), part.astype(np.int8)
+
+
 def _render(spec: MotionSpec, model: _Model, background: _Background) -> tuple[np.ndarray, ...]:
     """Frames, masks, the surface-coordinate field (NaN off the mask), the coverage and the part each pixel shows
     (-1 off the mask) of every frame."""
     t_n, h, w = spec.frames, spec.height, spec.width
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
-    xv, yv = np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)
+    grid = _pixel_grid(spec)
     frames = np.empty((t_n, h, w, 3), np.float32)
     masks = np.empty((t_n, h, w), bool)
-    uv_field = np.full((t_n, h, w, 2), np.nan, np.float32)
+    uv_field = np.empty((t_n, h, w, 2), np.float32)
     cov_field = np.empty((t_n, h, w), np.float32)
     part_field = np.empty((t_n, h, w), np.int8)
     for t in range(t_n):
-        plate = background.grid(xv + spec.pan[0] * t, yv + spec.pan[1] * t)  # = background(xs + ..., ys + ...)
-        frames[t], uv, cov = _composite(model, t, xs, ys, plate)
-        masks[t] = cov > 0.5
-        uv_field[t][masks[t]] = uv[masks[t]]
-        cov_field[t] = cov
-        part_field[t] = model.visible_part(t, xs, ys) if isinstance(model, LimbsJump) else np.where(masks[t], 0, -1)
+        frames[t], masks[t], uv_field[t], cov_field[t], part_field[t] = _render_frame(spec, model, background, t, grid)
     return frames, masks, uv_field, cov_field, part_field
 
 
@@ -165,30 +181,60 @@ def make_motion_scene(spec: MotionSpec | str, **kw: Any) -> MotionScene:
 
 def _repack_fixed_date(path: Path) -> None:
     """Rewrite the zip (.npz) at ``path`` with every member dated ZIP_DATE: numpy stamps the time of writing,
-    which would make two writes of the same clip differ."""
-    with zipfile.ZipFile(path) as z:
-        members = [(i.filename, i.compress_type, z.read(i)) for i in z.infolist()]
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w") as z:
-        for name, compress_type, data in members:
-            info = zipfile.ZipInfo(name, date_time=ZIP_DATE)
-            info.compress_type = compress_type
-            info.external_attr = 0o644 << 16
-            z.writestr(info, data)
+    which would make two writes of the same clip differ. Copied a block at a time, so a member larger than memory
+    (a long 4K clip's surface-coordinate field) is never held whole."""
     tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_bytes(buf.getvalue())
+    with zipfile.ZipFile(path) as z, zipfile.ZipFile(tmp, "w") as dest:
+        for member in z.infolist():
+            info = zipfile.ZipInfo(member.filename, date_time=ZIP_DATE)
+            info.compress_type = member.compress_type
+            info.external_attr = 0o644 << 16
+            info.file_size = member.file_size  # as writestr sets it: the same zip64 choice
+            with z.open(member) as src, dest.open(info, "w") as out:
+                while block := src.read(REPACK_BLOCK):
+                    out.write(block)
     os.replace(tmp, path)
 
 
 def part_masks(scene: MotionScene) -> dict[str, np.ndarray]:
     """The object's masks split into the parts ``PART_MASKS`` holds (bool [T, H, W] per part name: the pixels of the
     object whose true surface coordinate is on the part); empty for a scene of one part."""
-    if not isinstance(scene.model, LimbsJump):
+    return _part_masks(scene.model, scene.uv, scene.masks)
+
+
+def _part_masks(model: _Model, uv: np.ndarray, masks: np.ndarray) -> dict[str, np.ndarray]:
+    """``part_masks`` of a surface-coordinate field and its masks: every frame's, or one frame's."""
+    if not isinstance(model, LimbsJump):
         return {}
-    part = np.full(scene.masks.shape, -1, np.int64)
-    known = np.isfinite(scene.uv).all(-1)
-    part[known] = scene.model.part_of(scene.uv[known])
-    return {name: np.isin(part, ids) & scene.masks for name, ids in LIMBS_PARTS.items()}
+    part = np.full(masks.shape, -1, np.int64)
+    known = np.isfinite(uv).all(-1)
+    part[known] = model.part_of(uv[known])
+    return {name: np.isin(part, ids) & masks for name, ids in LIMBS_PARTS.items()}
+
+
+def _clip_folders(out: Path, parts: list[str]) -> tuple[Path, Path, Path, dict[str, Path]]:
+    """The clip folder's frame, mask, rough-mask and part-mask folders, made and emptied of an earlier clip's
+    frames (a longer one's would otherwise be read as part of this one)."""
+    frames_dir, masks_dir, rough_dir = out / "frames", out / "masks", out / ROUGH_MASKS
+    part_dirs = {name: out / PART_MASKS / name for name in parts}
+    for d in (frames_dir, masks_dir, rough_dir, *part_dirs.values()):
+        d.mkdir(parents=True, exist_ok=True)
+        for old in d.iterdir():
+            if _FRAME_NAME.match(old.name):
+                old.unlink()
+    return frames_dir, masks_dir, rough_dir, part_dirs
+
+
+def _finish_clip(out: Path, masks_dir: Path, rough_dir: Path, model: _Model, tracks: Tracks, uv: np.ndarray,
+                 kind: str) -> None:  # fmt: skip
+    """What follows the frames: the rough roto, the texture, the tracks and the surface-coordinate field."""
+    write_degraded(masks_dir, rough_dir, ROUGH_RECIPE)
+    texture8 = np.clip(np.rint(texture_image(model) * 255.0), 0, 255).astype(np.uint8)
+    cv2_write(out / TEXTURE_PNG, cv2.cvtColor(texture8, cv2.COLOR_RGB2BGR))
+    save_tracks(out / TRACKS_FILE, tracks)
+    np.savez_compressed(out / GT_UV_NPZ, uv=uv, kind=np.asarray(kind))
+    for name in (TRACKS_FILE, GT_UV_NPZ):
+        _repack_fixed_date(out / name)
 
 
 def write_motion_clip(scene: MotionScene, folder: str | Path) -> Path:
@@ -199,21 +245,43 @@ def write_motion_clip(scene: MotionScene, folder: str | Path) -> Path:
     the object; ``kind``). Frame files of an earlier, longer clip there are removed; the same scene gives the
     same bytes. Returns the folder."""
     out = Path(folder)
-    frames_dir, masks_dir, rough_dir = out / "frames", out / "masks", out / ROUGH_MASKS
-    parts = {out / PART_MASKS / name: m for name, m in part_masks(scene).items()}
-    for d in (frames_dir, masks_dir, rough_dir, *parts):
-        d.mkdir(parents=True, exist_ok=True)
-        for old in d.iterdir():
-            if _FRAME_NAME.match(old.name):
-                old.unlink()
-    write_pngs(scene.frames, frames_dir, {masks_dir: scene.masks, **parts})
-    write_degraded(masks_dir, rough_dir, ROUGH_RECIPE)
-    texture8 = np.clip(np.rint(scene.texture * 255.0), 0, 255).astype(np.uint8)
-    cv2_write(out / TEXTURE_PNG, cv2.cvtColor(texture8, cv2.COLOR_RGB2BGR))
-    save_tracks(out / TRACKS_FILE, scene.tracks)
-    np.savez_compressed(out / GT_UV_NPZ, uv=scene.uv, kind=np.asarray(scene.spec.kind))
-    for name in (TRACKS_FILE, GT_UV_NPZ):
-        _repack_fixed_date(out / name)
+    parts = part_masks(scene)
+    frames_dir, masks_dir, rough_dir, part_dirs = _clip_folders(out, list(parts))
+    write_pngs(scene.frames, frames_dir, {masks_dir: scene.masks, **{part_dirs[n]: m for n, m in parts.items()}})
+    _finish_clip(out, masks_dir, rough_dir, scene.model, scene.tracks, scene.uv, scene.spec.kind)
+    return out
+
+
+def write_motion_spec(spec: MotionSpec, folder: str | Path) -> Path:
+    """The clip folder ``write_motion_clip`` writes of ``make_motion_scene(spec)``, byte for byte, rendered and
+    written one frame at a time: memory holds one frame, the coverage of the tracks' query frames and the
+    surface-coordinate field in a file beside the clip (removed once it is in ``gt_uv.npz``), so a 300-frame 1080p
+    or a 4K plate is written on a machine whose memory holds a few frames. Returns the folder."""
+    out = Path(folder)
+    model, plate = BUILDERS[spec.kind](spec)
+    background = _textures(plate)[0]
+    parts = list(LIMBS_PARTS) if isinstance(model, LimbsJump) else []
+    frames_dir, masks_dir, rough_dir, part_dirs = _clip_folders(out, parts)
+    keep = set(query_frames(spec))
+    cov: dict[int, np.ndarray] = {}
+    part: dict[int, np.ndarray] = {}
+    field_path = out / f".{GT_UV_NPZ}.field"
+    uv = np.lib.format.open_memmap(field_path, "w+", np.float32, (spec.frames, spec.height, spec.width, 2))
+    try:
+        grid = _pixel_grid(spec)
+        for t in range(spec.frames):
+            frame, mask, uv[t], cov_t, part_t = _render_frame(spec, model, background, t, grid)
+            if t in keep:
+                cov[t], part[t] = cov_t, part_t
+            masks_t = {masks_dir: mask[None]}
+            masks_t |= {part_dirs[n]: m[None] for n, m in _part_masks(model, uv[t], mask).items()}
+            write_pngs(frame[None], frames_dir, masks_t, first=t)
+        uv.flush()
+        tracks = ground_truth_tracks(spec, model, cov, part)
+        _finish_clip(out, masks_dir, rough_dir, model, tracks, uv, spec.kind)
+    finally:
+        del uv
+        field_path.unlink(missing_ok=True)
     return out
 
 
@@ -225,11 +293,9 @@ def write_motion_clips(
     seed: int = 0,
     kinds: tuple[str, ...] = KINDS,
 ) -> list[Path]:
-    """Every motion scene of ``kinds`` as a clip folder ``root/KIND``; returns the folders."""
-    return [
-        write_motion_clip(make_motion_scene(MotionSpec(kind, width, height, frames, seed)), Path(root) / kind)
-        for kind in kinds
-    ]
+    """Every motion scene of ``kinds`` as a clip folder ``root/KIND``, a frame at a time (``write_motion_spec``);
+    returns the folders."""
+    return [write_motion_spec(MotionSpec(kind, width, height, frames, seed), Path(root) / kind) for kind in kinds]
 
 
 __all__ = [
@@ -243,4 +309,5 @@ __all__ = [
     "texture_image",
     "write_motion_clip",
     "write_motion_clips",
+    "write_motion_spec",
 ]

@@ -3,6 +3,8 @@ through every frame by the scene's forward model, occluded where the camera does
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import cv2
 import numpy as np
 
@@ -63,15 +65,24 @@ def _query_points(
     return first + [pts[~hidden][i] for i in _spread(pts[~hidden], count - len(first))]
 
 
-def ground_truth_tracks(spec: MotionSpec, model: _Model, cov: np.ndarray, part: np.ndarray) -> Tracks:
+def query_frames(spec: MotionSpec) -> list[int]:
+    """The frames whose points the tracks start from: QUERY_FRAMES spread over the clip."""
+    return [int(t) for t in np.unique(np.rint(np.linspace(0, spec.frames - 1, QUERY_FRAMES)).astype(int))]
+
+
+#: Per frame: every frame's array [T, ...], or a mapping of some frames' arrays.
+Frames = Mapping[int, np.ndarray] | np.ndarray
+
+
+def ground_truth_tracks(spec: MotionSpec, model: _Model, cov: Frames, part: Frames) -> Tracks:
     """TRACKS points on each part of the object, QUERY_FRAMES query frames spread over the clip (``_query_points``);
     in every frame the point's exact position from the forward model, occluded where the camera does not see it
-    (it faces away, or a part in front hides it), it leaves the frame or falls off the object's coverage."""
+    (it faces away, or a part in front hides it), it leaves the frame or falls off the object's coverage. ``cov``
+    and ``part``: the coverage and the part each pixel shows, of every frame or of the ``query_frames`` alone."""
     t_n, h, w = spec.frames, spec.height, spec.width
-    query_frames = np.unique(np.rint(np.linspace(0, t_n - 1, QUERY_FRAMES)).astype(int))
-    per = -(-TRACKS // len(query_frames))
+    per = -(-TRACKS // len(query_frames(spec)))
     queries, uvs = [], []
-    for tq in query_frames:
+    for tq in query_frames(spec):
         for k in range(model.n_parts):
             for x, y in _query_points(spec, model, int(tq), cov[tq], part[tq], k, per):
                 queries.append((tq, x + 0.5, y + 0.5))

@@ -336,14 +336,15 @@ def _already_written(folder: Path, meta: dict[str, Any], frames_dir: Path, masks
     return all((frames_dir / n).is_file() and (masks_dir / n).is_file() for n in names)
 
 
-def write_pngs(frames: np.ndarray, frames_dir: Path, masks: dict[Path, np.ndarray]) -> None:
+def write_pngs(frames: np.ndarray, frames_dir: Path, masks: dict[Path, np.ndarray], first: int = 0) -> None:
     """``frames`` [T, H, W, 3] as 8-bit sRGB ``frames_dir/00000.png ...``, and each folder's bool masks [T, H, W]
-    as 0/255 PNGs with the same names (the folders must exist)."""
+    as 0/255 PNGs with the same names (the folders must exist); numbered from ``first`` (a clip written a frame at
+    a time)."""
     rgb8 = np.clip(np.rint(frames * 255.0), 0, 255).astype(np.uint8)
     for t in range(frames.shape[0]):
-        cv2_write(frames_dir / f"{t:05d}.png", cv2.cvtColor(rgb8[t], cv2.COLOR_RGB2BGR))
+        cv2_write(frames_dir / f"{first + t:05d}.png", cv2.cvtColor(rgb8[t], cv2.COLOR_RGB2BGR))
         for folder, m in masks.items():
-            cv2_write(folder / f"{t:05d}.png", np.where(m[t], 255, 0).astype(np.uint8))
+            cv2_write(folder / f"{first + t:05d}.png", np.where(m[t], 255, 0).astype(np.uint8))
 
 
 def write_scene(scene: SyntheticScene, folder: Path) -> tuple[Path, Path]:

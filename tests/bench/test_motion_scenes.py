@@ -29,12 +29,14 @@ from bench.motion_scenes import (
     make_motion_scene,
     part_masks,
     write_motion_clip,
+    write_motion_spec,
 )
 from bench.motion_spec import DEFAULT_FRAMES, DEFAULT_SIZE, KINDS, MotionSpec
 from bench.motion_tracks import TRACKS
 from bench.tool_parsers import build_parser
 from bench.tracking import load_tracks
 from engine import contract as C
+from tests.folders import tree_digest
 
 SIZE = {"width": 128, "height": 96, "frames": 8}
 #: The texture re-sampled through the exact UV field (bicubic) matches the frames' unblended object pixels to this.
@@ -236,6 +238,19 @@ def test_thin_bars_are_three_pixels_wide(scenes):
         depth = cv2.distanceTransform(m.astype(np.uint8), cv2.DIST_L2, 5)
         off_hub = np.hypot(*(pts - scene.model.path(t)).transpose(2, 0, 1)) > 2 * BAR_WIDTH  # type: ignore[union-attr]
         assert depth[off_hub].max() <= 2.3  # a 3 px bar's middle pixel is 2 from the outside, at any angle
+
+
+@pytest.mark.parametrize("kind", ["turning_depth", "limbs_jump"])
+def test_a_clip_written_a_frame_at_a_time_is_the_scenes_clip_byte_for_byte(tmp_path, kind):
+    """``write_motion_spec`` (what ``bench motion-scenes`` runs, for plates larger than memory) writes the very files
+    ``write_motion_clip`` writes of the whole rendered scene, part masks included, and leaves no field file."""
+    spec = MotionSpec(kind, 72, 40, 7)
+    whole = write_motion_clip(make_motion_scene(spec), tmp_path / "whole")
+    streamed = write_motion_spec(spec, tmp_path / "streamed")
+    a, b = tree_digest(whole), tree_digest(streamed)
+    assert a == b and len(a) >= 3 * 7 + 3
+    assert any(name.startswith(PART_MASKS) for name in a) == (kind == "limbs_jump")
+    assert not [p for p in streamed.iterdir() if p.name.startswith(".")]
 
 
 def test_clip_folder_is_written_byte_identical(tmp_path):
