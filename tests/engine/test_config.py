@@ -318,3 +318,19 @@ def test_the_mappings_rate_reaches_its_final_ratio_at_lr_mapping_steps_and_stays
         assert grids(50) == pytest.approx(0.1**0.5) and grids(100) == pytest.approx(0.1)
         assert mappings(50) == pytest.approx(at_50) and mappings(100) == pytest.approx(at_100)
         assert mappings(75) == pytest.approx(at_100 if mapping_steps == 50 else 0.1**0.75)
+
+
+def test_balanced_settles_its_mappings_rate_by_step_1600_and_draft_decays_it_over_every_step():
+    """The preset measured on every clip (docs/accuracy-vs-time.md, the balanced table): the mappings' rate at its
+    final ratio from step 1600 of 6000; draft's 800 steps decay every rate to the end, as before."""
+    import torch
+
+    from engine.fit.optimisation import make_scheduler
+
+    groups = [{"params": [torch.zeros(1, requires_grad=True)], "lr": 1.0, "name": n} for n in ("grids", "mappings")]
+    balanced, draft = preset_config("balanced"), preset_config("draft")
+    assert (balanced.lr_mapping_steps, balanced.steps, draft.lr_mapping_steps) == (1600, 6000, 0)
+    grids, mappings = make_scheduler(torch.optim.SGD(groups), balanced).lr_lambdas
+    ratio = balanced.lr_final_ratio
+    assert mappings(1600) == pytest.approx(ratio) and mappings(4000) == pytest.approx(ratio)
+    assert grids(1600) == pytest.approx(ratio ** (1600 / 6000)) and grids(6000) == pytest.approx(ratio)
