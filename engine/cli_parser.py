@@ -315,7 +315,7 @@ def _add_export_parser(sub: argparse._SubParsersAction) -> None:
         default=None,
         choices=C.PASS_PRECISIONS,
         help=f"the bits the pass files keep, every channel float32 either way: {C.PASS_PRECISION_COMPACT} (default) "
-        "rounds alpha and coverage to half float's precision (at most 2.4e-4 off) and u, v to multiples of 2^-17 "
+        "rounds alpha and coverage down to half float's precision (at most 4.9e-4 off) and u, v to multiples of 2^-17 "
         f"(0.03 texel on a 4096 atlas): half the bytes; {C.PASS_PRECISION_FULL} keeps every bit the networks give. "
         f"A staged export decides it in its {C.EXPORT_STAGES[0]} stage",
     )

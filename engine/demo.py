@@ -267,10 +267,7 @@ def _export_step(folder: RunFolder) -> tuple[Path, Manifest, Path]:
     manifest_path = _newest_export(folder)
     if manifest_path is None:
         _say(f"2/6 export (UV + alpha EXR passes, atlases) -> {folder.exports}")
-        # every bit of the passes: step 6 compares Blender's render with the engine's to float precision
-        manifest_path = export_run(
-            folder.path, atlas_size=DEMO_ATLAS_SIZE, stream=io.StringIO(), precision=C.PASS_PRECISION_FULL
-        )
+        manifest_path = export_run(folder.path, atlas_size=DEMO_ATLAS_SIZE, stream=io.StringIO())
     else:
         _say(f"2/6 export already done: {manifest_path.parent}")
     manifest = Manifest(manifest_path)

@@ -35,8 +35,9 @@ def kept_precision(
     u: np.ndarray, v: np.ndarray, coverage: np.ndarray, alpha: np.ndarray, precision: str
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """A layer's u, v, coverage and alpha with the bits ``precision`` keeps (``contract.PASS_PRECISIONS``), float32
-    either way. ``compact``: alpha and coverage rounded to half float's precision (they lie in 0..1, where half's
-    step is at most 2^-11: at most 2.4e-4 off), u and v to the nearest multiple of ``contract.PASS_UV_STEP`` (a power
+    either way. ``compact``: alpha and coverage rounded to half float's precision towards zero (they lie in 0..1,
+    where half's step is at most 2^-11: at most 4.9e-4 off, and the layers' sum stays at most one), u and v to the
+    nearest multiple of ``contract.PASS_UV_STEP`` (a power
     of two: the division is exact, whatever the value). The networks' lowest bits are noise ZIP cannot compress;
     without them a frame of passes takes half the bytes (``bench export-size``). NaN stays NaN."""
     if precision == C.PASS_PRECISION_FULL:
@@ -45,8 +46,18 @@ def kept_precision(
         raise ValueError(f"unknown pass precision {precision!r}: use one of {', '.join(C.PASS_PRECISIONS)}")
     step = np.float32(C.PASS_UV_STEP)
     grid = [(np.round(np.asarray(x, np.float32) / step) * step).astype(np.float32) for x in (u, v)]
-    half = [np.asarray(x, np.float32).astype(np.float16).astype(np.float32) for x in (coverage, alpha)]
-    return grid[0], grid[1], half[0], half[1]
+    return grid[0], grid[1], _half_down(coverage), _half_down(alpha)
+
+
+def _half_down(values: np.ndarray) -> np.ndarray:
+    """``values`` (0..1) rounded to half float's precision towards zero, as float32: the layers' opacities summed
+    stay at most one (rounded to nearest they could pass it by 2^-12 per layer, and a compositor that clamps
+    ``1 - sum`` would then differ from one that does not). At most 2^-11 off, NaN kept."""
+    given = np.asarray(values, np.float32)
+    half = given.astype(np.float16)
+    over = np.abs(half.astype(np.float32)) > np.abs(given)  # rounded away from zero: one step back
+    half[over] = np.nextafter(half[over], np.float16(0))
+    return half.astype(np.float32)
 
 
 def stmap_values(chans: dict[str, np.ndarray], uv_pass: str) -> tuple[np.ndarray, ...]:

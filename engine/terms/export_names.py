@@ -37,7 +37,7 @@ PASS_FILE_EXT = ".exr"
 #: so one Image node exposes one socket per pass.
 EXR_LAYER = "Atlas"
 UV_PASS_PREFIX = "UV"  # UV<Layer>: channels U, V, A = u, v (0..1, origin bottom-left), the layer's alpha
-#: Alpha<Layer>: one channel V, the layer's alpha (opacity weight; the layers' sum to 1, within 2^-12 per layer in a
+#: Alpha<Layer>: one channel V, the layer's alpha (opacity weight; the layers' sum to 1, less by 2^-11 per layer in a
 #: compact export: PASS_PRECISIONS)
 ALPHA_PASS_PREFIX = "Alpha"
 #: A UV pass's channels in the order u, v, coverage: Blender's own name for its UV render pass (``UV.U``, ``UV.V``,
@@ -57,7 +57,7 @@ STMAP_PASS_PREFIX = "STMap"
 STMAP_CHANNELS: tuple[str, ...] = ("R", "G", "B", "A")
 #: How many of the networks' bits the pass files keep (the manifest's passes "precision"; absent: "full", as exports
 #: made before it was chosen). Every channel is float32 in both, so every reader reads both alike. ``compact`` (the
-#: default) rounds the alpha and the coverage to half float's precision (at most 2^-12 = 2.4e-4 off: invisible in a
+#: default) rounds the alpha and the coverage down to half float's precision (at most 2^-11 = 4.9e-4 off: invisible in a
 #: matte) and u, v to multiples of PASS_UV_STEP (0.03 texel on a 4096 atlas): the low bits the networks leave are
 #: noise that ZIP cannot compress, and without them a frame of passes takes half the bytes. ``full`` keeps every bit.
 PASS_PRECISION_COMPACT = "compact"

@@ -98,9 +98,9 @@ def test_pass_files_follow_the_contract(exported):
                 assert ch.pixels.dtype == np.float32 and ch.pixels.shape == (h, w)
         passes = m.read_passes(f)
         total = sum(p.alpha for p in passes)
-        # the layers' weights sum to one; a compact export rounds each to half float's precision (2^-12 at most)
+        # the layers' weights sum to one; a compact export rounds each down to half float's precision (< 2^-11)
         assert m.data["passes"]["precision"] == C.PASS_PRECISION_COMPACT
-        np.testing.assert_allclose(total, 1.0, atol=len(passes) * 2.0**-12 + 1e-6)
+        assert (total <= 1.0 + 1e-6).all() and (total >= 1.0 - len(passes) * 2.0**-11).all()
         for p in passes:
             assert p.uv.min() >= 0.0 and p.uv.max() <= 1.0
             assert np.all(p.z <= p.alpha + 1e-7) and np.all(p.z >= 0.0)

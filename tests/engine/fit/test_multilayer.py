@@ -116,8 +116,9 @@ def test_export_has_three_layers_that_sum_to_one(fitted):
     for f in m.frames:
         passes = m.read_passes(f)
         assert len(passes) == 3
-        # the layers' weights sum to one; a compact export rounds each to half float's precision (2^-12 at most)
-        np.testing.assert_allclose(sum(p.alpha for p in passes), 1.0, atol=len(passes) * 2.0**-12 + 1e-6)
+        # the layers' weights sum to one; a compact export rounds each down to half float's precision (< 2^-11)
+        total = sum(p.alpha for p in passes)
+        assert (total <= 1.0 + 1e-6).all() and (total >= 1.0 - len(passes) * 2.0**-11).all()
 
 
 def test_empty_edits_render_the_plate(fitted, tmp_path):
