@@ -80,9 +80,10 @@ def ground_truth_tracks(spec: MotionSpec, model: _Model, cov: Frames, part: Fram
     (it faces away, or a part in front hides it), it leaves the frame or falls off the object's coverage. ``cov``
     and ``part``: the coverage and the part each pixel shows, of every frame or of the ``query_frames`` alone."""
     t_n, h, w = spec.frames, spec.height, spec.width
-    per = -(-TRACKS // len(query_frames(spec)))
+    starts = query_frames(spec)
+    per = -(-TRACKS // len(starts))
     queries, uvs = [], []
-    for tq in query_frames(spec):
+    for tq in starts:
         for k in range(model.n_parts):
             for x, y in _query_points(spec, model, int(tq), cov[tq], part[tq], k, per):
                 queries.append((tq, x + 0.5, y + 0.5))

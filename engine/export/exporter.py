@@ -343,12 +343,11 @@ def _plan(job: _Job, fitted: FittedRun, atlas_size: int, frames: tuple[int, int]
     """The atlas plan, and, when the export follows the flow (``plan.follow_flow``, ``plan.follows``), the UV
     corrections and the plate laid through each layer's exported UV."""
     source = _follow_source(job, fitted)
-    if source is None:
-        plan, cov = plan_export(job.reporter, fitted, atlas_size, frames, bar)
-        plan.precision = job.precision or C.PASS_PRECISION_COMPACT
-        return _Planned(plan, cov, {}, {})
-    plan, cov = plan_export(job.reporter, fitted, atlas_size, frames, bar, source.working.add)
+    on_frame = None if source is None else source.working.add  # keep each frame's UV for the flow to follow
+    plan, cov = plan_export(job.reporter, fitted, atlas_size, frames, bar, on_frame)
     plan.precision = job.precision or C.PASS_PRECISION_COMPACT
+    if source is None:
+        return _Planned(plan, cov, {}, {})
     parts = split_parts(fitted.clip.scribbles is not None, job.follow_flow, len(plan.names))
     corrections = _flow_corrections(job, plan.names, source.flow, source.working, parts, source.frames, fitted.model)
     plan.follow_flow, plan.follows = True, frozenset(corrections)
