@@ -190,9 +190,10 @@ def _auto_parts_line(log_path: Path) -> str | None:
 
 
 def export_fg_iou(manifest_path: str | Path, plate: str | Path, masks: str | Path) -> float | None:
-    """IoU of the exported foreground (the alpha of every layer after the background, summed, > FG_ALPHA) against
+    """IoU of the exported foreground (the alpha of every layer after the background, summed, >= FG_ALPHA) against
     the precise masks, intersection and union pooled over the exported frames; None without foreground layers or
-    mask pixels."""
+    mask pixels. ``>=`` because compact passes round alpha towards zero onto a grid that holds FG_ALPHA itself: a
+    fitted alpha just above it is exported as exactly FG_ALPHA, and still counts as foreground, as in the fit."""
     manifest = Manifest(manifest_path)
     if len(manifest.layers) < 2:
         return None
@@ -201,7 +202,7 @@ def export_fg_iou(manifest_path: str | Path, plate: str | Path, masks: str | Pat
     numbers = list(info.frame_numbers)
     inter = union = 0
     for frame in manifest.frames:
-        fg = sum(p.alpha for p in manifest.read_passes(frame)[1:]) > FG_ALPHA
+        fg = sum(p.alpha for p in manifest.read_passes(frame)[1:]) >= FG_ALPHA
         m = gt[numbers.index(frame)]
         inter += int((fg & m).sum())
         union += int((fg | m).sum())

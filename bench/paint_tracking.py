@@ -3,7 +3,7 @@
 The user never sees the networks, only the exported passes (native resolution, u, v in [0, 1] with v up, the
 layer's coverage in Z: docs/export.md), so this reads nothing else. A query point takes the UV of the layer that owns
 it (the largest ``Alpha<Layer>`` at the query, bilinear) in its query frame; in every other frame the prediction is
-the pixel, among those the layer covers (``Z > OWNED_COVERAGE``: where its paint shows), whose UV is nearest that UV
+the pixel, among those the layer covers (``Z >= OWNED_COVERAGE``: where its paint shows), whose UV is nearest that UV
 (a KD-tree on the UVs in texels, so u and v weigh as the atlas's square texels), refined to sub-pixel by one
 Gauss-Newton step on the pass's local UV Jacobian. A frame where the layer covers no pixel has no position: the
 point counts as a miss there. Scores are ``tracking.track_report``'s: TAP-Vid delta_avg, native and at 256x256.
@@ -21,7 +21,9 @@ from bench.tracking import Tracks, sample_bilinear, scored_positions, track_repo
 from engine.errors import InputError
 from engine.export.manifest import LayerPasses, Manifest
 
-#: A pixel shows a layer's paint where the layer's coverage (the UV pass's Z) exceeds this: mostly that layer's.
+#: A pixel shows a layer's paint where the layer's coverage (the UV pass's Z) is at least this: mostly that layer's.
+#: At least, not above: compact passes round coverage towards zero onto a grid holding 0.5 itself, so a fitted
+#: coverage just above 0.5 reads as exactly 0.5 and is the same pixel as in a full-precision export.
 OWNED_COVERAGE = 0.5
 #: The sub-pixel step is skipped where the UV Jacobian's determinant (texels^2 per pixel^2) is below this: the UV
 #: barely changes with the pixel there (a folded or collapsed mapping), so no step direction can be trusted.
@@ -128,7 +130,7 @@ def paint_tracks(manifest: Manifest, tracks: Tracks) -> tuple[np.ndarray, np.nda
         for layer in np.unique(owner).tolist():
             sel = np.nonzero(owner == layer)[0]
             uv = texel_uv(passes[layer], tuple(manifest.layers[layer]["atlas_size"]))
-            out[sel, t] = nearest_positions(uv, passes[layer].z > OWNED_COVERAGE, target[sel])
+            out[sel, t] = nearest_positions(uv, passes[layer].z >= OWNED_COVERAGE, target[sel])
     at_query = qt < tracks.num_frames
     out[np.nonzero(at_query)[0], qt[at_query]] = qxy[at_query]
     return out / scale, owner
