@@ -22,14 +22,13 @@ exit codes: 0 done, 1 engine error, 2 bad input, a full disk or a run folder in 
 
 def frame_range(text: str) -> tuple[int, int]:
     """``--frames``: ``FIRST-LAST`` (``1010-1050``, as pipeline tools write a range), ``FIRST:LAST`` or one frame
-    ``N``, in the plate's frame numbers (inclusive)."""
-    a, sep, b = text.strip().replace(":", "-").partition("-")
+    ``N``, in the plate's frame numbers (inclusive), read as a shot's ``frames`` is (``timing.parse_frames``)."""
+    from .io.timing import ReversedFrames, parse_frames
+
     try:
-        first = int(a)
-        last = int(b) if sep else first
-        if first < 0 or last < 0:
-            raise ValueError
-        return first, last
+        return parse_frames(text)
+    except ReversedFrames as exc:
+        raise argparse.ArgumentTypeError(f"frame range {text!r} is reversed: write {exc}") from None
     except ValueError:
         raise argparse.ArgumentTypeError(
             f"frame range {text!r} must be FIRST-LAST in the plate's frame numbers, e.g. 1001-1100 (or 0:49)"

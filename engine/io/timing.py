@@ -31,6 +31,7 @@ RATE_RANGE = (1, 1000)
 PIXEL_ASPECT_RANGE = (0.01, 100.0)
 
 _TIMECODE = re.compile(r"^(\d{2}):(\d{2}):(\d{2})([:;.])(\d{2,3})$")
+_FRAMES = re.compile(r"\s*(\d+)\s*(?:[-:]\s*(\d+)\s*)?")
 
 
 def exact_rate(value: float | Fraction | tuple[int, int] | None) -> Fraction | None:
@@ -71,6 +72,24 @@ def parse_rate(text: str) -> Fraction:
             f"frame rate {text[:40]!r} is not a number or fraction of {low} to {high} fps (e.g. 24, 23.976, 24000/1001)"
         )
     return rate
+
+
+class ReversedFrames(ValueError):
+    """A frame range written last first; its text is the range the right way round (``1001-1100``)."""
+
+
+def parse_frames(text: str) -> tuple[int, int]:
+    """A range of the plate's frame numbers as pipeline tools write it: ``FIRST-LAST`` (``1010-1050``),
+    ``FIRST:LAST`` or one frame ``N``, inclusive; ValueError otherwise, ``ReversedFrames`` for FIRST > LAST. The
+    one reading of ``--frames`` and of a shot's ``frames``: the farm's plan hands a shot's range on to the fit's
+    ``--frames``, so the two accept exactly the same text."""
+    match = _FRAMES.fullmatch(text)
+    if match is None:
+        raise ValueError(f"frame range {text[:40]!r} is not FIRST-LAST")
+    first, last = int(match[1]), int(match[2] or match[1])
+    if first > last:
+        raise ReversedFrames(f"{last}-{first}")
+    return first, last
 
 
 def rate_text(rate: Fraction) -> str:
@@ -183,4 +202,14 @@ def _drop_allowed(nominal: int) -> bool:
     return nominal in (30, 60)
 
 
-__all__ = ["Timecode", "exact_rate", "nominal_rate", "parse_rate", "pixel_aspect", "rate_text", "timecode_at"]
+__all__ = [
+    "ReversedFrames",
+    "Timecode",
+    "exact_rate",
+    "nominal_rate",
+    "parse_frames",
+    "parse_rate",
+    "pixel_aspect",
+    "rate_text",
+    "timecode_at",
+]

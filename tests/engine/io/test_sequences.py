@@ -127,6 +127,8 @@ def test_frames_text_is_a_pipeline_range():
     for bad in ("a-b", "1010-", "-5", "1:2:3"):
         with pytest.raises(argparse.ArgumentTypeError, match="FIRST-LAST in the plate's frame numbers"):
             frame_range(bad)
+    with pytest.raises(argparse.ArgumentTypeError, match="frame range '1050-1010' is reversed: write 1010-1050"):
+        frame_range("1050-1010")
 
 
 def test_exr_plate_timing_is_read_from_its_header(tmp_path):
