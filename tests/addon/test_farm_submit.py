@@ -124,8 +124,8 @@ def test_shots_file_of_a_clip_with_masks(farm_scene, tmp_path):
 #: The engine's reader and planner on a shots file, run by the engine's Python (``farm plan --json`` prints the plan
 #: the same way): the shots as read, then the plan.
 READ_SHOTS = (
-    "import dataclasses, json, sys; from engine.farm import plan, shots; s = shots.load_shots(sys.argv[1]); "
-    "print(json.dumps({'shots': [dataclasses.asdict(x) for x in s.shots], 'plan': plan.plan_shots(s).to_json()}))"
+    "import json, sys; from engine.farm import plan, shots; s = shots.load_shots(sys.argv[1]); "
+    "print(json.dumps({'shots': [x.model_dump(mode='json') for x in s.shots], 'plan': plan.plan_shots(s).to_json()}))"
 )
 
 

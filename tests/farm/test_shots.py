@@ -3,6 +3,7 @@ each mistake, naming the file, the shot, the key and the fix."""
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import string
@@ -13,6 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from engine import contract as C
+from engine.cli_options import frame_range
 from engine.errors import InputError
 from engine.farm.shots import DEFAULT_EXPORT_CHUNK, DEFAULT_PRESET, Shot, load_shots
 from tests.engine_cli import run_cli
@@ -73,11 +75,11 @@ preview = false
     )  # fmt: skip
     assert load_shots(as_json).shots == toml.shots
     frames, masks = str(seq / "clip" / "frames"), str(seq / "clip" / "masks")
-    assert toml.shots[0] == Shot(
+    assert toml.shots[0] == Shot.model_construct(
         name="sh010", plate=frames, run=str(seq / "runs" / "sh010"), masks=(masks,), frames=(1, 3),
         fps="24000/1001", preset="draft", set=("steps=40",), export_chunk=3,
     )  # fmt: skip
-    assert toml.shots[1] == Shot(
+    assert toml.shots[1] == Shot.model_construct(
         name="sh020", plate=frames, run=str(seq / "elsewhere" / "sh020"), render=str(seq / "renders" / "sh020"),
         preset="final", set=("steps=40",), export_chunk=3, render_format="png", preview=False,
     )  # fmt: skip
@@ -130,6 +132,33 @@ GOOD = {"name": "sh010", "plate": "clip/frames"}
 )
 def test_each_mistake_is_one_line_naming_the_file_the_shot_the_key_and_the_fix(seq, shot, defaults, says):
     assert says in _error(write_shots(seq, [shot], defaults))
+
+
+def test_the_contract_names_the_keys_a_shot_declares():
+    """The add-on writes the shots file from the contract's keys (it has no pydantic), the engine reads it with
+    ``Shot``: the two name the same keys and the same required ones, and every key [defaults] may give has a
+    default of its own."""
+    fields = Shot.model_fields
+    assert len(set(C.SHOT_KEYS)) == len(C.SHOT_KEYS) and set(C.SHOT_KEYS) == set(fields)
+    assert tuple(key for key, field in fields.items() if field.is_required()) == C.SHOT_REQUIRED_KEYS
+    assert set(C.SHOT_DEFAULT_KEYS) <= set(fields) - set(C.SHOT_REQUIRED_KEYS)
+
+
+@pytest.mark.parametrize("key", C.SHOT_KEYS)
+def test_a_value_of_no_key_s_type_is_one_line_naming_the_key(seq, key):
+    assert f": '{key}' is " in _error(write_shots(seq, [{**GOOD, key: {"x": 1}}]))
+
+
+@pytest.mark.parametrize("text", ["1001-1100", "0:49", "7", " 3 - 5 ", "5-3", "+5", "1_000", "-5", "1..3", "1:2:3", ""])
+def test_a_shot_s_frames_is_read_as_frames_on_the_command_line(seq, text):
+    """The plan hands a shot's frames on to ``fit --frames``: what one accepts, the other does, as the same range."""
+    path = write_shots(seq, [{**GOOD, "frames": text}])
+    try:
+        expected = frame_range(text)
+    except argparse.ArgumentTypeError:
+        assert "'frames'" in _error(path)
+    else:
+        assert load_shots(path).shots[0].frames == expected
 
 
 def test_duplicate_names_and_run_folders_are_refused(seq):
