@@ -49,7 +49,7 @@ exit codes: 0 done, 1 engine error, 2 bad input, a full disk or a run folder in 
 """
 
 #: The preset of a new fit when --preset is not given.
-DEFAULT_PRESET = "balanced"
+DEFAULT_PRESET = C.DEFAULT_PRESET
 
 
 def build_parser(prog: str = f"python -m {C.CLI_MODULE}") -> argparse.ArgumentParser:

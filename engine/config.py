@@ -41,7 +41,7 @@ from .config_fields import (
     parse_set_value,
     whole_number,
 )
-from .contract import CLI_MODULE, PRESET_STEPS, SCHEMA_VERSION
+from .contract import CLI_MODULE, DEFAULT_PRESET, PRESET_STEPS, SCHEMA_VERSION
 from .errors import InputError
 
 #: OpenCV DIS optical-flow presets (``flow_preset``), fastest first; engine/data/flow.py maps each to OpenCV's.
@@ -89,7 +89,7 @@ Weight = Annotated[Float, Field(ge=0, le=MAX_LOSS_WEIGHT)]
 class FitConfig:
     """Everything that decides what a fit computes. Field docstrings are the ``--set`` help."""
 
-    preset: OneLine = "balanced"
+    preset: OneLine = DEFAULT_PRESET
     """Name of the preset this config started from (informational)."""
     model: Literal["fast", "paper"] = "fast"
     """Architecture: ``fast`` (multi-resolution grids + small MLPs, the default) or ``paper`` (the paper's MLPs)."""

@@ -43,8 +43,8 @@ from pydantic_core import PydanticCustomError
 from .. import contract as C
 from ..errors import InputError
 
-#: What a shot gets for a key neither it nor the defaults give.
-DEFAULT_PRESET = "balanced"
+#: What a shot gets for a key neither it nor the defaults give (the preset: ``contract.DEFAULT_PRESET``).
+DEFAULT_PRESET = C.DEFAULT_PRESET
 DEFAULT_EXPORT_CHUNK = 50
 DEFAULT_RENDER_CHUNK = 50
 RenderFormat = Literal["exr", "png", "plate"]

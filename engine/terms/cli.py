@@ -71,6 +71,8 @@ HEADLESS_SCRIPT = "addon/headless.py"
 #: Each fast budget is sized to its preset's wall-time target on a CPU (docs/accuracy-vs-time.md has the
 #: measurements); paper is the reference implementation's step count.
 PRESET_STEPS: dict[str, int] = {"draft": 800, "balanced": 6000, "final": 28000, "paper": 400000}
+#: The preset of a new fit that names none: `fit` without --preset, a farm shot without ``preset``.
+DEFAULT_PRESET = "balanced"
 
 EXIT_OK = 0
 EXIT_FAILED = 1  # an engine bug or an unexpected error: the log has the traceback
@@ -83,6 +85,7 @@ EXIT_DIVERGED = 4
 #: What ``engine.contract`` re-exports from this module (its own names, not its imports).
 __all__ = [
     "CLI_MODULE",
+    "DEFAULT_PRESET",
     "ESTIMATE_TAG",
     "EXIT_BAD_INPUT",
     "EXIT_CANCELLED",
