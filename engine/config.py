@@ -328,10 +328,10 @@ RESUMABLE_FIELDS: tuple[str, ...] = (
     "eval_pixels",
     "checkpoint_seconds",
 )
-#: Loss phases measured in steps (``loss_weights``: a term is on while ``step < field``). One that reaches the fit's
-#: last step (``field >= steps``: draft's and balanced's mask bootstrap) is on for the whole fit, and stays so when the
-#: fit goes on: ``fit --refine`` moves it to the new last step (let go there, the alpha hands a body that spins or
-#: bends to the background: docs/accuracy-vs-time.md), and a resume or a checkpoint may record it so.
+#: Loss phases measured in steps (``engine.loss_terms``: a term is on until or from such a step). One that reaches
+#: the fit's last step (``field >= steps``: draft's and balanced's mask bootstrap) is on for the whole fit, and stays
+#: so when the fit goes on: ``fit --refine`` moves it to the new last step (let go there, the alpha hands a body that
+#: spins or bends to the background: docs/accuracy-vs-time.md), and a resume or a checkpoint may record it so.
 PHASE_FIELDS: tuple[str, ...] = ("bootstrap_steps", "global_rigidity_steps")
 #: Fields that decide only how a new fit starts (the fast model's starting motions and atlas boxes, the paper
 #: model's calibration): a checkpoint carries their result, so a run loaded from its folder never reads them,
@@ -355,37 +355,6 @@ LATER_FIELDS: dict[str, Any] = {
 }
 #: The learning rates (``fit`` names them when a fit diverges).
 LR_FIELDS: tuple[str, ...] = ("lr", "lr_grid", "lr_warp")
-
-
-def loss_weights(cfg: FitConfig, step: int) -> dict[str, float]:
-    """Every loss term's weight at ``step``: global rigidity and the mask bootstrap (with the scribbles that
-    refine it) end at their step counts, where the mask prior takes over from the bootstrap (and, for small and thin
-    objects' mask layers, the mask term goes on: ``mask_hold``). The weights change only at those two steps."""
-    boot = step < cfg.bootstrap_steps
-    glob = step < cfg.global_rigidity_steps
-    return {
-        "rgb": cfg.w_rgb,
-        "gradient": cfg.w_gradient,
-        "rigidity": cfg.w_rigidity,
-        "global_rigidity_bg": cfg.w_global_rigidity_bg if glob else 0.0,
-        "global_rigidity_fg": cfg.w_global_rigidity_fg if glob else 0.0,
-        "flow": cfg.w_flow,
-        "alpha_flow": cfg.w_alpha_flow,
-        "long_flow": cfg.w_long_flow,
-        "sparsity": cfg.w_sparsity,
-        "mask": cfg.w_mask if boot else 0.0,
-        "mask_prior": 0.0 if boot else cfg.w_mask_prior,
-        "mask_hold": 0.0 if boot else cfg.w_mask,
-        "atlas_sparsity": cfg.w_atlas_sparsity,
-        "scribble": cfg.w_scribble if boot else 0.0,
-        "anchor": cfg.w_anchor,
-    }
-
-
-def weight_ever_on(cfg: FitConfig, term: str) -> bool:
-    """Whether ``term`` has a non-zero weight at some step of the fit (``loss_weights`` at each of its phases)."""
-    phases = {0} | {s for s in (cfg.bootstrap_steps, cfg.global_rigidity_steps) if 0 < s < cfg.steps}
-    return any(loss_weights(cfg, step)[term] != 0.0 for step in phases)
 
 
 def field_kind(name: str) -> str:
@@ -602,12 +571,10 @@ __all__ = [
     "check_value",
     "config_help",
     "field_kind",
-    "loss_weights",
     "parse_set_args",
     "preset_config",
     "resume_changes",
     "run_on",
     "same_phases",
-    "weight_ever_on",
     "whole_fit_phase",
 ]

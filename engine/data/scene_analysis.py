@@ -23,8 +23,9 @@ import cv2
 import numpy as np
 
 from .. import contract as C
-from ..config import FitConfig, weight_ever_on
+from ..config import FitConfig
 from ..errors import InputError
+from ..loss_terms import ALL_TERMS, TERMS, SceneFacts
 from .flow import FlowField
 from .long_flow import long_flow_gaps
 
@@ -51,29 +52,6 @@ MIN_VECTORS = 50
 RANSAC_PX = 1.0
 #: Margin (px) around the masks that is not background for the measurement (coarse masks bleed).
 MASK_MARGIN_PX = 6
-
-#: Every loss term the objective knows (engine.model.objective), in the order of ``config.loss_weights``.
-ALL_TERMS: tuple[str, ...] = (
-    "rgb",
-    "gradient",
-    "rigidity",
-    "global_rigidity_bg",
-    "global_rigidity_fg",
-    "flow",
-    "long_flow",
-    "alpha_flow",
-    "sparsity",
-    "mask",
-    "mask_prior",
-    "mask_hold",
-    "atlas_sparsity",
-    "scribble",
-    "anchor",
-)
-#: Terms a background-only clip has: reconstruction, and the background mapping's rigidity and flow.
-_BACKGROUND_TERMS = ("rgb", "gradient", "rigidity", "global_rigidity_bg", "flow", "long_flow")
-#: Terms that exist only for foreground layers (they act on alpha or on a foreground atlas).
-FOREGROUND_TERMS: tuple[str, ...] = tuple(t for t in ALL_TERMS if t not in _BACKGROUND_TERMS)
 
 
 @dataclass
@@ -238,9 +216,7 @@ def analyse_scene(
         reasons["background_motion"] += " (paper model: its mappings are MLPs either way; only loss terms change)"
     reasons["scribbles"] = f"{scribbles} scribble file(s)" if scribbles else "no scribbles given"
 
-    active = _active_terms(
-        cfg, reasons, fg=fg, has_flow=has_flow, long_gaps=bool(long_gaps), scribbles=scribbles, motion=motion
-    )
+    active = _active_terms(SceneFacts(cfg, fg, has_flow, bool(long_gaps), scribbles, motion), reasons)
     scene = SceneAnalysis(
         components="auto",
         num_layers=1 + fg,
@@ -266,38 +242,12 @@ def _layers_reason(fg: int, source: str, masks_note: str | None) -> str:
     return f"background only: {why}{note}; no foreground or alpha networks, alpha = 1"
 
 
-def _active_terms(
-    cfg: FitConfig, reasons: dict[str, str], *, fg: int, has_flow: bool, long_gaps: bool, scribbles: int, motion: str
-) -> list[str]:
+def _active_terms(facts: SceneFacts, reasons: dict[str, str]) -> list[str]:
     """The loss terms the fit computes, in ``ALL_TERMS`` order; each term left off gets its reason in ``reasons``
     (in that order too: the reasons are written to the run folder as they come)."""
-    active = []
-    for term in ALL_TERMS:
-        if term in FOREGROUND_TERMS and not fg:
-            reasons[term] = "off: no foreground layer"
-        elif term in ("flow", "long_flow", "alpha_flow") and not has_flow:
-            reasons[term] = "off: no flow (single frame)"
-        elif term == "long_flow" and not long_gaps:
-            reasons[term] = (
-                "off: long_flow_max_gap < 2 in this config"
-                if cfg.long_flow_max_gap < 2
-                else "off: the clip has too few frames for a gap of 2"
-            )
-        elif term == "sparsity" and fg > 1:
-            reasons[term] = "off: several foreground layers use the atlas l1 instead (paper Sec. 4.3)"
-        elif term == "atlas_sparsity" and fg < 2:
-            reasons[term] = "off: one foreground layer uses the alpha-weighted sparsity"
-        elif term == "scribble" and not scribbles:
-            reasons[term] = "off: no scribbles given"
-        elif term == "anchor" and cfg.model == "paper":
-            reasons[term] = "off: the paper model's atlas is unbounded, there is no box to keep the object in"
-        elif term == "global_rigidity_bg" and motion == C.BG_MOTION_STATIC:
-            reasons[term] = "off: a near-identity mapping is globally rigid by construction"
-        elif not weight_ever_on(cfg, term):
-            reasons[term] = "off: its weight (or schedule) is 0 in this config"
-        else:
-            active.append(term)
-    return active
+    off = {term.name: why for term in TERMS if (why := term.why_off(facts)) is not None}
+    reasons.update(off)
+    return [name for name in ALL_TERMS if name not in off]
 
 
 def _measured(frames: int, fg: int, measure: MotionMeasure | None) -> dict[str, float | int | None]:
@@ -339,7 +289,6 @@ def force_all(scene: SceneAnalysis) -> SceneAnalysis:
 
 
 __all__ = [
-    "ALL_TERMS",
     "PANZOOM_RESIDUAL_PX",
     "STATIC_MOTION_PX",
     "MotionMeasure",

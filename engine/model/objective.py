@@ -11,8 +11,9 @@ from dataclasses import dataclass
 
 import torch
 
-from ..config import FitConfig, loss_weights
+from ..config import FitConfig
 from ..data.video import PRIOR_IGNORE, VideoTensors, mask_hold_layers, sample_long_flow
+from ..loss_terms import loss_weights
 from . import losses as L
 from .atlas_model import AtlasModel
 

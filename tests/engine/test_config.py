@@ -24,11 +24,9 @@ from engine.config import (
     check_config,
     config_help,
     field_kind,
-    loss_weights,
     parse_set_args,
     preset_config,
     resume_changes,
-    weight_ever_on,
 )
 from engine.contract import SCHEMA_VERSION
 from engine.errors import InputError
@@ -98,27 +96,6 @@ def test_config_help_documents_every_field():
     for name in FitConfig.__dataclass_fields__:
         line = next(ln for ln in text.splitlines() if ln.strip().startswith(name + " "))
         assert line.split("): ", 1)[1].strip(), f"{name} has no docstring"
-
-
-def test_loss_weights_follow_the_schedule():
-    cfg = apply_overrides(preset_config("draft"), {"bootstrap_steps": "300", "global_rigidity_steps": "150"})
-    early, middle, late = loss_weights(cfg, 0), loss_weights(cfg, 150), loss_weights(cfg, 300)
-    assert early["global_rigidity_bg"] == cfg.w_global_rigidity_bg and middle["global_rigidity_bg"] == 0.0
-    assert early["mask"] == middle["mask"] == cfg.w_mask and late["mask"] == 0.0
-    assert early["mask_prior"] == 0.0 and late["mask_prior"] == cfg.w_mask_prior
-    assert all(early[t] == late[t] for t in ("rgb", "gradient", "rigidity", "flow", "anchor"))
-
-
-@pytest.mark.parametrize("steps", [1, 5, 10])
-@pytest.mark.parametrize("bootstrap", [0, 4, 10])
-@pytest.mark.parametrize("rigid", [0, 3, 12])
-def test_weight_ever_on_is_any_step_of_the_fit(steps, bootstrap, rigid):
-    cfg = apply_overrides(
-        preset_config("draft"),
-        {"steps": str(steps), "bootstrap_steps": str(bootstrap), "global_rigidity_steps": str(rigid), "w_flow": "0"},
-    )
-    for term in loss_weights(cfg, 0):
-        assert weight_ever_on(cfg, term) == any(loss_weights(cfg, s)[term] != 0.0 for s in range(steps)), term
 
 
 # --- every field's valid range ------------------------------------------------------------------------------

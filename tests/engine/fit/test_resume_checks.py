@@ -21,11 +21,12 @@ import pytest
 import torch
 
 from engine import contract as C
-from engine.config import PRESETS, loss_weights, resume_changes, same_phases
+from engine.config import PRESETS, resume_changes, same_phases
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.errors import InputError
 from engine.fit.fitted_run import load_fitted
 from engine.fit.run_folder import RunFolder
+from engine.loss_terms import loss_weights
 from tests.engine_cli import run_cli
 from tests.folders import tree_digest
 from tests.stability.bad_inputs import TINY_FIT

@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 import torch
 
-from engine.config import SCHEMA_VERSION, FitConfig, loss_weights, preset_config
+from engine.config import SCHEMA_VERSION, FitConfig, preset_config
 from engine.data.flow import FlowField
 from engine.data.video import build_video_tensors, mask_hold_layers, mask_prior, prior_coverage
+from engine.loss_terms import loss_weights
 from engine.model.atlas_model import FastModel
 from engine.model.losses import mask_bce
 from engine.model.motion_init import LayerMotion
