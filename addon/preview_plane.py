@@ -2,7 +2,9 @@
 (``core.preview_plan``), and render one frame of it (Cycles on the CPU) for a check or a figure.
 
 Only datablocks named ``NA_...`` are created, reused or removed, so rebuilding is idempotent. The edit images are
-the canvases' own datablocks (never reloaded here): paint shows on the plane as it is laid down.
+the canvases' own datablocks (never reloaded here): paint shows on the plane as it is laid down. At a proxy size
+(``core.preview_proxy``) the UV passes and the plate's frames are written smaller first, from the export's passes and
+the plate, which are only read: nothing the artist made is touched.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from ..engine import contract as C
 from . import compat, compositor
 from .core import exr_passes
 from .core import preview_plan as V
+from .core import preview_proxy as X
 from .core import tree_plan as P
 
 _NODE_TYPES = {
@@ -35,17 +38,63 @@ _NODE_TYPES = {
 
 
 def split_uv_passes(plan: V.PreviewPlan) -> int:
-    """Write each layer's UV pass as plain RGB EXRs (``exr_passes``), skipping files newer than their pass file;
-    returns how many were written."""
-    written = 0
+    """Write each layer's UV pass as plain RGB EXRs (``exr_passes``; at a proxy size the pixel under each proxy
+    pixel's centre, uncompressed), skipping files newer than their pass file; returns how many were written. Each
+    pass file is read once for all its layers (reading is most of the time: a 4K pass file takes seconds)."""
+    todo: dict[str, list[tuple[V.UVSplit, str]]] = {}
     for split in plan.splits:
         for pass_file, rgb_file in split.files:
-            if os.path.isfile(rgb_file) and os.path.getmtime(rgb_file) >= os.path.getmtime(pass_file):
-                continue
-            ch = exr_passes.read_channels(pass_file, split.channels)
-            exr_passes.write_rgb(rgb_file, *(ch[c] for c in split.channels))
+            if not X.is_fresh(rgb_file, pass_file):
+                todo.setdefault(pass_file, []).append((split, rgb_file))
+    written = 0
+    for pass_file, outputs in todo.items():
+        names = tuple(dict.fromkeys(c for split, _ in outputs for c in split.channels))
+        ch = exr_passes.read_channels(pass_file, names)
+        for split, rgb_file in outputs:
+            planes = [ch[c] for c in split.channels]
+            if split.size is None:
+                exr_passes.write_rgb(rgb_file, *planes)
+            else:
+                small = [X.downsample(plane, split.size) for plane in planes]
+                exr_passes.write_rgb(rgb_file, *small, compression=exr_passes.NO_COMPRESSION)
             written += 1
     return written
+
+
+def write_plate_proxy(proxy: V.PlateProxy) -> tuple[V.PreviewImage, int]:
+    """Write the plate's frames at the proxy size, skipping those whose proxy is newer than the frame; returns the
+    preview's plate image and how many were written. Blender reads each frame (any format it reads): an 8-bit one's
+    bytes are written as they are to an 8-bit PNG in the plate's colour space, a float one's scene-linear values to
+    an uncompressed float EXR read as Non-Color, so the proxy's pixels are the plate's pixels exactly."""
+    written, is_float = 0, None
+    for source, stem in proxy.files:
+        made = [stem + ext for ext in X.PLATE_EXTS if X.is_fresh(stem + ext, source)]
+        if made:
+            is_float = made[0].endswith(X.PLATE_FLOAT_EXT) if is_float is None else is_float
+            continue
+        try:
+            img = bpy.data.images.load(source, check_existing=False)
+        except RuntimeError:  # a gap in the plate, or a file Blender cannot read: shown as the plate shows it, empty
+            continue
+        try:
+            w, h = img.size
+            px = np.empty(w * h * 4, np.float32)
+            img.pixels.foreach_get(px)
+            frame_float = bool(img.is_float)
+        finally:
+            bpy.data.images.remove(img)
+        if not w or not h:
+            continue
+        small = X.downsample(px.reshape(h, w, 4), proxy.size, top_first=False)[::-1]  # rows top-first
+        if frame_float:
+            exr_passes.write_rgb(
+                stem + X.PLATE_FLOAT_EXT, *(small[..., c] for c in range(3)), compression=exr_passes.NO_COMPRESSION
+            )
+        else:
+            X.write_png_rgba8(stem + X.PLATE_BYTE_EXT, np.rint(np.clip(small, 0.0, 1.0) * 255.0).astype(np.uint8))
+        is_float = frame_float if is_float is None else is_float
+        written += 1
+    return V.proxy_plate_image(proxy, bool(is_float)), written
 
 
 def _image(spec: V.PreviewImage) -> Any:
@@ -121,7 +170,17 @@ def _material(plan: V.PreviewPlan, images: dict[str, Any]) -> Any:
     if V.FRAME_PAINT_NODE in made:
         nt.nodes.active = made[V.FRAME_PAINT_NODE]
     mat[V.EXPORT_FRAMES_PROP] = list(plan.export_frames)
+    mat[V.PROXY_PROP] = [plan.percent, *plan.size, *plan.resolution]
     return mat
+
+
+def shown_size() -> tuple[int, tuple[int, int], tuple[int, int]] | None:
+    """The built preview's (percent, size, the plate's size) (None: no preview built)."""
+    mat = bpy.data.materials.get(V.PREVIEW_MATERIAL)
+    got = mat.get(V.PROXY_PROP) if mat is not None else None
+    if got is None or len(got) != 5:
+        return None
+    return int(got[0]), (int(got[1]), int(got[2])), (int(got[3]), int(got[4]))
 
 
 def export_frames() -> tuple[int, int] | None:
@@ -283,10 +342,15 @@ def stop_live() -> None:
 
 def build(scene: Any, tree: P.TreePlan, manifest: dict[str, Any], manifest_path: str, filter_type: str) -> Any:
     """Create (or recreate) the preview for an imported export whose compositor tree ``tree`` is built (its edit
-    images exist); returns the plane. The scene's camera becomes the preview's only when it has none."""
+    images exist), at the scene's proxy size (``preview_proxy``); returns the plane. The scene's camera becomes the
+    preview's only when it has none."""
     frame_paint = bpy.data.images.get(P.FRAME_PAINT_IMAGE) is not None
-    plan = V.plan_preview(tree, manifest, manifest_path, filter_type, frame_paint)
+    percent = X.proxy_percent(scene.neural_atlas.preview_proxy, tree.resolution)
+    plan = V.plan_preview(tree, manifest, manifest_path, filter_type, frame_paint, percent)
     split_uv_passes(plan)
+    if plan.plate_proxy is not None:  # the plate's image shows its proxy
+        plate = write_plate_proxy(plan.plate_proxy)[0]
+        plan.images = [plate if spec.name == plate.name else spec for spec in plan.images]
     images = {spec.name: _image(spec) for spec in plan.images}
     for layer, twin in plan.mirrors.items():
         images[twin] = _mirror(bpy.data.images[P.edit_image_name(layer)], twin)
@@ -353,7 +417,8 @@ def render_frame(scene: Any, frame: int, path: str) -> str:
     """Render the preview at scene frame ``frame`` to a float EXR (scene-linear RGBA), as the viewport's Rendered
     shading shows it: Cycles on the CPU, 1 sample, a 0.01-pixel box filter (each pixel the plane point under its
     centre), no denoising, Standard view, the compositor off, through the preview camera. The scene's settings are
-    restored afterwards; returns ``path``.
+    restored afterwards; returns ``path``. It renders at the scene's resolution: a preview at a proxy size is seen
+    pixel for pixel with the scene's resolution percentage at that size (at 100 % each proxy pixel shows as a block).
 
     A final Cycles render without a UI reloads every file image from its file afterwards, dropping unsaved paint
     (measured on 4.5 and 5.0, even for an empty scene): the pixels of every image with unsaved changes are kept and

@@ -15,7 +15,7 @@ from bpy.props import (
 
 from ..engine import contract as C
 from . import compat
-from .core import estimate
+from .core import estimate, preview_proxy
 from .core import tree_plan as P
 
 #: Refine's preset menu entry for "the schedule the fit ran with" (no ``--preset``).
@@ -37,6 +37,12 @@ def _on_filter(self, context):
 
     compositor.set_filter(context.scene, self.filter_type)
     preview_plane.set_filter(self.filter_type)
+
+
+def _on_preview_proxy(self, context):
+    from .ops import preview
+
+    preview.show_at_new_size(context.scene)
 
 
 class NEURALATLAS_PG_layer(bpy.types.PropertyGroup):
@@ -160,6 +166,14 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
         default=P.FILTER_DEFAULT,
         description="How the paint is read from the atlases, in the Live Preview and the render alike",
         update=_on_filter,
+    )
+    preview_proxy: EnumProperty(
+        name="Preview Size",
+        items=preview_proxy.items(),
+        default=preview_proxy.AUTO,
+        description="The Live Preview's size, as Blender's proxies: its plate and UV passes written at this size so a "
+        "frame change loads less (painting and the render stay full size)",
+        update=_on_preview_proxy,
     )
     render_dir: StringProperty(
         name="Output",

@@ -203,6 +203,10 @@ def draw_paint_render(layout, context) -> None:
     col.operator("neural_atlas.float_edits", icon="IMAGE_DATA")
     shown = preview_plane.is_shown(context.scene)  # a toggle: pressed while the preview is on screen
     col.operator("neural_atlas.live_preview", icon="HIDE_OFF" if shown else "HIDE_ON", depress=shown)
+    col.prop(props, "preview_proxy")  # the preview's size (Blender's proxy sizes); the render stays full size
+    built = preview_plane.shown_size() if shown else None
+    if built is not None:
+        col.label(text=V.size_line(*built))
     outside = V.outside_export(context.scene.frame_current, preview_plane.export_frames()) if shown else None
     if outside:
         col.label(text=outside, icon="INFO")

@@ -65,9 +65,9 @@ def unzip_block(packed: bytes, size: int) -> bytes:
     """Undo the EXR ZIP stage: inflate, undo the byte predictor, re-interleave the two halves."""
     if len(packed) == size:  # stored uncompressed when compression would not have made it smaller
         return packed
-    d = np.frombuffer(zlib.decompress(packed), np.uint8).astype(np.int64)
-    d[1:] -= 128
-    t = (np.cumsum(d) & 0xFF).astype(np.uint8)
+    d = np.frombuffer(zlib.decompress(packed), np.uint8).copy()
+    d[1:] -= np.uint8(128)  # modulo 256, as the predictor: bytes throughout (a wider type is 8x the memory traffic)
+    t = np.cumsum(d, dtype=np.uint8)
     out = np.empty_like(t)
     half = (len(t) + 1) // 2
     out[0::2], out[1::2] = t[:half], t[half:]
@@ -77,10 +77,10 @@ def unzip_block(packed: bytes, size: int) -> bytes:
 def zip_block(raw: bytes) -> bytes:
     """The EXR ZIP stage: split even/odd bytes, byte predictor, deflate (raw when that is not smaller)."""
     t = np.frombuffer(raw, np.uint8)
-    inter = np.concatenate((t[0::2], t[1::2])).astype(np.int64)
+    inter = np.concatenate((t[0::2], t[1::2]))
     d = inter.copy()
-    d[1:] = (inter[1:] - inter[:-1] + 128) & 0xFF
-    packed = zlib.compress(d.astype(np.uint8).tobytes(), 4)
+    d[1:] = inter[1:] - inter[:-1] + np.uint8(128)  # modulo 256, in bytes
+    packed = zlib.compress(d.tobytes(), 4)
     return packed if len(packed) < len(raw) else raw
 
 
@@ -120,8 +120,12 @@ def read_channels(path: str, names: tuple[str, ...] | None = None) -> dict[str, 
     return {n: out[n] for n in wanted}
 
 
-def write_rgb(path: str, r: np.ndarray, g: np.ndarray, b: np.ndarray) -> None:
-    """A plain float32 RGB scanline EXR (ZIP), rows top-first, written beside ``path`` and renamed onto it."""
+def write_rgb(path: str, r: np.ndarray, g: np.ndarray, b: np.ndarray, compression: int = ZIP_COMPRESSION) -> None:
+    """A plain float32 RGB scanline EXR, rows top-first, written beside ``path`` and renamed onto it.
+    ``compression``: ZIP (the default: the smaller file) or NONE (loads several times faster: Blender's reader only
+    copies the rows; the preview's proxies, loaded on every frame change, are written so)."""
+    if compression not in (ZIP_COMPRESSION, NO_COMPRESSION):
+        raise ValueError(f"compression {compression}: ZIP or NONE")
     h, w = r.shape
     planes = {"B": b, "G": g, "R": r}  # EXR stores channels sorted by name
 
@@ -133,7 +137,7 @@ def write_rgb(path: str, r: np.ndarray, g: np.ndarray, b: np.ndarray) -> None:
     header = struct.pack("<ii", MAGIC, 2) + b"".join(
         (
             attr("channels", "chlist", chlist),
-            attr("compression", "compression", bytes([ZIP_COMPRESSION])),
+            attr("compression", "compression", bytes([compression])),
             attr("dataWindow", "box2i", box),
             attr("displayWindow", "box2i", box),
             attr("lineOrder", "lineOrder", b"\0"),
@@ -144,10 +148,11 @@ def write_rgb(path: str, r: np.ndarray, g: np.ndarray, b: np.ndarray) -> None:
     )
     header += b"\0"
     stacked = np.stack([np.ascontiguousarray(planes[n], "<f4") for n in planes], axis=1)  # [H, C, W]
-    lines = LINES_PER_BLOCK[ZIP_COMPRESSION]
+    lines = LINES_PER_BLOCK[compression]
     chunks = []
     for y in range(0, h, lines):
-        packed = zip_block(stacked[y : y + lines].tobytes())
+        raw = stacked[y : y + lines].tobytes()
+        packed = raw if compression == NO_COMPRESSION else zip_block(raw)
         chunks.append(struct.pack("<ii", y, len(packed)) + packed)
     table_end = len(header) + 8 * len(chunks)
     offsets, at = [], table_end

@@ -12,6 +12,9 @@ follow the scene frame, so scrubbing shows other frames with the same paint. A s
 pass of a multilayer EXR from Python (``exr_passes``): each layer's UV pass is split into a plain RGB EXR sequence
 (R=u, G=v, B=Z) beside the export (``PREVIEW_UV_DIR``). An image ``NA_FramePaint``, when it exists, is laid over
 the composite by its alpha at the plane's own UVs (node ``FramePaint``: the paint slot for painting on the plane).
+
+At a proxy size (``preview_proxy``: below 100 %) the UV passes and a sequence plate are written at that size under
+``preview_proxy.PROXY_DIR`` and the images show those files; the plane, its camera and the edit images are the same.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from ...engine import contract as C  # type: ignore[import-not-found]
+from . import preview_proxy as X
 from . import tree_plan as P
 
 PREVIEW_OBJECT = P.PREVIEW_OBJECT
@@ -40,6 +44,8 @@ FRAME_PAINT_NODE = "FramePaint"
 IN_EXPORT_NODE = "InExport"
 #: The material's custom property holding the exported frames [first, last] (the panel's "outside the export" line).
 EXPORT_FRAMES_PROP = "na_export_frames"
+#: The material's custom property holding the preview's size [percent, width, height] (the panel's size line).
+PROXY_PROP = "na_preview_proxy"
 
 #: The plane is 1 unit high; its right edge this far left of x = 0, where the paint canvases start.
 PLANE_HEIGHT = 1.0
@@ -103,11 +109,25 @@ class PreviewImage:
 
 @dataclass(frozen=True)
 class UVSplit:
-    """Layer ``layer``'s UV pass (``channels``: u, v, Z) of each pass file, written as a plain RGB EXR."""
+    """Layer ``layer``'s UV pass (``channels``: u, v, Z) of each pass file, written as a plain RGB EXR: bit for bit
+    (``size`` None), or at the proxy ``size`` (width, height; ``preview_proxy.downsample``), uncompressed."""
 
     layer: str
     channels: tuple[str, str, str]
     files: tuple[tuple[str, str], ...]  # (pass file, RGB file) per frame
+    size: tuple[int, int] | None = None
+
+
+@dataclass(frozen=True)
+class PlateProxy:
+    """A sequence plate's frames written at ``size``: (plate file, proxy file without its extension) per scene
+    frame from ``user.frame_start`` on, the proxy files numbered by scene frame. ``colorspace``: the plate's, which
+    an 8-bit proxy keeps (its bytes are the plate's); a float one is scene-linear, read as Non-Color."""
+
+    size: tuple[int, int]
+    files: tuple[tuple[str, str], ...]
+    colorspace: str
+    user: SequenceUser
 
 
 @dataclass(frozen=True)
@@ -134,6 +154,14 @@ class PreviewPlan:
     """Each layer -> the float twin of its edit image that the material samples (``preview.sync`` copies the paint)."""
     export_frames: tuple[int, int] = (1, 1)
     """The exported frames (first, last): the paint shows on them; elsewhere the plate alone (``IN_EXPORT_NODE``)."""
+    percent: int = X.FULL
+    """The preview's proxy size, percent of the plate's sides (``preview_proxy``)."""
+    size: tuple[int, int] = (1, 1)
+    """The size its UV passes are written at (the plate's at 100 %)."""
+    resolution: tuple[int, int] = (1, 1)
+    """The plate's size (the render's)."""
+    plate_proxy: PlateProxy | None = None
+    """The plate's frames to write at ``size`` (a sequence plate below 100 %); None: the plate itself is shown."""
 
 
 def in_export_expression(first: int, last: int) -> str:
@@ -178,8 +206,26 @@ def uv_image_name(layer: str) -> str:
     return f"{P.PREFIX}PreviewUV_{layer}"
 
 
-def uv_file(manifest_path: str, layer: str, frame: int) -> str:
+def uv_file(manifest_path: str, layer: str, frame: int, percent: int = X.FULL) -> str:
+    """Layer ``layer``'s UV file at ``frame``: beside the manifest in ``PREVIEW_UV_DIR`` (100 %), or in its proxy
+    size's folder."""
+    if percent != X.FULL:
+        return X.uv_file(manifest_path, layer, frame, percent)
     return os.path.join(os.path.dirname(os.path.abspath(manifest_path)), PREVIEW_UV_DIR, layer, f"uv.{frame:05d}.exr")
+
+
+def proxy_plate_image(proxy: PlateProxy, is_float: bool) -> PreviewImage:
+    """The plate image of the proxy preview, once its files are written (``is_float``: as float EXRs)."""
+    ext = X.PLATE_FLOAT_EXT if is_float else X.PLATE_BYTE_EXT
+    colorspace = "Non-Color" if is_float else proxy.colorspace  # a float proxy holds scene-linear values
+    return PreviewImage(PREVIEW_PLATE_IMAGE, proxy.files[0][1] + ext, colorspace, "SEQUENCE", proxy.user)
+
+
+def size_line(percent: int, size: tuple[int, int], resolution: tuple[int, int]) -> str:
+    """The panel's line saying at what size the preview shows the plate."""
+    if percent == X.FULL:
+        return f"Preview at full size, {resolution[0]}x{resolution[1]}"
+    return f"Preview at {percent}%: {size[0]}x{size[1]} of {resolution[0]}x{resolution[1]} (the render is full size)"
 
 
 def file_number(path: str) -> int | None:
@@ -221,22 +267,35 @@ def plan_preview(
     manifest_path: str,
     filter_type: str = P.FILTER_DEFAULT,
     frame_paint: bool = False,
+    percent: int = X.FULL,
 ) -> PreviewPlan:
-    """The preview for an imported export (``tree``: its compositor plan, which has the plate, range and size)."""
+    """The preview for an imported export (``tree``: its compositor plan, which has the plate, range and size), at
+    ``percent`` of the plate's size (``preview_proxy.PERCENTS``)."""
     if filter_type not in INTERPOLATION:
         raise P.PlanError(f"unknown filter {filter_type!r}")
+    if percent not in X.PERCENTS:
+        raise P.PlanError(f"unknown proxy size {percent}%; one of {', '.join(map(str, X.PERCENTS))}")
+    size = X.proxy_size(tree.resolution, percent)
+    proxied = size if percent != X.FULL else None
     count = tree.frame_end - tree.frame_start + 1
     plate = tree.plate
     # the plate follows the scene frame over all of its frames, not only the exported ones: outside the export the
     # preview shows the plate alone (``IN_EXPORT_NODE``), not a frame held from the export's end
     numbers = [int(n) for n in manifest["clip"].get("frame_numbers") or (tree.frame_start, tree.frame_end)]
     plate_first, plate_last = min(min(numbers), tree.frame_start), max(max(numbers), tree.frame_end)
+    plate_proxy = None
     if plate.sequence:
         number = file_number(plate.filepath)
         number = tree.frame_start if number is None else number
         before = tree.frame_start - plate_first
-        user = sequence_user(plate_first, number - before, plate_last - plate_first + 1)
+        span = plate_last - plate_first + 1
+        user = sequence_user(plate_first, number - before, span)
         plate_image = PreviewImage(PREVIEW_PLATE_IMAGE, plate.filepath, plate.colorspace, "SEQUENCE", user)
+        if proxied is not None:
+            sources = (X.sequence_file(plate.filepath, number - before + k) for k in range(span))
+            stems = (X.plate_stem(manifest_path, plate_first + k, percent) for k in range(span))
+            files = tuple(zip(sources, stems, strict=True))
+            plate_proxy = PlateProxy(size, files, plate.colorspace, sequence_user(plate_first, plate_first, span))
     else:
         # a movie's frame numbered ``frame_start`` (TreePlan: its first) is its frame 1
         span = plate_last - plate.frame_start + 1
@@ -251,9 +310,10 @@ def plan_preview(
         name = layer["name"]
         channels = tuple(C.channel_name(layer["uv_pass"], c) for c in layer.get("uv_channels", C.UV_CHANNELS))
         files = tuple(
-            (os.path.join(pass_dir, passes["pattern"].format(frame=f)), uv_file(manifest_path, name, f)) for f in frames
+            (os.path.join(pass_dir, passes["pattern"].format(frame=f)), uv_file(manifest_path, name, f, percent))
+            for f in frames
         )
-        splits.append(UVSplit(name, (channels[0], channels[1], channels[2]), files))
+        splits.append(UVSplit(name, (channels[0], channels[1], channels[2]), files, proxied))
         user = sequence_user(tree.frame_start, tree.frame_start, count)
         images.append(PreviewImage(uv_image_name(name), files[0][1], "Non-Color", "SEQUENCE", user))
     sampled = {name: mirror_image_name(name) for name in tree.layers}
@@ -261,7 +321,10 @@ def plan_preview(
     nodes, links = shader_graph(sampled, filter_type, frame_paint, exported)
     mirrors = dict(sampled)
     fit = framing(tree.resolution, tree.pixel_aspect)
-    return PreviewPlan(nodes, links, images, splits, fit, list(tree.layers), mirrors, exported)
+    layers = list(tree.layers)
+    return PreviewPlan(
+        nodes, links, images, splits, fit, layers, mirrors, exported, percent, size, tree.resolution, plate_proxy
+    )
 
 
 def shader_graph(

@@ -37,4 +37,22 @@ class NEURALATLAS_OT_live_preview(bpy.types.Operator):
         return {"FINISHED"}
 
 
+def show_at_new_size(scene) -> str:
+    """After the panel's Preview Size changed: the preview on screen built again at the new size (its files written
+    where they are missing; the paint, the edit images and every file the artist made untouched), '' when done or
+    when none is shown (the next Live Preview builds at the new size); else hidden, and the line saying why (also the
+    panel's status)."""
+    if not preview_plane.is_shown(scene):
+        return ""
+    try:
+        preview_plane.rebuild(scene)
+    except IMPORT_ERRORS as exc:
+        preview_plane.hide(scene)
+        line = f"live preview hidden: {exc}"
+        scene.neural_atlas.status = line
+        print(f"Neural Atlas: {line}")
+        return line
+    return ""
+
+
 classes = (NEURALATLAS_OT_live_preview,)

@@ -52,9 +52,12 @@ def read_exr_rgba(path: Path) -> np.ndarray:
         return np.stack([np.asarray(ch[c].pixels, np.float32) for c in "RGBA"], axis=-1)
 
 
-def _uv_grid(t: int, layer: int, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+def _uv_grid(
+    t: int, layer: int, size: tuple[int, int], plate: tuple[int, int] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """UVs on texel centres plus an offset below 0.3 texel: nearest sampling has no ties."""
     aw, ah = size
+    W, H = plate or plate_size()
     y, x = np.mgrid[0:H, 0:W]  # y counted from the top row
     y_up = H - 1 - y
     rng = np.random.default_rng(100 * t + layer)
@@ -65,18 +68,26 @@ def _uv_grid(t: int, layer: int, size: tuple[int, int]) -> tuple[np.ndarray, np.
     return u.astype(np.float32), v.astype(np.float32)
 
 
-def _alphas(t: int, foregrounds: int = 1) -> list[np.ndarray]:
-    """[bg, fg1, fg2, ...]: discs crossing each other; each later disc is behind the earlier ones."""
-    y, x = np.mgrid[0:H, 0:W]
+def _alphas(t: int, foregrounds: int = 1, plate: tuple[int, int] | None = None) -> list[np.ndarray]:
+    """[bg, fg1, fg2, ...]: discs crossing each other; each later disc is behind the earlier ones (on a ``plate``
+    size given, the 40x24 picture scaled by its width)."""
+    W, H = plate or plate_size()
+    s = W / 40 if plate else 1.0
+    y, x = (np.mgrid[0:H, 0:W] + 0.5) / s
     fgs: list[np.ndarray] = []
     left = np.ones((H, W), np.float32)
     for k in range(foregrounds):
-        d = np.hypot(x + 0.5 - (14 + 4 * t) - 10 * k, y + 0.5 - 12 + 3 * k)
+        d = np.hypot(x - (14 + 4 * t) - 10 * k, y - 12 + 3 * k)
         fg = (np.clip((9.0 - d) / 3.0, 0, 1) * left).astype(np.float32)
         left = left - fg
         fgs.append(fg)
     bg = (0.85 * left).astype(np.float32)  # below 1 - sum(fg): the plate shows through, as the equation allows
     return [bg, *fgs]
+
+
+def plate_size() -> tuple[int, int]:
+    """The module's plate size (``W``, ``H``), read when called: a test may set them for its own export."""
+    return W, H
 
 
 def layer_names(foregrounds: int = 1) -> list[str]:
@@ -90,10 +101,13 @@ def make_export(
     frames: tuple[int, ...] = FRAMES,
     clip_fields: dict | None = None,
     plate_name: str = "{frame:05d}.png",
+    size: tuple[int, int] | None = None,
 ) -> Path:
     """Write plate, passes, atlases and edit layers; returns the manifest path. ``frames``: the plate's frame
     numbers; ``clip_fields``: more fields of the manifest's clip (its timing: rate, pixel_aspect, timecode);
-    ``plate_name``: the plate files' name (``plate.{frame}.png``: a shot's own numbering)."""
+    ``plate_name``: the plate files' name (``plate.{frame}.png``: a shot's own numbering); ``size``: the plate's
+    (width, height), the module's ``W`` x ``H`` unless told."""
+    W, H = size or plate_size()
     rng = np.random.default_rng(seed)
     run = root / "run"
     exp = run / C.EXPORTS_DIR / C.EXPORT_VERSION_FORMAT.format(1)
@@ -132,8 +146,8 @@ def make_export(
         )
     for t in frames:
         ch = {}
-        for idx, (name, z) in enumerate(zip(names, _alphas(t, foregrounds), strict=True)):
-            u, v = _uv_grid(t, idx, ATLAS_SIZES.get(name, EXTRA_ATLAS_SIZE))
+        for idx, (name, z) in enumerate(zip(names, _alphas(t, foregrounds, size), strict=True)):
+            u, v = _uv_grid(t, idx, ATLAS_SIZES.get(name, EXTRA_ATLAS_SIZE), (W, H))
             ch[C.channel_name(C.uv_pass(name), "X")] = u
             ch[C.channel_name(C.uv_pass(name), "Y")] = v
             ch[C.channel_name(C.uv_pass(name), "Z")] = z

@@ -240,3 +240,71 @@ def test_outside_the_export_the_preview_shows_the_plate_and_says_so(blender, tmp
     calls = RecordingLayout().draw(ui.NEURALATLAS_PT_edit, bpy.context)
     (toggle,) = [kw for name, a, kw in calls if name == "operator" and a[0] == "neural_atlas.live_preview"]
     assert toggle.get("depress") is False
+
+
+def _first_file_size(img) -> tuple[int, int]:
+    """The size of a sequence image's files: its first file's, loaded on its own (a sequence image's own size
+    depends on the frame it last loaded)."""
+    first = bpy.data.images.load(bpy.path.abspath(img.filepath), check_existing=False)
+    try:
+        return int(first.size[0]), int(first.size[1])
+    finally:
+        bpy.data.images.remove(first)
+
+
+def test_a_proxy_preview_is_smaller_and_the_render_stays_full_size(blender, tmp_path):
+    """Preview Size 50% on the preview on screen: it is built again at once, its UV passes and plate written at
+    20x12 (the 40x24 plate's half) in their own folder and its images showing them, the panel saying so; nothing
+    the artist made changes (unsaved paint, the edit files, the full-size preview's files). Rendered at the proxy's
+    size it is the full-size preview at the sampled pixels (paint lands where it lands at full size), and Render
+    Edited Clip still writes 40x24 frames. Back at 100% the full-size files show again, not written again."""
+    from helpers import RecordingLayout
+    from neural_atlas.addon import ui
+    from neural_atlas.addon.core import preview_proxy as PX
+
+    manifest, scene = _import(blender, tmp_path)
+    assert scene.neural_atlas.preview_proxy == PX.AUTO  # Auto: a 40x24 plate is previewed at full size
+    assert preview_plane.shown_size() == (100, (X.W, X.H), (X.W, X.H))
+    _paint(bpy.data.images[P.edit_image_name("Background")], (1.0, 0.2, 0.05, 0.6), (0.3, 0.2, 0.8, 0.7))
+    _paint(bpy.data.images[P.edit_image_name("Foreground")], (0.1, 0.9, 0.3, 0.8), (0.1, 0.1, 0.9, 0.6))
+    full = X.read_exr_rgba(Path(preview_plane.render_frame(scene, FRAME_A, str(tmp_path / "full.exr"))))
+    made = [manifest.parent / V.PREVIEW_UV_DIR, tmp_path / "run" / C.EDITS_DIR]
+    disk = {p: (p.read_bytes(), p.stat().st_mtime_ns) for d in made for p in d.rglob("*") if p.is_file()}
+    painted = {n: _pixels(bpy.data.images[P.edit_image_name(n)]) for n in ("Background", "Foreground")}
+
+    scene.neural_atlas.preview_proxy = PX.choice_id(50)
+    assert preview_plane.is_shown(scene) and preview_plane.shown_size() == (50, (20, 12), (X.W, X.H))
+    folder = manifest.parent / PX.PROXY_DIR / "proxy_50"
+    for name in (V.PREVIEW_PLATE_IMAGE, V.uv_image_name("Background"), V.uv_image_name("Foreground")):
+        img = bpy.data.images[name]
+        assert Path(bpy.path.abspath(img.filepath)).parent in (folder, folder / name.split("_")[-1]), img.filepath
+        assert _first_file_size(img) == (20, 12), name
+    for name, px in painted.items():
+        img = bpy.data.images[P.edit_image_name(name)]
+        assert img.is_dirty and np.array_equal(_pixels(img), px), name
+    assert {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in disk} == disk
+    labels = [kw.get("text", "") for n, _, kw in RecordingLayout().draw(ui.NEURALATLAS_PT_edit, bpy.context)]
+    assert "Preview at 50%: 20x12 of 40x24 (the render is full size)" in [lab for lab in labels if lab]
+
+    scene.render.resolution_percentage = 50  # the render at the proxy's size: each pixel a proxy pixel
+    try:
+        small = X.read_exr_rgba(Path(preview_plane.render_frame(scene, FRAME_A, str(tmp_path / "small.exr"))))
+    finally:
+        scene.render.resolution_percentage = 100
+    rows, cols = PX.sampled((X.W, X.H), (20, 12), top_first=True)
+    err = float(np.abs(small[..., :3] - full[rows][:, cols][..., :3]).max())
+    print(f"{TAG} the 50% preview vs the full-size preview at the sampled pixels: max abs err {err:.1e}")
+    assert small.shape == (12, 20, 4) and err <= 1e-6
+
+    scene.neural_atlas.preview_proxy = PX.choice_id(100)
+    assert bpy.data.images[V.uv_image_name("Foreground")].filepath.endswith(f"uv.{X.FRAMES[0]:05d}.exr")
+    assert Path(bpy.path.abspath(bpy.data.images[V.uv_image_name("Foreground")].filepath)).parent == (
+        manifest.parent / V.PREVIEW_UV_DIR / "Foreground"
+    )
+    assert {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in disk} == disk  # shown again, not written again
+    scene.neural_atlas.preview_proxy = PX.choice_id(50)
+    out = tmp_path / "render"
+    assert bpy.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out), file_format="exr") == {"FINISHED"}
+    rendered = sorted(out.glob("edit.*.exr"))
+    assert len(rendered) == len(X.FRAMES)
+    assert all(X.read_exr_rgba(p).shape == (X.H, X.W, 4) for p in rendered)
