@@ -189,7 +189,8 @@ def shot_tasks(sp: ShotPlan) -> list[Task]:
     device = _option(e["device"], shot.device)
     atlases = add(
         ATLASES, [*export, ATLASES, e["frames"], frames, *_option(e["atlas_size"], shot.atlas_size), *device,
-                  *([] if shot.follow_flow else [C.EXPORT_NO_FOLLOW_FLOW_FLAG]), e["no_bar"]],
+                  *([] if shot.follow_flow else [C.EXPORT_NO_FOLLOW_FLOW_FLAG]),
+                  *_option(e["precision"], shot.pass_precision), e["no_bar"]],
         [fit.id],
     )  # fmt: skip
     numbers = list(sp.numbers) or list(range(first, last + 1))

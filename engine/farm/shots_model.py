@@ -48,6 +48,8 @@ DEFAULT_PRESET = C.DEFAULT_PRESET
 DEFAULT_EXPORT_CHUNK = 50
 DEFAULT_RENDER_CHUNK = 50
 RenderFormat = Literal["exr", "png", "plate"]
+#: ``export --pass-precision`` (``contract.PASS_PRECISIONS``; a test keeps the two equal).
+PassPrecision = Literal["compact", "full"]
 #: --device's choices: exactly what the engine's fit and export take (engine/fit/device.py), so the plan refuses
 #: what a worker would (a GPU of several is chosen with CUDA_VISIBLE_DEVICES on the worker, not cuda:N).
 DEVICES: tuple[str, ...] = ("auto", "cpu", "cuda", "mps")
@@ -305,6 +307,8 @@ class Shot(BaseModel):
     preview: Flag = True
     follow_flow: Flag = True
     """False: the export's UV as fitted (``export --no-follow-flow``); True: the export's default."""
+    pass_precision: PassPrecision | None = None
+    """``export --pass-precision``: the bits the pass files keep; None: the export's default (compact)."""
 
     @model_validator(mode="before")
     @classmethod

@@ -8,6 +8,7 @@ import json
 import os
 import string
 from pathlib import Path
+from typing import get_args
 
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -17,6 +18,7 @@ from engine import contract as C
 from engine.cli_options import frame_range
 from engine.errors import InputError
 from engine.farm.shots import DEFAULT_EXPORT_CHUNK, DEFAULT_PRESET, Shot, load_shots
+from engine.farm.shots_model import PassPrecision
 from tests.engine_cli import run_cli
 from tests.farm.farm_helpers import write_clip, write_shots
 
@@ -142,6 +144,7 @@ def test_the_contract_names_the_keys_a_shot_declares():
     assert len(set(C.SHOT_KEYS)) == len(C.SHOT_KEYS) and set(C.SHOT_KEYS) == set(fields)
     assert tuple(key for key, field in fields.items() if field.is_required()) == C.SHOT_REQUIRED_KEYS
     assert set(C.SHOT_DEFAULT_KEYS) <= set(fields) - set(C.SHOT_REQUIRED_KEYS)
+    assert get_args(PassPrecision) == C.PASS_PRECISIONS  # the export's choices, as its parser declares them
 
 
 @pytest.mark.parametrize("key", C.SHOT_KEYS)
