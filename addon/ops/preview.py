@@ -37,22 +37,29 @@ class NEURALATLAS_OT_live_preview(bpy.types.Operator):
         return {"FINISHED"}
 
 
-def show_at_new_size(scene) -> str:
-    """After the panel's Preview Size changed: the preview on screen built again at the new size (its files written
-    where they are missing; the paint, the edit images and every file the artist made untouched), '' when done or
-    when none is shown (the next Live Preview builds at the new size); else hidden, and the line saying why (also the
-    panel's status)."""
+def rebuild_shown(scene) -> str:
+    """The live preview built again where it is shown (a new Preview Size, a relinked plate): '' when done or when
+    none is shown; else hidden, and the line saying why."""
     if not preview_plane.is_shown(scene):
         return ""
     try:
         preview_plane.rebuild(scene)
     except IMPORT_ERRORS as exc:
         preview_plane.hide(scene)
-        line = f"live preview hidden: {exc}"
+        return f"live preview hidden: {exc}"
+    return ""
+
+
+def show_at_new_size(scene) -> str:
+    """After the panel's Preview Size changed: the preview on screen built again at the new size (its files written
+    where they are missing; the paint, the edit images and every file the artist made untouched), '' when done or
+    when none is shown (the next Live Preview builds at the new size); else hidden, and the line saying why (also the
+    panel's status)."""
+    line = rebuild_shown(scene)
+    if line:
         scene.neural_atlas.status = line
         print(f"Neural Atlas: {line}")
-        return line
-    return ""
+    return line
 
 
 classes = (NEURALATLAS_OT_live_preview,)

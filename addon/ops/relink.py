@@ -11,10 +11,10 @@ import bpy
 from bpy.props import StringProperty
 
 from ...engine import contract as C
-from .. import compositor, preferences, preview_plane
+from .. import compositor, preferences
 from ..core import needs, relink
 from ..core import tree_plan as P
-from .import_run import IMPORT_ERRORS
+from .preview import rebuild_shown
 from .render import imported_manifest
 from .scene_inputs import abspath
 
@@ -122,19 +122,6 @@ def _tell_export(context: Any, manifest_path: str) -> str:
     return relink.tell_export(preferences.engine_python(context), manifest_path, target)
 
 
-def _show_again(scene: Any) -> str:
-    """The live preview built again where it is shown (its plate image is its own copy of the plate clip's path);
-    '' or the line saying why it could not be."""
-    if not preview_plane.is_shown(scene):
-        return ""
-    try:
-        preview_plane.rebuild(scene)
-    except IMPORT_ERRORS as exc:
-        preview_plane.hide(scene)
-        return f"live preview hidden: {exc}"
-    return ""
-
-
 class NEURALATLAS_OT_relink(bpy.types.Operator):
     """Point the imported atlas's images, plate and settings at the run folder's or the plate's new place"""
 
@@ -174,7 +161,7 @@ class NEURALATLAS_OT_relink(bpy.types.Operator):
             apply(context, plan, links)
             line, missing = relink.message(plan), bool(plan.missing)
         told = _tell_export(context, new)
-        shown = _show_again(context.scene)
+        shown = rebuild_shown(context.scene)
         warn = missing or told.startswith(("the export still", "the plate is not")) or bool(shown)
         self.report({"WARNING" if warn else "INFO"}, "; ".join(s for s in (line, told, shown) if s))
         return {"FINISHED"}
