@@ -199,7 +199,6 @@ def _cmd_farm(args: argparse.Namespace) -> int:
 def _cmd_fit(args: argparse.Namespace) -> int:
     """``fit``: the run folder's plan (``engine.fit.run_plan``: start, resume, refit, refine, or nothing left to
     do), then the fit; one summary line on stderr."""
-    from .cli_parser import DEFAULT_PRESET
     from .config import config_help
 
     if args.help_config:
@@ -227,7 +226,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         inputs,
         FitMode(args.resume, args.refit, args.resume_if_started, args.refine),
         preset=args.preset,
-        default_preset=DEFAULT_PRESET,
+        default_preset=C.DEFAULT_PRESET,
         set_args=args.set,
         auto_parts=args.auto_parts,
     )

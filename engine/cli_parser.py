@@ -48,9 +48,6 @@ exit codes: 0 done, 1 engine error, 2 bad input, a full disk or a run folder in 
             the likely cause; nothing past the last good checkpoint was kept: --resume --set lr=... continues).
 """
 
-#: The preset of a new fit when --preset is not given.
-DEFAULT_PRESET = C.DEFAULT_PRESET
-
 
 def build_parser(prog: str = f"python -m {C.CLI_MODULE}") -> argparse.ArgumentParser:
     """The engine's command line: every verb, with -q and -v on the engine and on each of them."""
@@ -141,7 +138,7 @@ def _add_fit_parser(sub: argparse._SubParsersAction) -> None:
         help="run folder (created; a folder that holds a fit takes --resume or --refit; one in use by another "
         "process is refused)",
     )
-    add_preset(f, None, f"draft | balanced | final | paper (default: {DEFAULT_PRESET}; not with --resume)")
+    add_preset(f, None, f"draft | balanced | final | paper (default: {C.DEFAULT_PRESET}; not with --resume)")
     add_device(f, "auto")
     _add_fit_plate_options(f)
     _add_fit_run_options(f)

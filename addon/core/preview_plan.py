@@ -228,10 +228,26 @@ def size_line(percent: int, size: tuple[int, int], resolution: tuple[int, int]) 
     return f"Preview at {percent}%: {size[0]}x{size[1]} of {resolution[0]}x{resolution[1]} (the render is full size)"
 
 
+def _last_digits(name: str) -> re.Match[str] | None:
+    """The run of digits Blender reads as a sequence file's frame number: the last in its name."""
+    runs = list(re.finditer(r"\d+", name))
+    return runs[-1] if runs else None
+
+
 def file_number(path: str) -> int | None:
     """The frame number in a sequence file's name (its last run of digits), as Blender reads it; None: none."""
-    found = re.findall(r"\d+", os.path.basename(path))
-    return int(found[-1]) if found else None
+    found = _last_digits(os.path.basename(path))
+    return int(found.group()) if found else None
+
+
+def sequence_file(path: str, number: int) -> str:
+    """The file numbered ``number`` of the image sequence that ``path`` belongs to, as Blender numbers it: the
+    digits ``file_number`` reads replaced, zero-padded to their width (``path`` itself without a number)."""
+    head, name = os.path.split(path)
+    last = _last_digits(name)
+    if last is None:
+        return path
+    return os.path.join(head, f"{name[: last.start()]}{number:0{len(last.group())}d}{name[last.end() :]}")
 
 
 def sequence_user(first_frame: int, first_number: int, count: int) -> SequenceUser:
@@ -292,7 +308,7 @@ def plan_preview(
         user = sequence_user(plate_first, number - before, span)
         plate_image = PreviewImage(PREVIEW_PLATE_IMAGE, plate.filepath, plate.colorspace, "SEQUENCE", user)
         if proxied is not None:
-            sources = (X.sequence_file(plate.filepath, number - before + k) for k in range(span))
+            sources = (sequence_file(plate.filepath, number - before + k) for k in range(span))
             stems = (X.plate_stem(manifest_path, plate_first + k, percent) for k in range(span))
             files = tuple(zip(sources, stems, strict=True))
             plate_proxy = PlateProxy(size, files, plate.colorspace, sequence_user(plate_first, plate_first, span))

@@ -27,7 +27,6 @@ detail shimmers at 25 % as it would in any decimated image; 100 % shows every pi
 from __future__ import annotations
 
 import os
-import re
 import struct
 import zlib
 
@@ -132,17 +131,6 @@ def plate_stem(manifest_path: str, frame: int, percent: int) -> str:
     """The plate's proxy file at scene frame ``frame``, without its extension (``PLATE_EXTS``: which one depends
     on whether Blender reads the plate as 8-bit or float)."""
     return os.path.join(folder(manifest_path, percent), f"plate.{frame:05d}")
-
-
-def sequence_file(path: str, number: int) -> str:
-    """The file numbered ``number`` of the image sequence that ``path`` belongs to: the last run of digits in its
-    name replaced, zero-padded to that run's width (as ``preview_plan.file_number`` reads the number)."""
-    head, name = os.path.split(path)
-    runs = list(re.finditer(r"\d+", name))
-    if not runs:
-        return path
-    last = runs[-1]
-    return os.path.join(head, f"{name[: last.start()]}{number:0{len(last.group())}d}{name[last.end() :]}")
 
 
 def is_fresh(made: str, source: str) -> bool:

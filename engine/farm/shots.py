@@ -41,7 +41,7 @@ from pydantic import ValidationError
 
 from .. import contract as C
 from ..errors import InputError
-from .shots_model import DEFAULT_EXPORT_CHUNK, DEFAULT_PRESET, DEFAULT_RENDER_CHUNK, FOLDER, Shot, refusal, shown
+from .shots_model import DEFAULT_EXPORT_CHUNK, DEFAULT_RENDER_CHUNK, FOLDER, Shot, refusal, shown
 
 _FORMATS = {".toml": "TOML", ".json": "JSON"}
 
@@ -234,4 +234,4 @@ def _check_unique(file: Path, shots: list[Shot]) -> None:
             seen[k] = shot.name
 
 
-__all__ = ["DEFAULT_EXPORT_CHUNK", "DEFAULT_PRESET", "DEFAULT_RENDER_CHUNK", "Shot", "ShotsFile", "load_shots"]
+__all__ = ["DEFAULT_EXPORT_CHUNK", "DEFAULT_RENDER_CHUNK", "Shot", "ShotsFile", "load_shots"]

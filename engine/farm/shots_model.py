@@ -44,7 +44,6 @@ from .. import contract as C
 from ..errors import InputError
 
 #: What a shot gets for a key neither it nor the defaults give (the preset: ``contract.DEFAULT_PRESET``).
-DEFAULT_PRESET = C.DEFAULT_PRESET
 DEFAULT_EXPORT_CHUNK = 50
 DEFAULT_RENDER_CHUNK = 50
 RenderFormat = Literal["exr", "png", "plate"]
@@ -288,7 +287,7 @@ class Shot(BaseModel):
     """The one mask's object split into the parts that move apart when the fit starts: True ``fit --auto-parts``
     (refused where it cannot apply), False ``--no-auto-parts``, None (not given) the fit's default: wherever it
     applies."""
-    preset: Preset = DEFAULT_PRESET
+    preset: Preset = C.DEFAULT_PRESET
     set: Annotated[Overrides, AfterValidator(_fit_overrides)] = Field(default=(), validate_default=True)
     device: Device | None = None
     fps: Rate | None = None
@@ -397,7 +396,6 @@ def shown(text: str) -> str:
 
 __all__ = [
     "DEFAULT_EXPORT_CHUNK",
-    "DEFAULT_PRESET",
     "DEFAULT_RENDER_CHUNK",
     "DEVICES",
     "FOLDER",

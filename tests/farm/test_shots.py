@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from engine import contract as C
 from engine.cli_options import frame_range
 from engine.errors import InputError
-from engine.farm.shots import DEFAULT_EXPORT_CHUNK, DEFAULT_PRESET, Shot, load_shots
+from engine.farm.shots import DEFAULT_EXPORT_CHUNK, Shot, load_shots
 from engine.farm.shots_model import PassPrecision
 from tests.engine_cli import run_cli
 from tests.farm.farm_helpers import write_clip, write_shots
@@ -90,7 +90,7 @@ preview = false
 def test_a_bare_shot_takes_every_default(seq):
     shot = load_shots(write_shots(seq, [{"name": "a", "plate": "clip/frames"}])).shots[0]
     assert (shot.preset, shot.set, shot.export_chunk, shot.preview, shot.render) == (
-        DEFAULT_PRESET, (), DEFAULT_EXPORT_CHUNK, True, None)  # fmt: skip
+        C.DEFAULT_PRESET, (), DEFAULT_EXPORT_CHUNK, True, None)  # fmt: skip
 
 
 GOOD = {"name": "sh010", "plate": "clip/frames"}

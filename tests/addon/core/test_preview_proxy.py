@@ -205,10 +205,10 @@ def test_a_movie_plate_is_shown_as_it_is_and_the_passes_proxied(tmp_path):
 
 
 def test_sequence_files_are_numbered_as_blender_numbers_them():
-    assert X.sequence_file("/p/plate.1001.png", 1005) == "/p/plate.1005.png"
-    assert X.sequence_file("/p/v2_shot_0007.exr", 12) == "/p/v2_shot_0012.exr"  # the last run of digits
-    assert X.sequence_file("/p/f99.png", 100) == "/p/f100.png"
-    assert X.sequence_file("/p/still.png", 3) == "/p/still.png"
+    assert V.sequence_file("/p/plate.1001.png", 1005) == "/p/plate.1005.png"
+    assert V.sequence_file("/p/v2_shot_0007.exr", 12) == "/p/v2_shot_0012.exr"  # the last run of digits
+    assert V.sequence_file("/p/f99.png", 100) == "/p/f100.png"
+    assert V.sequence_file("/p/still.png", 3) == "/p/still.png"
 
 
 def test_the_proxy_writers_write_what_is_read_back(tmp_path):
