@@ -33,6 +33,7 @@ from bench.tool_parsers import (
 )
 from engine import contract as C
 from engine.errors import InputError
+from engine.terms.cli import EXIT_FAILED
 
 
 def parse_eval_at(text: str) -> tuple[float, ...]:
@@ -340,7 +341,7 @@ def main(argv: list[str] | None = None) -> int:
         return C.EXIT_CANCELLED
     except Exception:
         traceback.print_exc()
-        return C.EXIT_FAILED
+        return EXIT_FAILED
 
 
 if __name__ == "__main__":

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from engine import contract as C
+from engine.terms.versions import ENGINE_VERSION
 
 #: Seconds ``git`` may take to name the checkout's commit for the record.
 GIT_TIMEOUT_S = 10
@@ -76,7 +76,7 @@ def versions() -> dict:
     except (OSError, subprocess.SubprocessError):
         pass
     return {
-        "engine": C.ENGINE_VERSION,
+        "engine": ENGINE_VERSION,
         "git": commit,
         "python": platform.python_version(),
         "torch": torch.__version__,

@@ -33,9 +33,12 @@ import numpy as np
 from engine import contract as C
 from engine.errors import InputError
 from engine.fit.run_folder import RunFolder
+from engine.terms.cli import EXPORT_FOLLOW_FLOW_FLAG
+from engine.terms.export_names import EDITS_DIR
+from engine.terms.lock import RUN_LOCK
 
 #: What the copy of the run folder leaves out: earlier exports, edit layers and the lock of the original.
-NOT_COPIED = (C.EXPORTS_DIR, C.EDITS_DIR, C.RUN_LOCK)
+NOT_COPIED = (C.EXPORTS_DIR, EDITS_DIR, RUN_LOCK)
 
 
 def _link_or_copy(src: str, dst: str) -> None:
@@ -69,7 +72,7 @@ class Kind:
 #: What ``--compare`` sets side by side: two kinds of run of the same fit, the first over the second in the ratios.
 COMPARISONS: dict[str, tuple[Kind, Kind]] = {
     "follow-flow": (
-        Kind("follow the flow", (C.EXPORT_FOLLOW_FLOW_FLAG,)),
+        Kind("follow the flow", (EXPORT_FOLLOW_FLOW_FLAG,)),
         Kind("as fitted", (C.EXPORT_NO_FOLLOW_FLOW_FLAG,)),
     ),
     "write-ahead": (Kind("write ahead"), Kind("in turn", write_ahead=0)),

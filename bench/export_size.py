@@ -24,6 +24,7 @@ import OpenEXR
 
 from engine import contract as C
 from engine.errors import InputError
+from engine.terms.export_names import PASSES_DIR, alpha_pass, stmap_pass, uv_pass
 
 #: (name, compression, alpha and coverage in half float (1: half channels; 2: rounded to half's precision, kept in
 #: float32 channels), the STMap copy kept, u and v rounded to multiples of this (0: not rounded; float32 either way))
@@ -64,21 +65,21 @@ def _read(path: Path) -> dict[str, np.ndarray]:
 
 def _is_alpha_or_coverage(name: str) -> bool:
     """An alpha pass (``Atlas.Alpha<Layer>.V``) or a UV pass's coverage (``Atlas.UV<Layer>.A``)."""
-    return name.startswith(f"Atlas.{C.alpha_pass('')}") or (
-        name.startswith(f"Atlas.{C.uv_pass('')}") and name.endswith(".A")
+    return name.startswith(f"Atlas.{alpha_pass('')}") or (
+        name.startswith(f"Atlas.{uv_pass('')}") and name.endswith(".A")
     )
 
 
 def _is_u_or_v(name: str) -> bool:
     """A UV pass's u or v (``Atlas.UV<Layer>.U`` / ``.V``)."""
-    return name.startswith(f"Atlas.{C.uv_pass('')}") and name.endswith((".U", ".V"))
+    return name.startswith(f"Atlas.{uv_pass('')}") and name.endswith((".U", ".V"))
 
 
 def measure_export_size(export: Path, frames: int = 10) -> list[SizeRow]:
     """Every ``VARIANTS`` row on ``frames`` pass files of ``export`` (an export folder or its manifest), spread over
     the clip."""
     folder = export.parent if export.name == C.MANIFEST_NAME else export
-    passes = folder / C.PASSES_DIR
+    passes = folder / PASSES_DIR
     files = sorted(passes.glob("*.exr")) if passes.is_dir() else []
     if not files:
         raise InputError(folder, "holds no pass files", "pass an export folder (RUN/exports/vNNN) or its manifest")
@@ -88,7 +89,7 @@ def measure_export_size(export: Path, frames: int = 10) -> list[SizeRow]:
         for name, compression, half, stmap, grid in VARIANTS:
             sizes, seconds, worst, uv_worst, count = [], 0.0, 0.0, 0.0, 0
             for path in picked:
-                chans = {k: v for k, v in _read(path).items() if stmap or not k.startswith(C.stmap_pass(""))}
+                chans = {k: v for k, v in _read(path).items() if stmap or not k.startswith(stmap_pass(""))}
                 data = {}
                 for key, values in chans.items():
                     if half and _is_alpha_or_coverage(key):

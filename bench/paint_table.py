@@ -54,6 +54,8 @@ from engine.fit.auto_parts import SAID_PREFIX
 from engine.io.atomic import atomic_write_text
 from engine.io.clip import iter_frames, open_clip, read_masks
 from engine.io.images import read_image
+from engine.terms.cli import EXPORT_FOLLOW_FLOW_FLAG, EXPORT_INTO_ARG, FIT_RESUME_IF_STARTED_FLAG
+from engine.terms.run_folder import AUTO_PARTS_DIR, FIT_AUTO_PARTS_FLAG
 
 PAINT_JSON = "paint.json"
 PAINT_MD = "paint.md"
@@ -160,19 +162,19 @@ def fit_and_export(
     mask_args = [a for m in masks for a in ("--mask", str(m))]
     split_args = [C.SCRIBBLE_ARG, str(scribbles)] if scribbles is not None else []
     if how.auto_parts is not None:
-        split_args += [C.FIT_AUTO_PARTS_FLAG if how.auto_parts else C.FIT_NO_AUTO_PARTS_FLAG]
+        split_args += [FIT_AUTO_PARTS_FLAG if how.auto_parts else C.FIT_NO_AUTO_PARTS_FLAG]
     _engine(
         [C.VERB_FIT, str(frames), *mask_args, *split_args, "--out", str(run), "--preset", how.preset,
-         C.FIT_RESUME_IF_STARTED_FLAG, "--no-bar", *set_args],
+         FIT_RESUME_IF_STARTED_FLAG, "--no-bar", *set_args],
         log_path, how.threads,
     )  # fmt: skip
     follow = (
         []
         if how.follow_flow is None
-        else [C.EXPORT_FOLLOW_FLOW_FLAG if how.follow_flow else C.EXPORT_NO_FOLLOW_FLOW_FLAG]
+        else [EXPORT_FOLLOW_FLOW_FLAG if how.follow_flow else C.EXPORT_NO_FOLLOW_FLOW_FLAG]
     )
     out = _engine(
-        [C.VERB_EXPORT, str(run), C.EXPORT_INTO_ARG, EXPORT_VERSION, "--no-bar", *follow], log_path, how.threads
+        [C.VERB_EXPORT, str(run), EXPORT_INTO_ARG, EXPORT_VERSION, "--no-bar", *follow], log_path, how.threads
     )
     with log_path.open("a", encoding="utf-8") as log:  # the export's messages: each layer's reach and why
         log.write(out)
@@ -413,8 +415,8 @@ def _clip_row(folder: Path, out: Path, how: TableFit, say: Log) -> dict:
         found = _auto_parts_line(log_path)
         if found is not None:
             say(f"paint-table: {folder.name}: parts: {found}")
-        if (run / C.AUTO_PARTS_DIR).is_dir():
-            strokes = run / C.AUTO_PARTS_DIR
+        if (run / AUTO_PARTS_DIR).is_dir():
+            strokes = run / AUTO_PARTS_DIR
         layers = len(Manifest(manifest).layers)
     say(f"paint-table: {folder.name}: scoring the export")
     metrics = json.loads((run / C.RUN_METRICS).read_text(encoding="utf-8"))

@@ -17,6 +17,8 @@ from . import contract as C
 from .cli_commands import HANDLERS, RESUME_COMMAND
 from .cli_parser import build_parser
 from .errors import FitDiverged, InputError
+from .terms.cli import EXIT_DIVERGED, EXIT_FAILED
+from .terms.protocol import OPENJD_PROGRESS_ENV
 
 
 class Cancelled(KeyboardInterrupt):
@@ -75,11 +77,11 @@ def main(argv: list[str] | None = None, prog: str = f"python -m {C.CLI_MODULE}")
 
 @contextlib.contextmanager
 def _output(args: argparse.Namespace) -> Iterator[Callable[[int], None]]:
-    """stdout and stderr as -q, -v and an OpenJD task (``contract.OPENJD_PROGRESS_ENV``) ask, for the verb's run;
+    """stdout and stderr as -q, -v and an OpenJD task (``terms.protocol.OPENJD_PROGRESS_ENV``) ask, for the verb's run;
     yields what to call with its exit code (an OpenJD task's 100 % once it succeeded). Without them: untouched."""
     from .fit.progress import LineTap, OpenJDProgress, quiet_lines, verbose_lines
 
-    openjd = OpenJDProgress() if os.environ.get(C.OPENJD_PROGRESS_ENV, "") else None
+    openjd = OpenJDProgress() if os.environ.get(OPENJD_PROGRESS_ENV, "") else None
     echo = verbose_lines(sys.stderr) if args.verbose else None
     if args.quiet and hasattr(args, "no_bar"):
         args.no_bar = True
@@ -130,7 +132,7 @@ def _run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
         return C.EXIT_BAD_INPUT
     except FitDiverged as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return C.EXIT_DIVERGED
+        return EXIT_DIVERGED
     except KeyboardInterrupt as exc:
         print(_cancelled_line(args, exc), file=sys.stderr)
         return C.EXIT_CANCELLED
@@ -140,11 +142,11 @@ def _run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
         full = disk_full_error(exc, Path(filename).parent if filename else Path.cwd())
         if full is None:
             traceback.print_exc()
-            return C.EXIT_FAILED
+            return EXIT_FAILED
         print(f"error: {full}", file=sys.stderr)
         return C.EXIT_BAD_INPUT
     except Exception:
         traceback.print_exc()
-        return C.EXIT_FAILED
+        return EXIT_FAILED
     parser.error(f"unknown verb {args.verb}")
     return C.EXIT_BAD_INPUT

@@ -13,6 +13,10 @@ from typing import TYPE_CHECKING, Any
 
 from . import contract as C
 from .errors import InputError
+from .terms.cli import DEFAULT_PRESET, VERB_DEMO, VERB_NUKE, VERB_PREVIEW, VERB_RENDER
+from .terms.farm import FARM_DASK, FARM_PLAN
+from .terms.protocol import EVENT_WRITTEN, progress_line
+from .terms.versions import SCHEMA_VERSION
 
 if TYPE_CHECKING:
     from .fit.run_plan import FitPlan
@@ -27,7 +31,7 @@ def print_paths(paths: Iterable[Path | str]) -> int:
     from .io.images import display_path  # a name that is not UTF-8 would stop a strict stdout
 
     written = [os.fspath(path) for path in paths]
-    print(C.progress_line(C.EVENT_WRITTEN, paths=written))  # JSON escapes what is not UTF-8
+    print(progress_line(EVENT_WRITTEN, paths=written))  # JSON escapes what is not UTF-8
     for path in written:
         print(display_path(path))
     return C.EXIT_OK
@@ -95,8 +99,8 @@ def _cmd_project_frame(args: argparse.Namespace) -> int:
 
     def stage(name: str, message: str, step: int, total: int) -> None:
         # the add-on's progress bar: what it does now, and how far (stages done of all)
-        print(C.progress_line(C.EVENT_STAGE, stage=name, message=message), flush=True)
-        print(C.progress_line(C.EVENT_PROGRESS, step=step, total=total), flush=True)
+        print(progress_line(C.EVENT_STAGE, stage=name, message=message), flush=True)
+        print(progress_line(C.EVENT_PROGRESS, step=step, total=total), flush=True)
 
     return print_paths(project_frame(args.manifest, args.frame, args.edit, args.layer, on_stage=stage).values())
 
@@ -140,7 +144,7 @@ def _cmd_masks(args: argparse.Namespace) -> int:
     from .data.auto_masks import write_auto_masks
 
     def say(message: str) -> None:
-        print(C.progress_line(C.EVENT_STAGE, stage=C.VERB_MASKS, message=message), flush=True)
+        print(progress_line(C.EVENT_STAGE, stage=C.VERB_MASKS, message=message), flush=True)
 
     frames = _positions(args.clip, args.frames)
     report = write_auto_masks(
@@ -148,7 +152,7 @@ def _cmd_masks(args: argparse.Namespace) -> int:
     )
     for line in report.summary():
         print(line)
-    print(C.progress_line(C.EVENT_MASKS, found=bool(report.result.found), folder=str(report.folder),
+    print(progress_line(C.EVENT_MASKS, found=bool(report.result.found), folder=str(report.folder),
                           message=report.result.message))  # fmt: skip
     return print_paths([report.folder])
 
@@ -172,7 +176,7 @@ def _cmd_farm(args: argparse.Namespace) -> int:
         raise InputError(
             None, f"farm {args.farm_command} is not available ({missing})", "install the engine's farm extra"
         )
-    if args.farm_command == C.FARM_DASK:
+    if args.farm_command == FARM_DASK:
         from .farm.dask_backend import run_dask
 
         return run_dask(args)
@@ -185,9 +189,9 @@ def _cmd_farm(args: argparse.Namespace) -> int:
 
     shots = load_shots(args.shots)
     plan, shot_plans = plan_with_shots(shots)
-    if args.farm_command == C.FARM_PLAN:
+    if args.farm_command == FARM_PLAN:
         if args.json:
-            print(json.dumps({"schema": C.SCHEMA_VERSION, **plan.to_json()}, indent=2))
+            print(json.dumps({"schema": SCHEMA_VERSION, **plan.to_json()}, indent=2))
         else:
             print(task_graph_text(plan))
         return C.EXIT_OK
@@ -226,7 +230,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         inputs,
         FitMode(args.resume, args.refit, args.resume_if_started, args.refine),
         preset=args.preset,
-        default_preset=C.DEFAULT_PRESET,
+        default_preset=DEFAULT_PRESET,
         set_args=args.set,
         auto_parts=args.auto_parts,
     )
@@ -252,7 +256,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 
 def _say_parts(message: str) -> None:
     """The progress of ``parts``: a JSON stage line on stdout."""
-    print(C.progress_line(C.EVENT_STAGE, stage=C.VERB_PARTS, message=message), flush=True)
+    print(progress_line(C.EVENT_STAGE, stage=C.VERB_PARTS, message=message), flush=True)
 
 
 def _cmd_refine(args: argparse.Namespace, run_dir: Path, plan: FitPlan) -> int:
@@ -295,15 +299,15 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 HANDLERS: dict[str, Callable[[argparse.Namespace], int]] = {
     C.VERB_FIT: _cmd_fit,
     C.VERB_EXPORT: _cmd_export,
-    C.VERB_RENDER: _cmd_render,
+    VERB_RENDER: _cmd_render,
     C.VERB_PROJECT_FRAME: _cmd_project_frame,
     C.VERB_REALIGN: _cmd_realign,
-    C.VERB_PREVIEW: _cmd_preview,
+    VERB_PREVIEW: _cmd_preview,
     C.VERB_ESTIMATE: _cmd_estimate,
     C.VERB_MASKS: _cmd_masks,
     C.VERB_PARTS: _cmd_parts,
-    C.VERB_NUKE: _cmd_nuke,
+    VERB_NUKE: _cmd_nuke,
     C.VERB_RELINK: _cmd_relink,
     C.VERB_FARM: _cmd_farm,
-    C.VERB_DEMO: _cmd_demo,
+    VERB_DEMO: _cmd_demo,
 }

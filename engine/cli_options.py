@@ -12,6 +12,8 @@ from collections.abc import Iterator
 from typing import Any
 
 from . import contract as C
+from .terms.cli import EXPORT_FOLLOW_FLOW_FLAG
+from .terms.clip import MAX_START_FRAME
 
 #: Every verb's exit codes, for the other verbs' help.
 EXIT_EPILOG = """\
@@ -36,14 +38,14 @@ def frame_range(text: str) -> tuple[int, int]:
 
 
 def start_frame(text: str) -> int:
-    """``--start-frame``: a whole number from 0 to ``contract.MAX_START_FRAME`` (Blender's highest frame)."""
+    """``--start-frame``: a whole number from 0 to ``terms.clip.MAX_START_FRAME`` (Blender's highest frame)."""
     try:
         number = int(text)
     except ValueError:
         number = -1
-    if not 0 <= number <= C.MAX_START_FRAME:
+    if not 0 <= number <= MAX_START_FRAME:
         raise argparse.ArgumentTypeError(
-            f"start frame {text[:40]!r} must be a whole number from 0 to {C.MAX_START_FRAME}, e.g. 1001"
+            f"start frame {text[:40]!r} must be a whole number from 0 to {MAX_START_FRAME}, e.g. 1001"
         )
     return number
 
@@ -136,7 +138,7 @@ def add_follow_flow(parser: argparse.ArgumentParser, default: bool | None, follo
     """``--follow-flow`` | ``--no-follow-flow`` into ``follow_flow`` (True | False; neither: ``default``): whether
     an export averages each layer's UV along the fit's flow (``engine.export.follow_flow``)."""
     group = parser.add_mutually_exclusive_group()
-    group.add_argument(C.EXPORT_FOLLOW_FLOW_FLAG, dest="follow_flow", action="store_const", const=True,
+    group.add_argument(EXPORT_FOLLOW_FLOW_FLAG, dest="follow_flow", action="store_const", const=True,
                        default=default, help=follow_help)  # fmt: skip
     group.add_argument(C.EXPORT_NO_FOLLOW_FLOW_FLAG, dest="follow_flow", action="store_const", const=False,
                        help=no_help)  # fmt: skip

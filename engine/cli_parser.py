@@ -26,6 +26,28 @@ from .cli_options import (
     frame_rate,
     start_frame,
 )
+from .terms.cli import (
+    DEFAULT_PRESET,
+    EXPORT_INTO_ARG,
+    EXPORT_PASS_PRECISION_ARG,
+    EXPORT_STAGE_ARG,
+    EXPORT_STAGES,
+    FIT_RESUME_IF_STARTED_FLAG,
+    VERB_DEMO,
+    VERB_NUKE,
+    VERB_PREVIEW,
+    VERB_RENDER,
+)
+from .terms.export_names import (
+    ATLAS_SIZE_DEFAULT,
+    NUKE_SCRIPT_NAME,
+    PASS_PRECISION_COMPACT,
+    PASS_PRECISION_FULL,
+    PASS_PRECISIONS,
+)
+from .terms.farm import FARM_DASK, FARM_PLAN
+from .terms.run_folder import AUTO_PARTS_DIR, FIT_AUTO_MASKS_FLAG, FIT_AUTO_PARTS_FLAG, FLOW_CACHE_DIR
+from .terms.versions import ENGINE_VERSION
 
 DESCRIPTION = """\
 Neural Atlas engine: fit layered neural atlases (Kasten et al. 2021) to a clip.
@@ -52,7 +74,7 @@ exit codes: 0 done, 1 engine error, 2 bad input, a full disk or a run folder in 
 def build_parser(prog: str = f"python -m {C.CLI_MODULE}") -> argparse.ArgumentParser:
     """The engine's command line: every verb, with -q and -v on the engine and on each of them."""
     p = argparse.ArgumentParser(prog=prog, description=DESCRIPTION, formatter_class=RAW_HELP)
-    p.add_argument("--version", action="version", version=f"neural-atlas engine {C.ENGINE_VERSION}")
+    p.add_argument("--version", action="version", version=f"neural-atlas engine {ENGINE_VERSION}")
     sub = p.add_subparsers(dest="verb", metavar="VERB")
     _add_fit_parser(sub)
     _add_demo_parser(sub)
@@ -73,11 +95,11 @@ def build_parser(prog: str = f"python -m {C.CLI_MODULE}") -> argparse.ArgumentPa
 
 @functools.cache
 def verb_flags(verb: str) -> dict[str, str]:
-    """Each option of ``verb`` (``C.VERB_*``) by its destination, as this parser declares it (``start_frame``:
+    """Each option of ``verb`` (``terms.cli.VERB_*``) by its destination, as this parser declares it (``start_frame``:
     ``--start-frame``): a command line built for the engine (the farm's plan) names the flags from here, so a flag
     renamed here cannot leave a farm task asking for the old one. A pair of flags that share a destination
-    (``--auto-parts`` / ``--no-auto-parts``) keeps only the last here: the contract names each of those
-    (``C.FIT_AUTO_PARTS_FLAG``, ...)."""
+    (``--auto-parts`` / ``--no-auto-parts``) keeps only the last here: the contract's terms name each of those
+    (``FIT_AUTO_PARTS_FLAG``, ...)."""
     sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
     parser = sub.choices[verb]
     return {a.dest: a.option_strings[-1] for a in parser._actions if a.option_strings and a.dest != "help"}
@@ -112,7 +134,7 @@ def _add_fit_parser(sub: argparse._SubParsersAction) -> None:
         help="split the one --mask object into layers: red/green/... strokes per frame (paper Sec. 4.4)",
     )
     f.add_argument(
-        C.FIT_AUTO_MASKS_FLAG,
+        FIT_AUTO_MASKS_FLAG,
         dest="auto_masks",
         action="store_true",
         help=f"no masks: find moving objects (masks written to RUN_DIR/{C.AUTO_MASKS_DIR} for checking) and fit "
@@ -120,15 +142,15 @@ def _add_fit_parser(sub: argparse._SubParsersAction) -> None:
         "(written by `masks`, or fixed by hand) is used as it is. Without --mask or this, the fit is background-only",
     )
     f.add_argument(
-        C.FIT_AUTO_PARTS_FLAG,  # and C.FIT_NO_AUTO_PARTS_FLAG, which the action derives from it
+        FIT_AUTO_PARTS_FLAG,  # and C.FIT_NO_AUTO_PARTS_FLAG, which the action derives from it
         dest="auto_parts",
         action=argparse.BooleanOptionalAction,
         default=None,
         help=f"split the one --mask object into the parts that move apart (a limb swinging across the body), as "
-        f"`{C.VERB_PARTS}` then {C.SCRIBBLE_ARG} would; the strokes are written to RUN_DIR/{C.AUTO_PARTS_DIR} for "
+        f"`{C.VERB_PARTS}` then {C.SCRIBBLE_ARG} would; the strokes are written to RUN_DIR/{AUTO_PARTS_DIR} for "
         "checking, and strokes already there (an earlier fit's, or fixed by hand) are used as they are. An object "
         "that moves as one piece is fitted as one layer. Default: on wherever it applies (one --mask, no "
-        f"{C.SCRIBBLE_ARG} or {C.FIT_AUTO_MASKS_FLAG}, a fast preset, two frames or more); {C.FIT_AUTO_PARTS_FLAG} "
+        f"{C.SCRIBBLE_ARG} or {FIT_AUTO_MASKS_FLAG}, a fast preset, two frames or more); {FIT_AUTO_PARTS_FLAG} "
         f"insists (refused where it cannot apply), {C.FIT_NO_AUTO_PARTS_FLAG} fits the object as one layer",
     )
     f.add_argument(
@@ -138,7 +160,7 @@ def _add_fit_parser(sub: argparse._SubParsersAction) -> None:
         help="run folder (created; a folder that holds a fit takes --resume or --refit; one in use by another "
         "process is refused)",
     )
-    add_preset(f, None, f"draft | balanced | final | paper (default: {C.DEFAULT_PRESET}; not with --resume)")
+    add_preset(f, None, f"draft | balanced | final | paper (default: {DEFAULT_PRESET}; not with --resume)")
     add_device(f, "auto")
     _add_fit_plate_options(f)
     _add_fit_run_options(f)
@@ -190,7 +212,7 @@ def _add_fit_run_options(f: argparse.ArgumentParser) -> None:
         "metrics are replaced; its edit layers (edits/) and earlier exports (exports/) are kept as they are",
     )
     f.add_argument(
-        C.FIT_RESUME_IF_STARTED_FLAG,
+        FIT_RESUME_IF_STARTED_FLAG,
         dest="resume_if_started",
         action="store_true",
         help="for a task a farm retries with the same arguments: RUN_DIR without a checkpoint starts the fit; with a "
@@ -218,7 +240,7 @@ def _add_demo_parser(sub: argparse._SubParsersAction) -> None:
     """``demo``: the embedded demo clip fitted."""
     d = add_verb(
         sub,
-        C.VERB_DEMO,
+        VERB_DEMO,
         help="fit the embedded demo clip (README command 1)",
         description="Generate the demo plate, fit it, and write a contact sheet. Idempotent.",
     )
@@ -265,7 +287,7 @@ def _add_export_parser(sub: argparse._SubParsersAction) -> None:
         "--atlas-size",
         type=int,
         default=None,
-        help=f"atlas texture long side in texels (default: {C.ATLAS_SIZE_DEFAULT}; publish: the staged one)",
+        help=f"atlas texture long side in texels (default: {ATLAS_SIZE_DEFAULT}; publish: the staged one)",
     )
     x.add_argument(
         "--frames",
@@ -277,7 +299,7 @@ def _add_export_parser(sub: argparse._SubParsersAction) -> None:
     )
     add_device(x, "cpu")
     x.add_argument(
-        C.EXPORT_INTO_ARG,
+        EXPORT_INTO_ARG,
         dest="into",
         default=None,
         metavar="vNNN",
@@ -286,11 +308,11 @@ def _add_export_parser(sub: argparse._SubParsersAction) -> None:
         "manifest's path is printed (a retried task succeeds); with others: refused",
     )
     x.add_argument(
-        C.EXPORT_STAGE_ARG,
+        EXPORT_STAGE_ARG,
         dest="stage",
         default=None,
-        choices=C.EXPORT_STAGES,
-        help=f"one part of the export {C.EXPORT_INTO_ARG} vNNN, for a farm: atlases (once, holding the lock: the "
+        choices=EXPORT_STAGES,
+        help=f"one part of the export {EXPORT_INTO_ARG} vNNN, for a farm: atlases (once, holding the lock: the "
         f"layer frames and atlas textures into {C.EXPORTS_DIR}/.vNNN.chunks), passes --frames A-B (chunks, at once "
         "on several hosts, no lock: frames already written are skipped, a cancel keeps the finished ones), publish "
         "(once every chunk is done: edit layers, manifest and Nuke script, then the folder becomes vNNN). The files "
@@ -302,19 +324,19 @@ def _add_export_parser(sub: argparse._SubParsersAction) -> None:
         "average each layer's UV along the fit's optical flow where it slips against it (a body that bends: "
         "legs, a rider; cars moving in the background), so paint follows it from frame to frame; layers that "
         "already follow the flow "
-        f"are left as fitted. On by default when RUN_DIR/{C.FLOW_CACHE_DIR} holds the fit's flow; this flag "
-        f"insists (refused without it). A staged export decides it in its {C.EXPORT_STAGES[0]} stage",
+        f"are left as fitted. On by default when RUN_DIR/{FLOW_CACHE_DIR} holds the fit's flow; this flag "
+        f"insists (refused without it). A staged export decides it in its {EXPORT_STAGES[0]} stage",
         "export each layer's UV as fitted (the atlas alone, as exports before the flow was followed)",
     )
     x.add_argument(
-        C.EXPORT_PASS_PRECISION_ARG,
+        EXPORT_PASS_PRECISION_ARG,
         dest="precision",
         default=None,
-        choices=C.PASS_PRECISIONS,
-        help=f"the bits the pass files keep, every channel float32 either way: {C.PASS_PRECISION_COMPACT} (default) "
+        choices=PASS_PRECISIONS,
+        help=f"the bits the pass files keep, every channel float32 either way: {PASS_PRECISION_COMPACT} (default) "
         "rounds alpha and coverage down to half float's precision (at most 4.9e-4 off) and u, v to multiples of 2^-17 "
-        f"(0.03 texel on a 4096 atlas): half the bytes; {C.PASS_PRECISION_FULL} keeps every bit the networks give. "
-        f"A staged export decides it in its {C.EXPORT_STAGES[0]} stage",
+        f"(0.03 texel on a 4096 atlas): half the bytes; {PASS_PRECISION_FULL} keeps every bit the networks give. "
+        f"A staged export decides it in its {EXPORT_STAGES[0]} stage",
     )
     add_no_bar(x)
 
@@ -323,7 +345,7 @@ def _add_render_parser(sub: argparse._SubParsersAction) -> None:
     """``render``: the edited clip from an export's edit layers over the plate."""
     r = add_verb(
         sub,
-        C.VERB_RENDER,
+        VERB_RENDER,
         help="render the edited clip from an export (the paper's edit equations)",
         description="Blend each layer's edit layer (sampled at its UV) over the ORIGINAL plate, layers weighted "
         "by the learned alpha. With every edit layer empty the output is the plate. The frames (and the movie) "
@@ -431,7 +453,7 @@ def _add_preview_parser(sub: argparse._SubParsersAction) -> None:
     """``preview``: contact sheets and movies to judge an export."""
     pv = add_verb(
         sub,
-        C.VERB_PREVIEW,
+        VERB_PREVIEW,
         help="contact sheets and movies to judge an export: atlases, checkerboard, label propagation",
         description="Writes into MANIFEST's folder/preview (or --out, outside the run folder): atlases with "
         "coverage, a checkerboard mapped through each foreground atlas, and stripes painted on the first frame "
@@ -450,7 +472,7 @@ def _add_relink_parser(sub: argparse._SubParsersAction) -> None:
         C.VERB_RELINK,
         help="point an export at its plate after the plate or the run folder moved",
         description="Rewrites MANIFEST's plate paths (relative to the manifest, and absolute) to the plate at "
-        f"PATH, and the export's {C.NUKE_SCRIPT_NAME} with them while it is the one the export wrote (a script saved "
+        f"PATH, and the export's {NUKE_SCRIPT_NAME} with them while it is the one the export wrote (a script saved "
         "over it is left as it is). A sequence's folder must hold every frame file the export names. Prints one "
         "line per file, the manifest's path last.",
     )
@@ -470,12 +492,12 @@ def _add_nuke_parser(sub: argparse._SubParsersAction) -> None:
 
     n = add_verb(
         sub,
-        C.VERB_NUKE,
+        VERB_NUKE,
         help="write a Nuke script of the edit: per layer an STMap of its edit layer, over the plate",
         description="Reads MANIFEST's plate and passes, per layer Shuffle (STMap<Layer>) -> STMap of the edit layer "
         "-> Merge (mask) by its coverage, sums the layers and puts them over the plate: the edit equation of "
         f"`render`. Paths are relative to the script's folder. `export` writes one beside the manifest "
-        f"({C.NUKE_SCRIPT_NAME}); an existing file is never overwritten. The last line printed is the script's path.",
+        f"({NUKE_SCRIPT_NAME}); an existing file is never overwritten. The last line printed is the script's path.",
     )
     n.add_argument("manifest", metavar="MANIFEST", help=MANIFEST_HELP)
     n.add_argument("--out", required=True, metavar="FILE.nk", help="the script to write (a new file)")
@@ -556,7 +578,7 @@ def _add_farm_parser(sub: argparse._SubParsersAction) -> None:
     )
     commands = farm.add_subparsers(dest="farm_command", metavar="COMMAND", required=True)
     shots_help = "the shots file (.toml or .json; relative paths are relative to it)"
-    plan = commands.add_parser(C.FARM_PLAN, help="print every task's engine arguments and dependencies")
+    plan = commands.add_parser(FARM_PLAN, help="print every task's engine arguments and dependencies")
     plan.add_argument("shots", metavar="SHOTS", help=shots_help)
     plan.add_argument("--json", action="store_true", help="one JSON object: the shots and their tasks")
     from .farm.openjd import add_openjd_parser
@@ -567,7 +589,7 @@ def _add_farm_parser(sub: argparse._SubParsersAction) -> None:
 
         add_dask_parser(commands)
     except ImportError as exc:  # a back end whose module or library is missing: its command says so
-        _add_missing_farm_parser(commands, C.FARM_DASK, exc)
+        _add_missing_farm_parser(commands, FARM_DASK, exc)
     try:
         from .farm.flamenco import add_flamenco_parser
 

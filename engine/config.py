@@ -41,8 +41,9 @@ from .config_fields import (
     parse_set_value,
     whole_number,
 )
-from .contract import CLI_MODULE, DEFAULT_PRESET, PRESET_STEPS, SCHEMA_VERSION
 from .errors import InputError
+from .terms.cli import CLI_MODULE, DEFAULT_PRESET, PRESET_STEPS
+from .terms.versions import SCHEMA_VERSION
 
 #: OpenCV DIS optical-flow presets (``flow_preset``), fastest first; engine/data/flow.py maps each to OpenCV's.
 #: Named here so the config (and the add-on's tests on a Blender without OpenCV) need no cv2.
@@ -72,7 +73,7 @@ MAX_DEPTH = 32
 MAX_PIXELS = 4096.0
 #: Pixels or samples drawn in one step or one evaluation: the presets draw 4000-20000.
 MAX_SAMPLES = 10_000_000
-#: A working size's long edge: a plate's, at most 16k (``contract.MAX_DECODED_BYTES``).
+#: A working size's long edge: a plate's, at most 16k (``io.images.MAX_DECODED_BYTES``).
 MAX_LONG_EDGE = 16384
 #: Growth of a foreground atlas's box beyond the object, as a fraction of its size: the presets use 0.06.
 MAX_MARGIN = 10.0

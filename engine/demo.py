@@ -46,10 +46,11 @@ from .fit.run_plan import PLAN_RESUME, PLAN_START, FitPlan
 from .fit.trainer import FitCancelled, fit
 from .io.atomic import atomic_write_text
 from .io.images import read_image, write_png
+from .terms import cli as cli_terms
 
 DEMO_ATLAS_SIZE = 512
 ROOT = Path(__file__).resolve().parents[1]
-HEADLESS_SCRIPT = ROOT / C.HEADLESS_SCRIPT
+HEADLESS_SCRIPT = ROOT / cli_terms.HEADLESS_SCRIPT
 #: Blender's own render step for 24 small frames takes seconds; this only stops a hung Blender.
 BLENDER_TIMEOUT_S = 600
 #: Where `NEURAL_ATLAS_BLENDER` can point: a `blender` binary, or a Python 3.11 with the `bpy` module.

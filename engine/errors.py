@@ -42,4 +42,4 @@ class DiskFullError(InputError):
 
 class FitDiverged(Exception):
     """The fit's loss, gradients or parameters stopped being finite: the message (one line) names the step, the
-    likely cause and how to continue from the last good checkpoint (``contract.EXIT_DIVERGED``)."""
+    likely cause and how to continue from the last good checkpoint (``terms.cli.EXIT_DIVERGED``)."""

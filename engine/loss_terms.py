@@ -9,15 +9,15 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from . import contract as C
 from .config import PHASE_FIELDS, FitConfig
+from .terms.run_folder import BG_MOTION_STATIC
 
 
 @dataclass(frozen=True)
 class SceneFacts:
     """What the scene analysis found that a term may need: foreground layers, flow between frames, long-range
     correspondences (asked for, and a clip long enough for a gap of 2), scribble files, the background's motion
-    class (contract ``BG_MOTION_*``), with the fit's config."""
+    class (``terms.run_folder.BG_MOTION_*``), with the fit's config."""
 
     cfg: FitConfig
     foreground: int
@@ -83,7 +83,7 @@ TERMS: tuple[LossTerm, ...] = (
     LossTerm("gradient", "w_gradient"),
     LossTerm("rigidity", "w_rigidity"),
     LossTerm("global_rigidity_bg", "w_global_rigidity_bg", until="global_rigidity_steps", needs=(
-        Need(lambda s: s.motion != C.BG_MOTION_STATIC, "a near-identity mapping is globally rigid by construction"),
+        Need(lambda s: s.motion != BG_MOTION_STATIC, "a near-identity mapping is globally rigid by construction"),
     )),
     LossTerm("global_rigidity_fg", "w_global_rigidity_fg", until="global_rigidity_steps", needs=(FOREGROUND,)),
     LossTerm("flow", "w_flow", needs=(FLOW,)),

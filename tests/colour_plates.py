@@ -14,6 +14,9 @@ import OpenImageIO as oiio
 from engine import contract as C
 from engine.io.clip import open_clip
 from engine.io.images import write_png
+from engine.terms.colour import COLOUR_BUILTIN_CONFIG
+from engine.terms.export_names import EDITS_DIR, layer_name
+from engine.terms.manifest import validate_manifest
 from tests.engine.fake_export import make_fake_export
 
 W, H, T = 12, 8, 2
@@ -79,18 +82,18 @@ def export_plate(tmp_path: Path, kind: str, layer=_identity) -> tuple[Path, np.n
     for t in range(T):
         _write(clip_dir / f"plate.{t:04d}{ext}", values[t], fmt, **attrs)
     info = open_clip(clip_dir, colorspace="ACEScct" if kind == "acescct" else None)
-    assert info.colorspace == space and info.colour_config == C.COLOUR_BUILTIN_CONFIG
+    assert info.colorspace == space and info.colour_config == COLOUR_BUILTIN_CONFIG
     data = json.loads(manifest.read_text())
     data["clip"].update(
         frame_files=list(info.frame_files), colorspace=info.colorspace, colour_config=info.colour_config
     )
-    manifest.write_text(json.dumps(C.validate_manifest(data)))
+    manifest.write_text(json.dumps(validate_manifest(data)))
     return manifest, values
 
 
 def paint(manifest: Path, rgba8: tuple[int, int, int, int] = (200, 3, 50, 255)) -> Path:
     """Paint the export's one edit layer a single sRGB colour (an 8-bit PNG, as Blender saves paint)."""
-    edit = manifest.parents[2] / C.EDITS_DIR / f"{C.layer_name(0, 1)}.png"
+    edit = manifest.parents[2] / EDITS_DIR / f"{layer_name(0, 1)}.png"
     write_png(edit, np.broadcast_to(np.float32(rgba8) / 255.0, (H, W, 4)).copy(), 8)
     return edit
 

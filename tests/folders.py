@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from engine import contract as C
+from engine.terms.lock import RUN_LOCK
 from tests.paths import ROOT
 
 #: A process that holds a run folder's lock (``contract.run_lock``, standard library only: any interpreter of the
@@ -43,7 +43,7 @@ def tree_digest(folder: Path) -> dict[str, str]:
     return {
         str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
         for p in sorted(folder.rglob("*"))
-        if p.is_file() and p.name != C.RUN_LOCK
+        if p.is_file() and p.name != RUN_LOCK
     }
 
 

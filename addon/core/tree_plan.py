@@ -87,7 +87,8 @@ MATTES_DIR = "mattes"
 MATTE_FILE = "matte.#####"
 MATTE_EXT = ".exr"
 #: The matte of the paint: where the edit layers cover the plate, ``sum_i A_i`` (the alpha the Blend frame puts over
-#: the plate). Not a layer name: layers are Background, Foreground, Foreground1, ... (``contract.layer_name``).
+#: the plate). Not a layer name: layers are Background, Foreground, Foreground1, ... (the engine's
+#: ``terms.export_names.layer_name``).
 PAINT_MATTE = "Paint"
 #: The matte of every foreground layer together, ``sum_i a_i`` over the foregrounds' alpha passes, offered when there
 #: are two or more: the whole object when Find Parts split it into the parts that move apart (one holdout for "the

@@ -26,10 +26,10 @@ from typing import Any, BinaryIO, Protocol, TypeVar, runtime_checkable
 import cv2
 import numpy as np
 
-from .. import contract as C
 from ..config import FLOW_PRESETS
 from ..errors import DiskFullError, InputError
 from ..io.atomic import atomic_write
+from ..terms.run_folder import FLOW_KEY_PATTERN
 
 log = logging.getLogger(__name__)
 #: What a cache reader makes of a file's arrays (``read_cache``).
@@ -246,7 +246,7 @@ def content_key(frames: np.ndarray, backend: FlowBackend, threshold_px: float) -
     return h.hexdigest()
 
 
-FLOW_KEY = re.compile(C.FLOW_KEY_PATTERN)
+FLOW_KEY = re.compile(FLOW_KEY_PATTERN)
 
 
 def cached_flow(

@@ -18,10 +18,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .. import contract as C
 from ..errors import InputError
 from ..io.atomic import disk_full_as_one_line, disk_full_error, signals_held
 from ..io.clip_info import ClipInfo
+from ..terms.run_folder import AUTO_PARTS_DIR, RUN_CLIP, RUN_CONFIG
 
 
 def mask_file_names(info: ClipInfo) -> list[str]:
@@ -42,11 +42,11 @@ def output_folder(info: ClipInfo, out: str | Path, what: str = "mask") -> Path:
         raise InputError(
             folder, "is the clip's own frame folder", f"write the {what}s to a folder of their own with --out"
         )
-    if any((folder / name).exists() for name in (C.RUN_CLIP, C.RUN_CONFIG)):
+    if any((folder / name).exists() for name in (RUN_CLIP, RUN_CONFIG)):
         raise InputError(
             folder,
             "is a fit's run folder: its own files would mix with the fit's",
-            f"write the {what}s to a folder of their own with --out (a fit's strokes go to its {C.AUTO_PARTS_DIR}/)",
+            f"write the {what}s to a folder of their own with --out (a fit's strokes go to its {AUTO_PARTS_DIR}/)",
         )
     return folder
 

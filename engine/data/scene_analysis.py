@@ -3,7 +3,7 @@
 A tripod shot does not need a deformable background mapping, a clip without an object needs no foreground
 or alpha networks, a single frame has no flow. Each decision carries a one-line reason and the measured
 numbers behind it, so an artist (and a bug report) can see why a run computed what it did. The decisions
-are written to ``RUN_DIR/scene.json`` (``contract.SCENE_FILE``, by ``engine.fit.run_folder.RunFolder``), shown
+are written to ``RUN_DIR/scene.json`` (``terms.run_folder.SCENE_FILE``, by ``engine.fit.run_folder.RunFolder``), shown
 as a ``stage`` progress event, and copied into every export's manifest.
 
 Background motion is measured on the flow the fit computes anyway (no extra cost): per adjacent frame pair,
@@ -22,10 +22,18 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .. import contract as C
 from ..config import FitConfig
 from ..errors import InputError
 from ..loss_terms import ALL_TERMS, TERMS, SceneFacts
+from ..terms.run_folder import (
+    BG_MOTION_DEFORMABLE,
+    BG_MOTION_PAN_ZOOM,
+    BG_MOTION_STATIC,
+    SCENE_LAYERS_AUTO,
+    SCENE_LAYERS_GIVEN,
+    SCENE_LAYERS_NONE,
+)
+from ..terms.versions import SCHEMA_VERSION
 from .flow import FlowField
 from .long_flow import long_flow_gaps
 
@@ -74,8 +82,8 @@ class SceneAnalysis:
 
     components: str = "auto"
     num_layers: int = 1
-    layers_source: str = C.SCENE_LAYERS_NONE
-    background_motion: str = C.BG_MOTION_DEFORMABLE
+    layers_source: str = SCENE_LAYERS_NONE
+    background_motion: str = BG_MOTION_DEFORMABLE
     flow: bool = True
     scribbles: int = 0
     alpha_network: bool = False
@@ -91,7 +99,7 @@ class SceneAnalysis:
         return None if self.components == "all" else frozenset(self.active_terms)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"schema": C.SCHEMA_VERSION, **dataclasses.asdict(self)}
+        return {"schema": SCHEMA_VERSION, **dataclasses.asdict(self)}
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> SceneAnalysis:
@@ -162,26 +170,26 @@ def measure_background_motion(flow: FlowField, masks: np.ndarray) -> MotionMeasu
 def classify_background(measure: MotionMeasure | None, frames: int) -> tuple[str, str]:
     """(background motion class, reason) from the measurement."""
     if frames < 2:
-        return C.BG_MOTION_STATIC, "a single frame: the background cannot move"
+        return BG_MOTION_STATIC, "a single frame: the background cannot move"
     if measure is None or measure.static_px is None:
-        return C.BG_MOTION_DEFORMABLE, (
+        return BG_MOTION_DEFORMABLE, (
             f"too little reliable background flow to measure (< {MIN_VECTORS} vectors in every pair): "
             "the full deformable mapping is the safe choice"
         )
     if measure.static_px < STATIC_MOTION_PX:
-        return C.BG_MOTION_STATIC, (
+        return BG_MOTION_STATIC, (
             f"static camera: median background motion {measure.static_px:.3f} px/frame "
             f"< {STATIC_MOTION_PX} px ({measure.pairs_measured}/{measure.pairs} pairs measured): "
             "near-identity mapping, no residual network, no warp grid"
         )
     res = measure.similarity_residual_px
     if res is not None and res < PANZOOM_RESIDUAL_PX:
-        return C.BG_MOTION_PAN_ZOOM, (
+        return BG_MOTION_PAN_ZOOM, (
             f"pan/zoom: a similarity per frame explains the background flow to {res:.3f} px "
             f"< {PANZOOM_RESIDUAL_PX} px (motion {measure.static_px:.2f} px/frame): "
             "similarity + small residual network, no warp grid"
         )
-    return C.BG_MOTION_DEFORMABLE, (
+    return BG_MOTION_DEFORMABLE, (
         f"deformable: a similarity leaves {res:.3f} px of background flow unexplained "
         f"(>= {PANZOOM_RESIDUAL_PX} px: parallax or non-rigid motion): full mapping with warp grid"
     )
@@ -204,7 +212,7 @@ def analyse_scene(
     if cfg.components not in ("auto", "all"):
         raise InputError(None, f"--set components={cfg.components}: unknown", "use components=auto or components=all")
     fg = int(masks.shape[0]) if foreground_layers is None else int(foreground_layers)
-    source = layers_source or (C.SCENE_LAYERS_GIVEN if fg else C.SCENE_LAYERS_NONE)
+    source = layers_source or (SCENE_LAYERS_GIVEN if fg else SCENE_LAYERS_NONE)
     reasons: dict[str, str] = {"layers": _layers_reason(fg, source, masks_note)}
 
     has_flow = frames >= 2 and flow is not None and flow.pairs > 0
@@ -236,9 +244,9 @@ def _layers_reason(fg: int, source: str, masks_note: str | None) -> str:
     """Why the fit has the layers it has: the masks given or found, or none (a background-only atlas)."""
     note = f" ({masks_note})" if masks_note else ""
     if fg:
-        how = "found from motion (--auto-masks)" if source == C.SCENE_LAYERS_AUTO else "given (--mask)"
+        how = "found from motion (--auto-masks)" if source == SCENE_LAYERS_AUTO else "given (--mask)"
         return f"background + {fg} foreground layer(s): masks {how}{note}"
-    why = "no moving object was found" if source == C.SCENE_LAYERS_AUTO else "no masks were given"
+    why = "no moving object was found" if source == SCENE_LAYERS_AUTO else "no masks were given"
     return f"background only: {why}{note}; no foreground or alpha networks, alpha = 1"
 
 
@@ -269,7 +277,7 @@ def _measured(frames: int, fg: int, measure: MotionMeasure | None) -> dict[str, 
 def force_all(scene: SceneAnalysis) -> SceneAnalysis:
     """components=all: every component on, recording what the analysis would have left off."""
     overrides = []
-    if scene.background_motion != C.BG_MOTION_DEFORMABLE:
+    if scene.background_motion != BG_MOTION_DEFORMABLE:
         overrides.append(f"background_motion: deformable instead of {scene.background_motion}")
     if not scene.alpha_network:
         overrides.append("alpha_network: on (one layer: its output is 1 everywhere)")
@@ -280,7 +288,7 @@ def force_all(scene: SceneAnalysis) -> SceneAnalysis:
     return dataclasses.replace(
         scene,
         components="all",
-        background_motion=C.BG_MOTION_DEFORMABLE,
+        background_motion=BG_MOTION_DEFORMABLE,
         alpha_network=True,
         active_terms=list(ALL_TERMS),
         reasons=reasons,

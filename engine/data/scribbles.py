@@ -17,6 +17,7 @@ from .. import contract as C
 from ..errors import InputError
 from ..io.clip import ClipInfo, same_aspect
 from ..io.images import cv2_read, image_header
+from ..terms.clip import SCRIBBLE_ALPHA_CUTOFF
 from .flow import FlowField
 
 #: No scribble at this pixel.
@@ -32,7 +33,7 @@ _NUMBER = re.compile(r"(\d+)(?!.*\d)")
 def labels_from_rgba(image: np.ndarray) -> np.ndarray:
     """int8 [H, W] labels (0-based foreground layer, NO_LABEL) of an 8-bit RGB or RGBA image [H, W, 3|4]."""
     rgb = image[..., :3].astype(np.int16)
-    drawn = image[..., 3] > C.SCRIBBLE_ALPHA_CUTOFF if image.shape[-1] == 4 else np.ones(rgb.shape[:2], dtype=bool)
+    drawn = image[..., 3] > SCRIBBLE_ALPHA_CUTOFF if image.shape[-1] == 4 else np.ones(rgb.shape[:2], dtype=bool)
     out = np.full(rgb.shape[:2], NO_LABEL, dtype=np.int8)
     for k, colour in enumerate(C.SCRIBBLE_COLOURS):
         near = (np.abs(rgb - np.asarray(colour, dtype=np.int16)) <= C.SCRIBBLE_TOLERANCE).all(-1)

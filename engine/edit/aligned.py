@@ -13,6 +13,7 @@ from pathlib import Path
 from .. import contract as C
 from ..errors import InputError
 from ..io.atomic import atomic_write_text
+from ..terms.export_names import EDITS_ALIGNED, EDITS_ALIGNED_TAG, EDITS_DIR
 
 
 def aligned_export(run_dir: str | Path) -> str | None:
@@ -21,15 +22,15 @@ def aligned_export(run_dir: str | Path) -> str | None:
     try:
         return C.read_aligned_export(str(run_dir))
     except ValueError:
-        path = Path(run_dir) / C.EDITS_DIR / C.EDITS_ALIGNED
+        path = Path(run_dir) / EDITS_DIR / EDITS_ALIGNED
         raise InputError(path, "is not an edit-alignment record", "delete it and pass realign --from vNNN") from None
 
 
 def write_aligned(run_dir: str | Path, version: str, carried_from: list[str] | None = None) -> Path:
     """Record that the edit layers match export ``version`` (atomically), and ``carried_from``: the manifests of
     other fits whose paint was carried onto it (``carry``), so the same paint is never laid on twice."""
-    path = Path(run_dir) / C.EDITS_DIR / C.EDITS_ALIGNED
-    record: dict[str, object] = {C.EDITS_ALIGNED_TAG: 1, "export": version}
+    path = Path(run_dir) / EDITS_DIR / EDITS_ALIGNED
+    record: dict[str, object] = {EDITS_ALIGNED_TAG: 1, "export": version}
     if carried_from:
         record["carried_from"] = list(carried_from)
     atomic_write_text(path, json.dumps(record, indent=2))
@@ -41,7 +42,7 @@ def carried_sources(run_dir: str | Path, version: str) -> list[str]:
     record is of another export, or has none."""
     if aligned_export(run_dir) != version:
         return []
-    data = json.loads((Path(run_dir) / C.EDITS_DIR / C.EDITS_ALIGNED).read_text(encoding="utf-8"))
+    data = json.loads((Path(run_dir) / EDITS_DIR / EDITS_ALIGNED).read_text(encoding="utf-8"))
     found = data.get("carried_from")
     return [str(p) for p in found] if isinstance(found, list) else []
 

@@ -13,6 +13,7 @@ from .. import contract as C
 from ..errors import InputError
 from ..export.manifest import Manifest
 from ..io.sequences import image_sequences_in
+from ..terms.paths import is_within
 from .movie import MOVIE_SIZE_FIX, movie_size_problem
 from .render_record import RECORD_NAME
 
@@ -44,7 +45,7 @@ def check_output(
     if allow is not None and _same(out, allow):
         return
     root = manifest.run_root
-    if C.is_within(str(out), str(root)):
+    if is_within(str(out), str(root)):
         raise InputError(
             out,
             f"is inside the run folder {root} (its fit, exports and edit layers)",

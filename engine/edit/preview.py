@@ -26,6 +26,8 @@ from ..errors import InputError
 from ..export.manifest import Manifest
 from ..io.atomic import DISK_ERRORS, as_disk_full, atomic_write
 from ..io.images import cv2_write, read_image
+from ..terms.cli import VERB_PREVIEW
+from ..terms.paths import is_within
 from .equations import edit_to_premultiplied
 from .movie import MOVIE_SIZE_FIX, movie_size_problem, movie_writer
 from .output_checks import check_output
@@ -148,8 +150,8 @@ def write_previews(manifest_path: str | Path, out_dir: str | Path | None = None,
         raise InputError(manifest.path, too_big, MOVIE_SIZE_FIX)
     out = Path(out_dir) if out_dir else manifest.resolve_write(PREVIEW_DIR)
     check_output(manifest, out, "--out", allow=manifest.resolve(PREVIEW_DIR))
-    in_run = C.is_within(str(out), str(manifest.run_root))
-    lock = C.run_lock(manifest.run_root, C.VERB_PREVIEW) if in_run else contextlib.nullcontext()
+    in_run = is_within(str(out), str(manifest.run_root))
+    lock = C.run_lock(manifest.run_root, VERB_PREVIEW) if in_run else contextlib.nullcontext()
     staged = StagedFolder(out, PREVIEW_DIR, "--out")
     try:
         with lock, staged:

@@ -50,6 +50,8 @@ from ..io.colour import (
 )
 from ..io.images import exr_timing, native_path, read_spec, write_like, write_png, write_rgba_exr
 from ..io.write_ahead import FRAMES_AHEAD, WriteAhead
+from ..terms.colour import EXR_COLORSPACE_ATTRIBUTE
+from ..terms.export_names import frame_padding
 from .equations import FILTERS, composite_edits, composite_touched, edit_is_empty, load_edit
 from .movie import DEFAULT_FPS, MovieWriter, movie_writer
 from .output_checks import check_movie, check_output
@@ -254,7 +256,7 @@ def write_half_rgba_exr(
     header: dict[str, Any] = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     if chromaticities is not None:
         header["chromaticities"] = tuple(float(v) for v in chromaticities)
-    header[C.EXR_COLORSPACE_ATTRIBUTE] = colorspace
+    header[EXR_COLORSPACE_ATTRIBUTE] = colorspace
     header.update(attributes)
     with np.errstate(over="ignore"):  # beyond half's range: infinite, without a warning past the one-line output
         data = {c: np.ascontiguousarray(rgba[..., i], dtype=np.float16) for i, c in enumerate("RGBA"[: rgba.shape[2]])}
@@ -364,7 +366,7 @@ def render_manifest(
     out = Path(out_dir)
     like, ext = _plate_file(manifest) if fmt == "plate" else (None, f".{fmt}")
     clip = manifest.clip
-    padding = C.frame_padding(clip["frame_files"], clip["frame_numbers"])
+    padding = frame_padding(clip["frame_files"], clip["frame_numbers"])
     output = _Output(like, frame_name_pattern(settings.name, ext, padding),
                      fmt == FORMATS[0] and exr_half(manifest, settings.depth), settings.filter)  # fmt: skip
     check_output(manifest, out, "--out", writes=output.pattern)

@@ -13,9 +13,9 @@ import shutil
 from pathlib import Path
 from types import TracebackType
 
-from .. import contract as C
 from ..errors import InputError
 from ..io.atomic import disk_full_error, signals_held
+from ..terms.paths import is_within
 
 #: Hidden staging folders inside an output folder, one per writing process (``.edit.partial-1234``).
 STAGING_PREFIX = "."
@@ -122,7 +122,7 @@ class StagedFolder:
 
     def names_output(self, path: str | Path) -> bool:
         """Whether ``path`` (where a write failed) is this output's: the staging folder, or ``out``."""
-        return C.is_within(str(path), str(self.out))
+        return is_within(str(path), str(self.out))
 
 
 __all__ = [

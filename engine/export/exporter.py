@@ -38,6 +38,29 @@ from ..io.atomic import DISK_ERRORS, as_disk_full, atomic_write_text
 from ..io.colour import REC709_CHROMATICITIES, SCENE_LINEAR, srgb_to_linear
 from ..io.images import write_exr, write_png
 from ..model.atlas_model import AtlasModel
+from ..terms.cli import (
+    EXPORT_FOLLOW_FLOW_FLAG,
+    EXPORT_INTO_ARG,
+    EXPORT_PASS_PRECISION_ARG,
+    EXPORT_STAGE_ARG,
+    EXPORT_STAGES,
+)
+from ..terms.colour import EXR_COLORSPACE_ATTRIBUTE
+from ..terms.export_names import (
+    ATLAS_EXR_EXT,
+    ATLAS_PNG_EXT,
+    ATLAS_SIZE_DEFAULT,
+    ATLAS_SIZE_RANGE,
+    ATLASES_DIR,
+    EDIT_LAYER_EXT,
+    EDITS_LAYOUT,
+    EXPORT_VERSION_FORMAT,
+    PASS_PRECISION_COMPACT,
+    PASS_PRECISION_FULL,
+    PASS_PRECISIONS,
+    PASSES_DIR,
+)
+from ..terms.manifest import validate_manifest
 from .atlas_frame import _Coverage
 from .flow_reach import choose_reach, layer_scale
 from .follow_flow import MEMORY_SHARE, MIN_SLIP_PX, available_memory, layer_slip_px, memory_needed
@@ -60,7 +83,7 @@ from .staging import (
     require_same_fit,
 )
 
-DEFAULT_ATLAS_SIZE = C.ATLAS_SIZE_DEFAULT
+DEFAULT_ATLAS_SIZE = ATLAS_SIZE_DEFAULT
 #: ``follow_flow``: a pixel belongs to a layer where its weight is above this (the layers' weights sum to one, so
 #: above one half is also the highest).
 OWNED_ALPHA = 0.5
@@ -89,7 +112,7 @@ def export_run(
 
     ``into`` (``vNNN``): that version rather than the next free one; already published with the same frames and
     atlas size, its manifest is returned at once (a retried farm task), with others it is a one-line error.
-    ``stage`` (``contract.EXPORT_STAGES``, with ``into``) runs one part of that export, so a farm can split it:
+    ``stage`` (``terms.cli.EXPORT_STAGES``, with ``into``) runs one part of that export, so a farm can split it:
     ``atlases`` (the layer frames and atlas textures, into ``exports/.vNNN.chunks``), ``passes`` (the passes of
     ``frames``, without the lock: chunks run at once on several hosts; returns the staging folder) and ``publish``
     (every pass present: edit layers, manifest and Nuke script as a whole export writes them, then the folder
@@ -99,35 +122,35 @@ def export_run(
     the run holds the fit's flow, True insists (refused without it), False exports the UV as fitted. A staged
     export decides it in its atlases stage; its passes and publish follow the record (asked otherwise: refused). A
     version ``into`` already holds is returned as it is, whatever is asked. ``precision``
-    (``contract.PASS_PRECISIONS``; None: compact, or a staged export's record): the bits the pass files keep
+    (``terms.export_names.PASS_PRECISIONS``; None: compact, or a staged export's record): the bits the pass files keep
     (``pass_files.kept_precision``), decided with the flow in the atlases stage.
 
     Ten parameters: ``engine export``'s flags one for one, and where its progress goes (``stream``); the CLI, the
     demo, the bench and the farm's tasks each pass the few they need by name.
     """
     run_dir = Path(run_dir).resolve()
-    low, high = C.ATLAS_SIZE_RANGE
+    low, high = ATLAS_SIZE_RANGE
     if atlas_size is not None and not low <= atlas_size <= high:
         raise InputError(None, f"--atlas-size {atlas_size} is out of range", f"use {low}..{high} (paper: 1000)")
     version = None if into is None else export_version(into)
-    if stage is not None and stage not in C.EXPORT_STAGES:
-        raise InputError(None, f"unknown {C.EXPORT_STAGE_ARG} {stage!r}", f"use one of {', '.join(C.EXPORT_STAGES)}")
+    if stage is not None and stage not in EXPORT_STAGES:
+        raise InputError(None, f"unknown {EXPORT_STAGE_ARG} {stage!r}", f"use one of {', '.join(EXPORT_STAGES)}")
     if stage is not None and version is None:
         raise InputError(
             None,
-            f"{C.EXPORT_STAGE_ARG} {stage} without {C.EXPORT_INTO_ARG}",
-            f"name the version its stages share: {C.EXPORT_INTO_ARG} {C.EXPORT_VERSION_FORMAT.format(1)}",
+            f"{EXPORT_STAGE_ARG} {stage} without {EXPORT_INTO_ARG}",
+            f"name the version its stages share: {EXPORT_INTO_ARG} {EXPORT_VERSION_FORMAT.format(1)}",
         )
-    if precision is not None and precision not in C.PASS_PRECISIONS:
+    if precision is not None and precision not in PASS_PRECISIONS:
         raise InputError(
-            None, f"unknown {C.EXPORT_PASS_PRECISION_ARG} {precision!r}", f"use one of {', '.join(C.PASS_PRECISIONS)}"
+            None, f"unknown {EXPORT_PASS_PRECISION_ARG} {precision!r}", f"use one of {', '.join(PASS_PRECISIONS)}"
         )
     RunFolder(run_dir).require_fit()
     job = _Job(run_dir, device_name, progress_bar, stream, follow_flow, precision)
-    if stage == C.EXPORT_STAGES[1]:
+    if stage == EXPORT_STAGES[1]:
         assert version is not None
         return _export_passes(job, version, frames)  # no lock: its chunks run at once on several hosts
-    publish = stage == C.EXPORT_STAGES[2]
+    publish = stage == EXPORT_STAGES[2]
     size = atlas_size if publish or atlas_size is not None else DEFAULT_ATLAS_SIZE  # publish: the staged one
     with C.run_lock(run_dir, C.VERB_EXPORT):
         if version is None:
@@ -138,15 +161,14 @@ def export_run(
         if publish:
             return _export_publish(job, version, size, frames)
         assert size is not None
-        if stage == C.EXPORT_STAGES[0]:
+        if stage == EXPORT_STAGES[0]:
             return _export_atlases(job, version, size, frames)
         chunks = chunks_folder(run_dir / C.EXPORTS_DIR, version)
         if chunks.exists():
             raise InputError(
                 chunks,
                 f"holds a staged export of {version}",
-                f"finish it ({C.EXPORT_STAGE_ARG} passes, then publish), or delete that folder to export {version} "
-                "whole",
+                f"finish it ({EXPORT_STAGE_ARG} passes, then publish), or delete that folder to export {version} whole",
             )
         return _export_whole(job, size, frames, version)
 
@@ -190,13 +212,13 @@ def _write_atlases(job: _Job, fitted: FittedRun, planned: _Planned, dest: Path) 
             said = f"{name}: the atlas texture from the plate ({full:.0%} of its texels in full)"
             job.reporter.emit(C.EVENT_STAGE, stage="atlas", message=said)
         alpha = np.clip(planned.cov[i].sample(fr), 0.0, 1.0)[..., None]
-        write_png(dest / C.ATLASES_DIR / f"{name}{C.ATLAS_PNG_EXT}", np.concatenate((rgb, alpha), -1), 16)
+        write_png(dest / ATLASES_DIR / f"{name}{ATLAS_PNG_EXT}", np.concatenate((rgb, alpha), -1), 16)
         lin = srgb_to_linear(rgb) * alpha
         write_exr(
-            dest / C.ATLASES_DIR / f"{name}{C.ATLAS_EXR_EXT}",
+            dest / ATLASES_DIR / f"{name}{ATLAS_EXR_EXT}",
             {"R": lin[..., 0], "G": lin[..., 1], "B": lin[..., 2], "A": alpha[..., 0]},
             chromaticities=REC709_CHROMATICITIES,  # scene-linear Rec.709, Blender's compositing space
-            attributes={C.EXR_COLORSPACE_ATTRIBUTE: SCENE_LINEAR},
+            attributes={EXR_COLORSPACE_ATTRIBUTE: SCENE_LINEAR},
         )
 
 
@@ -312,7 +334,7 @@ def _flow_corrections(
         follows = slip is not None and slip > MIN_SLIP_PX and i not in parts
         said = "no pixel to judge" if slip is None else f"slips {slip:.2f} px against the flow"
         if i in parts and slip is not None:
-            said += f" (a part of one object: {C.EXPORT_FOLLOW_FLOW_FLAG} follows it)"
+            said += f" (a part of one object: {EXPORT_FOLLOW_FLOW_FLAG} follows it)"
         done = "left as fitted"
         if follows:
             colours = None if model is None else partial(_colours, model, i)
@@ -345,7 +367,7 @@ def _plan(job: _Job, fitted: FittedRun, atlas_size: int, frames: tuple[int, int]
     source = _follow_source(job, fitted)
     on_frame = None if source is None else source.working.add  # keep each frame's UV for the flow to follow
     plan, cov = plan_export(job.reporter, fitted, atlas_size, frames, bar, on_frame)
-    plan.precision = job.precision or C.PASS_PRECISION_COMPACT
+    plan.precision = job.precision or PASS_PRECISION_COMPACT
     if source is None:
         return _Planned(plan, cov, {}, {})
     parts = split_parts(fitted.clip.scribbles is not None, job.follow_flow, len(plan.names))
@@ -406,7 +428,7 @@ def _publish(job: _Job, fitted: FittedRun, plan: Plan, out: ExportOutput) -> Non
     layout = read_layout(edits_dir)
     recorded = json.dumps(layout, indent=2)
     for i, name in enumerate(plan.names):
-        path = edits_dir / f"{name}{C.EDIT_LAYER_EXT}"
+        path = edits_dir / f"{name}{EDIT_LAYER_EXT}"
         fr = plan.frames_by_layer[i]
         if not path.exists():  # a new (or deleted) edit layer: it is painted in this export's frame
             w, h = fr.size
@@ -414,10 +436,10 @@ def _publish(job: _Job, fitted: FittedRun, plan: Plan, out: ExportOutput) -> Non
             layout["layers"][name] = {"atlas_box": list(fr.box), "atlas_size": list(fr.size)}
         elif name not in layout["layers"]:  # the artist's own image: record the frame it now lives in
             layout["layers"][name] = {"atlas_box": list(fr.box), "atlas_size": list(fr.size)}
-    if json.dumps(layout, indent=2) != recorded or not (edits_dir / C.EDITS_LAYOUT).exists():
-        atomic_write_text(out.stage_edit(edits_dir / C.EDITS_LAYOUT), json.dumps(layout, indent=2))
+    if json.dumps(layout, indent=2) != recorded or not (edits_dir / EDITS_LAYOUT).exists():
+        atomic_write_text(out.stage_edit(edits_dir / EDITS_LAYOUT), json.dumps(layout, indent=2))
     manifest = build_manifest(job.run_dir, out.final, fitted, plan)
-    C.validate_manifest(manifest)
+    validate_manifest(manifest)
     atomic_write_text(out.staging / C.MANIFEST_NAME, json.dumps(manifest, indent=2))
     _write_nuke_script(out.staging, manifest)
     out.publish()
@@ -444,7 +466,7 @@ def _export_atlases(job: _Job, version: str, atlas_size: int, frames: tuple[int,
                 chunks / STAGE_RECORD,
                 f"{version} is staged with frames {first}-{last} and atlas size {record['atlas_size']}, not "
                 f"{numbers[0]}-{numbers[-1]} and {atlas_size}",
-                f"stage another {C.EXPORT_INTO_ARG} version, or delete that folder",
+                f"stage another {EXPORT_INTO_ARG} version, or delete that folder",
             )
         return chunks
     fitted = job.load()
@@ -460,7 +482,7 @@ def _export_atlases(job: _Job, version: str, atlas_size: int, frames: tuple[int,
             (chunks / FOLLOW_FLOW_DIR).mkdir()
             for i, correction in planned.corrections.items():
                 np.save(chunks / FOLLOW_FLOW_DIR / f"{i}.npy", correction)
-        (chunks / C.PASSES_DIR).mkdir()
+        (chunks / PASSES_DIR).mkdir()
         atomic_write_text(chunks / STAGE_RECORD, json.dumps(plan.to_record(fitted.clip, source), indent=2))
     except BaseException:
         shutil.rmtree(chunks, ignore_errors=True)
@@ -471,21 +493,21 @@ def _export_atlases(job: _Job, version: str, atlas_size: int, frames: tuple[int,
 def _require_same_choices(job: _Job, chunks: Path, version: str, record: dict[str, Any]) -> None:
     """A stage asked explicitly to follow the flow, or not to, or for a pass precision, continues only a staged
     export that decided the same in its atlases stage (asked nothing: it follows the record)."""
-    precision = str(record.get("precision", C.PASS_PRECISION_FULL))
+    precision = str(record.get("precision", PASS_PRECISION_FULL))
     if job.precision is not None and job.precision != precision:
         raise InputError(
             chunks / STAGE_RECORD,
-            f"{version} is staged with {C.EXPORT_PASS_PRECISION_ARG} {precision}, not {job.precision}",
-            f"run this stage without {C.EXPORT_PASS_PRECISION_ARG}, or stage another {C.EXPORT_INTO_ARG} version",
+            f"{version} is staged with {EXPORT_PASS_PRECISION_ARG} {precision}, not {job.precision}",
+            f"run this stage without {EXPORT_PASS_PRECISION_ARG}, or stage another {EXPORT_INTO_ARG} version",
         )
     staged = bool(record.get("follow_flow", False))
     if job.follow_flow is not None and job.follow_flow != staged:
-        flag = C.EXPORT_FOLLOW_FLOW_FLAG if job.follow_flow else C.EXPORT_NO_FOLLOW_FLOW_FLAG
+        flag = EXPORT_FOLLOW_FLOW_FLAG if job.follow_flow else C.EXPORT_NO_FOLLOW_FLOW_FLAG
         said = "following" if staged else "not following"
         raise InputError(
             chunks / STAGE_RECORD,
             f"{version} is staged {said} the flow, not as {flag} asks",
-            f"run this stage without {flag}, or stage another {C.EXPORT_INTO_ARG} version",
+            f"run this stage without {flag}, or stage another {EXPORT_INTO_ARG} version",
         )
 
 
@@ -516,7 +538,7 @@ def _export_passes(job: _Job, version: str, frames: tuple[int, int] | None) -> P
             published = json.loads(done.read_text(encoding="utf-8"))["passes"]["frames"]
             if not set(numbers) <= set(published):
                 raise InputError(done, f"{version} is published without frames {frames[0]}-{frames[1]}",
-                                 f"export them into another {C.EXPORT_INTO_ARG} version")  # fmt: skip
+                                 f"export them into another {EXPORT_INTO_ARG} version")  # fmt: skip
         if done is not None:
             return done
         raise no_stage_error(version, chunks)
@@ -560,14 +582,14 @@ def _export_publish(job: _Job, version: str, atlas_size: int | None, frames: tup
         raise InputError(
             chunks / STAGE_RECORD,
             f"{version} is staged with frames {numbers[0]}-{numbers[-1]} and atlas size {plan.atlas_size}",
-            f"publish it without --frames and --atlas-size, or stage another {C.EXPORT_INTO_ARG} version",
+            f"publish it without --frames and --atlas-size, or stage another {EXPORT_INTO_ARG} version",
         )
     missing = [n for n in numbers if not pass_file(chunks, n, clip).is_file()]
     if missing:
         raise InputError(
             pass_file(chunks, missing[0], clip),
             f"frame {missing[0]} has no pass yet ({len(missing)} of {len(numbers)} frames missing)",
-            f"run `export {job.run_dir} {C.EXPORT_INTO_ARG} {version} {C.EXPORT_STAGE_ARG} passes --frames "
+            f"run `export {job.run_dir} {EXPORT_INTO_ARG} {version} {EXPORT_STAGE_ARG} passes --frames "
             f"{missing[0]}-{missing[-1]}`, then publish again",
         )
     fitted = job.load()

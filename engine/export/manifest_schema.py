@@ -1,7 +1,7 @@
 """The manifest's shape as a JSON Schema (``manifest.schema.json`` beside this module), for readers that are not the
 engine or the add-on: pipeline tools, validators in other languages, editors that complete a hand edit.
 
-The shape is declared once here as pydantic models, mirroring ``contract.validate_manifest`` (the standard-library
+The shape is declared once here as pydantic models, mirroring ``terms.manifest.validate_manifest`` (the standard-library
 check the engine and the add-on read every manifest through, which stays the authority) as far as JSON Schema can
 say it: every field's type (strict: a bool is not a number, a float is not an int), which fields are required,
 enumerations, bounds, lengths and patterns. Keys the contract does not name are allowed, as ``validate_manifest``
@@ -25,7 +25,16 @@ from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Fie
 from pydantic.json_schema import GenerateJsonSchema, JsonSchemaValue
 from pydantic_core import core_schema
 
-from .. import contract as C
+from ..terms.colour import COLOUR_NAME_MAX
+from ..terms.manifest import (
+    MANIFEST_BOX_NUMBERS,
+    MANIFEST_LAYER_NAME,
+    MANIFEST_LAYER_NAME_MAX,
+    MANIFEST_MAX_SIDE,
+    MANIFEST_UV_CHANNEL_COUNT,
+    MANIFEST_VERSION,
+    TIMECODE_PATTERN,
+)
 
 #: The schema's file, shipped with the engine (pyproject.toml's package-data).
 SCHEMA_PATH = Path(__file__).with_name("manifest.schema.json")
@@ -33,7 +42,7 @@ SCHEMA_PATH = Path(__file__).with_name("manifest.schema.json")
 SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
 #: The schema's identifier: a name, not an address to fetch (the file ships with the engine); it carries the
 #: manifest's version, so a schema for another version is another schema.
-SCHEMA_ID = f"urn:neural-atlas:manifest:{C.MANIFEST_VERSION}"
+SCHEMA_ID = f"urn:neural-atlas:manifest:{MANIFEST_VERSION}"
 SCHEMA_TITLE = "Neural Atlas export manifest (manifest.json)"
 #: Model config of every part: strict types, as ``validate_manifest``'s; other keys allowed, as there; a field's
 #: docstring is its description in the schema.
@@ -61,7 +70,7 @@ def _distinct(values: list[int]) -> list[int]:
 
 Text = Annotated[str, Field(min_length=1)]
 #: A side of an image (plate, passes, atlas): it bounds what a reader allocates.
-Side = Annotated[int, Field(ge=1, le=C.MANIFEST_MAX_SIDE)]
+Side = Annotated[int, Field(ge=1, le=MANIFEST_MAX_SIDE)]
 Size = Annotated[list[Side], Field(min_length=2, max_length=2)]
 FrameNumber = Annotated[int, Field(ge=0)]
 Frames = Annotated[
@@ -70,8 +79,8 @@ Frames = Annotated[
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 Rate = Annotated[list[Annotated[int, Field(gt=0)]], Field(min_length=2, max_length=2)]
-ColourName = Annotated[str, Field(min_length=1, max_length=C.COLOUR_NAME_MAX)]
-LayerName = Annotated[str, Field(pattern=f"^{C.MANIFEST_LAYER_NAME.pattern}$", max_length=C.MANIFEST_LAYER_NAME_MAX)]
+ColourName = Annotated[str, Field(min_length=1, max_length=COLOUR_NAME_MAX)]
+LayerName = Annotated[str, Field(pattern=f"^{MANIFEST_LAYER_NAME.pattern}$", max_length=MANIFEST_LAYER_NAME_MAX)]
 
 
 class Clip(BaseModel):
@@ -100,7 +109,7 @@ class Clip(BaseModel):
     rate: Rate | None = None
     """The exact frame rate [num, den] (24000/1001 for 23.976)."""
     pixel_aspect: Positive = _absent()
-    timecode: Annotated[str, Field(pattern=C.TIMECODE_PATTERN)] | None = None
+    timecode: Annotated[str, Field(pattern=TIMECODE_PATTERN)] | None = None
     """SMPTE timecode of first_frame, HH:MM:SS:FF (";" before the frames: drop-frame)."""
     start_frame: FrameNumber = _absent()
     """A movie's number of its first frame."""
@@ -143,7 +152,7 @@ class Layer(BaseModel):
     uv_pass: Text
     alpha_pass: Text
     uv_channels: Annotated[
-        list[Text], Field(min_length=C.MANIFEST_UV_CHANNEL_COUNT, max_length=C.MANIFEST_UV_CHANNEL_COUNT)
+        list[Text], Field(min_length=MANIFEST_UV_CHANNEL_COUNT, max_length=MANIFEST_UV_CHANNEL_COUNT)
     ]
     """u, v and coverage."""
     alpha_channels: Annotated[list[Text], Field(min_length=1)]
@@ -151,7 +160,7 @@ class Layer(BaseModel):
     atlas_png: Text
     atlas_size: Size
     edit_layer: Text
-    atlas_box: Annotated[list[Finite], Field(min_length=C.MANIFEST_BOX_NUMBERS, max_length=C.MANIFEST_BOX_NUMBERS)]
+    atlas_box: Annotated[list[Finite], Field(min_length=MANIFEST_BOX_NUMBERS, max_length=MANIFEST_BOX_NUMBERS)]
     """[u0, v0, u1, v1]: the atlas's frame in model atlas units."""
     channels: list[str] = _absent()
     """The layer's full EXR channel names (Atlas.UVForeground.U, ...)."""
@@ -196,7 +205,7 @@ class Manifest(BaseModel):
 
     model_config = _PART
 
-    # contract.MANIFEST_TAG and MANIFEST_VERSION, written out as a type checker wants them (the tests compare)
+    # terms.manifest.MANIFEST_TAG and MANIFEST_VERSION, written out as a type checker wants them (the tests compare)
     version: Annotated[Literal[1], BeforeValidator(_not_bool)] = Field(alias="neural_atlas_manifest")
     """The manifest's version: a reader refuses one it does not know."""
     engine_version: str

@@ -17,6 +17,26 @@ from typing import TYPE_CHECKING, Any
 from .. import contract as C
 from ..errors import InputError
 from ..io.atomic import DISK_ERRORS, atomic_write_text
+from ..terms.export_names import (
+    ALPHA_CHANNELS,
+    ATLAS_EXR_EXT,
+    ATLAS_PNG_EXT,
+    ATLASES_DIR,
+    EDIT_LAYER_EXT,
+    EXR_LAYER,
+    NUKE_SCRIPT_NAME,
+    PASSES_DIR,
+    ROLE_BACKGROUND,
+    STMAP_CHANNELS,
+    alpha_pass,
+    blender_pattern,
+    pass_pattern,
+    stmap_channel_name,
+    stmap_pass,
+    uv_pass,
+)
+from ..terms.manifest import MANIFEST_TAG, MANIFEST_VERSION
+from ..terms.versions import ENGINE_VERSION
 from .pass_files import pass_padding
 
 if TYPE_CHECKING:
@@ -33,22 +53,22 @@ def layer_record(
     edit_layer: str,
     follows_flow: bool = False,
 ) -> dict[str, Any]:
-    """One layer's manifest entry (contract.MANIFEST_LAYER_KEYS); paths relative to the export folder.
+    """One layer's manifest entry (terms.manifest.MANIFEST_LAYER_KEYS); paths relative to the export folder.
     ``follows_flow``: its UV was averaged along the fit's flow (``engine.export.follow_flow``)."""
     return {
         "name": name,
         "index": index,
-        "role": C.ROLE_BACKGROUND if index == 0 else C.ROLE_FOREGROUND,
-        "uv_pass": C.uv_pass(name),
-        "alpha_pass": C.alpha_pass(name),
+        "role": ROLE_BACKGROUND if index == 0 else C.ROLE_FOREGROUND,
+        "uv_pass": uv_pass(name),
+        "alpha_pass": alpha_pass(name),
         "uv_channels": list(C.UV_CHANNELS),
-        "alpha_channels": list(C.ALPHA_CHANNELS),
-        "channels": [C.channel_name(C.uv_pass(name), c) for c in C.UV_CHANNELS]
-        + [C.channel_name(C.alpha_pass(name), c) for c in C.ALPHA_CHANNELS],
-        "stmap_pass": C.stmap_pass(name),
-        "stmap_channels": [C.stmap_channel_name(name, c) for c in C.STMAP_CHANNELS],
-        "atlas_exr": f"{C.ATLASES_DIR}/{name}{C.ATLAS_EXR_EXT}",
-        "atlas_png": f"{C.ATLASES_DIR}/{name}{C.ATLAS_PNG_EXT}",
+        "alpha_channels": list(ALPHA_CHANNELS),
+        "channels": [C.channel_name(uv_pass(name), c) for c in C.UV_CHANNELS]
+        + [C.channel_name(alpha_pass(name), c) for c in ALPHA_CHANNELS],
+        "stmap_pass": stmap_pass(name),
+        "stmap_channels": [stmap_channel_name(name, c) for c in STMAP_CHANNELS],
+        "atlas_exr": f"{ATLASES_DIR}/{name}{ATLAS_EXR_EXT}",
+        "atlas_png": f"{ATLASES_DIR}/{name}{ATLAS_PNG_EXT}",
         "atlas_size": list(atlas_size),
         "edit_layer": edit_layer,
         "atlas_box": [round(float(b), 7) for b in box],
@@ -68,7 +88,7 @@ def relative_path(path: str | Path, start: Path) -> str:
 
 
 def clip_timing(clip: ClipRecord) -> dict[str, Any]:
-    """The manifest clip's timing fields (``contract.MANIFEST_OPTIONAL_FIELDS``): exact rate, pixel aspect ratio,
+    """The manifest clip's timing fields (``terms.manifest.MANIFEST_OPTIONAL_FIELDS``): exact rate, pixel aspect ratio,
     timecode of the first frame, a movie's first frame number."""
     return {
         "rate": None if clip.rate is None else list(clip.rate),
@@ -92,12 +112,12 @@ def build_manifest(
     numbers = list(clip.frame_numbers)
     rel_edits = relative_path(fitted.folder.edits, final)
     layers = [
-        layer_record(name, i, fr.size, fr.box, f"{rel_edits}/{name}{C.EDIT_LAYER_EXT}", i in plan.follows)
+        layer_record(name, i, fr.size, fr.box, f"{rel_edits}/{name}{EDIT_LAYER_EXT}", i in plan.follows)
         for i, (name, fr) in enumerate(zip(plan.names, plan.frames_by_layer, strict=True))
     ]
     return {
-        C.MANIFEST_TAG: C.MANIFEST_VERSION,
-        "engine_version": C.ENGINE_VERSION,
+        MANIFEST_TAG: MANIFEST_VERSION,
+        "engine_version": ENGINE_VERSION,
         "run_dir": relative_path(run_dir, final),
         "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "clip": {
@@ -120,11 +140,11 @@ def build_manifest(
             **clip_timing(clip),
         },
         "passes": {
-            "dir": C.PASSES_DIR,
-            "pattern": C.pass_pattern(pass_padding(clip)),
-            "blender_pattern": C.blender_pattern(pass_padding(clip)),
+            "dir": PASSES_DIR,
+            "pattern": pass_pattern(pass_padding(clip)),
+            "blender_pattern": blender_pattern(pass_padding(clip)),
             "frames": [numbers[t] for t in plan.selected],
-            "exr_layer": C.EXR_LAYER,
+            "exr_layer": EXR_LAYER,
             "resolution": list(clip.native_size),
             "precision": plan.precision,
         },
@@ -148,11 +168,11 @@ def _write_nuke_script(staging: Path, manifest: dict[str, Any]) -> None:
     from .nuke import NukeScriptError, nuke_script
 
     try:
-        atomic_write_text(staging / C.NUKE_SCRIPT_NAME, nuke_script(manifest, str(staging / C.MANIFEST_NAME)))
+        atomic_write_text(staging / NUKE_SCRIPT_NAME, nuke_script(manifest, str(staging / C.MANIFEST_NAME)))
     except (NukeScriptError, InputError) as exc:
         if isinstance(exc, DISK_ERRORS):  # a full disk fails the export, as any other file it writes would
             raise
-        print(f"warning: no {C.NUKE_SCRIPT_NAME}: {exc}", file=sys.stderr)
+        print(f"warning: no {NUKE_SCRIPT_NAME}: {exc}", file=sys.stderr)
 
 
 __all__ = [

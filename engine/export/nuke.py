@@ -33,6 +33,9 @@ from typing import Any
 
 from .. import contract as C
 from ..errors import InputError
+from ..terms.export_names import STMAP_CHANNELS
+from ..terms.manifest import is_layer_name
+from ..terms.versions import ENGINE_VERSION
 
 #: The script's format line: Nuke 13 and later load it (the nodes used are older than that).
 NUKE_VERSION = "13.0 v1"
@@ -269,7 +272,7 @@ def nuke_script(
         raise NukeScriptError(f"STMap filter {filter!r} is not one of {', '.join(STMAP_FILTERS)}")
     layers = manifest["layers"]
     for layer in layers:  # load_manifest refuses them too; a manifest given as a dict may not have been loaded
-        if not C.is_layer_name(layer["name"]):
+        if not is_layer_name(layer["name"]):
             raise NukeScriptError(
                 f"layer name {layer['name']!r} is not a plain name (letters, digits and _) — export the run again"
             )
@@ -365,7 +368,7 @@ def _layer_nodes(
 
 def nuke_layer(stmap_pass: str) -> str:
     """The layer Nuke shows a pass's STMap channels in (one dot in the EXR name: the same name)."""
-    return nuke_channel_name(f"{stmap_pass}.{C.STMAP_CHANNELS[0]}").split(".")[0]
+    return nuke_channel_name(f"{stmap_pass}.{STMAP_CHANNELS[0]}").split(".")[0]
 
 
 def _plate_read(
@@ -395,7 +398,7 @@ def _plate_read(
 def _text(nodes: list[Node], manifest: dict[str, Any]) -> str:
     names = ", ".join(layer["name"] for layer in manifest["layers"])
     lines = [
-        "#!" + _comment(f"written by neural-atlas {C.ENGINE_VERSION} from an export's manifest (layers: {names})")[1:],
+        "#!" + _comment(f"written by neural-atlas {ENGINE_VERSION} from an export's manifest (layers: {names})")[1:],
         _comment("the paper's edit: plate * (1 - sum Z_i a_i) + sum Z_i P_i; structure-tested, not run in Nuke"),
         f"version {NUKE_VERSION}",
     ]

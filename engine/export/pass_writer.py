@@ -22,6 +22,9 @@ from ..fit.run_folder import ClipRecord
 from ..io.colour import RAW
 from ..io.images import exr_timing, write_exr
 from ..io.write_ahead import FRAMES_AHEAD, WriteAhead
+from ..terms import export_names as E
+from ..terms.colour import EXR_COLORSPACE_ATTRIBUTE
+from ..terms.export_names import ALPHA_CHANNELS, STMAP_CHANNELS, stmap_channel_name
 from .pass_files import kept_precision, pass_file, stmap_values
 from .plan import Plan
 from .sampling import eval_pixels, pixel_grid
@@ -75,7 +78,7 @@ def write_passes(
         for k, t in enumerate(todo):
             chans = _frame_channels(fitted, plan, grid, t, corrections)
             timing = exr_timing(clip.rate, clip.pixel_aspect, clip.timecode, frame_numbers[t] - frame_numbers[0])
-            tags = {C.EXR_COLORSPACE_ATTRIBUTE: RAW, **timing}  # data, with the plate's timing
+            tags = {EXR_COLORSPACE_ATTRIBUTE: RAW, **timing}  # data, with the plate's timing
             writer.submit(k, write_exr, pass_file(dest, frame_numbers[t], clip), chans, attributes=tags)
             del chans  # the writer holds the frame's channels until its file is written
 
@@ -100,13 +103,13 @@ def _frame_channels(
             uv = uv + cv2.resize(corrections[i][t], (nw, nh), interpolation=cv2.INTER_LINEAR).reshape(-1, 2)
         tex_uv, inside = plan.frames_by_layer[i].to_texture_uv(uv)
         a = wts[:, i]
-        uv_pass, alpha_pass = C.uv_pass(name), C.alpha_pass(name)
+        uv_pass, alpha_pass = E.uv_pass(name), E.alpha_pass(name)
         u_name, v_name, coverage_name = (C.channel_name(uv_pass, c) for c in C.UV_CHANNELS)
         kept = kept_precision(tex_uv[:, 0], tex_uv[:, 1], a * inside, a, plan.precision)
         chans[u_name], chans[v_name], chans[coverage_name] = (x.reshape(nh, nw) for x in kept[:3])
-        chans[C.channel_name(alpha_pass, C.ALPHA_CHANNELS[0])] = kept[3].reshape(nh, nw)
-        for channel, values in zip(C.STMAP_CHANNELS, stmap_values(chans, uv_pass), strict=True):
-            chans[C.stmap_channel_name(name, channel)] = values
+        chans[C.channel_name(alpha_pass, ALPHA_CHANNELS[0])] = kept[3].reshape(nh, nw)
+        for channel, values in zip(STMAP_CHANNELS, stmap_values(chans, uv_pass), strict=True):
+            chans[stmap_channel_name(name, channel)] = values
     return chans
 
 

@@ -22,6 +22,8 @@ from ..fit.fitted_run import FittedRun
 from ..fit.progress import Reporter
 from ..fit.run_files import Kind, RunFile, record_problem
 from ..fit.run_folder import ClipRecord
+from ..terms.export_names import EDIT_LAYER_EXT, EDITS_LAYOUT, PASS_PRECISION_FULL, layer_name
+from ..terms.versions import SCHEMA_VERSION
 from .atlas_frame import LayerFrame, _Coverage, layer_frame_for
 from .sampling import eval_pixels, pixel_grid
 from .stage_record import STAGE_SCHEMA, LayerFrameRecord
@@ -41,14 +43,14 @@ LAYOUT_FIX = "restore it or delete it (paint may shift)"
 def read_layout(edits_dir: Path) -> dict[str, Any]:
     """The run's edit layout (an empty one when there is none), checked against ``EditLayout``; one that cannot be
     read is one line: restoring it keeps the paint where it was painted."""
-    path = edits_dir / C.EDITS_LAYOUT
+    path = edits_dir / EDITS_LAYOUT
     if not path.exists():
-        return {"schema": C.SCHEMA_VERSION, "layers": {}}
+        return {"schema": SCHEMA_VERSION, "layers": {}}
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, json.JSONDecodeError):
         raise InputError(path, "edit layout is not valid JSON", "restore it from a backup or delete it") from None
-    if not isinstance(data, dict) or data.get("schema") != C.SCHEMA_VERSION:
+    if not isinstance(data, dict) or data.get("schema") != SCHEMA_VERSION:
         raise InputError(path, "edit layout has an unknown schema", LAYOUT_FIX)
     problem = record_problem("edit layout", EditLayout, data)
     if problem is not None:
@@ -84,9 +86,9 @@ class Plan:
     #: slip against the flow (``engine.export.follow_flow``).
     follow_flow: bool = False
     follows: frozenset[int] = frozenset()
-    #: The bits the pass files keep (``contract.PASS_PRECISIONS``; ``pass_files.kept_precision``); a record
+    #: The bits the pass files keep (``terms.export_names.PASS_PRECISIONS``; ``pass_files.kept_precision``); a record
     #: written before it was chosen: full.
-    precision: str = C.PASS_PRECISION_FULL
+    precision: str = PASS_PRECISION_FULL
 
     def numbers(self, clip: ClipRecord) -> list[int]:
         return [clip.frame_numbers[t] for t in self.selected]
@@ -115,7 +117,7 @@ class Plan:
             int(data["atlas_size"]),
             bool(data.get("follow_flow", False)),  # a record written before the flow was followed: not followed
             frozenset(int(i) for i in data.get("follows", [])),
-            str(data.get("precision", C.PASS_PRECISION_FULL)),
+            str(data.get("precision", PASS_PRECISION_FULL)),
         )
 
 
@@ -133,7 +135,7 @@ def plan_export(
     model, clip = fitted.model, fitted.clip
     device = next(model.parameters()).device
     selected = selected_frames(clip, frames)
-    names = [C.layer_name(i, model.num_layers) for i in range(model.num_layers)]
+    names = [layer_name(i, model.num_layers) for i in range(model.num_layers)]
     reporter.emit(C.EVENT_STAGE, stage="atlas", message="atlas extent and coverage")
     cov = [_Coverage(model.uv_per_px(i), clip.num_frames, foreground=i > 0) for i in range(model.num_layers)]
     xy_work = pixel_grid(clip.working_size, (1.0, 1.0), device)
@@ -149,7 +151,7 @@ def plan_export(
     frames_by_layer: list[LayerFrame] = []
     for i, name in enumerate(names):
         rec = layout["layers"].get(name)
-        painted = any((edits_dir / f"{name}{ext}").exists() for ext in (C.EDIT_LAYER_EXT, C.EDIT_LAYER_FLOAT_EXT))
+        painted = any((edits_dir / f"{name}{ext}").exists() for ext in (EDIT_LAYER_EXT, C.EDIT_LAYER_FLOAT_EXT))
         if rec is not None and painted:
             frames_by_layer.append(layer_frame_for(tuple(rec["atlas_box"]), atlas_size))  # type: ignore[arg-type]
         else:

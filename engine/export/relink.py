@@ -23,6 +23,9 @@ from .. import contract as C
 from ..errors import InputError
 from ..io.atomic import atomic_write_text
 from ..io.clip import is_sequence_pattern
+from ..terms.cli import VERB_NUKE
+from ..terms.export_names import NUKE_SCRIPT_NAME
+from ..terms.manifest import validate_manifest
 from .manifest import Manifest
 from .manifest_writer import relative_path
 
@@ -78,13 +81,13 @@ def relink_plate(manifest_path: str | os.PathLike[str], plate: str | os.PathLike
     clip = relinked_clip(manifest.clip, manifest.path, Path(plate).absolute())
     if _same_plate(manifest, clip):
         return [f"{manifest.path}: already reads the plate at {clip['source_absolute']}"]
-    script = manifest.path.parent / C.NUKE_SCRIPT_NAME
+    script = manifest.path.parent / NUKE_SCRIPT_NAME
     try:
         ours = script.is_file() and script.read_text(encoding="utf-8") == nuke_script(manifest.data, str(manifest.path))
     except (NukeScriptError, InputError, OSError, UnicodeDecodeError):
         ours = False
     data = {**manifest.data, "clip": clip}
-    C.validate_manifest(data)
+    validate_manifest(data)
     lines = [f"{manifest.path}: reads the plate at {clip['source_absolute']}"]
     with C.run_lock(manifest.run_root, C.VERB_RELINK):  # not while a fit or an export writes the run folder
         atomic_write_text(manifest.path, json.dumps(data, indent=2))
@@ -97,7 +100,7 @@ def relink_plate(manifest_path: str | os.PathLike[str], plate: str | os.PathLike
     if not ours and script.exists():
         lines.append(
             f"{script}: left as it is (saved since the export); write a new script with "
-            f"`python -m {C.CLI_MODULE} {C.VERB_NUKE} {manifest.path} --out NEW.nk`"
+            f"`python -m {C.CLI_MODULE} {VERB_NUKE} {manifest.path} --out NEW.nk`"
         )
     return lines
 

@@ -20,18 +20,21 @@ from pydantic import Field, ValidatorFunctionWrapHandler, model_validator
 from .. import contract as C
 from ..errors import InputError
 from ..fit.run_files import Bool, Int, IntList, IntPair, Kind, NumberList, RunFile, Str, checked, record_problem
+from ..terms.cli import EXPORT_INTO_ARG, EXPORT_STAGE_ARG, EXPORT_STAGES
+from ..terms.export_names import PASS_PRECISION_FULL, PASS_PRECISIONS
+from ..terms.run_folder import RUN_CONFIG
 
 #: The record's name in the staging folder (removed when the version is published).
 STAGE_RECORD = "stage.json"
 #: The record's schema: frames, atlas size, each layer's atlas frame, ``source`` (what it was made from) and, when
 #: written by an engine that follows the flow, ``follow_flow`` (bool) and ``follows`` (the layers whose
 #: UV corrections are staged beside it: ``staging.FOLLOW_FLOW_DIR``) and, once it was chosen, ``precision`` (the bits
-#: the pass files keep: ``contract.PASS_PRECISIONS``).
+#: the pass files keep: ``terms.export_names.PASS_PRECISIONS``).
 STAGE_SCHEMA = "neural_atlas.export_stage/2"
 #: The schema of records written before they said what they were made from: such a stage cannot be continued.
 STAGE_SCHEMA_WITHOUT_SOURCE = "neural_atlas.export_stage/1"
 #: The run files a stage is made from, by the key their digest has in the record's ``source``.
-SOURCE_FILES: dict[str, str] = {"checkpoint_sha256": C.RUN_CHECKPOINT, "config_sha256": C.RUN_CONFIG}
+SOURCE_FILES: dict[str, str] = {"checkpoint_sha256": C.RUN_CHECKPOINT, "config_sha256": RUN_CONFIG}
 #: Bytes read at a time while hashing (a checkpoint is tens of MB: never read whole).
 HASH_BLOCK = 1 << 20
 #: The fix of a record that cannot be read.
@@ -75,8 +78,8 @@ def _stage_problem(data: dict[str, Any]) -> str | None:
         return f"its source names {sorted(data['source'])[:4]}, not the digests of {sorted(SOURCE_FILES)}"
     if any(not 0 <= i < len(data["layers"]) for i in data.get("follows", [])):
         return f"it follows layers {data['follows'][:8]} of its {len(data['layers'])}"
-    if data.get("precision", C.PASS_PRECISION_FULL) not in C.PASS_PRECISIONS:
-        return f"its pass precision {str(data['precision'])[:40]!r} is not one of {', '.join(C.PASS_PRECISIONS)}"
+    if data.get("precision", PASS_PRECISION_FULL) not in PASS_PRECISIONS:
+        return f"its pass precision {str(data['precision'])[:40]!r} is not one of {', '.join(PASS_PRECISIONS)}"
     return None
 
 
@@ -90,7 +93,7 @@ class StageFile(RunFile):
     source: Annotated[dict[str, Str], Kind("dict of str")]  # ``fit_source``: SOURCE_FILES' keys, hex digests
     follow_flow: Bool = False
     follows: IntList = Field(default_factory=list)
-    precision: Str = C.PASS_PRECISION_FULL  # absent from records written before it was chosen: every bit kept
+    precision: Str = PASS_PRECISION_FULL  # absent from records written before it was chosen: every bit kept
 
     @model_validator(mode="wrap")
     @classmethod
@@ -134,8 +137,8 @@ def other_fit_error(chunks: Path, version: str, changed: list[str], free: str) -
         chunks,
         f"{version} was staged from another fit ({' and '.join(changed)} changed since its atlases were made: "
         "a fit --refine or --refit), and one version never mixes frames of two fits",
-        f"stage this fit as a new version ({C.EXPORT_INTO_ARG} {free} {C.EXPORT_STAGE_ARG} "
-        f"{C.EXPORT_STAGES[0]}; a farm job submitted again takes a new version itself), or delete {chunks.name} "
+        f"stage this fit as a new version ({EXPORT_INTO_ARG} {free} {EXPORT_STAGE_ARG} "
+        f"{EXPORT_STAGES[0]}; a farm job submitted again takes a new version itself), or delete {chunks.name} "
         f"to stage {version} again from this fit",
     )
 

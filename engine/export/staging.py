@@ -21,6 +21,8 @@ from .. import contract as C
 from ..errors import InputError
 from ..fit.run_folder import RunFolder
 from ..io.atomic import move_into_place, signals_held
+from ..terms.cli import EXPORT_INTO_ARG, EXPORT_STAGE_ARG, EXPORT_STAGES
+from ..terms.export_names import ATLASES_DIR, EXPORT_CHUNKS_SUFFIX, EXPORT_VERSION_FORMAT, NUKE_SCRIPT_NAME, PASSES_DIR
 from .pass_files import PASS_BYTES_PER_CHANNEL, PASS_CHANNELS_PER_LAYER
 from .plan import selected_frames
 from .stage_record import STAGE_RECORD, changed_since, fit_source, other_fit_error
@@ -33,7 +35,7 @@ STAGED_EDITS = ".edits"
 #: passes its chunks write (no lock: several hosts at once) and its record (``STAGE_RECORD``: frames, atlas size,
 #: each layer's atlas frame, the fit it was made from: ``engine.export.stage_record``), until ``--stage publish``
 #: renames it to ``vNNN``. A whole export never removes it and never takes its number.
-CHUNKS_SUFFIX = C.EXPORT_CHUNKS_SUFFIX
+CHUNKS_SUFFIX = EXPORT_CHUNKS_SUFFIX
 
 
 #: In a staged export's folder: the flow-following UV correction of each layer that has one
@@ -50,14 +52,14 @@ def _next_version(exports: Path) -> tuple[Path, Path]:
     exports.mkdir(parents=True, exist_ok=True)
     for leftover in exports.glob(f".*{STAGING_SUFFIX}"):
         _remove_leftover(leftover)
-    final = exports / C.EXPORT_VERSION_FORMAT.format(_first_free(exports))
+    final = exports / EXPORT_VERSION_FORMAT.format(_first_free(exports))
     return final, _fresh_staging(exports, final.name)
 
 
 def _first_free(exports: Path) -> int:
     """The lowest version number neither published nor held by a staged export."""
     n = 1
-    while _taken(exports, C.EXPORT_VERSION_FORMAT.format(n)):
+    while _taken(exports, EXPORT_VERSION_FORMAT.format(n)):
         n += 1
     return n
 
@@ -91,15 +93,14 @@ def chunks_folder(exports: Path, version: str) -> Path:
 
 
 def export_version(text: str) -> str:
-    """``--into``'s version name, checked: ``v001``, ``v002``, ... (``contract.EXPORT_VERSION_FORMAT``)."""
+    """``--into``'s version name, checked: ``v001``, ``v002``, ... (``terms.export_names.EXPORT_VERSION_FORMAT``)."""
     digits = text[1:]
-    if text[:1] == "v" and digits.isdigit() and int(digits) > 0 and C.EXPORT_VERSION_FORMAT.format(int(digits)) == text:
+    if text[:1] == "v" and digits.isdigit() and int(digits) > 0 and EXPORT_VERSION_FORMAT.format(int(digits)) == text:
         return text
     raise InputError(
         None,
-        f"{C.EXPORT_INTO_ARG} {text!r} is not an export version",
-        f"name it as the exports are named: {C.EXPORT_VERSION_FORMAT.format(1)}, {C.EXPORT_VERSION_FORMAT.format(2)}, "
-        "...",
+        f"{EXPORT_INTO_ARG} {text!r} is not an export version",
+        f"name it as the exports are named: {EXPORT_VERSION_FORMAT.format(1)}, {EXPORT_VERSION_FORMAT.format(2)}, ...",
     )
 
 
@@ -173,7 +174,7 @@ class ExportOutput:
             if self.keep_staging:
                 shutil.rmtree(self.staging / STAGED_EDITS, ignore_errors=True)
                 (self.staging / C.MANIFEST_NAME).unlink(missing_ok=True)
-                (self.staging / C.NUKE_SCRIPT_NAME).unlink(missing_ok=True)
+                (self.staging / NUKE_SCRIPT_NAME).unlink(missing_ok=True)
             else:
                 shutil.rmtree(self.staging, ignore_errors=True)
         for folder, made in ((self.run.exports, self.made_exports), (self.run.edits, self.made_edits)):
@@ -207,7 +208,7 @@ def published_manifest(
             manifest_path,
             f"{version} is already exported with frames {done_frames[0]}-{done_frames[-1]} and atlas size "
             f"{done_size}, not {wanted[0]}-{wanted[-1]} and {done_size if atlas_size is None else atlas_size}",
-            f"export into another {C.EXPORT_INTO_ARG} version (exports are never overwritten)",
+            f"export into another {EXPORT_INTO_ARG} version (exports are never overwritten)",
         )
     return manifest_path
 
@@ -216,7 +217,7 @@ def no_stage_error(version: str, chunks: Path) -> InputError:
     return InputError(
         chunks,
         f"no staged export of {version} here",
-        f"run `export RUN {C.EXPORT_INTO_ARG} {version} {C.EXPORT_STAGE_ARG} atlases` first",
+        f"run `export RUN {EXPORT_INTO_ARG} {version} {EXPORT_STAGE_ARG} atlases` first",
     )
 
 
@@ -225,13 +226,13 @@ def own_chunks_folder(run_dir: Path, version: str) -> Path:
     the staging folders are the engine's own (``exports/`` itself may be a link), and the passes stage writes without
     the lock, so a link planted there would take its files out of the run's exports."""
     chunks = chunks_folder(run_dir / C.EXPORTS_DIR, version)
-    for path in (chunks, chunks / C.PASSES_DIR, chunks / C.ATLASES_DIR):
+    for path in (chunks, chunks / PASSES_DIR, chunks / ATLASES_DIR):
         if path.is_symlink():
             raise InputError(
                 path,
                 "is a symbolic link, and a staged export's folders are the engine's own (never written through a link)",
-                f"delete the link, then run `export {C.EXPORT_INTO_ARG} {version} {C.EXPORT_STAGE_ARG} "
-                f"{C.EXPORT_STAGES[0]}` again",
+                f"delete the link, then run `export {EXPORT_INTO_ARG} {version} {EXPORT_STAGE_ARG} "
+                f"{EXPORT_STAGES[0]}` again",
             )
     return chunks
 
@@ -244,7 +245,7 @@ def require_same_fit(
     changed = changed_since(record, fit_source(run_dir) if source is None else source)
     if changed:
         exports = run_dir / C.EXPORTS_DIR
-        raise other_fit_error(chunks, version, changed, C.EXPORT_VERSION_FORMAT.format(_first_free(exports)))
+        raise other_fit_error(chunks, version, changed, EXPORT_VERSION_FORMAT.format(_first_free(exports)))
 
 
 __all__ = [

@@ -51,13 +51,17 @@ from typing import IO, TYPE_CHECKING, Any, TextIO
 
 from .. import contract as C
 from ..errors import InputError
+from ..terms.cli import EXIT_DIVERGED, EXIT_FAILED
+from ..terms.farm import FARM_DASK
+from ..terms.lock import RUN_LOCKED_FIX
+from ..terms.protocol import progress_line
 
 if TYPE_CHECKING:
     from .plan import Plan
 
 #: Engine exits a retry cannot fix: the input is wrong, or the fit diverged (the same argv diverges again; the
 #: fix, ``fit --resume --set lr=...``, is the artist's).
-NO_RETRY_EXITS: tuple[int, ...] = (C.EXIT_BAD_INPUT, C.EXIT_DIVERGED)
+NO_RETRY_EXITS: tuple[int, ...] = (C.EXIT_BAD_INPUT, EXIT_DIVERGED)
 #: How long a task waits for a run folder locked by another engine (the killed attempt checkpointing).
 LOCK_WAIT_SECONDS = 120.0
 LOCK_POLL_SECONDS = 1.0
@@ -156,7 +160,7 @@ def _run_child(argv: list[str], env: dict[str, str]) -> ChildResult:
 
 def _locked(result: ChildResult) -> bool:
     """Whether the engine refused because another process holds the run folder (``contract.RunLocked``)."""
-    return result.returncode == C.EXIT_BAD_INPUT and any(C.RUN_LOCKED_FIX in line for line in result.stderr_tail)
+    return result.returncode == C.EXIT_BAD_INPUT and any(RUN_LOCKED_FIX in line for line in result.stderr_tail)
 
 
 class TaskFailed(RuntimeError):
@@ -354,7 +358,7 @@ def _check_environment(client: Any, address: str) -> None:
 
 
 def _emit(stream: TextIO, event: str, **fields: Any) -> None:
-    print(C.progress_line(event, **fields), file=stream, flush=True)
+    print(progress_line(event, **fields), file=stream, flush=True)
 
 
 def run_plan(
@@ -443,7 +447,7 @@ def summary_line(plan: Plan, result: FarmResult) -> str:
 def add_dask_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """The ``dask`` sub-command of ``farm``."""
     d: argparse.ArgumentParser = sub.add_parser(
-        C.FARM_DASK,
+        FARM_DASK,
         help="run the plan's tasks on a Dask cluster",
         description="Submit every task of the shots file to a Dask scheduler and wait: each task runs "
         "`python -m engine ...` as a subprocess on a worker (the worker's Python), after its dependencies. A killed "
@@ -506,7 +510,7 @@ def run_dask(args: argparse.Namespace) -> int:
         print(line)
         return C.EXIT_OK
     print(f"error: {line}", file=sys.stderr)
-    return C.EXIT_FAILED
+    return EXIT_FAILED
 
 
 __all__ = [

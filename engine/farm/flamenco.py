@@ -41,9 +41,11 @@ from urllib.parse import quote, urlsplit
 
 from .. import contract as C
 from ..errors import InputError
+from ..terms.farm import FLAMENCO_API_CHECK, FLAMENCO_API_SUBMIT, FLAMENCO_JOB_TYPE, FLAMENCO_PYTHON_VARIABLE
+from ..terms.protocol import progress_line
 
 #: The job compiler script's file name: Flamenco names a job type after its script's file (minus ``.js``).
-JOB_TYPE_SCRIPT = f"{C.FLAMENCO_JOB_TYPE}.js"
+JOB_TYPE_SCRIPT = f"{FLAMENCO_JOB_TYPE}.js"
 #: The plan setting's tag and version; the script refuses any other (an engine and a job type that differ).
 PLAN_TAG = "neural_atlas_flamenco_plan"
 PLAN_VERSION = 1
@@ -225,7 +227,7 @@ def submitted_job(
     platform = platform or submitter_platform()
     job: dict[str, Any] = {
         "name": shot,
-        "type": C.FLAMENCO_JOB_TYPE,
+        "type": FLAMENCO_JOB_TYPE,
         "priority": int(priority),
         "submitter_platform": platform,
         "settings": {SHOT_SETTING: shot, PLAN_SETTING: plan_setting(shot, tasks, two_way, platform)},
@@ -315,7 +317,7 @@ def _http_error(url: str, exc: urllib.error.HTTPError, what: str) -> ManagerErro
         return ManagerError(
             url,
             code,
-            f"the Manager's {C.FLAMENCO_JOB_TYPE} job type changed during the submission (HTTP 412: {message})",
+            f"the Manager's {FLAMENCO_JOB_TYPE} job type changed during the submission (HTTP 412: {message})",
             "submit again",
         )
     if code >= 500:
@@ -344,18 +346,18 @@ def fetch_job_type(manager: Manager) -> dict[str, Any]:
     """The Manager's ``neural-atlas`` job type (its settings and etag); one line saying how to install it when the
     Manager has none."""
     try:
-        _status, body = manager.request("GET", API_JOB_TYPE + quote(C.FLAMENCO_JOB_TYPE), what="the job type")
+        _status, body = manager.request("GET", API_JOB_TYPE + quote(FLAMENCO_JOB_TYPE), what="the job type")
     except ManagerError as exc:
         if exc.status == 404:
             raise InputError(
-                manager.base + API_JOB_TYPE + C.FLAMENCO_JOB_TYPE,
-                f"the Flamenco Manager has no {C.FLAMENCO_JOB_TYPE} job type",
+                manager.base + API_JOB_TYPE + FLAMENCO_JOB_TYPE,
+                f"the Flamenco Manager has no {FLAMENCO_JOB_TYPE} job type",
                 INSTALL_FIX,
             ) from None
         raise
     if not isinstance(body, dict):
         raise InputError(
-            manager.base + API_JOB_TYPE + C.FLAMENCO_JOB_TYPE,
+            manager.base + API_JOB_TYPE + FLAMENCO_JOB_TYPE,
             "answered without a job type",
             "check that --manager is a Flamenco 3 Manager",
         )
@@ -372,7 +374,7 @@ def fetch_two_way_variables(manager: Manager, platform: str) -> tuple[dict[str, 
         for name, entry in variables.items()
         if isinstance(entry, dict) and entry.get("is_twoway") and entry.get("value")
     }
-    return two_way, C.FLAMENCO_PYTHON_VARIABLE in variables
+    return two_way, FLAMENCO_PYTHON_VARIABLE in variables
 
 
 def submit_plan(
@@ -400,7 +402,7 @@ def submit_plan(
     two_way, has_python = fetch_two_way_variables(manager, platform)
     if not has_python:
         print(
-            f"warning: {manager.base}: the Manager has no `{C.FLAMENCO_PYTHON_VARIABLE}` variable for {platform}: "
+            f"warning: {manager.base}: the Manager has no `{FLAMENCO_PYTHON_VARIABLE}` variable for {platform}: "
             "workers without it fail every task — add it to flamenco-manager.yaml `variables:` (each platform's "
             f"Python that runs `python -m {C.CLI_MODULE}`) and restart the Manager",
             file=sys.stderr,
@@ -412,17 +414,15 @@ def submit_plan(
         for shot in plan.shots
     }
     for shot, job in jobs.items():
-        manager.request("POST", C.FLAMENCO_API_CHECK, job, what=f"shot {shot}")
-        emit(
-            C.progress_line(C.EVENT_STAGE, stage="flamenco-check", shot=shot, message=f"{shot}: the Manager accepts it")
-        )
+        manager.request("POST", FLAMENCO_API_CHECK, job, what=f"shot {shot}")
+        emit(progress_line(C.EVENT_STAGE, stage="flamenco-check", shot=shot, message=f"{shot}: the Manager accepts it"))
     if check_only:
         return []
     ids: list[str] = []
     for shot, job in jobs.items():
         done = ", ".join(f"{s} as job {i}" for s, i in zip(jobs, ids, strict=False))
         try:
-            _status, answer = manager.request("POST", C.FLAMENCO_API_SUBMIT, job, what=f"shot {shot}")
+            _status, answer = manager.request("POST", FLAMENCO_API_SUBMIT, job, what=f"shot {shot}")
         except InputError as exc:
             if ids:  # say what is on the farm already, so a second try does not queue those shots twice
                 fix = f"{exc.fix}; already submitted: {done} (submit only the other shots)"
@@ -431,13 +431,13 @@ def submit_plan(
         job_id = answer.get("id") if isinstance(answer, dict) else None
         if not isinstance(job_id, str) or not job_id:
             raise InputError(
-                manager.base + C.FLAMENCO_API_SUBMIT,
+                manager.base + FLAMENCO_API_SUBMIT,
                 f"the Manager answered shot {shot}'s submission without a job id",
                 "check that --manager is a Flamenco 3 Manager",
             )
         ids.append(job_id)
         emit(
-            C.progress_line(
+            progress_line(
                 C.EVENT_STAGE,
                 stage="flamenco-submit",
                 shot=shot,

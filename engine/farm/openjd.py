@@ -11,7 +11,7 @@ A bundle is a folder of three files (JSON, which every OpenJD and Deadline Cloud
   engine Python is the ``EnginePython`` parameter, and ``EnginePath`` (the folder holding ``engine/``, empty when the
   engine is installed into that Python) is put in front of the worker's ``PYTHONPATH`` (an ``openjd_env`` message of
   the job environment's onEnter: a template's variables can only replace a value). The same environment sets
-  ``contract.OPENJD_PROGRESS_ENV``, so every task prints ``openjd_progress`` and ``openjd_status`` messages: the
+  ``terms.protocol.OPENJD_PROGRESS_ENV``, so every task prints ``openjd_progress`` and ``openjd_status`` messages: the
   farm's monitor shows each task's progress and stage.
 - ``parameter_values.json``: those parameters' values on the submitting machine (Deadline Cloud's format).
 - ``asset_references.json``: the same inputs and outputs as Deadline Cloud's asset references.
@@ -46,6 +46,7 @@ from typing import Any
 from .. import contract as C
 from ..errors import InputError
 from ..io.atomic import atomic_write_text
+from ..terms.protocol import OPENJD_PROGRESS_ENV, progress_line
 from .plan import CHUNKED_KINDS, Plan, ShotPlan, Task
 
 SPECIFICATION_VERSION = "jobtemplate-2023-09"
@@ -224,7 +225,7 @@ def job_template(
                         }
                     }
                 },
-                "variables": {C.OPENJD_PROGRESS_ENV: "1"},
+                "variables": {OPENJD_PROGRESS_ENV: "1"},
             }
         ],
         "steps": built,
@@ -433,7 +434,7 @@ def run_openjd(args: argparse.Namespace, plan: Plan, shot_plans: list[ShotPlan],
     for sp in shot_plans:
         name, count = sp.shot.name, len(plan.shot_tasks(sp.shot.name))
         message = f"{name}: {count} tasks, export {sp.version}"
-        print(C.progress_line(C.EVENT_STAGE, stage=C.VERB_FARM, shot=name, tasks=count, message=message))
+        print(progress_line(C.EVENT_STAGE, stage=C.VERB_FARM, shot=name, tasks=count, message=message))
     return files
 
 

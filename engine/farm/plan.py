@@ -31,6 +31,9 @@ from pathlib import Path
 from .. import contract as C
 from ..errors import InputError
 from ..export.stage_record import continues_fit
+from ..terms.cli import EXPORT_INTO_ARG, EXPORT_STAGE_ARG, FIT_RESUME_IF_STARTED_FLAG, VERB_PREVIEW, VERB_RENDER
+from ..terms.export_names import EXPORT_CHUNKS_SUFFIX, EXPORT_VERSION_FORMAT
+from ..terms.run_folder import FIT_AUTO_MASKS_FLAG, FIT_AUTO_PARTS_FLAG
 from .shots import Shot, ShotsFile, load_shots
 
 MASKS, FIT, ATLASES, PASSES, PUBLISH = "masks", "fit", "atlases", "passes", "publish"
@@ -170,22 +173,22 @@ def shot_tasks(sp: ShotPlan) -> list[Task]:
         found = add(MASKS, [C.VERB_MASKS, shot.plate, m["out"], sp.masks_out, *_masks_options(shot, sp)], [])
         fit_after = [found.id]
     f = verb_flags(C.VERB_FIT)
-    fit_args = [C.VERB_FIT, shot.plate, f["out"], shot.run, C.FIT_RESUME_IF_STARTED_FLAG, f["preset"], shot.preset]
+    fit_args = [C.VERB_FIT, shot.plate, f["out"], shot.run, FIT_RESUME_IF_STARTED_FLAG, f["preset"], shot.preset]
     for override in shot.set:
         fit_args += [f["set"], override]
     for mask in shot.masks:
         fit_args += [f["mask"], mask]
     if shot.auto_masks:
-        fit_args.append(C.FIT_AUTO_MASKS_FLAG)
+        fit_args.append(FIT_AUTO_MASKS_FLAG)
     if shot.auto_parts is not None:  # not given: the fit's default (the parts wherever that applies)
-        fit_args.append(C.FIT_AUTO_PARTS_FLAG if shot.auto_parts else C.FIT_NO_AUTO_PARTS_FLAG)
+        fit_args.append(FIT_AUTO_PARTS_FLAG if shot.auto_parts else C.FIT_NO_AUTO_PARTS_FLAG)
     fit_args += [f["frames"], frames]
     fit_args += _option(f["colorspace"], shot.colorspace) + _option(f["fps"], shot.fps)
     fit_args += _option(f["start_frame"], shot.start_frame) + _option(f["device"], shot.device) + [f["no_bar"]]
     fit = add(FIT, fit_args, fit_after)
 
     e = verb_flags(C.VERB_EXPORT)
-    export = [C.VERB_EXPORT, shot.run, C.EXPORT_INTO_ARG, sp.version, C.EXPORT_STAGE_ARG]
+    export = [C.VERB_EXPORT, shot.run, EXPORT_INTO_ARG, sp.version, EXPORT_STAGE_ARG]
     device = _option(e["device"], shot.device)
     atlases = add(
         ATLASES, [*export, ATLASES, e["frames"], frames, *_option(e["atlas_size"], shot.atlas_size), *device,
@@ -200,17 +203,17 @@ def shot_tasks(sp: ShotPlan) -> list[Task]:
     ]
     publish = add(PUBLISH, [*export, PUBLISH, e["no_bar"]], [p.id for p in passes])
     if shot.render is not None:
-        r = verb_flags(C.VERB_RENDER)
+        r = verb_flags(VERB_RENDER)
         fmt = _option(r["format"], shot.render_format)
         for a, b in chunk_ranges(numbers, shot.render_chunk):
             add(
                 RENDER,
-                [C.VERB_RENDER, sp.manifest, r["out"], shot.render, r["frames"], f"{a}-{b}", *fmt, r["no_bar"]],
+                [VERB_RENDER, sp.manifest, r["out"], shot.render, r["frames"], f"{a}-{b}", *fmt, r["no_bar"]],
                 [publish.id],
                 (a, b),
             )
     if shot.preview:
-        add(PREVIEW, [C.VERB_PREVIEW, sp.manifest], [publish.id])
+        add(PREVIEW, [VERB_PREVIEW, sp.manifest], [publish.id])
     return tasks
 
 
@@ -234,17 +237,17 @@ def next_version(run: str | Path) -> str:
             match = _VERSION_ENTRY.match(entry.name)
             if match:
                 taken.append(int(match.group(1)))
-                if entry.name.endswith(C.EXPORT_CHUNKS_SUFFIX):
+                if entry.name.endswith(EXPORT_CHUNKS_SUFFIX):
                     chunked.add(int(match.group(1)))
     except (FileNotFoundError, NotADirectoryError):
         pass
     newest = max(taken)
-    published = (folder / C.EXPORT_VERSION_FORMAT.format(newest)).exists()
+    published = (folder / EXPORT_VERSION_FORMAT.format(newest)).exists()
     # one staged from another fit (a refine since) is left: its stages refuse to mix two fits into one version
-    chunks = folder / f".{C.EXPORT_VERSION_FORMAT.format(newest)}{C.EXPORT_CHUNKS_SUFFIX}"
+    chunks = folder / f".{EXPORT_VERSION_FORMAT.format(newest)}{EXPORT_CHUNKS_SUFFIX}"
     if newest in chunked and not published and continues_fit(Path(run), chunks):
-        return C.EXPORT_VERSION_FORMAT.format(newest)
-    return C.EXPORT_VERSION_FORMAT.format(newest + 1)
+        return EXPORT_VERSION_FORMAT.format(newest)
+    return EXPORT_VERSION_FORMAT.format(newest + 1)
 
 
 def plate_frame_numbers(shots_file: Path, shot: Shot) -> list[int]:

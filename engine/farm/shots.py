@@ -8,7 +8,7 @@ shot, the key and the fix: a farm that finds a typo an hour into a sequence has 
 
     neural_atlas_shots = 1
 
-    [defaults]               # any of contract.SHOT_DEFAULT_KEYS; a shot's own value wins
+    [defaults]               # any of terms.farm.SHOT_DEFAULT_KEYS; a shot's own value wins
     preset = "draft"
     export_chunk = 50
 
@@ -41,6 +41,7 @@ from pydantic import ValidationError
 
 from .. import contract as C
 from ..errors import InputError
+from ..terms.farm import SHOT_DEFAULT_KEYS, SHOT_REQUIRED_KEYS
 from .shots_model import DEFAULT_EXPORT_CHUNK, DEFAULT_RENDER_CHUNK, FOLDER, Shot, refusal, shown
 
 _FORMATS = {".toml": "TOML", ".json": "JSON"}
@@ -78,20 +79,19 @@ def parse_shots(data: Any, file: Path) -> tuple[Shot, ...]:
     if not isinstance(defaults, dict):
         raise InputError(file, f"'{C.SHOTS_DEFAULTS_KEY}' is not a table", f"write [{C.SHOTS_DEFAULTS_KEY}] with keys")
     for key in defaults:
-        if key in C.SHOT_KEYS and key not in C.SHOT_DEFAULT_KEYS:
+        if key in C.SHOT_KEYS and key not in SHOT_DEFAULT_KEYS:
             raise InputError(
                 file,
                 f"'{C.SHOTS_DEFAULTS_KEY}' sets '{key}', which is a shot's own",
-                f"move '{key}' into each shot; defaults may hold {', '.join(C.SHOT_DEFAULT_KEYS)}",
+                f"move '{key}' into each shot; defaults may hold {', '.join(SHOT_DEFAULT_KEYS)}",
             )
-    _check_keys(file, f"'{C.SHOTS_DEFAULTS_KEY}'", defaults, C.SHOT_DEFAULT_KEYS)
+    _check_keys(file, f"'{C.SHOTS_DEFAULTS_KEY}'", defaults, SHOT_DEFAULT_KEYS)
     entries = data.get(C.SHOTS_LIST_KEY)
     if not isinstance(entries, list) or not entries:
         raise InputError(
             file,
             f"no '{C.SHOTS_LIST_KEY}' list" if entries is None else f"'{C.SHOTS_LIST_KEY}' is not a list of shots",
-            f"add one table per shot ([[{C.SHOTS_LIST_KEY}]] in TOML) with at least "
-            f"{' and '.join(C.SHOT_REQUIRED_KEYS)}",
+            f"add one table per shot ([[{C.SHOTS_LIST_KEY}]] in TOML) with at least {' and '.join(SHOT_REQUIRED_KEYS)}",
         )
     shots = []
     for index, entry in enumerate(entries):

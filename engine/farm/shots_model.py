@@ -42,12 +42,16 @@ from pydantic_core import PydanticCustomError
 
 from .. import contract as C
 from ..errors import InputError
+from ..terms.cli import DEFAULT_PRESET
+from ..terms.clip import MAX_START_FRAME
+from ..terms.export_names import ATLAS_SIZE_RANGE
+from ..terms.farm import SHOT_REQUIRED_KEYS
 
-#: What a shot gets for a key neither it nor the defaults give (the preset: ``contract.DEFAULT_PRESET``).
+#: What a shot gets for a key neither it nor the defaults give (the preset: ``terms.cli.DEFAULT_PRESET``).
 DEFAULT_EXPORT_CHUNK = 50
 DEFAULT_RENDER_CHUNK = 50
 RenderFormat = Literal["exr", "png", "plate"]
-#: ``export --pass-precision`` (``contract.PASS_PRECISIONS``; a test keeps the two equal).
+#: ``export --pass-precision`` (``terms.export_names.PASS_PRECISIONS``; a test keeps the two equal).
 PassPrecision = Literal["compact", "full"]
 #: --device's choices: exactly what the engine's fit and export take (engine/fit/device.py), so the plan refuses
 #: what a worker would (a GPU of several is chosen with CUDA_VISIBLE_DEVICES on the worker, not cuda:N).
@@ -257,11 +261,11 @@ Device = Annotated[
 ]
 Flag = Annotated[StrictBool, Refusal("true or false", "true")]
 Chunk = Annotated[StrictInt, Ge(1), Refusal("a whole number", "50")]
-StartFrame = Annotated[StrictInt, Interval(ge=0, le=C.MAX_START_FRAME), Refusal("a whole number", "1001")]
+StartFrame = Annotated[StrictInt, Interval(ge=0, le=MAX_START_FRAME), Refusal("a whole number", "1001")]
 AtlasSize = Annotated[
     StrictInt,
-    Interval(ge=C.ATLAS_SIZE_RANGE[0], le=C.ATLAS_SIZE_RANGE[1]),
-    Refusal("a whole number", str(C.ATLAS_SIZE_RANGE[0] * 50), note=" (paper: 1000)"),
+    Interval(ge=ATLAS_SIZE_RANGE[0], le=ATLAS_SIZE_RANGE[1]),
+    Refusal("a whole number", str(ATLAS_SIZE_RANGE[0] * 50), note=" (paper: 1000)"),
 ]
 #: fps as fit --fps takes it: ``24``, ``23.976`` or ``"24000/1001"``, kept as text.
 Rate = Annotated[str, PlainValidator(_rate), Refusal("a frame rate", '"24000/1001"')]
@@ -272,7 +276,7 @@ _NULL = object()
 
 
 class Shot(BaseModel):
-    """One ``[[shots]]`` table with the ``[defaults]`` it does not override (any of ``contract.SHOT_DEFAULT_KEYS``):
+    """One ``[[shots]]`` table with the ``[defaults]`` it does not override (any of ``terms.farm.SHOT_DEFAULT_KEYS``):
     the keys of ``contract.SHOT_KEYS``, in the order they are checked. Validated with ``context={FOLDER: the shots
     file's folder}``, it is the shot the plan reads: every path absolute, every default filled in."""
 
@@ -287,7 +291,7 @@ class Shot(BaseModel):
     """The one mask's object split into the parts that move apart when the fit starts: True ``fit --auto-parts``
     (refused where it cannot apply), False ``--no-auto-parts``, None (not given) the fit's default: wherever it
     applies."""
-    preset: Preset = C.DEFAULT_PRESET
+    preset: Preset = DEFAULT_PRESET
     set: Annotated[Overrides, AfterValidator(_fit_overrides)] = Field(default=(), validate_default=True)
     device: Device | None = None
     fps: Rate | None = None
@@ -355,7 +359,7 @@ def refusal(file: Path, where: str, table: dict[str, Any], exc: ValidationError)
     missing = [e for e in errors if e["type"] == "missing"]
     if missing:
         return InputError(
-            file, f"{where}: no '{missing[0]['loc'][0]}'", f"give every shot a {' and a '.join(C.SHOT_REQUIRED_KEYS)}"
+            file, f"{where}: no '{missing[0]['loc'][0]}'", f"give every shot a {' and a '.join(SHOT_REQUIRED_KEYS)}"
         )
     key = str(errors[0]["loc"][0])
     error = sorted((e for e in errors if e["loc"][0] == key), key=lambda e: e["type"] == "refused")[0]

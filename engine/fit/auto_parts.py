@@ -5,7 +5,7 @@ fit's own decoded frames, snapped mask and optical flow (``PartsSearch``), so it
 object that moves as one piece is fitted bit for bit as without it: only objects whose parts move apart are fitted
 differently.
 
-The strokes go to RUN_DIR/parts (``contract.AUTO_PARTS_DIR``), where the artist can check them, fix them, or
+The strokes go to RUN_DIR/parts (``terms.run_folder.AUTO_PARTS_DIR``), where the artist can check them, fix them, or
 delete the folder to have them found again. A folder there that already holds stroke images (an earlier fit's, or
 ones the artist fixed) is the fit's scribbles as it is: it is never searched again or overwritten, and a fit that
 continues (``--resume-if-started``) sees the same scribbles it recorded. An object that moves as one piece gets no
@@ -34,6 +34,7 @@ from ..data.motion_parts_files import STROKE, NothingToSplit, require_something_
 from ..data.scribbles import SCRIBBLE_EXTENSIONS, NoScribbles, read_scribbles
 from ..errors import InputError
 from ..io.clip_info import ClipInfo
+from ..terms.run_folder import FIT_AUTO_MASKS_FLAG, FIT_AUTO_PARTS_FLAG
 from .progress import Reporter
 from .run_folder import RunFolder
 
@@ -47,13 +48,13 @@ def check_auto_parts(
     """The flags ``--auto-parts`` cannot go with, refused in one line before anything is read: it splits exactly one
     --mask object, its strokes are the scribbles (so not beside --scribbles), and the paper model fits one
     foreground layer only."""
-    flag = C.FIT_AUTO_PARTS_FLAG
+    flag = FIT_AUTO_PARTS_FLAG
     if scribble_dir is not None:
         raise InputError(None, f"{flag} and {C.SCRIBBLE_ARG} both given", "pass one of them")
     if auto_masks:
         raise InputError(
             None,
-            f"{flag} with {C.FIT_AUTO_MASKS_FLAG}: the parts are found inside masks you have checked",
+            f"{flag} with {FIT_AUTO_MASKS_FLAG}: the parts are found inside masks you have checked",
             f"write the masks with `{C.VERB_MASKS}` first, check them, then fit with --mask FOLDER {flag}",
         )
     if len(mask_dirs) != 1:

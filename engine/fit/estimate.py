@@ -27,6 +27,7 @@ from .. import contract as C
 from ..config import PRESETS, FitConfig, apply_overrides, preset_config
 from ..data.video import frame_pixels
 from ..io.images import display_path
+from ..terms.versions import SCHEMA_VERSION
 from .device import select_device, synchronize, torch_threads
 from .eta import PRE_TRAIN_SHARE
 from .evaluation import EVAL_CHUNK
@@ -204,7 +205,7 @@ def _estimate(
         )
     timing.next()
     return {
-        C.ESTIMATE_TAG: C.SCHEMA_VERSION,
+        C.ESTIMATE_TAG: SCHEMA_VERSION,
         "clip": display_path(prepared.info.source),
         "frames": int(t_count),
         "working_size": [w, h],

@@ -12,7 +12,6 @@ from typing import Any
 import numpy as np
 import torch
 
-from .. import contract as C
 from ..config import FitConfig
 from ..data.scene_analysis import SceneAnalysis
 from ..data.scribbles import propagate_labels
@@ -20,6 +19,7 @@ from ..errors import InputError
 from ..model.atlas_model import AtlasModel, FastModel, motion_regions
 from ..model.motion_init import LayerMotion, estimate_layer_motion
 from ..model.paper_model import PaperModel
+from ..terms.run_folder import BG_MOTION_DEFORMABLE, BG_MOTION_STATIC, RUN_FILE_OTHER_VERSION_FIX
 from .prepare import PreparedClip
 from .run_folder import FOREIGN_CHECKPOINT_FIX, ClipRecord
 
@@ -36,14 +36,14 @@ def build_model(cfg: FitConfig, clip: PreparedClip, scene: SceneAnalysis | None 
     if cfg.model != "fast":
         raise InputError(None, f"unknown model {cfg.model!r}", "use --set model=fast or model=paper")
     flow = clip.flow if t > 1 else None
-    background = C.BG_MOTION_DEFORMABLE if scene is None else scene.background_motion
+    background = BG_MOTION_DEFORMABLE if scene is None else scene.background_motion
     motions = []
     if clip.masks.shape[0]:
         bg_region, fg_regions = motion_regions(clip.masks)
     else:
         bg_region, fg_regions = None, []
     # a static camera's background is the identity: the flow's noise must not tilt it
-    fit_bg = cfg.init_motion and background != C.BG_MOTION_STATIC
+    fit_bg = cfg.init_motion and background != BG_MOTION_STATIC
     motions.append(estimate_layer_motion(flow, bg_region, clip.size, fit_bg))
     if clip.scribbles is not None:
         # each part moves like its scribbles (carried to every frame by the flow); its atlas spans the object
@@ -89,9 +89,9 @@ def assemble_model(
             raise InputError(
                 None,
                 f"the fast model needs a starting motion for each of its {layers} layers",
-                C.RUN_FILE_OTHER_VERSION_FIX,
+                RUN_FILE_OTHER_VERSION_FIX,
             )
-        background = C.BG_MOTION_DEFORMABLE if scene is None else scene.background_motion
+        background = BG_MOTION_DEFORMABLE if scene is None else scene.background_motion
         alpha_network = True if scene is None else (scene.alpha_network or len(motions) > 1)
         model = FastModel(cfg, size, frames, motions, background=background, alpha_network=alpha_network)
     else:

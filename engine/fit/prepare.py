@@ -32,6 +32,8 @@ from ..errors import InputError
 from ..io.atomic import atomic_write_text
 from ..io.clip import ClipInfo, open_clip, read_frames, read_frames_at, read_masks, working_size
 from ..io.colour import legacy_linear_to_srgb, recorded_space, to_working
+from ..terms.colour import COLORSPACES
+from ..terms.run_folder import SCENE_LAYERS_AUTO
 from .auto_parts import PartsSearch, check_run_strokes, is_run_strokes
 from .fit_inputs import FitInputs
 from .progress import Reporter
@@ -58,7 +60,7 @@ class PreparedClip:
     scribbles: np.ndarray | None = None  # int8 [T, H, W]: 0-based foreground layer, -1 = no scribble
     scribble_dir: str | None = None
     frame_range: tuple[int, int] | None = None  # inclusive positions in the source; None: the whole clip
-    layers_source: str | None = None  # contract SCENE_LAYERS_*; None: given masks (or none)
+    layers_source: str | None = None  # terms.run_folder.SCENE_LAYERS_*; None: given masks (or none)
     masks_note: str | None = None  # what --auto-masks found, for the scene record
     long_flow: LongFlow | None = None  # long-range correspondences (``long_flow_max_gap``); None: off
     #: what ``mask_snap_px`` did to each given mask layer (engine.data.mask_snap); empty: nothing was searched
@@ -293,7 +295,7 @@ def open_plate(inputs: FitInputs) -> tuple[ClipInfo, str | None]:
     """The plate opened in its colour space (``fit --colorspace``, or the one a run recorded) and, for a run made
     before colour management ("sRGB"/"linear", no config), that legacy space: it is read with the values it fitted
     (``_read_plate``); None otherwise."""
-    legacy = inputs.colour_config is None and inputs.colorspace in C.COLORSPACES
+    legacy = inputs.colour_config is None and inputs.colorspace in COLORSPACES
     space, config = recorded_space(inputs.colorspace, None) if legacy else (inputs.colorspace, inputs.colour_config)
     info = open_clip(inputs.plate, inputs.frames, space, config, fps=inputs.fps, start_frame=inputs.start_frame)
     return info, inputs.colorspace if legacy else None
@@ -453,7 +455,7 @@ class _AutoMasks:
     def find(self, prepared: PreparedClip, fit_cfg: FitConfig, raw: np.ndarray | None, reporter: Reporter) -> None:
         """Set ``prepared``'s masks from motion. ``raw``: the frames decoded at the analysis size (None: the
         analysis size is the working size: ``prepared.frames`` are the frames to analyse)."""
-        prepared.layers_source = C.SCENE_LAYERS_AUTO
+        prepared.layers_source = SCENE_LAYERS_AUTO
         if self.size is None:
             prepared.masks_note = SINGLE_FRAME_NOTE
             return

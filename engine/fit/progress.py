@@ -1,4 +1,4 @@
-"""Progress of a command: JSON lines on stdout (``contract.progress_line``, what the add-on reads) and the same
+"""Progress of a command: JSON lines on stdout (``terms.protocol.progress_line``, what the add-on reads) and the same
 lines in the run's log file."""
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ from typing import Any, TextIO
 
 from .. import contract as C
 from ..io.atomic import append_text
+from ..terms.protocol import progress_line
 from .eta import JobClock
 
 
@@ -32,7 +33,7 @@ class Reporter:
     def emit(self, event: str, **fields: Any) -> None:
         if event == C.EVENT_DONE:  # the command's last message: its whole job is done, whatever share it left
             fields = {"job_fraction": 1.0, "job_eta": 0.0, **fields}
-        line = C.progress_line(event, **fields)
+        line = progress_line(event, **fields)
         if self.stream is not None:
             print(line, file=self.stream, flush=True)
         if self.log_path is not None:
@@ -157,7 +158,7 @@ OPENJD_STATUS_MAX = 200
 
 
 class OpenJDProgress:
-    """``LineTap``'s ``on_line`` on stdout inside an Open Job Description task (``contract.OPENJD_PROGRESS_ENV``):
+    """``LineTap``'s ``on_line`` on stdout inside an Open Job Description task (``terms.protocol.OPENJD_PROGRESS_ENV``):
     each progress message also as the messages the runner reads from stdout, ``openjd_progress: <0..100>`` (the
     whole job's fraction; a command's own steps where it sends none; never decreasing, one decimal, printed when it
     moves) and ``openjd_status: <the stage's message>``; ``finished`` is the 100 of a verb that succeeded."""

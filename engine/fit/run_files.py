@@ -2,19 +2,19 @@
 ``scene.json`` as pydantic models, and the one check every read and write of them goes through
 (``validate_run_file``), whose refusal is one line.
 
-Each file carries ``{"schema": <its version>}`` (``contract.RUN_*_SCHEMA``), bumped whenever its shape changes; a
-reader refuses any other version (the run was made by another engine: fit again). engine/fit/run_folder.py is the one
-module that reads and writes them. A model names every key of its file with its type (strict: a bool is not a
-number, a list is not a tuple), refuses keys it does not name, and checks what its fields say of each other; the add-on
-never reads these files, so the contract it imports stays standard-library only. The shapes:
+Each file carries ``{"schema": <its version>}`` (``terms.run_folder.RUN_*_SCHEMA``), bumped whenever its shape changes;
+a reader refuses any other version (the run was made by another engine: fit again). engine/fit/run_folder.py is the one
+module that reads and writes them. A model names every key of its file with its type (strict: a bool is not a number, a
+list is not a tuple), refuses keys it does not name, and checks what its fields say of each other; the add-on never
+reads these files, so the contract it imports stays standard-library only. The shapes:
 
-- ``contract.RUN_CONFIG``: ``{"schema": 1, "config": {FitConfig field: value}}`` (engine/config.py documents and
+- ``terms.run_folder.RUN_CONFIG``: ``{"schema": 1, "config": {FitConfig field: value}}`` (engine/config.py documents and
   checks every field).
-- ``contract.RUN_CLIP``: ``ClipFile``. Everything ``export`` needs besides the checkpoint: it never decodes the plate.
-  "frame_range" is in positions (what ``open_clip`` takes); "frame_numbers" are the plate's own numbers (what --frames
-  says).
+- ``terms.run_folder.RUN_CLIP``: ``ClipFile``. Everything ``export`` needs besides the checkpoint: it never decodes the
+  plate. "frame_range" is in positions (what ``open_clip`` takes); "frame_numbers" are the plate's own numbers (what
+  --frames says).
 - ``contract.RUN_METRICS``: ``MetricsFile``.
-- ``contract.SCENE_FILE``: ``SceneFile`` (``contract.validate_scene`` checks the copy in a manifest).
+- ``terms.run_folder.SCENE_FILE``: ``SceneFile`` (``terms.manifest.validate_scene`` checks the copy in a manifest).
 """
 
 from __future__ import annotations
@@ -39,6 +39,24 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 from .. import contract as C
+from ..terms.colour import COLOUR_SOURCE_ASKED, COLOUR_SOURCES, valid_colour_record
+from ..terms.manifest import MANIFEST_QUOTE_CHARS, timing_problem
+from ..terms.run_folder import (
+    BG_MOTIONS,
+    FLOW_KEY_PATTERN,
+    RUN_CLIP,
+    RUN_CLIP_SCHEMA,
+    RUN_CONFIG,
+    RUN_CONFIG_SCHEMA,
+    RUN_FILE_DAMAGED_FIX,
+    RUN_FILE_OTHER_VERSION_FIX,
+    RUN_METRICS_SCHEMA,
+    RUN_SCENE_SCHEMA,
+    SCENE_FILE,
+    SCENE_LAYERS_AUTO,
+    SCENE_LAYERS_GIVEN,
+    SCENE_LAYERS_NONE,
+)
 
 
 @dataclass(frozen=True)
@@ -66,7 +84,7 @@ IntPairOrNull = Annotated[_Pair | None, Kind("int pair or null")]
 
 #: The scene analysis's ``components`` values (engine/config.py's ``components`` field).
 RUN_SCENE_COMPONENTS: tuple[str, ...] = ("auto", "all")
-RUN_SCENE_LAYERS_SOURCES: tuple[str, ...] = (C.SCENE_LAYERS_GIVEN, C.SCENE_LAYERS_AUTO, C.SCENE_LAYERS_NONE)
+RUN_SCENE_LAYERS_SOURCES: tuple[str, ...] = (SCENE_LAYERS_GIVEN, SCENE_LAYERS_AUTO, SCENE_LAYERS_NONE)
 
 
 class RunFileError(ValueError):
@@ -115,18 +133,18 @@ def _clip_problem(data: dict[str, Any]) -> str | None:
         problem = f"clip record: frame_range {first}..{last} does not span its {count} frames"
     elif data["frame_files"] and len(data["frame_files"]) != count:
         problem = f"clip record lists {len(data['frame_files'])} frame files for {count} frames"
-    elif data["kind"] not in C.CLIP_KINDS or not C.valid_colour_record(data["colorspace"], data.get("colour_config")):
+    elif data["kind"] not in C.CLIP_KINDS or not valid_colour_record(data["colorspace"], data.get("colour_config")):
         problem = f"clip record: unknown kind or colour space {data['kind']!r}, {data['colorspace']!r}"
-    elif data.get("colour_source", C.COLOUR_SOURCE_ASKED) not in C.COLOUR_SOURCES:
-        problem = f"clip record: unknown colour_source {data['colour_source'][: C.MANIFEST_QUOTE_CHARS]!r}"
+    elif data.get("colour_source", COLOUR_SOURCE_ASKED) not in COLOUR_SOURCES:
+        problem = f"clip record: unknown colour_source {data['colour_source'][:MANIFEST_QUOTE_CHARS]!r}"
     elif data["layers"] < 1 or min(data["native_size"] + data["working_size"]) < 1:
         problem = "clip record: layers and sizes must be positive"
     elif any(len(data.get(f"{k}_relative", data[k])) != len(data[k]) for k in ("frame_files", "masks")):
         problem = "clip record: its relative paths do not match its frame files and masks"
-    elif data.get("flow_key") is not None and not re.fullmatch(C.FLOW_KEY_PATTERN, data["flow_key"]):
+    elif data.get("flow_key") is not None and not re.fullmatch(FLOW_KEY_PATTERN, data["flow_key"]):
         problem = "clip record: flow_key is not the name of a flow cache file (64 hex digits)"
     else:
-        problem = C.timing_problem(data)
+        problem = timing_problem(data)
         problem = problem and f"clip record: {problem}"
     return problem
 
@@ -151,13 +169,13 @@ class ClipFile(RunFile):
     fingerprint: Str  # hash of the fitted frames: a resume refuses a changed clip
     colour_config: Any = None
     """The OCIO config that names "colorspace" ($OCIO's path or "ocio://default"); absent in older runs (see
-    contract.LEGACY_COLORSPACES). Checked with the colour space (``contract.valid_colour_record``): no type of its
+    contract.LEGACY_COLORSPACES). Checked with the colour space (``terms.colour.valid_colour_record``): no type of its
     own, so not among RUN_CLIP_OPTIONAL_FIELDS."""
     rate: IntPairOrNull = None  # exact frame rate [num, den] (24000/1001)
     pixel_aspect: Number = 1.0
     timecode: StrOrNull = None  # SMPTE, of the first fitted frame
     start_frame: Int = 0  # a movie's number of its first frame
-    colour_source: Str = C.COLOUR_SOURCE_ASKED  # how "colorspace" was decided: one of contract.COLOUR_SOURCES
+    colour_source: Str = COLOUR_SOURCE_ASKED  # how "colorspace" was decided: one of terms.colour.COLOUR_SOURCES
     # the paths relative to the run folder ("/" separated; null: none, another drive), beside the absolute ones: a
     # run folder moved or mounted elsewhere with its plate reads the plate there (engine/fit/run_folder.py)
     source_relative: StrOrNull = None
@@ -197,7 +215,7 @@ def _scene_problem(data: dict[str, Any]) -> str | None:
     problem = None
     if data["components"] not in RUN_SCENE_COMPONENTS:
         problem = f"scene analysis: unknown components {data['components']!r}"
-    elif data["background_motion"] not in C.BG_MOTIONS:
+    elif data["background_motion"] not in BG_MOTIONS:
         problem = f"scene analysis: unknown background_motion {data['background_motion']!r}"
     elif data["layers_source"] not in RUN_SCENE_LAYERS_SOURCES:
         problem = f"scene analysis: unknown layers_source {data['layers_source']!r}"
@@ -215,13 +233,13 @@ def _is_number(value: Any) -> bool:
 
 
 class SceneFile(RunFile):
-    """``scene.json``: the scene analysis of the fit (engine.data.scene_analysis.SceneAnalysis; contract.SCENE_FILE
-    says what each field means)."""
+    """``scene.json``: the scene analysis of the fit (engine.data.scene_analysis.SceneAnalysis;
+    terms.run_folder.SCENE_FILE says what each field means)."""
 
     components: Str  # RUN_SCENE_COMPONENTS
     num_layers: Int
     layers_source: Str  # RUN_SCENE_LAYERS_SOURCES
-    background_motion: Str  # contract.BG_MOTIONS
+    background_motion: Str  # terms.run_folder.BG_MOTIONS
     flow: Bool
     scribbles: Int
     alpha_network: Bool
@@ -238,23 +256,23 @@ class SceneFile(RunFile):
 
 #: Each run file's model.
 RUN_FILE_MODELS: dict[str, type[RunFile]] = {
-    C.RUN_CONFIG: ConfigFile,
-    C.RUN_CLIP: ClipFile,
+    RUN_CONFIG: ConfigFile,
+    RUN_CLIP: ClipFile,
     C.RUN_METRICS: MetricsFile,
-    C.SCENE_FILE: SceneFile,
+    SCENE_FILE: SceneFile,
 }
 RUN_FILE_SCHEMAS: dict[str, int] = {
-    C.RUN_CONFIG: C.RUN_CONFIG_SCHEMA,
-    C.RUN_CLIP: C.RUN_CLIP_SCHEMA,
-    C.RUN_METRICS: C.RUN_METRICS_SCHEMA,
-    C.SCENE_FILE: C.RUN_SCENE_SCHEMA,
+    RUN_CONFIG: RUN_CONFIG_SCHEMA,
+    RUN_CLIP: RUN_CLIP_SCHEMA,
+    C.RUN_METRICS: RUN_METRICS_SCHEMA,
+    SCENE_FILE: RUN_SCENE_SCHEMA,
 }
 #: How each file is named in messages.
 RUN_FILE_WHAT: dict[str, str] = {
-    C.RUN_CONFIG: "config",
-    C.RUN_CLIP: "clip record",
+    RUN_CONFIG: "config",
+    RUN_CLIP: "clip record",
     C.RUN_METRICS: "metrics",
-    C.SCENE_FILE: "scene analysis",
+    SCENE_FILE: "scene analysis",
 }
 
 
@@ -284,14 +302,14 @@ def validate_run_file(name: str, data: Any) -> dict[str, Any]:
     the model's order, then a key it does not name, then what the values say of each other)."""
     what = RUN_FILE_WHAT[name]
     if not isinstance(data, dict):
-        raise RunFileError(f"{what} is not a JSON object", C.RUN_FILE_DAMAGED_FIX)
+        raise RunFileError(f"{what} is not a JSON object", RUN_FILE_DAMAGED_FIX)
     version = data.get("schema")
     if version != RUN_FILE_SCHEMAS[name]:
         problem = f"{what} schema {version!r} is not supported (this engine writes {RUN_FILE_SCHEMAS[name]})"
-        raise RunFileError(problem, C.RUN_FILE_OTHER_VERSION_FIX)
+        raise RunFileError(problem, RUN_FILE_OTHER_VERSION_FIX)
     wrong = record_problem(what, RUN_FILE_MODELS[name], data)
     if wrong is not None:
-        raise RunFileError(wrong, C.RUN_FILE_DAMAGED_FIX)
+        raise RunFileError(wrong, RUN_FILE_DAMAGED_FIX)
     return data
 
 
@@ -316,7 +334,7 @@ def _one_line(what: str, model: type[RunFile], data: dict[str, Any], exc: Valida
     if error["type"] == "missing":  # a nested record names its whole path: layers.Foreground.atlas_size
         return f"{what} has no {'.'.join(str(part) for part in error['loc'])!r}"
     if error["type"] == "extra_forbidden":
-        return f"{what} has an unknown key {key[: C.MANIFEST_QUOTE_CHARS]!r}"
+        return f"{what} has an unknown key {key[:MANIFEST_QUOTE_CHARS]!r}"
     kind = _kind(model, key)
     return f"{what} {key!r} is not {'an' if kind[:1] in 'aeiou' else 'a'} {kind}: {data[key]!r}"
 

@@ -29,6 +29,22 @@ from ..data.scene_analysis import SceneAnalysis
 from ..errors import InputError
 from ..io.atomic import atomic_write_text
 from ..io.clip_info import NumberedFrames
+from ..terms.export_names import EDITS_DIR
+from ..terms.run_folder import (
+    AUTO_PARTS_DIR,
+    FLOW_CACHE_DIR,
+    RUN_CHECKPOINT_KEYS,
+    RUN_CHECKPOINT_SCHEMA,
+    RUN_CHECKPOINT_SCHEMA_WITHOUT_CONFIG,
+    RUN_CLIP,
+    RUN_CLIP_SCHEMA,
+    RUN_CONFIG,
+    RUN_FILE_DAMAGED_FIX,
+    RUN_FILE_OTHER_VERSION_FIX,
+    RUN_LOG,
+    RUN_METRICS_SCHEMA,
+    SCENE_FILE,
+)
 from .checkpoint import CHECKPOINT_DAMAGED_FIX, load_checkpoint, nonfinite_entries, save_checkpoint
 from .run_files import RunFileError, validate_run_file
 
@@ -64,7 +80,7 @@ class ClipRecord(NumberedFrames):
     start_frame: int = 0
     """A movie's number of its first frame (``fit --start-frame``)."""
     colour_source: str | None = dataclasses.field(default=None, compare=False)
-    """How ``colorspace`` was decided (``contract.COLOUR_SOURCES``; "assumed": nothing in the file said it); None in
+    """How ``colorspace`` was decided (``terms.colour.COLOUR_SOURCES``; "assumed": nothing in the file said it); None in
     records written before it was kept."""
     source_relative: str | None = dataclasses.field(default=None, compare=False)
     """``source`` relative to the run folder ("/" separated; None where there is none, another drive): a run folder
@@ -157,7 +173,7 @@ class ClipRecord(NumberedFrames):
         if self.frame_files_relative is None:  # a record from before the relative paths were kept
             for key in RELATIVE_FIELDS:
                 del data[key]
-        return {"schema": C.RUN_CLIP_SCHEMA, **data}
+        return {"schema": RUN_CLIP_SCHEMA, **data}
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> ClipRecord:
@@ -256,17 +272,17 @@ class RunFolder:
         self.path = Path(path)
 
     # --- layout: each entry's name is the contract's
-    config = _entry(C.RUN_CONFIG)
-    clip = _entry(C.RUN_CLIP)
+    config = _entry(RUN_CONFIG)
+    clip = _entry(RUN_CLIP)
     metrics = _entry(C.RUN_METRICS)
-    scene = _entry(C.SCENE_FILE)
+    scene = _entry(SCENE_FILE)
     checkpoint = _entry(C.RUN_CHECKPOINT)
-    log = _entry(C.RUN_LOG)
-    flow_cache = _entry(C.FLOW_CACHE_DIR)
+    log = _entry(RUN_LOG)
+    flow_cache = _entry(FLOW_CACHE_DIR)
     auto_masks = _entry(C.AUTO_MASKS_DIR)
-    auto_parts = _entry(C.AUTO_PARTS_DIR)
+    auto_parts = _entry(AUTO_PARTS_DIR)
     exports = _entry(C.EXPORTS_DIR)
-    edits = _entry(C.EDITS_DIR)
+    edits = _entry(EDITS_DIR)
 
     # --- the lock
     @contextlib.contextmanager
@@ -364,7 +380,7 @@ class RunFolder:
         return self._validated(self.metrics, self._read_text(self.metrics, "no metrics", "let the fit finish"))
 
     def write_metrics(self, metrics: dict[str, Any]) -> None:
-        self._write_json(self.metrics, {"schema": C.RUN_METRICS_SCHEMA, **metrics})
+        self._write_json(self.metrics, {"schema": RUN_METRICS_SCHEMA, **metrics})
 
     # --- scene.json
     def read_scene(self, record: ClipRecord | None = None) -> SceneAnalysis:
@@ -373,8 +389,8 @@ class RunFolder:
         text = self._read_text(self.scene, "the run has no scene analysis", "restore it or fit into a new --out")
         scene = SceneAnalysis.from_dict(self._validated(self.scene, text))
         if record is not None and scene.num_layers != record.layers:
-            problem = f"scene analysis has {scene.num_layers} layers but {C.RUN_CLIP} records {record.layers}"
-            raise InputError(self.scene, problem, C.RUN_FILE_DAMAGED_FIX)
+            problem = f"scene analysis has {scene.num_layers} layers but {RUN_CLIP} records {record.layers}"
+            raise InputError(self.scene, problem, RUN_FILE_DAMAGED_FIX)
         return scene
 
     def write_scene(self, scene: SceneAnalysis) -> None:
@@ -385,18 +401,18 @@ class RunFolder:
         """The checkpoint, loaded safely (weights only), with every key of its schema and the types a resume and
         an export read from it; a checkpoint of another engine version or a damaged one is one line."""
         state = load_checkpoint(self.checkpoint, device)
-        old = isinstance(state, dict) and state.get("schema") == C.RUN_CHECKPOINT_SCHEMA_WITHOUT_CONFIG
+        old = isinstance(state, dict) and state.get("schema") == RUN_CHECKPOINT_SCHEMA_WITHOUT_CONFIG
         if old and "config" not in state:
             # a fit from before checkpoints recorded their config: the fingerprint still ties it to its clip
-            state = {**state, "schema": C.RUN_CHECKPOINT_SCHEMA, "config": None}
-        missing = [k for k in C.RUN_CHECKPOINT_KEYS if k not in state] if isinstance(state, dict) else ["schema"]
+            state = {**state, "schema": RUN_CHECKPOINT_SCHEMA, "config": None}
+        missing = [k for k in RUN_CHECKPOINT_KEYS if k not in state] if isinstance(state, dict) else ["schema"]
         if missing:
-            raise InputError(self.checkpoint, f"checkpoint has no {missing[0]!r}", C.RUN_FILE_OTHER_VERSION_FIX)
-        if state["schema"] != C.RUN_CHECKPOINT_SCHEMA:
+            raise InputError(self.checkpoint, f"checkpoint has no {missing[0]!r}", RUN_FILE_OTHER_VERSION_FIX)
+        if state["schema"] != RUN_CHECKPOINT_SCHEMA:
             problem = (
-                f"checkpoint schema {state['schema']!r} is not supported (this engine writes {C.RUN_CHECKPOINT_SCHEMA})"
+                f"checkpoint schema {state['schema']!r} is not supported (this engine writes {RUN_CHECKPOINT_SCHEMA})"
             )
-            raise InputError(self.checkpoint, problem, C.RUN_FILE_OTHER_VERSION_FIX)
+            raise InputError(self.checkpoint, problem, RUN_FILE_OTHER_VERSION_FIX)
         kinds = {"model": dict, "optim": dict, "sched": dict, "gen": torch.Tensor, "fingerprint": str}
         kinds["config"] = (dict, type(None))  # None: a checkpoint of the schema without it
         kinds |= {"step": int, "train_seconds": (int, float), "motions": (list, type(None))}
@@ -409,7 +425,7 @@ class RunFolder:
         return state
 
     def save_checkpoint(self, state: dict[str, Any]) -> None:
-        save_checkpoint(self.checkpoint, {"schema": C.RUN_CHECKPOINT_SCHEMA, **state})
+        save_checkpoint(self.checkpoint, {"schema": RUN_CHECKPOINT_SCHEMA, **state})
 
     def check_checkpoint_belongs(self, state: dict[str, Any], cfg: FitConfig, record: ClipRecord) -> None:
         """One line unless the checkpoint ``state`` was saved by this folder's fit: the clip it fitted (its
@@ -420,7 +436,7 @@ class RunFolder:
         if state["fingerprint"] != record.fingerprint:
             raise InputError(
                 self.checkpoint,
-                f"checkpoint is of another clip than {C.RUN_CLIP} records (fingerprint {state['fingerprint']!r}, "
+                f"checkpoint is of another clip than {RUN_CLIP} records (fingerprint {state['fingerprint']!r}, "
                 f"not {record.fingerprint!r})",
                 FOREIGN_CHECKPOINT_FIX,
             )
@@ -436,7 +452,7 @@ class RunFolder:
         if differ:
             raise InputError(
                 self.checkpoint,
-                f"checkpoint was saved with another config than {C.RUN_CONFIG} ({differ[0]} "
+                f"checkpoint was saved with another config than {RUN_CONFIG} ({differ[0]} "
                 f"{saved.get(differ[0])!r}, not {ours[differ[0]]!r})",
                 FOREIGN_CHECKPOINT_FIX,
             )
@@ -449,7 +465,7 @@ class RunFolder:
         except FileNotFoundError:
             raise InputError(path, missing_problem, missing_fix) from None
         except UnicodeDecodeError:
-            raise InputError(path, "not a text file", C.RUN_FILE_DAMAGED_FIX) from None
+            raise InputError(path, "not a text file", RUN_FILE_DAMAGED_FIX) from None
         except OSError as exc:
             raise InputError(path, f"cannot be read ({exc.strerror or type(exc).__name__})", "check it") from None
 
@@ -458,7 +474,7 @@ class RunFolder:
         try:
             return validate_run_file(path.name, json.loads(text))
         except (json.JSONDecodeError, RecursionError):
-            raise InputError(path, "not valid JSON", C.RUN_FILE_DAMAGED_FIX) from None
+            raise InputError(path, "not valid JSON", RUN_FILE_DAMAGED_FIX) from None
         except RunFileError as exc:
             raise InputError(path, exc.problem, exc.fix) from None
 

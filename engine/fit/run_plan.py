@@ -28,6 +28,8 @@ from ..data.scene_analysis import SceneAnalysis
 from ..errors import InputError
 from ..io.clip import frame_positions
 from ..io.colour import recorded_space, resolve
+from ..terms.cli import FIT_RESUME_IF_STARTED_FLAG
+from ..terms.run_folder import FIT_AUTO_MASKS_FLAG, RUN_CONFIG
 from .auto_parts import PartsRequest, parts_wanted, strokes_in_run
 from .fit_inputs import FitInputs
 from .run_folder import ClipRecord, RunFolder
@@ -56,13 +58,12 @@ class FitMode:
         if self.if_started and (self.resume or self.refit):
             raise InputError(
                 None,
-                f"{C.FIT_RESUME_IF_STARTED_FLAG} with --{'resume' if self.resume else 'refit'}",
-                f"pass {C.FIT_RESUME_IF_STARTED_FLAG} alone: it starts, continues or leaves the fit as RUN_DIR "
-                "holds it",
+                f"{FIT_RESUME_IF_STARTED_FLAG} with --{'resume' if self.resume else 'refit'}",
+                f"pass {FIT_RESUME_IF_STARTED_FLAG} alone: it starts, continues or leaves the fit as RUN_DIR holds it",
             )
         if self.refine is not None:
             clashing = [flag for flag, given in (("--resume", self.resume), ("--refit", self.refit),
-                        (C.FIT_RESUME_IF_STARTED_FLAG, self.if_started), (C.FIT_AUTO_MASKS_FLAG, inputs.auto_masks),
+                        (FIT_RESUME_IF_STARTED_FLAG, self.if_started), (FIT_AUTO_MASKS_FLAG, inputs.auto_masks),
                         ("--frames", inputs.frames is not None)) if given]  # fmt: skip
             if clashing:
                 raise InputError(
@@ -132,7 +133,7 @@ def plan_fit(
         cfg = saved or run.read_config()
         if preset is not None and preset != cfg.preset:
             raise InputError(
-                run_dir / C.RUN_CONFIG,
+                run_dir / RUN_CONFIG,
                 f"--preset {preset} with --resume: this fit started with preset {cfg.preset}",
                 "drop --preset to continue it, or fit with that preset into a new --out (or --refit)",
             )
@@ -240,7 +241,7 @@ def check_fit_inputs(cfg: FitConfig, inputs: FitInputs, resume: bool) -> None:
         raise InputError(None, "no clip given", "pass a frame folder or movie file")
     find_masks = inputs.auto_masks and not resume
     if find_masks and mask_dirs:
-        raise InputError(None, f"{C.FIT_AUTO_MASKS_FLAG} and --mask both given", "pass one of them")
+        raise InputError(None, f"{FIT_AUTO_MASKS_FLAG} and --mask both given", "pass one of them")
     seen: dict[str, str | Path] = {}
     for mask in mask_dirs:  # one folder twice would fit two identical layers, each owning half of the object
         real = os.path.normcase(os.path.realpath(mask))
@@ -256,7 +257,7 @@ def check_paper_layers(mask_dirs: Sequence[str | Path], auto_masks: bool, scribb
     motion may be none, and scribbles split the object into several), checked before anything is read."""
     given = None
     if auto_masks:
-        given = f"{C.FIT_AUTO_MASKS_FLAG} was given"
+        given = f"{FIT_AUTO_MASKS_FLAG} was given"
     elif scribble_dir is not None:
         given = f"{C.SCRIBBLE_ARG} split the object into layers"
     elif len(mask_dirs) != 1:

@@ -2,7 +2,7 @@
 (model, pixel tensors, optimiser, schedule, sampling generator), steps, evaluates, saves and restores it; ``fit``
 runs it on a clip into a run folder. The bench, ``estimate`` and the speed table train through the same object.
 
-Progress goes to stdout as JSON lines (``contract.progress_line``) and to stderr as a tqdm bar.
+Progress goes to stdout as JSON lines (``terms.protocol.progress_line``) and to stderr as a tqdm bar.
 """
 
 from __future__ import annotations
@@ -28,6 +28,10 @@ from ..errors import FitDiverged, InputError
 from ..model.atlas_model import AtlasModel
 from ..model.losses import psnr_from_mse
 from ..model.objective import compute_losses
+from ..terms.export_names import ATLAS_SIZE_DEFAULT
+from ..terms.protocol import EVENT_CANCELLED, EVENT_CHECKPOINT
+from ..terms.run_folder import RUN_METRICS_SCHEMA
+from ..terms.versions import ENGINE_VERSION
 from .checkpoint import nonfinite_entries
 from .device import select_device, synchronize
 from .divergence import NonFinite, all_finite, diverged_message, nonfinite_groups, nonfinite_terms, require_finite
@@ -317,7 +321,7 @@ class Trainer:
             raise NonFinite(self.step, "checkpoint's values", bad)
         run.save_checkpoint(state)
         self.saved_step = self.step
-        reporter.emit(C.EVENT_CHECKPOINT, step=self.step, path=str(run.checkpoint))
+        reporter.emit(EVENT_CHECKPOINT, step=self.step, path=str(run.checkpoint))
 
     def train(self, run: RunFolder, reporter: Reporter, progress_bar: bool = True) -> None:
         """The fit's loop up to ``cfg.steps``: a progress line (live PSNR, ETA, loss terms) at the first step,
@@ -348,7 +352,7 @@ class Trainer:
         # a resumed fit's rate until its clock has one: its training seconds per step so far (the bar continues
         # from the checkpoint's share of the whole job, not from 0)
         resume_rate = self.train_seconds / self.step if self.step > 0 and self.train_seconds > 0 else None
-        job.atlas_texels = self.model.num_layers * C.ATLAS_SIZE_DEFAULT**2  # the export's atlases (its default size)
+        job.atlas_texels = self.model.num_layers * ATLAS_SIZE_DEFAULT**2  # the export's atlases (its default size)
         self.evaluate_sample()  # warm-up (allocator, kernels): the first sample of a process is slower than the rest
         for _ in range(START_SAMPLES):
             self._timed_sample(job)
@@ -381,7 +385,7 @@ class Trainer:
                 if stop.signum is not None:
                     self.save(run, reporter)
                     bar.close()
-                    reporter.emit(C.EVENT_CANCELLED, step=self.step, checkpoint=str(run.checkpoint))
+                    reporter.emit(EVENT_CANCELLED, step=self.step, checkpoint=str(run.checkpoint))
                     raise FitCancelled(f"interrupted by signal {stop.signum} at step {self.step}")
                 if time.monotonic() - last_ckpt > cfg.checkpoint_seconds:
                     self.save(run, reporter)
@@ -495,7 +499,7 @@ def _fit_locked(run: RunFolder, trainer: Trainer, reporter: Reporter, progress_b
     reporter.job.evaluated(time.perf_counter() - t0)
     reporter.job_event("evaluate", 1, 1, 0.0)
     metrics = {
-        "schema": C.RUN_METRICS_SCHEMA,
+        "schema": RUN_METRICS_SCHEMA,
         "psnr": ev["psnr"],
         "mse": ev["mse"],
         "alpha_iou": ev["alpha_iou"],
@@ -507,7 +511,7 @@ def _fit_locked(run: RunFolder, trainer: Trainer, reporter: Reporter, progress_b
         "device": device.type,
         "working_size": list(trainer.clip.size),
         "frames": int(trainer.video.shape[0]),
-        "engine_version": C.ENGINE_VERSION,
+        "engine_version": ENGINE_VERSION,
         "torch_version": torch.__version__,
     }
     run.write_metrics(metrics)

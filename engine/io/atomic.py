@@ -23,8 +23,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from .. import contract as C
 from ..errors import DiskFullError, InputError
+from ..terms.lock import IN_PLACE_UNSAFE_FIX, open_in_place
 
 #: OS errors that mean "the disk is full" (no space, quota, file too large).
 DISK_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
@@ -188,17 +188,17 @@ def signals_held() -> Iterator[None]:
 
 class LinkedFileError(InputError):
     """A file the engine writes in place (appends to) is a symbolic or hard link, a folder or not a plain file: one
-    line, nothing written (``contract.open_in_place``)."""
+    line, nothing written (``terms.lock.open_in_place``)."""
 
     def __init__(self, path: str, what: str) -> None:
-        super().__init__(path, f"is {what}", C.IN_PLACE_UNSAFE_FIX)
+        super().__init__(path, f"is {what}", IN_PLACE_UNSAFE_FIX)
 
 
 def append_text(path: Path, text: str) -> None:
     """Append ``text`` to ``path`` (created if missing). An append cannot go through a temp file and a rename, so it
     is the one write that could follow a link: a symbolic link, a hard link or anything but a plain file at ``path``
     is refused (``LinkedFileError``) rather than written through."""
-    fd = C.open_in_place(os.fspath(path), os.O_WRONLY | os.O_APPEND | os.O_CREAT, LinkedFileError)
+    fd = open_in_place(os.fspath(path), os.O_WRONLY | os.O_APPEND | os.O_CREAT, LinkedFileError)
     with os.fdopen(fd, "a", encoding="utf-8") as f:
         f.write(text)
 

@@ -11,8 +11,8 @@ import dataclasses
 from dataclasses import dataclass
 from fractions import Fraction
 
-from .. import contract as C
 from ..errors import InputError
+from ..terms.colour import COLOUR_BUILTIN_CONFIG, COLOUR_SOURCE_ASKED
 from . import colour
 
 SEQUENCE = "sequence"
@@ -52,7 +52,7 @@ class ClipInfo(NumberedFrames):
     """Channels in the file (1 grey, 3 RGB, 4 RGBA, ...)."""
     is_float: bool = False
     """Whether the frames store floats (EXR, float TIFF): one clip is all float or all integer."""
-    colour_config: str = C.COLOUR_BUILTIN_CONFIG
+    colour_config: str = COLOUR_BUILTIN_CONFIG
     """The OCIO config that names ``colorspace``: ``$OCIO`` when set, else the built-in one."""
     rate: Fraction | None = None
     """The plate's frame rate, exact (24000/1001, not 23.976): the EXR's ``FramesPerSecond``, the DPX header's,
@@ -64,7 +64,7 @@ class ClipInfo(NumberedFrames):
     start_frame: int = 0
     """A movie's number of its first frame (its frames are numbered ``start_frame + index``); 0 for a sequence."""
     colour_source: str | None = dataclasses.field(default=None, compare=False)
-    """How ``colorspace`` was decided (``contract.COLOUR_SOURCES``): asked, the file's header, $OCIO's rules, the
+    """How ``colorspace`` was decided (``terms.colour.COLOUR_SOURCES``): asked, the file's header, $OCIO's rules, the
     file type, or assumed; None where it is not known (a clip described by hand). Not what the clip is: clips that
     differ only in it are equal."""
     colour_note: str = dataclasses.field(default="", compare=False)
@@ -97,5 +97,5 @@ class ColourChoice:
         ``path``'s header, the config's rules or its file type say (``facts``: its first frame's header; None for a
         movie)."""
         if self.asked is not None:
-            return colour.PlateColour(colour.resolve(self.asked, self.config), C.COLOUR_SOURCE_ASKED)
+            return colour.PlateColour(colour.resolve(self.asked, self.config), COLOUR_SOURCE_ASKED)
         return colour.decide_colorspace(path, facts, self.config)

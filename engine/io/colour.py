@@ -10,7 +10,7 @@ one-line error listing the close names.
 
 Without ``--colorspace`` the plate's own header decides where it can (``decide_colorspace``): an EXR's
 ``oiio:ColorSpace`` tag, $OCIO's file rules, ACES chromaticities, a DPX's transfer. What nothing in the file says is
-assumed by file type, and said: the decision carries its source (``contract.COLOUR_SOURCES``, recorded in the run
+assumed by file type, and said: the decision carries its source (``terms.colour.COLOUR_SOURCES``, recorded in the run
 and its manifests) and, when assumed, one ``note:`` line for the fit to print.
 
 Three spaces have fixed roles (see docs/colour.md):
@@ -38,10 +38,24 @@ import OpenImageIO as oiio
 
 from .. import contract as C
 from ..errors import InputError
+from ..terms.colour import (
+    COLOUR_BUILTIN_CONFIG,
+    COLOUR_NAME_MAX,
+    COLOUR_SOURCE_ASSUMED,
+    COLOUR_SOURCE_FILE,
+    COLOUR_SOURCE_FORMAT,
+    COLOUR_SOURCE_RULES,
+    EXR_COLORSPACE_ATTRIBUTE,
+    SRGB_GAMMA,
+    SRGB_LINEAR_CUTOFF,
+    SRGB_OFFSET,
+    SRGB_SCALE,
+    SRGB_SLOPE,
+)
 from .images import native_path
 
 #: OpenImageIO's built-in config (the ACES CG config), used when ``$OCIO`` is not set.
-BUILTIN_CONFIG = C.COLOUR_BUILTIN_CONFIG
+BUILTIN_CONFIG = COLOUR_BUILTIN_CONFIG
 SCENE_LINEAR = C.COLOUR_SCENE_LINEAR
 WORKING_ENCODING = C.COLOUR_SRGB
 SRGB = C.COLOUR_SRGB
@@ -229,8 +243,8 @@ def legacy_linear_to_srgb(x: np.ndarray) -> np.ndarray:
     a fit made then uses it, so the fitted values, and the fingerprint that ties the checkpoint to them, match."""
     x = np.asarray(x, dtype=np.float32)
     a = np.abs(x)
-    encoded = C.SRGB_SCALE * np.power(a, 1.0 / C.SRGB_GAMMA, dtype=np.float32) - C.SRGB_OFFSET
-    enc = np.where(a <= C.SRGB_LINEAR_CUTOFF, a * C.SRGB_SLOPE, encoded)
+    encoded = SRGB_SCALE * np.power(a, 1.0 / SRGB_GAMMA, dtype=np.float32) - SRGB_OFFSET
+    enc = np.where(a <= SRGB_LINEAR_CUTOFF, a * SRGB_SLOPE, encoded)
     return (np.sign(x) * enc).astype(np.float32)
 
 
@@ -306,7 +320,7 @@ def _same_chromaticities(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
 #: EXR header attributes that name the file's colour space, in the order they are read: OpenImageIO's tag (what
 #: this engine's renders and OIIO-based tools write) and OpenEXR's standard ``colorInteropID`` (``lin_ap1_scene``).
 #: OpenImageIO itself reports "lin_rec709" for every EXR that has neither, so the header is read as written.
-EXR_TAG_ATTRIBUTES: tuple[str, ...] = (C.EXR_COLORSPACE_ATTRIBUTE, "colorInteropID")
+EXR_TAG_ATTRIBUTES: tuple[str, ...] = (EXR_COLORSPACE_ATTRIBUTE, "colorInteropID")
 #: File types whose own specification makes untagged pixels sRGB (PNG, JPEG/JFIF): no assumption is made there.
 SRGB_BY_FORMAT: tuple[str, ...] = (".png", ".jpg", ".jpeg")
 #: DPX transfers that say nothing of the code values (read with the sRGB curve, as assumed).
@@ -315,7 +329,7 @@ _UNDECLARED_DPX_TRANSFERS = ("", "Undefined", "User defined", "Unspecified video
 
 @dataclass(frozen=True)
 class PlateColour:
-    """A plate's colour space as decided, and how (``contract.COLOUR_SOURCES``); ``note`` is the one ``note:`` line
+    """A plate's colour space as decided, and how (``terms.colour.COLOUR_SOURCES``); ``note`` is the one ``note:`` line
     a fit prints when it was assumed ("" otherwise)."""
 
     space: str
@@ -335,7 +349,7 @@ def header_tag(path: str) -> str:
         return ""
     for value in values:
         if isinstance(value, str) and value.strip() and value.isprintable():
-            return value.strip()[: C.COLOUR_NAME_MAX]
+            return value.strip()[:COLOUR_NAME_MAX]
     return ""
 
 
@@ -372,10 +386,10 @@ def decide_colorspace(path: str, facts: FileColour | None, config: str | None = 
     tag = header_tag(path) if facts is not None else ""
     tagged = _tagged_space(tag, config) if tag else None
     if tagged is not None:
-        return PlateColour(tagged, C.COLOUR_SOURCE_FILE)
+        return PlateColour(tagged, COLOUR_SOURCE_FILE)
     ruled = cfg.getColorSpaceFromFilepath(path) if config != BUILTIN_CONFIG else ""
     if ruled:
-        return PlateColour(resolve(ruled, config, "the config's file rules"), C.COLOUR_SOURCE_RULES)
+        return PlateColour(resolve(ruled, config, "the config's file rules"), COLOUR_SOURCE_RULES)
     if facts is None:  # a movie
         return _assumed(path, role_space(SRGB, config), "a movie states no colour space the engine reads")
     if facts.is_float:
@@ -388,10 +402,10 @@ def decide_colorspace(path: str, facts: FileColour | None, config: str | None = 
             "name its colour space, e.g. --colorspace ACEScct, or set $OCIO to a config with a Cineon log space",
         )
     if encoding == "linear":
-        return PlateColour(role_space(SCENE_LINEAR, config), C.COLOUR_SOURCE_FILE)
+        return PlateColour(role_space(SCENE_LINEAR, config), COLOUR_SOURCE_FILE)
     srgb = role_space(SRGB, config)
     if facts.extension in SRGB_BY_FORMAT:
-        return PlateColour(srgb, C.COLOUR_SOURCE_FORMAT)
+        return PlateColour(srgb, COLOUR_SOURCE_FORMAT)
     if encoding and facts.dpx_transfer not in _UNDECLARED_DPX_TRANSFERS:
         why = f"its DPX transfer {facts.dpx_transfer!r} is read with the sRGB curve"
     else:
@@ -405,10 +419,10 @@ def _float_space(path: str, facts: FileColour, config: str, tag: str) -> PlateCo
     names = _names(config)
     for name, chroma in _ACES_CHROMATICITIES.items():
         if _same_chromaticities(facts.chromaticities, chroma) and name.lower() in names:
-            return PlateColour(names[name.lower()], C.COLOUR_SOURCE_FILE)
+            return PlateColour(names[name.lower()], COLOUR_SOURCE_FILE)
     linear = role_space(SCENE_LINEAR, config)
     if _same_chromaticities(facts.chromaticities, REC709_CHROMATICITIES):
-        return PlateColour(linear, C.COLOUR_SOURCE_FILE)
+        return PlateColour(linear, COLOUR_SOURCE_FILE)
     said = "other chromaticities" if facts.chromaticities else "no chromaticities"
     tagged = f"a tag {tag!r} that {config} does not know" if tag else "no colour-space tag"
     return _assumed(path, linear, f"a float file with {tagged} and {said}")
@@ -420,7 +434,7 @@ def _assumed(path: str, space: str, why: str) -> PlateColour:
         f"note: {path}: colour space assumed {space!r} ({why}) — if the plate is in another, name it with "
         "--colorspace, e.g. ACEScg"
     )
-    return PlateColour(space, C.COLOUR_SOURCE_ASSUMED, note)
+    return PlateColour(space, COLOUR_SOURCE_ASSUMED, note)
 
 
 def default_colorspace(path: str, facts: FileColour | None, config: str | None = None) -> str:

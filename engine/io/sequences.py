@@ -17,6 +17,7 @@ import fileseq
 
 from .. import contract as C
 from ..errors import InputError
+from ..terms.paths import SEQUENCE_TOKEN
 from .clip_messages import FRAME, Role, ext_list, frame_ranges, name_list
 
 IMAGE_EXTENSIONS: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".exr", ".dpx", ".tif", ".tiff")
@@ -24,7 +25,7 @@ IMAGE_EXTENSIONS: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".exr", ".dpx", ".
 
 _NUMBER = re.compile(r"\d+")
 #: A sequence pattern's frame field: ``#``/``@`` padding (with an optional range before it) or printf ``%04d``.
-_PATTERN = C.SEQUENCE_TOKEN
+_PATTERN = SEQUENCE_TOKEN
 #: The longest range a pattern may name: 70 minutes at 24 frames a second, longer than any shot; a range of
 #: 100 million frames would be expanded into numbers before the first file is looked for.
 MAX_PATTERN_FRAMES = 100_000

@@ -14,9 +14,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .. import contract as C
 from ..config import FitConfig
 from ..data.video import far_outside, mask_core
+from ..terms.run_folder import BG_MOTION_DEFORMABLE, BG_MOTION_PAN_ZOOM, BG_MOTION_STATIC
 from .fields import MLP, Grid2D, Grid3D, level_resolutions
 from .motion_init import LayerMotion
 
@@ -32,10 +32,10 @@ ALPHA_ATLAS_COARSEST = 8
 #: narrow and shallow only absorbs lens distortion and rolling shutter, at a fraction of the default's cost.
 PANZOOM_MAPPING_HIDDEN = 16
 PANZOOM_MAPPING_LAYERS = 1
-#: Mapping kinds (contract.BG_MOTION_*): what a layer's mapping is built from.
-MAPPING_DEFORMABLE = C.BG_MOTION_DEFORMABLE
-MAPPING_PAN_ZOOM = C.BG_MOTION_PAN_ZOOM
-MAPPING_STATIC = C.BG_MOTION_STATIC
+#: Mapping kinds (terms.run_folder.BG_MOTION_*): what a layer's mapping is built from.
+MAPPING_DEFORMABLE = BG_MOTION_DEFORMABLE
+MAPPING_PAN_ZOOM = BG_MOTION_PAN_ZOOM
+MAPPING_STATIC = BG_MOTION_STATIC
 
 
 class AtlasModel(nn.Module):

@@ -14,10 +14,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from engine import contract as C
+from engine.terms.protocol import EVENT_CANCELLED, progress_line
+from engine.terms.versions import ENGINE_VERSION
 
 
 def say(event: str, **fields) -> None:
-    print(C.progress_line(event, **fields), flush=True)
+    print(progress_line(event, **fields), flush=True)
 
 
 def farm(argv: list[str], mode: str) -> int:
@@ -39,7 +41,7 @@ def farm(argv: list[str], mode: str) -> int:
 def main(argv: list[str]) -> int:
     mode = os.environ.get("FAKE_ENGINE_MODE", "ok")
     if argv and argv[0] == "--version":
-        print(f"neural-atlas engine {C.ENGINE_VERSION} (fake)")
+        print(f"neural-atlas engine {ENGINE_VERSION} (fake)")
         return 0
     verb = argv[0]
     if verb == C.VERB_FARM:
@@ -103,7 +105,7 @@ def main(argv: list[str]) -> int:
         if cancelled:
             Path(out).mkdir(parents=True, exist_ok=True)
             (Path(out) / C.RUN_CHECKPOINT).write_text("fake")
-            say(C.EVENT_CANCELLED, step=step, checkpoint=str(Path(out) / C.RUN_CHECKPOINT))
+            say(EVENT_CANCELLED, step=step, checkpoint=str(Path(out) / C.RUN_CHECKPOINT))
             return C.EXIT_CANCELLED
         if mode != "hang" and step >= total:
             break

@@ -12,6 +12,25 @@ import numpy as np
 import OpenEXR
 
 from engine import contract as C
+from engine.terms.export_names import (
+    ALPHA_CHANNELS,
+    ATLASES_DIR,
+    EDIT_LAYER_EXT,
+    EDITS_DIR,
+    EXPORT_VERSION_FORMAT,
+    EXR_LAYER,
+    LEGACY_UV_CHANNELS,
+    PASS_FILE_EXT,
+    PASS_FILE_PREFIX,
+    PASSES_DIR,
+    ROLE_BACKGROUND,
+    alpha_pass,
+    layer_name,
+    pass_file_name,
+    uv_pass,
+)
+from engine.terms.manifest import MANIFEST_TAG, MANIFEST_VERSION
+from engine.terms.versions import ENGINE_VERSION
 
 W, H = 40, 24
 FRAMES = (3, 4, 5)  # plate frame numbers: not starting at 0 or 1, so frame mapping is tested
@@ -91,7 +110,7 @@ def plate_size() -> tuple[int, int]:
 
 
 def layer_names(foregrounds: int = 1) -> list[str]:
-    return [C.layer_name(i, foregrounds + 1) for i in range(foregrounds + 1)]
+    return [layer_name(i, foregrounds + 1) for i in range(foregrounds + 1)]
 
 
 def make_export(
@@ -110,7 +129,7 @@ def make_export(
     W, H = size or plate_size()
     rng = np.random.default_rng(seed)
     run = root / "run"
-    exp = run / C.EXPORTS_DIR / C.EXPORT_VERSION_FORMAT.format(1)
+    exp = run / C.EXPORTS_DIR / EXPORT_VERSION_FORMAT.format(1)
     plate_dir = root / "plate"
     frame_files = []
     for t in frames:
@@ -126,21 +145,21 @@ def make_export(
         edit = rng.integers(0, 256, (ah, aw, 4), dtype=np.uint8)
         edit[..., 3][rng.random((ah, aw)) < 0.2] = 0
         edit[..., 3][rng.random((ah, aw)) < 0.2] = 255
-        write_png(run / C.EDITS_DIR / f"{name}{C.EDIT_LAYER_EXT}", edit)
-        write_png(exp / C.ATLASES_DIR / f"{name}.png", rng.integers(0, 256, (ah, aw, 4), dtype=np.uint8))
+        write_png(run / EDITS_DIR / f"{name}{EDIT_LAYER_EXT}", edit)
+        write_png(exp / ATLASES_DIR / f"{name}.png", rng.integers(0, 256, (ah, aw, 4), dtype=np.uint8))
         layers.append(
             {
                 "name": name,
                 "index": idx,
-                "role": C.ROLE_BACKGROUND if idx == 0 else C.ROLE_FOREGROUND,
-                "uv_pass": C.uv_pass(name),
-                "alpha_pass": C.alpha_pass(name),
-                "uv_channels": list(C.LEGACY_UV_CHANNELS),  # the X, Y, Z naming of older exports: still read
-                "alpha_channels": list(C.ALPHA_CHANNELS),
-                "atlas_exr": f"{C.ATLASES_DIR}/{name}.exr",
-                "atlas_png": f"{C.ATLASES_DIR}/{name}.png",
+                "role": ROLE_BACKGROUND if idx == 0 else C.ROLE_FOREGROUND,
+                "uv_pass": uv_pass(name),
+                "alpha_pass": alpha_pass(name),
+                "uv_channels": list(LEGACY_UV_CHANNELS),  # the X, Y, Z naming of older exports: still read
+                "alpha_channels": list(ALPHA_CHANNELS),
+                "atlas_exr": f"{ATLASES_DIR}/{name}.exr",
+                "atlas_png": f"{ATLASES_DIR}/{name}.png",
                 "atlas_size": [aw, ah],
-                "edit_layer": str(run / C.EDITS_DIR / f"{name}{C.EDIT_LAYER_EXT}"),
+                "edit_layer": str(run / EDITS_DIR / f"{name}{EDIT_LAYER_EXT}"),
                 "atlas_box": [0.0, 0.0, 1.0, 1.0],
             }
         )
@@ -148,14 +167,14 @@ def make_export(
         ch = {}
         for idx, (name, z) in enumerate(zip(names, _alphas(t, foregrounds, size), strict=True)):
             u, v = _uv_grid(t, idx, ATLAS_SIZES.get(name, EXTRA_ATLAS_SIZE), (W, H))
-            ch[C.channel_name(C.uv_pass(name), "X")] = u
-            ch[C.channel_name(C.uv_pass(name), "Y")] = v
-            ch[C.channel_name(C.uv_pass(name), "Z")] = z
-            ch[C.channel_name(C.alpha_pass(name), "V")] = z
-        write_exr(exp / C.PASSES_DIR / C.pass_file_name(t), ch)
+            ch[C.channel_name(uv_pass(name), "X")] = u
+            ch[C.channel_name(uv_pass(name), "Y")] = v
+            ch[C.channel_name(uv_pass(name), "Z")] = z
+            ch[C.channel_name(alpha_pass(name), "V")] = z
+        write_exr(exp / PASSES_DIR / pass_file_name(t), ch)
     manifest = {
-        C.MANIFEST_TAG: C.MANIFEST_VERSION,
-        "engine_version": C.ENGINE_VERSION,
+        MANIFEST_TAG: MANIFEST_VERSION,
+        "engine_version": ENGINE_VERSION,
         "run_dir": str(run),
         "created": "2026-01-01T00:00:00Z",
         "clip": {
@@ -172,11 +191,11 @@ def make_export(
             **(clip_fields or {}),
         },
         "passes": {
-            "dir": C.PASSES_DIR,
-            "pattern": C.PASS_FILE_PREFIX + "{frame:05d}" + C.PASS_FILE_EXT,
-            "blender_pattern": C.PASS_FILE_PREFIX + "#####" + C.PASS_FILE_EXT,
+            "dir": PASSES_DIR,
+            "pattern": PASS_FILE_PREFIX + "{frame:05d}" + PASS_FILE_EXT,
+            "blender_pattern": PASS_FILE_PREFIX + "#####" + PASS_FILE_EXT,
             "frames": list(frames),
-            "exr_layer": C.EXR_LAYER,
+            "exr_layer": EXR_LAYER,
             "resolution": [W, H],
         },
         "layers": layers,

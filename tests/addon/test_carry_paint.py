@@ -21,6 +21,7 @@ from neural_atlas.addon.core import needs  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 
 from engine import contract as C  # noqa: E402
+from engine.terms.export_names import EDITS_DIR  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 TAG = f"[bpy {bpy.app.version_string}]"
@@ -65,7 +66,7 @@ def test_carry_paint_lays_a_split_fits_paint_on_the_imported_one_layer_fit(blend
     img.pixels.foreach_get(px)
     rgba = px.reshape(h, w, 4)
     assert (rgba[..., 3] > 0.5).sum() > 100 and (rgba[..., 0] > 0.5).sum() > 20 and (rgba[..., 2] > 0.5).sum() > 20
-    assert len(list((whole.parent.parent.parent / C.EDITS_DIR / "history").iterdir())) == 1
+    assert len(list((whole.parent.parent.parent / EDITS_DIR / "history").iterdir())) == 1
 
     props.carry_from = str(whole.parent.parent.parent)  # its own run folder: Refine is what carries that
     with pytest.raises(RuntimeError, match="this fit's own run folder"):

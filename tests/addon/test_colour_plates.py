@@ -14,6 +14,8 @@ import pytest
 from neural_atlas.addon.core import tree_plan as P
 
 from engine import contract as C
+from engine.terms.colour import COLOUR_BUILTIN_CONFIG
+from engine.terms.export_names import frame_padding
 from tests.addon.fake_export import blender_srgb_lut, read_exr_rgba
 from tests.addon.helpers import engine_python
 
@@ -33,9 +35,9 @@ def test_manifest_colour_spaces_map_to_blender_names():
         ("lin_ap1", "ACEScg"),
         ("ACES2065-1", "ACES2065-1"),
     ]:
-        clip = {"colorspace": name, "colour_config": C.COLOUR_BUILTIN_CONFIG}
+        clip = {"colorspace": name, "colour_config": COLOUR_BUILTIN_CONFIG}
         assert P.plate_colorspace(clip, BLENDER_45) == P.plate_colorspace(clip, BLENDER_50) == blender
-    log = {"colorspace": "ACEScct", "colour_config": C.COLOUR_BUILTIN_CONFIG}
+    log = {"colorspace": "ACEScct", "colour_config": COLOUR_BUILTIN_CONFIG}
     assert P.plate_colorspace(log, BLENDER_50) == "ACEScct"
     with pytest.raises(P.PlanError) as err:
         P.plate_colorspace(log, BLENDER_45)
@@ -99,7 +101,7 @@ def test_blender_render_equals_engine_render(blender, tmp_path, kind):
     )  # fmt: skip
     errors = []
     clip = json.loads(Path(manifest).read_text())["clip"]
-    padding = C.frame_padding(clip["frame_files"], clip["frame_numbers"])  # engine render pads as the plate's files
+    padding = frame_padding(clip["frame_files"], clip["frame_numbers"])  # engine render pads as the plate's files
     for f in plan_frames(manifest):
         a = read_exr_rgba(out_b / f"edit.{f:05d}.exr")[..., :3]
         b = read_exr_rgba(out_e / f"edit.{f:0{padding}d}.exr")[..., :3]

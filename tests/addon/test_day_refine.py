@@ -29,6 +29,7 @@ from test_day_reopen import _pixels  # noqa: E402
 from test_refine import FAST, _stroke  # noqa: E402
 
 from engine import contract as C  # noqa: E402
+from engine.terms.cli import VERB_RENDER  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 TAG = f"[bpy {bpy.app.version_string}]"
@@ -45,8 +46,8 @@ def _compare(manifest: Path, out: Path) -> tuple[float, float]:
     assert bpy.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out / "blender"), file_format="exr") == {
         "FINISHED"
     }, bpy.context.scene.neural_atlas.render_status
-    py = engine_python(C.VERB_RENDER, "torch")
-    args = [py, "-m", "engine", C.VERB_RENDER, str(manifest), "--out", str(out / "engine"), "--format", "exr",
+    py = engine_python(VERB_RENDER, "torch")
+    args = [py, "-m", "engine", VERB_RENDER, str(manifest), "--out", str(out / "engine"), "--format", "exr",
             "--filter", P.FILTER_NEAREST, "--no-bar"]  # fmt: skip
     done = subprocess.run(args, cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]

@@ -30,6 +30,7 @@ from neural_atlas.addon import compat  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 
 from engine import contract as C  # noqa: E402
+from engine.terms.export_names import EDITS_DIR  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 V5 = compat.V5
@@ -160,19 +161,19 @@ def test_fit_paint_render_matches_engine_render(blender, tmp_path, monkeypatch):
     # engine both switch to it, paint is written in float and saved as float; nothing but float is decoded
     props.filter_type = exact
     pngs = {
-        name: (Path(props.run_dir) / C.EDITS_DIR / f"{name}.png").read_bytes() for name in ("Foreground", "Background")
+        name: (Path(props.run_dir) / EDITS_DIR / f"{name}.png").read_bytes() for name in ("Foreground", "Background")
     }
     assert bpy.ops.neural_atlas.float_edits("EXEC_DEFAULT") == {"FINISHED"}
     for name in ("Foreground", "Background"):
         img = bpy.data.images[P.edit_image_name(name)]
         assert img.filepath.endswith(f"{name}.exr") and img.is_float and img.colorspace_settings.name == "Non-Color"
-        assert (Path(props.run_dir) / C.EDITS_DIR / f"{name}.png").read_bytes() == pngs[name]  # PNG untouched
-    exr_fg = read_exr_rgba(Path(props.run_dir) / C.EDITS_DIR / "Foreground.exr")
+        assert (Path(props.run_dir) / EDITS_DIR / f"{name}.png").read_bytes() == pngs[name]  # PNG untouched
+    exr_fg = read_exr_rgba(Path(props.run_dir) / EDITS_DIR / "Foreground.exr")
     assert np.abs(exr_fg - np.float32([1.0, 0.1**0 * 0.01002, 0.0, 1.0])).max() < 1e-3  # sRGB 0.1 -> 0.0100
     _paint("NA_Edit_Foreground", (2.0, 0.5, 0.001, 1.0), (0.0, 0.0, 1.0, 1.0))  # > 1 and < 1/255: float only
     _paint("NA_Edit_Background", (0.0, 0.1, 0.5, 0.5), (0.0, 0.3, 1.0, 0.6))  # premultiplied: 0.2, 1.0 at a=0.5
     assert bpy.ops.neural_atlas.save_edits("EXEC_DEFAULT") == {"FINISHED"}
-    saved = read_exr_rgba(Path(props.run_dir) / C.EDITS_DIR / "Foreground.exr")
+    saved = read_exr_rgba(Path(props.run_dir) / EDITS_DIR / "Foreground.exr")
     assert np.abs(saved[0, 0] - np.float32([2.0, 0.5, 0.001, 1.0])).max() == 0.0  # top row: exact float paint
     out_b, out_e = tmp_path / "blender_float", tmp_path / "engine_float"
     assert bpy.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out_b), file_format="exr") == {"FINISHED"}

@@ -30,6 +30,8 @@ from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 from neural_atlas.addon.ops import farm as farm_ops  # noqa: E402
 
 from engine import contract as C  # noqa: E402
+from engine.terms.cli import EXPORT_STAGE_ARG  # noqa: E402
+from engine.terms.farm import FLAMENCO_API_CHECK, FLAMENCO_API_SUBMIT, FLAMENCO_JOB_TYPE  # noqa: E402
 from tests.farm.flamenco_helpers import NODE, StubManager  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -242,7 +244,7 @@ def test_panel_shows_the_button_and_the_status_line(farm_scene):
 
 
 #: The job type's path on a Manager (the submitter reads its etag first).
-JOB_TYPE_PATH = f"/api/v3/jobs/type/{C.FLAMENCO_JOB_TYPE}"
+JOB_TYPE_PATH = f"/api/v3/jobs/type/{FLAMENCO_JOB_TYPE}"
 
 
 @pytest.mark.skipif(NODE is None, reason="node (v20): the stub Manager compiles each job with the real job type")
@@ -258,11 +260,11 @@ def test_submit_to_a_stub_flamenco_manager(farm_scene, tmp_path, monkeypatch):
     # the stub answers a body that is no SubmittedJob, or that the real job type cannot compile, with an error
     assert len(manager.jobs) == 1
     calls = [(method, path) for method, path, _ in manager.requests()]
-    assert calls[-2:] == [("POST", C.FLAMENCO_API_CHECK), ("POST", C.FLAMENCO_API_SUBMIT)]  # check, then submit
+    assert calls[-2:] == [("POST", FLAMENCO_API_CHECK), ("POST", FLAMENCO_API_SUBMIT)]  # check, then submit
     assert {m for m, _ in calls[:-2]} == {"GET"} and ("GET", JOB_TYPE_PATH) in calls
     check, submitted = (body for _, _, body in manager.requests()[-2:])
     assert check == submitted
-    assert submitted["type"] == C.FLAMENCO_JOB_TYPE and submitted["priority"] == 73
+    assert submitted["type"] == FLAMENCO_JOB_TYPE and submitted["priority"] == 73
     assert submitted.get("type_etag") == manager.etag
     assert "00003" in submitted["name"]
     assert submitted["submitter_platform"] in ("linux", "windows", "darwin")
@@ -369,7 +371,7 @@ def _imported(blender, manifest: Path) -> dict:
 def test_a_farm_export_imports_as_a_plain_export(blender, tmp_path):
     """A run folder exported by the farm (``--stage atlases``, ``passes`` in two chunks, ``publish``) imports as the
     plain export of the same fit: the same tree, the same files (relative to the export), the same render."""
-    py = _engine_python(C.VERB_EXPORT, needs=C.EXPORT_STAGE_ARG)
+    py = _engine_python(C.VERB_EXPORT, needs=EXPORT_STAGE_ARG)
     clip = tmp_path / "clip"
     subprocess.run(
         [
@@ -389,10 +391,10 @@ def test_a_farm_export_imports_as_a_plain_export(blender, tmp_path):
     _run(py, C.VERB_FIT, str(clip / "frames"), "--mask", str(clip / "masks"), "--out", str(run), *fast, "--no-bar")
     plain = Path(_run(py, C.VERB_EXPORT, str(run), "--no-bar").strip().splitlines()[-1])
     into = ["--into", "v002"]
-    _run(py, C.VERB_EXPORT, str(run), *into, C.EXPORT_STAGE_ARG, "atlases")
-    _run(py, C.VERB_EXPORT, str(run), *into, C.EXPORT_STAGE_ARG, "passes", "--frames", "0-1")
-    _run(py, C.VERB_EXPORT, str(run), *into, C.EXPORT_STAGE_ARG, "passes", "--frames", "2-3")
-    staged = Path(_run(py, C.VERB_EXPORT, str(run), *into, C.EXPORT_STAGE_ARG, "publish").strip().splitlines()[-1])
+    _run(py, C.VERB_EXPORT, str(run), *into, EXPORT_STAGE_ARG, "atlases")
+    _run(py, C.VERB_EXPORT, str(run), *into, EXPORT_STAGE_ARG, "passes", "--frames", "0-1")
+    _run(py, C.VERB_EXPORT, str(run), *into, EXPORT_STAGE_ARG, "passes", "--frames", "2-3")
+    staged = Path(_run(py, C.VERB_EXPORT, str(run), *into, EXPORT_STAGE_ARG, "publish").strip().splitlines()[-1])
     assert staged == run / C.EXPORTS_DIR / "v002" / C.MANIFEST_NAME and plain != staged
     a, b = _imported(blender, plain), _imported(blender, staged)
     assert a["nodes"] == b["nodes"] and "NA_Passes" in a["nodes"]

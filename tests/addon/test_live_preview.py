@@ -24,6 +24,7 @@ from neural_atlas.addon.core import preview_plan as V  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 
 from engine import contract as C  # noqa: E402
+from engine.terms.export_names import EDITS_DIR, PASSES_DIR, pass_file_name  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 TAG = f"[bpy {bpy.app.version_string}]"
@@ -134,7 +135,7 @@ def test_a_stroke_shows_in_the_preview_at_once(blender, tmp_path):
     equation says, and the files on disk are untouched."""
     manifest, scene = _import(blender, tmp_path)
     before = X.read_exr_rgba(Path(preview_plane.render_frame(scene, FRAME_A, str(tmp_path / "before.exr"))))
-    disk = {p: p.read_bytes() for p in (tmp_path / "run" / C.EDITS_DIR).iterdir()}
+    disk = {p: p.read_bytes() for p in (tmp_path / "run" / EDITS_DIR).iterdir()}
     for layer, colour in (("Background", (0.0, 0.0, 1.0, 1.0)), ("Foreground", (1.0, 1.0, 0.0, 1.0))):
         _paint(bpy.data.images[P.edit_image_name(layer)], colour, (0.0, 0.0, 1.0, 1.0))  # the whole atlas
     # what the viewport shows: the timer's tick (no event loop runs headless: called as the timer would) copies the
@@ -148,7 +149,7 @@ def test_a_stroke_shows_in_the_preview_at_once(blender, tmp_path):
     after = X.read_exr_rgba(Path(preview_plane.render_frame(scene, FRAME_A, str(tmp_path / "after.exr"))))
     assert {p: p.read_bytes() for p in disk} == disk
     # the whole atlas painted opaque: out = plate * (1 - Zb - Zf) + blue * Zb + yellow * Zf (Z: the passes' alphas)
-    with OpenEXR.File(str(manifest.parent / C.PASSES_DIR / C.pass_file_name(FRAME_A))) as f:
+    with OpenEXR.File(str(manifest.parent / PASSES_DIR / pass_file_name(FRAME_A))) as f:
         ch = {k: np.asarray(v.pixels, np.float64) for k, v in f.channels().items()}
     zb, zf = ch["Atlas.UVBackground.Z"], ch["Atlas.UVForeground.Z"]
     plate = X.srgb_to_linear(X.read_png_rgba8(tmp_path / "plate" / f"{FRAME_A:05d}.png")[..., :3] / 255.0)
@@ -268,7 +269,7 @@ def test_a_proxy_preview_is_smaller_and_the_render_stays_full_size(blender, tmp_
     _paint(bpy.data.images[P.edit_image_name("Background")], (1.0, 0.2, 0.05, 0.6), (0.3, 0.2, 0.8, 0.7))
     _paint(bpy.data.images[P.edit_image_name("Foreground")], (0.1, 0.9, 0.3, 0.8), (0.1, 0.1, 0.9, 0.6))
     full = X.read_exr_rgba(Path(preview_plane.render_frame(scene, FRAME_A, str(tmp_path / "full.exr"))))
-    made = [manifest.parent / V.PREVIEW_UV_DIR, tmp_path / "run" / C.EDITS_DIR]
+    made = [manifest.parent / V.PREVIEW_UV_DIR, tmp_path / "run" / EDITS_DIR]
     disk = {p: (p.read_bytes(), p.stat().st_mtime_ns) for d in made for p in d.rglob("*") if p.is_file()}
     painted = {n: _pixels(bpy.data.images[P.edit_image_name(n)]) for n in ("Background", "Foreground")}
 

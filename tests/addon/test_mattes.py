@@ -18,6 +18,7 @@ from neural_atlas.addon import compat  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 
 from engine import contract as C  # noqa: E402
+from engine.terms.export_names import alpha_pass, pass_file_name  # noqa: E402
 
 TAG = f"[bpy {bpy.app.version_string}]"
 FRAMES = (1001, 1002, 1003)
@@ -33,7 +34,7 @@ def _read_matte(path) -> np.ndarray:
 
 def _passes(manifest, frame: int) -> dict[str, np.ndarray]:
     m = json.loads(manifest.read_text())
-    with OpenEXR.File(str(manifest.parent / m["passes"]["dir"] / C.pass_file_name(frame))) as f:
+    with OpenEXR.File(str(manifest.parent / m["passes"]["dir"] / pass_file_name(frame))) as f:
         return {k: np.asarray(v.pixels, np.float64) for k, v in f.channels().items()}
 
 
@@ -70,14 +71,14 @@ def test_render_writes_each_layers_matte_and_the_paints_per_plate_frame(blender,
         ch = _passes(manifest, frame)
         for layer in layers:
             matte = _read_matte(P.matte_path(str(out), layer, frame))
-            alpha = ch[C.channel_name(C.alpha_pass(layer), "V")]
+            alpha = ch[C.channel_name(alpha_pass(layer), "V")]
             worst_layer = max(worst_layer, float(np.abs(matte - alpha).max()))
         # the paint's coverage: sum_i A_i, the alpha the render puts over the plate (plate * (1 - A) + rgb)
         paint = _read_matte(P.matte_path(str(out), P.PAINT_MATTE, frame))
         worst_paint = max(worst_paint, float(np.abs(paint - _paint_coverage(manifest, frame)).max()))
         # the whole object (every foreground layer: the parts Find Parts split it into) as one matte
         whole = _read_matte(P.matte_path(str(out), P.FOREGROUNDS_MATTE, frame))
-        alphas = sum(ch[C.channel_name(C.alpha_pass(layer), "V")] for layer in layers[1:])
+        alphas = sum(ch[C.channel_name(alpha_pass(layer), "V")] for layer in layers[1:])
         worst_object = max(worst_object, float(np.abs(whole - alphas).max()))
     print(
         f"{TAG} mattes vs alpha passes: max abs err {worst_layer:.1e}; paint matte vs sum A_i: {worst_paint:.1e}; "
@@ -133,7 +134,7 @@ def test_the_tree_groups_every_node_in_a_labelled_frame_where_the_plan_puts_it(b
     for layer in layers:
         reroute = ours[P.matte_node_name(layer)]
         src = reroute.inputs[0].links[0].from_socket
-        assert (src.node.name, src.name) == ("NA_Passes", C.alpha_pass(layer))
+        assert (src.node.name, src.name) == ("NA_Passes", alpha_pass(layer))
     paint = ours[P.matte_node_name(P.PAINT_MATTE)].inputs[0].links[0].from_socket.node
     alpha_into_over = ours["NA_SetAlpha"].inputs["Alpha"].links[0].from_socket.node
     assert paint == alpha_into_over

@@ -35,6 +35,8 @@ from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 from neural_atlas.addon.ops import frame_paint as fp_ops  # noqa: E402
 
 from engine import contract as C  # noqa: E402
+from engine.terms.cli import VERB_RENDER  # noqa: E402
+from engine.terms.export_names import alpha_pass, pass_file_name, uv_pass  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 TAG = f"[bpy {bpy.app.version_string}]"
@@ -64,7 +66,7 @@ def _attach_foreground(manifest: Path) -> None:
     m = C.load_manifest(str(manifest))
     y, x = np.mgrid[0:H, 0:W]
     for t in m["passes"]["frames"]:
-        path = manifest.parent / m["passes"]["dir"] / C.pass_file_name(t)
+        path = manifest.parent / m["passes"]["dir"] / pass_file_name(t)
         with OpenEXR.File(str(path)) as f:
             ch = {k: np.asarray(v.pixels, np.float32).copy() for k, v in f.channels().items()}
         cx, cy = _centre(t)
@@ -73,11 +75,11 @@ def _attach_foreground(manifest: Path) -> None:
         u = (x + 0.5 - cx) / 40.0 + 0.5
         v = (cy - (y + 0.5)) / 40.0 + 0.5
         for name, val in (("X", u), ("Y", v), ("Z", fg)):
-            ch[C.channel_name(C.uv_pass("Foreground"), name)] = val.astype(np.float32)
-        ch[C.channel_name(C.alpha_pass("Foreground"), "V")] = fg
+            ch[C.channel_name(uv_pass("Foreground"), name)] = val.astype(np.float32)
+        ch[C.channel_name(alpha_pass("Foreground"), "V")] = fg
         bg = (0.85 * (1.0 - fg)).astype(np.float32)
-        ch[C.channel_name(C.uv_pass("Background"), "Z")] = bg
-        ch[C.channel_name(C.alpha_pass("Background"), "V")] = bg
+        ch[C.channel_name(uv_pass("Background"), "Z")] = bg
+        ch[C.channel_name(alpha_pass("Background"), "V")] = bg
         X.write_exr(path, ch)
 
 
@@ -288,7 +290,7 @@ def test_paint_laid_on_frame_n_lands_on_the_atlas_and_shows_on_every_frame(blend
         assert where[t][0] == where[N][0] and where[t][2] == where[N][2]
         assert where[t][1] - where[N][1] == pytest.approx(SPEED * (t - N), abs=1e-9)
     engine_out = tmp_path / "engine"
-    _engine(py, C.VERB_RENDER, str(manifest), "--out", str(engine_out), "--format", "exr", "--filter", "nearest")
+    _engine(py, VERB_RENDER, str(manifest), "--out", str(engine_out), "--format", "exr", "--filter", "nearest")
     vs_engine = max(
         float(np.abs(_read_exr(out / f"edit.{t:05d}.exr") - _read_exr(engine_out / f"edit.{t:05d}.exr")).max())
         for t in (3, 4, 5)

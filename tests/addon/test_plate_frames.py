@@ -18,7 +18,7 @@ from neural_atlas.addon.core import frames as F  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 from neural_atlas.addon.ops.import_run import clip_note  # noqa: E402
 
-from engine import contract as C  # noqa: E402
+from engine.terms.export_names import pass_file_name  # noqa: E402
 
 FRAMES = (1001, 1002, 1003)
 TIMING = {"rate": [24000, 1001], "fps": 24000 / 1001, "pixel_aspect": 2.0, "timecode": "01:00:00:00"}
@@ -114,7 +114,7 @@ def test_a_shot_keeps_its_frame_numbers_end_to_end(blender, tmp_path):
     assert os.path.basename(clip.filepath) == "plate.1011.png"
     passes = compat.scene_tree(scene).nodes["NA_Passes"]
     assert (passes.frame_start, passes.frame_duration, passes.frame_offset) == (1011, 12, 1010)
-    assert os.path.basename(passes.image.filepath) == C.pass_file_name(1011)
+    assert os.path.basename(passes.image.filepath) == pass_file_name(1011)
 
     out = tmp_path / "out"
     assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out), file_format="exr") == {"FINISHED"}

@@ -23,7 +23,7 @@ from neural_atlas.addon.core import preview_plan as V  # noqa: E402
 from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 from test_day_reopen import _pixels  # noqa: E402
 
-from engine import contract as C  # noqa: E402
+from engine.terms.cli import VERB_RENDER  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 TAG = f"[bpy {bpy.app.version_string}]"
@@ -50,8 +50,8 @@ def _brush(img, rgba: tuple[float, float, float, float], box: tuple[float, float
 
 def engine_render(manifest: Path, out: Path, filt: str) -> dict[int, np.ndarray]:
     """``engine render MANIFEST --filter filt`` of the edit layers saved in the run folder; RGBA per frame."""
-    py = engine_python(C.VERB_RENDER, "torch")
-    args = [py, "-m", "engine", C.VERB_RENDER, str(manifest), "--out", str(out), "--format", "exr", "--filter", filt]
+    py = engine_python(VERB_RENDER, "torch")
+    args = [py, "-m", "engine", VERB_RENDER, str(manifest), "--out", str(out), "--format", "exr", "--filter", filt]
     done = subprocess.run([*args, "--no-bar"], cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]
     return frames(out)
@@ -68,7 +68,7 @@ def frames(out: Path) -> dict[int, np.ndarray]:
 def engine_filters() -> tuple[str, ...]:
     """The engine's filter names (``engine render --filter``), from its own interpreter (this one may lack the
     engine's packages)."""
-    py = engine_python(C.VERB_RENDER, "torch")
+    py = engine_python(VERB_RENDER, "torch")
     code = "from engine.edit.equations import FILTERS; print(*FILTERS)"
     done = subprocess.run([py, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr[-2000:]

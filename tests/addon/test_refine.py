@@ -25,6 +25,7 @@ from neural_atlas.addon.core import tree_plan as P  # noqa: E402
 from neural_atlas.addon.ops import refine as refine_ops  # noqa: E402
 
 from engine import contract as C  # noqa: E402
+from engine.terms.export_names import EDITS_ALIGNED, EDITS_DIR  # noqa: E402
 
 FAST = "steps=6 batch=256 eval_every=3 eval_pixels=256 bootstrap_steps=3 global_rigidity_steps=2"
 #: The stroke: a block in the middle of the background's atlas (opaque red, 8-bit sRGB straight); the background owns
@@ -89,8 +90,8 @@ def test_refine_keeps_and_realigns_the_paint(blender, tmp_path, monkeypatch):
     assert props.manifest.endswith(str(Path("v002") / C.MANIFEST_NAME)), props.manifest
     assert (run / C.EXPORTS_DIR / "v001" / C.MANIFEST_NAME).is_file()  # the export the paint was made on stays
     assert json.loads((run / C.RUN_METRICS).read_text())["steps"] == 10  # 6 + 4
-    assert json.loads((run / C.EDITS_DIR / C.EDITS_ALIGNED).read_text())["export"] == "v002"
-    (kept,) = (run / C.EDITS_DIR / "history").iterdir()  # the layer as painted, byte for byte
+    assert json.loads((run / EDITS_DIR / EDITS_ALIGNED).read_text())["export"] == "v002"
+    (kept,) = (run / EDITS_DIR / "history").iterdir()  # the layer as painted, byte for byte
     assert kept.read_bytes() == on_disk_before
     # the re-aligned paint: on disk and in Blender (reloaded), most of it where it was on this tiny refine
     edit = bpy.data.images[P.edit_image_name("Background")]

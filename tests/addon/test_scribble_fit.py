@@ -28,6 +28,7 @@ from neural_atlas.addon.core import running  # noqa: E402
 from neural_atlas.addon.core import scribble_math as S  # noqa: E402
 
 from engine import contract as C  # noqa: E402
+from engine.terms.run_folder import FIT_AUTO_PARTS_FLAG  # noqa: E402
 
 RED, GREEN, WHITE = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (1.0, 1.0, 1.0)
 
@@ -252,7 +253,7 @@ def test_real_annotation_strokes_from_the_scribble_layers(plain_scene, tmp_path)
     assert props.imported_layers == "Background, Foreground1, Foreground2"
 
 
-PARTS_FLAGS = {C.FIT_AUTO_PARTS_FLAG, C.FIT_NO_AUTO_PARTS_FLAG}
+PARTS_FLAGS = {FIT_AUTO_PARTS_FLAG, C.FIT_NO_AUTO_PARTS_FLAG}
 
 
 @pytest.mark.parametrize("find_parts", [True, False], ids=["on", "off"])

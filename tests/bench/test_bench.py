@@ -35,6 +35,9 @@ from engine.fit.estimate import BENCHMARK_TABLE
 from engine.fit.eta import StepClock
 from engine.fit.fit_inputs import FitInputs
 from engine.fit.run_folder import RunFolder
+from engine.terms.protocol import progress_line
+from engine.terms.run_folder import BG_MOTIONS, RUN_LOG
+from engine.terms.versions import SCHEMA_VERSION
 
 SPEC = SceneSpec(width=64, height=48, frames=6, fg_size=(24, 18), fg_start=(12.0, 10.0), fg_velocity=(3.0, 1.0))
 TINY = ["--threads", "1", "--set", "batch=400", "--set", "paper.batch=300", "--set", "paper.pretrain_iters=2"]
@@ -159,7 +162,7 @@ def test_estimate_json(clip, capsys):
     args = ["estimate", str(clip / "frames"), "--mask", str(clip / "masks"), "--presets", "draft,balanced"]
     assert main([*args, "--calib-seconds", "0.05", "--json", "--threads", "1", "--set", "batch=300"]) == C.EXIT_OK
     result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert result[C.ESTIMATE_TAG] == C.SCHEMA_VERSION
+    assert result[C.ESTIMATE_TAG] == SCHEMA_VERSION
     draft, balanced = result["presets"]
     assert (draft["preset"], draft["expected_psnr"]) == ("draft", BENCHMARK_TABLE["draft"]["psnr"])
     assert balanced["expected_psnr"] == BENCHMARK_TABLE["balanced"]["psnr"]
@@ -202,10 +205,10 @@ def test_per_preset_overrides():
 
 def test_eta_error_of_a_fit_log(tmp_path):
     """Steps that get cheaper after the first half: the early ETA overestimates, the error says by how much."""
-    lines = [C.progress_line(C.EVENT_STAGE, stage="train", message="x")]
+    lines = [progress_line(C.EVENT_STAGE, stage="train", message="x")]
     for step, elapsed in ((10, 20.0), (50, 100.0)):  # 2 s/step so far
-        lines.append(C.progress_line(C.EVENT_PROGRESS, step=step, total=100, elapsed=elapsed, eta=(100 - step) * 2.0))
-    (tmp_path / C.RUN_LOG).write_text("\n".join(lines) + "\n")
+        lines.append(progress_line(C.EVENT_PROGRESS, step=step, total=100, elapsed=elapsed, eta=(100 - step) * 2.0))
+    (tmp_path / RUN_LOG).write_text("\n".join(lines) + "\n")
     metrics = {"psnr": 20.0, "mse": 0.01, "alpha_iou": [], "steps": 100, "train_seconds": 150.0}  # 2nd half: 1 s/step
     metrics |= {"seconds_per_step": 1.5, "preset": "draft", "model": "fast", "device": "cpu", "working_size": [8, 8]}
     RunFolder(tmp_path).write_metrics({**metrics, "frames": 2, "engine_version": "x", "torch_version": "y"})
@@ -342,7 +345,7 @@ def test_the_tools_run_outside_the_product_cli(clip, tmp_path, capsys):
     scene_args = [str(clip / "frames"), "--mask", str(clip / "masks"), "--steps", "2", "--out", str(tmp_path / "s")]
     assert bench_main(["scene-speed", *scene_args]) == C.EXIT_OK
     res = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert res["steps"] == 2 and res["auto"]["background_motion"] in C.BG_MOTIONS and res["speedup"] > 0
+    assert res["steps"] == 2 and res["auto"]["background_motion"] in BG_MOTIONS and res["speedup"] > 0
 
 
 def test_speed_times_a_preset_beside_its_variant(clip, tmp_path, capsys):

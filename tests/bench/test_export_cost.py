@@ -11,6 +11,7 @@ from bench.__main__ import main as bench_main
 from bench.export_cost import COMPARISONS, measure_export_cost, paint_edits, scratch_run, timed_export, timed_render
 from engine import contract as C
 from engine.errors import InputError
+from engine.terms.export_names import PASSES_DIR
 from tests.engine.export.tiny_run import make_run
 from tests.folders import tree_digest
 
@@ -58,7 +59,7 @@ def test_passes_and_frames_written_ahead_and_in_turn_are_the_same_files(tiny, tm
     ahead, in_turn = COMPARISONS["write-ahead"]
     runs = [timed_export(copy, version, kind, 1) for version, kind in (("v001", ahead), ("v002", in_turn))]
     assert [r["kind"] for r in runs] == ["write ahead", "in turn"] and all(r["wall_seconds"] > 0 for r in runs)
-    a, b = (tree_digest(copy / C.EXPORTS_DIR / v / C.PASSES_DIR) for v in ("v001", "v002"))
+    a, b = (tree_digest(copy / C.EXPORTS_DIR / v / PASSES_DIR) for v in ("v001", "v002"))
     assert a == b and len(a) == 4
     # renders of the export, painted, written ahead and in turn: the same frames, byte for byte
     manifest = copy / C.EXPORTS_DIR / "v001" / C.MANIFEST_NAME

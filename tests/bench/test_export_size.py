@@ -12,6 +12,7 @@ from bench.__main__ import main as bench_main
 from bench.export_size import VARIANTS, measure_export_size
 from engine import contract as C
 from engine.errors import InputError
+from engine.terms.export_names import PASS_PRECISION_FULL, PASSES_DIR
 from tests.engine.export.tiny_run import export, make_run
 from tests.folders import tree_digest
 
@@ -19,14 +20,14 @@ from tests.folders import tree_digest
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory):
     _, _, run = make_run(tmp_path_factory.mktemp("export_size"))
-    return export(run, precision=C.PASS_PRECISION_FULL).parent  # every bit: the rounding is what is measured
+    return export(run, precision=PASS_PRECISION_FULL).parent  # every bit: the rounding is what is measured
 
 
 def test_each_choice_is_measured_within_its_error_bound(exported):
     before = tree_digest(exported)
     rows = {r.variant: r for r in measure_export_size(exported, frames=3)}
     assert list(rows) == [v[0] for v in VARIANTS] and tree_digest(exported) == before
-    first = sorted((exported / C.PASSES_DIR).glob("*.exr"))[0]
+    first = sorted((exported / PASSES_DIR).glob("*.exr"))[0]
     today = rows["as exported: float32, STMap copy, ZIP"]
     assert today.channels == 16 and today.max_half_error == 0.0 and today.max_uv_error == 0.0  # 2 layers
     assert today.mb_per_frame == pytest.approx(os.path.getsize(first) / 1e6, rel=0.25)

@@ -27,6 +27,8 @@ from bench.sharpness import atlas_sharpness
 from engine import contract as C
 from engine.edit.preview import TILE_W
 from engine.io.images import read_image, write_png
+from engine.terms.cli import EXPORT_FOLLOW_FLOW_FLAG
+from engine.terms.run_folder import AUTO_PARTS_DIR, FIT_AUTO_PARTS_FLAG
 from tests.engine.fake_export import make_fake_export
 
 STEPS = ("steps=100", "bootstrap_steps=100", "global_rigidity_steps=20")
@@ -176,13 +178,13 @@ def test_auto_parts_fit_an_object_that_moves_as_one_piece_as_one_layer(tmp_path)
     (row,) = record["rows"]
     assert record["auto_parts"] and row["layers"] == 2 and row["scribbles"] is None
     assert "nothing to split" in row["auto_parts"] and "fitted as one layer" in row["auto_parts"]  # the fit's line
-    assert not (tmp_path / "out" / "runs" / "limbs_jump" / C.AUTO_PARTS_DIR).exists()
+    assert not (tmp_path / "out" / "runs" / "limbs_jump" / AUTO_PARTS_DIR).exists()
     assert "the strokes `fit --auto-parts` draws" in (tmp_path / "out" / PAINT_MD).read_text().splitlines()[0]
 
 
 @pytest.mark.parametrize(
     ("auto_parts", "flags"),
-    [(None, []), (True, [C.FIT_AUTO_PARTS_FLAG]), (False, [C.FIT_NO_AUTO_PARTS_FLAG])],
+    [(None, []), (True, [FIT_AUTO_PARTS_FLAG]), (False, [C.FIT_NO_AUTO_PARTS_FLAG])],
     ids=["the-fits-default", "auto-parts", "no-auto-parts"],
 )
 def test_the_fit_gets_the_split_flag_the_table_asks_for(monkeypatch, tmp_path, auto_parts, flags):
@@ -202,9 +204,9 @@ def test_the_fit_gets_the_split_flag_the_table_asks_for(monkeypatch, tmp_path, a
     how = paint_table.TableFit(threads=1, split=split)
     paint_table.fit_and_export(tmp_path / "f", [tmp_path / "m"], tmp_path / "run", how, tmp_path / "log")
     fit, export = calls
-    parts = {C.FIT_AUTO_PARTS_FLAG, C.FIT_NO_AUTO_PARTS_FLAG}
+    parts = {FIT_AUTO_PARTS_FLAG, C.FIT_NO_AUTO_PARTS_FLAG}
     assert [a for a in fit if a in parts] == flags and not parts & set(export)
-    assert not {C.EXPORT_FOLLOW_FLOW_FLAG, C.EXPORT_NO_FOLLOW_FLOW_FLAG} & set(export)
+    assert not {EXPORT_FOLLOW_FLOW_FLAG, C.EXPORT_NO_FOLLOW_FLOW_FLAG} & set(export)
 
 
 def test_one_way_to_split_a_clip_at_a_time(scene_root, tmp_path):

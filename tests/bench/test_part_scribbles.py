@@ -14,6 +14,7 @@ from bench.report_file import read_tracks
 from engine import contract as C
 from engine.data.scribbles import NO_LABEL, read_scribbles
 from engine.io.clip import open_clip
+from engine.terms.run_folder import RUN_CLIP
 from tests.bench.test_paint_table import tiny_limbs_table
 
 
@@ -70,7 +71,7 @@ def test_the_table_fits_the_one_mask_split_by_the_strokes(tmp_path):
     root, record = tiny_limbs_table(tmp_path, scribbles=True)
     (row,) = record["rows"]
     assert row["layers"] == 3 and row["scribbles"] == str(tmp_path / "out" / "scribbles" / "limbs_jump")
-    clip_json = (tmp_path / "out" / "runs" / "limbs_jump" / C.RUN_CLIP).read_text()
+    clip_json = (tmp_path / "out" / "runs" / "limbs_jump" / RUN_CLIP).read_text()
     assert "scribbles" in clip_json and str(root / "limbs_jump" / "masks") in clip_json
     # scored per part too: the queries on each part's mask at their frame
     tracks = read_tracks(root / "limbs_jump" / "tracks_tapvid.npz")

@@ -26,6 +26,7 @@ from engine import contract as C
 from engine.export.manifest import LayerPasses
 from engine.io.colour import linear_to_srgb, srgb_to_linear
 from engine.io.images import write_exr, write_png
+from engine.terms.export_names import ATLAS_EXR_EXT, ATLASES_DIR
 from tests.engine.fake_export import make_fake_export
 
 W, H, T = 40, 32, 4
@@ -58,7 +59,7 @@ def _export(folder: Path, atlas_linear: np.ndarray) -> tuple[Path, Path, Path]:
 
     manifest = make_fake_export(folder, plate, [(layer, (AW, AH))])
     chans = {c: atlas_linear[..., i] for i, c in enumerate("RGB")}
-    write_exr(manifest.parent / C.ATLASES_DIR / f"Background{C.ATLAS_EXR_EXT}", {**chans, "A": np.ones((AH, AW))})
+    write_exr(manifest.parent / ATLASES_DIR / f"Background{ATLAS_EXR_EXT}", {**chans, "A": np.ones((AH, AW))})
     masks = folder / "masks"
     for t in range(T):
         write_png(masks / f"{t:05d}.png", _mask(t)[..., None], 8, srgb=False)

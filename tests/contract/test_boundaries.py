@@ -9,14 +9,17 @@ A string that names a file or module of the other side reaches into it as surely
 script path handed to ``subprocess``, a module name handed to ``importlib``), so string literals are checked
 too; docstrings are prose and may mention files.
 
-The engine's one way into the add-on is a process, and it is named once: ``contract.HEADLESS_SCRIPT``.
+The engine's one way into the add-on is a process, and it is named once: ``engine.terms.cli.HEADLESS_SCRIPT``.
 ``engine demo`` ends with the artist's Blender steps done headless (import the export, build the compositor
 tree, render) and compares Blender's render with its own; that is product behaviour, and the script that does
-it must run inside Blender, so it belongs to the add-on. The contract already names everything that crosses
-the process boundary the other way (the CLI verbs the add-on runs); the headless script is the same kind of
-entry point in the reverse direction, so it is defined there, next to them. The engine refers to it only
-through that name: no engine file spells an ``addon`` path or module itself, and none imports bpy or add-on
-code (the script runs in its own process).
+it must run inside Blender, so it belongs to the add-on. The contract's terms already name everything that
+crosses the process boundary the other way (the CLI verbs the add-on runs); the headless script is the same
+kind of entry point in the reverse direction, so it is defined among them, next to the verbs. The engine refers
+to it only through that name: no engine file spells an ``addon`` path or module itself, and none imports bpy or
+add-on code (the script runs in its own process).
+
+The contract says exactly what crosses: ``engine.contract.__all__`` is every name the add-on reaches through
+it, plus the contract's own requirement names, and nothing else.
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from engine import contract as C
+from engine.terms.cli import HEADLESS_SCRIPT
 from tests.paths import ROOT
 
 #: The package Blender loads the extension as (``addon/headless.py`` loads the checkout under it too); an
@@ -155,15 +159,15 @@ def test_engine_never_imports_bpy_or_the_addon():
 
 
 def test_engine_reaches_the_addon_only_through_the_contracts_headless_script():
-    """No engine file names an add-on file or module; the one entry point is ``contract.HEADLESS_SCRIPT``."""
+    """No engine file names an add-on file or module; the one entry point is ``terms.cli.HEADLESS_SCRIPT``."""
     named = {
         (py.relative_to(ROOT).as_posix(), text)
         for py in _files("engine")
         for text, _ in strings(py)
         if _ADDON_IN_STRING.search(text)
     }
-    assert named == {("engine/terms/cli.py", C.HEADLESS_SCRIPT)}
-    script = ROOT / C.HEADLESS_SCRIPT
+    assert named == {("engine/terms/cli.py", HEADLESS_SCRIPT)}
+    script = ROOT / HEADLESS_SCRIPT
     assert script.is_file() and '__name__ == "__main__"' in script.read_text(encoding="utf-8")
 
 
@@ -187,27 +191,103 @@ def test_contract_is_standard_library_only():
             assert ok, f"{py.relative_to(ROOT)}:{line} imports {mod}"
 
 
-def test_contract_reexports_each_terms_modules_own_names_only():
-    """Each terms module's ``__all__`` is every public name it defines, none it imports: ``contract.NAME`` reaches
-    every term, and no ``Path`` or ``Any`` rides along on the contract."""
+def test_each_terms_module_declares_its_own_names_only():
+    """Each terms module's ``__all__`` is every public name it defines, none it imports: ``engine.terms`` names every
+    term once, and no ``Path`` or ``Any`` rides along."""
     for py in sorted((ROOT / "engine" / "terms").glob("*.py")):
         if py.name == "__init__.py":
             continue
         tree = ast.parse(py.read_text(encoding="utf-8"))
-        defined: set[str] = set()
-        declared: list[str] = []
-        for node in tree.body:
-            if isinstance(node, ast.FunctionDef | ast.ClassDef):
-                defined.add(node.name)
-            targets = node.targets if isinstance(node, ast.Assign) else [getattr(node, "target", None)]
-            for t in targets:
-                if isinstance(t, ast.Name) and t.id == "__all__":
-                    declared = list(ast.literal_eval(node.value))
-                elif isinstance(t, ast.Name) and isinstance(node, ast.Assign | ast.AnnAssign):
-                    defined.add(t.id)
-        public = {name for name in defined if not name.startswith("_")} - {"__all__"}
+        declared = _declared_all(tree)
+        public = {name for name in _defined(tree) if not name.startswith("_")} - {"__all__"}
         assert sorted(declared) == sorted(public), f"{py.relative_to(ROOT)}: __all__ != its public names"
     assert not hasattr(C, "Any") and not hasattr(C, "json")
+
+
+def _defined(tree: ast.Module) -> set[str]:
+    """The names a module's top level defines (assignments, functions, classes), not those it imports."""
+    defined: set[str] = set()
+    for node in tree.body:
+        if isinstance(node, ast.FunctionDef | ast.ClassDef):
+            defined.add(node.name)
+        targets = node.targets if isinstance(node, ast.Assign) else [getattr(node, "target", None)]
+        for t in targets:
+            if isinstance(t, ast.Name) and isinstance(node, ast.Assign | ast.AnnAssign):
+                defined.add(t.id)
+    return defined
+
+
+def _declared_all(tree: ast.Module) -> list[str]:
+    for node in tree.body:
+        targets = node.targets if isinstance(node, ast.Assign) else [getattr(node, "target", None)]
+        if any(isinstance(t, ast.Name) and t.id == "__all__" for t in targets) and node.value is not None:
+            return list(ast.literal_eval(node.value))
+    return []
+
+
+def contract_names_used(py: Path) -> set[str]:
+    """The names a file reaches through the contract: ``X.NAME`` where X is bound to the contract module
+    (``from ..engine import contract as C``, however spelt), and ``from ..engine.contract import NAME``."""
+    package = _package(py)
+    tree = ast.parse(py.read_text(encoding="utf-8"))
+    bound: set[str] = set()
+    used: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            module = _absolute(node.module or "", node.level, package)
+            for alias in node.names:
+                if f"{module}.{alias.name}" == "engine.contract":
+                    bound.add(alias.asname or alias.name)
+                elif module == "engine.contract":
+                    used.add(alias.name)
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                if _absolute(alias.name, 0, package) == "engine.contract" and alias.asname:
+                    bound.add(alias.asname)
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in bound:
+            used.add(node.attr)
+    return used
+
+
+def test_contract_names_are_resolved_whatever_the_spelling(tmp_path, monkeypatch):
+    """The reader of contract uses itself: each way the add-on binds the contract counts, other modules do not."""
+    monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
+    src = tmp_path / "addon" / "ops" / "x.py"
+    src.parent.mkdir(parents=True)
+    src.write_text(
+        "from ...engine import contract as C\n"
+        "from ...engine.contract import EXIT_OK\n"
+        "def f():\n"
+        "    from neural_atlas.engine import contract\n"
+        "    return C.VERB_FIT, contract.MANIFEST_NAME, D.NOT_THE_CONTRACT, C.RunLocked\n"
+    )
+    assert contract_names_used(src) == {"EXIT_OK", "VERB_FIT", "MANIFEST_NAME", "RunLocked"}
+
+
+def test_contract_says_exactly_what_crosses_to_the_addon():
+    """``engine.contract.__all__`` is the names the add-on reaches through it plus the contract's own definitions
+    (its requirements): a name the add-on uses that the contract lacks fails here (not first inside Blender), and so
+    does a name the contract exports that nothing in the add-on uses. The contract imports each term by name from
+    its subject module (no star import), and exports nothing it does not list."""
+    used: dict[str, list[str]] = {}
+    for py in _files("addon"):
+        for name in contract_names_used(py):
+            used.setdefault(name, []).append(py.relative_to(ROOT).as_posix())
+    assert used, "the add-on reaches nothing through the contract: the reader is broken"
+    tree = ast.parse((ROOT / "engine" / "contract.py").read_text(encoding="utf-8"))
+    own = {name for name in _defined(tree) if not name.startswith("_")} - {"__all__"}
+    exported = set(C.__all__)
+    assert len(C.__all__) == len(exported), "engine.contract.__all__ lists a name twice"
+    lacking = {name: files for name, files in sorted(used.items()) if name not in exported}
+    assert not lacking, f"the add-on reaches these through the contract, which does not list them: {lacking}"
+    unused = sorted(exported - set(used) - own)
+    assert not unused, f"the contract exports these and nothing in the add-on uses them: {unused}"
+    assert own <= exported, f"the contract's own names missing from __all__: {sorted(own - exported)}"
+    for name in C.__all__:
+        assert hasattr(C, name), f"engine.contract.__all__ lists {name}, which it does not define"
+    stars = [n.lineno for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and any(a.name == "*" for a in n.names)]
+    assert not stars, f"engine/contract.py:{stars}: a star import; import each term that crosses by name"
 
 
 def test_addon_imports_only_the_contract_of_the_engine():

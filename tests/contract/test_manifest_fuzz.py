@@ -28,6 +28,7 @@ from engine import contract as C
 from engine.edit.render import load_edits, render_frames
 from engine.errors import InputError
 from engine.export.manifest import Manifest
+from engine.terms.manifest import MANIFEST_KEYS, MANIFEST_TAG, MANIFEST_VERSION
 from tests.engine.export.tiny_run import export, make_run
 from tests.json_values import JSON_VALUES
 from tests.paths import ROOT
@@ -133,8 +134,8 @@ def _read_everything(path: Path) -> None:
 @FUZZ
 @given(
     value=JSON
-    | st.dictionaries(st.sampled_from([*C.MANIFEST_KEYS, "scene", "x"]), JSON, max_size=8).map(
-        lambda d: {C.MANIFEST_TAG: C.MANIFEST_VERSION, **d}
+    | st.dictionaries(st.sampled_from([*MANIFEST_KEYS, "scene", "x"]), JSON, max_size=8).map(
+        lambda d: {MANIFEST_TAG: MANIFEST_VERSION, **d}
     )
 )
 def test_any_json_is_a_manifest_or_one_line(real, value):

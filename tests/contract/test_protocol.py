@@ -7,14 +7,16 @@ import json
 import pytest
 
 from engine import contract as C
+from engine.terms.protocol import PROGRESS_TAG, progress_line
+from engine.terms.versions import SCHEMA_VERSION
 
 
 def test_progress_line_round_trip():
-    line = C.progress_line(C.EVENT_PROGRESS, step=10, total=100, psnr=21.5, elapsed=3.2, eta=28.8, losses={"rgb": 0.1})
+    line = progress_line(C.EVENT_PROGRESS, step=10, total=100, psnr=21.5, elapsed=3.2, eta=28.8, losses={"rgb": 0.1})
     assert "\n" not in line
     msg = C.parse_progress_line(line + "\n")
     assert msg == {
-        C.PROGRESS_TAG: C.SCHEMA_VERSION,
+        PROGRESS_TAG: SCHEMA_VERSION,
         "event": "progress",
         "step": 10,
         "total": 100,
@@ -32,8 +34,8 @@ def test_progress_line_round_trip():
         "  1%|█  | 10/1000 [00:01<01:40]",
         "{not json",
         json.dumps({"event": "progress"}),
-        json.dumps({C.PROGRESS_TAG: 999, "event": "progress"}),
-        json.dumps({C.PROGRESS_TAG: 1, "event": "nope"}),
+        json.dumps({PROGRESS_TAG: 999, "event": "progress"}),
+        json.dumps({PROGRESS_TAG: 1, "event": "nope"}),
         "[1, 2]",
     ],
 )
@@ -43,7 +45,7 @@ def test_foreign_lines_are_ignored(line):
 
 def test_unknown_event_is_refused():
     with pytest.raises(ValueError):
-        C.progress_line("exploded")
+        progress_line("exploded")
 
 
 def test_the_constraints_pin_torch_and_the_ranges_keep_numpy_1_and_openimageio_3_0():

@@ -20,6 +20,8 @@ from pathlib import Path
 import pytest
 
 from engine import contract as C
+from engine.terms.lock import IN_PLACE_UNSAFE_FIX, RUN_LOCK, RUN_LOCKED_FIX, RunLockUnsafe
+from engine.terms.run_folder import RUN_CLIP, RUN_CONFIG
 from tests.engine_cli import run_cli
 from tests.folders import hold_lock
 from tests.paths import ROOT
@@ -45,7 +47,7 @@ def test_a_second_process_is_refused_in_one_line_naming_the_holder(holder):
     message = str(info.value)
     assert "\n" not in message
     assert message.startswith(f"{run}: this run folder is in use by fit (pid {child.pid} on {socket.gethostname()}")
-    assert C.RUN_LOCKED_FIX in message
+    assert RUN_LOCKED_FIX in message
     assert info.value.holder["pid"] == child.pid
 
 
@@ -54,7 +56,7 @@ def test_a_holder_killed_with_sigkill_releases_the_lock(holder):
     os.kill(child.pid, signal.SIGKILL)
     child.wait()
     with C.run_lock(run, "export"):
-        assert (run / C.RUN_LOCK).exists()
+        assert (run / RUN_LOCK).exists()
 
 
 def test_the_lock_is_reentrant_within_a_process_and_released_after(tmp_path):
@@ -89,10 +91,10 @@ def _outside(tmp_path: Path) -> Path:
 
 
 def _refused(run: Path, what: str) -> str:
-    with pytest.raises(C.RunLockUnsafe) as info, C.run_lock(run, "export"):
+    with pytest.raises(RunLockUnsafe) as info, C.run_lock(run, "export"):
         pytest.fail("the lock was taken through a link")
     message = str(info.value)
-    assert message == f"{run / C.RUN_LOCK}: the run folder's lock file is {what} — {C.IN_PLACE_UNSAFE_FIX}"
+    assert message == f"{run / RUN_LOCK}: the run folder's lock file is {what} — {IN_PLACE_UNSAFE_FIX}"
     assert isinstance(info.value, C.RunLocked)  # every writer's one-line refusal of a locked folder catches it
     return message
 
@@ -100,7 +102,7 @@ def _refused(run: Path, what: str) -> str:
 def test_a_lock_file_symlinked_out_of_the_run_folder_is_refused_and_its_target_is_untouched(tmp_path):
     run = tmp_path / "run"
     run.mkdir()
-    (run / C.RUN_LOCK).symlink_to(_outside(tmp_path))
+    (run / RUN_LOCK).symlink_to(_outside(tmp_path))
     before = digest_outside(tmp_path, run)
     _refused(run, "a symbolic link")
     assert digest_outside(tmp_path, run) == before
@@ -111,17 +113,17 @@ def test_a_dangling_lock_link_is_refused_and_its_target_is_not_created(tmp_path)
     run = tmp_path / "run"
     run.mkdir()
     target = tmp_path / "elsewhere" / "new.txt"
-    (run / C.RUN_LOCK).symlink_to(target)
+    (run / RUN_LOCK).symlink_to(target)
     _refused(run, "a symbolic link")
     assert not target.parent.exists()
-    assert os.path.islink(run / C.RUN_LOCK)
+    assert os.path.islink(run / RUN_LOCK)
 
 
 def test_a_lock_file_hard_linked_to_a_file_outside_is_refused_and_the_file_is_untouched(tmp_path):
     run = tmp_path / "run"
     run.mkdir()
     target = _outside(tmp_path)
-    os.link(target, run / C.RUN_LOCK)
+    os.link(target, run / RUN_LOCK)
     before = digest_outside(tmp_path, run)
     _refused(run, "a hard link (2 names for one file)")
     assert digest_outside(tmp_path, run) == before and target.read_bytes() == PRECIOUS
@@ -129,9 +131,9 @@ def test_a_lock_file_hard_linked_to_a_file_outside_is_refused_and_the_file_is_un
 
 def test_a_lock_name_taken_by_a_folder_or_a_pipe_is_refused_in_one_line(tmp_path):
     folder_run, pipe_run = tmp_path / "a", tmp_path / "b"
-    (folder_run / C.RUN_LOCK).mkdir(parents=True)
+    (folder_run / RUN_LOCK).mkdir(parents=True)
     pipe_run.mkdir()
-    os.mkfifo(pipe_run / C.RUN_LOCK)  # without O_NONBLOCK the open would hang here
+    os.mkfifo(pipe_run / RUN_LOCK)  # without O_NONBLOCK the open would hang here
     _refused(folder_run, "a folder")
     _refused(pipe_run, "not a plain file")
 
@@ -141,13 +143,13 @@ def test_export_with_its_lock_linked_out_exits_2_in_one_line_and_writes_nothing(
     run's files here are empty: the refusal comes first)."""
     run = tmp_path / "run"
     run.mkdir()
-    for name in (C.RUN_CONFIG, C.RUN_CLIP, C.RUN_CHECKPOINT):
+    for name in (RUN_CONFIG, RUN_CLIP, C.RUN_CHECKPOINT):
         (run / name).write_bytes(b"")
-    (run / C.RUN_LOCK).symlink_to(_outside(tmp_path))
+    (run / RUN_LOCK).symlink_to(_outside(tmp_path))
     before, inside = digest_outside(tmp_path), digest_outside(run)
     code, err = run_cli("export", run, "--no-bar")
-    assert (code, err) == (C.EXIT_BAD_INPUT, [f"error: {run / C.RUN_LOCK}: the run folder's lock file is a symbolic "
-                                               f"link — {C.IN_PLACE_UNSAFE_FIX}"])  # fmt: skip
+    assert (code, err) == (C.EXIT_BAD_INPUT, [f"error: {run / RUN_LOCK}: the run folder's lock file is a symbolic "
+                                               f"link — {IN_PLACE_UNSAFE_FIX}"])  # fmt: skip
     assert digest_outside(tmp_path) == before and digest_outside(run) == inside  # not even exports/ was made
 
 
@@ -156,4 +158,4 @@ def test_a_plain_lock_file_left_by_an_earlier_writer_is_taken_as_before(tmp_path
     with C.run_lock(run, "fit"):
         pass
     with C.run_lock(run, "export"):
-        assert json.loads((run / C.RUN_LOCK).read_bytes()[1:])["what"] == "export"
+        assert json.loads((run / RUN_LOCK).read_bytes()[1:])["what"] == "export"

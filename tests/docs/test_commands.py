@@ -65,6 +65,9 @@ import pytest
 from engine import contract as C
 from engine.config import PRESETS, apply_overrides, parse_set_args, preset_config
 from engine.errors import InputError
+from engine.terms.cli import VERB_NUKE, VERB_PREVIEW, VERB_RENDER
+from engine.terms.farm import FARM_DASK
+from engine.terms.lock import RUN_LOCK
 from tests.paths import ROOT
 
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
@@ -481,7 +484,7 @@ def parse_only_reason(cmd: Documented, argv: list[str]) -> str | None:
         return "--resume needs a fit stopped part way (tests/stability/test_faults.py)"
     if C.FIT_REFINE_FLAG in argv:
         return "--refine needs a finished fit in --out, a new folder here (tests/engine/test_realign.py runs it)"
-    if argv[:2] == [C.VERB_FARM, C.FARM_DASK]:
+    if argv[:2] == [C.VERB_FARM, FARM_DASK]:
         return "farm dask needs a Dask scheduler and workers (tests/farm/test_dask.py starts them on 127.0.0.1)"
     if argv[:2] == [C.VERB_FARM, C.FARM_FLAMENCO] and "--manager" in argv:
         return "farm flamenco needs a Flamenco Manager (tests/farm/test_flamenco_submit.py runs a stub one)"
@@ -539,7 +542,7 @@ class Scratch:
     def _run_copy(self) -> str:
         """A fitted, exported run of its own (each command changes what it is given)."""
         copy = self.folder / f"run_copy_{next(self._count)}"
-        shutil.copytree(self.fitted, copy, ignore=shutil.ignore_patterns(C.RUN_LOCK))
+        shutil.copytree(self.fitted, copy, ignore=shutil.ignore_patterns(RUN_LOCK))
         return str(copy)
 
     def _fresh(self, name: str) -> str:
@@ -569,11 +572,11 @@ def _assert_outputs(argv: list[str], proc: subprocess.CompletedProcess, cwd: Pat
         assert (run / C.RUN_CHECKPOINT).exists() and (run / C.RUN_METRICS).exists(), sorted(run.iterdir())
     elif verb == C.VERB_EXPORT:
         assert last.endswith(C.MANIFEST_NAME) and (cwd / last).exists(), proc.stdout
-    elif verb in (C.VERB_PREVIEW, C.VERB_PROJECT_FRAME):
+    elif verb in (VERB_PREVIEW, C.VERB_PROJECT_FRAME):
         # the written paths; progress messages (one JSON object a line) are the contract's, not paths
         printed = [ln for ln in proc.stdout.splitlines() if ln.strip() and C.parse_progress_line(ln) is None]
         assert printed and all((cwd / ln).exists() for ln in printed), proc.stdout
-    elif verb == C.VERB_RENDER:
+    elif verb == VERB_RENDER:
         out = cwd / _flag(argv, "--out")
         assert len([p for p in out.iterdir() if p.suffix in (".exr", ".png")]) == CLIP_FRAMES, sorted(out.iterdir())
         movie = _flag(argv, "--movie")
@@ -581,7 +584,7 @@ def _assert_outputs(argv: list[str], proc: subprocess.CompletedProcess, cwd: Pat
     elif verb == C.VERB_MASKS:
         first, last_frame = (int(v) for v in (_flag(argv, "--frames") or f"0:{CLIP_FRAMES - 1}").split(":"))
         assert len(list((cwd / _flag(argv, "--out")).glob("*.png"))) == last_frame - first + 1
-    elif verb == C.VERB_NUKE:
+    elif verb == VERB_NUKE:
         assert last.endswith(".nk") and "STMap {" in (cwd / last).read_text(encoding="utf-8"), proc.stdout
     elif verb == C.VERB_ESTIMATE:
         if "--json" in argv:

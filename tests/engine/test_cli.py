@@ -13,6 +13,7 @@ import pytest
 
 from engine import contract as C
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
+from engine.terms.protocol import EVENT_CANCELLED
 from tests.paths import ROOT
 
 SMALL = SceneSpec(width=96, height=64, frames=6, fg_size=(28, 20), fg_start=(20.0, 20.0))
@@ -110,7 +111,7 @@ def test_sigterm_checkpoints_and_resume_finishes(tmp_path, small_clip):
     proc.wait(timeout=120)
     events += [m for m in map(C.parse_progress_line, rest.splitlines()) if m]
     assert proc.returncode == C.EXIT_CANCELLED, proc.stderr.read()
-    cancelled = [e for e in events if e["event"] == C.EVENT_CANCELLED]
+    cancelled = [e for e in events if e["event"] == EVENT_CANCELLED]
     assert cancelled and (run / C.RUN_CHECKPOINT).exists()
     stopped_at = cancelled[0]["step"]
     assert 20 <= stopped_at < 400

@@ -28,9 +28,9 @@ from engine.config import (
     preset_config,
     resume_changes,
 )
-from engine.contract import SCHEMA_VERSION
 from engine.errors import InputError
 from engine.fit.run_folder import RunFolder
+from engine.terms.versions import SCHEMA_VERSION
 
 
 def test_presets_are_named_configs_with_their_own_budgets():

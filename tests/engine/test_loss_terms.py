@@ -10,9 +10,9 @@ from dataclasses import fields
 
 import pytest
 
-from engine import contract as C
 from engine.config import PHASE_FIELDS, FitConfig, apply_overrides, field_kind, preset_config
 from engine.loss_terms import ALL_TERMS, TERMS, SceneFacts, loss_weights
+from engine.terms.run_folder import BG_MOTION_DEFORMABLE, BG_MOTION_PAN_ZOOM, BG_MOTION_STATIC
 from tests.paths import ROOT
 
 OBJECTIVE = ROOT / "engine" / "model" / "objective.py"
@@ -96,7 +96,7 @@ def test_every_rule_leaves_its_term_off_with_a_reason_and_some_scene_turns_it_on
     ]
     on: set[str] = set()
     off: set[str] = set()
-    motions = (C.BG_MOTION_STATIC, C.BG_MOTION_PAN_ZOOM, C.BG_MOTION_DEFORMABLE)
+    motions = (BG_MOTION_STATIC, BG_MOTION_PAN_ZOOM, BG_MOTION_DEFORMABLE)
     for cfg, fg, flow, gaps, scribbles, motion in itertools.product(
         cfgs, range(3), (False, True), (False, True), (0, 2), motions
     ):

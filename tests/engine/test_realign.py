@@ -26,6 +26,7 @@ from engine.edit.project_frame import save_edit_like
 from engine.edit.realign import load_edits, placement_error, realign, realign_measured
 from engine.export.manifest import Manifest
 from engine.fit.run_folder import RunFolder
+from engine.terms.export_names import EDITS_ALIGNED, EDITS_DIR
 from tests.engine.fake_export import make_fake_export
 from tests.engine_cli import run_cli
 from tests.folders import tree_digest
@@ -76,7 +77,7 @@ def shifted_run(tmp_path) -> tuple[Path, Path, Path]:
     other = make_fake_export(tmp_path / "b", plate, _layers(0.08))
     new = old.parent.parent / "v002" / C.MANIFEST_NAME
     shutil.copytree(other.parent, new.parent)
-    fg = old.parent.parent.parent / C.EDITS_DIR / "Foreground.png"
+    fg = old.parent.parent.parent / EDITS_DIR / "Foreground.png"
     save_edit_like(fg, _paint())
     return old, new, fg
 
@@ -100,7 +101,7 @@ def test_realign_puts_the_paint_back_where_it_was(shifted_run):
     # the old edit layer is kept in history, byte for byte; the new one is a PNG like it
     (kept,) = (fg.parent / "history").iterdir()
     assert _digest(kept) == painted and kept.suffix == ".png"
-    assert json.loads((fg.parent / C.EDITS_ALIGNED).read_text())["export"] == "v002"
+    assert json.loads((fg.parent / EDITS_ALIGNED).read_text())["export"] == "v002"
     # the paint's colours are kept: the re-aligned layer's interior holds the two colours
     moved = load_edit(fg)
     assert moved[..., 3].sum() == pytest.approx(_paint()[..., 3].sum(), rel=0.15)
@@ -145,7 +146,7 @@ def test_refine_continues_a_finished_fit_and_keeps_the_paint(tmp_path):
     run = tmp_path / "run"
     assert run_cli("fit", frames, "--mask", masks, "--out", run, *TINY_FIT)[0] == C.EXIT_OK
     assert run_cli(C.VERB_EXPORT, run, "--no-bar")[0] == C.EXIT_OK
-    fg = run / C.EDITS_DIR / "Foreground.png"
+    fg = run / EDITS_DIR / "Foreground.png"
     edit = np.zeros_like(load_edit(fg))
     edit[:, : edit.shape[1] // 2] = (0.5, 0.1, 0.1, 1.0)
     save_edit_like(fg, edit)
@@ -170,15 +171,15 @@ def test_refine_continues_a_finished_fit_and_keeps_the_paint(tmp_path):
     # balanced's schedule; the fit's own settings and loss phases
     assert (cfg.steps, cfg.preset, cfg.batch) == (5, "draft", 64)
     assert cfg.bootstrap_steps == PRESETS["draft"].bootstrap_steps != PRESETS["balanced"].bootstrap_steps
-    assert json.loads((run / C.EDITS_DIR / C.EDITS_ALIGNED).read_text())["export"] == "v001"
+    assert json.loads((run / EDITS_DIR / EDITS_ALIGNED).read_text())["export"] == "v001"
     assert _digest(fg) == painted and _digest(run / C.EXPORTS_DIR / "v001" / C.MANIFEST_NAME) == v001
 
     assert run_cli(C.VERB_EXPORT, run, "--no-bar")[0] == C.EXIT_OK
     code, lines = run_cli(C.VERB_REALIGN, run)
     assert code == C.EXIT_OK, lines
-    history = list((run / C.EDITS_DIR / "history").iterdir())
+    history = list((run / EDITS_DIR / "history").iterdir())
     assert [_digest(p) for p in history] == [painted]
-    assert json.loads((run / C.EDITS_DIR / C.EDITS_ALIGNED).read_text())["export"] == "v002"
+    assert json.loads((run / EDITS_DIR / EDITS_ALIGNED).read_text())["export"] == "v002"
     assert load_edit(fg)[..., 3].sum() > 0.5 * edit[..., 3].sum()  # the paint is carried, not dropped
 
 

@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import OpenEXR
 
-from engine import contract as C
+from engine.terms.export_names import blender_pattern, pass_file_name, pass_pattern
+from engine.terms.manifest import validate_manifest
 from tests.engine.fake_export import make_fake_export
 
 W, H, T = 16, 12, 3
@@ -55,10 +56,10 @@ def renumber(manifest_path: Path, first: int, padding: int, half_exr: bool = Fal
             os.replace(old, new)
         files.append(str(new))
         pass_old = export / passes["dir"] / passes["pattern"].format(frame=numbers.index(number))
-        os.replace(pass_old, export / passes["dir"] / C.pass_file_name(number, padding))
+        os.replace(pass_old, export / passes["dir"] / pass_file_name(number, padding))
     clip.update(frame_files=files, frame_numbers=numbers, first_frame=numbers[0], last_frame=numbers[-1])
     if half_exr:
         clip.update(colorspace="linear")
-    passes.update(pattern=C.pass_pattern(padding), blender_pattern=C.blender_pattern(padding), frames=numbers)
-    manifest_path.write_text(json.dumps(C.validate_manifest(data)))
+    passes.update(pattern=pass_pattern(padding), blender_pattern=blender_pattern(padding), frames=numbers)
+    manifest_path.write_text(json.dumps(validate_manifest(data)))
     return manifest_path

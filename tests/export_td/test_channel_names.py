@@ -18,6 +18,9 @@ from engine import contract as C
 from engine.export.manifest import Manifest
 from engine.export.nuke import nuke_channel_name
 from engine.io.images import read_exr, write_exr, write_png
+from engine.terms.cli import VERB_RENDER
+from engine.terms.export_names import LEGACY_UV_CHANNELS
+from engine.terms.manifest import validate_manifest
 from tests.engine.export.blender_probe import blender_pythons, probe_image_node
 from tests.engine_cli import run_cli
 from tests.export_td.shots import fake_export
@@ -102,14 +105,14 @@ def test_an_export_with_the_older_xyz_names_reads_and_renders_the_same(tmp_path)
     old = fake_export(tmp_path / "old")
     data = json.loads(old.read_text())
     for layer in data["layers"]:
-        layer["uv_channels"] = list(C.LEGACY_UV_CHANNELS)
-        layer["channels"] = [C.channel_name(layer["uv_pass"], c) for c in C.LEGACY_UV_CHANNELS] + layer["channels"][3:]
-    old.write_text(json.dumps(C.validate_manifest(data)))
+        layer["uv_channels"] = list(LEGACY_UV_CHANNELS)
+        layer["channels"] = [C.channel_name(layer["uv_pass"], c) for c in LEGACY_UV_CHANNELS] + layer["channels"][3:]
+    old.write_text(json.dumps(validate_manifest(data)))
     m_old, m_new = Manifest(old), Manifest(manifest)
     for f in m_old.frames:
         chans = read_exr(m_old.pass_path(f))
         for layer in data["layers"]:
-            for new, legacy in zip(C.UV_CHANNELS, C.LEGACY_UV_CHANNELS, strict=True):
+            for new, legacy in zip(C.UV_CHANNELS, LEGACY_UV_CHANNELS, strict=True):
                 chans[C.channel_name(layer["uv_pass"], legacy)] = chans.pop(C.channel_name(layer["uv_pass"], new))
         write_exr(m_old.pass_path(f), chans)
         for a, b in zip(m_old.read_passes(f), m_new.read_passes(f), strict=True):
@@ -121,13 +124,13 @@ def test_an_export_with_the_older_xyz_names_reads_and_renders_the_same(tmp_path)
             paint = np.random.default_rng(k).random((h, w, 4)).astype(np.float32)
             write_png(Manifest(path).edit_path(layer), paint, 8)
         outs.append(path.parents[3] / "out")
-        assert run_cli(C.VERB_RENDER, path, "--out", outs[-1], "--no-bar") == (0, [])
+        assert run_cli(VERB_RENDER, path, "--out", outs[-1], "--no-bar") == (0, [])
     for f in m_new.frames:
         a, b = (read_exr(out / f"edit.{f:05d}.exr") for out in outs)
         assert all(np.array_equal(a[c], b[c]) for c in "RGBA")
     for layer in m_new.layers:
         m_new.edit_path(layer).unlink()  # no paint: the plate
-    assert run_cli(C.VERB_RENDER, manifest, "--out", tmp_path / "plate", "--no-bar") == (0, [])
+    assert run_cli(VERB_RENDER, manifest, "--out", tmp_path / "plate", "--no-bar") == (0, [])
     f = m_new.frames[0]
     painted, plate = read_exr(outs[1] / f"edit.{f:05d}.exr"), read_exr(tmp_path / "plate" / f"edit.{f:05d}.exr")
     assert np.abs(painted["G"] - plate["G"]).max() > 0.1  # the paint shows: the UVs were read

@@ -13,6 +13,8 @@ from engine import contract as C
 from engine.export.manifest import Manifest
 from engine.export.nuke import nuke_script, pass_sequence_pattern
 from engine.io.images import read_exr
+from engine.terms.cli import VERB_RENDER
+from engine.terms.export_names import PASS_FILE_DIGITS, blender_pattern, frame_padding, pass_file_name, pass_pattern
 from tests.engine.export import nk_script as NK
 from tests.engine_cli import run_cli
 from tests.export_td.shots import fake_export, renumber
@@ -27,18 +29,18 @@ from tests.folders import visible_names
         (["/p/shot_00009.png", "/p/shot_00010.png"], [9, 10], 5),
         (["/p/f9.tif", "/p/f10.tif"], [9, 10], 1),
         (["/p/plate.001.dpx"], [1], 3),
-        ([], [0, 1, 2], C.PASS_FILE_DIGITS),  # a movie: no files of its own
-        (["/p/plate.1.exr", "/p/plate.0002.exr"], [1, 2], C.PASS_FILE_DIGITS),  # padded two ways
-        (["/p/take2_a.exr"], [7], C.PASS_FILE_DIGITS),  # not named with its number
+        ([], [0, 1, 2], PASS_FILE_DIGITS),  # a movie: no files of its own
+        (["/p/plate.1.exr", "/p/plate.0002.exr"], [1, 2], PASS_FILE_DIGITS),  # padded two ways
+        (["/p/take2_a.exr"], [7], PASS_FILE_DIGITS),  # not named with its number
     ],
 )
 def test_frame_padding_is_the_plates(names, numbers, padding):
-    assert C.frame_padding(names, numbers) == padding
+    assert frame_padding(names, numbers) == padding
 
 
 def test_pass_patterns_of_a_four_digit_plate():
-    assert C.pass_pattern(4) == "atlas.{frame:04d}.exr" and C.blender_pattern(4) == "atlas.####.exr"
-    assert C.pass_file_name(1001, 4) == "atlas.1001.exr" and C.pass_file_name(12) == "atlas.00012.exr"
+    assert pass_pattern(4) == "atlas.{frame:04d}.exr" and blender_pattern(4) == "atlas.####.exr"
+    assert pass_file_name(1001, 4) == "atlas.1001.exr" and pass_file_name(12) == "atlas.00012.exr"
     assert pass_sequence_pattern("atlas.{frame:04d}.exr") == "atlas.%04d.exr"
     assert pass_sequence_pattern("atlas.{frame:01d}.exr") == "atlas.%d.exr"
     assert pass_sequence_pattern("atlas.{frame:05d}.exr") == "atlas.%05d.exr"  # exports made before
@@ -52,7 +54,7 @@ def shot(tmp_path) -> Path:
 
 def test_render_names_frames_with_the_plates_padding_by_default(shot, tmp_path):
     out = tmp_path / "out"
-    assert run_cli(C.VERB_RENDER, shot, "--out", out, "--no-bar") == (0, [])
+    assert run_cli(VERB_RENDER, shot, "--out", out, "--no-bar") == (0, [])
     assert visible_names(out) == ["edit.1001.exr", "edit.1002.exr", "edit.1003.exr"]
     assert Manifest(shot).pass_path(1002).name == "atlas.1002.exr"  # the manifest's pattern, as every reader takes it
 
@@ -67,10 +69,10 @@ def test_render_names_frames_with_the_plates_padding_by_default(shot, tmp_path):
 )
 def test_render_name_pattern(shot, tmp_path, name, files):
     out = tmp_path / "out"
-    assert run_cli(C.VERB_RENDER, shot, "--out", out, "--name", name, "--no-bar") == (0, [])
+    assert run_cli(VERB_RENDER, shot, "--out", out, "--name", name, "--no-bar") == (0, [])
     assert visible_names(out) == files
     default = tmp_path / "default"
-    assert run_cli(C.VERB_RENDER, shot, "--out", default, "--no-bar") == (0, [])
+    assert run_cli(VERB_RENDER, shot, "--out", default, "--no-bar") == (0, [])
     for f, got in zip((1001, 1002, 1003), files, strict=True):  # the same pixels under the chosen name
         assert read_exr(out / got).keys() == {"R", "G", "B", "A"}
         assert all((read_exr(out / got)[c] == read_exr(default / f"edit.{f}.exr")[c]).all() for c in "RGBA")
@@ -94,7 +96,7 @@ def test_render_name_pattern(shot, tmp_path, name, files):
 )
 def test_a_bad_name_is_one_line_and_writes_nothing(shot, tmp_path, args, said):
     out = tmp_path / "out"
-    code, err = run_cli(C.VERB_RENDER, shot, "--out", out, "--no-bar", *args)
+    code, err = run_cli(VERB_RENDER, shot, "--out", out, "--no-bar", *args)
     assert code == C.EXIT_BAD_INPUT and len(err) == 1 and said in err[0], err
     assert not out.exists()
 
@@ -118,7 +120,7 @@ def test_an_export_made_with_five_digit_passes_still_reads(tmp_path):
     data["passes"].update(pattern="atlas.{frame:05d}.exr", blender_pattern="atlas.#####.exr")
     manifest.write_text(json.dumps(data))
     out = tmp_path / "out"
-    assert run_cli(C.VERB_RENDER, manifest, "--out", out, "--no-bar") == (0, [])
+    assert run_cli(VERB_RENDER, manifest, "--out", out, "--no-bar") == (0, [])
     assert visible_names(out) == ["edit.1001.exr", "edit.1002.exr", "edit.1003.exr"]
     nk = NK.parse(nuke_script(data, str(manifest)))
     assert nk.node("NA_Passes").knobs["file"] == "passes/atlas.%05d.exr"

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from engine import contract as C
+from engine.terms.versions import ENGINE_VERSION
 from tests.packaging.test_package import source, wheel  # noqa: F401 (fixtures: a copy of the checkout, its wheel)
 from tests.paths import ROOT
 
@@ -38,7 +38,7 @@ def test_pyproject_and_the_extension_manifest_name_it():
 
 
 def test_the_wheel_carries_it(wheel):  # noqa: F811 (the fixture)
-    dist_info = f"neural_atlas-{C.ENGINE_VERSION}.dist-info"
+    dist_info = f"neural_atlas-{ENGINE_VERSION}.dist-info"
     with zipfile.ZipFile(wheel) as z:
         assert z.read(f"{dist_info}/licenses/LICENSE") == LICENSE.read_bytes()
         metadata = z.read(f"{dist_info}/METADATA").decode()

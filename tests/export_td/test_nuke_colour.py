@@ -12,6 +12,8 @@ import pytest
 from engine import contract as C
 from engine.export.manifest import Manifest
 from engine.export.nuke import nuke_script
+from engine.terms.cli import VERB_NUKE
+from engine.terms.export_names import EDITS_DIR
 from tests.engine.export import nk_script as NK
 from tests.engine_cli import run_cli
 from tests.export_td.shots import fake_export, renumber
@@ -55,7 +57,7 @@ def test_an_acescg_plate_and_a_float_edit_layer_share_the_exports_config(tmp_pat
     data = json.loads(manifest.read_text())
     data["clip"].update(colorspace="ACEScg", colour_config="ocio://default")
     manifest.write_text(json.dumps(data))
-    (tmp_path / "run" / C.EDITS_DIR / "Foreground.exr").write_bytes(b"")  # a float twin wins: read as linear
+    (tmp_path / "run" / EDITS_DIR / "Foreground.exr").write_bytes(b"")  # a float twin wins: read as linear
     nk = NK.parse(nuke_script(data, str(manifest)))
     assert _check_names_resolve(nk, "ocio://default") == {
         "NA_Edit_Background.colorspace": "sRGB Encoded Rec.709 (sRGB)",
@@ -81,7 +83,7 @@ def test_a_studio_config_names_every_space_in_its_own_words(tmp_path):
     studio = _blender_config()
     manifest = fake_export(tmp_path)
     out = tmp_path / "comp" / "shot.nk"
-    assert run_cli(C.VERB_NUKE, manifest, "--out", out, "--ocio-config", studio) == (0, [])
+    assert run_cli(VERB_NUKE, manifest, "--out", out, "--ocio-config", studio) == (0, [])
     nk = NK.parse(out.read_text(encoding="utf-8"))
     assert _check_names_resolve(nk, str(studio)) == {
         "NA_Edit_Background.colorspace": "sRGB",
@@ -99,9 +101,9 @@ def test_a_studio_config_without_the_plates_space_is_one_line(tmp_path):
     manifest.write_text(json.dumps(data))
     studio = _blender_config()
     out = tmp_path / "shot.nk"
-    code, err = run_cli(C.VERB_NUKE, manifest, "--out", out, "--ocio-config", studio)
+    code, err = run_cli(VERB_NUKE, manifest, "--out", out, "--ocio-config", studio)
     assert code == C.EXIT_BAD_INPUT and len(err) == 1, err
     assert err[0].startswith(f"error: {studio}: has no colour space 'ACEScct' (the plate's) — give --ocio-config")
     assert not out.exists()
-    code, err = run_cli(C.VERB_NUKE, manifest, "--out", out, "--ocio-config", tmp_path / "nowhere.ocio")
+    code, err = run_cli(VERB_NUKE, manifest, "--out", out, "--ocio-config", tmp_path / "nowhere.ocio")
     assert code == C.EXIT_BAD_INPUT and len(err) == 1 and "OCIO config does not exist" in err[0], err

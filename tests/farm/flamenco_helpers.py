@@ -23,6 +23,7 @@ from typing import Any
 from engine import contract as C
 from engine.farm import flamenco
 from engine.farm.plan import Plan, load_plan
+from engine.terms.farm import FLAMENCO_API_CHECK, FLAMENCO_API_SUBMIT, FLAMENCO_JOB_TYPE, FLAMENCO_PYTHON_VARIABLE
 
 HERE = Path(__file__).resolve().parent
 AUTHOR_STUB = HERE / "flamenco_author_stub.js"
@@ -90,7 +91,7 @@ class StubManager:
     fail: dict[str, tuple[int, str]] = field(default_factory=dict)
     etag: str = "0f1e2d3c"
     variables: dict[str, dict[str, Any]] = field(
-        default_factory=lambda: {C.FLAMENCO_PYTHON_VARIABLE: {"value": "/opt/na/bin/python", "is_twoway": False}}
+        default_factory=lambda: {FLAMENCO_PYTHON_VARIABLE: {"value": "/opt/na/bin/python", "is_twoway": False}}
     )
     job_type_installed: bool = True
     jobs: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -155,10 +156,10 @@ class StubManager:
     def get(self, path: str) -> tuple[int, Any]:
         if path in self.fail:
             return self.error(*self.fail[path])
-        if path == flamenco.API_JOB_TYPE + C.FLAMENCO_JOB_TYPE:
+        if path == flamenco.API_JOB_TYPE + FLAMENCO_JOB_TYPE:
             if not self.job_type_installed:
                 return self.error(404, "no such job type known")
-            return 200, {"name": C.FLAMENCO_JOB_TYPE, "label": "Neural Atlas", "settings": [], "etag": self.etag}
+            return 200, {"name": FLAMENCO_JOB_TYPE, "label": "Neural Atlas", "settings": [], "etag": self.etag}
         if path.startswith(flamenco.API_VARIABLES):
             return 200, self.variables
         return self.error(404, "not found")
@@ -166,7 +167,7 @@ class StubManager:
     def post(self, path: str, body: Any, content_type: str) -> tuple[int, Any]:
         if path in self.fail:
             return self.error(*self.fail[path])
-        if path not in (C.FLAMENCO_API_CHECK, C.FLAMENCO_API_SUBMIT):
+        if path not in (FLAMENCO_API_CHECK, FLAMENCO_API_SUBMIT):
             return self.error(404, "not found")
         problem = self.schema_problem(body, content_type)
         if problem:
@@ -176,7 +177,7 @@ class StubManager:
         code, compiled, stderr = compile_job(body)
         if code != 0 or compiled is None:
             return self.error(400, stderr.strip().splitlines()[-1] if stderr.strip() else "compile failed")
-        if path == C.FLAMENCO_API_CHECK:
+        if path == FLAMENCO_API_CHECK:
             return 204, None
         job_id = str(uuid.uuid4())
         self.jobs[job_id] = compiled
@@ -199,7 +200,7 @@ class StubManager:
             return "invalid format (priority)"
         if body["submitter_platform"] not in PLATFORMS:
             return f"unknown platform {body['submitter_platform']!r}"
-        if body["type"] != C.FLAMENCO_JOB_TYPE:
+        if body["type"] != FLAMENCO_JOB_TYPE:
             return "job type unknown"
         if not isinstance(body.get("settings"), dict):
             return "invalid format (settings)"

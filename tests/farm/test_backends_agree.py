@@ -15,6 +15,7 @@ import pytest
 from engine import contract as C
 from engine.farm import dask_backend, flamenco
 from engine.farm.plan import load_plan
+from engine.terms.farm import FLAMENCO_PYTHON_VARIABLE
 from tests.engine_cli import run_cli
 from tests.farm.farm_helpers import openjd_commands
 from tests.farm.flamenco_helpers import NODE, compile_job, write_shots
@@ -33,7 +34,7 @@ def _openjd(shots: Path, bundle: Path) -> list[tuple[str, list[str]]]:
 
 
 def _flamenco(plan: Any) -> list[tuple[str, list[str]]]:
-    variable = "{" + C.FLAMENCO_PYTHON_VARIABLE + "}"
+    variable = "{" + FLAMENCO_PYTHON_VARIABLE + "}"
     out = []
     for shot in plan.shots:
         code, compiled, stderr = compile_job(flamenco.submitted_job(shot, plan.shot_tasks(shot), platform="linux"))

@@ -28,6 +28,13 @@ from engine.errors import InputError
 from engine.farm import dask_backend
 from engine.farm.dask_backend import TaskFailed, parse_resources, run_task
 from engine.farm.plan import load_plan
+from engine.terms.cli import EXIT_FAILED, VERB_PREVIEW
+from engine.terms.export_names import PASSES_DIR, pass_file_name
+from engine.terms.farm import FARM_DASK
+from engine.terms.lock import RUN_LOCK, RUN_LOCKED_FIX
+from engine.terms.manifest import MANIFEST_TAG, MANIFEST_VERSION
+from engine.terms.protocol import EVENT_CANCELLED, EVENT_CHECKPOINT
+from engine.terms.run_folder import RUN_LOG
 from tests.engine_cli import run_cli
 from tests.paths import ROOT
 
@@ -68,7 +75,7 @@ def write_shots(tmp: Path) -> Path:
 def fit_events(run: Path) -> list[dict[str, Any]]:
     """The progress events every attempt of the fit appended to RUN/fit.log, in order."""
     try:
-        text = (run / C.RUN_LOG).read_text(encoding="utf-8")
+        text = (run / RUN_LOG).read_text(encoding="utf-8")
     except FileNotFoundError:
         return []
     return [m for m in map(C.parse_progress_line, text.splitlines()) if m is not None]
@@ -111,7 +118,7 @@ def wait_for(what: str, check: Any, timeout: float, interval: float = 0.1) -> An
 def checkpoint_past_zero(run: Path) -> bool:
     events = fit_events(run)
     done = any(e["event"] == C.EVENT_DONE for e in events)
-    return not done and any(e["event"] == C.EVENT_CHECKPOINT and e["step"] > 0 for e in events)
+    return not done and any(e["event"] == EVENT_CHECKPOINT and e["step"] > 0 for e in events)
 
 
 @pytest.mark.slow
@@ -123,7 +130,7 @@ def test_killed_worker_mid_fit_resumes_and_both_shots_finish(tmp_path: Path) -> 
     children: list[int] = []
     with local_dask(tmp_path / "cluster", 2, resources="GPU=1") as cluster:
         started = list(cluster.workers)
-        argv = [sys.executable, "-m", C.CLI_MODULE, C.VERB_FARM, C.FARM_DASK, str(shots_file)]
+        argv = [sys.executable, "-m", C.CLI_MODULE, C.VERB_FARM, FARM_DASK, str(shots_file)]
         argv += ["--scheduler", cluster.address, "--fit-resource", "GPU=1", "--threads", "1", "--retries", "1"]
         with open(stdout, "wb") as out, open(stderr, "wb") as err:
             farm = subprocess.Popen(argv, cwd=ROOT, stdin=subprocess.DEVNULL, stdout=out, stderr=err)
@@ -152,33 +159,33 @@ def test_killed_worker_mid_fit_resumes_and_both_shots_finish(tmp_path: Path) -> 
     assert lines[-1].startswith(f"farm dask: 2 shot(s), {len(plan.tasks)}/{len(plan.tasks)} tasks done in ")
     # the killed fit: a SIGTERM checkpoint mid-way, then the retry continued from it (no new step-0 start)
     events = fit_events(run_a)
-    cancelled = [i for i, e in enumerate(events) if e["event"] == C.EVENT_CANCELLED]
+    cancelled = [i for i, e in enumerate(events) if e["event"] == EVENT_CANCELLED]
     assert len(cancelled) == 1, [e["event"] for e in events]
     at = cancelled[0]
     step = events[at]["step"]
     assert 0 < step < STEPS
-    assert events[at - 1] == {**events[at - 1], "event": C.EVENT_CHECKPOINT, "step": step}
+    assert events[at - 1] == {**events[at - 1], "event": EVENT_CHECKPOINT, "step": step}
     after = events[at + 1 :]
     assert [e["stage"] for e in after if e["event"] == C.EVENT_STAGE][:1] != []
-    assert not [e for e in after if e["event"] == C.EVENT_CHECKPOINT and e["step"] <= step]
+    assert not [e for e in after if e["event"] == EVENT_CHECKPOINT and e["step"] <= step]
     first_progress = next(e for e in after if e["event"] == C.EVENT_PROGRESS)
     assert step < first_progress["step"] <= step + 10  # eval_every=10: the next report after the checkpoint
     assert [e["metrics"]["steps"] for e in after if e["event"] == C.EVENT_DONE] == [STEPS]
     assert json.loads((run_a / C.RUN_METRICS).read_text())["steps"] == STEPS
     # shot b was never interrupted: one attempt from step 0
     events_b = fit_events(run_b)
-    assert not [e for e in events_b if e["event"] == C.EVENT_CANCELLED]
-    assert next(e["step"] for e in events_b if e["event"] == C.EVENT_CHECKPOINT) == 0
+    assert not [e for e in events_b if e["event"] == EVENT_CANCELLED]
+    assert next(e["step"] for e in events_b if e["event"] == EVENT_CHECKPOINT) == 0
 
     # nothing lost or duplicated: one published version per shot, every frame's pass once, no staging left
     for run in (run_a, run_b):
         exports = run / C.EXPORTS_DIR
         assert sorted(p.name for p in exports.iterdir()) == ["v001"]
         manifest = C.load_manifest(str(exports / "v001" / C.MANIFEST_NAME))
-        assert manifest[C.MANIFEST_TAG] == C.MANIFEST_VERSION
-        passes = sorted(p.name for p in (exports / "v001" / C.PASSES_DIR).iterdir())
-        assert passes == [C.pass_file_name(n) for n in range(FRAMES)]
-        leftovers = [p for p in run.rglob("*") if p.name.startswith(".") and p.name != C.RUN_LOCK]
+        assert manifest[MANIFEST_TAG] == MANIFEST_VERSION
+        passes = sorted(p.name for p in (exports / "v001" / PASSES_DIR).iterdir())
+        assert passes == [pass_file_name(n) for n in range(FRAMES)]
+        leftovers = [p for p in run.rglob("*") if p.name.startswith(".") and p.name != RUN_LOCK]
         assert leftovers == []
 
     # progress: one line per task, then one done line per shot
@@ -196,10 +203,10 @@ def test_run_task_does_not_retry_bad_input_and_raises_for_a_crash(tmp_path: Path
     """Exit 2 returns a failed result (Dask retries only exceptions) and its dependents skip; any other failure
     raises ``TaskFailed`` naming the task and the engine's last stderr line, so Dask retries it."""
     missing = tmp_path / "nothing" / C.MANIFEST_NAME
-    record = run_task("s.preview", (C.VERB_PREVIEW, str(missing)), 1, 0.0)
+    record = run_task("s.preview", (VERB_PREVIEW, str(missing)), 1, 0.0)
     assert record["state"] == "failed" and record["returncode"] == C.EXIT_BAD_INPUT
     assert str(missing) in record["error"]
-    skipped = run_task("s.after", (C.VERB_PREVIEW, str(missing)), 1, 0.0, record)
+    skipped = run_task("s.after", (VERB_PREVIEW, str(missing)), 1, 0.0, record)
     assert skipped["state"] == "skipped" and skipped["error"] == "s.preview did not finish"
     crash = "import sys; print('Traceback: boom', file=sys.stderr); sys.exit(1)"
     monkeypatch.setattr(dask_backend, "engine_argv", lambda args: [sys.executable, "-c", crash])
@@ -213,7 +220,7 @@ def test_run_task_waits_for_a_locked_run_folder(tmp_path: Path, monkeypatch: Any
     script = (
         "import sys, pathlib; p = pathlib.Path(sys.argv[1]); n = len(p.read_text()) if p.exists() else 0; "
         "p.write_text('x' * (n + 1)); "
-        f"sys.exit(0) if n >= 2 else (print('error: RUN: in use by fit — {C.RUN_LOCKED_FIX}', file=sys.stderr), "
+        f"sys.exit(0) if n >= 2 else (print('error: RUN: in use by fit — {RUN_LOCKED_FIX}', file=sys.stderr), "
         f"sys.exit({C.EXIT_BAD_INPUT}))"
     )
     monkeypatch.setattr(dask_backend, "engine_argv", lambda args: [sys.executable, "-c", script, str(tries)])
@@ -222,7 +229,7 @@ def test_run_task_waits_for_a_locked_run_folder(tmp_path: Path, monkeypatch: Any
     assert record["state"] == "done" and record["locked_waits"] == 2 and tries.read_text() == "xxx"
     tries.unlink()
     record = run_task("s.fit", ("fit",), 1, 0.0)  # no wait allowed: the refusal is the result (bad input)
-    assert record["state"] == "failed" and C.RUN_LOCKED_FIX in record["error"] and tries.read_text() == "x"
+    assert record["state"] == "failed" and RUN_LOCKED_FIX in record["error"] and tries.read_text() == "x"
 
 
 def test_parse_resources() -> None:
@@ -253,7 +260,7 @@ def test_farm_dask_without_a_scheduler_is_one_line(tmp_path: Path) -> None:
     with socket.socket() as s:  # a port nobody listens on
         s.bind(("127.0.0.1", 0))
         address = f"tcp://127.0.0.1:{s.getsockname()[1]}"
-    argv = [sys.executable, "-m", C.CLI_MODULE, C.VERB_FARM, C.FARM_DASK, str(shots_file), "--scheduler", address]
+    argv = [sys.executable, "-m", C.CLI_MODULE, C.VERB_FARM, FARM_DASK, str(shots_file), "--scheduler", address]
     argv += ["--connect-timeout", "1"]
     proc = subprocess.run(
         argv,
@@ -273,7 +280,7 @@ def test_farm_dask_without_a_scheduler_is_one_line(tmp_path: Path) -> None:
 def test_a_malformed_scheduler_address_is_one_line_at_once(tmp_path: Path, address: str) -> None:
     """Before: Dask tried to connect for its whole timeout, then a traceback. Now: one line before the plan is made."""
     shots_file = write_shots(tmp_path)
-    code, lines = run_cli(C.VERB_FARM, C.FARM_DASK, shots_file, "--scheduler", address)
+    code, lines = run_cli(C.VERB_FARM, FARM_DASK, shots_file, "--scheduler", address)
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1, lines
     assert lines[0].startswith(f"error: {address}: is not a Dask scheduler address ("), lines
     assert lines[0].endswith("— give --scheduler as tcp://HOST:PORT"), lines
@@ -292,10 +299,10 @@ def test_farm_dask_bad_input_fails_the_task_and_skips_what_follows(tmp_path: Pat
     shots_file.write_text(json.dumps({C.SHOTS_TAG: C.SHOTS_VERSION, "defaults": {"preview": False}, "shots": [shot]}))
     plan = load_plan(shots_file)
     with local_dask(tmp_path / "cluster", 1) as cluster:
-        argv = [sys.executable, "-m", C.CLI_MODULE, C.VERB_FARM, C.FARM_DASK, str(shots_file)]
+        argv = [sys.executable, "-m", C.CLI_MODULE, C.VERB_FARM, FARM_DASK, str(shots_file)]
         argv += ["--scheduler", cluster.address, "--retries", "3"]
         proc = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, timeout=120)
-    assert proc.returncode == C.EXIT_FAILED, proc.stderr
+    assert proc.returncode == EXIT_FAILED, proc.stderr
     (line,) = proc.stderr.strip().splitlines()
     assert line.startswith(f"error: farm dask: 1 shot(s), 0/{len(plan.tasks)} tasks done in ")
     assert line.endswith(

@@ -15,6 +15,7 @@ from bench.__main__ import main
 from bench.farm import FARM_BENCH_JSON, ROUTE_DASK, ROUTE_SEQUENTIAL, export_files
 from engine import contract as C
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
+from engine.terms.export_names import PASSES_DIR, pass_file_name
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the farm's engines die with their worker")
 
@@ -57,8 +58,8 @@ def test_bench_farm_times_both_routes_and_their_exports_agree(
     # so the same bytes but for the manifest's creation time and training seconds
     for name in ("shot-a", "shot-b"):
         files = [export_files(out / route / "runs" / name) for route in (ROUTE_SEQUENTIAL, ROUTE_DASK)]
-        passes = sorted(f for f in files[0] if f.startswith(f"{C.EXPORTS_DIR}/v001/{C.PASSES_DIR}/"))
-        assert passes == [f"{C.EXPORTS_DIR}/v001/{C.PASSES_DIR}/{C.pass_file_name(n)}" for n in range(6)]
+        passes = sorted(f for f in files[0] if f.startswith(f"{C.EXPORTS_DIR}/v001/{PASSES_DIR}/"))
+        assert passes == [f"{C.EXPORTS_DIR}/v001/{PASSES_DIR}/{pass_file_name(n)}" for n in range(6)]
         assert sorted(files[0]) == sorted(files[1])
         manifest = f"{C.EXPORTS_DIR}/v001/{C.MANIFEST_NAME}"
         assert [f for f in files[0] if files[0][f] != files[1][f]] == [manifest]

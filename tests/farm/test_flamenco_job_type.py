@@ -18,12 +18,13 @@ import pytest
 from engine import contract as C
 from engine.farm import flamenco
 from engine.farm.plan import TASK_KINDS
+from engine.terms.farm import FLAMENCO_JOB_TYPE, FLAMENCO_PYTHON_VARIABLE
 from tests.farm.flamenco_helpers import NODE, compile_job, two_shot_plan
 
 pytestmark = pytest.mark.skipif(NODE is None, reason="node (v20) is not on PATH")
 
 PYTHON = "/opt/neural-atlas/.venv/bin/python"
-VARIABLE = "{" + C.FLAMENCO_PYTHON_VARIABLE + "}"
+VARIABLE = "{" + FLAMENCO_PYTHON_VARIABLE + "}"
 SCRIPT = Path(__file__).resolve().parents[2] / "engine" / "farm" / "flamenco" / flamenco.JOB_TYPE_SCRIPT
 
 
@@ -77,7 +78,7 @@ def test_job_type_declares_the_settings_and_names_the_python_agree_on(tmp_path: 
     assert const("TASK_TYPE_GPU") == flamenco.TASK_TYPE_GPU
     assert const("TASK_KINDS") == list(TASK_KINDS)
     # Flamenco names a job type after its script's file
-    assert SCRIPT.stem.replace("_", "-") == C.FLAMENCO_JOB_TYPE
+    assert SCRIPT.stem.replace("_", "-") == FLAMENCO_JOB_TYPE
 
 
 def _plan_json(tmp_path: Path) -> dict[str, Any]:

@@ -18,11 +18,12 @@ import pytest
 from engine import contract as C
 from engine.errors import InputError
 from engine.farm import flamenco
+from engine.terms.farm import FLAMENCO_API_CHECK, FLAMENCO_API_SUBMIT, FLAMENCO_JOB_TYPE
 from tests.farm.flamenco_helpers import NODE, StubManager, two_shot_plan
 
 pytestmark = pytest.mark.skipif(NODE is None, reason="node (v20) is not on PATH")
 
-TYPE_PATH = flamenco.API_JOB_TYPE + C.FLAMENCO_JOB_TYPE
+TYPE_PATH = flamenco.API_JOB_TYPE + FLAMENCO_JOB_TYPE
 VARIABLES_PATH = flamenco.API_VARIABLES + "linux"
 
 
@@ -55,17 +56,17 @@ def test_each_shot_is_checked_then_submitted_as_one_job(manager: StubManager, tm
     assert calls == [
         ("GET", TYPE_PATH),
         ("GET", VARIABLES_PATH),
-        ("POST", C.FLAMENCO_API_CHECK),
-        ("POST", C.FLAMENCO_API_CHECK),
-        ("POST", C.FLAMENCO_API_SUBMIT),
-        ("POST", C.FLAMENCO_API_SUBMIT),
+        ("POST", FLAMENCO_API_CHECK),
+        ("POST", FLAMENCO_API_CHECK),
+        ("POST", FLAMENCO_API_SUBMIT),
+        ("POST", FLAMENCO_API_SUBMIT),
     ]
-    checked = [c.body["name"] for c in manager.calls if c.path == C.FLAMENCO_API_CHECK]
-    submitted = [c.body for c in manager.calls if c.path == C.FLAMENCO_API_SUBMIT]
+    checked = [c.body["name"] for c in manager.calls if c.path == FLAMENCO_API_CHECK]
+    submitted = [c.body for c in manager.calls if c.path == FLAMENCO_API_SUBMIT]
     assert checked == [b["name"] for b in submitted] == ["sh010", "sh020"]
     for body in submitted:
         assert isinstance(body, dict)
-        assert body["type"] == C.FLAMENCO_JOB_TYPE
+        assert body["type"] == FLAMENCO_JOB_TYPE
         assert body["priority"] == 70
         assert body["submitter_platform"] == "linux"
         assert body["type_etag"] == manager.etag
@@ -90,7 +91,7 @@ def test_each_shot_is_checked_then_submitted_as_one_job(manager: StubManager, tm
 def test_check_only_submits_nothing(manager: StubManager, tmp_path: Path) -> None:
     ids, _ = _submit(manager, two_shot_plan(tmp_path), check_only=True)
     assert ids == []
-    assert [c.path for c in manager.calls if c.method == "POST"] == [C.FLAMENCO_API_CHECK] * 2
+    assert [c.path for c in manager.calls if c.method == "POST"] == [FLAMENCO_API_CHECK] * 2
     assert manager.jobs == {}
 
 
@@ -98,7 +99,7 @@ def test_paths_under_a_two_way_variable_are_sent_as_the_variable(manager: StubMa
     manager.variables["studio"] = {"value": str(tmp_path), "is_twoway": True}
     plan = two_shot_plan(tmp_path)
     _submit(manager, plan)
-    body = next(c.body for c in manager.calls if c.path == C.FLAMENCO_API_SUBMIT)
+    body = next(c.body for c in manager.calls if c.path == FLAMENCO_API_SUBMIT)
     assert isinstance(body, dict)
     sent = json.loads(body["settings"]["plan"])["tasks"]
     planned = plan.shot_tasks("sh010")
@@ -141,13 +142,13 @@ def test_a_manager_without_the_job_type_says_how_to_install_it(manager: StubMana
 def test_a_refused_check_gives_flamencos_message_and_submits_nothing(
     manager: StubManager, tmp_path: Path, status: int
 ) -> None:
-    manager.fail[C.FLAMENCO_API_CHECK] = (status, "compiling job: something is off")
+    manager.fail[FLAMENCO_API_CHECK] = (status, "compiling job: something is off")
     with pytest.raises(InputError) as exc:
         _submit(manager, two_shot_plan(tmp_path))
     text = _one_line(exc)
-    assert text.startswith(manager.url + C.FLAMENCO_API_CHECK + ": ")
+    assert text.startswith(manager.url + FLAMENCO_API_CHECK + ": ")
     assert f"refused shot sh010 (HTTP {status}: compiling job: something is off)" in text
-    assert [c.path for c in manager.calls if c.method == "POST"] == [C.FLAMENCO_API_CHECK]
+    assert [c.path for c in manager.calls if c.method == "POST"] == [FLAMENCO_API_CHECK]
 
 
 def test_a_job_type_changed_since_its_etag_was_read_is_refused(manager: StubManager, tmp_path: Path) -> None:
@@ -175,7 +176,7 @@ def test_a_plan_the_job_type_refuses_comes_back_as_the_scripts_message(manager: 
     bad = flamenco.submitted_job("sh010", plan.shot_tasks("sh010"), platform="linux")
     bad["settings"]["plan"] = "[]"
     with pytest.raises(InputError) as exc:
-        flamenco.Manager(manager.url).request("POST", C.FLAMENCO_API_CHECK, bad, what="shot sh010")
+        flamenco.Manager(manager.url).request("POST", FLAMENCO_API_CHECK, bad, what="shot sh010")
     assert 'HTTP 400: neural-atlas job "sh010": the plan setting is not a JSON object' in _one_line(exc)
 
 
@@ -186,7 +187,7 @@ def test_a_failing_manager_and_a_second_shot_refused_say_what_is_queued(manager:
 
     def second_fails(path: str, body: object, content_type: str) -> tuple[int, object]:
         nonlocal submits
-        if path == C.FLAMENCO_API_SUBMIT:
+        if path == FLAMENCO_API_SUBMIT:
             submits += 1
             if submits == 2:
                 return manager.error(500, "database is busy")
@@ -274,7 +275,7 @@ def test_the_cli_says_one_line_and_exits_2(manager: StubManager, tmp_path: Path,
     if status is None:
         manager.close()  # connection refused
     else:
-        manager.fail[C.FLAMENCO_API_CHECK] = (status, "compiling job: bad")
+        manager.fail[FLAMENCO_API_CHECK] = (status, "compiling job: bad")
     code, lines = run_cli(C.VERB_FARM, C.FARM_FLAMENCO, shots, "--manager", url)
     assert code == C.EXIT_BAD_INPUT
     assert len(lines) == 1, lines

@@ -22,6 +22,7 @@ from engine.farm import dask_backend, flamenco, openjd
 from engine.farm.openjd import MAX_STEP_TASKS
 from engine.farm.plan import load_plan, task_graph_text
 from engine.farm.shots import load_shots
+from engine.terms.farm import FARM_DASK, FARM_PLAN
 from tests.engine_cli import run_cli
 from tests.farm.farm_helpers import TINY_SET, openjd_commands, write_clip, write_shots
 from tests.folders import non_utf8_folder, tree_digest
@@ -186,7 +187,7 @@ def test_a_name_that_is_not_utf8_is_refused_in_one_line(tmp_path):
     _plate(tmp_path, folder.name)
     shots = tmp_path / "shots.json"
     shots.write_text(json.dumps({C.SHOTS_TAG: 1, "shots": [{"name": "u", "plate": folder.name}]}))
-    line = _one_line_exit_2(C.VERB_FARM, C.FARM_PLAN, shots)
+    line = _one_line_exit_2(C.VERB_FARM, FARM_PLAN, shots)
     assert "shot 'u': 'plate' " in line and "plate\\xff is not UTF-8 text" in line
 
 
@@ -248,7 +249,7 @@ def test_what_the_farm_would_break_or_refuse_is_refused_at_plan_time(two_plates,
     (two_plates / "link").symlink_to(two_plates / "plates" / "a")
     path = write_shots(two_plates, shots)
     before = tree_digest(two_plates)
-    line = _one_line_exit_2(C.VERB_FARM, C.FARM_PLAN, path)
+    line = _one_line_exit_2(C.VERB_FARM, FARM_PLAN, path)
     assert says.replace("{T}", str(two_plates)) in line
     assert tree_digest(two_plates) == before
 
@@ -270,7 +271,7 @@ def test_a_deeply_nested_shots_file_is_one_line(tmp_path, kind):
         path.write_text(f'{{"{C.SHOTS_TAG}": 1, "shots": ' + "[" * depth + "]" * depth + "}")
     else:
         path.write_text(f"{C.SHOTS_TAG} = 1\nshots = " + "[" * depth + "]" * depth + "\n")
-    line = _one_line_exit_2(C.VERB_FARM, C.FARM_PLAN, path)
+    line = _one_line_exit_2(C.VERB_FARM, FARM_PLAN, path)
     assert line == (
         f"error: {path}: nests lists or tables too deeply to be a shots file — write {C.SHOTS_TAG}, a [defaults] "
         "table and one table per shot (docs/farm.md)"
@@ -280,7 +281,7 @@ def test_a_deeply_nested_shots_file_is_one_line(tmp_path, kind):
 def test_farm_plan_prints_each_command_as_a_shell_runs_it(tmp_path):
     _plate(tmp_path, "my plate $X")
     plan = load_plan(write_shots(tmp_path, [{"name": "s", "plate": "my plate $X", "preview": False}]))
-    code, _err = run_cli(C.VERB_FARM, C.FARM_PLAN, tmp_path / "shots.json")
+    code, _err = run_cli(C.VERB_FARM, FARM_PLAN, tmp_path / "shots.json")
     assert code == C.EXIT_OK
     fit_line = task_graph_text(plan).splitlines()[2].strip()
     assert fit_line.startswith(f"python -m engine fit '{tmp_path}/my plate $X' --out {tmp_path}/runs/s ")
@@ -317,7 +318,7 @@ def test_farm_dask_against_a_scheduler_without_the_engine_is_one_line_naming_it_
     try:
         address = f"tcp://127.0.0.1:{port}"
         before = tree_digest(tmp_path)
-        line = _one_line_exit_2(C.VERB_FARM, C.FARM_DASK, shots, "--scheduler", address, "--connect-timeout", "30")
+        line = _one_line_exit_2(C.VERB_FARM, FARM_DASK, shots, "--scheduler", address, "--connect-timeout", "30")
         assert line == (
             f"error: {address}: the Dask scheduler cannot import the engine (ModuleNotFoundError: No module named "
             f"'engine') — {dask_backend.ENGINE_IMPORT_FIX}"

@@ -21,6 +21,7 @@ import pytest
 from engine import cli
 from engine import contract as C
 from engine.farm.plan import load_plan
+from engine.terms.export_names import EDITS_DIR
 from tests.engine_cli import run_cli
 from tests.farm.farm_helpers import TINY_SET, openjd_commands, two_shot_file, write_clip, write_shots
 from tests.folders import tree_digest, visible_names
@@ -192,8 +193,8 @@ def test_openjd_run_of_a_tiny_shot_equals_a_direct_fit_and_export(runs):
         (farm_channels, farm_pixels), (our_channels, our_pixels) = _pixels(farm / name), _pixels(ours / name)
         assert farm_channels == our_channels, name
         assert farm_pixels.dtype == our_pixels.dtype and np.array_equal(farm_pixels, our_pixels), name
-    for edit in sorted((runs.direct / C.EDITS_DIR).glob("*.png")):
-        assert np.array_equal(_pixels(edit)[1], _pixels(runs.farm / C.EDITS_DIR / edit.name)[1])
+    for edit in sorted((runs.direct / EDITS_DIR).glob("*.png")):
+        assert np.array_equal(_pixels(edit)[1], _pixels(runs.farm / EDITS_DIR / edit.name)[1])
     assert not list((farm.parent).glob(".v*")), "the staging folder became v001"
 
 

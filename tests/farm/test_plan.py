@@ -17,6 +17,11 @@ from engine import cli
 from engine import contract as C
 from engine.errors import InputError
 from engine.farm.plan import TASK_KINDS, chunk_ranges, load_plan, next_version
+from engine.terms.cli import EXPORT_PASS_PRECISION_ARG
+from engine.terms.export_names import PASS_PRECISION_FULL
+from engine.terms.farm import FARM_PLAN
+from engine.terms.run_folder import FIT_AUTO_PARTS_FLAG
+from engine.terms.versions import SCHEMA_VERSION
 from tests.farm.farm_helpers import TINY_SET, two_shot_file, write_clip, write_shots
 from tests.media_files import textured_frames, write_movie
 from tests.paths import ROOT
@@ -78,8 +83,8 @@ def test_every_option_of_a_shot_reaches_its_command(tmp_path):
     plan = load_plan(path)
     assert C.EXPORT_NO_FOLLOW_FLOW_FLAG in plan.task("x.atlases").args  # the passes and publish follow its record
     atlases = plan.task("x.atlases").args
-    assert atlases[atlases.index(C.EXPORT_PASS_PRECISION_ARG) + 1] == C.PASS_PRECISION_FULL
-    assert C.EXPORT_PASS_PRECISION_ARG not in plan.task("x.passes.1-3").args
+    assert atlases[atlases.index(EXPORT_PASS_PRECISION_ARG) + 1] == PASS_PRECISION_FULL
+    assert EXPORT_PASS_PRECISION_ARG not in plan.task("x.passes.1-3").args
     assert C.EXPORT_NO_FOLLOW_FLOW_FLAG not in plan.task("x.passes.1-3").args
     fit = plan.task("x.fit").args
     assert fit[fit.index("--colorspace") + 1] == "sRGB Encoded Rec.709 (sRGB)"
@@ -118,13 +123,13 @@ def test_auto_parts_reaches_the_fit_only(tmp_path):
     write_clip(tmp_path / "c")
     path = write_shots(tmp_path, [{"name": "x", "plate": "c/frames", "masks": ["c/masks"], "auto_parts": True}])
     plan = load_plan(path)
-    assert plan.task("x.fit").args.count(C.FIT_AUTO_PARTS_FLAG) == 1
-    assert all(C.FIT_AUTO_PARTS_FLAG not in t.args for t in plan.tasks if t.kind != "fit")
+    assert plan.task("x.fit").args.count(FIT_AUTO_PARTS_FLAG) == 1
+    assert all(FIT_AUTO_PARTS_FLAG not in t.args for t in plan.tasks if t.kind != "fit")
     plain = load_plan(write_shots(tmp_path, [{"name": "x", "plate": "c/frames", "masks": ["c/masks"]}]))
-    assert not {C.FIT_AUTO_PARTS_FLAG, C.FIT_NO_AUTO_PARTS_FLAG} & set(plain.task("x.fit").args)  # the fit's default
+    assert not {FIT_AUTO_PARTS_FLAG, C.FIT_NO_AUTO_PARTS_FLAG} & set(plain.task("x.fit").args)  # the fit's default
     off = [{"name": "x", "plate": "c/frames", "masks": ["c/masks"], "auto_parts": False}]
     args = load_plan(write_shots(tmp_path, off)).task("x.fit").args
-    assert args.count(C.FIT_NO_AUTO_PARTS_FLAG) == 1 and C.FIT_AUTO_PARTS_FLAG not in args
+    assert args.count(C.FIT_NO_AUTO_PARTS_FLAG) == 1 and FIT_AUTO_PARTS_FLAG not in args
 
 
 def test_a_movie_plate_is_counted_and_numbered_from_its_start_frame(tmp_path):
@@ -184,9 +189,9 @@ def test_chunks_cover_every_frame_once_in_order(numbers, size):
 def test_farm_plan_json_is_the_plan(seq):
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
-        assert cli.main([C.VERB_FARM, C.FARM_PLAN, str(seq / "shots.json"), "--json"]) == C.EXIT_OK
+        assert cli.main([C.VERB_FARM, FARM_PLAN, str(seq / "shots.json"), "--json"]) == C.EXIT_OK
     printed = json.loads(out.getvalue())
-    assert printed == {"schema": C.SCHEMA_VERSION, **load_plan(seq / "shots.json").to_json()}
+    assert printed == {"schema": SCHEMA_VERSION, **load_plan(seq / "shots.json").to_json()}
     assert printed["tasks"][0]["id"] == "sh010.fit" and printed["tasks"][0]["frames"] is None
 
 

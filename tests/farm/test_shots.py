@@ -19,6 +19,9 @@ from engine.cli_options import frame_range
 from engine.errors import InputError
 from engine.farm.shots import DEFAULT_EXPORT_CHUNK, Shot, load_shots
 from engine.farm.shots_model import PassPrecision
+from engine.terms.cli import DEFAULT_PRESET
+from engine.terms.export_names import PASS_PRECISIONS
+from engine.terms.farm import FARM_PLAN, SHOT_DEFAULT_KEYS, SHOT_REQUIRED_KEYS
 from tests.engine_cli import run_cli
 from tests.farm.farm_helpers import write_clip, write_shots
 
@@ -90,7 +93,7 @@ preview = false
 def test_a_bare_shot_takes_every_default(seq):
     shot = load_shots(write_shots(seq, [{"name": "a", "plate": "clip/frames"}])).shots[0]
     assert (shot.preset, shot.set, shot.export_chunk, shot.preview, shot.render) == (
-        C.DEFAULT_PRESET, (), DEFAULT_EXPORT_CHUNK, True, None)  # fmt: skip
+        DEFAULT_PRESET, (), DEFAULT_EXPORT_CHUNK, True, None)  # fmt: skip
 
 
 GOOD = {"name": "sh010", "plate": "clip/frames"}
@@ -142,9 +145,9 @@ def test_the_contract_names_the_keys_a_shot_declares():
     default of its own."""
     fields = Shot.model_fields
     assert len(set(C.SHOT_KEYS)) == len(C.SHOT_KEYS) and set(C.SHOT_KEYS) == set(fields)
-    assert tuple(key for key, field in fields.items() if field.is_required()) == C.SHOT_REQUIRED_KEYS
-    assert set(C.SHOT_DEFAULT_KEYS) <= set(fields) - set(C.SHOT_REQUIRED_KEYS)
-    assert get_args(PassPrecision) == C.PASS_PRECISIONS  # the export's choices, as its parser declares them
+    assert tuple(key for key, field in fields.items() if field.is_required()) == SHOT_REQUIRED_KEYS
+    assert set(SHOT_DEFAULT_KEYS) <= set(fields) - set(SHOT_REQUIRED_KEYS)
+    assert get_args(PassPrecision) == PASS_PRECISIONS  # the export's choices, as its parser declares them
 
 
 @pytest.mark.parametrize("key", C.SHOT_KEYS)
@@ -189,7 +192,7 @@ def test_the_file_itself(seq):
 
 
 def test_the_cli_exits_2_with_the_one_line(seq):
-    code, err = run_cli(C.VERB_FARM, C.FARM_PLAN, write_shots(seq, [{**GOOD, "frames": "9-2"}]))
+    code, err = run_cli(C.VERB_FARM, FARM_PLAN, write_shots(seq, [{**GOOD, "frames": "9-2"}]))
     assert code == C.EXIT_BAD_INPUT
     assert len(err) == 1 and err[0].startswith(f"error: {seq / 'shots.json'}: shot 'sh010': 'frames'")
 

@@ -29,12 +29,14 @@ from packaging.version import Version
 
 from engine import contract as C
 from engine.cli import CONSOLE_SCRIPT
+from engine.terms.cli import INSTALLED_MODULE, VERB_DEMO, VERB_NUKE, VERB_PREVIEW, VERB_RENDER
+from engine.terms.versions import ENGINE_VERSION
 from tests.paths import ROOT
 
 PYPROJECT = ROOT / "pyproject.toml"
-WHEEL_NAME = f"neural_atlas-{C.ENGINE_VERSION}-py3-none-any.whl"
+WHEEL_NAME = f"neural_atlas-{ENGINE_VERSION}-py3-none-any.whl"
 #: The installed import package (pyproject.toml maps it onto engine/).
-PACKAGE = C.INSTALLED_MODULE
+PACKAGE = INSTALLED_MODULE
 ENTRY_POINT = f"{PACKAGE}.cli:console_main"
 #: What a copy of the checkout leaves out: environments, caches, outputs of earlier builds and runs.
 NOT_SOURCE = shutil.ignore_patterns(
@@ -69,7 +71,7 @@ def test_pyproject_reads_the_requirements_from_the_engines_files_and_lists_every
     assert project["dynamic"] == ["dependencies", "optional-dependencies"]
     assert setuptools["dynamic"]["dependencies"] == {"file": [f"engine/{C.REQUIREMENTS_FILE}"]}
     assert setuptools["dynamic"]["optional-dependencies"] == {"farm": {"file": [f"engine/{C.FARM_REQUIREMENTS_FILE}"]}}
-    assert project["name"] == "neural-atlas" and project["version"] == C.ENGINE_VERSION
+    assert project["name"] == "neural-atlas" and project["version"] == ENGINE_VERSION
     assert project["scripts"] == {CONSOLE_SCRIPT: ENTRY_POINT}
     assert setuptools["package-dir"] == {PACKAGE: "engine"}
     # every folder of engine/ with Python in it is a package of the wheel
@@ -110,7 +112,7 @@ def wheel(source, tmp_path_factory) -> Path:
 
 def test_wheel_holds_the_engine_under_its_own_name_and_nothing_else(wheel):
     names = zipfile.ZipFile(wheel).namelist()
-    dist_info = f"neural_atlas-{C.ENGINE_VERSION}.dist-info"
+    dist_info = f"neural_atlas-{ENGINE_VERSION}.dist-info"
     assert {n.split("/")[0] for n in names} == {PACKAGE, dist_info}
     engine_files = {"engine/" + n.split("/", 1)[1] for n in names if n.startswith(f"{PACKAGE}/")}
     # every file of the engine in the checkout (a data file too: pyproject.toml's package-data must name it)
@@ -127,7 +129,7 @@ def test_wheel_holds_the_engine_under_its_own_name_and_nothing_else(wheel):
 
 def test_wheel_metadata_declares_the_ranges_and_the_command(wheel):
     z = zipfile.ZipFile(wheel)
-    dist_info = f"neural_atlas-{C.ENGINE_VERSION}.dist-info"
+    dist_info = f"neural_atlas-{ENGINE_VERSION}.dist-info"
     metadata = z.read(f"{dist_info}/METADATA").decode("utf-8").splitlines()
     requires = [line.split(": ", 1)[1] for line in metadata if line.startswith("Requires-Dist: ")]
     farm_marker = 'extra == "farm"'
@@ -193,15 +195,15 @@ def test_pip_install_gives_the_neural_atlas_command_with_the_engines_verbs(insta
     # the same verbs, options and text as `python -m engine` from the checkout, under the command's name
     module = _run(installed, sys.executable, "-m", C.CLI_MODULE, "--help", cwd=ROOT)
     assert helped.stdout == module.stdout.replace("python -m engine", CONSOLE_SCRIPT)
-    for verb in (C.VERB_FIT, C.VERB_ESTIMATE, C.VERB_EXPORT, C.VERB_RENDER, C.VERB_PROJECT_FRAME, C.VERB_MASKS):
+    for verb in (C.VERB_FIT, C.VERB_ESTIMATE, C.VERB_EXPORT, VERB_RENDER, C.VERB_PROJECT_FRAME, C.VERB_MASKS):
         assert f"    {verb}" in helped.stdout, verb
     as_module = _run(installed, str(installed / "bin" / "python"), "-m", PACKAGE, "--help")
     assert as_module.stdout == module.stdout.replace("python -m engine", f"python -m {PACKAGE}")
     version = _run(installed, str(command), "--version")
-    assert version.stdout.strip() == f"neural-atlas engine {C.ENGINE_VERSION}"
-    render = _run(installed, str(command), C.VERB_RENDER, "--help")
-    assert render.returncode == 0 and render.stdout.startswith(f"usage: {CONSOLE_SCRIPT} {C.VERB_RENDER} ")
-    bad = _run(installed, str(command), C.VERB_RENDER, str(installed / "no_such_manifest.json"), "--out", "x")
+    assert version.stdout.strip() == f"neural-atlas engine {ENGINE_VERSION}"
+    render = _run(installed, str(command), VERB_RENDER, "--help")
+    assert render.returncode == 0 and render.stdout.startswith(f"usage: {CONSOLE_SCRIPT} {VERB_RENDER} ")
+    bad = _run(installed, str(command), VERB_RENDER, str(installed / "no_such_manifest.json"), "--out", "x")
     assert bad.returncode == C.EXIT_BAD_INPUT
     assert "no manifest here" in bad.stderr
 
@@ -261,17 +263,17 @@ def test_every_verb_runs_from_an_empty_folder_with_the_installed_wheel(installed
         ([C.VERB_ESTIMATE, str(frames), "--mask", str(masks), "--presets", "draft", "--calib-seconds", "0.01"], None),
         ([C.VERB_FIT, str(frames), "--mask", str(masks), "--out", str(work / "run"), *tiny], work / "run"),
         ([C.VERB_EXPORT, str(work / "run"), "--atlas-size", "32"], manifest),
-        ([C.VERB_RENDER, str(manifest), "--out", str(work / "rendered"), "--no-bar"], work / "rendered"),
+        ([VERB_RENDER, str(manifest), "--out", str(work / "rendered"), "--no-bar"], work / "rendered"),
         ([C.VERB_PROJECT_FRAME, str(manifest), "--frame", "1", "--edit", str(paint)], None),
         ([C.VERB_FIT, "--out", str(work / "run"), "--refine", "2", "--no-bar"], None),
         ([C.VERB_EXPORT, str(work / "run"), "--atlas-size", "32"], later),
         ([C.VERB_REALIGN, str(later)], None),
-        ([C.VERB_PREVIEW, str(manifest), "--out", str(work / "preview"), "--no-movies"], work / "preview"),
-        ([C.VERB_NUKE, str(manifest), "--out", str(work / "edit.nk")], work / "edit.nk"),
+        ([VERB_PREVIEW, str(manifest), "--out", str(work / "preview"), "--no-movies"], work / "preview"),
+        ([VERB_NUKE, str(manifest), "--out", str(work / "edit.nk")], work / "edit.nk"),
         ([C.VERB_FARM, "plan", str(shots)], None),
         ([C.VERB_FARM, "openjd", str(shots), "--out", str(work / "bundle")], work / "bundle" / "template.json"),
         ([C.VERB_FARM, "flamenco", "--job-type-out", str(work / "flamenco")], work / "flamenco"),
-        ([C.VERB_DEMO, "--out", str(work / "demo"), *tiny[3:]], work / "demo" / "contact_sheet.png"),
+        ([VERB_DEMO, "--out", str(work / "demo"), *tiny[3:]], work / "demo" / "contact_sheet.png"),
     ]
     for argv, made in steps:
         if argv[0] == C.VERB_PROJECT_FRAME:

@@ -27,6 +27,7 @@ import numpy as np
 from engine import cli
 from engine import contract as C
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
+from engine.terms.run_folder import RUN_CONFIG
 from tests.folders import tree_digest
 from tests.media_files import write_audio_only_movie, write_image
 from tests.stability.fitcheck import write_masks, write_sequence
@@ -161,7 +162,7 @@ def _resume(d: Path) -> list[str]:
 
 def _old_schema(d: Path) -> list[str]:
     _fitted(d)
-    cfg = d / "run" / C.RUN_CONFIG
+    cfg = d / "run" / RUN_CONFIG
     data = json.loads(cfg.read_text())
     data["schema"] = 0
     cfg.write_text(json.dumps(data))

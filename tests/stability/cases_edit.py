@@ -18,6 +18,8 @@ import numpy as np
 
 from engine import contract as C
 from engine.io.images import write_exr, write_png
+from engine.terms.cli import VERB_PREVIEW, VERB_RENDER
+from engine.terms.export_names import EDITS_DIR, PASSES_DIR, pass_file_name
 from tests.engine.fake_export import make_fake_export
 from tests.media_files import write_movie
 from tests.stability.bad_inputs import Case
@@ -111,7 +113,7 @@ def _render_movie(
 
 def _missing_pass(d: Path) -> list[str]:
     manifest = _export(d)
-    (manifest.parent / C.PASSES_DIR / C.pass_file_name(1)).unlink()
+    (manifest.parent / PASSES_DIR / pass_file_name(1)).unlink()
     return [str(manifest), "--out", str(d / "edited"), "--no-bar"]
 
 
@@ -161,7 +163,7 @@ def _history_linked_out(d: Path) -> list[str]:
     """The run's ``edits/history`` is a link to a folder outside the run folder."""
     argv = _project()(d)
     (d / "elsewhere").mkdir()
-    (d / "run" / C.EDITS_DIR / "history").symlink_to(d / "elsewhere", target_is_directory=True)
+    (d / "run" / EDITS_DIR / "history").symlink_to(d / "elsewhere", target_is_directory=True)
     return argv
 
 
@@ -202,41 +204,41 @@ def _elsewhere(d: Path) -> Path:
 CASES: tuple[Case, ...] = (
     Case("render_out_is_the_plate_folder", "render --out the plate's folder (frames named edit.00000.exr ...)",
          _render(_plate_folder, _plate_named_like_the_render),
-         ("plate", "folder of the plate's frames", "another --out"), verb=C.VERB_RENDER, watch=_plate_folder),
+         ("plate", "folder of the plate's frames", "another --out"), verb=VERB_RENDER, watch=_plate_folder),
     Case("render_out_is_the_run_folder", "render --out RUN_DIR", _render(_run), ("run", "inside the run folder"),
-         verb=C.VERB_RENDER, watch=_run),
+         verb=VERB_RENDER, watch=_run),
     Case("render_out_inside_an_export", "render --out RUN_DIR/exports/v001/passes",
-         _render(lambda d: d / "run" / C.EXPORTS_DIR / "v001" / C.PASSES_DIR), ("passes", "inside the run folder"),
-         verb=C.VERB_RENDER, watch=_run),
+         _render(lambda d: d / "run" / C.EXPORTS_DIR / "v001" / PASSES_DIR), ("passes", "inside the run folder"),
+         verb=VERB_RENDER, watch=_run),
     Case("render_out_is_a_mask_folder", "render --out one of the fit's mask folders", _render(lambda d: d / "masks",
-         _with_masks), ("masks", "mask folder"), verb=C.VERB_RENDER, watch=lambda d: d / "masks"),
+         _with_masks), ("masks", "mask folder"), verb=VERB_RENDER, watch=lambda d: d / "masks"),
     Case("render_out_is_a_file", "render --out a regular file", _render(_a_file), ("a_file", "is a file"),
-         verb=C.VERB_RENDER, watch=_everything),
+         verb=VERB_RENDER, watch=_everything),
     Case("render_movie_is_the_plate_movie", "render --movie the plate movie", _render_movie(lambda d: d / "footage" /
-         "plate.mp4", _movie_plate), ("plate.mp4", "is the plate movie"), verb=C.VERB_RENDER,
+         "plate.mp4", _movie_plate), ("plate.mp4", "is the plate movie"), verb=VERB_RENDER,
          watch=lambda d: d / "footage"),
     Case("render_movie_in_the_plate_folder", "render --movie a file among the plate's frames",
          _render_movie(lambda d: d / "clip" / "edited.mp4"), ("clip", "folder of the plate's frames"),
-         verb=C.VERB_RENDER, watch=_clip),
+         verb=VERB_RENDER, watch=_clip),
     Case("render_movie_not_writable", "render --movie below a regular file",
          _render_movie(lambda d: _a_file(d) / "edited.mp4"), ("edited.mp4", "cannot write the movie here"),
-         verb=C.VERB_RENDER, watch=lambda d: d / "edited"),
+         verb=VERB_RENDER, watch=lambda d: d / "edited"),
     Case("render_missing_pass_file", "a pass file of the export is gone", _missing_pass,
-         ("atlas.00001.exr", "does not exist", "export the run again"), verb=C.VERB_RENDER, watch=_everything),
+         ("atlas.00001.exr", "does not exist", "export the run again"), verb=VERB_RENDER, watch=_everything),
     Case("render_plate_moved_away", "the plate is no longer where the manifest says", _plate_gone,
-         ("clip", "plate folder does not exist", "put the plate back"), verb=C.VERB_RENDER, watch=_everything),
+         ("clip", "plate folder does not exist", "put the plate back"), verb=VERB_RENDER, watch=_everything),
     Case("render_manifest_frames_not_ints", "manifest passes.frames are strings",
          _manifest_changed(lambda m: m["passes"].update(frames=["0", "1"])), ("'frames'", "int list"),
-         verb=C.VERB_RENDER, watch=_everything),
+         verb=VERB_RENDER, watch=_everything),
     Case("render_manifest_unknown_frames", "manifest passes.frames names frames the clip does not have",
          _manifest_changed(lambda m: m["passes"].update(frames=[0, 1, 7])), ("[7]", "not distinct frames of the clip"),
-         verb=C.VERB_RENDER, watch=_everything),
+         verb=VERB_RENDER, watch=_everything),
     Case("render_manifest_bad_resolution", "manifest clip.resolution is not two positive ints",
          _manifest_changed(lambda m: m["clip"].update(resolution=[W, -H])), ("resolution", "two sides"),
-         verb=C.VERB_RENDER, watch=_everything),
+         verb=VERB_RENDER, watch=_everything),
     Case("render_manifest_duplicate_layer_names", "two layers with one name",
          _manifest_changed(lambda m: m["layers"].append({**m["layers"][0], "index": 1, "role": "foreground"})),
-         ("layer names", "not unique"), verb=C.VERB_RENDER, watch=_everything),
+         ("layer names", "not unique"), verb=VERB_RENDER, watch=_everything),
     Case("project_frame_unknown_layer", "project-frame --layer Nope", _project("--layer", "Nope"),
          ("no layer called 'Nope'", "Background"), verb=C.VERB_PROJECT_FRAME, watch=_run),
     Case("project_frame_absolute_edit_path", "a manifest whose edit layer is an absolute path outside the run",
@@ -251,11 +253,11 @@ CASES: tuple[Case, ...] = (
     Case("project_frame_history_linked_out", "edits/history is a link out of the run folder", _history_linked_out,
          ("history", "leaves the run folder"), verb=C.VERB_PROJECT_FRAME, watch=_elsewhere),
     Case("preview_out_is_a_file", "preview --out a regular file", _preview(_a_file), ("a_file", "is a file"),
-         verb=C.VERB_PREVIEW, watch=_everything),
+         verb=VERB_PREVIEW, watch=_everything),
     Case("preview_out_is_the_plate_folder", "preview --out the plate's folder", _preview(_clip),
-         ("clip", "folder of the plate's frames"), verb=C.VERB_PREVIEW, watch=_clip),
-    Case("preview_out_inside_the_run", "preview --out RUN_DIR/edits", _preview(lambda d: d / "run" / C.EDITS_DIR),
-         ("edits", "inside the run folder"), verb=C.VERB_PREVIEW, watch=_run),
+         ("clip", "folder of the plate's frames"), verb=VERB_PREVIEW, watch=_clip),
+    Case("preview_out_inside_the_run", "preview --out RUN_DIR/edits", _preview(lambda d: d / "run" / EDITS_DIR),
+         ("edits", "inside the run folder"), verb=VERB_PREVIEW, watch=_run),
     Case("export_atlas_size_out_of_range", "export --atlas-size 3", lambda d: [str(d / "run"), "--atlas-size", "3"],
          ("--atlas-size 3", "8..16384"), verb=C.VERB_EXPORT, watch=_run),
 )  # fmt: skip

@@ -15,6 +15,7 @@ import torch
 
 from engine import contract as C
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
+from engine.terms.run_folder import RUN_CLIP, RUN_CONFIG, SCENE_FILE
 from tests.stability.bad_inputs import TINY_FIT, Case, _clip, _fit_args, _fitted, _good_clip_with, _resume
 from tests.stability.fitcheck import write_sequence
 
@@ -195,25 +196,25 @@ CASES: tuple[Case, ...] = (
     Case(
         "config_json_not_an_object",
         "--resume of a run whose config.json holds a list",
-        _edited(C.RUN_CONFIG, lambda data: [data]),
+        _edited(RUN_CONFIG, lambda data: [data]),
         ("config.json", "not a JSON object"),
     ),
     Case(
         "config_json_out_of_range",
         "--resume of a run whose config.json says batch 0",
-        _edited(C.RUN_CONFIG, lambda data: data["config"].update(batch=0)),
+        _edited(RUN_CONFIG, lambda data: data["config"].update(batch=0)),
         ("config.json", "'batch' must be an int in 1..10000000"),
     ),
     Case(
         "clip_json_wrong_type",
         '--resume of a run whose clip.json says layers "two"',
-        _edited(C.RUN_CLIP, lambda data: data.update(layers="two")),
+        _edited(RUN_CLIP, lambda data: data.update(layers="two")),
         ("clip.json", "'layers' is not an int"),
     ),
     Case(
         "scene_json_wrong_value",
         '--resume of a run whose scene.json says background_motion "sideways"',
-        _edited(C.SCENE_FILE, lambda data: data.update(background_motion="sideways")),
+        _edited(SCENE_FILE, lambda data: data.update(background_motion="sideways")),
         ("scene.json", "sideways"),
     ),
     Case(

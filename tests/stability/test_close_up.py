@@ -14,6 +14,7 @@ from engine import contract as C
 from engine.export.manifest import Manifest
 from engine.fit.fitted_run import load_fitted
 from engine.io.images import read_image
+from engine.terms.run_folder import AUTO_PARTS_DIR
 from tests.engine_cli import run_cli
 from tests.stability.bad_inputs import TINY_FIT
 from tests.stability.fitcheck import write_masks, write_sequence
@@ -47,7 +48,7 @@ def test_the_default_fit_of_a_close_up_completes(tmp_path, cover):
     run = tmp_path / "run"
     code, lines = run_cli("fit", frames, "--mask", masks, "--out", run, *TINY_FIT)
     assert code == C.EXIT_OK, lines
-    assert not (run / C.AUTO_PARTS_DIR).exists()  # searched, and one rigid piece: nothing to split
+    assert not (run / AUTO_PARTS_DIR).exists()  # searched, and one rigid piece: nothing to split
     assert load_fitted(run).model.num_layers == 2
     if cover != 0.95:
         return

@@ -34,6 +34,7 @@ from engine.edit.render_record import RECORD_NAME
 from engine.export.manifest import Manifest
 from engine.fit.run_folder import RunFolder
 from engine.io.images import read_exr, read_image, write_png
+from engine.terms.export_names import EDITS_DIR
 from tests.engine_cli import run_cli
 from tests.folders import tree_digest
 from tests.paths import ROOT
@@ -194,13 +195,13 @@ def test_sigkill_while_continuing_a_painted_run_keeps_exports_and_edits(base, tm
     duration = _timed(["fit", "--resume", "--out", str(probe), "--no-bar", *longer])
     for i, delay in enumerate(_delays("resume", duration)):
         run = _copy_run(base, tmp_path / f"run{i}")
-        exports, edits = tree_digest(run / C.EXPORTS_DIR), tree_digest(run / C.EDITS_DIR)
+        exports, edits = tree_digest(run / C.EXPORTS_DIR), tree_digest(run / EDITS_DIR)
         _kill_after(["fit", "--resume", "--out", str(run), "--no-bar", *longer], delay)
         _assert_run_loads(run)
-        assert tree_digest(run / C.EXPORTS_DIR) == exports and tree_digest(run / C.EDITS_DIR) == edits, delay
+        assert tree_digest(run / C.EXPORTS_DIR) == exports and tree_digest(run / EDITS_DIR) == edits, delay
         out = _engine("fit", "--resume", "--out", str(run), "--no-bar", *longer)
         assert out.returncode == C.EXIT_OK, (delay, out.stderr)
-        assert tree_digest(run / C.EXPORTS_DIR) == exports and tree_digest(run / C.EDITS_DIR) == edits, delay
+        assert tree_digest(run / C.EXPORTS_DIR) == exports and tree_digest(run / EDITS_DIR) == edits, delay
 
 
 @pytest.mark.slow
@@ -209,15 +210,15 @@ def test_sigkill_during_an_export_keeps_earlier_exports_and_edits(base, tmp_path
     duration = _timed(["export", str(probe), "--atlas-size", "64", "--no-bar"])
     for i, delay in enumerate(_delays("export", duration)):
         run = _copy_run(base, tmp_path / f"run{i}")
-        exports, edits = tree_digest(run / C.EXPORTS_DIR / "v001"), tree_digest(run / C.EDITS_DIR)
+        exports, edits = tree_digest(run / C.EXPORTS_DIR / "v001"), tree_digest(run / EDITS_DIR)
         _kill_after(["export", str(run), "--atlas-size", "64", "--no-bar"], delay)
         _assert_run_loads(run)
         _assert_exports_complete(run)
-        assert tree_digest(run / C.EXPORTS_DIR / "v001") == exports and tree_digest(run / C.EDITS_DIR) == edits, delay
+        assert tree_digest(run / C.EXPORTS_DIR / "v001") == exports and tree_digest(run / EDITS_DIR) == edits, delay
         out = _engine("export", str(run), "--atlas-size", "64", "--no-bar")
         assert out.returncode == C.EXIT_OK, (delay, out.stderr)
         _assert_exports_complete(run)
-        assert tree_digest(run / C.EXPORTS_DIR / "v001") == exports and tree_digest(run / C.EDITS_DIR) == edits, delay
+        assert tree_digest(run / C.EXPORTS_DIR / "v001") == exports and tree_digest(run / EDITS_DIR) == edits, delay
 
 
 @pytest.mark.slow
@@ -250,20 +251,20 @@ def test_sigkill_during_project_frame_keeps_every_edit_layer_whole(base, tmp_pat
     args = ["--frame", "1", "--edit", str(base.paint)]
     duration = _timed(["project-frame", str(_manifest_of(probe)), *args])
     painted = {
-        name: digest for name, digest in tree_digest(probe / C.EDITS_DIR).items() if not name.startswith("history")
+        name: digest for name, digest in tree_digest(probe / EDITS_DIR).items() if not name.startswith("history")
     }
     for i, delay in enumerate(_delays("project-frame", duration)):
         run = _copy_run(base, tmp_path / f"run{i}")
-        before = {n: d for n, d in tree_digest(run / C.EDITS_DIR).items() if not n.startswith("history")}
+        before = {n: d for n, d in tree_digest(run / EDITS_DIR).items() if not n.startswith("history")}
         exports = tree_digest(run / C.EXPORTS_DIR)
         _kill_after(["project-frame", str(_manifest_of(run)), *args], delay)
-        now = {n: d for n, d in tree_digest(run / C.EDITS_DIR).items() if not n.startswith("history")}
+        now = {n: d for n, d in tree_digest(run / EDITS_DIR).items() if not n.startswith("history")}
         for name, digest in now.items():  # each edit layer is the old one or the new one, never a torn file
             assert digest in (before.get(name), painted.get(name)), (delay, name)
         assert tree_digest(run / C.EXPORTS_DIR) == exports, delay
         out = _engine("project-frame", str(_manifest_of(run)), *args)
         assert out.returncode == C.EXIT_OK, (delay, out.stderr)
-        after = tree_digest(run / C.EDITS_DIR)
+        after = tree_digest(run / EDITS_DIR)
         if now == before:  # killed before it changed a layer: the re-run is the uninterrupted result
             assert {n: d for n, d in after.items() if not n.startswith("history")} == painted, delay
         history = {d for n, d in after.items() if n.startswith("history")}

@@ -31,6 +31,7 @@ from engine.config import apply_overrides, parse_set_args, preset_config
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.fit.fit_inputs import FitInputs
 from engine.fit.run_folder import RunFolder
+from engine.terms.protocol import EVENT_CANCELLED, EVENT_CHECKPOINT
 from tests.engine.fit_helpers import quiet_fit
 from tests.engine_cli import progress_until, start_engine
 from tests.paths import ROOT
@@ -101,7 +102,7 @@ def test_sigterm_checkpoints_where_it_stops_and_resume_reaches_the_same_quality(
     rest, err = proc.communicate(timeout=300)
     events += [m for m in map(C.parse_progress_line, rest.splitlines()) if m]
     assert proc.returncode == C.EXIT_CANCELLED, err
-    cancelled = [e for e in events if e["event"] == C.EVENT_CANCELLED]
+    cancelled = [e for e in events if e["event"] == EVENT_CANCELLED]
     assert len(cancelled) == 1 and 10 <= cancelled[0]["step"] < STEPS
     stopped = cancelled[0]["step"]
     last_done = max(e["step"] for e in events if e["event"] == C.EVENT_PROGRESS)
@@ -126,9 +127,9 @@ def test_sigkill_loses_at_most_the_checkpoint_interval_and_resume_reaches_the_sa
         proc,
         lambda ev: (
             (
-                any(e["event"] == C.EVENT_CHECKPOINT for e in ev)
+                any(e["event"] == EVENT_CHECKPOINT for e in ev)
                 and ev[-1]["event"] == C.EVENT_PROGRESS
-                and ev[-1]["step"] >= [e["step"] for e in ev if e["event"] == C.EVENT_CHECKPOINT][-1] + 2
+                and ev[-1]["step"] >= [e["step"] for e in ev if e["event"] == EVENT_CHECKPOINT][-1] + 2
             )
             or ev[-1].get("step", 0) > STEPS // 2
         ),  # no periodic checkpoint by half-way: fail below, do not hang
@@ -138,7 +139,7 @@ def test_sigkill_loses_at_most_the_checkpoint_interval_and_resume_reaches_the_sa
     rest, _ = proc.communicate(timeout=60)  # whatever the child wrote before it died
     events += [m for m in map(C.parse_progress_line, rest.splitlines()) if m]
     assert proc.returncode == -signal.SIGKILL
-    announced = [e["step"] for e in events if e["event"] == C.EVENT_CHECKPOINT][-1]
+    announced = [e["step"] for e in events if e["event"] == EVENT_CHECKPOINT][-1]
     reached = max(e["step"] for e in events if e["event"] == C.EVENT_PROGRESS)
     on_disk = _checkpoint_step(run)  # loads: the atomic write never leaves a torn checkpoint
     # the checkpoint on disk is the newest one announced (or a newer one the kill stopped it announcing):

@@ -13,6 +13,8 @@ import pytest
 
 from engine import contract as C
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
+from engine.terms.export_names import EDITS_DIR
+from engine.terms.lock import RUN_LOCK
 from tests.engine_cli import run_cli
 from tests.full_disk import PAGE_BYTES, run_on_full_disk
 from tests.paths import ROOT
@@ -36,7 +38,7 @@ def _pages(path: Path) -> int:
 def _is_temp(path: str) -> bool:
     """A hidden file other than the run folder's lock (which stays, empty of meaning, by design)."""
     name = Path(path).name
-    return name.startswith(".") and name != C.RUN_LOCK
+    return name.startswith(".") and name != RUN_LOCK
 
 
 @pytest.fixture(scope="module")
@@ -99,13 +101,13 @@ def test_an_export_on_a_full_disk_is_one_line_and_keeps_earlier_exports_and_edit
     export = exported / C.EXPORTS_DIR / "v001"
     before = [
         hashlib.sha256(path.read_bytes()).hexdigest()
-        for folder in (exported / C.EDITS_DIR, export)
+        for folder in (exported / EDITS_DIR, export)
         for path in folder.rglob("*")
         if path.is_file()
     ]
     disk = tmp_path / "disk"
     size_kb = (_pages(exported) + _pages(export) // 2) // 1024
-    sums = f'cd "{disk}/run" && find {C.EDITS_DIR} {C.EXPORTS_DIR}/v001 -type f | sort | xargs sha256sum'
+    sums = f'cd "{disk}/run" && find {EDITS_DIR} {C.EXPORTS_DIR}/v001 -type f | sort | xargs sha256sum'
     script = (
         f'cp -a "{exported}" "{disk}/run" && "{sys.executable}" -m engine export "{disk}/run" --atlas-size 64 '
         f'--no-bar; echo "exit=$?"; {sums}'

@@ -21,6 +21,9 @@ import pytest
 
 from engine import contract as C
 from engine.export.nuke import FILE_KNOB_SPECIAL, SCRIPT_DIRECTORY, NukeScriptError, nuke_script, quote
+from engine.terms.cli import VERB_NUKE
+from engine.terms.export_names import layer_name
+from engine.terms.manifest import MANIFEST_LAYER_NAME_MAX, is_layer_name, validate_manifest
 from tests.engine.fake_export import make_fake_export
 from tests.engine_cli import run_cli
 from tests.untouched import digest_outside
@@ -106,7 +109,7 @@ def template(tmp_path_factory) -> Path:
     data["run_dir"] = "../.."
     data["clip"]["source"] = "../../../clip"
     data["clip"]["frame_files"] = [f"../../../clip/{t:05d}.png" for t in range(2)]
-    manifest.write_text(json.dumps(C.validate_manifest(data)))
+    manifest.write_text(json.dumps(validate_manifest(data)))
     return root
 
 
@@ -163,7 +166,7 @@ def test_a_hostile_folder_is_read_literally_and_runs_nothing(template, tmp_path,
     manifest = _case(template, tmp_path, folder)
     script = tmp_path / "comp" / "shot.nk"
     before = digest_outside(tmp_path)
-    assert run_cli(C.VERB_NUKE, manifest, "--out", script) == (0, [])
+    assert run_cli(VERB_NUKE, manifest, "--out", script) == (0, [])
     _check_loaded(script, tmp_path, _expected_reads(f"../{folder}"))
     after = digest_outside(tmp_path)
     assert set(after) - set(before) == {"comp", "comp/shot.nk"} and set(before) <= set(after)
@@ -174,7 +177,7 @@ def test_a_folder_starting_with_a_tilde_is_not_a_home_folder(template, tmp_path)
     """Nuke expands a leading ``~`` in a file name: a relative path starting with one gets ``./``."""
     manifest = _case(template, tmp_path, "~plates")
     script = tmp_path / "shot.nk"
-    assert run_cli(C.VERB_NUKE, manifest, "--out", script) == (0, [])
+    assert run_cli(VERB_NUKE, manifest, "--out", script) == (0, [])
     _check_loaded(script, tmp_path, _expected_reads("./~plates"))
 
 
@@ -183,7 +186,7 @@ def test_a_hostile_output_folder_changes_nothing_in_the_script(template, tmp_pat
     """The script's own folder never appears in it (its paths are relative, the project directory is Nuke's)."""
     manifest = _case(template, tmp_path, "plain")
     script = tmp_path / folder / "shot.nk"
-    assert run_cli(C.VERB_NUKE, manifest, "--out", script) == (0, [])
+    assert run_cli(VERB_NUKE, manifest, "--out", script) == (0, [])
     _check_loaded(script, tmp_path, _expected_reads("../plain"))
 
 
@@ -207,7 +210,7 @@ def test_a_folder_nuke_would_misread_is_refused_in_one_line(template, tmp_path, 
     manifest = _case(template, tmp_path, folder)
     script = tmp_path / "comp" / "shot.nk"
     before = digest_outside(tmp_path)
-    code, err = run_cli(C.VERB_NUKE, manifest, "--out", script)
+    code, err = run_cli(VERB_NUKE, manifest, "--out", script)
     assert code == C.EXIT_BAD_INPUT and len(err) == 1, err
     line = err[0]
     assert line.startswith(f"error: {manifest.resolve()}: the pass file path ") and said in line
@@ -225,7 +228,7 @@ def test_a_plate_file_name_with_a_frame_token_is_refused(template, tmp_path):
         (clip / f"{t:05d}.png").rename(clip / f"shot#a.{t:05d}.png")
     data["clip"]["frame_files"] = [f"../../../clip/shot#a.{t:05d}.png" for t in range(2)]
     manifest.write_text(json.dumps(data))
-    code, err = run_cli(C.VERB_NUKE, manifest, "--out", tmp_path / "shot.nk")
+    code, err = run_cli(VERB_NUKE, manifest, "--out", tmp_path / "shot.nk")
     assert code == C.EXIT_BAD_INPUT and len(err) == 1
     assert "the plate frame path 'plain/clip/shot#a.00000.png' holds '#'" in err[0]
     assert not (tmp_path / "shot.nk").exists()
@@ -246,7 +249,7 @@ HOSTILE_LAYER_NAMES = [
     "Fg ground",
     "Fördergrund",
     "9Lives",
-    "F" * (C.MANIFEST_LAYER_NAME_MAX + 1),
+    "F" * (MANIFEST_LAYER_NAME_MAX + 1),
 ]
 
 
@@ -260,13 +263,13 @@ def test_a_layer_name_that_is_not_plain_is_refused_at_load(template, tmp_path, n
     manifest.write_text(json.dumps(data))
     script = tmp_path / "shot.nk"
     before = digest_outside(tmp_path)
-    code, err = run_cli(C.VERB_NUKE, manifest, "--out", script)
+    code, err = run_cli(VERB_NUKE, manifest, "--out", script)
     assert code == C.EXIT_BAD_INPUT and len(err) == 1, err
     assert err[0].startswith(f"error: {manifest.resolve()}: manifest layer 1 name ")
     assert "is not a plain name (letters, digits and _" in err[0] and err[0].endswith("export RUN_DIR` again")
     assert digest_outside(tmp_path) == before
     with pytest.raises(C.ManifestError, match="not a plain name"):
-        C.validate_manifest(data)
+        validate_manifest(data)
     with pytest.raises(NukeScriptError, match="not a plain name"):  # a manifest handed over as a dict, unchecked
         nuke_script(data, str(manifest))
 
@@ -274,9 +277,9 @@ def test_a_layer_name_that_is_not_plain_is_refused_at_load(template, tmp_path, n
 def test_the_engines_own_layer_names_are_plain():
     for count in range(1, 9):
         for i in range(count):
-            assert C.is_layer_name(C.layer_name(i, count))
-    assert C.is_layer_name("F" * C.MANIFEST_LAYER_NAME_MAX)
-    assert not C.is_layer_name("F" * (C.MANIFEST_LAYER_NAME_MAX + 1)) and not C.is_layer_name("")
+            assert is_layer_name(layer_name(i, count))
+    assert is_layer_name("F" * MANIFEST_LAYER_NAME_MAX)
+    assert not is_layer_name("F" * (MANIFEST_LAYER_NAME_MAX + 1)) and not is_layer_name("")
 
 
 def test_a_hostile_colour_space_name_is_one_literal_knob(template, tmp_path):
@@ -285,9 +288,9 @@ def test_a_hostile_colour_space_name_is_one_literal_knob(template, tmp_path):
     data = json.loads(manifest.read_text())
     name = f'lin [{TOUCH}] $x {{y}} "z" \\w; }}'
     data["clip"].update(colorspace=name, colour_config="ocio://default")
-    manifest.write_text(json.dumps(C.validate_manifest(data)))
+    manifest.write_text(json.dumps(validate_manifest(data)))
     script = tmp_path / "comp" / "shot.nk"
-    assert run_cli(C.VERB_NUKE, manifest, "--out", script) == (0, [])
+    assert run_cli(VERB_NUKE, manifest, "--out", script) == (0, [])
     _check_loaded(script, tmp_path, _expected_reads("../plain"), colorspace=name)
 
 

@@ -19,6 +19,8 @@ from engine.data.synthetic import SceneSpec, make_scene
 from engine.fit.evaluation import render_frame
 from engine.fit.model_build import build_model
 from engine.model.losses import psnr_from_mse
+from engine.terms.colour import COLOUR_BUILTIN_CONFIG
+from engine.terms.run_folder import RUN_CLIP
 from tests.stability.fitcheck import QUICK, monitored_fit, write_masks, write_sequence
 
 SPEC = SceneSpec(width=48, height=32, frames=3, fg_size=(16, 12), fg_start=(10.0, 8.0))
@@ -80,8 +82,8 @@ def test_hdr_linear_exr_plate_up_to_50_with_negatives(tmp_path, monkeypatch):
     frames = write_sequence(tmp_path / "frames", lin, ext="exr", dtype=np.float32)
     masks = write_masks(tmp_path / "masks", scene.masks)
     _, mon = monitored_fit(monkeypatch, frames, [masks], tmp_path / "run")
-    record = json.loads((tmp_path / "run" / C.RUN_CLIP).read_text())
-    assert (record["colorspace"], record["colour_config"]) == (C.COLOUR_SCENE_LINEAR, C.COLOUR_BUILTIN_CONFIG)
+    record = json.loads((tmp_path / "run" / RUN_CLIP).read_text())
+    assert (record["colorspace"], record["colour_config"]) == (C.COLOUR_SCENE_LINEAR, COLOUR_BUILTIN_CONFIG)
     fitted = mon.prepared.frames
     assert np.isfinite(fitted).all() and fitted.min() >= 0.0
     # encoded by OCIO's sRGB curve (float32 approximation of the IEC formula: relative 3e-5 at most)

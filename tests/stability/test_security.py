@@ -18,6 +18,7 @@ from engine import contract as C
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.errors import InputError
 from engine.fit.checkpoint import load_checkpoint
+from engine.terms.run_folder import RUN_CLIP
 from tests.paths import ROOT
 
 SCANNED = ("engine", "addon")
@@ -110,7 +111,7 @@ def test_paths_with_spaces_and_non_ascii_fit_and_resume(tmp_path, clip_dir, run_
     err = io.StringIO()
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
         assert cli.main(argv) == C.EXIT_OK, err.getvalue()
-        record = json.loads((run / C.RUN_CLIP).read_text(encoding="utf-8"))
+        record = json.loads((run / RUN_CLIP).read_text(encoding="utf-8"))
         assert record["source"] == str(frames) and record["masks"] == [str(masks)]
         # resume reads the recorded non-ASCII paths back (a finished fit just re-evaluates)
         assert cli.main(["fit", "--resume", "--out", str(run), "--no-bar"]) == C.EXIT_OK, err.getvalue()

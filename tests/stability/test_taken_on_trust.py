@@ -13,6 +13,9 @@ from engine import contract as C
 from engine.cli_options import start_frame
 from engine.errors import InputError
 from engine.io.clip import open_clip
+from engine.terms.clip import MAX_START_FRAME
+from engine.terms.manifest import validate_manifest
+from engine.terms.run_folder import RUN_CLIP
 from tests.engine_cli import run_cli
 from tests.media_files import write_image
 from tests.stability.bad_inputs import TINY_FIT
@@ -67,9 +70,9 @@ def test_a_start_frame_or_rate_no_plate_has_is_refused_before_anything_is_writte
 
 
 def test_the_start_frame_range():
-    assert start_frame("0") == 0 and start_frame("1001") == 1001 and start_frame(str(C.MAX_START_FRAME))
-    for bad in ("-1", str(C.MAX_START_FRAME + 1), "1e3", "", "x"):
-        with pytest.raises(Exception, match=f"from 0 to {C.MAX_START_FRAME}"):
+    assert start_frame("0") == 0 and start_frame("1001") == 1001 and start_frame(str(MAX_START_FRAME))
+    for bad in ("-1", str(MAX_START_FRAME + 1), "1e3", "", "x"):
+        with pytest.raises(Exception, match=f"from 0 to {MAX_START_FRAME}"):
             start_frame(bad)
 
 
@@ -96,7 +99,7 @@ def test_masks_and_parts_never_write_into_the_plates_folder_named_by_a_pattern_o
         write_image(masks / f"plate.{i:04d}.png", (mask * 255).astype(np.uint8))
     run = tmp_path / "run"
     run.mkdir()
-    (run / C.RUN_CLIP).write_text("{}")
+    (run / RUN_CLIP).write_text("{}")
     pattern = plate / "plate.####.png"
     before = sorted(p.name for p in plate.iterdir())
     for verb, extra, out, said in (
@@ -108,7 +111,7 @@ def test_masks_and_parts_never_write_into_the_plates_folder_named_by_a_pattern_o
         code, lines = run_cli(verb, pattern, *extra, "--out", out)
         assert code == C.EXIT_BAD_INPUT and len(lines) == 1, (verb, lines)
         assert lines[0].startswith(f"error: {out.resolve()}: {said}"), lines
-    assert sorted(p.name for p in plate.iterdir()) == before and sorted(p.name for p in run.iterdir()) == [C.RUN_CLIP]
+    assert sorted(p.name for p in plate.iterdir()) == before and sorted(p.name for p in run.iterdir()) == [RUN_CLIP]
 
 
 @pytest.mark.parametrize(
@@ -132,10 +135,10 @@ def test_a_manifests_pass_pattern_is_checked_before_it_is_formatted(tmp_path, pa
     data = json.loads(fake_export(tmp_path).read_text())
     data["passes"]["pattern"] = pattern
     if good:
-        C.validate_manifest(data)
+        validate_manifest(data)
     else:
         with pytest.raises(C.ManifestError, match="does not name a pass file"):
-            C.validate_manifest(data)
+            validate_manifest(data)
 
 
 def test_a_scribble_image_far_larger_than_the_clip_is_refused_before_it_is_decoded(tmp_path, monkeypatch):

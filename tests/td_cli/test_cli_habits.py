@@ -13,6 +13,7 @@ import pytest
 from engine import cli
 from engine import contract as C
 from engine.fit.progress import LineTap, quiet_lines
+from engine.terms.run_folder import RUN_CLIP
 from tests.paths import ROOT
 from tests.td_cli.conftest import run_main
 
@@ -126,5 +127,5 @@ def _tiny_set() -> list[str]:
 
 
 def _masks(assumed_run) -> str:
-    clip = json.loads((assumed_run.run / C.RUN_CLIP).read_text(encoding="utf-8"))
+    clip = json.loads((assumed_run.run / RUN_CLIP).read_text(encoding="utf-8"))
     return clip["masks"][0]

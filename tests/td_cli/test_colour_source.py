@@ -15,6 +15,9 @@ from engine.fit import run_files
 from engine.io import colour
 from engine.io.clip import open_clip
 from engine.io.images import write_rgba_exr
+from engine.terms.colour import COLOUR_SOURCE_ASKED, COLOUR_SOURCE_ASSUMED, COLOUR_SOURCE_FILE, COLOUR_SOURCE_FORMAT
+from engine.terms.manifest import validate_manifest
+from engine.terms.run_folder import RUN_CLIP
 from tests.engine.io.test_colour_headers import GOOD_OCIO_CONFIG
 from tests.media_files import write_image
 
@@ -33,20 +36,20 @@ def _exr_plate(folder: Path, **tags: object) -> Path:
 def test_an_exr_tagged_acescg_is_fitted_as_acescg(tmp_path: Path) -> None:
     """Before: the tag was never read; the plate was taken as Linear Rec.709 without a word."""
     info = open_clip(_exr_plate(tmp_path / "plate", **{"oiio:ColorSpace": "ACEScg"}))
-    assert (info.colorspace, info.colour_source, info.colour_note) == ("ACEScg", C.COLOUR_SOURCE_FILE, "")
+    assert (info.colorspace, info.colour_source, info.colour_note) == ("ACEScg", COLOUR_SOURCE_FILE, "")
 
 
 def test_an_alias_in_the_tag_and_openexrs_own_attribute_are_read(tmp_path: Path) -> None:
     aliased = open_clip(_exr_plate(tmp_path / "alias", **{"oiio:ColorSpace": "lin_ap0"}))
     interop = open_clip(_exr_plate(tmp_path / "interop", colorInteropID="lin_ap1_scene"))
-    assert (aliased.colorspace, aliased.colour_source) == ("ACES2065-1", C.COLOUR_SOURCE_FILE)
-    assert (interop.colorspace, interop.colour_source) == ("ACEScg", C.COLOUR_SOURCE_FILE)
+    assert (aliased.colorspace, aliased.colour_source) == ("ACES2065-1", COLOUR_SOURCE_FILE)
+    assert (interop.colorspace, interop.colour_source) == ("ACEScg", COLOUR_SOURCE_FILE)
 
 
 def test_an_untagged_float_plate_is_assumed_linear_rec709_with_one_note(tmp_path: Path) -> None:
     plate = _exr_plate(tmp_path / "plate")
     info = open_clip(plate)
-    assert (info.colorspace, info.colour_source) == (C.COLOUR_SCENE_LINEAR, C.COLOUR_SOURCE_ASSUMED)
+    assert (info.colorspace, info.colour_source) == (C.COLOUR_SCENE_LINEAR, COLOUR_SOURCE_ASSUMED)
     assert info.colour_note == (
         f"note: {plate / 'plate.1001.exr'}: colour space assumed 'Linear Rec.709 (sRGB)' (a float file with no "
         "colour-space tag and no chromaticities) — if the plate is in another, name it with --colorspace, e.g. ACEScg"
@@ -55,7 +58,7 @@ def test_an_untagged_float_plate_is_assumed_linear_rec709_with_one_note(tmp_path
 
 def test_a_tag_the_config_does_not_know_is_named_in_the_note(tmp_path: Path) -> None:
     info = open_clip(_exr_plate(tmp_path / "plate", **{"oiio:ColorSpace": "show_lut_v3"}))
-    assert (info.colorspace, info.colour_source) == (C.COLOUR_SCENE_LINEAR, C.COLOUR_SOURCE_ASSUMED)
+    assert (info.colorspace, info.colour_source) == (C.COLOUR_SCENE_LINEAR, COLOUR_SOURCE_ASSUMED)
     assert "a float file with a tag 'show_lut_v3' that ocio://default does not know" in info.colour_note
 
 
@@ -74,10 +77,10 @@ def test_chromaticities_and_file_types_that_define_colour_are_not_assumed(tmp_pa
     pngs = tmp_path / "png"
     pngs.mkdir()
     write_image(pngs / "00000.png", np.full((H, W, 3), 128, np.uint8))
-    assert open_clip(rec709).colour_source == C.COLOUR_SOURCE_FILE
-    assert (open_clip(pngs).colour_source, open_clip(pngs).colour_note) == (C.COLOUR_SOURCE_FORMAT, "")
+    assert open_clip(rec709).colour_source == COLOUR_SOURCE_FILE
+    assert (open_clip(pngs).colour_source, open_clip(pngs).colour_note) == (COLOUR_SOURCE_FORMAT, "")
     asked = open_clip(_exr_plate(tmp_path / "asked"), colorspace="acescg")
-    assert (asked.colorspace, asked.colour_source, asked.colour_note) == ("ACEScg", C.COLOUR_SOURCE_ASKED, "")
+    assert (asked.colorspace, asked.colour_source, asked.colour_note) == ("ACEScg", COLOUR_SOURCE_ASKED, "")
 
 
 def test_a_16bit_tiff_says_it_was_assumed_srgb(tmp_path: Path) -> None:
@@ -85,21 +88,21 @@ def test_a_16bit_tiff_says_it_was_assumed_srgb(tmp_path: Path) -> None:
     folder.mkdir()
     write_image(folder / "00000.tif", np.full((H, W, 3), 30000, np.uint16))
     info = open_clip(folder)
-    assert (info.colorspace, info.colour_source) == (C.COLOUR_SRGB, C.COLOUR_SOURCE_ASSUMED)
+    assert (info.colorspace, info.colour_source) == (C.COLOUR_SRGB, COLOUR_SOURCE_ASSUMED)
     assert "(an integer file whose header names no colour space)" in info.colour_note
 
 
 @pytest.mark.parametrize("where", ["clip record", "manifest"])
 def test_an_unknown_colour_source_is_refused(assumed_run, where: str) -> None:
-    path = assumed_run.run / C.RUN_CLIP if where == "clip record" else assumed_run.manifest
+    path = assumed_run.run / RUN_CLIP if where == "clip record" else assumed_run.manifest
     record = json.loads(path.read_text(encoding="utf-8"))
     clip = record if where == "clip record" else record["clip"]
     clip["colour_source"] = "guessed"
     error = run_files.RunFileError if where == "clip record" else C.ManifestError
     with pytest.raises(error, match="unknown colour_source 'guessed'"):
-        run_files.validate_run_file(C.RUN_CLIP, record) if where == "clip record" else C.validate_manifest(record)
-    clip["colour_source"] = C.COLOUR_SOURCE_FILE  # every known value passes
-    run_files.validate_run_file(C.RUN_CLIP, record) if where == "clip record" else C.validate_manifest(record)
+        run_files.validate_run_file(RUN_CLIP, record) if where == "clip record" else validate_manifest(record)
+    clip["colour_source"] = COLOUR_SOURCE_FILE  # every known value passes
+    run_files.validate_run_file(RUN_CLIP, record) if where == "clip record" else validate_manifest(record)
 
 
 # --- a fit of an untagged EXR plate, through the command line --------------------------------------------------
@@ -108,7 +111,7 @@ def test_an_unknown_colour_source_is_refused(assumed_run, where: str) -> None:
 def test_the_fit_says_it_once_and_the_run_and_its_manifest_record_it(assumed_run) -> None:
     notes = [line for line in assumed_run.fit_err.splitlines() if line.startswith("note:")]
     assert notes == [open_clip(assumed_run.plate).colour_note]
-    clip = json.loads((assumed_run.run / C.RUN_CLIP).read_text(encoding="utf-8"))
-    assert (clip["colorspace"], clip["colour_source"]) == (C.COLOUR_SCENE_LINEAR, C.COLOUR_SOURCE_ASSUMED)
+    clip = json.loads((assumed_run.run / RUN_CLIP).read_text(encoding="utf-8"))
+    assert (clip["colorspace"], clip["colour_source"]) == (C.COLOUR_SCENE_LINEAR, COLOUR_SOURCE_ASSUMED)
     manifest = json.loads(assumed_run.manifest.read_text(encoding="utf-8"))
     assert (manifest["clip"]["colorspace"], manifest["clip"]["colour_source"]) == (C.COLOUR_SCENE_LINEAR, "assumed")

@@ -17,6 +17,7 @@ import pytest
 from engine import contract as C
 from engine.farm import openjd
 from engine.fit.progress import OpenJDProgress
+from engine.terms.protocol import OPENJD_PROGRESS_ENV, progress_line
 from tests.farm.farm_helpers import TINY_SET, write_clip, write_shots
 from tests.paths import ROOT
 from tests.td_cli.conftest import run_main
@@ -39,12 +40,12 @@ def _bundle(tmp: Path) -> Path:
 def test_progress_lines_follow_the_job_fraction_and_stages_become_status() -> None:
     said = OpenJDProgress()
     lines = [
-        C.progress_line(C.EVENT_STAGE, stage="flow", message="optical flow\n(cached)"),
-        C.progress_line(C.EVENT_JOB, stage="flow", done=1, total=4, stage_eta=None, job_fraction=0.0125, job_eta=None),
-        C.progress_line(C.EVENT_JOB, stage="flow", done=2, total=4, stage_eta=None, job_fraction=0.0125, job_eta=None),
-        C.progress_line(C.EVENT_PROGRESS, step=3, total=4),  # a fraction was seen: its own steps say nothing
+        progress_line(C.EVENT_STAGE, stage="flow", message="optical flow\n(cached)"),
+        progress_line(C.EVENT_JOB, stage="flow", done=1, total=4, stage_eta=None, job_fraction=0.0125, job_eta=None),
+        progress_line(C.EVENT_JOB, stage="flow", done=2, total=4, stage_eta=None, job_fraction=0.0125, job_eta=None),
+        progress_line(C.EVENT_PROGRESS, step=3, total=4),  # a fraction was seen: its own steps say nothing
         "a line of something else",
-        C.progress_line(C.EVENT_DONE, metrics={}, job_fraction=1.0, job_eta=0.0),
+        progress_line(C.EVENT_DONE, metrics={}, job_fraction=1.0, job_eta=0.0),
     ]
     out = "".join(said(line + "\n") for line in lines).splitlines()
     assert [line for line in out if line.startswith("openjd_")] == [
@@ -57,20 +58,20 @@ def test_progress_lines_follow_the_job_fraction_and_stages_become_status() -> No
 
 def test_a_command_without_fractions_reports_its_own_steps() -> None:
     said = OpenJDProgress()
-    out = said(C.progress_line(C.EVENT_PROGRESS, step=1, total=3) + "\n")
+    out = said(progress_line(C.EVENT_PROGRESS, step=1, total=3) + "\n")
     assert out.splitlines()[1:] == ["openjd_progress: 33.3"]
 
 
 def test_a_verb_in_an_openjd_task_ends_at_100(tmp_path, monkeypatch) -> None:
     """Before: nothing but the JSON lines, which no OpenJD runner reads."""
-    monkeypatch.setenv(C.OPENJD_PROGRESS_ENV, "1")
+    monkeypatch.setenv(OPENJD_PROGRESS_ENV, "1")
     frames, _ = write_clip(tmp_path / "clip")
     ran = run_main("masks", frames, "--out", tmp_path / "found")
     assert ran.code == C.EXIT_OK, ran.err
     lines = ran.out.splitlines()
     assert lines[-1] == "openjd_progress: 100.0" and lines[-2] == str((tmp_path / "found").resolve())
     assert any(line.startswith("openjd_status: ") for line in lines)
-    monkeypatch.delenv(C.OPENJD_PROGRESS_ENV)
+    monkeypatch.delenv(OPENJD_PROGRESS_ENV)
     plain = run_main("masks", frames, "--out", tmp_path / "found")  # the same, outside a task: no OpenJD lines
     assert plain.code == C.EXIT_OK and not [line for line in plain.out.splitlines() if line.startswith("openjd_")]
 
@@ -79,7 +80,7 @@ def test_the_environment_prepends_the_engine_to_pythonpath(tmp_path) -> None:
     """Before: ``variables: {PYTHONPATH: EnginePath}`` replaced the worker's own Python path."""
     template = json.loads((_bundle(tmp_path) / "template.json").read_text(encoding="utf-8"))
     (environment,) = template["jobEnvironments"]
-    assert environment["variables"] == {C.OPENJD_PROGRESS_ENV: "1"}
+    assert environment["variables"] == {OPENJD_PROGRESS_ENV: "1"}
     action = environment["script"]["actions"]["onEnter"]
     assert action["command"] == "{{Param.EnginePython}}" and action["args"][-1] == "{{Param.EnginePath}}"
     run = [sys.executable, *action["args"][:-1]]

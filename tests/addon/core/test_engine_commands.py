@@ -7,6 +7,7 @@ from neural_atlas.addon.core import engine_commands as EC
 from neural_atlas.addon.core.errors import UserError
 
 from engine import contract as C
+from engine.terms.run_folder import FIT_AUTO_PARTS_FLAG
 
 CLIP = EC.ClipInputs("/clip/plate", ("/run.masks/layer1", "/hand/masks"), 0, 2)
 
@@ -36,12 +37,12 @@ def test_scribbles_go_to_the_fit_but_not_to_the_estimate():
 def test_find_parts_on_leaves_the_split_to_the_engine_and_off_tells_it_not_to():
     """Find Parts on (the default): no flag, the engine splits the parts that move apart wherever that applies;
     off: ``--no-auto-parts`` to the fit; the estimate gets neither."""
-    flags = {C.FIT_AUTO_PARTS_FLAG, C.FIT_NO_AUTO_PARTS_FLAG}
+    flags = {FIT_AUTO_PARTS_FLAG, C.FIT_NO_AUTO_PARTS_FLAG}
     on = EC.ClipInputs(CLIP.plate, CLIP.masks[:1], 0, 2)
     assert not flags & set(EC.fit_argv("py", on, "/run", "draft", []))
     off = EC.ClipInputs(CLIP.plate, CLIP.masks[:1], 0, 2, auto_parts=False)
     fit = EC.fit_argv("py", off, "/run", "draft", [])
-    assert fit.count(C.FIT_NO_AUTO_PARTS_FLAG) == 1 and C.FIT_AUTO_PARTS_FLAG not in fit and C.SCRIBBLE_ARG not in fit
+    assert fit.count(C.FIT_NO_AUTO_PARTS_FLAG) == 1 and FIT_AUTO_PARTS_FLAG not in fit and C.SCRIBBLE_ARG not in fit
     assert not flags & set(EC.estimate_argv("py", off, EC.set_args(768)))
 
 

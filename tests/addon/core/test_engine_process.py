@@ -13,6 +13,7 @@ from neural_atlas.addon.core import engine_process as EP
 from neural_atlas.addon.core import progress
 
 from engine import contract as C
+from engine.terms.protocol import EVENT_CANCELLED
 
 FAKE = [sys.executable, str(HERE / "fake_engine.py")]
 
@@ -59,7 +60,7 @@ def test_job_cancel_sends_sigterm_and_reports_cancelled(tmp_path, monkeypatch):
     seen = []
     result = job.wait(on_message=seen.append)
     assert result.status == EP.STATUS_CANCELLED and result.returncode == C.EXIT_CANCELLED
-    cancelled = [m for m in seen if m["event"] == C.EVENT_CANCELLED]
+    cancelled = [m for m in seen if m["event"] == EVENT_CANCELLED]
     assert len(cancelled) == 1 and cancelled[0]["step"] >= 3
     assert result.message == f"cancelled at step {cancelled[0]['step']}; Resume continues from the checkpoint"
     assert (tmp_path / "run" / C.RUN_CHECKPOINT).read_text() == "fake"

@@ -18,6 +18,7 @@ from neural_atlas.addon.core.engine_setup import ONLINE_ACCESS_SETTING
 from neural_atlas.addon.core.errors import UserError
 
 from engine import contract as C
+from engine.terms.farm import SHOT_DEFAULT_KEYS
 
 
 def _shot(tmp_path: Path, masks: tuple[str, ...] = ("/m/layer1",), colorspace: str | None = "ACEScg") -> FM.FarmShot:
@@ -50,14 +51,14 @@ def test_the_shots_file_of_one_shot(tmp_path):
             }
         ],
     }
-    assert set(doc[C.SHOTS_DEFAULTS_KEY]) <= set(C.SHOT_DEFAULT_KEYS)
+    assert set(doc[C.SHOTS_DEFAULTS_KEY]) <= set(SHOT_DEFAULT_KEYS)
     assert set(doc[C.SHOTS_LIST_KEY][0]) <= set(C.SHOT_KEYS)
 
 
 def test_follow_flow_off_is_written_in_the_shots_files_defaults(tmp_path):
     doc = FM.shots_document(replace(_shot(tmp_path), follow_flow=False))
     assert doc[C.SHOTS_DEFAULTS_KEY]["follow_flow"] is False
-    assert set(doc[C.SHOTS_DEFAULTS_KEY]) <= set(C.SHOT_DEFAULT_KEYS)
+    assert set(doc[C.SHOTS_DEFAULTS_KEY]) <= set(SHOT_DEFAULT_KEYS)
 
 
 def test_no_masks_means_auto_masks_and_no_colour_space_means_the_engines_rules(tmp_path):

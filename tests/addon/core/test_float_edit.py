@@ -8,6 +8,7 @@ import pytest
 from neural_atlas.addon.core import float_edit
 
 from engine import contract as C
+from engine.terms.colour import SRGB_ENCODED_CUTOFF
 
 
 def test_straight_srgb_becomes_premultiplied_linear_with_the_contracts_decode():
@@ -22,7 +23,7 @@ def test_straight_srgb_becomes_premultiplied_linear_with_the_contracts_decode():
 
 def test_the_contracts_decode_is_the_iec_curve():
     assert C.srgb_to_linear(0.0) == 0.0 and C.srgb_to_linear(1.0) == pytest.approx(1.0)
-    assert C.srgb_to_linear(C.SRGB_ENCODED_CUTOFF) == pytest.approx(C.SRGB_ENCODED_CUTOFF / 12.92)
+    assert C.srgb_to_linear(SRGB_ENCODED_CUTOFF) == pytest.approx(SRGB_ENCODED_CUTOFF / 12.92)
     assert C.srgb_to_linear(0.5) == pytest.approx(((0.5 + 0.055) / 1.055) ** 2.4)
     assert C.srgb_to_linear(-0.5) == -C.srgb_to_linear(0.5)  # extended symmetrically, as the engine's
 

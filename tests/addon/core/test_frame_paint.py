@@ -23,12 +23,13 @@ from neural_atlas.addon.core.needs import NO_IMPORT
 from neural_atlas.addon.core.project_job import ProjectFrameJob
 
 from engine import contract as C
+from engine.terms.export_names import EDITS_DIR
 
 
 def test_the_paint_of_frame_n_lives_beside_the_edit_layers(tmp_path):
     manifest = X.make_export(tmp_path, frames=(1001, 1002))
     folder = FP.frames_dir(str(manifest), C.load_manifest(str(manifest)))
-    assert folder == str(tmp_path / "run" / C.EDITS_DIR / "frames")
+    assert folder == str(tmp_path / "run" / EDITS_DIR / "frames")
     assert FP.paint_file(folder, 1002) == str(tmp_path / "run" / "edits" / "frames" / "frame.01002.png")
     assert FP.paint_file(folder, 7) == os.path.join(folder, "frame.00007.png")
 

@@ -16,6 +16,7 @@ from neural_atlas.addon.core.errors import UserError
 from neural_atlas.addon.core.jobs import EstimateJob, FitJob, MasksJob, failed
 
 from engine import contract as C
+from engine.terms.protocol import progress_line
 
 
 def _clip(tmp_path) -> EC.ClipInputs:
@@ -100,8 +101,8 @@ def test_masks_job_writes_a_fresh_folder_and_reads_its_event(tmp_path):
     assert job.commands[0].argv[-4:] == ["--out", job.out_dir, "--frames", "0:5"]
     assert job.status_text() == "finding what moves…"
     # what the engine's stdout left in the log: the last masks event wins
-    events = [C.progress_line(C.EVENT_MASKS, found=True, message="first"), "noise"]
-    events.append(C.progress_line(C.EVENT_MASKS, found=False, message="no foreground found (static camera)"))
+    events = [progress_line(C.EVENT_MASKS, found=True, message="first"), "noise"]
+    events.append(progress_line(C.EVENT_MASKS, found=False, message="no foreground found (static camera)"))
     (tmp_path / "run.masks.log").write_text("\n".join(events) + "\n")
     result = job.finish(EP.JobResult(EP.STATUS_OK, 0, "done", job.log_path))
     assert result.status == EP.STATUS_OK and job.found is False and job.summary.startswith("no foreground found")

@@ -18,6 +18,7 @@ from neural_atlas.addon.core import preview_plan as V
 from neural_atlas.addon.core import tree_plan as P
 
 from engine import contract as C
+from engine.terms.export_names import uv_pass
 
 
 def _plan(tmp_path, filt=P.FILTER_BILINEAR, frame_paint=False, foregrounds=1):
@@ -170,7 +171,7 @@ def test_an_8bit_edit_converts_as_float_edit_does():
 def test_uv_passes_split_bit_for_bit(tmp_path):
     mp, plan = _plan(tmp_path)
     split = next(s for s in plan.splits if s.layer == "Foreground")
-    assert split.channels == tuple(C.channel_name(C.uv_pass("Foreground"), c) for c in "XYZ")
+    assert split.channels == tuple(C.channel_name(uv_pass("Foreground"), c) for c in "XYZ")
     pass_file, rgb_file = split.files[1]
     assert Path(rgb_file) == mp.parent / V.PREVIEW_UV_DIR / "Foreground" / f"uv.{FRAMES[1]:05d}.exr"
     ch = exr_passes.read_channels(pass_file, split.channels)

@@ -5,10 +5,11 @@ from __future__ import annotations
 from neural_atlas.addon.core import progress
 
 from engine import contract as C
+from engine.terms.protocol import EVENT_CHECKPOINT, progress_line
 
 
 def _apply(state: progress.JobState, event: str, **fields) -> None:
-    msg = C.parse_progress_line(C.progress_line(event, **fields))
+    msg = C.parse_progress_line(progress_line(event, **fields))
     assert msg is not None
     state.apply(msg)
 
@@ -20,7 +21,7 @@ def test_state_follows_each_event():
     assert st.summary() == "optical flow"
     _apply(st, C.EVENT_PROGRESS, step=5, total=10, psnr=21.04, eta=3725.0)
     assert st.fraction == 0.5 and st.summary() == "step 5/10 · 21.0 dB · ETA 1h02m"
-    _apply(st, C.EVENT_CHECKPOINT, step=5, path="/run/checkpoint.pt")
+    _apply(st, EVENT_CHECKPOINT, step=5, path="/run/checkpoint.pt")
     _apply(st, C.EVENT_DONE, metrics={"psnr": 30.0})
     _apply(st, C.EVENT_EXPORTED, manifest="/run/exports/v001/manifest.json")
     _apply(st, C.EVENT_ERROR, message="out of memory")
@@ -51,9 +52,9 @@ def test_logged_events_of_one_kind(tmp_path):
     log = tmp_path / "x.log"
     log.write_text(
         "$ python -m engine masks\n"
-        + C.progress_line(C.EVENT_STAGE, stage="flow")
+        + progress_line(C.EVENT_STAGE, stage="flow")
         + "\n"
-        + C.progress_line(C.EVENT_MASKS, found=True, message="6/6")
+        + progress_line(C.EVENT_MASKS, found=True, message="6/6")
         + "\n[exit code 0]\n"
     )
     assert [m["message"] for m in progress.logged_events(str(log), C.EVENT_MASKS)] == ["6/6"]

@@ -13,6 +13,9 @@ from fake_export import FRAMES, make_export
 from neural_atlas.addon.core import tree_plan as P
 
 from engine import contract as C
+from engine.terms.export_names import alpha_pass, pass_file_name
+from engine.terms.run_folder import BG_MOTION_STATIC, SCENE_LAYERS_NONE
+from engine.terms.versions import SCHEMA_VERSION
 
 
 def kinds(plan: P.TreePlan) -> dict[str, int]:
@@ -50,7 +53,7 @@ def test_plan_topology_two_layers(tmp_path):
     assert (plan.frame_start, plan.frame_end) == (FRAMES[0], FRAMES[-1])
     assert plan.plate.sequence and plan.plate.frame_start == FRAMES[0]
     passes = next(i for i in plan.images if i.name == P.PASSES_IMAGE)
-    assert passes.colorspace == "Non-Color" and passes.filepath.endswith(C.pass_file_name(FRAMES[0]))
+    assert passes.colorspace == "Non-Color" and passes.filepath.endswith(pass_file_name(FRAMES[0]))
     assert {i.colorspace for i in plan.images if i.name.startswith("NA_Edit_")} == {"sRGB"}
 
 
@@ -136,11 +139,11 @@ def test_manifest_paths_absolute_stay_relative_normalise(tmp_path):
 # A background-only run (engine.data.scene_analysis: no masks, or no moving object found) exports one layer: the
 # compositor tree then holds that layer alone — one edit image and Map UV over the plate, no sums.
 SCENE = {
-    "schema": C.SCHEMA_VERSION,
+    "schema": SCHEMA_VERSION,
     "components": "auto",
     "num_layers": 1,
-    "layers_source": C.SCENE_LAYERS_NONE,
-    "background_motion": C.BG_MOTION_STATIC,
+    "layers_source": SCENE_LAYERS_NONE,
+    "background_motion": BG_MOTION_STATIC,
     "flow": True,
     "active_terms": ["rgb", "gradient", "rigidity", "flow"],
     "reasons": {"layers": "background only: no masks were given"},
@@ -336,7 +339,7 @@ def test_mattes_are_each_layers_alpha_pass_and_the_paints_coverage(tmp_path):
     assert plan.mattes == ["Background", "Foreground", P.PAINT_MATTE]
     links = {(lk.from_node, lk.from_socket, lk.to_node, lk.to_socket) for lk in plan.links}
     for layer in ("Background", "Foreground"):
-        assert ("NA_Passes", C.alpha_pass(layer), P.matte_node_name(layer), "in") in links
+        assert ("NA_Passes", alpha_pass(layer), P.matte_node_name(layer), "in") in links
     # the paint's matte is the alpha the tree puts over the plate
     assert ("NA_AddAlpha_1", "value", P.matte_node_name(P.PAINT_MATTE), "in") in links
     assert ("NA_AddAlpha_1", "value", "NA_SetAlpha", "alpha") in links

@@ -28,6 +28,25 @@ from engine.io.images import write_png
 from engine.loss_terms import ALL_TERMS
 from engine.model.atlas_model import FastModel
 from engine.model.objective import compute_losses
+from engine.terms.export_names import (
+    PASSES_DIR,
+    STMAP_CHANNELS,
+    alpha_pass,
+    pass_file_name,
+    stmap_channel_name,
+    uv_pass,
+)
+from engine.terms.manifest import validate_scene
+from engine.terms.run_folder import (
+    BG_MOTION_DEFORMABLE,
+    BG_MOTION_PAN_ZOOM,
+    BG_MOTION_STATIC,
+    FLOW_CACHE_DIR,
+    RUN_CLIP,
+    SCENE_FILE,
+    SCENE_LAYERS_AUTO,
+    SCENE_LAYERS_NONE,
+)
 from tests.engine.fit_helpers import quiet_fit
 
 TINY = {"steps": "60", "batch": "512", "eval_every": "30", "bootstrap_steps": "30", "global_rigidity_steps": "20"}
@@ -62,31 +81,31 @@ def test_every_named_scene_renders_with_a_docstring():
 @pytest.mark.parametrize(
     ("name", "motion"),
     [
-        ("static_camera", C.BG_MOTION_STATIC),
-        ("lighting_change", C.BG_MOTION_STATIC),
-        ("pan", C.BG_MOTION_PAN_ZOOM),
-        ("parallax", C.BG_MOTION_DEFORMABLE),
+        ("static_camera", BG_MOTION_STATIC),
+        ("lighting_change", BG_MOTION_STATIC),
+        ("pan", BG_MOTION_PAN_ZOOM),
+        ("parallax", BG_MOTION_DEFORMABLE),
     ],
 )
 def test_background_motion_class(name, motion):
     scene, _ = _analyse(name)
     assert scene.background_motion == motion, scene.reasons["background_motion"]
     m = scene.measured
-    if motion == C.BG_MOTION_STATIC:
+    if motion == BG_MOTION_STATIC:
         assert m["background_median_motion_px"] < STATIC_MOTION_PX
         assert "global_rigidity_bg" not in scene.active_terms
     else:
         assert m["background_median_motion_px"] > 1.0  # the scenes move 2 px/frame or more
-    if motion == C.BG_MOTION_PAN_ZOOM:
+    if motion == BG_MOTION_PAN_ZOOM:
         assert m["similarity_residual_px"] < PANZOOM_RESIDUAL_PX
-    if motion == C.BG_MOTION_DEFORMABLE:
+    if motion == BG_MOTION_DEFORMABLE:
         assert m["similarity_residual_px"] > 2 * PANZOOM_RESIDUAL_PX
     assert m["pairs_measured"] == m["pairs"] == 5
 
 
 def test_background_only_has_no_foreground_terms_and_no_alpha_network():
     scene, _ = _analyse("lighting_change")
-    assert scene.num_layers == 1 and scene.layers_source == C.SCENE_LAYERS_NONE and not scene.alpha_network
+    assert scene.num_layers == 1 and scene.layers_source == SCENE_LAYERS_NONE and not scene.alpha_network
     assert "no masks were given" in scene.reasons["layers"]
     assert scene.active_terms == ["rgb", "gradient", "rigidity", "flow"]
 
@@ -114,7 +133,7 @@ def test_zero_weight_and_scribbles_and_bad_components():
 def test_components_all_forces_everything_and_records_it():
     auto, _ = _analyse("static_camera")
     forced, _ = _analyse("static_camera", components="all")
-    assert forced.background_motion == C.BG_MOTION_DEFORMABLE and forced.active_terms == list(ALL_TERMS)
+    assert forced.background_motion == BG_MOTION_DEFORMABLE and forced.active_terms == list(ALL_TERMS)
     assert forced.term_set is None and auto.term_set == frozenset(auto.active_terms)
     assert any("static" in o for o in forced.overrides) and any("global_rigidity_bg" in o for o in forced.overrides)
     # what the analysis measured is kept, so the record says what was overridden and why
@@ -177,10 +196,10 @@ def test_fit_records_scene_and_export_has_one_layer(tmp_path):
     print(f"\nbackground-only still plate, 60 steps: psnr auto {psnr['auto']:.2f} dB, all {psnr['all']:.2f} dB")
     assert psnr["auto"] > 25.0 and psnr["auto"] > psnr["all"] - 0.5 and metrics["alpha_iou"] == []
     scene = RunFolder(run).read_scene()
-    assert scene.background_motion == C.BG_MOTION_STATIC and scene.num_layers == 1
+    assert scene.background_motion == BG_MOTION_STATIC and scene.num_layers == 1
     events = [m for m in map(C.parse_progress_line, stream.getvalue().splitlines()) if m]
     staged = [m for m in events if m["event"] == C.EVENT_STAGE and m["stage"] == "scene"]
-    assert len(staged) == 1 and staged[0]["scene"]["background_motion"] == C.BG_MOTION_STATIC
+    assert len(staged) == 1 and staged[0]["scene"]["background_motion"] == BG_MOTION_STATIC
     losses = [m["losses"] for m in events if m["event"] == C.EVENT_PROGRESS]
     assert losses and all(set(x) == {"rgb", "gradient", "rigidity", "flow"} for x in losses)
     model, _, _ = load_run(run)
@@ -189,31 +208,31 @@ def test_fit_records_scene_and_export_has_one_layer(tmp_path):
     manifest_path = export_run(run, atlas_size=64, progress_bar=False, stream=io.StringIO())
     manifest = C.load_manifest(str(manifest_path))
     assert [layer["name"] for layer in manifest["layers"]] == ["Background"]
-    assert manifest["scene"]["background_motion"] == C.BG_MOTION_STATIC
+    assert manifest["scene"]["background_motion"] == BG_MOTION_STATIC
     assert manifest["scene"]["num_layers"] == 1
-    chans = read_exr(manifest_path.parent / C.PASSES_DIR / C.pass_file_name(0))
-    assert set(chans) == {C.channel_name(C.uv_pass("Background"), c) for c in C.UV_CHANNELS} | {
-        C.channel_name(C.alpha_pass("Background"), "V")
-    } | {C.stmap_channel_name("Background", c) for c in C.STMAP_CHANNELS}
-    assert np.array_equal(chans[C.channel_name(C.alpha_pass("Background"), "V")], np.ones((40, 64), np.float32))
+    chans = read_exr(manifest_path.parent / PASSES_DIR / pass_file_name(0))
+    assert set(chans) == {C.channel_name(uv_pass("Background"), c) for c in C.UV_CHANNELS} | {
+        C.channel_name(alpha_pass("Background"), "V")
+    } | {stmap_channel_name("Background", c) for c in STMAP_CHANNELS}
+    assert np.array_equal(chans[C.channel_name(alpha_pass("Background"), "V")], np.ones((40, 64), np.float32))
 
 
 def test_a_run_without_its_scene_analysis_is_refused(tmp_path):
     with pytest.raises(InputError, match="no scene analysis") as err:
         RunFolder(tmp_path).read_scene()
-    assert C.SCENE_FILE in str(err.value) and "\n" not in str(err.value)
+    assert SCENE_FILE in str(err.value) and "\n" not in str(err.value)
 
 
 def test_manifest_scene_is_validated():
     good = {"components": "auto", "num_layers": 1, "layers_source": "none", "background_motion": "static"}
     good |= {"flow": True, "active_terms": ["rgb"], "reasons": {}}
-    C.validate_scene(good, 1)
+    validate_scene(good, 1)
     with pytest.raises(C.ManifestError, match="background_motion"):
-        C.validate_scene({**good, "background_motion": "wobbly"})
+        validate_scene({**good, "background_motion": "wobbly"})
     with pytest.raises(C.ManifestError, match="2 layers"):
-        C.validate_scene({**good, "num_layers": 2}, 1)
+        validate_scene({**good, "num_layers": 2}, 1)
     with pytest.raises(C.ManifestError, match="active_terms"):
-        C.validate_scene({k: v for k, v in good.items() if k != "active_terms"})
+        validate_scene({k: v for k, v in good.items() if k != "active_terms"})
 
 
 @pytest.mark.slow
@@ -225,10 +244,10 @@ def test_single_frame_fit_computes_no_flow(tmp_path):
     run = tmp_path / "run"
     metrics = quiet_fit(run, cfg, FitInputs(frames_dir, [masks_dir]), stream)
     assert np.isfinite(metrics["psnr"])
-    assert not (run / C.FLOW_CACHE_DIR).exists()
+    assert not (run / FLOW_CACHE_DIR).exists()
     stages = [m["stage"] for m in map(C.parse_progress_line, stream.getvalue().splitlines()) if m and "stage" in m]
     assert "flow" not in stages and "scene" in stages
-    scene = json.loads((run / C.SCENE_FILE).read_text())
+    scene = json.loads((run / SCENE_FILE).read_text())
     assert scene["flow"] is False and "flow" not in scene["active_terms"]
 
 
@@ -245,20 +264,20 @@ def test_auto_masks_fit_uses_found_masks_or_falls_back(tmp_path):
     run = tmp_path / "run_obj"
     quiet_fit(run, cfg, FitInputs(frames_dir, auto_masks=True))
     scene = RunFolder(run).read_scene()
-    assert scene.layers_source == C.SCENE_LAYERS_AUTO and scene.num_layers == 2
+    assert scene.layers_source == SCENE_LAYERS_AUTO and scene.num_layers == 2
     info = open_clip(frames_dir)
     found = read_masks(run / C.AUTO_MASKS_DIR, info, (128, 80))
     iou = mask_iou(found, read_masks(masks_dir, info, (128, 80)))
     print(f"\nauto masks on static_camera: IoU mean {iou.mean():.3f} min {iou.min():.3f}")
     assert iou.mean() >= 0.5
-    assert json.loads((run / C.RUN_CLIP).read_text())["masks"] == [str((run / C.AUTO_MASKS_DIR).resolve())]
+    assert json.loads((run / RUN_CLIP).read_text())["masks"] == [str((run / C.AUTO_MASKS_DIR).resolve())]
 
     still = make_named_scene("lighting_change", width=128, height=80, frames=6)
     frames_dir, _ = _write_clip(tmp_path / "still", still.frames)
     run = tmp_path / "run_still"
     quiet_fit(run, cfg, FitInputs(frames_dir, auto_masks=True))
     scene = RunFolder(run).read_scene()
-    assert scene.num_layers == 1 and scene.layers_source == C.SCENE_LAYERS_AUTO
+    assert scene.num_layers == 1 and scene.layers_source == SCENE_LAYERS_AUTO
     assert "no moving object was found" in scene.reasons["layers"]
 
 
@@ -276,10 +295,10 @@ def test_pan_builds_a_small_residual_and_no_warp_grid(tmp_path):
         scene = analyse_scene(len(prep.frames), prep.flow, prep.masks, cfg)
         built[comp] = (scene, build_model(cfg, prep, scene))
     scene, model = built["auto"]
-    assert scene.background_motion == C.BG_MOTION_PAN_ZOOM and "global_rigidity_bg" in scene.active_terms
+    assert scene.background_motion == BG_MOTION_PAN_ZOOM and "global_rigidity_bg" in scene.active_terms
     bg = model.mappings[0]
     assert bg.warp is None and bg.residual.linears[0].out_features == PANZOOM_MAPPING_HIDDEN
-    assert model.mappings[1].kind == C.BG_MOTION_DEFORMABLE  # foreground mappings are never reduced
+    assert model.mappings[1].kind == BG_MOTION_DEFORMABLE  # foreground mappings are never reduced
     full = built["all"][1].mappings[0]
     assert full.warp is not None and full.residual.linears[0].out_features == 64
 
@@ -293,8 +312,8 @@ def test_scene_speed_compares_the_same_fit_with_and_without_the_analysis(tmp_pat
     s = make_named_scene("lighting_change", width=48, height=32, frames=3)
     frames_dir, _ = _write_clip(tmp_path / "clip", np.repeat(s.frames[:1], 3, axis=0))
     res = compare_components(frames_dir, [], tmp_path / "runs", steps=10, long_edge=48)
-    assert res["auto"]["background_motion"] == C.BG_MOTION_STATIC
-    assert res["all"]["background_motion"] == C.BG_MOTION_DEFORMABLE
+    assert res["auto"]["background_motion"] == BG_MOTION_STATIC
+    assert res["all"]["background_motion"] == BG_MOTION_DEFORMABLE
     assert len(res["auto"]["active_terms"]) < len(res["all"]["active_terms"])
     assert np.isfinite(res["speedup"]) and res["speedup"] > 0
     assert all(np.isfinite(res[c]["psnr"]) for c in ("auto", "all"))
@@ -307,7 +326,7 @@ def test_textureless_clip_is_deformable_because_nothing_can_be_measured():
     flow = compute_flow(frames, DISFlow("medium"))
     flow.forward_ok[:] = False  # whatever DIS returns on a flat image, nothing is reliable
     scene = analyse_scene(3, flow, np.zeros((0, 3, 24, 32), bool), preset_config("draft"))
-    assert scene.background_motion == C.BG_MOTION_DEFORMABLE and "too little" in scene.reasons["background_motion"]
+    assert scene.background_motion == BG_MOTION_DEFORMABLE and "too little" in scene.reasons["background_motion"]
     assert scene.measured["background_median_motion_px"] is None and scene.measured["pairs_measured"] == 0
 
 

@@ -20,6 +20,7 @@ from engine import contract as C
 from engine.edit.equations import load_edit
 from engine.edit.project_frame import save_edit_like
 from engine.edit.realign import realign_measured
+from engine.terms.export_names import EDITS_ALIGNED, EDITS_DIR
 from tests.engine.fake_export import make_fake_export
 from tests.engine_cli import run_cli
 
@@ -76,7 +77,7 @@ def _stripe(colour: tuple[float, float, float]) -> np.ndarray:
 
 
 def _edit(manifest: Path, layer: str) -> Path:
-    return manifest.parent.parent.parent / C.EDITS_DIR / f"{layer}.png"
+    return manifest.parent.parent.parent / EDITS_DIR / f"{layer}.png"
 
 
 def test_a_split_fits_paint_lands_on_a_one_layer_fit_and_back(tmp_path):
@@ -89,7 +90,7 @@ def test_a_split_fits_paint_lands_on_a_one_layer_fit_and_back(tmp_path):
           f"mean colour error {carried['mean_error']:.3f} (before: landed {before['landed']:.3f})")  # fmt: skip
     assert report["layers"] == ["Foreground"] and before["landed"] == 0.0
     assert carried["landed"] > 0.95 and carried["iou"] > 0.9 and carried["mean_error"] < 0.08
-    assert json.loads((_edit(whole, "Foreground").parent / C.EDITS_ALIGNED).read_text())["export"] == "v001"
+    assert json.loads((_edit(whole, "Foreground").parent / EDITS_ALIGNED).read_text())["export"] == "v001"
     # the one layer's atlas now holds both colours, and the blank edit layer it replaced is in its history
     fg = load_edit(_edit(whole, "Foreground"))
     assert (fg[..., 0] > 0.5).sum() > 20 and (fg[..., 2] > 0.5).sum() > 20

@@ -20,6 +20,8 @@ from engine.fit.run_folder import ClipRecord, RunFolder
 from engine.fit.run_plan import _check_resume_colour
 from engine.io import colour
 from engine.io.clip import open_clip
+from engine.terms.colour import COLOUR_BUILTIN_CONFIG, EXR_COLORSPACE_ATTRIBUTE
+from engine.terms.run_folder import RUN_CLIP
 from tests.colour_plates import AP1, KINDS, H, T, W, _half_layer, _read, _write, export_plate, paint
 from tests.engine_cli import run_cli
 
@@ -48,7 +50,7 @@ def test_a_painted_colour_lands_with_its_value(tmp_path, kind):
     out = render_manifest(manifest, tmp_path / "out", settings=RenderSettings("plate"), progress_bar=False)
     ext, _, space = KINDS[kind]
     linear = load_edit(edit)[0, 0, :3]
-    expected = colour.from_linear(linear[None, None], space, C.COLOUR_BUILTIN_CONFIG)[0, 0]
+    expected = colour.from_linear(linear[None, None], space, COLOUR_BUILTIN_CONFIG)[0, 0]
     got = _read(out / f"edit.0001{ext}", native=False)
     if kind == "acescg":  # written as half, like the plate
         np.testing.assert_array_equal(got[:, : W // 2], np.broadcast_to(expected.astype(np.float16), (H, W // 2, 3)))
@@ -60,7 +62,7 @@ def test_a_painted_colour_lands_with_its_value(tmp_path, kind):
     plate = _read(tmp_path / "clip" / f"plate.0001{ext}", native=False)
     np.testing.assert_array_equal(got[:, W // 2 :], plate[:, W // 2 :])  # untouched: the plate's own values
     # back in scene-linear, the colour is the edit layer's (as exact as the file's precision allows)
-    back = colour.to_linear(got[0, 0][None, None], space, C.COLOUR_BUILTIN_CONFIG)[0, 0]
+    back = colour.to_linear(got[0, 0][None, None], space, COLOUR_BUILTIN_CONFIG)[0, 0]
     rtol, atol = {"acescg": (1e-3, 0.0), "acescct": (7e-3, 1e-3), "srgb": (1e-2, 0.0)}[kind]  # the file's step
     np.testing.assert_allclose(back, linear, rtol=rtol, atol=atol)
 
@@ -75,7 +77,7 @@ def test_render_exr_of_an_integer_plate_is_scene_linear_rec709_and_tagged(tmp_pa
     plate = _read(tmp_path / "clip" / "plate.0000.png", native=False)  # the code values as OIIO reads them
     np.testing.assert_array_equal(got, colour.srgb_to_linear(plate))
     assert spec.getattribute("chromaticities") == pytest.approx(colour.REC709_CHROMATICITIES, abs=1e-6)
-    assert spec.getattribute(C.EXR_COLORSPACE_ATTRIBUTE) == C.COLOUR_SCENE_LINEAR
+    assert spec.getattribute(EXR_COLORSPACE_ATTRIBUTE) == C.COLOUR_SCENE_LINEAR
     with av.open(str(tmp_path / "edit.mp4")) as container:
         cc = container.streams.video[0].codec_context
         assert (cc.color_primaries, cc.color_trc, cc.colorspace, cc.color_range) == MOVIE_COLOUR_TAGS
@@ -122,7 +124,7 @@ def test_the_fit_works_in_srgb_encoded_rec709(tmp_path):
     assert np.array_equal(to_fitting_values(srgb, "sRGB")[0], srgb)  # an old run's record
     acescg = colour.convert(colour.srgb_to_linear(srgb), C.COLOUR_SCENE_LINEAR, "ACEScg")
     np.testing.assert_allclose(
-        to_fitting_values(acescg, "ACEScg", colour_config=C.COLOUR_BUILTIN_CONFIG)[0], srgb, atol=2e-5
+        to_fitting_values(acescg, "ACEScg", colour_config=COLOUR_BUILTIN_CONFIG)[0], srgb, atol=2e-5
     )
 
 
@@ -137,13 +139,13 @@ def test_resume_refuses_another_colour_space(tmp_path):
 
 
 def test_old_records_are_read():
-    assert run_files.validate_run_file(C.RUN_CLIP, {**_clip_json(), "colorspace": "linear"})
+    assert run_files.validate_run_file(RUN_CLIP, {**_clip_json(), "colorspace": "linear"})
     with pytest.raises(run_files.RunFileError):
-        run_files.validate_run_file(C.RUN_CLIP, {**_clip_json(), "colorspace": "ACEScg"})  # a name needs its config
+        run_files.validate_run_file(RUN_CLIP, {**_clip_json(), "colorspace": "ACEScg"})  # a name needs its config
     assert run_files.validate_run_file(
-        C.RUN_CLIP, {**_clip_json(), "colorspace": "ACEScg", "colour_config": "ocio://default"}
+        RUN_CLIP, {**_clip_json(), "colorspace": "ACEScg", "colour_config": "ocio://default"}
     )
-    assert colour.recorded_space("linear", None) == (C.COLOUR_SCENE_LINEAR, C.COLOUR_BUILTIN_CONFIG)
+    assert colour.recorded_space("linear", None) == (C.COLOUR_SCENE_LINEAR, COLOUR_BUILTIN_CONFIG)
 
 
 def _clip_json() -> dict:

@@ -19,6 +19,8 @@ from engine import contract as C
 from engine.edit.render_record import RECORD_NAME
 from engine.errors import MB, InputError
 from engine.io.images import write_png
+from engine.terms.export_names import EDITS_DIR, PASSES_DIR, pass_file_name
+from engine.terms.lock import RUN_LOCKED_FIX
 from tests.engine.fake_export import make_fake_export
 from tests.engine_cli import run_cli
 from tests.folders import hold_lock, tree_digest
@@ -49,7 +51,7 @@ def test_a_failing_render_leaves_no_partial_frames(tmp_path):
     existing one (an earlier render and the artist's file in it) is byte-identical."""
     manifest = _export(tmp_path)
     earlier = _earlier_render(manifest, tmp_path / "earlier")
-    (manifest.parent / C.PASSES_DIR / C.pass_file_name(2)).unlink()
+    (manifest.parent / PASSES_DIR / pass_file_name(2)).unlink()
     for out in (tmp_path / "earlier", tmp_path / "new" / "frames"):
         code, lines = run_cli("render", manifest, "--out", out, "--no-bar", "--movie", out.parent / "edit.mp4")
         assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and "atlas.00002.exr" in lines[0], lines
@@ -216,7 +218,7 @@ def test_project_frame_on_a_full_disk_keeps_every_edit_layer(tmp_path, monkeypat
     import engine.edit.project_frame as pf
 
     manifest = _export(tmp_path, layers=2)
-    edits = tmp_path / "run" / C.EDITS_DIR
+    edits = tmp_path / "run" / EDITS_DIR
     before = tree_digest(edits)
     _enospc_after(monkeypatch, pf, "write_png", 1)
     code, lines = run_cli("project-frame", manifest, "--frame", "1", "--edit", _paint(tmp_path))
@@ -244,7 +246,7 @@ def test_project_frame_and_preview_refuse_a_run_folder_another_process_holds(tmp
         for argv in (("project-frame", manifest, "--frame", "1", "--edit", _paint(tmp_path)), ("preview", manifest)):
             code, lines = run_cli(*argv)
             assert code == C.EXIT_BAD_INPUT and len(lines) == 1, lines
-            assert f"in use by fit (pid {holder.pid} on " in lines[0] and C.RUN_LOCKED_FIX in lines[0], lines
+            assert f"in use by fit (pid {holder.pid} on " in lines[0] and RUN_LOCKED_FIX in lines[0], lines
     finally:
         holder.kill()
         holder.wait()

@@ -7,16 +7,17 @@ import json
 
 import pytest
 
-from engine import contract as C
 from engine.errors import InputError
 from engine.export.plan import read_layout
+from engine.terms.export_names import EDITS_LAYOUT
+from engine.terms.versions import SCHEMA_VERSION
 
-GOOD = {"schema": C.SCHEMA_VERSION, "layers": {"Foreground": {"atlas_box": [-1, -0.5, 1, 0.5], "atlas_size": [64, 32]}}}
+GOOD = {"schema": SCHEMA_VERSION, "layers": {"Foreground": {"atlas_box": [-1, -0.5, 1, 0.5], "atlas_size": [64, 32]}}}
 
 
 def test_no_layout_is_an_empty_one_and_a_good_one_reads_back(tmp_path):
-    assert read_layout(tmp_path) == {"schema": C.SCHEMA_VERSION, "layers": {}}
-    (tmp_path / C.EDITS_LAYOUT).write_text(json.dumps(GOOD), encoding="utf-8")
+    assert read_layout(tmp_path) == {"schema": SCHEMA_VERSION, "layers": {}}
+    (tmp_path / EDITS_LAYOUT).write_text(json.dumps(GOOD), encoding="utf-8")
     assert read_layout(tmp_path) == GOOD
 
 
@@ -32,7 +33,7 @@ def test_no_layout_is_an_empty_one_and_a_good_one_reads_back(tmp_path):
     ],
 )
 def test_a_damaged_layout_is_one_line(tmp_path, data, said):
-    (tmp_path / C.EDITS_LAYOUT).write_text(json.dumps(data), encoding="utf-8")
+    (tmp_path / EDITS_LAYOUT).write_text(json.dumps(data), encoding="utf-8")
     with pytest.raises(InputError) as info:
         read_layout(tmp_path)
     text = str(info.value)

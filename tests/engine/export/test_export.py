@@ -29,6 +29,9 @@ from engine.export.exporter import export_run
 from engine.export.manifest import Manifest
 from engine.io.colour import srgb_to_linear
 from engine.io.images import read_exr, read_image, write_png
+from engine.terms.colour import COLOUR_BUILTIN_CONFIG, EXR_COLORSPACE_ATTRIBUTE
+from engine.terms.export_names import PASS_PRECISION_COMPACT
+from engine.terms.manifest import validate_manifest
 from tests.engine.export.tiny_run import fail_exr_writes_after
 from tests.engine.fit_helpers import fit_scene, load_model
 from tests.folders import tree_digest
@@ -99,7 +102,7 @@ def test_pass_files_follow_the_contract(exported):
         passes = m.read_passes(f)
         total = sum(p.alpha for p in passes)
         # the layers' weights sum to one; a compact export rounds each down to half float's precision (< 2^-11)
-        assert m.data["passes"]["precision"] == C.PASS_PRECISION_COMPACT
+        assert m.data["passes"]["precision"] == PASS_PRECISION_COMPACT
         assert (total <= 1.0 + 1e-6).all() and (total >= 1.0 - len(passes) * 2.0**-11).all()
         for p in passes:
             assert p.uv.min() >= 0.0 and p.uv.max() <= 1.0
@@ -130,15 +133,15 @@ def _header(path, name):
 def test_manifest_and_files(exported):
     _, run, manifest_path = exported
     data = json.loads(Path(manifest_path).read_text())
-    assert C.validate_manifest(data) is data
+    assert validate_manifest(data) is data
     assert Path(manifest_path).parent == run / "exports" / "v001"
     m = Manifest(manifest_path)
     assert [layer["name"] for layer in m.layers] == ["Background", "Foreground"]
     assert data["fit"]["steps"] == 400 and data["fit"]["psnr"] > 25
-    assert (data["clip"]["colorspace"], data["clip"]["colour_config"]) == (C.COLOUR_SRGB, C.COLOUR_BUILTIN_CONFIG)
+    assert (data["clip"]["colorspace"], data["clip"]["colour_config"]) == (C.COLOUR_SRGB, COLOUR_BUILTIN_CONFIG)
     assert data["clip"]["resolution"] == [192, 108]
     # the passes are data: OCIO readers take them raw
-    assert _header(m.pass_path(m.frames[0]), C.EXR_COLORSPACE_ATTRIBUTE) == "Raw"
+    assert _header(m.pass_path(m.frames[0]), EXR_COLORSPACE_ATTRIBUTE) == "Raw"
     for layer in m.layers:
         n = layer["name"]
         assert layer["channels"] == [f"Atlas.UV{n}.U", f"Atlas.UV{n}.V", f"Atlas.UV{n}.A", f"Atlas.Alpha{n}.V"]
@@ -154,7 +157,7 @@ def test_manifest_and_files(exported):
         assert e.shape == (h, w, 4) and e.max() == 0.0
         # tagged: the atlas EXR scene-linear Rec.709 (its chromaticities), the PNGs sRGB (their sRGB chunk)
         assert _header(m.resolve(layer["atlas_exr"]), "chromaticities") == pytest.approx(REC709, abs=1e-6)
-        assert _header(m.resolve(layer["atlas_exr"]), C.EXR_COLORSPACE_ATTRIBUTE) == C.COLOUR_SCENE_LINEAR
+        assert _header(m.resolve(layer["atlas_exr"]), EXR_COLORSPACE_ATTRIBUTE) == C.COLOUR_SCENE_LINEAR
         assert b"sRGB" in Path(m.resolve(layer["atlas_png"])).read_bytes()[:200]
         # EXR is linear premultiplied, PNG sRGB straight: the same atlas
         np.testing.assert_allclose(exr["A"], png[..., 3], atol=2e-5)

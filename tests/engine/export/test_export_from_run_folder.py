@@ -11,7 +11,6 @@ import shutil
 import numpy as np
 import pytest
 
-from engine import contract as C
 from engine.config import apply_overrides, preset_config
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.errors import InputError
@@ -19,6 +18,8 @@ from engine.export.exporter import export_run
 from engine.fit.fit_inputs import FitInputs
 from engine.fit.fitted_run import load_fitted
 from engine.io.images import read_exr, read_image
+from engine.terms.export_names import PASSES_DIR, pass_file_name
+from engine.terms.run_folder import FLOW_CACHE_DIR, RUN_CLIP, SCENE_FILE
 from tests.engine.fit_helpers import quiet_fit
 
 #: 96x64 fitted at 48x32: the passes (96x64) can only get their size from the run folder's record.
@@ -38,7 +39,7 @@ def test_export_without_the_plate_equals_export_with_it(tmp_path, monkeypatch):
     with_plate = _export(run, follow_flow=False)
 
     shutil.rmtree(tmp_path / "clip")  # the plate and its masks
-    shutil.rmtree(run / C.FLOW_CACHE_DIR)
+    shutil.rmtree(run / FLOW_CACHE_DIR)
     import engine.fit.prepare
     import engine.io.clip
 
@@ -54,8 +55,8 @@ def test_export_without_the_plate_equals_export_with_it(tmp_path, monkeypatch):
     assert b["clip"]["resolution"] == [96, 64] and b["clip"]["working_resolution"] == [48, 32]
     assert {k: v for k, v in a.items() if k != "created"} == {k: v for k, v in b.items() if k != "created"}
     for frame in a["passes"]["frames"]:
-        name = C.pass_file_name(frame)
-        pa, pb = read_exr(with_plate.parent / C.PASSES_DIR / name), read_exr(without.parent / C.PASSES_DIR / name)
+        name = pass_file_name(frame)
+        pa, pb = read_exr(with_plate.parent / PASSES_DIR / name), read_exr(without.parent / PASSES_DIR / name)
         assert pa.keys() == pb.keys()
         for channel in pa:
             assert pa[channel].shape == (64, 96)
@@ -75,11 +76,11 @@ def test_export_of_a_run_without_its_records_is_one_line(tmp_path):
     run = tmp_path / "run"
     cfg = apply_overrides(preset_config("draft"), TINY)
     quiet_fit(run, cfg, FitInputs(frames_dir, [masks_dir]))
-    record = json.loads((run / C.RUN_CLIP).read_text())
+    record = json.loads((run / RUN_CLIP).read_text())
     del record["layers"]
-    (run / C.RUN_CLIP).write_text(json.dumps(record))
+    (run / RUN_CLIP).write_text(json.dumps(record))
     with pytest.raises(InputError, match="clip record has no 'layers' — restore it"):
         _export(run)
-    (run / C.SCENE_FILE).unlink()
+    (run / SCENE_FILE).unlink()
     with pytest.raises(InputError):
         _export(run)

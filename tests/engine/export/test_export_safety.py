@@ -20,6 +20,8 @@ import pytest
 from engine import contract as C
 from engine.errors import MB
 from engine.io.images import write_png
+from engine.terms.export_names import EDITS_DIR
+from engine.terms.lock import RUN_LOCKED_FIX
 from tests.engine.export.tiny_run import copy_root, export, fail_exr_writes_after, make_run
 from tests.engine_cli import run_cli
 from tests.folders import hold_lock, tree_digest
@@ -77,7 +79,7 @@ def test_writers_refuse_a_run_folder_another_process_holds(root):
         out = _engine("export", str(run), "--atlas-size", "32", "--no-bar")
         lines = _lines(out.stderr)
         assert out.returncode == C.EXIT_BAD_INPUT and len(lines) == 1, out.stderr
-        assert f"in use by fit (pid {holder.pid} on " in lines[0] and C.RUN_LOCKED_FIX in lines[0], lines[0]
+        assert f"in use by fit (pid {holder.pid} on " in lines[0] and RUN_LOCKED_FIX in lines[0], lines[0]
         for argv in (
             ["project-frame", str(_manifest(root)), "--frame", "1", "--edit", str(_paint(root))],
             ["preview", str(_manifest(root)), "--no-movies"],
@@ -108,7 +110,7 @@ def test_a_run_folder_moved_with_its_plate_renders_identically(root, tmp_path):
     assert out.returncode == C.EXIT_OK, out.stderr
     assert tree_digest(tmp_path / "after") == tree_digest(tmp_path / "before") != {}
     code, lines = run_cli("project-frame", str(_manifest(moved)), "--frame", "1", "--edit", str(_paint(moved)))
-    assert code == C.EXIT_OK and all(str(moved / "run" / C.EDITS_DIR) in line for line in lines[:1]), lines
+    assert code == C.EXIT_OK and all(str(moved / "run" / EDITS_DIR) in line for line in lines[:1]), lines
 
 
 @pytest.mark.slow
@@ -116,7 +118,7 @@ def test_sigterm_during_export_exits_3_and_leaves_nothing(root):
     """SIGTERM while a real export computes its atlases: exit 3, one line, no staging, the earlier export and the
     edit layers byte-identical; the same command again finishes."""
     run = root / "run"
-    exports, edits = run / C.EXPORTS_DIR, run / C.EDITS_DIR
+    exports, edits = run / C.EXPORTS_DIR, run / EDITS_DIR
     before = (tree_digest(exports), tree_digest(edits))
     argv = [sys.executable, "-m", "engine", "export", str(run), "--atlas-size", str(BIG_ATLAS), "--no-bar"]
     proc = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
@@ -153,7 +155,7 @@ def test_disk_full_during_export_is_one_line_naming_what_it_needs(root, monkeypa
     whole = export(run, atlas_size=BIG_ATLAS).parent
     size = sum(p.stat().st_size for p in whole.rglob("*") if p.is_file())
     shutil.rmtree(whole)
-    before = (tree_digest(run / C.EXPORTS_DIR), tree_digest(run / C.EDITS_DIR))
+    before = (tree_digest(run / C.EXPORTS_DIR), tree_digest(run / EDITS_DIR))
     _fill_disk_after(monkeypatch, 3)
     code, lines = run_cli("export", str(run), "--atlas-size", str(BIG_ATLAS), "--no-bar")
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1, lines
@@ -161,7 +163,7 @@ def test_disk_full_during_export_is_one_line_naming_what_it_needs(root, monkeypa
     free_mb = int(lines[0].split("free ")[1].split(" MB")[0])
     print(f"\nexport needs {size / MB:.2f} MB; the message says free {free_mb} MB")
     assert math.ceil(size / 2 / MB) <= free_mb <= math.ceil(2 * size / MB), (size, free_mb)
-    assert (tree_digest(run / C.EXPORTS_DIR), tree_digest(run / C.EDITS_DIR)) == before
+    assert (tree_digest(run / C.EXPORTS_DIR), tree_digest(run / EDITS_DIR)) == before
     assert not [p for p in (run / C.EXPORTS_DIR).iterdir() if p.name.startswith(".")]
 
 
@@ -171,4 +173,4 @@ def test_disk_full_during_a_first_export_removes_what_it_created(tmp_path, monke
     _fill_disk_after(monkeypatch, 2)
     code, lines = run_cli("export", str(run), "--atlas-size", "32", "--no-bar")
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and "disk full" in lines[0], lines
-    assert not (run / C.EXPORTS_DIR).exists() and not (run / C.EDITS_DIR).exists()
+    assert not (run / C.EXPORTS_DIR).exists() and not (run / EDITS_DIR).exists()

@@ -14,13 +14,16 @@ from engine import contract as C
 from engine.errors import InputError
 from engine.export import exporter, stage_record
 from engine.farm.plan import next_version
+from engine.terms.cli import EXPORT_INTO_ARG, EXPORT_STAGE_ARG, EXPORT_STAGES
+from engine.terms.export_names import EXPORT_CHUNKS_SUFFIX
+from engine.terms.run_folder import RUN_CONFIG
 from tests.engine.export.tiny_run import ATLAS_SIZE, copy_root, make_run
 from tests.engine_cli import run_cli
 from tests.folders import tree_digest
 from tests.untouched import digest_outside
 
-INTO, STAGE = C.EXPORT_INTO_ARG, C.EXPORT_STAGE_ARG
-ATLASES, PASSES, PUBLISH = C.EXPORT_STAGES
+INTO, STAGE = EXPORT_INTO_ARG, EXPORT_STAGE_ARG
+ATLASES, PASSES, PUBLISH = EXPORT_STAGES
 SIZE = ("--atlas-size", str(ATLAS_SIZE))
 
 
@@ -43,7 +46,7 @@ def _export(run: Path, *args: str) -> tuple[int, list[str]]:
 
 def _other_fit_line(chunks: Path, version: str, free: str) -> str:
     return (
-        f"error: {chunks}: {version} was staged from another fit ({C.RUN_CHECKPOINT} and {C.RUN_CONFIG} changed since "
+        f"error: {chunks}: {version} was staged from another fit ({C.RUN_CHECKPOINT} and {RUN_CONFIG} changed since "
         f"its atlases were made: a fit --refine or --refit), and one version never mixes frames of two fits — stage "
         f"this fit as a new version ({INTO} {free} {STAGE} {ATLASES}; a farm job submitted again takes a new version "
         f"itself), or delete {chunks.name} to stage {version} again from this fit"
@@ -52,7 +55,7 @@ def _other_fit_line(chunks: Path, version: str, free: str) -> str:
 
 def test_a_refine_between_chunks_stops_the_staged_version_and_a_new_one_takes_the_refined_fit(root):
     run = root / "run"
-    chunks = run / C.EXPORTS_DIR / f".v001{C.EXPORT_CHUNKS_SUFFIX}"
+    chunks = run / C.EXPORTS_DIR / f".v001{EXPORT_CHUNKS_SUFFIX}"
     outside = digest_outside(root.parent, run)
     assert _export(run, INTO, "v001", STAGE, ATLASES, *SIZE) == (0, [])
     assert _export(run, INTO, "v001", STAGE, PASSES, "--frames", "0-1") == (0, [])
@@ -86,7 +89,7 @@ def test_the_plan_continues_a_staged_version_of_the_same_fit(root):
     assert next_version(run) == "v001"
     assert _export(run, INTO, "v001", STAGE, ATLASES, *SIZE) == (0, [])
     assert next_version(run) == "v001"  # an interrupted submission is picked up, as before
-    (run / C.EXPORTS_DIR / f".v001{C.EXPORT_CHUNKS_SUFFIX}" / stage_record.STAGE_RECORD).write_text("{", "utf-8")
+    (run / C.EXPORTS_DIR / f".v001{EXPORT_CHUNKS_SUFFIX}" / stage_record.STAGE_RECORD).write_text("{", "utf-8")
     assert next_version(run) == "v002"  # a damaged record is left alone
     assert digest_outside(root.parent, run) == outside
 
@@ -95,14 +98,14 @@ def test_a_fit_changed_while_a_chunk_loads_it_writes_no_pass(root, monkeypatch):
     """The passes stage holds no lock (chunks run on several hosts at once): the fit is checked again once loaded,
     so a refine that replaced it meanwhile stops the chunk before it writes a frame."""
     run = root / "run"
-    chunks = run / C.EXPORTS_DIR / f".v001{C.EXPORT_CHUNKS_SUFFIX}"
+    chunks = run / C.EXPORTS_DIR / f".v001{EXPORT_CHUNKS_SUFFIX}"
     assert _export(run, INTO, "v001", STAGE, ATLASES, *SIZE) == (0, [])
     outside, staged = digest_outside(root.parent, run), tree_digest(chunks)
     load = exporter.load_fitted
 
     def load_then_refit(run_dir, device_name):  # type: ignore[no-untyped-def]
         fitted = load(run_dir, device_name)
-        config = Path(run_dir) / C.RUN_CONFIG
+        config = Path(run_dir) / RUN_CONFIG
         config.write_text(config.read_text(encoding="utf-8") + "\n", encoding="utf-8")
         return fitted
 
@@ -110,7 +113,7 @@ def test_a_fit_changed_while_a_chunk_loads_it_writes_no_pass(root, monkeypatch):
     with pytest.raises(InputError) as info:
         exporter.export_run(run, into="v001", stage=PASSES, progress_bar=False, stream=None)
     assert str(info.value) == _other_fit_line(chunks, "v001", "v002").removeprefix("error: ").replace(
-        f"{C.RUN_CHECKPOINT} and {C.RUN_CONFIG}", C.RUN_CONFIG
+        f"{C.RUN_CHECKPOINT} and {RUN_CONFIG}", RUN_CONFIG
     )
     assert tree_digest(chunks) == staged and digest_outside(root.parent, run) == outside
 
@@ -118,7 +121,7 @@ def test_a_fit_changed_while_a_chunk_loads_it_writes_no_pass(root, monkeypatch):
 def test_a_stage_record_of_an_earlier_engine_is_refused_in_one_line(root):
     """A record without ``source`` cannot say what it was made from: it is not continued."""
     run = root / "run"
-    chunks = run / C.EXPORTS_DIR / f".v001{C.EXPORT_CHUNKS_SUFFIX}"
+    chunks = run / C.EXPORTS_DIR / f".v001{EXPORT_CHUNKS_SUFFIX}"
     assert _export(run, INTO, "v001", STAGE, ATLASES, *SIZE) == (0, [])
     path = chunks / stage_record.STAGE_RECORD
     old = json.loads(path.read_text(encoding="utf-8"))

@@ -16,13 +16,15 @@ import pytest
 
 from engine import contract as C
 from engine.export import exporter, pass_writer
+from engine.terms.cli import EXPORT_INTO_ARG, EXPORT_STAGE_ARG, EXPORT_STAGES
+from engine.terms.export_names import EDITS_DIR, PASSES_DIR, pass_file_name
 from tests.engine.export.tiny_run import ATLAS_SIZE, copy_root, export, make_run
 from tests.engine_cli import run_cli
 from tests.folders import tree_digest
 from tests.paths import ROOT
 
-INTO, STAGE = C.EXPORT_INTO_ARG, C.EXPORT_STAGE_ARG
-ATLASES, PASSES, PUBLISH = C.EXPORT_STAGES
+INTO, STAGE = EXPORT_INTO_ARG, EXPORT_STAGE_ARG
+ATLASES, PASSES, PUBLISH = EXPORT_STAGES
 SIZE = ("--atlas-size", str(ATLAS_SIZE))
 
 
@@ -74,7 +76,7 @@ def test_staged_export_in_three_chunks_equals_a_plain_export(root):
     run = root / "run"
     exports = run / C.EXPORTS_DIR
     chunks = exports / ".v002.chunks"
-    before_edits = tree_digest(run / C.EDITS_DIR)
+    before_edits = tree_digest(run / EDITS_DIR)
     code, err = _export(run, INTO, "v002", STAGE, ATLASES, *SIZE)
     assert (code, err) == (0, [])
     assert (chunks / exporter.STAGE_RECORD).is_file() and not (exports / "v002").exists()
@@ -93,12 +95,12 @@ def test_staged_export_in_three_chunks_equals_a_plain_export(root):
     assert "frame 3 has no pass" in err[0] and f"{STAGE} passes --frames 3-3" in err[0]
     assert not (exports / "v002").exists()
     assert _export(run, INTO, "v002", STAGE, PASSES, "--frames", "3-3") == (0, [])
-    passes = tree_digest(chunks / C.PASSES_DIR)
+    passes = tree_digest(chunks / PASSES_DIR)
     assert _export(run, INTO, "v002", STAGE, PASSES, "--frames", "2-3") == (0, [])  # a re-run chunk: a no-op
-    assert tree_digest(chunks / C.PASSES_DIR) == passes
+    assert tree_digest(chunks / PASSES_DIR) == passes
 
     assert _export(run, INTO, "v002", STAGE, PUBLISH) == (0, [])
-    assert not chunks.exists() and tree_digest(run / C.EDITS_DIR) == before_edits
+    assert not chunks.exists() and tree_digest(run / EDITS_DIR) == before_edits
     _same_export(exports / "v001", exports / "v002")
     published = tree_digest(exports / "v002")
     # every part run again once published: exit 0, the manifest's path, nothing changed
@@ -149,7 +151,7 @@ def test_a_cancelled_chunk_keeps_its_finished_frames_and_its_retry_completes(roo
     again writes only the rest, and the published export is the plain one."""
     run = root / "run"
     chunks = run / C.EXPORTS_DIR / ".v002.chunks"
-    names = [C.pass_file_name(n) for n in range(4)]
+    names = [pass_file_name(n) for n in range(4)]
     assert _export(run, INTO, "v002", STAGE, ATLASES, *SIZE) == (0, [])
     write_exr = pass_writer.write_exr
     written: list[Path] = []
@@ -163,14 +165,14 @@ def test_a_cancelled_chunk_keeps_its_finished_frames_and_its_retry_completes(roo
     monkeypatch.setattr(pass_writer, "write_exr", write_then_terminate)
     code, err = _export(run, INTO, "v002", STAGE, PASSES, "--frames", "0-3")
     assert code == C.EXIT_CANCELLED and len(err) == 1 and "SIGTERM" in err[0]
-    kept = sorted(p.name for p in (chunks / C.PASSES_DIR).iterdir())
+    kept = sorted(p.name for p in (chunks / PASSES_DIR).iterdir())
     assert kept in (names[:1], names[:2]) and [p.name for p in written] == kept
-    first = tree_digest(chunks / C.PASSES_DIR)
+    first = tree_digest(chunks / PASSES_DIR)
     retried: list[Path] = []
     monkeypatch.setattr(pass_writer, "write_exr", lambda p, *a, **k: retried.append(p) or write_exr(p, *a, **k))
     assert _export(run, INTO, "v002", STAGE, PASSES, "--frames", "0-3") == (0, [])
     assert [p.name for p in retried] == names[len(kept) :]
-    assert {name: tree_digest(chunks / C.PASSES_DIR)[name] for name in kept} == first
+    assert {name: tree_digest(chunks / PASSES_DIR)[name] for name in kept} == first
     assert _export(run, INTO, "v002", STAGE, PUBLISH) == (0, [])
     _same_export(run / C.EXPORTS_DIR / "v001", run / C.EXPORTS_DIR / "v002")
 

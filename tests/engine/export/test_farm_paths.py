@@ -12,6 +12,8 @@ import shutil
 from pathlib import Path
 
 from engine import contract as C
+from engine.terms.cli import FIT_RESUME_IF_STARTED_FLAG
+from engine.terms.run_folder import RUN_CLIP
 from tests.engine.export.tiny_run import ATLAS_SIZE, TINY, make_run
 from tests.engine_cli import run_cli
 from tests.folders import tree_digest, visible_digest, visible_names
@@ -33,7 +35,7 @@ def _render(run, out) -> tuple[int, list[str]]:  # type: ignore[no-untyped-def]
 def test_a_run_moved_with_its_plate_and_without_it(tmp_path):
     first = tmp_path / "a"
     make_run(first)
-    record = json.loads((first / "run" / C.RUN_CLIP).read_text())
+    record = json.loads((first / "run" / RUN_CLIP).read_text())
     assert record["source"] == str(first / "clip" / "frames")
     assert record["source_relative"] == "../clip/frames"
     assert record["masks_relative"] == ["../clip/masks"]
@@ -52,7 +54,7 @@ def test_a_run_moved_with_its_plate_and_without_it(tmp_path):
     # the farm's retried fit task, naming the plate where it now is: found finished, nothing changed
     sets = [a for k, v in TINY.items() for a in ("--set", f"{k}={v}")]
     argv = ["fit", moved / "clip" / "frames", "--mask", moved / "clip" / "masks", "--out", moved / "run",
-            "--preset", "draft", *sets, "--no-bar", C.FIT_RESUME_IF_STARTED_FLAG]  # fmt: skip
+            "--preset", "draft", *sets, "--no-bar", FIT_RESUME_IF_STARTED_FLAG]  # fmt: skip
     before = tree_digest(moved / "run")
     code, lines = run_cli(*argv)
     assert code == C.EXIT_OK and lines[0].startswith("already fitted"), lines
@@ -84,7 +86,7 @@ def test_a_shot_folder_copied_whole_keeps_to_its_own_plate(tmp_path):
     make_run(first)
     copy = tmp_path / "copy"
     shutil.copytree(first, copy)
-    record = json.loads((copy / "run" / C.RUN_CLIP).read_text())
+    record = json.loads((copy / "run" / RUN_CLIP).read_text())
     assert record["source"] == str(first / "clip" / "frames")  # the copy's clip.json names the original
     code, lines = run_cli("fit", C.FIT_REFINE_FLAG, "2", "--out", copy / "run", "--no-bar")
     assert code == C.EXIT_OK, lines

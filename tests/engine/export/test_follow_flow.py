@@ -18,6 +18,8 @@ from engine.export import exporter
 from engine.export import follow_flow as FF
 from engine.export.manifest import Manifest
 from engine.export.staging import FOLLOW_FLOW_DIR
+from engine.terms.cli import EXPORT_FOLLOW_FLOW_FLAG, EXPORT_STAGES
+from engine.terms.run_folder import FLOW_CACHE_DIR, RUN_CLIP
 from tests.engine.export.tiny_run import export, make_run
 from tests.folders import tree_digest
 
@@ -230,7 +232,7 @@ def test_a_staged_export_follows_the_flow_as_a_whole_export_does(tiny, tmp_path,
     _gate_open(monkeypatch)
     run = shutil.copytree(tiny, tmp_path / "run", ignore=shutil.ignore_patterns(C.EXPORTS_DIR))
     whole = Path(export(run)).parent
-    atlases, passes, publish = C.EXPORT_STAGES
+    atlases, passes, publish = EXPORT_STAGES
     chunks = export(run, into="v002", stage=atlases)
     assert sorted(p.name for p in (chunks / FOLLOW_FLOW_DIR).iterdir()) == ["0.npy", "1.npy"]
     for frames in ((0, 1), (2, 3)):
@@ -249,11 +251,11 @@ def test_a_staged_export_follows_the_flow_as_a_whole_export_does(tiny, tmp_path,
 @pytest.mark.slow
 def test_a_stage_asked_otherwise_than_its_atlases_stage_is_refused_in_one_line(tiny, tmp_path):
     run = shutil.copytree(tiny, tmp_path / "run", ignore=shutil.ignore_patterns(C.EXPORTS_DIR))
-    atlases, passes, publish = C.EXPORT_STAGES
+    atlases, passes, publish = EXPORT_STAGES
     export(run, into="v001", stage=atlases, follow_flow=False)
     for stage in (atlases, passes, publish):
         with pytest.raises(
-            InputError, match=f"v001 is staged not following the flow, not as {C.EXPORT_FOLLOW_FLOW_FLAG}"
+            InputError, match=f"v001 is staged not following the flow, not as {EXPORT_FOLLOW_FLOW_FLAG}"
         ):
             export(run, into="v001", stage=stage, follow_flow=True)
     export(run, into="v001", stage=passes)  # asked nothing: it follows the record
@@ -263,10 +265,10 @@ def test_a_stage_asked_otherwise_than_its_atlases_stage_is_refused_in_one_line(t
 
 @pytest.mark.slow
 def test_without_the_fits_flow_it_is_exported_as_fitted_or_refused_when_insisted_on(tiny, tmp_path, capsys):
-    bare = shutil.copytree(tiny, tmp_path / "run", ignore=shutil.ignore_patterns(C.FLOW_CACHE_DIR, C.EXPORTS_DIR))
+    bare = shutil.copytree(tiny, tmp_path / "run", ignore=shutil.ignore_patterns(FLOW_CACHE_DIR, C.EXPORTS_DIR))
     with pytest.raises(InputError, match="holds no flow of this fit") as err:
         export(bare, follow_flow=True)
-    assert C.FLOW_CACHE_DIR in str(err.value) and C.EXPORT_NO_FOLLOW_FLOW_FLAG in str(err.value)
+    assert FLOW_CACHE_DIR in str(err.value) and C.EXPORT_NO_FOLLOW_FLOW_FLAG in str(err.value)
     assert not (bare / C.EXPORTS_DIR / "v001").exists()
     manifest = Manifest(export(bare))  # the default: a warning, the UV as fitted
     assert "holds no flow of this fit: the layers' UV is exported as fitted" in capsys.readouterr().err
@@ -283,7 +285,7 @@ def test_another_plates_flow_in_the_cache_is_never_followed(tiny, tmp_path, monk
     run = shutil.copytree(tiny, tmp_path / "run", ignore=shutil.ignore_patterns(C.EXPORTS_DIR))
     own = Manifest(export(run))
     assert all(layer["follows_flow"] for layer in own.layers)
-    cache, record = run / C.FLOW_CACHE_DIR, json.loads((run / C.RUN_CLIP).read_text())
+    cache, record = run / FLOW_CACHE_DIR, json.loads((run / RUN_CLIP).read_text())
     assert [p.stem for p in cache.glob("*.npz")] == [record["flow_key"]]
     with np.load(cache / f"{record['flow_key']}.npz") as z:
         shape, backend, threshold = z["forward"].shape, str(z["backend"]), float(z["threshold_px"])
@@ -291,7 +293,7 @@ def test_another_plates_flow_in_the_cache_is_never_followed(tiny, tmp_path, monk
     _save_cache(cache / f"{'f' * 64}.npz", FlowField(shift, -shift, trusted, trusted.copy(), backend, threshold))
     assert max(_moved(own, Manifest(export(run)))) == 0.0
     del record["flow_key"]
-    (run / C.RUN_CLIP).write_text(json.dumps(record))
+    (run / RUN_CLIP).write_text(json.dumps(record))
     assert max(_moved(own, Manifest(export(run)))) == 0.0
 
 

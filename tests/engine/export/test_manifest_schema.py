@@ -1,5 +1,5 @@
 """The manifest's JSON Schema (engine/export/manifest.schema.json) against the models it is generated from, the
-manifests exports write, and ``contract.validate_manifest``, the check every reader goes through.
+manifests exports write, and ``engine.terms.manifest.validate_manifest``, the check every reader goes through.
 
 The schema is checked through its pydantic models (``engine.export.manifest_schema``): the file is their
 ``model_json_schema()``, which the first test holds it to; ``jsonschema`` is not among the test environment's
@@ -23,6 +23,20 @@ from pydantic import BaseModel, ValidationError
 
 from engine import contract as C
 from engine.export import manifest_schema as S
+from engine.terms.cli import INSTALLED_MODULE
+from engine.terms.colour import COLORSPACES, COLOUR_SOURCES
+from engine.terms.export_names import PASS_PRECISIONS, ROLE_BACKGROUND
+from engine.terms.manifest import (
+    MANIFEST_FIELDS,
+    MANIFEST_KEYS,
+    MANIFEST_LAYER_FIELDS,
+    MANIFEST_OPTIONAL_FIELDS,
+    MANIFEST_OPTIONAL_LAYER_FIELDS,
+    MANIFEST_TAG,
+    MANIFEST_VERSION,
+    validate_manifest,
+)
+from engine.terms.run_folder import BG_MOTIONS, SCENE_KEYS
 from tests.contract.test_manifest_fuzz import FUZZ, JSON, PLAUSIBLE, _mutated, _nodes
 from tests.engine.export.tiny_run import export, make_run
 from tests.engine.fake_export import make_fake_export
@@ -68,7 +82,7 @@ def _accepted(data: Any) -> tuple[bool, str | None]:
     except ValidationError:
         schema_ok = False
     try:
-        C.validate_manifest(data)
+        validate_manifest(data)
     except C.ManifestError as exc:
         return schema_ok, str(exc)
     return schema_ok, None
@@ -88,7 +102,7 @@ def test_the_file_is_the_schema_the_models_make():
     assert S.SCHEMA_PATH.read_text(encoding="utf-8") == S.schema_text(), "run: python -m engine.export.manifest_schema"
     schema = json.loads(S.SCHEMA_PATH.read_text(encoding="utf-8"))
     assert (schema["$schema"], schema["$id"], schema["title"]) == (S.SCHEMA_DIALECT, S.SCHEMA_ID, S.SCHEMA_TITLE)
-    assert schema["properties"][C.MANIFEST_TAG]["const"] == C.MANIFEST_VERSION
+    assert schema["properties"][MANIFEST_TAG]["const"] == MANIFEST_VERSION
 
 
 def _fields(model: type[BaseModel]) -> tuple[set[str], set[str]]:
@@ -104,16 +118,16 @@ def _enum(model: type[BaseModel], key: str) -> tuple[str, ...]:
 
 def test_the_models_name_the_contracts_fields_and_values():
     parts = {"clip": S.Clip, "passes": S.Passes, "fit": S.Fit}
-    assert _fields(S.Manifest) == ({C.MANIFEST_TAG, *C.MANIFEST_KEYS}, {"scene"})
+    assert _fields(S.Manifest) == ({MANIFEST_TAG, *MANIFEST_KEYS}, {"scene"})
     for section, model in parts.items():
-        assert _fields(model) == (set(C.MANIFEST_FIELDS[section]), set(C.MANIFEST_OPTIONAL_FIELDS.get(section, {})))
-    assert _fields(S.Layer) == (set(C.MANIFEST_LAYER_FIELDS), set(C.MANIFEST_OPTIONAL_LAYER_FIELDS))
-    assert _fields(S.Scene) == (set(C.SCENE_KEYS), set())
+        assert _fields(model) == (set(MANIFEST_FIELDS[section]), set(MANIFEST_OPTIONAL_FIELDS.get(section, {})))
+    assert _fields(S.Layer) == (set(MANIFEST_LAYER_FIELDS), set(MANIFEST_OPTIONAL_LAYER_FIELDS))
+    assert _fields(S.Scene) == (set(SCENE_KEYS), set())
     assert _enum(S.Clip, "kind") == C.CLIP_KINDS
-    assert _enum(S.Clip, "colour_source") == C.COLOUR_SOURCES
-    assert _enum(S.Layer, "role") == (C.ROLE_BACKGROUND, C.ROLE_FOREGROUND)
-    assert _enum(S.Passes, "precision") == C.PASS_PRECISIONS
-    assert _enum(S.Scene, "background_motion") == C.BG_MOTIONS
+    assert _enum(S.Clip, "colour_source") == COLOUR_SOURCES
+    assert _enum(S.Layer, "role") == (ROLE_BACKGROUND, C.ROLE_FOREGROUND)
+    assert _enum(S.Passes, "precision") == PASS_PRECISIONS
+    assert _enum(S.Scene, "background_motion") == BG_MOTIONS
 
 
 def test_real_exports_manifests_follow_the_schema(real, tmp_path):
@@ -136,20 +150,20 @@ def test_the_schema_refuses_what_validate_manifest_refuses_field_by_field(real):
         (("layers", 0, "atlas_box"), [0, 0, 1]),
         (("fit", "steps"), True),
         (("passes", "frames"), [0, 0]),
-        ((C.MANIFEST_TAG,), True),
+        ((MANIFEST_TAG,), True),
         (("scene",), None),
     ]
     for at, value in cases:
         schema_ok, refusal = _accepted(_mutated(real, at, value, drop=False))
         assert not schema_ok and refusal is not None, at
-    assert _accepted(_mutated(real, (C.MANIFEST_TAG,), 1.0, drop=False)) == (True, None)
+    assert _accepted(_mutated(real, (MANIFEST_TAG,), 1.0, drop=False)) == (True, None)
 
 
 @FUZZ
 @given(
     value=JSON
-    | st.dictionaries(st.sampled_from([*C.MANIFEST_KEYS, "scene", "x"]), JSON, max_size=8).map(
-        lambda d: {C.MANIFEST_TAG: C.MANIFEST_VERSION, **d}
+    | st.dictionaries(st.sampled_from([*MANIFEST_KEYS, "scene", "x"]), JSON, max_size=8).map(
+        lambda d: {MANIFEST_TAG: MANIFEST_VERSION, **d}
     )
 )
 def test_any_json_is_judged_alike(value):
@@ -177,13 +191,13 @@ def test_each_cross_field_rule_is_one_the_schema_lets_through(real):
         (("passes", "resolution"), [passes["resolution"][0] + 1, passes["resolution"][1]]),
         (("passes", "pattern"), "a/{frame}.exr"),
         (("layers", 0, "index"), 1),
-        (("layers", 1, "role"), C.ROLE_BACKGROUND),
+        (("layers", 1, "role"), ROLE_BACKGROUND),
         (("layers", 1, "name"), layers[0]["name"]),
         (("scene", "num_layers"), len(layers) + 1),
     ]
     assert len(breaks) == len(CROSS_FIELD_RULES)
     matched = set()
-    assert real["clip"]["colorspace"] not in C.COLORSPACES
+    assert real["clip"]["colorspace"] not in COLORSPACES
     for at, value in breaks:
         schema_ok, refusal = _accepted(_mutated(real, at, value, drop=value is None))
         assert schema_ok and refusal is not None, (at, refusal)
@@ -194,5 +208,5 @@ def test_each_cross_field_rule_is_one_the_schema_lets_through(real):
 def test_the_schema_file_ships_with_the_engine():
     """pyproject.toml's package-data names it (tests/packaging checks that the wheel holds every engine file)."""
     package_data = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["tool"]["setuptools"]
-    shipped = package_data["package-data"][C.INSTALLED_MODULE]
+    shipped = package_data["package-data"][INSTALLED_MODULE]
     assert S.SCHEMA_PATH.relative_to(ROOT / "engine").as_posix() in shipped

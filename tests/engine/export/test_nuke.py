@@ -29,6 +29,9 @@ from engine.export.nuke import (
     sequence_pattern,
 )
 from engine.io.images import read_exr, write_exr, write_png
+from engine.terms.cli import VERB_NUKE, VERB_RENDER
+from engine.terms.export_names import EDIT_LAYER_EXT, EDITS_DIR, NUKE_SCRIPT_NAME
+from engine.terms.versions import ENGINE_VERSION
 from tests.engine.export import nk_script as NK
 from tests.engine.export.blender_probe import blender_pythons, probe_image_node
 from tests.engine.export.tiny_run import export, make_run
@@ -143,7 +146,7 @@ def test_blender_sees_the_atlas_passes_exactly_as_before(exported):
 
 def test_export_writes_the_nuke_script_beside_the_manifest(exported):
     m = Manifest(exported)
-    script = m.folder / C.NUKE_SCRIPT_NAME
+    script = m.folder / NUKE_SCRIPT_NAME
     nk = NK.parse(script.read_text(encoding="utf-8"))
     frames = m.data["passes"]["frames"]
     w, h = m.clip["resolution"]
@@ -192,7 +195,7 @@ def _check_wiring(nk: NK.NkScript, m: Manifest, script_dir: Path) -> None:
         assert edit.cls == "Read" and edit.name == f"NA_Edit_{name}"
         edit_file = Path(C.edit_layer_file(str(m.resolve(layer["edit_layer"]))))
         assert NK.file_for(edit, script_dir, frames[0]).samefile(edit_file)
-        png = edit_file.suffix == C.EDIT_LAYER_EXT
+        png = edit_file.suffix == EDIT_LAYER_EXT
         assert (src.cls == "Premult") == png
         # the config's own names (tests/export_td/test_nuke_colour.py opens the config the Root declares)
         want = "sRGB Encoded Rec.709 (sRGB)" if png else "Linear Rec.709 (sRGB)"
@@ -224,7 +227,7 @@ def painted(tmp_path) -> Path:
         return (xs - 2 * t) / 10, 1.0 - (ys - 1) / 9, np.where(xs > 6, 0.3, 0.0)
 
     manifest = make_fake_export(tmp_path, plate, [(background, (16, 12)), (foreground, (10, 9))])
-    edits = tmp_path / "run" / C.EDITS_DIR
+    edits = tmp_path / "run" / EDITS_DIR
     _paint(edits / "Background.png", (16, 12), 2, as_exr=False)
     _paint(edits / "Foreground.exr", (10, 9), 3, as_exr=True)
     return manifest
@@ -235,13 +238,13 @@ def test_the_script_computes_what_engine_render_does(painted, tmp_path):
     frames; the script is written in another folder, so its paths are relative to it."""
     out = tmp_path / "comp" / "shot.nk"
     out.parent.mkdir()
-    assert run_cli(C.VERB_NUKE, painted, "--out", out, "--filter", "Impulse") == (0, [])
+    assert run_cli(VERB_NUKE, painted, "--out", out, "--filter", "Impulse") == (0, [])
     nk = NK.parse(out.read_text(encoding="utf-8"))
     m = Manifest(painted)
     _check_wiring(nk, m, out.parent)
     assert not any(Path(n.knobs["file"]).is_absolute() for n in nk.nodes if n.cls == "Read" and n.name != "NA_Plate")
     rendered = tmp_path / "rendered"
-    code, err = run_cli(C.VERB_RENDER, painted, "--out", rendered, "--filter", "nearest", "--no-bar")
+    code, err = run_cli(VERB_RENDER, painted, "--out", rendered, "--filter", "nearest", "--no-bar")
     assert code == 0, err
     (result,) = nk.leftover
     worst = 0.0
@@ -259,10 +262,10 @@ def test_the_script_computes_what_engine_render_does(painted, tmp_path):
 def test_nuke_verb_refuses_an_existing_file_and_an_old_export(painted, tmp_path):
     out = tmp_path / "shot.nk"
     out.write_text("the artist's comp")
-    code, err = run_cli(C.VERB_NUKE, painted, "--out", out)
+    code, err = run_cli(VERB_NUKE, painted, "--out", out)
     assert code == C.EXIT_BAD_INPUT and len(err) == 1 and "exists" in err[0] and str(out) in err[0]
     assert out.read_text() == "the artist's comp"
-    code, err = run_cli(C.VERB_NUKE, painted, "--out", tmp_path / "shot.txt")
+    code, err = run_cli(VERB_NUKE, painted, "--out", tmp_path / "shot.txt")
     assert code == C.EXIT_BAD_INPUT and "ends in .nk" in err[0]
     data = json.loads(painted.read_text())
     for layer in data["layers"]:
@@ -270,7 +273,7 @@ def test_nuke_verb_refuses_an_existing_file_and_an_old_export(painted, tmp_path)
     old = tmp_path / "old" / "manifest.json"
     shutil.copytree(painted.parent, old.parent)
     old.write_text(json.dumps(data))
-    code, err = run_cli(C.VERB_NUKE, old, "--out", tmp_path / "old.nk")
+    code, err = run_cli(VERB_NUKE, old, "--out", tmp_path / "old.nk")
     assert code == C.EXIT_BAD_INPUT and len(err) == 1
     assert "no STMap layers for Background, Foreground" in err[0] and "export the run again" in err[0]
     assert not (tmp_path / "old.nk").exists()
@@ -325,9 +328,9 @@ def test_export_warns_and_writes_no_script_for_a_plate_nuke_cannot_read_as_one_s
     manifest = _movie_manifest()
     manifest["clip"].update(kind="sequence", frame_files=[f"../../clip/shot_{c}.png" for c in "abcdefghij"])
     _write_nuke_script(tmp_path, manifest)
-    assert not (tmp_path / C.NUKE_SCRIPT_NAME).exists()
+    assert not (tmp_path / NUKE_SCRIPT_NAME).exists()
     (line,) = capsys.readouterr().err.splitlines()
-    assert line.startswith(f"warning: no {C.NUKE_SCRIPT_NAME}: plate frame 'shot_a.png' is not named with its frame")
+    assert line.startswith(f"warning: no {NUKE_SCRIPT_NAME}: plate frame 'shot_a.png' is not named with its frame")
 
 
 def test_stack_variables_are_named_by_the_layer_index_and_comments_stay_comments():
@@ -346,7 +349,7 @@ def test_stack_variables_are_named_by_the_layer_index_and_comments_stay_comments
     ]
     assert (
         lines[0]
-        == f"#! written by neural-atlas {C.ENGINE_VERSION} from an export's manifest (layers: Background, Foreground)"
+        == f"#! written by neural-atlas {ENGINE_VERSION} from an export's manifest (layers: Background, Foreground)"
     )
     assert lines[1].startswith("# ") and lines[2] == "version 13.0 v1"
     assert _comment("a\nb [c] \\") == "# a_b _c_ _"  # a newline would end it, a trailing backslash extend it
@@ -359,10 +362,10 @@ def test_export_warns_and_writes_no_script_for_a_plate_folder_holding_a_frame_to
     frames = [f"../../../shot#2/plate.{n:04d}.exr" for n in manifest["clip"]["frame_numbers"]]
     manifest["clip"].update(kind="sequence", frame_files=frames)
     _write_nuke_script(tmp_path, manifest)
-    assert not (tmp_path / C.NUKE_SCRIPT_NAME).exists()
+    assert not (tmp_path / NUKE_SCRIPT_NAME).exists()
     (line,) = capsys.readouterr().err.splitlines()
     assert line.startswith(
-        f"warning: no {C.NUKE_SCRIPT_NAME}: the plate frame path '../../../shot#2/plate.0010.exr' holds '#', which a "
+        f"warning: no {NUKE_SCRIPT_NAME}: the plate frame path '../../../shot#2/plate.0010.exr' holds '#', which a "
         "Nuke Read takes as a frame token or as Tcl (it has no escape for them) — rename the folder or file"
     )
 

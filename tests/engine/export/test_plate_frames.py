@@ -16,6 +16,9 @@ import pytest
 from engine import contract as C
 from engine.data.synthetic import make_scene
 from engine.io.images import exr_timing, write_exr
+from engine.terms.export_names import PASSES_DIR, pass_file_name
+from engine.terms.manifest import MANIFEST_OPTIONAL_FIELDS
+from engine.terms.run_folder import RUN_CLIP
 from tests.engine.export.tiny_run import SPEC, TINY
 from tests.engine_cli import run_cli
 from tests.folders import visible_names
@@ -86,7 +89,7 @@ def test_frames_outside_the_plate_are_one_line_naming_its_range(plate_run, tmp_p
 
 def test_the_run_records_positions_plate_numbers_and_timing(plate_run):
     _, plates, _, run = plate_run
-    record = json.loads((run / C.RUN_CLIP).read_text())
+    record = json.loads((run / RUN_CLIP).read_text())
     assert record["source"] == str(plates / "plate.####.exr")
     assert record["frame_range"] == [0, 2] and record["frame_numbers"] == [1001, 1002, 1003]
     assert record["frame_files"] == [str(plates / f"plate.{n}.exr") for n in (1001, 1002, 1003)]
@@ -117,9 +120,9 @@ def test_passes_and_manifest_carry_plate_numbers_rate_aspect_and_timecode(export
     assert clip["pixel_aspect"] == 2.0 and clip["timecode"] == "01:00:00:00" and clip["start_frame"] == 0
     # padded as the plate's frames are (slap.1001.exr: four digits)
     assert (passes["pattern"], passes["blender_pattern"]) == ("atlas.{frame:04d}.exr", "atlas.####.exr")
-    assert sorted(p.name for p in (exported.parent / C.PASSES_DIR).iterdir()) == ["atlas.1002.exr", "atlas.1003.exr"]
+    assert sorted(p.name for p in (exported.parent / PASSES_DIR).iterdir()) == ["atlas.1002.exr", "atlas.1003.exr"]
     for number, timecode in ((1002, "01:00:00:01"), (1003, "01:00:00:02")):
-        assert _timing(exported.parent / C.PASSES_DIR / C.pass_file_name(number, 4)) == (RATE, 2.0, timecode)
+        assert _timing(exported.parent / PASSES_DIR / pass_file_name(number, 4)) == (RATE, 2.0, timecode)
 
 
 def test_render_frames_and_movie_carry_them_too(exported, tmp_path):
@@ -143,7 +146,7 @@ def test_a_manifest_without_timing_still_renders_at_the_default_rate(exported, t
     from engine.edit import render
 
     data = json.loads(exported.read_text())
-    for key in C.MANIFEST_OPTIONAL_FIELDS["clip"]:
+    for key in MANIFEST_OPTIONAL_FIELDS["clip"]:
         if key in ("rate", "pixel_aspect", "timecode", "start_frame"):
             data["clip"].pop(key)
     data["clip"]["fps"] = None

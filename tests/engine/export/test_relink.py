@@ -11,6 +11,7 @@ import shutil
 from pathlib import Path
 
 from engine import contract as C
+from engine.terms.export_names import NUKE_SCRIPT_NAME
 from tests.engine.export import nk_script as NK
 from tests.engine.export.test_farm_paths import _export, _latest, _render
 from tests.engine.export.tiny_run import make_run
@@ -34,7 +35,7 @@ def test_a_shot_moved_and_then_its_run_moved_alone_reads_its_plate_again_once_to
     alone.parent.mkdir()
     shutil.move(tmp_path / "b" / "run", alone)  # then the run alone: neither path reaches the plate
     manifest = Path(_latest(alone))
-    script = manifest.parent / C.NUKE_SCRIPT_NAME
+    script = manifest.parent / NUKE_SCRIPT_NAME
     assert not _plate_read(script).exists()
     code, lines = _render(alone, tmp_path / "lost")
     assert code == C.EXIT_BAD_INPUT and f"{C.VERB_RELINK} MANIFEST {C.RELINK_PLATE_ARG} PLATE" in lines[0], lines
@@ -62,7 +63,7 @@ def test_relink_leaves_a_script_saved_over_the_exports_and_refuses_another_plate
     make_run(shot)
     assert _export(shot / "run") == (0, [])
     manifest = Path(_latest(shot / "run"))
-    script = manifest.parent / C.NUKE_SCRIPT_NAME
+    script = manifest.parent / NUKE_SCRIPT_NAME
     before = manifest.read_bytes()
 
     other = tmp_path / "other"

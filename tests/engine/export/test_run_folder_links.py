@@ -21,13 +21,25 @@ import pytest
 from engine import contract as C
 from engine.export.manifest import Manifest
 from engine.io.atomic import append_text
+from engine.terms.cli import EXPORT_STAGES
+from engine.terms.export_names import (
+    EDIT_LAYER_EXT,
+    EDITS_DIR,
+    EDITS_LAYOUT,
+    EXPORT_CHUNKS_SUFFIX,
+    PASSES_DIR,
+    layer_name,
+    pass_file_name,
+)
+from engine.terms.lock import IN_PLACE_UNSAFE_FIX, RUN_LOCK
+from engine.terms.run_folder import RUN_CLIP, RUN_CONFIG, RUN_LOG, SCENE_FILE
 from tests.engine.export.tiny_run import copy_root, export, make_run
 from tests.engine_cli import run_cli
 from tests.untouched import digest_outside
 
 #: The run files a refine reads, and those of them it writes again (each atomically).
-RUN_FILES = (C.RUN_CONFIG, C.RUN_CLIP, C.SCENE_FILE, C.RUN_METRICS, C.RUN_CHECKPOINT)
-REFINE_WRITES = (C.RUN_CONFIG, C.RUN_METRICS, C.RUN_CHECKPOINT)
+RUN_FILES = (RUN_CONFIG, RUN_CLIP, SCENE_FILE, C.RUN_METRICS, C.RUN_CHECKPOINT)
+REFINE_WRITES = (RUN_CONFIG, C.RUN_METRICS, C.RUN_CHECKPOINT)
 
 
 @pytest.fixture(scope="module")
@@ -74,7 +86,7 @@ def test_an_exports_folder_linked_to_another_disk_takes_the_export(root):
     manifest = Manifest(run / C.EXPORTS_DIR / "v002")
     frames = manifest.data["passes"]["frames"]
     assert frames == [0, 1, 2, 3]
-    assert all((disk / "v002" / C.PASSES_DIR / C.pass_file_name(n)).is_file() for n in frames)
+    assert all((disk / "v002" / PASSES_DIR / pass_file_name(n)).is_file() for n in frames)
     assert all(manifest.resolve(layer["atlas_exr"]).is_file() for layer in manifest.data["layers"])
     assert digest_outside(root.parent, run, disk) == before
 
@@ -101,13 +113,13 @@ def test_paint_lands_in_a_run_folder_that_is_a_link_to_another_disk(root):
     disk.parent.mkdir()
     shutil.move(run, disk)
     run.symlink_to(disk, target_is_directory=True)
-    edits_before = {p.name: p.read_bytes() for p in (disk / C.EDITS_DIR).glob("*.png")}
-    before = digest_outside(root.parent, disk / C.EDITS_DIR, disk / C.RUN_LOCK, root.parent / "paint.png")
+    edits_before = {p.name: p.read_bytes() for p in (disk / EDITS_DIR).glob("*.png")}
+    before = digest_outside(root.parent, disk / EDITS_DIR, disk / RUN_LOCK, root.parent / "paint.png")
     code, err, _ = _project_paint(run / C.EXPORTS_DIR / "v001" / C.MANIFEST_NAME, root.parent)
     assert code == C.EXIT_OK, err
-    changed = {p.name for p in (disk / C.EDITS_DIR).glob("*.png") if p.read_bytes() != edits_before.get(p.name)}
+    changed = {p.name for p in (disk / EDITS_DIR).glob("*.png") if p.read_bytes() != edits_before.get(p.name)}
     assert changed, "the paint reached no edit layer of the run"
-    assert digest_outside(root.parent, disk / C.EDITS_DIR, disk / C.RUN_LOCK, root.parent / "paint.png") == before
+    assert digest_outside(root.parent, disk / EDITS_DIR, disk / RUN_LOCK, root.parent / "paint.png") == before
 
 
 def test_painting_through_an_exports_folder_linked_elsewhere_is_one_line_and_writes_nothing(root):
@@ -119,7 +131,7 @@ def test_painting_through_an_exports_folder_linked_elsewhere_is_one_line_and_wri
     disk.parent.mkdir()
     shutil.move(run / C.EXPORTS_DIR, disk)
     (run / C.EXPORTS_DIR).symlink_to(disk, target_is_directory=True)
-    lock = disk / "v001" / C.RUN_LOCK  # the export is taken for its own run, and locked as one
+    lock = disk / "v001" / RUN_LOCK  # the export is taken for its own run, and locked as one
     before = digest_outside(root.parent, root.parent / "paint.png", lock)
     code, err, _ = _project_paint(run / C.EXPORTS_DIR / "v001" / C.MANIFEST_NAME, root.parent)
     assert code == C.EXIT_BAD_INPUT and len(err) == 1, err
@@ -148,18 +160,18 @@ def test_a_fit_log_linked_out_is_refused_in_one_line_and_its_target_is_untouched
     """The log is appended to, the one write in place: a link there stops the fit in one line (exit 2) before it
     writes a line through it."""
     run = root / "run"
-    log = run / C.RUN_LOG
+    log = run / RUN_LOG
     if not log.exists():
         log.write_text("", encoding="utf-8")
     target = _link_out(log, root.parent / "elsewhere")
     before = digest_outside(root.parent, run)
     code, err = run_cli("fit", "--out", run, "--refine", "2", "--no-bar")
-    assert (code, err) == (C.EXIT_BAD_INPUT, [f"error: {log}: is a symbolic link — {C.IN_PLACE_UNSAFE_FIX}"])
+    assert (code, err) == (C.EXIT_BAD_INPUT, [f"error: {log}: is a symbolic link — {IN_PLACE_UNSAFE_FIX}"])
     assert digest_outside(root.parent, run) == before and log.is_symlink() and target.exists()
 
 
 def test_an_append_refuses_a_hard_link_and_writes_a_plain_file(tmp_path):
-    outside, log = tmp_path / "outside.txt", tmp_path / "run" / C.RUN_LOG
+    outside, log = tmp_path / "outside.txt", tmp_path / "run" / RUN_LOG
     outside.write_text("kept\n", encoding="utf-8")
     log.parent.mkdir()
     os.link(outside, log)
@@ -177,18 +189,18 @@ def test_edit_layer_and_layout_links_are_replaced_by_an_export_never_written_thr
     record that layer yet: export writes both in place of the links; the dangling target is not created, the copy
     keeps its bytes."""
     run = root / "run"
-    edits = run / C.EDITS_DIR
-    layer = edits / f"{C.layer_name(1, 2)}{C.EDIT_LAYER_EXT}"
+    edits = run / EDITS_DIR
+    layer = edits / f"{layer_name(1, 2)}{EDIT_LAYER_EXT}"
     layer.unlink()
     missing = root.parent / "elsewhere" / "never.png"
     layer.symlink_to(missing)
-    layout = _link_out(edits / C.EDITS_LAYOUT, root.parent / "elsewhere")
+    layout = _link_out(edits / EDITS_LAYOUT, root.parent / "elsewhere")
     recorded = json.loads(layout.read_text(encoding="utf-8"))
     del recorded["layers"][layer.stem]
     layout.write_text(json.dumps(recorded), encoding="utf-8")
     before = digest_outside(root.parent, run)
     export(run)
-    assert _plain(layer) and _plain(edits / C.EDITS_LAYOUT) and not missing.exists()
+    assert _plain(layer) and _plain(edits / EDITS_LAYOUT) and not missing.exists()
     assert layout.exists() and digest_outside(root.parent, run) == before
 
 
@@ -206,18 +218,18 @@ def test_a_staging_name_planted_as_a_link_is_removed_not_followed(root):
     assert digest_outside(root.parent, run) == before
 
 
-@pytest.mark.parametrize("stage", C.EXPORT_STAGES)
+@pytest.mark.parametrize("stage", EXPORT_STAGES)
 def test_a_staged_export_folder_planted_as_a_link_is_refused_in_one_line(root, stage):
     run = root / "run"
     outside = root.parent / "elsewhere" / "chunks"
-    (outside / C.PASSES_DIR).mkdir(parents=True)
-    chunks = run / C.EXPORTS_DIR / f".v002{C.EXPORT_CHUNKS_SUFFIX}"
+    (outside / PASSES_DIR).mkdir(parents=True)
+    chunks = run / C.EXPORTS_DIR / f".v002{EXPORT_CHUNKS_SUFFIX}"
     chunks.symlink_to(outside, target_is_directory=True)
-    before, inside = digest_outside(root.parent, run), digest_outside(run, run / C.RUN_LOCK)
+    before, inside = digest_outside(root.parent, run), digest_outside(run, run / RUN_LOCK)
     code, err = run_cli("export", run, "--no-bar", "--into", "v002", "--stage", stage, "--atlas-size", "32")
     assert code == C.EXIT_BAD_INPUT and len(err) == 1
     assert err[0].startswith(f"error: {chunks}: is a symbolic link, and a staged export's folders are the engine's own")
-    assert digest_outside(root.parent, run) == before and digest_outside(run, run / C.RUN_LOCK) == inside
+    assert digest_outside(root.parent, run) == before and digest_outside(run, run / RUN_LOCK) == inside
 
 
 def test_a_preview_file_linked_out_is_replaced_and_its_target_untouched(root):

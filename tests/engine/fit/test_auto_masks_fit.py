@@ -21,6 +21,8 @@ from engine.fit.fit_inputs import FitInputs
 from engine.fit.prepare import prepare_clip
 from engine.io.clip import open_clip, read_masks
 from engine.io.images import read_image
+from engine.terms.lock import RUN_LOCK
+from engine.terms.run_folder import FLOW_CACHE_DIR, SCENE_LAYERS_AUTO
 from tests.engine_cli import run_cli
 from tests.folders import tree_digest
 from tests.stability.bad_inputs import TINY_FIT
@@ -53,10 +55,10 @@ def test_one_pass_over_the_clip(tmp_path, monkeypatch, long_edge, flows):
     run = tmp_path / "run"
     prepared = prepare_clip(FitInputs(frames_dir, auto_masks=True), cfg, run)
     assert calls == {"open_clip": 1, "iter_frames": 1, "compute_flow": flows}  # no mask file is read back
-    assert len(list((run / C.FLOW_CACHE_DIR).glob("*.npz"))) == flows
+    assert len(list((run / FLOW_CACHE_DIR).glob("*.npz"))) == flows
 
     folder = (run / C.AUTO_MASKS_DIR).resolve()
-    assert prepared.mask_dirs == [str(folder)] and prepared.layers_source == C.SCENE_LAYERS_AUTO
+    assert prepared.mask_dirs == [str(folder)] and prepared.layers_source == SCENE_LAYERS_AUTO
     assert prepared.masks_note is not None and prepared.masks_note.startswith("foreground in 6/6 frames")
     monkeypatch.undo()
     info = open_clip(frames_dir)
@@ -88,7 +90,7 @@ def test_masks_already_in_the_run_folder_are_used_not_searched_again(tmp_path, m
     cfg = apply_overrides(preset_config("draft"), {"long_edge": "512"})
     prepared = prepare_clip(FitInputs(frames_dir, auto_masks=True), cfg, run)
     assert calls == {}, "the motion search ran again"
-    assert prepared.mask_dirs == [str(folder)] and prepared.layers_source == C.SCENE_LAYERS_AUTO
+    assert prepared.mask_dirs == [str(folder)] and prepared.layers_source == SCENE_LAYERS_AUTO
     assert np.array_equal(prepared.masks[0], read_masks(folder, open_clip(frames_dir), prepared.size))
     assert prepared.masks[0][0, 5:15, 5:15].all() and prepared.masks[0][0].sum() == 100
     assert {p.name: p.read_bytes() for p in folder.iterdir()} == before, "nothing rewritten"
@@ -165,4 +167,4 @@ def test_a_link_planted_at_the_run_folders_auto_masks_is_refused_and_nothing_is_
 
 def _entries(folder: Path) -> list[str]:
     """What ``folder`` holds, by name, but its lock file (the OS's bookkeeping: a fit takes the lock first)."""
-    return sorted(p.name for p in folder.iterdir() if p.name != C.RUN_LOCK)
+    return sorted(p.name for p in folder.iterdir() if p.name != RUN_LOCK)

@@ -24,6 +24,8 @@ from engine.fit.auto_parts import parts_wanted
 from engine.fit.fitted_run import load_fitted
 from engine.fit.run_folder import RunFolder
 from engine.io.clip import open_clip
+from engine.terms.cli import FIT_RESUME_IF_STARTED_FLAG
+from engine.terms.run_folder import AUTO_PARTS_DIR, FIT_AUTO_MASKS_FLAG, FIT_AUTO_PARTS_FLAG
 from tests.engine_cli import run_cli
 from tests.folders import tree_digest
 from tests.stability.bad_inputs import TINY_FIT
@@ -61,12 +63,12 @@ def test_the_jumping_body_is_fitted_as_its_parts_by_default_and_the_same_command
     assert load_fitted(run).model.num_layers == 3  # the background, the body and the limb
     assert len(list(folder.flow_cache.glob("*.npz"))) == 1  # the parts' flow is the fit's: computed once
     before = tree_digest(run)
-    code, lines = run_cli(*argv, C.FIT_RESUME_IF_STARTED_FLAG)  # a farm task run twice: the fit is done
+    code, lines = run_cli(*argv, FIT_RESUME_IF_STARTED_FLAG)  # a farm task run twice: the fit is done
     assert code == C.EXIT_OK and any(line.startswith("already fitted") for line in lines), lines
     assert tree_digest(run) == before
 
 
-@pytest.mark.parametrize("flag", [[], [C.FIT_AUTO_PARTS_FLAG]], ids=["default", "auto-parts"])
+@pytest.mark.parametrize("flag", [[], [FIT_AUTO_PARTS_FLAG]], ids=["default", "auto-parts"])
 def test_strokes_already_in_the_run_folder_are_used_as_they_are(rigid, tmp_path, flag):
     """The artist fixed (here: drew) the strokes in RUN_DIR/parts: they are the fit's scribbles, never searched
     again or overwritten, although this object moves as one piece."""
@@ -94,7 +96,7 @@ def _stroke_in(run: Path, frames: Path, shift: int = 0) -> Path:
     return strokes
 
 
-@pytest.mark.parametrize("flag", [[], [C.FIT_AUTO_PARTS_FLAG]], ids=["default", "auto-parts"])
+@pytest.mark.parametrize("flag", [[], [FIT_AUTO_PARTS_FLAG]], ids=["default", "auto-parts"])
 def test_strokes_an_earlier_fit_left_for_another_object_or_other_frames_are_one_line(rigid, tmp_path, flag):
     """Strokes in RUN_DIR/parts that lie off this fit's mask (a ``--refit`` with another object's mask) or on none
     of its frames (``--frames`` elsewhere) are not fitted, nor answered as if the artist had drawn scribbles: one
@@ -150,7 +152,7 @@ def test_no_auto_parts_fits_one_layer_and_leaves_strokes_in_the_run_folder_unuse
     assert tree_digest(RunFolder(run).auto_parts) == before
 
 
-@pytest.mark.parametrize("flag", [[], [C.FIT_AUTO_PARTS_FLAG]], ids=["default", "auto-parts"])
+@pytest.mark.parametrize("flag", [[], [FIT_AUTO_PARTS_FLAG]], ids=["default", "auto-parts"])
 def test_an_object_moving_as_one_piece_is_fitted_as_one_layer(rigid, tmp_path, flag):
     """Asked for (``--auto-parts``), the finding is one stderr line; by default only a split is (every fit of one
     mask searches: a line on each would be noise), and the progress says it."""
@@ -169,7 +171,7 @@ def test_an_object_moving_as_one_piece_is_fitted_as_one_layer(rigid, tmp_path, f
     ("extra", "needles"),
     [
         (["--mask", "SECOND"], ("splits one object", "2 --mask folders")),
-        ([C.SCRIBBLE_ARG, "SCRIBBLES"], (C.FIT_AUTO_PARTS_FLAG, C.SCRIBBLE_ARG, "pass one of them")),
+        ([C.SCRIBBLE_ARG, "SCRIBBLES"], (FIT_AUTO_PARTS_FLAG, C.SCRIBBLE_ARG, "pass one of them")),
         (["--preset", "paper"], ("paper model", "fast preset")),
     ],
     ids=["two-masks", "scribbles", "paper"],
@@ -178,7 +180,7 @@ def test_what_auto_parts_cannot_go_with_is_one_line_and_writes_nothing(rigid, tm
     frames, masks = rigid
     run = tmp_path / "run"
     extra = [str(masks) if e in ("SECOND", "SCRIBBLES") else e for e in extra]
-    code, lines = run_cli("fit", frames, "--mask", masks, "--out", run, *TINY_FIT, *extra, C.FIT_AUTO_PARTS_FLAG)
+    code, lines = run_cli("fit", frames, "--mask", masks, "--out", run, *TINY_FIT, *extra, FIT_AUTO_PARTS_FLAG)
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and lines[0].startswith("error: "), lines
     for needle in needles:
         assert needle in lines[0], (needle, lines[0])
@@ -188,9 +190,9 @@ def test_what_auto_parts_cannot_go_with_is_one_line_and_writes_nothing(rigid, tm
 def test_auto_parts_with_auto_masks_says_to_check_the_masks_first(rigid, tmp_path):
     frames, _ = rigid
     run = tmp_path / "run"
-    code, lines = run_cli("fit", frames, C.FIT_AUTO_MASKS_FLAG, C.FIT_AUTO_PARTS_FLAG, "--out", run, *TINY_FIT)
+    code, lines = run_cli("fit", frames, FIT_AUTO_MASKS_FLAG, FIT_AUTO_PARTS_FLAG, "--out", run, *TINY_FIT)
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1, lines
-    assert C.FIT_AUTO_MASKS_FLAG in lines[0] and f"`{C.VERB_MASKS}`" in lines[0]
+    assert FIT_AUTO_MASKS_FLAG in lines[0] and f"`{C.VERB_MASKS}`" in lines[0]
     assert not run.exists()
 
 
@@ -201,7 +203,7 @@ def test_a_mask_folder_with_no_mask_pixel_is_one_line_and_leaves_no_run_folder(r
     for p in sorted(Path(masks).iterdir()):
         cv2.imwrite(str(empty / p.name), np.zeros((96, 160), np.uint8))
     run = tmp_path / "run"
-    code, lines = run_cli("fit", frames, "--mask", empty, "--out", run, *TINY_FIT, C.FIT_AUTO_PARTS_FLAG)
+    code, lines = run_cli("fit", frames, "--mask", empty, "--out", run, *TINY_FIT, FIT_AUTO_PARTS_FLAG)
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and "holds no mask pixel" in lines[0], lines
     assert not run.exists()
 
@@ -220,11 +222,11 @@ def test_a_link_planted_at_the_run_folders_parts_is_refused_and_nothing_is_writt
         image = np.zeros((96, 160, 4), np.uint8)
         image[30:40, 45:55] = (0, 0, 255, 255)
         cv2.imwrite(str(elsewhere / name), image)
-    (run / C.AUTO_PARTS_DIR).symlink_to(elsewhere, target_is_directory=True)
+    (run / AUTO_PARTS_DIR).symlink_to(elsewhere, target_is_directory=True)
     before, run_before = tree_digest(elsewhere), sorted(p.name for p in run.iterdir())
-    code, lines = run_cli("fit", frames, "--mask", masks, "--out", run, *TINY_FIT, C.FIT_AUTO_PARTS_FLAG)
+    code, lines = run_cli("fit", frames, "--mask", masks, "--out", run, *TINY_FIT, FIT_AUTO_PARTS_FLAG)
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and lines[0].startswith("error: "), lines
-    assert f"{C.AUTO_PARTS_DIR}/" in lines[0] and "symbolic link" in lines[0] and "delete the link" in lines[0]
+    assert f"{AUTO_PARTS_DIR}/" in lines[0] and "symbolic link" in lines[0] and "delete the link" in lines[0]
     assert tree_digest(elsewhere) == before
     assert sorted(p.name for p in run.iterdir()) == run_before
 
@@ -259,7 +261,7 @@ def test_the_default_fits_what_it_cannot_split_as_given_where_auto_parts_is_one_
     assert not RunFolder(run).auto_parts.exists() and RunFolder(run).read_clip().scribbles is None
     assert not [line for line in lines if line.startswith("auto parts:")], lines
     refused = tmp_path / "refused"
-    code, lines = run_cli("fit", frames, "--mask", masks, "--out", refused, *TINY_FIT, *extra, C.FIT_AUTO_PARTS_FLAG)
+    code, lines = run_cli("fit", frames, "--mask", masks, "--out", refused, *TINY_FIT, *extra, FIT_AUTO_PARTS_FLAG)
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and lines[0].startswith("error: "), lines
     for needle in needles:
         assert needle in lines[0], (needle, lines[0])

@@ -33,6 +33,7 @@ from engine.fit.fit_inputs import FitInputs
 from engine.fit.prepare import PLATE_VALUE_LIMIT, prepare_clip, to_fitting_values
 from engine.fit.run_folder import RunFolder
 from engine.io.colour import BUILTIN_CONFIG, SCENE_LINEAR, legacy_linear_to_srgb, to_working
+from engine.terms.cli import EXIT_DIVERGED
 from tests.engine.fit_helpers import quiet_fit
 from tests.paths import ROOT
 from tests.stability.fitcheck import write_masks, write_sequence
@@ -63,7 +64,7 @@ def test_a_huge_learning_rate_exits_4_in_one_line_and_resume_with_a_lower_one_fi
     sets = [a for s in [*SETS, "lr=1e8"] for a in ("--set", s)]
     out = _engine("fit", str(frames), "--mask", str(masks), "--out", str(run), "--preset", "draft", "--no-bar", *sets)
     lines = [ln for ln in out.stderr.splitlines() if ln.strip()]
-    assert out.returncode == C.EXIT_DIVERGED, (out.returncode, out.stderr)  # not 139 / -11: no segfault
+    assert out.returncode == EXIT_DIVERGED, (out.returncode, out.stderr)  # not 139 / -11: no segfault
     assert len(lines) == 1 and lines[0].startswith(f"error: {run}: the fit diverged at step "), out.stderr
     for needle in ("became NaN/Inf", "lr=1e+08", "extreme values in the plate", "the last good one"):
         assert needle in lines[0], (needle, lines[0])

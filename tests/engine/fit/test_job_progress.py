@@ -18,6 +18,7 @@ from engine import contract as C
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.fit.eta import PRE_TRAIN_SHARE, JobClock
 from engine.fit.fit_inputs import FitInputs
+from engine.terms.protocol import EVENT_CANCELLED
 from tests.engine_cli import progress_until, start_engine
 from tests.paths import ROOT
 
@@ -74,7 +75,7 @@ def test_fit_resume_and_export_report_the_whole_job(tmp_path):
     # the whole job's ETA is more than training's: evaluation and export come after it
     late = [e for e in trained if e["eta"] is not None and e["job_eta"] is not None]
     assert late and all(e["job_eta"] > e["eta"] for e in late)
-    stopped = next(e["step"] for e in first if e["event"] == C.EVENT_CANCELLED)
+    stopped = next(e["step"] for e in first if e["event"] == EVENT_CANCELLED)
     at_stop = fractions[-1]
 
     # 2. resumed: the bar starts at the checkpoint's share, and the ETA is known at once (the checkpoint's rate)

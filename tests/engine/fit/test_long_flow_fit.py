@@ -24,6 +24,7 @@ from engine.fit.prepare import prepare_clip
 from engine.fit.progress import Reporter
 from engine.fit.run_folder import RunFolder
 from engine.fit.trainer import Trainer
+from engine.terms.versions import SCHEMA_VERSION
 from tests.engine.fit_helpers import quiet_fit
 
 SPEC = SceneSpec(width=64, height=48, frames=6, bg_velocity=(2.0, 0.5), fg_start=(16.0, 12.0), fg_size=(20, 14))
@@ -97,7 +98,7 @@ def test_runs_from_before_the_long_range_fields_still_load(tmp_path: Path) -> No
     without them."""
     cfg = preset_config("draft")
     old = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in LATER_FIELDS}
-    text = json.dumps({"schema": C.SCHEMA_VERSION, "config": old})
+    text = json.dumps({"schema": SCHEMA_VERSION, "config": old})
     loaded = FitConfig.from_json(text, tmp_path / "config.json")
     assert loaded == dataclasses.replace(cfg, **LATER_FIELDS) and loaded.long_flow_max_gap == 0
     assert all(getattr(loaded, k) == v for k, v in LATER_FIELDS.items())

@@ -21,7 +21,6 @@ import numpy as np
 import pytest
 import torch
 
-from engine import contract as C
 from engine.config import apply_overrides, preset_config
 from engine.edit.equations import load_edit
 from engine.edit.render import plate_frames, render_frames, render_manifest
@@ -32,6 +31,7 @@ from engine.fit.fit_inputs import FitInputs
 from engine.fit.fitted_run import load_run
 from engine.io.colour import srgb_to_linear
 from engine.io.images import read_exr, write_png
+from engine.terms.manifest import validate_manifest
 from tests.engine.fit_helpers import TINY_OVERRIDES, object_drift_per_frame, quiet_fit
 from tests.two_object_scene import make_two_object_scene, write_two_object_scene
 
@@ -109,7 +109,7 @@ def test_export_has_three_layers_that_sum_to_one(fitted):
     names = [layer["name"] for layer in m.layers]
     assert names == ["Background", "Foreground1", "Foreground2"]
     data = json.loads(manifest_path.read_text())
-    assert C.validate_manifest(data) is data
+    assert validate_manifest(data) is data
     for layer in m.layers:
         n = layer["name"]
         assert layer["channels"] == [f"Atlas.UV{n}.U", f"Atlas.UV{n}.V", f"Atlas.UV{n}.A", f"Atlas.Alpha{n}.V"]

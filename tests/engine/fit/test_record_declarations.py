@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import dataclasses
 
-from engine import contract as C
 from engine.data.scene_analysis import SceneAnalysis
 from engine.export import manifest_schema as S
 from engine.fit.run_files import ClipFile, SceneFile
 from engine.fit.run_folder import ClipRecord
+from engine.terms.run_folder import SCENE_FIELDS, SCENE_KEYS
 
 
 def _required(model) -> set[str]:  # type: ignore[no-untyped-def]
@@ -32,7 +32,7 @@ def test_the_clip_record_and_its_files_model_name_the_same_fields():
 
 def test_the_scene_analysis_its_files_model_and_the_manifests_part_agree():
     assert {f.name for f in dataclasses.fields(SceneAnalysis)} == set(SceneFile.model_fields)
-    assert set(C.SCENE_KEYS) <= set(SceneFile.model_fields)  # the manifest carries a part of it
-    assert set(S.Scene.model_fields) == set(C.SCENE_KEYS) == set(C.SCENE_FIELDS)
+    assert set(SCENE_KEYS) <= set(SceneFile.model_fields)  # the manifest carries a part of it
+    assert set(S.Scene.model_fields) == set(SCENE_KEYS) == set(SCENE_FIELDS)
     written = SceneAnalysis().to_dict()
     assert set(written) - {"schema"} == set(SceneFile.model_fields)

@@ -27,6 +27,8 @@ from engine.errors import InputError
 from engine.fit.fitted_run import load_fitted
 from engine.fit.run_folder import RunFolder
 from engine.loss_terms import loss_weights
+from engine.terms.export_names import EDITS_DIR
+from engine.terms.run_folder import RUN_CHECKPOINT_SCHEMA, RUN_CHECKPOINT_SCHEMA_WITHOUT_CONFIG, RUN_CONFIG
 from tests.engine_cli import run_cli
 from tests.folders import tree_digest
 from tests.stability.bad_inputs import TINY_FIT
@@ -114,9 +116,9 @@ def _sha256(folder: Path) -> dict[str, str]:
 
 def _with_artist_work(run: Path) -> None:
     """Paint in edits/ (with its history) and an export in exports/: what a refit must never touch."""
-    (run / C.EDITS_DIR / "history").mkdir(parents=True)
-    (run / C.EDITS_DIR / "Foreground.png").write_bytes(b"paint" * 100)
-    (run / C.EDITS_DIR / "history" / "Foreground.1.png").write_bytes(b"older paint")
+    (run / EDITS_DIR / "history").mkdir(parents=True)
+    (run / EDITS_DIR / "Foreground.png").write_bytes(b"paint" * 100)
+    (run / EDITS_DIR / "history" / "Foreground.1.png").write_bytes(b"older paint")
     (run / C.EXPORTS_DIR / "v001" / "passes").mkdir(parents=True)
     (run / C.EXPORTS_DIR / "v001" / C.MANIFEST_NAME).write_text('{"export": 1}')
     (run / C.EXPORTS_DIR / "v001" / "passes" / "atlas.00000.exr").write_bytes(b"\x00" * 4096)
@@ -127,9 +129,9 @@ def _with_artist_work(run: Path) -> None:
     [
         ((C.RUN_CHECKPOINT,), "checkpoint.pt"),
         ((C.RUN_METRICS,), "metrics.json"),
-        ((C.EDITS_DIR,), "edits/"),
+        ((EDITS_DIR,), "edits/"),
         ((C.EXPORTS_DIR,), "exports/"),
-        ((C.RUN_CHECKPOINT, C.EDITS_DIR, C.EXPORTS_DIR), "checkpoint.pt, edits/, exports/"),
+        ((C.RUN_CHECKPOINT, EDITS_DIR, C.EXPORTS_DIR), "checkpoint.pt, edits/, exports/"),
     ],
 )
 def test_a_plain_fit_into_a_folder_that_holds_a_fit_is_refused(run, fitted, keep, held):
@@ -137,7 +139,7 @@ def test_a_plain_fit_into_a_folder_that_holds_a_fit_is_refused(run, fitted, keep
     (its checkpoint, metrics, the artist's edits and exports) is named, with the ways out."""
     frames, masks, _ = fitted
     _with_artist_work(run)
-    for entry in (C.RUN_CHECKPOINT, C.RUN_METRICS, C.EDITS_DIR, C.EXPORTS_DIR):
+    for entry in (C.RUN_CHECKPOINT, C.RUN_METRICS, EDITS_DIR, C.EXPORTS_DIR):
         if entry not in keep:
             path = run / entry
             shutil.rmtree(path) if path.is_dir() else path.unlink()
@@ -168,12 +170,12 @@ def test_a_fit_stopped_before_its_first_checkpoint_may_be_started_over(run, fitt
 def test_refit_replaces_the_fit_and_keeps_edits_and_exports_byte_identical(run, fitted):
     frames, masks, _ = fitted
     _with_artist_work(run)
-    artist = {d: _sha256(run / d) for d in (C.EDITS_DIR, C.EXPORTS_DIR)}
-    old = {n: (run / n).read_bytes() for n in (C.RUN_CONFIG, C.RUN_CHECKPOINT, C.RUN_METRICS)}
+    artist = {d: _sha256(run / d) for d in (EDITS_DIR, C.EXPORTS_DIR)}
+    old = {n: (run / n).read_bytes() for n in (RUN_CONFIG, C.RUN_CHECKPOINT, C.RUN_METRICS)}
     argv = [str(frames), "--mask", str(masks), "--out", str(run), *TINY_FIT, "--set", "steps=3", "--refit"]
     code, lines = run_cli("fit", *argv)
     assert code == C.EXIT_OK, lines
-    assert {d: _sha256(run / d) for d in (C.EDITS_DIR, C.EXPORTS_DIR)} == artist
+    assert {d: _sha256(run / d) for d in (EDITS_DIR, C.EXPORTS_DIR)} == artist
     assert all((run / n).read_bytes() != data for n, data in old.items())
     assert RunFolder(run).read_config().steps == 3 and RunFolder(run).read_metrics()["steps"] == 3
     assert torch.load(run / C.RUN_CHECKPOINT, weights_only=True)["step"] == 3
@@ -224,7 +226,7 @@ def test_an_incomplete_checkpoint_is_one_line(run, edit, needle):
 def test_a_field_missing_from_config_json_is_refused_when_its_default_is_not_what_was_fitted(run):
     """config.json without ``w_mask_prior`` reads with the default (0), but the fit used the draft preset's 20: the
     checkpoint's own config says so, and the resume is one line instead of a fit with another objective."""
-    path = run / C.RUN_CONFIG
+    path = run / RUN_CONFIG
     data = json.loads(path.read_text())
     del data["config"]["w_mask_prior"]
     path.write_text(json.dumps(data))
@@ -239,14 +241,14 @@ def test_a_checkpoint_from_before_configs_were_recorded_still_exports_and_resume
     path = run / C.RUN_CHECKPOINT
     state = torch.load(path, map_location="cpu", weights_only=True)
     del state["config"]
-    state["schema"] = C.RUN_CHECKPOINT_SCHEMA_WITHOUT_CONFIG
+    state["schema"] = RUN_CHECKPOINT_SCHEMA_WITHOUT_CONFIG
     torch.save(state, path)
     code, lines = run_cli("export", str(run), "--atlas-size", "32", "--no-bar")
     assert code == C.EXIT_OK, lines
     code, lines = run_cli("fit", "--resume", "--out", str(run), "--no-bar", "--set", "steps=4")
     assert code == C.EXIT_OK, lines
     saved = torch.load(path, map_location="cpu", weights_only=True)
-    assert saved["schema"] == C.RUN_CHECKPOINT_SCHEMA and isinstance(saved["config"], dict)
+    assert saved["schema"] == RUN_CHECKPOINT_SCHEMA and isinstance(saved["config"], dict)
 
 
 @pytest.mark.parametrize(("bootstrap", "after"), [(2, 5), (1, 1)])

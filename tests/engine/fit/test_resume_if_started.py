@@ -17,6 +17,8 @@ import torch
 from engine import contract as C
 from engine.data.synthetic import SceneSpec, make_scene, write_scene
 from engine.fit import run_files, trainer
+from engine.terms.cli import FIT_RESUME_IF_STARTED_FLAG
+from engine.terms.protocol import EVENT_CANCELLED
 from tests.engine_cli import progress_until, run_cli, start_engine
 from tests.folders import tree_digest
 from tests.paths import ROOT
@@ -31,7 +33,7 @@ SETS = [f"steps={STEPS}", "batch=256", "eval_every=1", "eval_pixels=500", "boots
 def _argv(frames: Path, masks: Path, run: Path, *extra: str) -> list[str]:
     sets = [a for s in SETS for a in ("--set", s)]
     return ["fit", str(frames), "--mask", str(masks), "--out", str(run), "--preset", "draft", "--no-bar", *sets,
-            C.FIT_RESUME_IF_STARTED_FLAG, *extra]  # fmt: skip
+            FIT_RESUME_IF_STARTED_FLAG, *extra]  # fmt: skip
 
 
 def _events(text: str) -> list[dict]:
@@ -56,7 +58,7 @@ def test_a_retried_fit_starts_continues_and_then_does_nothing(tmp_path, monkeypa
     events += _events(rest)
     assert proc.returncode == C.EXIT_CANCELLED, err
     assert min(e["step"] for e in events if e["event"] == C.EVENT_PROGRESS) == 1  # a new fit, from step 0
-    stopped = [e["step"] for e in events if e["event"] == C.EVENT_CANCELLED]
+    stopped = [e["step"] for e in events if e["event"] == EVENT_CANCELLED]
     assert len(stopped) == 1 and 5 <= stopped[0] < STEPS
     saved = torch.load(run / C.RUN_CHECKPOINT, map_location="cpu", weights_only=True)["step"]
     assert saved == stopped[0] and not (run / C.RUN_METRICS).exists()
@@ -85,5 +87,5 @@ def test_a_retried_fit_starts_continues_and_then_does_nothing(tmp_path, monkeypa
     code, lines = run_cli(*[a if a != "draft" else "balanced" for a in argv])
     assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and "preset" in lines[0], lines
     code, lines = run_cli(*argv, "--resume")
-    assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and C.FIT_RESUME_IF_STARTED_FLAG in lines[0], lines
+    assert code == C.EXIT_BAD_INPUT and len(lines) == 1 and FIT_RESUME_IF_STARTED_FLAG in lines[0], lines
     assert tree_digest(run) == before

@@ -25,6 +25,7 @@ from engine import contract as C
 from engine.config import check_config
 from engine.errors import InputError
 from engine.fit.run_folder import ClipRecord, RunFolder
+from engine.terms.run_folder import RUN_CLIP, RUN_CONFIG, SCENE_FILE
 from tests.json_values import JSON_VALUES
 from tests.stability.bad_inputs import SPEC, TINY_FIT
 from tests.stability.fitcheck import write_masks, write_sequence
@@ -33,10 +34,10 @@ JSON = JSON_VALUES
 
 #: Each run file, with the loader that reads it and what a valid result must let its readers do.
 LOADERS: dict[str, tuple[Callable[[RunFolder], Any], Callable[[Any], None]]] = {
-    C.RUN_CONFIG: (RunFolder.read_config, lambda cfg: check_config(cfg)),
-    C.RUN_CLIP: (RunFolder.read_clip, lambda rec: (rec.num_frames, rec.to_dict(), ClipRecord.from_dict(rec.to_dict()))),
+    RUN_CONFIG: (RunFolder.read_config, lambda cfg: check_config(cfg)),
+    RUN_CLIP: (RunFolder.read_clip, lambda rec: (rec.num_frames, rec.to_dict(), ClipRecord.from_dict(rec.to_dict()))),
     C.RUN_METRICS: (RunFolder.read_metrics, lambda m: (float(m["psnr"]), len(m["alpha_iou"]))),
-    C.SCENE_FILE: (RunFolder.read_scene, lambda scene: (scene.summary(), scene.term_set, scene.to_dict())),
+    SCENE_FILE: (RunFolder.read_scene, lambda scene: (scene.summary(), scene.term_set, scene.to_dict())),
 }
 NAMES = list(LOADERS)
 

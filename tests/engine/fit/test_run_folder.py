@@ -1,5 +1,5 @@
-"""The run folder's files against their versioned schemas (contract.validate_run_file): what a fit writes reads
-back exactly, and a file of another version, damaged or edited by hand is ONE line naming the file and the fix."""
+"""The run folder's files against their versioned schemas (engine.fit.run_files.validate_run_file): what a fit writes
+reads back exactly, and a file of another version, damaged or edited by hand is ONE line naming the file and the fix."""
 
 from __future__ import annotations
 
@@ -14,6 +14,16 @@ from engine.config import preset_config
 from engine.errors import InputError
 from engine.fit import run_files
 from engine.fit.run_folder import ClipRecord, RunFolder
+from engine.terms.colour import COLOUR_SOURCE_ASSUMED
+from engine.terms.run_folder import (
+    RUN_CHECKPOINT_KEYS,
+    RUN_CHECKPOINT_SCHEMA,
+    RUN_CLIP,
+    RUN_CLIP_SCHEMA,
+    RUN_FILE_DAMAGED_FIX,
+    RUN_METRICS_SCHEMA,
+)
+from engine.terms.versions import ENGINE_VERSION
 
 RECORD = ClipRecord(
     source="/plates/shot",
@@ -29,7 +39,7 @@ RECORD = ClipRecord(
     scribbles=None,
     layers=2,
     fingerprint="0123abcd",
-    colour_source=C.COLOUR_SOURCE_ASSUMED,
+    colour_source=COLOUR_SOURCE_ASSUMED,
     flow_key="0123456789abcdef" * 4,
     scribbles_fingerprint="89abcdef",
 )
@@ -45,7 +55,7 @@ METRICS = {
     "device": "cpu",
     "working_size": [768, 432],
     "frames": 3,
-    "engine_version": C.ENGINE_VERSION,
+    "engine_version": ENGINE_VERSION,
     "torch_version": torch.__version__,
 }
 
@@ -65,10 +75,10 @@ def test_what_is_written_reads_back(tmp_path):
     run.write_metrics(METRICS)
     assert run.read_config() == cfg
     assert run.read_clip() == RECORD and run.read_clip().num_frames == 3
-    assert run.read_metrics() == {"schema": C.RUN_METRICS_SCHEMA, **METRICS}
+    assert run.read_metrics() == {"schema": RUN_METRICS_SCHEMA, **METRICS}
     data = json.loads(run.clip.read_text())
-    written = {"schema", *run_files.RUN_FILE_FIELDS[C.RUN_CLIP], *run_files.RUN_CLIP_OPTIONAL_FIELDS}
-    assert data["schema"] == C.RUN_CLIP_SCHEMA and set(data) == written
+    written = {"schema", *run_files.RUN_FILE_FIELDS[RUN_CLIP], *run_files.RUN_CLIP_OPTIONAL_FIELDS}
+    assert data["schema"] == RUN_CLIP_SCHEMA and set(data) == written
     assert RunFolder(tmp_path / "nothing").read_metrics() is None  # an unfinished fit has none
 
 
@@ -183,10 +193,10 @@ CHECKPOINT = {
 def test_checkpoint_keys_and_version_are_checked(tmp_path):
     run = RunFolder(tmp_path)
     cpu = torch.device("cpu")
-    assert set(CHECKPOINT) | {"schema"} == set(C.RUN_CHECKPOINT_KEYS)
+    assert set(CHECKPOINT) | {"schema"} == set(RUN_CHECKPOINT_KEYS)
     state = dict(CHECKPOINT)
     run.save_checkpoint(state)
-    assert run.load_checkpoint(cpu)["schema"] == C.RUN_CHECKPOINT_SCHEMA
+    assert run.load_checkpoint(cpu)["schema"] == RUN_CHECKPOINT_SCHEMA
     run.save_checkpoint({**state, "schema": 99})
     with pytest.raises(InputError) as err:
         run.load_checkpoint(cpu)
@@ -200,10 +210,10 @@ def test_checkpoint_keys_and_version_are_checked(tmp_path):
 
 def test_the_contract_validates_without_the_engine():
     """The schemas live in the contract (standard library only): what the add-on could check on its own."""
-    assert run_files.validate_run_file(C.RUN_CLIP, RECORD.to_dict())["layers"] == 2
+    assert run_files.validate_run_file(RUN_CLIP, RECORD.to_dict())["layers"] == 2
     with pytest.raises(run_files.RunFileError) as err:
         run_files.validate_run_file(C.RUN_METRICS, [1, 2])
-    assert err.value.problem == "metrics is not a JSON object" and err.value.fix == C.RUN_FILE_DAMAGED_FIX
+    assert err.value.problem == "metrics is not a JSON object" and err.value.fix == RUN_FILE_DAMAGED_FIX
     assert run_files.validate_run_file(C.RUN_METRICS, {"schema": 1, **METRICS, "psnr": float("inf")})  # a perfect fit
     with pytest.raises(run_files.RunFileError, match="'steps' is not an int"):
         run_files.validate_run_file(C.RUN_METRICS, {"schema": 1, **METRICS, "steps": True})

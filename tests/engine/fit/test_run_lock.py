@@ -24,6 +24,7 @@ from engine.errors import InputError
 from engine.fit import trainer
 from engine.fit.fit_inputs import FitInputs
 from engine.fit.run_folder import RunFolder
+from engine.terms.lock import RUN_LOCK
 from tests.engine.fit_helpers import quiet_fit
 from tests.folders import tree_digest
 from tests.paths import ROOT
@@ -144,4 +145,4 @@ def test_the_refit_rule_is_checked_again_under_the_lock(tmp_path, clip, monkeypa
         quiet_fit(run, cfg, FitInputs(frames, [masks]))
     assert "\n" not in str(err.value)
     assert (run / C.RUN_CHECKPOINT).read_bytes() == b"the other fit's checkpoint"
-    assert sorted(p.name for p in run.iterdir()) == sorted([C.RUN_CHECKPOINT, C.RUN_LOCK])
+    assert sorted(p.name for p in run.iterdir()) == sorted([C.RUN_CHECKPOINT, RUN_LOCK])

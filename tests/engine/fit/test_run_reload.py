@@ -21,6 +21,7 @@ from engine.fit.fit_inputs import FitInputs
 from engine.fit.fitted_run import load_run
 from engine.fit.prepare import to_fitting_values
 from engine.io.clip import open_clip, read_frames
+from engine.terms.run_folder import RUN_CONFIG
 from tests.engine.fit_helpers import TINY_OVERRIDES, fit_scene, quiet_fit
 
 
@@ -36,7 +37,7 @@ def test_checkpoint_motions_rebuild_the_fitted_model_even_when_the_box_rule_chan
 
     # today's code would draw the foreground box from the eroded masks: without the saved motions the
     # grids would get other shapes (a load error) or other scales (paint in the wrong place)
-    cfg_path = run / C.RUN_CONFIG
+    cfg_path = run / RUN_CONFIG
     data = json.loads(cfg_path.read_text())
     data["config"]["atlas_box_full_mask"] = False
     data["config"]["atlas_margin_fg"] = 0.4

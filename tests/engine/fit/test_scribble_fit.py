@@ -26,6 +26,7 @@ from engine.errors import InputError
 from engine.fit.evaluation import render_frame
 from engine.fit.fit_inputs import FitInputs
 from engine.fit.fitted_run import load_run
+from engine.terms.run_folder import RUN_CLIP
 from tests.engine.fit_helpers import TINY_OVERRIDES, object_drift_per_frame, quiet_fit
 from tests.two_object_scene import make_two_object_scene, write_two_object_scene
 
@@ -71,7 +72,7 @@ def test_each_scribbled_part_lands_in_its_own_layer(fitted):
     print(f"scribbles: ownership A {frac[0]:.3f}  B {frac[1]:.3f}; summed-alpha IoU {metrics['alpha_iou']}")
     assert frac.min() >= 0.85
     assert metrics["alpha_iou"][0] >= 0.85  # the mask is compared with the SUM of the parts' alphas
-    clip = json.loads((run / C.RUN_CLIP).read_text())
+    clip = json.loads((run / RUN_CLIP).read_text())
     assert clip["scribbles"].endswith("scribbles")
 
 
