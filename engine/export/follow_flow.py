@@ -5,24 +5,28 @@ Why: in an ideal atlas a point of the object keeps its UV in every frame. A fitt
 cannot follow a dog's legs, a camel turning or a dancer's arms from one frame to the next (nor, in the background's
 one mapping, the cars that drive through it), so the UV of such a point drifts by pixels over a few frames and the
 paint slips. Chained optical flow follows those frames closely; the atlas is one canvas for the whole clip. Averaging
-a layer's UV along flow trajectories with a two-sided exponential filter takes what each does well: over a few
-frames the paint moves with the flow, over many it stays the atlas's; with a long reach a point keeps nearly one UV
-along its whole trajectory, the mean of what the atlas says over its frames. The filter, at working
-resolution, with ``u`` the layer's UV and ``w`` the weight of one frame step::
+a layer's UV along flow trajectories with a two-sided exponential mean takes what each does well: over a few frames
+the paint moves with the flow, over many it stays the atlas's; with a long reach a point keeps nearly one UV along
+its whole trajectory, the mean of what the atlas says over its frames. The mean, at working resolution, with ``u``
+the layer's UV, ``w`` the weight of one frame step and ``D`` the weight a trajectory has gathered so far::
 
-    F_0 = u_0,       F_t(x) = (1 - w) u_t(x) + w F_{t-1}(x + back_t(x))      (back_t: flow t -> t-1)
-    B_T = u_T,       B_t(x) = (1 - w) u_t(x) + w B_{t+1}(x + fwd_t(x))       (fwd_t: flow t -> t+1)
-    result = (F + B - (1 - w) u) / (1 + w)                                   (weights proportional to w^|k|)
+    D_0 = 1,  F_0 = u_0,  D_t = 1 + w D_{t-1}(x'),  F_t = (u_t + w D_{t-1}(x') F_{t-1}(x')) / D_t,  x' = x + back_t(x)
+    the same backward (B, E) along fwd_t from the last frame; result = (D F + E B - u) / (D + E - 1)
+
+so each frame of a trajectory weighs w^|k| and the weights are normalised over the frames the trajectory holds: its
+first and last frame weigh no more than the others (a plain recursive filter ``F_t = (1 - w) u_t + w F_{t-1}``
+leaves the rest of the weight, w^t, on the first frame, so along a long reach the result leans on the trajectory's
+two ends and changes along it by several times as much).
 
 A step is taken only where the pixel belongs to the layer, the flow passed the fit's forward-backward check and
 the point it lands on belongs to the layer in the neighbour frame. Where it cannot be taken (an occlusion, a
 disocclusion, the outline), the pass starts again from ``u`` over a few frames (``SHORT_WEIGHT``); along whole
-trajectories (``LONG_WEIGHT``, ``fill``) the pixel instead takes the correction (``F - u``) of the pixels around it
-that were carried (a Gaussian of ``FILL_SIGMA_PX``, normalised over them), times ``w``: the atlas's error is smooth
-over the object, and starting again from the fitted UV there would bring back, downstream, the error the filter had
-removed. A pixel with no carried pixel near it keeps ``u``; where neither pass could step or fill, the result is
-``u`` exactly. The export adds the correction (result - u), upsampled, to the UV it evaluates at every native pixel;
-which reach each layer follows is ``flow_reach``'s choice.
+trajectories (``LONG_WEIGHT``, ``fill``) the pixel instead takes the correction (``F - u``) and the gathered weight
+of the pixels around it that were carried (a Gaussian of ``FILL_SIGMA_PX``, normalised over them), times ``w``: the
+atlas's error is smooth over the object, and starting again from the fitted UV there would bring back, downstream,
+the error the filter had removed. A pixel with no carried pixel near it keeps ``u``; where neither pass could step
+or fill, the result is ``u`` exactly. The export adds the correction (result - u), upsampled, to the UV it evaluates at
+every native pixel; which reach each layer follows is ``flow_reach``'s choice.
 
 A layer whose UV already follows the flow within the flow's own error (``MIN_SLIP_PX``, the median frame-to-frame
 disagreement, ``layer_slip_px``) is left as it is: there the atlas is better than the flow at every gap, and the
@@ -60,10 +64,11 @@ MIN_SHARE = 0.99
 #: Floor of a frame's UV scale (UV units per pixel) when converting UV distances to pixels: a collapsed mapping.
 MIN_UV_PER_PX = 1e-9
 #: What following the flow holds in memory per working pixel and frame: each layer's UV (8 B), whether the layer
-#: owns the pixel and whether it is solid there (2 x 1 B) and its correction over each reach (2 x 8 B); once, the
+#: owns the pixel and whether it is solid there (2 x 1 B), its correction over each reach (2 x 8 B) and the weight
+#: the forward pass gathered (4 B, while one reach is computed); once, the
 #: fit's flow both ways (16 B), their checks (2 B) and the plate at working size (12 B: the reach test and the
 #: atlas texture).
-BYTES_PER_LAYER, FLOW_BYTES = 26, 30
+BYTES_PER_LAYER, FLOW_BYTES = 30, 30
 #: Follow the flow only while that fits in this share of the memory the system says is available, so an export that
 #: would once have fitted is not pushed into swap or the OOM killer by a long clip.
 MEMORY_SHARE = 0.8
@@ -97,61 +102,73 @@ def _grid(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _carried(
-    uv: np.ndarray, owned: np.ndarray, flow: np.ndarray, grid: tuple[np.ndarray, np.ndarray]
-) -> tuple[np.ndarray, np.ndarray]:
-    """(``uv`` [H, W, 2] read where ``flow`` [H, W, 2] carries each pixel, the share [H, W] of that bilinear read
-    that ``owned`` covers); the read is normalised by the share, so it averages owned pixels only."""
+    uv: np.ndarray,
+    owned: np.ndarray,
+    flow: np.ndarray,
+    grid: tuple[np.ndarray, np.ndarray],
+    gathered: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(``uv`` [H, W, 2] read where ``flow`` [H, W, 2] carries each pixel, ``gathered`` [H, W] read there (ones when
+    None), the share [H, W] of that bilinear read that ``owned`` covers); the reads are normalised by the share, so
+    they average owned pixels only."""
     gx, gy = grid
     m = owned.astype(np.float32)
+    d = m if gathered is None else gathered * m
     look = cv2.remap(
-        np.dstack((uv * m[..., None], m)),
+        np.dstack((uv * m[..., None], d, m)),
         gx + flow[..., 0],
         gy + flow[..., 1],
         cv2.INTER_LINEAR,
         borderMode=cv2.BORDER_CONSTANT,
         borderValue=(0.0, 0.0, 0.0, 0.0),
     )
-    share = look[..., 2]
-    return look[..., :2] / np.maximum(share, MIN_SHARE)[..., None], share
+    share = look[..., 3]
+    norm = np.maximum(share, MIN_SHARE)
+    return look[..., :2] / norm[..., None], look[..., 2] / norm, share
 
 
-def _filled(correction: np.ndarray, carried: np.ndarray, owned: np.ndarray) -> np.ndarray:
-    """``correction`` [H, W, 2] where ``carried``, and at the other ``owned`` pixels the carried pixels' correction
-    around them (a Gaussian of ``FILL_SIGMA_PX`` normalised over the carried pixels, where they hold at least
+def _filled(values: np.ndarray, carried: np.ndarray, owned: np.ndarray) -> np.ndarray:
+    """``values`` [H, W, C] where ``carried``, and at the other ``owned`` pixels the carried pixels' values around
+    them (a Gaussian of ``FILL_SIGMA_PX`` normalised over the carried pixels, where they hold at least
     ``FILL_MIN_SHARE`` of its weight; else 0); 0 off ``owned``."""
     m = carried.astype(np.float32)
-    num = cv2.GaussianBlur(correction * m[..., None], (0, 0), FILL_SIGMA_PX)
+    num = cv2.GaussianBlur(values * m[..., None], (0, 0), FILL_SIGMA_PX).reshape(values.shape)
     den = cv2.GaussianBlur(m, (0, 0), FILL_SIGMA_PX)
     near = den >= FILL_MIN_SHARE
     around = num / np.maximum(den, FILL_MIN_SHARE)[..., None]
-    out = np.where(carried[..., None], correction, np.where(near[..., None], around, 0.0))
+    out = np.where(carried[..., None], values, np.where(near[..., None], around, 0.0))
     return np.where(owned[..., None], out, 0.0).astype(np.float32)
 
 
 def _step(
     u: np.ndarray,
     owned: np.ndarray,
-    neighbour: np.ndarray,
-    neighbour_owned: np.ndarray,
+    neighbour: tuple[np.ndarray, np.ndarray, np.ndarray],
     carry: tuple[np.ndarray, np.ndarray],
     weight: float,
     grid: tuple[np.ndarray, np.ndarray],
     fill: bool,
-) -> np.ndarray:
-    """One recursion step of either pass: the correction [H, W, 2] that pulls ``u`` toward the filtered neighbour
-    (``neighbour``, its filtered UV) where the flow carries it; with ``fill``, elsewhere toward what the carried
-    pixels around were pulled by, times ``weight``. ``carry``: the flow to the neighbour [H, W, 2] and where it
-    passed the fit's forward-backward check [H, W]."""
+) -> tuple[np.ndarray, np.ndarray]:
+    """One recursion step of either pass: (the correction [H, W, 2] that moves ``u`` to the trajectory's mean so
+    far, the weight [H, W] the trajectory has gathered here). ``neighbour``: the neighbour frame's filtered UV, its
+    gathered weight and where the layer owns it; ``carry``: the flow to the neighbour [H, W, 2] and where it passed
+    the fit's forward-backward check [H, W]. Where the flow cannot carry a pixel it starts a trajectory (weight 1,
+    no correction) or, with ``fill``, takes what the carried pixels around it were given, one step further (times
+    ``weight``)."""
     flow, flow_ok = carry
-    looked, share = _carried(neighbour, neighbour_owned, flow, grid)
+    filtered, gathered, neighbour_owned = neighbour
+    looked, d_looked, share = _carried(filtered, neighbour_owned, flow, grid, gathered)
     use = owned & flow_ok & (share >= MIN_SHARE)
     pulled = np.zeros_like(u)
-    pulled[use] = weight * (looked[use] - u[use])
+    d = np.ones(u.shape[:2], np.float32)
+    wd = weight * d_looked[use]
+    d[use] = 1.0 + wd
+    pulled[use] = (wd / (1.0 + wd))[:, None] * (looked[use] - u[use])
     if not fill:
-        return pulled
-    out = _filled(pulled, use, owned)
+        return pulled, d
+    out = _filled(np.dstack((pulled, d)), use, owned)
     out[~use] *= weight  # a filled pixel is one step further from the pixels it was filled from
-    return out
+    return out[..., :2], np.where(owned & ~use, np.maximum(out[..., 2], 1.0), d)
 
 
 def follow_flow(
@@ -160,7 +177,7 @@ def follow_flow(
     """The correction [T, H, W, 2] (filtered minus ``uv``; zero where the layer does not own the pixel) of one
     layer's UV ``uv`` [T, H, W, 2] (any linear unit), ``owned`` [T, H, W] bool, along ``flow`` (the fit's, at the
     same H x W); ``fill``: a pixel the flow cannot carry takes its carried neighbours' correction (the long reach).
-    Memory: ``uv`` and one more array of its size."""
+    Memory: ``uv``, one more array of its size and the forward pass's weights ([T, H, W] float32)."""
     if not 0.0 <= weight < 1.0:
         raise ValueError(f"the follow-flow weight must be in [0, 1), not {weight}")
     frames, h, w = owned.shape
@@ -168,22 +185,28 @@ def follow_flow(
         return np.zeros_like(uv, dtype=np.float32)
     grid = _grid(h, w)
     out = np.empty(uv.shape, np.float32)  # the forward pass's corrections, then the result in place
-    out[0] = 0.0
+    gathered = np.empty(owned.shape, np.float32)  # the forward pass's weights D
+    out[0], gathered[0] = 0.0, 1.0
     for t in range(1, frames):
         k = t - 1  # pair (t-1, t): backward[k] carries frame t to t-1
-        prev = uv[t - 1] + out[t - 1]
+        prev = (uv[t - 1] + out[t - 1], gathered[t - 1], owned[t - 1])
         back = (flow.backward[k], flow.backward_ok[k])
-        out[t] = _step(uv[t], owned[t], prev, owned[t - 1], back, weight, grid, fill)
-    after = np.zeros(uv.shape[1:], np.float32)  # the backward pass's correction of frame t + 1
+        out[t], gathered[t] = _step(uv[t], owned[t], prev, back, weight, grid, fill)
+    after = np.zeros(uv.shape[1:], np.float32)  # the backward pass's correction of frame t + 1 ...
+    after_d = np.ones(owned.shape[1:], np.float32)  # ... and its weight E
     for t in range(frames - 1, -1, -1):
-        here = np.zeros_like(after)
+        here, here_d = np.zeros_like(after), np.ones_like(after_d)
         if t < frames - 1:
-            nxt = uv[t + 1] + after
+            nxt = (uv[t + 1] + after, after_d, owned[t + 1])
             fwd = (flow.forward[t], flow.forward_ok[t])
-            here = _step(uv[t], owned[t], nxt, owned[t + 1], fwd, weight, grid, fill)
-        # (F + B - (1 - w) u) / (1 + w) - u: exactly 0 where neither pass took a step or filled one
-        out[t] = np.where(owned[t][..., None], (out[t] + here) / (1.0 + weight), 0.0)
-        after = here
+            here, here_d = _step(uv[t], owned[t], nxt, fwd, weight, grid, fill)
+        # (D F + E B - u) / (D + E - 1) - u = (D (F - u) + E (B - u)) / (D + E - 1): exactly 0 where neither pass
+        # took a step or filled one (D = E = 1, no correction)
+        d = gathered[t][..., None]
+        e = here_d[..., None]
+        mean = (d * out[t] + e * here) / (d + e - 1.0)
+        out[t] = np.where(owned[t][..., None], mean, 0.0)
+        after, after_d = here, here_d
     return out
 
 
@@ -212,7 +235,7 @@ def layer_slip_px(uv: np.ndarray, owned: np.ndarray, flow: FlowField) -> float |
         scale = uv_per_px(uv[t], owned[t])
         if scale is None:
             continue
-        looked, share = _carried(uv[t + 1], owned[t + 1], flow.forward[t], grid)
+        looked, _, share = _carried(uv[t + 1], owned[t + 1], flow.forward[t], grid)
         use = owned[t] & flow.forward_ok[t] & (share >= MIN_SHARE)
         if use.any():
             slips.append(np.linalg.norm(looked[use] - uv[t][use], axis=-1) / scale)

@@ -56,6 +56,23 @@ def _inner() -> np.ndarray:
     return owned
 
 
+@pytest.mark.parametrize(("weight", "fill"), [(FF.SHORT_WEIGHT, False), (FF.LONG_WEIGHT, True), (0.9, True)])
+def test_each_frame_of_a_trajectory_weighs_w_to_the_distance_normalised_over_the_trajectory(weight, fill):
+    """Still flow, every pixel carried: a pixel's result is sum_s w^|t-s| u_s / sum_s w^|t-s| exactly, so neither end
+    of the clip weighs more than its place says (a plain recursive filter would leave w^t on frame 0)."""
+    shape = (T, H, W)
+    still = np.zeros((T - 1, H, W, 2), np.float32)
+    oks = np.ones((T - 1, H, W), bool)
+    flow = FlowField(still, still.copy(), oks, oks.copy(), "dis-medium", 1.0)
+    u_t = np.array([0.0, 3.0, -1.0, 7.0, 2.0, 2.0, 10.0, -4.0], np.float32)[:T]
+    uv = np.broadcast_to(u_t[:, None, None, None], (*shape, 2)).astype(np.float32)
+    out = uv + FF.follow_flow(uv, np.ones(shape, bool), flow, weight, fill)
+    k = np.abs(np.arange(T)[:, None] - np.arange(T)[None, :])
+    expected = (weight**k * u_t[None, :]).sum(1) / (weight**k).sum(1)
+    np.testing.assert_allclose(out[:, H // 2, W // 2, 0], expected, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(out[..., 1], out[..., 0], rtol=1e-6)
+
+
 def test_uv_that_follows_the_flow_is_judged_still_and_left_alone():
     uv, owned = _true_uv(), _inner()
     assert FF.layer_slip_px(uv, owned, _flow()) == pytest.approx(0.0, abs=1e-3)
@@ -298,7 +315,7 @@ def test_another_plates_flow_in_the_cache_is_never_followed(tiny, tmp_path, monk
 
 
 def test_the_memory_it_needs_and_the_memory_the_system_says_is_available(tmp_path):
-    assert FF.memory_needed(70, (768, 432), 2) == 70 * 768 * 432 * (30 + 2 * 26)  # bmx-trees: 1.8 GiB
+    assert FF.memory_needed(70, (768, 432), 2) == 70 * 768 * 432 * (30 + 2 * 30)  # bmx-trees: 1.9 GiB
     meminfo = tmp_path / "meminfo"
     meminfo.write_text("MemTotal:       24000000 kB\nMemFree:         1000000 kB\nMemAvailable:   12000000 kB\n")
     assert FF.available_memory(str(meminfo)) == 12000000 * 1024
