@@ -199,6 +199,15 @@ def point_mattes(scene: Any, out_dir: str | None = None) -> list[str]:
     return folders
 
 
+def output_template(scene: Any) -> str:
+    """The frames' name for the export the scene imported: ``render_job.output_template`` of its manifest's clip
+    record (``edit.####`` for a plate ``plate.1001.png`` ..), ``edit.#####`` for a scene that imported none."""
+    props = getattr(scene, "neural_atlas", None)
+    if props is None or not props.manifest:
+        return RJ.output_template({})
+    return RJ.output_template(C.load_manifest(bpy.path.abspath(props.manifest))["clip"])
+
+
 def _blend_relative(path: str) -> str:
     """``path`` relative to the saved .blend (``//...``), so the File Output follows a shot folder that moves with
     its .blend; as it is when the .blend is unsaved or on another drive."""
@@ -260,10 +269,13 @@ class RenderSession:
 
     The view transform is Standard and dithering off for the render, so a PNG is the plain sRGB encoding of the
     linear result. An EXR is written in ``exr_colorspace`` (``TreePlan.output_colorspace``: the plate's space when
-    scene-linear, as ``engine render``). A frame is rendered as a still of that frame with ``write_still``: Blender
-    writes it to the frame's own path (``RenderSettings.frame_path``), the same ``edit.#####.<ext>`` an
-    animation render writes. The tree's mattes are written beside the frames,
-    ``out_dir/mattes/<Matte>/matte.#####.exr`` (``point_mattes``).
+    scene-linear, as ``engine render``). The frames are named by ``template`` (``render_job.output_template`` of the
+    manifest's clip record: ``edit.####`` for a plate ``plate.1001.png`` .., the names ``engine render`` writes by
+    default; None: the scene's imported export's, ``output_template``). A frame is rendered as a still of that frame
+    with ``write_still``: Blender writes it to the frame's own path (``RenderSettings.frame_path``), the same
+    ``edit.1001.<ext>`` an animation render writes. The tree's mattes are written beside the frames,
+    ``out_dir/mattes/<Matte>/matte.#####.exr`` (``point_mattes``; always five digits: ``engine render`` writes no
+    mattes to match).
 
     ``exported``: the export's first and last frame; the scene's frames outside them are not rendered
     (``render_job.exported_only``: they have no passes). A movie's animation render is given the scene range of the
@@ -279,12 +291,14 @@ class RenderSession:
         file_format: str = "exr",
         exr_colorspace: str = "Linear Rec.709",
         exported: tuple[int, int] | None = None,
+        template: str | None = None,
     ):
         self.scene = scene
         self.out_dir = out_dir
         self.file_format = file_format
         self.exr_colorspace = exr_colorspace
         self.exported = exported
+        self.template = output_template(scene) if template is None else template
         self._saved: dict[str, Any] | None = None
         self._image_settings: dict[str, Any] | None = None
 
@@ -330,7 +344,7 @@ class RenderSession:
         compat.set_render_format(scene, self.file_format, self.exr_colorspace)
         r.use_file_extension = True
         movie = self.file_format not in RJ.FRAME_FORMATS
-        self._template = os.path.join(os.path.abspath(self.out_dir), "edit_" if movie else "edit.#####")
+        self._template = os.path.join(os.path.abspath(self.out_dir), RJ.MOVIE_PREFIX if movie else self.template)
         r.filepath = self._template
         frames = self.frames()
         if movie and self.skipped() and frames:  # the animation render covers the rendered frames only
@@ -343,7 +357,7 @@ class RenderSession:
             result = bpy.ops.render.render(animation=True, scene=scene.name)
         else:
             scene.frame_set(frame)
-            # a still is written to the output path as it is: the frame's own path (``#####`` -> the frame number,
+            # a still is written to the output path as it is: the frame's own path (``####`` -> the frame number,
             # the extension added), the name an animation render gives that frame
             r = scene.render
             r.filepath = self._template
@@ -383,10 +397,17 @@ def _set_range(scene: Any, first: int, last: int) -> None:
     scene.frame_start = first
 
 
-def render(scene: Any, out_dir: str, file_format: str = "exr", exr_colorspace: str = "Linear Rec.709") -> list[str]:
-    """Render the compositor for the scene's frame range into ``out_dir/edit.#####.<ext>`` (or a movie), blocking:
-    every step of a ``RenderSession`` in turn (the artist's settings are restored afterwards, also on an error)."""
-    session = RenderSession(scene, out_dir, file_format, exr_colorspace)
+def render(
+    scene: Any,
+    out_dir: str,
+    file_format: str = "exr",
+    exr_colorspace: str = "Linear Rec.709",
+    template: str | None = None,
+) -> list[str]:
+    """Render the compositor for the scene's frame range into ``out_dir/edit.1001.<ext>`` .. (named by ``template``,
+    as ``RenderSession`` names them: padded as ``engine render`` pads its frames) or a movie, blocking: every step of
+    a ``RenderSession`` in turn (the artist's settings are restored afterwards, also on an error)."""
+    session = RenderSession(scene, out_dir, file_format, exr_colorspace, template=template)
     try:
         session.begin()
         for frame in session.steps():

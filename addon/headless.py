@@ -9,8 +9,9 @@ as a subprocess). Either with the real application or with a Python that has the
 
 It loads this checkout as the add-on package (no installed extension needed), imports the manifest exactly as
 **Import Atlas** does (the given edit images become the layers' edit layers), saves the .blend, and renders
-every exported frame through the compositor as scene-linear float EXR ``DIR/edit.#####.exr``. ``--report``
-writes what was done (Blender version, filter, files) as JSON for the caller.
+every exported frame through the compositor as scene-linear float EXR ``DIR/edit.1001.exr`` .., named as
+``engine render`` names its frames (the plate's frame number padded as the plate's files are; five digits for a
+movie). ``--report`` writes what was done (Blender version, filter, files) as JSON for the caller.
 
 Exit: 0 on success; 2 with a one-line ``error: ...`` on bad input. On bpy 4.5 a script that ends with classes
 still registered can hang at exit (docs/blender-compat.md), so everything is unregistered and the process ends
@@ -37,7 +38,12 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("manifest", help="manifest.json of an export")
     p.add_argument("--blend", required=True, help=".blend file to write (the compositor tree, plate, edit layers)")
     p.add_argument("--edit", action="append", default=[], metavar="LAYER=IMAGE", help="edit layer for LAYER")
-    p.add_argument("--render", metavar="DIR", help="render every exported frame to DIR/edit.#####.exr")
+    p.add_argument(
+        "--render",
+        metavar="DIR",
+        help="render every exported frame to DIR/edit.####.exr (the plate's frame number, padded as engine render pads "
+        "it: as the plate's files)",
+    )
     p.add_argument(
         "--filter",
         choices=("bilinear", "nearest", "exact"),
@@ -67,6 +73,7 @@ def run(ns: argparse.Namespace) -> dict:
     t0 = time.monotonic()
     addon = load_addon()
     from neural_atlas.addon import compositor
+    from neural_atlas.addon.core import render_job as RJ
     from neural_atlas.addon.core import tree_plan as P
     from neural_atlas.addon.ops.import_run import import_manifest, set_run_folder
     from neural_atlas.engine import contract as C  # the add-on's only engine import, through the extension package
@@ -98,7 +105,8 @@ def run(ns: argparse.Namespace) -> dict:
         os.replace(tmp, blend)  # a half-written .blend never replaces a good one
         files: list[str] = []
         if ns.render:
-            files = compositor.render(scene, os.path.abspath(ns.render), "exr", plan.output_colorspace)
+            names = RJ.output_template(manifest["clip"])  # engine render's names: padded as the plate's files
+            files = compositor.render(scene, os.path.abspath(ns.render), "exr", plan.output_colorspace, names)
         report = {
             "blender": bpy.app.version_string,
             "filter": filt,

@@ -53,15 +53,19 @@ from .terms.clip import (
 # colour: the colour spaces the records name, and the sRGB transfer
 from .terms.colour import COLOUR_RAW, COLOUR_SCENE_LINEAR, COLOUR_SRGB, LEGACY_COLORSPACES, srgb_to_linear
 
-# an export's names the add-on opens: the exports folder, the foreground role, the UV channels, edit layer files
+# an export's names the add-on opens: the exports folder, the foreground role, the UV channels, edit layer files;
+# and the padding of the frame numbers in the names of outputs numbered by the plate's frames (Render Edited Clip's
+# frames, padded as engine render pads them)
 from .terms.export_names import (
     EDIT_LAYER_FLOAT_EXT,
     EXPORTS_DIR,
+    RENDER_FRAME_PREFIX,
     ROLE_FOREGROUND,
     UV_CHANNELS,
     channel_name,
     edit_layer_file,
     float_edit_layer,
+    frame_padding,
 )
 
 # the farm: the back ends the add-on submits to and the shots file it writes
@@ -167,6 +171,7 @@ __all__ = [
     "MASK_THRESHOLD",
     "PRESET_STEPS",
     "RELINK_PLATE_ARG",
+    "RENDER_FRAME_PREFIX",
     "REQUIREMENTS_FILE",
     "ROLE_FOREGROUND",
     "RUN_CHECKPOINT",
@@ -198,6 +203,7 @@ __all__ = [
     "clip_rate",
     "edit_layer_file",
     "float_edit_layer",
+    "frame_padding",
     "load_manifest",
     "manifest_run_root",
     "parse_progress_line",

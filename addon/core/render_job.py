@@ -1,18 +1,37 @@
-"""Render Edited Clip frame by frame: which frames, how far it is, how long it still needs. No bpy here.
+"""Render Edited Clip frame by frame: which frames, what their files are named, how far it is, how long it still
+needs. No bpy here.
 
-The operator renders one frame per timer tick (``compositor.RenderSession.render_frame``) so Blender stays
+The operator renders one frame per timer tick (``compositor.RenderSession.render_step``) so Blender stays
 responsive, the panel shows "frame k/n · ETA", and Cancel stops between two frames. A movie is one file that
 Blender writes in one animation render (a frame cannot be appended to a movie file), so it is one step.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
+from ...engine import contract as C  # type: ignore[import-not-found]
 from .progress import format_seconds
 
-#: The render formats that write one file per frame (``edit.#####.<ext>``); the others write one movie.
+#: The render formats that write one file per frame (``output_template``: ``edit.1001.exr`` ..); the others write one
+#: movie.
 FRAME_FORMATS = ("exr", "png")
+#: The frames' names start as ``engine render``'s default names do: ``edit.`` and the plate's frame number.
+FRAME_PREFIX = C.RENDER_FRAME_PREFIX
+#: A movie's name before the range Blender appends (``edit_1001-1012.mp4``).
+MOVIE_PREFIX = "edit_"
+
+
+def output_template(clip: Mapping[str, Any]) -> str:
+    """The name Render Edited Clip gives Blender for the frames of an export whose manifest clip record is ``clip``:
+    ``edit.`` and one ``#`` per digit (Blender writes the frame number there, zero-padded to the count of ``#``), the
+    digits ``engine render`` pads its default names to (``C.frame_padding``, one rule for both): ``edit.####`` for a
+    plate ``plate.1001.png`` .., so both write ``edit.1001.exr``; ``edit.#####`` for a movie, a plate whose files are
+    not named by their number padded one way, or no clip record (``{}``)."""
+    padding = C.frame_padding(list(clip.get("frame_files") or ()), list(clip.get("frame_numbers") or ()))
+    return FRAME_PREFIX + "#" * padding
 
 
 def frame_list(start: int, end: int, step: int = 1) -> list[int]:

@@ -83,7 +83,9 @@ PLATE_FIX = "put the plate back, or choose where it is now with Relink Run Folde
 
 #: The render folder's subfolder of the mattes: ``<render dir>/mattes/<Matte>/matte.#####.exr``.
 MATTES_DIR = "mattes"
-#: A matte's file name in its folder, ``#####`` the plate's frame number (as the render's ``edit.#####``).
+#: A matte's file name in its folder, ``#####`` the plate's frame number, always five digits (the frames beside it are
+#: padded as ``engine render`` pads them, ``render_job.output_template``; ``engine render`` writes no mattes, so none
+#: is named two ways).
 MATTE_FILE = "matte.#####"
 MATTE_EXT = ".exr"
 #: The matte of the paint: where the edit layers cover the plate, ``sum_i A_i`` (the alpha the Blend frame puts over

@@ -158,8 +158,9 @@ class NEURALATLAS_OT_render(bpy.types.Operator):
             # disk stops the render with the one line that says so (the paint stays unsaved in Blender)
             manifest = C.load_manifest(imported_manifest(context))
             exported = P.contiguous_frames(list(manifest["passes"]["frames"]))
+            clip = manifest["clip"]  # the EXR's colour space and the frames' names (padded as engine render's)
             session = compositor.RenderSession(
-                context.scene, self._out, fmt, colorspaces.output_colorspace(manifest["clip"]), exported
+                context.scene, self._out, fmt, colorspaces.output_colorspace(clip), exported, RJ.output_template(clip)
             )
             if not session.frames():  # the scene's range lies outside the export: nothing it could render
                 scene = context.scene

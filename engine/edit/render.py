@@ -51,7 +51,7 @@ from ..io.colour import (
 from ..io.images import exr_timing, native_path, read_spec, write_like, write_png, write_rgba_exr
 from ..io.write_ahead import FRAMES_AHEAD, WriteAhead
 from ..terms.colour import EXR_COLORSPACE_ATTRIBUTE
-from ..terms.export_names import frame_padding
+from ..terms.export_names import RENDER_FRAME_PREFIX, frame_padding
 from .equations import FILTERS, composite_edits, composite_touched, edit_is_empty, load_edit
 from .movie import DEFAULT_FPS, MovieWriter, movie_writer
 from .output_checks import check_movie, check_output
@@ -59,9 +59,8 @@ from .render_record import RECORD_NAME, claim_folder, render_record, write_recor
 from .staged_folder import StagedFolder
 
 FORMATS = ("exr", "png", "plate")
-#: The frames' default name: ``edit.`` + the plate's frame number padded as the plate's files are + the extension
-#: (``edit.1001.exr`` for a plate.1001.exr; ``--name`` names them otherwise).
-OUTPUT_PREFIX = "edit."
+#: The frames' default name (``--name`` names them otherwise).
+OUTPUT_PREFIX = RENDER_FRAME_PREFIX
 #: ``--name``'s frame token: one run of ``#`` (one per digit, as Blender and Nuke write it) or printf ``%0Nd``/``%d``.
 NAME_TOKEN = re.compile(r"#+|%0?(\d*)d")
 NAME_ARG = "--name"

@@ -146,6 +146,12 @@ def blender_pattern(padding: int) -> str:
     return f"{PASS_FILE_PREFIX}{'#' * padding}{PASS_FILE_EXT}"
 
 
+#: The rendered frames' default name: ``edit.`` + the plate's frame number padded as ``frame_padding`` says + the
+#: extension (``edit.1001.exr`` for a ``plate.1001.exr``), as ``engine render`` and the add-on's Render Edited Clip
+#: both write it.
+RENDER_FRAME_PREFIX = "edit."
+
+
 def frame_padding(frame_files: list[str] | tuple[str, ...], frame_numbers: list[int] | tuple[int, ...]) -> int:
     """The digits a plate's frame files pad their numbers to: 4 for ``plate.1001.exr`` .. (and for ``plate.0998.exr``
     .. ``plate.1001.exr``), 1 for ``f9.png``, ``f10.png``; PASS_FILE_DIGITS for a movie (no files) or names that are
@@ -193,6 +199,7 @@ __all__ = [
     "PASS_PRECISION_COMPACT",
     "PASS_PRECISION_FULL",
     "PASS_UV_STEP",
+    "RENDER_FRAME_PREFIX",
     "ROLE_BACKGROUND",
     "ROLE_FOREGROUND",
     "STMAP_CHANNELS",

@@ -25,6 +25,7 @@ from engine.terms.export_names import (
     PASSES_DIR,
     ROLE_BACKGROUND,
     alpha_pass,
+    frame_padding,
     layer_name,
     pass_file_name,
     uv_pass,
@@ -327,13 +328,28 @@ def reference_frame(
     return plate * (1 - alpha_sum[..., None]) + rgb_sum
 
 
+def edit_file(manifest_path: Path | str, frame: int, ext: str = ".exr") -> str:
+    """The name ``engine render`` gives plate frame ``frame`` of the export by default, and Render Edited Clip too:
+    ``edit.`` and the number padded as the plate's files are (``frame_padding`` of the manifest's clip record:
+    ``edit.00003.exr`` for this module's ``00003.png`` plates, ``edit.1011.exr`` for ``plate.1011.png``)."""
+    clip = json.loads(Path(manifest_path).read_text())["clip"]
+    padding = frame_padding(clip["frame_files"], clip["frame_numbers"])
+    return f"edit.{frame:0{padding}d}{ext}"
+
+
+def edit_names(out_dir: Path | str) -> list[str]:
+    """The frame files a render wrote into ``out_dir`` (``edit.*``), sorted."""
+    return sorted(p.name for p in Path(out_dir).glob("edit.*"))
+
+
 def render_error(out_dir: Path, manifest_path: Path, filt: str, decode=srgb_to_linear, frames=FRAMES) -> float:
-    """The largest difference, over ``frames``, between a render's ``out_dir/edit.#####.exr`` (RGB) and the
-    render equation of the export (``filt``: the engine's filter, nearest or bilinear)."""
+    """The largest difference, over ``frames``, between a render's frames ``out_dir/edit.<frame>.exr`` (RGB, named as
+    ``edit_file``) and the render equation of the export (``filt``: the engine's filter, nearest or bilinear)."""
     return max(
         float(
             np.abs(
-                read_exr_rgba(out_dir / f"edit.{f:05d}.exr")[..., :3] - reference_frame(manifest_path, f, filt, decode)
+                read_exr_rgba(out_dir / edit_file(manifest_path, f))[..., :3]
+                - reference_frame(manifest_path, f, filt, decode)
             ).max()
         )
         for f in frames

@@ -45,7 +45,7 @@ from engine.terms.export_names import (  # noqa: E402
 ROOT = Path(__file__).resolve().parents[2]
 TAG = f"[bpy {bpy.app.version_string}]"
 W, H = 4096, 2160
-FRAME = 1001  # a shot's own numbering: plate.1001.png -> atlas.1001.exr -> edit.1001.exr (Blender: edit.01001.exr)
+FRAME = 1001  # a shot's own numbering: plate.1001.png -> atlas.1001.exr -> edit.1001.exr (engine render and Blender)
 LAYERS = ("Background", "Foreground")
 #: The cheapest real fit: 128 px working size, tiny networks, 40 steps at a high learning rate (the mask is learned:
 #: alpha IoU about 0.98), a few seconds of training; the export still evaluates it at every one of the 8.8 M pixels.
@@ -105,11 +105,11 @@ def _engine(py: str, *args: str) -> tuple[str, float]:
 
 
 def _one_frame(out: Path) -> np.ndarray:
-    """The one frame a render wrote into ``out`` (``edit.<frame>.exr``, however padded: ``engine render`` pads as the
-    plate, Render Edited Clip to five digits), RGBA."""
-    found = sorted(out.glob("edit.*.exr"))
-    assert [int(p.name.split(".")[1]) for p in found] == [FRAME], found
-    return X.read_exr_rgba(found[0])
+    """The one frame a render wrote into ``out``, RGBA: ``edit.1001.exr``, padded as the plate's files are, the same
+    name from ``engine render`` and from Render Edited Clip."""
+    found = sorted(p.name for p in out.glob("edit.*"))
+    assert found == [f"edit.{FRAME}.exr"], found
+    return X.read_exr_rgba(out / found[0])
 
 
 def _patch_coverage(u: np.ndarray, v: np.ndarray, size: tuple[int, int]) -> np.ndarray:

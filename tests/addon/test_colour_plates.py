@@ -102,9 +102,13 @@ def test_blender_render_equals_engine_render(blender, tmp_path, kind):
     errors = []
     clip = json.loads(Path(manifest).read_text())["clip"]
     padding = frame_padding(clip["frame_files"], clip["frame_numbers"])  # engine render pads as the plate's files
-    for f in plan_frames(manifest):
-        a = read_exr_rgba(out_b / f"edit.{f:05d}.exr")[..., :3]
-        b = read_exr_rgba(out_e / f"edit.{f:0{padding}d}.exr")[..., :3]
+    assert padding == 4  # plate.0000.exr ..: not the five digits a plate without padding of its own gives
+    names = [f"edit.{f:0{padding}d}.exr" for f in plan_frames(manifest)]
+    # Render Edited Clip names its frames as engine render does: one sequence, whichever rendered it
+    assert sorted(p.name for p in out_b.glob("edit.*")) == sorted(p.name for p in out_e.glob("edit.*")) == names
+    for name in names:
+        a = read_exr_rgba(out_b / name)[..., :3]
+        b = read_exr_rgba(out_e / name)[..., :3]
         errors.append(float(np.abs(a - b).max() / max(1.0, float(np.abs(b).max()))))
     print(f"Blender {blender.app.version_string} vs engine render, {kind} plate: {max(errors):.3g}")
     assert max(errors) <= TOLERANCE[kind], errors

@@ -21,6 +21,8 @@ bpy = pytest.importorskip("bpy")
 from fake_export import (  # noqa: E402
     blender_read_rgba8,
     blender_srgb_lut,
+    edit_file,
+    edit_names,
     lut_decoder,
     read_exr_rgba,
     reference_frame,
@@ -139,9 +141,11 @@ def test_fit_paint_render_matches_engine_render(blender, tmp_path, monkeypatch):
             stdout=subprocess.DEVNULL,
         )
         errs = []
+        # one sequence, whichever rendered it: Render Edited Clip names its frames as engine render does
+        assert edit_names(out_b) == edit_names(out_e) == [edit_file(manifest_path, f) for f in frames]
         for f in frames:
-            a = read_exr_rgba(out_b / f"edit.{f:05d}.exr")[..., :3]
-            b = read_exr_rgba(out_e / f"edit.{f:05d}.exr")[..., :3]
+            a = read_exr_rgba(out_b / edit_file(manifest_path, f))[..., :3]
+            b = read_exr_rgba(out_e / edit_file(manifest_path, f))[..., :3]
             assert a.shape == b.shape == (48, 64, 3)
             errs.append(float(np.abs(a - b).max()))
         errors[filt] = max(errs)
@@ -149,12 +153,12 @@ def test_fit_paint_render_matches_engine_render(blender, tmp_path, monkeypatch):
             # the tree against the render equation on this real export, with Blender's own 8-bit decode
             ref_errs = []
             for f in frames:
-                a = read_exr_rgba(out_b / f"edit.{f:05d}.exr")[..., :3]
+                a = read_exr_rgba(out_b / edit_file(manifest_path, f))[..., :3]
                 ref = reference_frame(manifest_path, f, engine_filter, lut_decoder(lut), reader)
                 ref_errs.append(float(np.abs(a - ref).max()))
             errors["tree_vs_equation"] = max(ref_errs)
         # the paint is really there: the blue band over the background
-        img = read_exr_rgba(out_b / f"edit.{frames[0]:05d}.exr")
+        img = read_exr_rgba(out_b / edit_file(manifest_path, frames[0]))
         assert ((img[..., 2] > 0.4) & (img[..., 0] < 0.3)).sum() > 100
 
     # float edit layers: the PNG paint becomes RUN/edits/<Layer>.exr (linear, premultiplied), the tree and the
@@ -183,9 +187,10 @@ def test_fit_paint_render_matches_engine_render(blender, tmp_path, monkeypatch):
         [*render_argv, "--filter", engine_filter], cwd=ROOT, check=True, timeout=300, stdout=subprocess.DEVNULL
     )
     errs = []
+    assert edit_names(out_b) == edit_names(out_e) == [edit_file(manifest_path, f) for f in frames]
     for f in frames:
-        a = read_exr_rgba(out_b / f"edit.{f:05d}.exr")[..., :3]
-        b = read_exr_rgba(out_e / f"edit.{f:05d}.exr")[..., :3]
+        a = read_exr_rgba(out_b / edit_file(manifest_path, f))[..., :3]
+        b = read_exr_rgba(out_e / edit_file(manifest_path, f))[..., :3]
         errs.append(float(np.abs(a - b).max()))
         assert a.max() > 1.0  # the float paint above 1 (no plate value is) went through both
     errors["float_" + exact] = max(errs)

@@ -41,13 +41,15 @@ def test_import_sets_the_scene_range_rate_and_aspect_of_the_plate(blender, tmp_p
 
     out = tmp_path / "out"
     assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out), file_format="exr") == {"FINISHED"}
+    # the plate's files are 01001.png ..: five digits, as engine render pads them
     assert sorted(p.name for p in out.iterdir()) == [*(f"edit.{f:05d}.exr" for f in FRAMES), P.MATTES_DIR]
+    assert [X.edit_file(manifest, f) for f in FRAMES] == [f"edit.{f:05d}.exr" for f in FRAMES]
     err = X.render_error(out, manifest, "nearest", frames=FRAMES)
     # each frame against the plate and passes of the NEIGHBOURING number: a shifted mapping would match these
     shifted = max(
         float(
             np.abs(
-                X.read_exr_rgba(out / f"edit.{f:05d}.exr")[..., :3] - X.reference_frame(manifest, g, "nearest")
+                X.read_exr_rgba(out / X.edit_file(manifest, f))[..., :3] - X.reference_frame(manifest, g, "nearest")
             ).max()
         )
         for f, g in ((1001, 1002), (1002, 1003), (1003, 1001))
@@ -87,7 +89,7 @@ def _shifted(out, manifest, pairs) -> float:
     return min(
         float(
             np.abs(
-                X.read_exr_rgba(out / f"edit.{f:05d}.exr")[..., :3] - X.reference_frame(manifest, g, "nearest")
+                X.read_exr_rgba(out / X.edit_file(manifest, f))[..., :3] - X.reference_frame(manifest, g, "nearest")
             ).max()
         )
         for f, g in pairs
@@ -96,8 +98,9 @@ def _shifted(out, manifest, pairs) -> float:
 
 def test_a_shot_keeps_its_frame_numbers_end_to_end(blender, tmp_path):
     """Blender's 1-250 becomes the shot's 1011-1022 (not the positions 10-21); the plate clip starts at 1011, the
-    passes read file F at scene frame F, and the render writes edit.01011.exr .. edit.01022.exr, each the render
-    equation of its own plate frame (1015 of plate and passes 1015, not 1014 or 1016)."""
+    passes read file F at scene frame F, and the render writes edit.1011.exr .. edit.1022.exr (padded as the plate's
+    files, as engine render names them), each the render equation of its own plate frame (1015 of plate and passes
+    1015, not 1014 or 1016)."""
     manifest = _shot(blender, tmp_path)
     scene = blender.context.scene
     assert (scene.frame_start, scene.frame_end) == (1, 250)
@@ -118,7 +121,7 @@ def test_a_shot_keeps_its_frame_numbers_end_to_end(blender, tmp_path):
 
     out = tmp_path / "out"
     assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out), file_format="exr") == {"FINISHED"}
-    assert sorted(p.name for p in out.iterdir()) == [*(f"edit.{f:05d}.exr" for f in SHOT), P.MATTES_DIR]
+    assert sorted(p.name for p in out.iterdir()) == [*(f"edit.{f}.exr" for f in SHOT), P.MATTES_DIR]
     err = X.render_error(out, manifest, "nearest", frames=SHOT)
     at_1015 = X.render_error(out, manifest, "nearest", frames=(1015,))
     shifted = _shifted(out, manifest, ((1015, 1014), (1015, 1016), (1011, 1012), (1022, 1021)))
@@ -136,7 +139,7 @@ def test_the_artists_range_within_the_shot_is_left_alone(blender, tmp_path):
     assert (scene.frame_start, scene.frame_end) == (1014, 1016)
     out = tmp_path / "out"
     assert blender.ops.neural_atlas.render("EXEC_DEFAULT", directory=str(out), file_format="exr") == {"FINISHED"}
-    assert sorted(p.name for p in out.iterdir()) == ["edit.01014.exr", "edit.01015.exr", "edit.01016.exr", P.MATTES_DIR]
+    assert sorted(p.name for p in out.iterdir()) == ["edit.1014.exr", "edit.1015.exr", "edit.1016.exr", P.MATTES_DIR]
     assert X.render_error(out, manifest, "nearest", frames=(1014, 1015, 1016)) <= 5e-5
 
     assert blender.ops.neural_atlas.import_run("EXEC_DEFAULT", filepath=str(manifest), set_range=True) == {"FINISHED"}

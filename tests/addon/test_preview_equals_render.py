@@ -58,8 +58,8 @@ def engine_render(manifest: Path, out: Path, filt: str) -> dict[int, np.ndarray]
 
 
 def frames(out: Path) -> dict[int, np.ndarray]:
-    """The ``edit.<frame>.exr`` files in ``out`` (padded as the renderer pads them), RGBA by frame number; every
-    exported frame is there."""
+    """The ``edit.<frame>.exr`` files in ``out`` (padded as the plate's files: ``engine render`` and Render Edited Clip
+    name them alike), RGBA by frame number; every exported frame is there."""
     found = {int(p.name.split(".")[1]): X.read_exr_rgba(p) for p in out.glob("edit.*.exr")}
     assert sorted(found) == list(X.FRAMES), sorted(found)
     return found
@@ -113,8 +113,9 @@ def test_the_filter_is_named_and_defaults_as_engine_render(registered):
 @pytest.mark.slow
 def test_preview_equals_render_equals_engine_render_at_paint_edges(blender, tmp_path):
     """Hard-edged strokes on both layers; for each filter: the live preview, Render Edited Clip and engine render
-    --filter of the same name agree at every pixel, paint edges included, at every exported frame."""
-    manifest = X.make_export(tmp_path)
+    --filter of the same name agree at every pixel, paint edges included, at every exported frame; Render Edited Clip
+    and engine render write the same file names (a plate numbered with four digits: edit.0003.exr ..)."""
+    manifest = X.make_export(tmp_path, plate_name="plate.{frame:04d}.png")
     assert blender.ops.neural_atlas.import_run("EXEC_DEFAULT", filepath=str(manifest)) == {"FINISHED"}
     _brush(bpy.data.images[P.edit_image_name("Background")], (1.0, 0.1, 0.0, 1.0), (0.3, 0.2, 0.8, 0.7))
     _brush(bpy.data.images[P.edit_image_name("Foreground")], (0.0, 0.9, 1.0, 0.5), (0.1, 0.1, 0.6, 0.6))
@@ -126,6 +127,9 @@ def test_preview_equals_render_equals_engine_render_at_paint_edges(blender, tmp_
         rendered[filt] = blender_render(tmp_path / f"blender_{filt}")
         shown[filt] = preview_render(tmp_path / f"preview_{filt}")
         engine[filt] = engine_render(manifest, tmp_path / f"engine_{filt}", filt)
+        names = [X.edit_file(manifest, f) for f in X.FRAMES]
+        assert X.edit_names(tmp_path / f"blender_{filt}") == X.edit_names(tmp_path / f"engine_{filt}") == names
+        assert names == [f"edit.{f:04d}.exr" for f in X.FRAMES]
     edges = {
         f: np.abs(engine["bilinear"][f][..., :3] - engine["nearest"][f][..., :3]).max(axis=-1) > EDGE for f in X.FRAMES
     }

@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
+import re
+
 import pytest
 from neural_atlas.addon.core import render_job as RJ
+
+from engine.edit.render import frame_name_pattern
+from engine.terms.export_names import PASS_FILE_DIGITS, frame_padding
 
 
 def test_frame_list_is_an_animation_renders_frames():
@@ -46,3 +51,49 @@ def test_a_movie_is_one_step_and_says_so():
     assert p.summary() == "rendering the movie (48 frames) in one go…"
     p.add(20.0)
     assert p.finished and p.report("/out") == "rendered the movie to /out"
+
+
+def _blender_name(template: str, frame: int, ext: str) -> str:
+    """The file Blender writes for ``frame`` from an output path ``template``: its run of ``#`` replaced by the frame
+    number zero-padded to as many digits (``RenderSettings.frame_path``), the format's extension added."""
+    return re.sub(r"#+", lambda m: f"{frame:0{len(m.group())}d}", template) + ext
+
+
+def _sequence(names: list[str], numbers: list[int]) -> dict:
+    return {"kind": "sequence", "frame_files": [f"/shot/plate/{n}" for n in names], "frame_numbers": numbers}
+
+
+#: (the manifest's clip record, the template): a shot's own four digits, the fake exports' five, a plate padded to
+#: none, a movie (no files), names padded two ways, names that are not the frame number, no record at all.
+CLIPS = [
+    (_sequence(["plate.1001.png", "plate.1002.png", "plate.1003.png"], [1001, 1002, 1003]), "edit.####"),
+    (_sequence([f"plate.{n:04d}.exr" for n in range(998, 1002)], list(range(998, 1002))), "edit.####"),
+    (_sequence(["00003.png", "00004.png", "00005.png"], [3, 4, 5]), "edit.#####"),
+    (_sequence(["f9.png", "f10.png"], [9, 10]), "edit.#"),
+    (_sequence(["shot_000012.dpx"], [12]), "edit.######"),
+    ({"kind": "movie", "frame_files": [], "frame_numbers": [0, 1, 2], "start_frame": 0}, "edit.#####"),
+    (_sequence(["plate.1.exr", "plate.0002.exr"], [1, 2]), "edit.#####"),
+    (_sequence(["take2_a.exr"], [7]), "edit.#####"),
+    ({}, "edit.#####"),
+]
+
+
+@pytest.mark.parametrize(("clip", "template"), CLIPS)
+def test_frames_are_named_as_engine_render_names_them(clip, template):
+    """Render Edited Clip's template is ``edit.`` + a ``#`` per digit of ``frame_padding`` (the engine's one rule), so
+    every frame Blender writes from it has the name ``engine render`` gives the same frame by default."""
+    assert RJ.output_template(clip) == template
+    numbers = clip.get("frame_numbers") or [0, 1]
+    padding = frame_padding(clip.get("frame_files") or [], numbers)
+    assert template == RJ.FRAME_PREFIX + "#" * padding
+    for ext in (".exr", ".png"):
+        engine = frame_name_pattern(None, ext, padding)  # engine render's default names for this export
+        for frame in [*numbers, numbers[-1] + 1, 12345]:  # a number longer than the padding keeps its digits
+            assert _blender_name(template, frame, ext) == engine.format(frame=frame)
+
+
+def test_a_shots_frames_keep_its_four_digits():
+    clip = CLIPS[0][0]
+    names = [_blender_name(RJ.output_template(clip), f, ".exr") for f in clip["frame_numbers"]]
+    assert names == ["edit.1001.exr", "edit.1002.exr", "edit.1003.exr"]
+    assert RJ.output_template({}) == "edit." + "#" * PASS_FILE_DIGITS  # no plate files: the engine's default
