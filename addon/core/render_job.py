@@ -18,8 +18,6 @@ from .progress import format_seconds
 #: The render formats that write one file per frame (``output_template``: ``edit.1001.exr`` ..); the others write one
 #: movie.
 FRAME_FORMATS = ("exr", "png")
-#: The frames' names start as ``engine render``'s default names do: ``edit.`` and the plate's frame number.
-FRAME_PREFIX = C.RENDER_FRAME_PREFIX
 #: A movie's name before the range Blender appends (``edit_1001-1012.mp4``).
 MOVIE_PREFIX = "edit_"
 
@@ -31,7 +29,7 @@ def output_template(clip: Mapping[str, Any]) -> str:
     plate ``plate.1001.png`` .., so both write ``edit.1001.exr``; ``edit.#####`` for a movie, a plate whose files are
     not named by their number padded one way, or no clip record (``{}``)."""
     padding = C.frame_padding(list(clip.get("frame_files") or ()), list(clip.get("frame_numbers") or ()))
-    return FRAME_PREFIX + "#" * padding
+    return C.RENDER_FRAME_PREFIX + "#" * padding
 
 
 def frame_list(start: int, end: int, step: int = 1) -> list[int]:

@@ -59,8 +59,6 @@ from .render_record import RECORD_NAME, claim_folder, render_record, write_recor
 from .staged_folder import StagedFolder
 
 FORMATS = ("exr", "png", "plate")
-#: The frames' default name (``--name`` names them otherwise).
-OUTPUT_PREFIX = RENDER_FRAME_PREFIX
 #: ``--name``'s frame token: one run of ``#`` (one per digit, as Blender and Nuke write it) or printf ``%0Nd``/``%d``.
 NAME_TOKEN = re.compile(r"#+|%0?(\d*)d")
 NAME_ARG = "--name"
@@ -204,7 +202,7 @@ def frame_name_pattern(name: str | None, ext: str, padding: int) -> str:
     (``shot_v001.####.exr``, ``shot_v001.%04d.exr``), or by default ``edit.`` + ``padding`` digits + ``ext``. A name
     that is a path, holds no frame token or two, or ends in another extension than the frames' ``ext`` is one line."""
     if name is None:
-        return f"{OUTPUT_PREFIX}{{frame:0{padding}d}}{ext}"
+        return f"{RENDER_FRAME_PREFIX}{{frame:0{padding}d}}{ext}"
     example = f"e.g. {NAME_ARG} shot_v001.{'#' * padding}{ext}"
     tokens = list(NAME_TOKEN.finditer(name))
     if "/" in name or "\\" in name or name.startswith(".") or not name.isprintable():
@@ -375,7 +373,8 @@ def render_manifest(
     edits = load_edits(manifest, edit_overrides)
     w, h = manifest.resolution
     sizes = _Sizes(len(chosen), w * h * FRAME_BYTES_PER_PIXEL[fmt])
-    what = OUTPUT_PREFIX.rstrip(".") if frames is None else f"{OUTPUT_PREFIX.rstrip('.')}-{frames[0]}-{frames[1]}"
+    stem = RENDER_FRAME_PREFIX.rstrip(".")
+    what = stem if frames is None else f"{stem}-{frames[0]}-{frames[1]}"
     staged = StagedFolder(out, what, "--out", shared=frames is not None)
     record = render_record(manifest.path, edits, {"format": fmt, "names": output.pattern, "filter": output.filter,
                                                   "half": output.half})  # fmt: skip

@@ -30,6 +30,8 @@ import sys
 from collections.abc import Iterator
 from pathlib import Path
 
+import pytest
+
 from engine import contract as C
 from engine.terms.cli import HEADLESS_SCRIPT
 from tests.paths import ROOT
@@ -123,12 +125,21 @@ def _files(folder: str) -> list[Path]:
     return files
 
 
-def test_imports_are_resolved_whatever_the_spelling(tmp_path, monkeypatch):
-    """The resolver itself: each spelling of an engine import from the add-on names the module it loads."""
+def _addon_module(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, text: str) -> Path:
+    """``text`` as the add-on module ``addon/ops/x.py`` of a checkout rooted at ``tmp_path`` (ROOT while the test
+    runs)."""
     monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
     src = tmp_path / "addon" / "ops" / "x.py"
     src.parent.mkdir(parents=True)
-    src.write_text(
+    src.write_text(text)
+    return src
+
+
+def test_imports_are_resolved_whatever_the_spelling(tmp_path, monkeypatch):
+    """The resolver itself: each spelling of an engine import from the add-on names the module it loads."""
+    src = _addon_module(
+        tmp_path,
+        monkeypatch,
         "from ... import engine\n"
         "from ...engine import contract, cli\n"
         "from ...engine.contract import EXIT_OK\n"
@@ -136,7 +147,7 @@ def test_imports_are_resolved_whatever_the_spelling(tmp_path, monkeypatch):
         "import neural_atlas.engine.fit.trainer\n"
         "import importlib\n"
         "importlib.import_module('...engine.demo', __package__)\n"
-        "__import__(name)\n"
+        "__import__(name)\n",
     )
     assert [m for m, _ in imports(src)] == [
         "engine",
@@ -252,15 +263,14 @@ def contract_names_used(py: Path) -> set[str]:
 
 def test_contract_names_are_resolved_whatever_the_spelling(tmp_path, monkeypatch):
     """The reader of contract uses itself: each way the add-on binds the contract counts, other modules do not."""
-    monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
-    src = tmp_path / "addon" / "ops" / "x.py"
-    src.parent.mkdir(parents=True)
-    src.write_text(
+    src = _addon_module(
+        tmp_path,
+        monkeypatch,
         "from ...engine import contract as C\n"
         "from ...engine.contract import EXIT_OK\n"
         "def f():\n"
         "    from neural_atlas.engine import contract\n"
-        "    return C.VERB_FIT, contract.MANIFEST_NAME, D.NOT_THE_CONTRACT, C.RunLocked\n"
+        "    return C.VERB_FIT, contract.MANIFEST_NAME, D.NOT_THE_CONTRACT, C.RunLocked\n",
     )
     assert contract_names_used(src) == {"EXIT_OK", "VERB_FIT", "MANIFEST_NAME", "RunLocked"}
 

@@ -8,7 +8,7 @@ import pytest
 from neural_atlas.addon.core import render_job as RJ
 
 from engine.edit.render import frame_name_pattern
-from engine.terms.export_names import PASS_FILE_DIGITS, frame_padding
+from engine.terms.export_names import PASS_FILE_DIGITS, RENDER_FRAME_PREFIX, frame_padding
 
 
 def test_frame_list_is_an_animation_renders_frames():
@@ -85,7 +85,7 @@ def test_frames_are_named_as_engine_render_names_them(clip, template):
     assert RJ.output_template(clip) == template
     numbers = clip.get("frame_numbers") or [0, 1]
     padding = frame_padding(clip.get("frame_files") or [], numbers)
-    assert template == RJ.FRAME_PREFIX + "#" * padding
+    assert template == RENDER_FRAME_PREFIX + "#" * padding
     for ext in (".exr", ".png"):
         engine = frame_name_pattern(None, ext, padding)  # engine render's default names for this export
         for frame in [*numbers, numbers[-1] + 1, 12345]:  # a number longer than the padding keeps its digits
