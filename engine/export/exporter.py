@@ -63,7 +63,7 @@ from ..terms.export_names import (
 from ..terms.manifest import validate_manifest
 from .atlas_frame import _Coverage
 from .flow_reach import choose_reach, layer_scale
-from .follow_flow import MEMORY_SHARE, MIN_SLIP_PX, available_memory, layer_slip_px, memory_needed
+from .follow_flow import MEMORY_SHARE, MIN_SLIP_PX, available_memory, extended, layer_slip_px, memory_needed
 from .manifest_writer import _write_nuke_script, build_manifest
 from .pass_files import pass_file
 from .pass_writer import write_passes
@@ -339,7 +339,7 @@ def _flow_corrections(
         if follows:
             colours = None if model is None else partial(_colours, model, i)
             reach = choose_reach(working.uv[i], working.owned[i], flow, frames, colours)
-            out[i], done = reach.correction, reach.said
+            out[i], done = extended(reach.correction, working.owned[i]), reach.said
         job.reporter.emit(C.EVENT_STAGE, stage="follow-flow", message=f"{names[i]}: {said}: {done}")
     return out
 

@@ -25,8 +25,9 @@ trajectories (``LONG_WEIGHT``, ``fill``) the pixel instead takes the correction 
 of the pixels around it that were carried (a Gaussian of ``FILL_SIGMA_PX``, normalised over them), times ``w``: the
 atlas's error is smooth over the object, and starting again from the fitted UV there would bring back, downstream,
 the error the filter had removed. A pixel with no carried pixel near it keeps ``u``; where neither pass could step
-or fill, the result is ``u`` exactly. The export adds the correction (result - u), upsampled, to the UV it evaluates at
-every native pixel; which reach each layer follows is ``flow_reach``'s choice.
+or fill, the result is ``u`` exactly. The export carries the correction (result - u) past the layer's outline
+(``extended``), upsamples it and adds it to the UV it evaluates at every native pixel; which reach each layer
+follows is ``flow_reach``'s choice.
 
 A layer whose UV already follows the flow within the flow's own error (``MIN_SLIP_PX``, the median frame-to-frame
 disagreement, ``layer_slip_px``) is left as it is: there the atlas is better than the flow at every gap, and the
@@ -39,6 +40,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from scipy import ndimage
 
 from ..data.flow import FlowField
 
@@ -208,6 +210,23 @@ def follow_flow(
         out[t] = np.where(owned[t][..., None], mean, 0.0)
         after, after_d = here, here_d
     return out
+
+
+def extended(correction: np.ndarray, owned: np.ndarray) -> np.ndarray:
+    """``correction`` [T, H, W, 2] (``follow_flow``'s) with each pixel the layer does not own given the correction of
+    its nearest owned pixel in the same frame (a frame the layer owns nothing of keeps zeros); in place (the
+    correction is as large as the layer's UV).
+
+    Why: the export upsamples the correction to the native size bilinearly and adds it to the UV there. At the outline
+    a native pixel the layer still covers reads half of its correction from the working pixels outside, and zero
+    there would leave it between the fitted and the followed UV: a thin rim whose UV repeats the UV of a point well
+    inside (measured: a camel's neck, 11 px away), so paint at that point shows twice. Off the layer its opacity is
+    zero and the UV shows nowhere."""
+    for t in range(len(correction)):
+        if owned[t].any() and not owned[t].all():
+            iy, ix = ndimage.distance_transform_edt(~owned[t], return_distances=False, return_indices=True)
+            correction[t] = correction[t][iy, ix]
+    return correction
 
 
 def uv_per_px(uv: np.ndarray, owned: np.ndarray) -> float | None:

@@ -146,6 +146,25 @@ def test_pixels_the_layer_does_not_own_are_untouched_and_never_mixed_in():
     assert np.abs(corr[owned]).max() < 1e-4
 
 
+def test_the_correction_is_carried_past_the_outline_from_the_nearest_owned_pixel():
+    """The export upsamples the correction bilinearly: a native pixel on the outline reads working pixels outside the
+    layer too, and must read the correction of the layer's nearest pixel there, not zero (a UV halfway between the
+    fitted and the followed one repeats a point's UV well inside it: paint shown twice)."""
+    owned = np.zeros((3, 5, 6), bool)
+    owned[0, 1:3, 2:4] = True  # a block
+    owned[2] = True  # a frame the layer owns whole; frame 1 owns nothing
+    corr = np.zeros((3, 5, 6, 2), np.float32)
+    corr[0, 1:3, 2:4] = np.arange(8, dtype=np.float32).reshape(2, 2, 2) + 1.0
+    corr[2] = 7.0
+    before = corr.copy()
+    out = FF.extended(corr, owned)
+    assert np.array_equal(out[owned], before[owned])  # what the filter gave the layer's pixels is kept
+    assert np.array_equal(out[0, 0, 0], before[0, 1, 2]) and np.array_equal(out[0, 4, 5], before[0, 2, 3])
+    assert np.array_equal(out[0, 1, 0], before[0, 1, 2]) and np.array_equal(out[0, 2, 5], before[0, 2, 3])
+    assert np.all(out[1] == 0.0) and np.all(out[2] == 7.0)
+    assert out is corr  # in place: it is as large as the layer's UV
+
+
 def test_flow_that_failed_its_check_is_not_followed():
     rng = np.random.default_rng(1)
     uv = _true_uv() + rng.normal(0.0, 0.02, (T, 1, 1, 2)).astype(np.float32)
