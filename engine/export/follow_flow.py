@@ -47,10 +47,11 @@ from ..data.flow import FlowField
 #: Weight of the neighbour frame in each step (0: the fitted UV, unchanged), over a few frames: the filter reaches
 #: about 1 / (1 - w) frames along the flow, and where the flow cannot carry a pixel it starts again from its fitted UV.
 SHORT_WEIGHT = 0.7
-#: ... along whole trajectories: at 0.995 a point keeps nearly one UV along all of its trajectory in a clip of a few
-#: hundred frames, and where the flow cannot carry a pixel it takes its carried neighbours' correction (the fill).
-#: Which reach a layer gets: ``flow_reach`` (measured from 0.7 to 0.999: docs/bench/experiments.md).
-LONG_WEIGHT = 0.995
+#: ... along whole trajectories: at 0.999 a point keeps nearly one UV along all of its trajectory in a clip of a few
+#: hundred frames (frames 300 apart weigh 0.74 of each other), and where the flow cannot carry a pixel it takes its
+#: carried neighbours' correction (the fill). Which reach a layer gets: ``flow_reach`` (measured from 0.7 to 0.999,
+#: and 0.995 against 0.999 on every clip: docs/bench/experiments.md).
+LONG_WEIGHT = 0.999
 #: The fill: where the flow cannot carry a pixel, it takes the correction of the carried pixels around it, a Gaussian
 #: of this many working pixels (about a limb's half-width at the working size) normalised over the carried pixels.
 FILL_SIGMA_PX = 6.0
