@@ -26,15 +26,21 @@ def blend_path(path: str) -> str:
     return relink.relative_path(path, bpy.data.filepath)
 
 
+def imported_manifest(scene: Any) -> str:
+    """The manifest the scene imported, absolute and normalised ('' when none; it is stored relative to the .blend
+    where it can)."""
+    props = getattr(scene, "neural_atlas", None)
+    return os.path.normpath(bpy.path.abspath(props.manifest)) if props is not None and props.manifest else ""
+
+
 def known_plate(scene: Any, manifest_path: str) -> str | None:
     """The file of the scene's plate clip when ``manifest_path`` belongs to the run the scene imported from (its
     manifest, or a later export of the same run folder): where that run's plate is, even after the run folder was
     relinked without it (``tree_plan.plate_path``). None otherwise: another run's plate is where its manifest says."""
-    props = getattr(scene, "neural_atlas", None)
+    imported = imported_manifest(scene)
     clip = bpy.data.movieclips.get(P.PLATE_CLIP)
-    if props is None or not props.manifest or clip is None or not clip.filepath:
+    if not imported or clip is None or not clip.filepath:
         return None
-    imported = bpy.path.abspath(props.manifest)
     if C.manifest_run_root(imported) != C.manifest_run_root(os.path.abspath(manifest_path)):
         return None
     return os.path.normpath(bpy.path.abspath(clip.filepath))
@@ -202,10 +208,8 @@ def point_mattes(scene: Any, out_dir: str | None = None) -> list[str]:
 def output_template(scene: Any) -> str:
     """The frames' name for the export the scene imported: ``render_job.output_template`` of its manifest's clip
     record (``edit.####`` for a plate ``plate.1001.png`` ..), ``edit.#####`` for a scene that imported none."""
-    props = getattr(scene, "neural_atlas", None)
-    if props is None or not props.manifest:
-        return RJ.output_template({})
-    return RJ.output_template(C.load_manifest(bpy.path.abspath(props.manifest))["clip"])
+    imported = imported_manifest(scene)
+    return RJ.output_template(C.load_manifest(imported)["clip"] if imported else {})
 
 
 def _blend_relative(path: str) -> str:

@@ -59,9 +59,8 @@ def plate_file() -> str | None:
 
 
 def imported_manifest(context) -> str:
-    """The scene's imported manifest, absolute ('' when none; it is stored relative to the .blend where it can)."""
-    props = getattr(context.scene, "neural_atlas", None)
-    return abspath(props.manifest) if props is not None and props.manifest else ""
+    """The scene's imported manifest, absolute ('' when none): ``compositor.imported_manifest``."""
+    return compositor.imported_manifest(context.scene)
 
 
 def _need(context) -> str | None:
