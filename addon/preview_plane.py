@@ -371,7 +371,7 @@ def plan_rebuild(scene: Any) -> tuple[P.TreePlan, dict[str, Any], str]:
     """What ``rebuild`` builds from, checked without changing anything: (tree, manifest, its path). Raises the
     import's errors (``ops.import_run.IMPORT_ERRORS``, one line each)."""
     props = scene.neural_atlas
-    manifest_path = os.path.normpath(bpy.path.abspath(props.manifest))
+    manifest_path = compositor.imported_manifest(scene)
     manifest = C.load_manifest(manifest_path)
     plate = compositor.known_plate(scene, manifest_path)  # a run folder relinked without its plate
     names = compat.colorspace_names()

@@ -219,14 +219,13 @@ class NEURALATLAS_OT_frame_paint_start(bpy.types.Operator):
         return needs.poll(cls, _need_start(context))
 
     def execute(self, context):
-        props = context.scene.neural_atlas
         need = _need_start(context)
         if need:  # poll says so; this holds for a call that skips poll
             self.report({"ERROR"}, need)
             return {"CANCELLED"}
         frame = context.scene.frame_current
         try:
-            img = start_frame_paint(context, I.abspath(props.manifest), frame)
+            img = start_frame_paint(context, compositor.imported_manifest(context.scene), frame)
         except (ValueError, OSError) as exc:  # ManifestError, a frame without passes, unsaved paint with no file
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
@@ -257,7 +256,6 @@ class NEURALATLAS_OT_frame_paint_land(EngineJobOperator, bpy.types.Operator):
         return needs.poll(cls, _need_land(context))
 
     def make_job(self, context) -> ProjectFrameJob:
-        props = context.scene.neural_atlas
         need = _need_land(context, cached=False)  # the pixels as they are now, not the poll's last answer
         img = frame_paint_image()
         frame = painted_frame(img)
@@ -270,7 +268,7 @@ class NEURALATLAS_OT_frame_paint_land(EngineJobOperator, bpy.types.Operator):
             edit_layers.save_before_reload(self.bl_label)
         except (ValueError, C.RunLocked) as exc:  # no file for some paint; a run folder in use
             raise UserError(str(exc)) from None
-        return ProjectFrameJob(python, I.abspath(props.manifest), frame, path)
+        return ProjectFrameJob(python, compositor.imported_manifest(context.scene), frame, path)
 
     def finish(self, context, job: ProjectFrameJob, result: EP.JobResult) -> set[str]:
         props = context.scene.neural_atlas

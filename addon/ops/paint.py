@@ -8,7 +8,7 @@ import bpy
 from bpy.props import StringProperty
 
 from ...engine import contract as C
-from .. import edit_layers
+from .. import compositor, edit_layers
 from ..core import needs, run_files
 from ..core import tree_plan as P
 from .import_run import import_manifest
@@ -35,8 +35,7 @@ class NEURALATLAS_OT_float_edits(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        props = getattr(context.scene, "neural_atlas", None)
-        manifest = abspath(props.manifest) if props is not None and props.manifest else ""
+        manifest = compositor.imported_manifest(context.scene)
         return needs.poll(cls, needs.float_edits_need(manifest, (img.filepath for img in edit_images())))
 
     def execute(self, context):
@@ -45,7 +44,7 @@ class NEURALATLAS_OT_float_edits(bpy.types.Operator):
             self.report({"ERROR"}, NO_ATLAS)
             return {"CANCELLED"}
         made, skipped = [], []
-        manifest_path = abspath(props.manifest)  # stored relative to the .blend where it can be
+        manifest_path = compositor.imported_manifest(context.scene)
         try:
             manifest = C.load_manifest(manifest_path)
             # the import below reloads every edit image: unsaved paint goes to its file first (a PNG that becomes an

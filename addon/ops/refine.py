@@ -17,7 +17,7 @@ from __future__ import annotations
 import bpy
 
 from ...engine import contract as C
-from .. import edit_layers
+from .. import compositor, edit_layers
 from ..core import engine_process as EP
 from ..core import needs, relink, running
 from ..core.errors import UserError
@@ -111,7 +111,7 @@ class NEURALATLAS_OT_refine(EngineJobOperator, bpy.types.Operator):
 CARRY_ACTION = "Carry Paint"
 
 
-def carry_source(props) -> str:
+def carry_source(props, manifest: str) -> str:
     """The manifest Carry Paint takes the paint from: the Paint From setting (a run folder: its newest export's
     manifest; ``core.relink.find_manifest``); UserError (one line) when it names none, or names this fit."""
     if not props.carry_from:
@@ -120,13 +120,9 @@ def carry_source(props) -> str:
         source = relink.find_manifest(I.abspath(props.carry_from))
     except ValueError as exc:
         raise UserError(str(exc)) from None
-    if C.manifest_run_root(source) == C.manifest_run_root(imported_manifest_path(props)):
+    if C.manifest_run_root(source) == C.manifest_run_root(manifest):
         raise UserError("Paint From is this fit's own run folder: Refine carries its paint; choose another fit")
     return source
-
-
-def imported_manifest_path(props) -> str:
-    return I.abspath(props.manifest) if props.manifest else ""
 
 
 class NEURALATLAS_OT_carry_paint(EngineJobOperator, bpy.types.Operator):
@@ -148,8 +144,8 @@ class NEURALATLAS_OT_carry_paint(EngineJobOperator, bpy.types.Operator):
 
     def make_job(self, context) -> CarryJob:
         props = context.scene.neural_atlas
-        python, manifest = I.engine_python(context), imported_manifest_path(props)
-        job = CarryJob(python, manifest, carry_source(props), C.manifest_run_root(manifest))
+        python, manifest = I.engine_python(context), compositor.imported_manifest(context.scene)
+        job = CarryJob(python, manifest, carry_source(props, manifest), C.manifest_run_root(manifest))
         save_paint_first(CARRY_ACTION)
         return job
 
