@@ -80,6 +80,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
         stage=args.stage,
         follow_flow=args.follow_flow,
         precision=args.precision,
+        stmap=args.stmap,
     )
     return print_paths([path])
 

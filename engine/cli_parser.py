@@ -32,6 +32,7 @@ from .terms.cli import (
     EXPORT_PASS_PRECISION_ARG,
     EXPORT_STAGE_ARG,
     EXPORT_STAGES,
+    EXPORT_STMAP_FLAG,
     FIT_RESUME_IF_STARTED_FLAG,
     VERB_DEMO,
     VERB_NUKE,
@@ -338,6 +339,17 @@ def _add_export_parser(sub: argparse._SubParsersAction) -> None:
         f"(0.03 texel on a 4096 atlas): half the bytes; {PASS_PRECISION_FULL} keeps every bit the networks give. "
         f"A staged export decides it in its {EXPORT_STAGES[0]} stage",
     )
+    x.add_argument(
+        EXPORT_STMAP_FLAG,
+        dest="stmap",
+        action="store_const",
+        const=True,
+        default=None,
+        help="also write each layer's UV as an STMap layer (STMap<Layer>: R, G = u, v; A = coverage) in every pass "
+        "file, for an STMap wired by hand in Nuke (the exported Nuke script reads the UV pass itself). Off by "
+        "default: at 2K and 4K it nearly doubles each file. A staged export decides it in its "
+        f"{EXPORT_STAGES[0]} stage",
+    )
     add_no_bar(x)
 
 
@@ -494,8 +506,8 @@ def _add_nuke_parser(sub: argparse._SubParsersAction) -> None:
         sub,
         VERB_NUKE,
         help="write a Nuke script of the edit: per layer an STMap of its edit layer, over the plate",
-        description="Reads MANIFEST's plate and passes, per layer Shuffle (STMap<Layer>) -> STMap of the edit layer "
-        "-> Merge (mask) by its coverage, sums the layers and puts them over the plate: the edit equation of "
+        description="Reads MANIFEST's plate and passes, per layer Copy (its UV pass into rgba) -> STMap of the edit "
+        "layer -> Merge (mask) by its coverage, sums the layers and puts them over the plate: the edit equation of "
         f"`render`. Paths are relative to the script's folder. `export` writes one beside the manifest "
         f"({NUKE_SCRIPT_NAME}); an existing file is never overwritten. The last line printed is the script's path.",
     )

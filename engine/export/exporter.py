@@ -44,6 +44,7 @@ from ..terms.cli import (
     EXPORT_PASS_PRECISION_ARG,
     EXPORT_STAGE_ARG,
     EXPORT_STAGES,
+    EXPORT_STMAP_FLAG,
 )
 from ..terms.colour import EXR_COLORSPACE_ATTRIBUTE
 from ..terms.export_names import (
@@ -104,6 +105,7 @@ def export_run(
     stage: str | None = None,
     follow_flow: bool | None = None,
     precision: str | None = None,
+    stmap: bool | None = None,
 ) -> Path:
     """Export ``run_dir``; returns the path of the manifest.json written. Reads the run folder only (its
     ``clip.json`` says what export needs of the clip): the plate is not decoded. Holds the run folder's lock for
@@ -123,9 +125,10 @@ def export_run(
     export decides it in its atlases stage; its passes and publish follow the record (asked otherwise: refused). A
     version ``into`` already holds is returned as it is, whatever is asked. ``precision``
     (``terms.export_names.PASS_PRECISIONS``; None: compact, or a staged export's record): the bits the pass files keep
-    (``pass_files.kept_precision``), decided with the flow in the atlases stage.
+    (``pass_files.kept_precision``), decided with the flow in the atlases stage. ``stmap``: each pass file also
+    holds an STMap copy of each layer's UV (None: not, or a staged export's record), decided there too.
 
-    Ten parameters: ``engine export``'s flags one for one, and where its progress goes (``stream``); the CLI, the
+    Eleven parameters: ``engine export``'s flags one for one, and where its progress goes (``stream``); the CLI, the
     demo, the bench and the farm's tasks each pass the few they need by name.
     """
     run_dir = Path(run_dir).resolve()
@@ -146,7 +149,7 @@ def export_run(
             None, f"unknown {EXPORT_PASS_PRECISION_ARG} {precision!r}", f"use one of {', '.join(PASS_PRECISIONS)}"
         )
     RunFolder(run_dir).require_fit()
-    job = _Job(run_dir, device_name, progress_bar, stream, follow_flow, precision)
+    job = _Job(run_dir, device_name, progress_bar, stream, follow_flow, precision, stmap)
     if stage == EXPORT_STAGES[1]:
         assert version is not None
         return _export_passes(job, version, frames)  # no lock: its chunks run at once on several hosts
@@ -183,6 +186,7 @@ class _Job:
     stream: Any
     follow_flow: bool | None = None
     precision: str | None = None  # None: compact (a staged export: its record's)
+    stmap: bool | None = None  # None: no STMap copy (a staged export: its record's)
 
     def __post_init__(self) -> None:
         self.reporter = Reporter(stream=self.stream)
@@ -368,6 +372,7 @@ def _plan(job: _Job, fitted: FittedRun, atlas_size: int, frames: tuple[int, int]
     on_frame = None if source is None else source.working.add  # keep each frame's UV for the flow to follow
     plan, cov = plan_export(job.reporter, fitted, atlas_size, frames, bar, on_frame)
     plan.precision = job.precision or PASS_PRECISION_COMPACT
+    plan.stmap = bool(job.stmap)
     if source is None:
         return _Planned(plan, cov, {}, {})
     parts = split_parts(fitted.clip.scribbles is not None, job.follow_flow, len(plan.names))
@@ -491,14 +496,20 @@ def _export_atlases(job: _Job, version: str, atlas_size: int, frames: tuple[int,
 
 
 def _require_same_choices(job: _Job, chunks: Path, version: str, record: dict[str, Any]) -> None:
-    """A stage asked explicitly to follow the flow, or not to, or for a pass precision, continues only a staged
-    export that decided the same in its atlases stage (asked nothing: it follows the record)."""
+    """A stage asked explicitly to follow the flow, or not to, or for a pass precision or the STMap copy, continues
+    only a staged export that decided the same in its atlases stage (asked nothing: it follows the record)."""
     precision = str(record.get("precision", PASS_PRECISION_FULL))
     if job.precision is not None and job.precision != precision:
         raise InputError(
             chunks / STAGE_RECORD,
             f"{version} is staged with {EXPORT_PASS_PRECISION_ARG} {precision}, not {job.precision}",
             f"run this stage without {EXPORT_PASS_PRECISION_ARG}, or stage another {EXPORT_INTO_ARG} version",
+        )
+    if job.stmap is not None and job.stmap != bool(record.get("stmap", True)):
+        raise InputError(
+            chunks / STAGE_RECORD,
+            f"{version} is staged without the STMap copy, not as {EXPORT_STMAP_FLAG} asks",
+            f"run this stage without {EXPORT_STMAP_FLAG}, or stage another {EXPORT_INTO_ARG} version",
         )
     staged = bool(record.get("follow_flow", False))
     if job.follow_flow is not None and job.follow_flow != staged:

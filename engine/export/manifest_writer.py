@@ -52,9 +52,13 @@ def layer_record(
     box: tuple[float, ...],
     edit_layer: str,
     follows_flow: bool = False,
+    stmap: bool = True,
 ) -> dict[str, Any]:
     """One layer's manifest entry (terms.manifest.MANIFEST_LAYER_KEYS); paths relative to the export folder.
-    ``follows_flow``: its UV was averaged along the fit's flow (``engine.export.follow_flow``)."""
+    ``follows_flow``: its UV was averaged along the fit's flow (``engine.export.follow_flow``); ``stmap``: the pass
+    files hold its STMap copy (``stmap_pass``, ``stmap_channels``; absent otherwise)."""
+    stmap_channels = [stmap_channel_name(name, c) for c in STMAP_CHANNELS]
+    stmap_keys = {"stmap_pass": stmap_pass(name), "stmap_channels": stmap_channels}
     return {
         "name": name,
         "index": index,
@@ -65,8 +69,7 @@ def layer_record(
         "alpha_channels": list(ALPHA_CHANNELS),
         "channels": [C.channel_name(uv_pass(name), c) for c in C.UV_CHANNELS]
         + [C.channel_name(alpha_pass(name), c) for c in ALPHA_CHANNELS],
-        "stmap_pass": stmap_pass(name),
-        "stmap_channels": [stmap_channel_name(name, c) for c in STMAP_CHANNELS],
+        **(stmap_keys if stmap else {}),
         "atlas_exr": f"{ATLASES_DIR}/{name}{ATLAS_EXR_EXT}",
         "atlas_png": f"{ATLASES_DIR}/{name}{ATLAS_PNG_EXT}",
         "atlas_size": list(atlas_size),
@@ -112,7 +115,7 @@ def build_manifest(
     numbers = list(clip.frame_numbers)
     rel_edits = relative_path(fitted.folder.edits, final)
     layers = [
-        layer_record(name, i, fr.size, fr.box, f"{rel_edits}/{name}{EDIT_LAYER_EXT}", i in plan.follows)
+        layer_record(name, i, fr.size, fr.box, f"{rel_edits}/{name}{EDIT_LAYER_EXT}", i in plan.follows, plan.stmap)
         for i, (name, fr) in enumerate(zip(plan.names, plan.frames_by_layer, strict=True))
     ]
     return {

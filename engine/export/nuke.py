@@ -1,7 +1,8 @@
 """A Nuke script of an export's edit, from its manifest alone (as the add-on builds Blender's compositor tree).
 
-Per layer: the pass files' ``STMap<Layer>`` layer shuffled into rgba (u, v, 0, coverage), an STMap of the layer's
-edit image (premultiplied), masked by the coverage (Merge mask: ``Z * P``); the layers summed (Merge plus) and put
+Per layer: the layer's UV pass copied into rgba (u, v and the coverage into red, green and alpha: a Copy node, so
+the pass files need no STMap copy, ``export --stmap``), an STMap of the layer's edit image (premultiplied), masked by
+the coverage (Merge mask: ``Z * P``); the layers summed (Merge plus) and put
 over the plate with one premultiplied Merge over: ``plate * (1 - sum Z_i a_i) + sum Z_i P_i``, the paper's edit
 equation as ``engine.edit.equations`` computes it. The frame range, fps and format are the export's. The Root sets
 OCIO colour management with ONE config, the export's (or a studio's, ``engine nuke --ocio-config``), and every
@@ -33,7 +34,6 @@ from typing import Any
 
 from .. import contract as C
 from ..errors import InputError
-from ..terms.export_names import STMAP_CHANNELS
 from ..terms.manifest import is_layer_name
 from ..terms.versions import ENGINE_VERSION
 
@@ -55,6 +55,8 @@ OCIO_CONFIG_ARG = "--ocio-config"
 _PATTERN_FRAME = re.compile(r"\{frame(?::0?(\d*)d)?\}")
 #: Node names carry this prefix, so the script's nodes are recognisable once pasted into a comp.
 PREFIX = "NA_"
+#: Nuke's rgba channels, in order: a layer's u, v and coverage are copied into red, green and alpha.
+NUKE_RGBA: tuple[str, ...] = ("rgba.red", "rgba.green", "rgba.blue", "rgba.alpha")
 #: Node graph spacing (pixels) between the layers' columns and the rows of a column.
 COLUMN = 180
 ROW = 60
@@ -276,12 +278,6 @@ def nuke_script(
             raise NukeScriptError(
                 f"layer name {layer['name']!r} is not a plain name (letters, digits and _) — export the run again"
             )
-    missing = [layer["name"] for layer in layers if "stmap_pass" not in layer]
-    if missing:
-        raise NukeScriptError(
-            f"this export has no STMap layers for {', '.join(missing)} (an older engine made it) — export the run "
-            "again: its pass files then carry the layers Nuke reads"
-        )
     clip, passes = manifest["clip"], manifest["passes"]
     frames = passes["frames"]
     first, last = min(frames), max(frames)
@@ -302,7 +298,9 @@ def nuke_script(
     passes_read.after.append(f"set {PREFIX}passes [stack 0]")
     nodes.append(passes_read)
     for i, layer in enumerate(layers):
-        nodes.extend(_layer_nodes(i, layer, manifest_path, relocate, filter, colour))
+        nodes.extend(
+            _layer_nodes(i, layer, uv_channels(passes["exr_layer"], layer), manifest_path, relocate, filter, colour)
+        )
     nodes.append(_plate_read(clip, relocate, fmt, colour.plate, x=-COLUMN, y=ROW * 6))
     over = [("inputs", "2"), ("operation", "over"), ("name", f"{PREFIX}Over_plate")]
     nodes.append(Node("Merge2", [*over, ("xpos", "0"), ("ypos", str(ROW * 7))]))
@@ -322,31 +320,47 @@ def _root(first: int, last: int, fps: float | None, fmt: str, colour: ScriptColo
     return Node("Root", knobs)
 
 
+def uv_channels(exr_layer: str, layer: dict[str, Any]) -> list[str]:
+    """The Nuke names of a layer's u, v and coverage channels (its UV pass, ``uv_channels`` in the manifest's order),
+    e.g. ``Atlas_UVForeground.U``; a name that is not plain letters, digits, ``_`` and one ``.`` is refused (it is
+    written into the script's ``add_layer`` line)."""
+    names = [nuke_channel_name(f"{exr_layer}.{layer['uv_pass']}.{c}") for c in layer["uv_channels"]]
+    for name in names:
+        if not re.fullmatch(r"[A-Za-z0-9_]+\.[A-Za-z0-9_]+", name):
+            raise NukeScriptError(f"UV channel {name!r} is not a plain Nuke channel name — export the run again")
+    return names
+
+
 def _layer_nodes(
     i: int,
     layer: dict[str, Any],
+    uv: list[str],
     manifest_path: str,
     relocate: Callable[[str], str],
     filter: str,
     colour: ScriptColour,
 ) -> list[Node]:
-    """Shuffle -> STMap -> Merge (mask) of one layer; from the second layer on, a Merge (plus) into the sum."""
+    """Copy (the UV pass into rgba) -> STMap -> Merge (mask) of one layer; from the second layer on, a Merge (plus)
+    into the sum. ``uv``: its u, v and coverage channels as Nuke names them (``uv_channels``).
+
+    Seven parameters: the layer, its place and what the whole script shares (paths, filter, colours)."""
     name, x = layer["name"], i * COLUMN
-    shuffle = Node(
-        "Shuffle",
-        [("in", nuke_layer(layer["stmap_pass"])), ("out", "rgba"), ("name", f"{PREFIX}ST_{name}")],
-        before=[f"push ${PREFIX}passes"] if i else [],
-    )
-    shuffle.knobs += [("xpos", str(x)), ("ypos", str(ROW))]
+    declare = f"add_layer {{{uv[0].split('.')[0]} {' '.join(uv)}}}"
+    pushes = [f"push ${PREFIX}passes"] * (2 if i else 1)  # Copy's two inputs are both the pass file
+    copy = [("inputs", "2")]
+    for k, (src, dst) in enumerate(zip(uv, (NUKE_RGBA[0], NUKE_RGBA[1], NUKE_RGBA[3]), strict=True)):
+        copy += [(f"from{k}", src), (f"to{k}", dst)]
+    uv_copy = Node("Copy", [*copy, ("name", f"{PREFIX}UV_{name}")], before=[declare, *pushes])
+    uv_copy.knobs += [("xpos", str(x)), ("ypos", str(ROW))]
     # the Tcl variable is named by the index: a name never becomes code, whatever it holds
-    shuffle.after += [f"set {PREFIX}st_{i} [stack 0]", f"push ${PREFIX}st_{i}"]
+    uv_copy.after += [f"set {PREFIX}st_{i} [stack 0]", f"push ${PREFIX}st_{i}"]
     # the float twin when it exists, as the engine and Blender read it (the script is written for what exists now)
     twin = C.float_edit_layer(layer["edit_layer"])
     is_float = os.path.exists(C.resolve_manifest_path(manifest_path, twin))
     edit = twin if is_float else layer["edit_layer"]
     knobs = [("colorspace", colour.linear)] if is_float else [("colorspace", colour.srgb), ("premultiplied", "false")]
     edit_file = file_knob_path(relocate(edit), f"{name} edit layer")
-    nodes = [shuffle, _read(f"{PREFIX}Edit_{name}", edit_file, knobs, x + COLUMN // 2, ROW)]
+    nodes = [uv_copy, _read(f"{PREFIX}Edit_{name}", edit_file, knobs, x + COLUMN // 2, ROW)]
     if not is_float:  # a PNG edit layer is straight alpha: premultiply after the sRGB decode, as Blender does
         nodes.append(Node("Premult", [("name", f"{PREFIX}Premult_{name}"), ("xpos", str(x + COLUMN // 2))]))
         nodes[-1].knobs.append(("ypos", str(ROW * 2)))
@@ -364,11 +378,6 @@ def _layer_nodes(
         plus = [("inputs", "2"), ("operation", "plus"), ("name", f"{PREFIX}Sum_{name}")]
         nodes.append(Node("Merge2", [*plus, ("xpos", "0"), ("ypos", str(ROW * 5 + i))]))
     return nodes
-
-
-def nuke_layer(stmap_pass: str) -> str:
-    """The layer Nuke shows a pass's STMap channels in (one dot in the EXR name: the same name)."""
-    return nuke_channel_name(f"{stmap_pass}.{STMAP_CHANNELS[0]}").split(".")[0]
 
 
 def _plate_read(
@@ -464,12 +473,12 @@ __all__ = [
     "ScriptColour",
     "file_knob_path",
     "nuke_channel_name",
-    "nuke_layer",
     "nuke_script",
     "pass_sequence_pattern",
     "quote",
     "relocator",
     "script_colour",
     "sequence_pattern",
+    "uv_channels",
     "write_nuke_script",
 ]

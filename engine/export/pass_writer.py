@@ -93,7 +93,7 @@ def _frame_channels(
     fitted: FittedRun, plan: Plan, grid: Any, t: int, corrections: dict[int, np.ndarray]
 ) -> dict[str, np.ndarray]:
     """Run frame ``t``'s pass channels at native resolution (``grid``: its pixel centres, ``pixel_grid``), with the
-    bits ``plan.precision`` keeps and each layer's STMap copy."""
+    bits ``plan.precision`` keeps and, where ``plan.stmap`` says so, each layer's STMap copy."""
     nw, nh = fitted.clip.native_size
     uvs, wts = eval_pixels(fitted.model, grid, t)
     chans: dict[str, np.ndarray] = {}
@@ -108,8 +108,9 @@ def _frame_channels(
         kept = kept_precision(tex_uv[:, 0], tex_uv[:, 1], a * inside, a, plan.precision)
         chans[u_name], chans[v_name], chans[coverage_name] = (x.reshape(nh, nw) for x in kept[:3])
         chans[C.channel_name(alpha_pass, ALPHA_CHANNELS[0])] = kept[3].reshape(nh, nw)
-        for channel, values in zip(STMAP_CHANNELS, stmap_values(chans, uv_pass), strict=True):
-            chans[stmap_channel_name(name, channel)] = values
+        if plan.stmap:
+            for channel, values in zip(STMAP_CHANNELS, stmap_values(chans, uv_pass), strict=True):
+                chans[stmap_channel_name(name, channel)] = values
     return chans
 
 

@@ -89,6 +89,9 @@ class Plan:
     #: The bits the pass files keep (``terms.export_names.PASS_PRECISIONS``; ``pass_files.kept_precision``); a record
     #: written before it was chosen: full.
     precision: str = PASS_PRECISION_FULL
+    #: Whether each pass file also holds an STMap copy of each layer's UV (``export --stmap``); a record written before
+    #: it was a choice: held.
+    stmap: bool = True
 
     def numbers(self, clip: ClipRecord) -> list[int]:
         return [clip.frame_numbers[t] for t in self.selected]
@@ -104,7 +107,7 @@ class Plan:
         ]
         return {"schema": STAGE_SCHEMA, "frames": [numbers[0], numbers[-1]], "atlas_size": self.atlas_size,
                 "layers": layers, "source": source, "follow_flow": self.follow_flow,
-                "follows": sorted(self.follows), "precision": self.precision}  # fmt: skip
+                "follows": sorted(self.follows), "precision": self.precision, "stmap": self.stmap}  # fmt: skip
 
     @classmethod
     def from_record(cls, data: dict[str, Any], clip: ClipRecord) -> Plan:
@@ -118,6 +121,7 @@ class Plan:
             bool(data.get("follow_flow", False)),  # a record written before the flow was followed: not followed
             frozenset(int(i) for i in data.get("follows", [])),
             str(data.get("precision", PASS_PRECISION_FULL)),
+            bool(data.get("stmap", True)),
         )
 
 

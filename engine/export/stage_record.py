@@ -29,7 +29,7 @@ STAGE_RECORD = "stage.json"
 #: The record's schema: frames, atlas size, each layer's atlas frame, ``source`` (what it was made from) and, when
 #: written by an engine that follows the flow, ``follow_flow`` (bool) and ``follows`` (the layers whose
 #: UV corrections are staged beside it: ``staging.FOLLOW_FLOW_DIR``) and, once it was chosen, ``precision`` (the bits
-#: the pass files keep: ``terms.export_names.PASS_PRECISIONS``).
+#: the pass files keep: ``terms.export_names.PASS_PRECISIONS``) and ``stmap`` (each pass file holds the STMap copy).
 STAGE_SCHEMA = "neural_atlas.export_stage/2"
 #: The schema of records written before they said what they were made from: such a stage cannot be continued.
 STAGE_SCHEMA_WITHOUT_SOURCE = "neural_atlas.export_stage/1"
@@ -94,6 +94,7 @@ class StageFile(RunFile):
     follow_flow: Bool = False
     follows: IntList = Field(default_factory=list)
     precision: Str = PASS_PRECISION_FULL  # absent from records written before it was chosen: every bit kept
+    stmap: Bool = True  # absent from records written before it was a choice: the STMap copy written
 
     @model_validator(mode="wrap")
     @classmethod

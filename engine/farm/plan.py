@@ -193,7 +193,8 @@ def shot_tasks(sp: ShotPlan) -> list[Task]:
     atlases = add(
         ATLASES, [*export, ATLASES, e["frames"], frames, *_option(e["atlas_size"], shot.atlas_size), *device,
                   *([] if shot.follow_flow else [C.EXPORT_NO_FOLLOW_FLOW_FLAG]),
-                  *_option(e["precision"], shot.pass_precision), e["no_bar"]],
+                  *_option(e["precision"], shot.pass_precision), *([e["stmap"]] if shot.stmap else []),
+                  e["no_bar"]],
         [fit.id],
     )  # fmt: skip
     numbers = list(sp.numbers) or list(range(first, last + 1))

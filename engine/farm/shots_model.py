@@ -312,6 +312,8 @@ class Shot(BaseModel):
     """False: the export's UV as fitted (``export --no-follow-flow``); True: the export's default."""
     pass_precision: PassPrecision | None = None
     """``export --pass-precision``: the bits the pass files keep; None: the export's default (compact)."""
+    stmap: Flag = False
+    """True: ``export --stmap`` (an STMap copy of each layer's UV in the pass files, for Nuke artists)."""
 
     @model_validator(mode="before")
     @classmethod

@@ -50,6 +50,11 @@ EXPORT_NO_FOLLOW_FLOW_FLAG = "--no-follow-flow"
 #: ``export --pass-precision compact|full`` (``PASS_PRECISIONS``; default compact): the bits the pass files keep.
 #: A staged export decides it in its ``atlases`` stage.
 EXPORT_PASS_PRECISION_ARG = "--pass-precision"
+#: ``export --stmap``: each pass file also holds an STMap copy of each layer's UV (``STMap<Layer>``: R, G = u, v; A =
+#: the coverage) for artists who wire Nuke's STMap by hand. Off by default: above ~1000 px wide ZIP cannot share its
+#: bytes with the UV pass, so it nearly doubles the file; the Nuke script reads the UV pass itself. A staged export
+#: decides it in its ``atlases`` stage.
+EXPORT_STMAP_FLAG = "--stmap"
 #: ``fit ... --resume-if-started``: a retried farm task: continue the checkpoint of this same fit in RUN_DIR, leave
 #: a finished one as it is (exit 0), or start it.
 FIT_RESUME_IF_STARTED_FLAG = "--resume-if-started"
@@ -98,6 +103,7 @@ __all__ = [
     "EXPORT_PASS_PRECISION_ARG",
     "EXPORT_STAGES",
     "EXPORT_STAGE_ARG",
+    "EXPORT_STMAP_FLAG",
     "FIT_REFINE_FLAG",
     "FIT_RESUME_IF_STARTED_FLAG",
     "HEADLESS_SCRIPT",

@@ -29,6 +29,7 @@ SHOT_DEFAULT_KEYS: tuple[str, ...] = (
     "preview",  # write the export's preview sheets (default true)
     "follow_flow",  # false: export --no-follow-flow (default true: export's own default)
     "pass_precision",  # export --pass-precision: compact | full (default: export's own, compact)
+    "stmap",  # true: export --stmap, an STMap copy of each layer's UV in the pass files (default false)
 )
 SHOT_REQUIRED_KEYS: tuple[str, ...] = ("name", "plate")
 #: A shot's name: letters, digits, ``-`` and ``_``, starting with a letter or digit, at most this long: it names the

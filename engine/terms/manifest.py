@@ -48,8 +48,8 @@ MANIFEST_TAG = "neural_atlas_manifest"  # {"neural_atlas_manifest": MANIFEST_VER
 #:              "alpha_channels": [str], "atlas_exr": str, "atlas_png": str, "atlas_size": [W, H], "edit_layer": str,
 #:              "atlas_box": [u0, v0, u1, v1],
 #:              "channels": [full EXR channel names, e.g. "Atlas.UVForeground.U"] (optional: derivable),
-#:              "stmap_pass": "STMap<Layer>", "stmap_channels": [4 full EXR channel names] (optional: exports made
-#:              before the STMap layers have neither, and their pass files have no STMap layers),
+#:              "stmap_pass": "STMap<Layer>", "stmap_channels": [4 full EXR channel names] (optional: an export
+#:              made without ``export --stmap`` has neither, nor STMap layers in its pass files),
 #:              "follows_flow": bool (optional, absent: false: its UV was averaged along the fit's flow,
 #:              ``export --follow-flow``)}],
 #:  "fit": {"preset": str, "model": str, "steps": int, "train_seconds": float, "psnr": float|None,

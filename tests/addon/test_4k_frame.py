@@ -35,10 +35,8 @@ from engine.terms.cli import VERB_RENDER  # noqa: E402
 from engine.terms.export_names import (  # noqa: E402
     ALPHA_CHANNELS,
     PASS_PRECISION_COMPACT,
-    STMAP_CHANNELS,
     UV_CHANNELS,
     alpha_pass,
-    stmap_channel_name,
     uv_pass,
 )
 
@@ -160,16 +158,15 @@ def test_4k_frame_export_render_and_compositor_agree(blender, tmp_path):
     (x0, y0), (x1, y1) = header["dataWindow"]
     assert (x1 - x0 + 1, y1 - y0 + 1) == (W, H)
     assert header["compression"] == OpenEXR.ZIP_COMPRESSION
-    names = set()  # OpenEXR's File groups RGBA and a one-dot layer's R, G, B, A: named here as it lists them
+    names = set()  # the UV and alpha passes alone: no STMap copy unless asked (export --stmap)
     for layer in LAYERS:
         names |= {C.channel_name(uv_pass(layer), c) for c in UV_CHANNELS}
         names |= {C.channel_name(alpha_pass(layer), c) for c in ALPHA_CHANNELS}
-        names.add(stmap_channel_name(layer, STMAP_CHANNELS[0]).rsplit(".", 1)[0])
     assert set(channels) == names
     assert all(c.dtype == np.float32 and c.shape[:2] == (H, W) for c in channels.values())
-    n_values = sum(c.size for c in channels.values())  # 16 float32 channels
+    n_values = sum(c.size for c in channels.values())  # 8 float32 channels
     on_disk = pass_file.stat().st_size
-    assert n_values == 16 * W * H
+    assert n_values == 8 * W * H
     assert 2**20 < on_disk < 4 * n_values / 2, on_disk  # real pixels; compact + ZIP: under half the raw float32
     fg_uv = [channels[C.channel_name(uv_pass("Foreground"), c)] for c in UV_CHANNELS]
     fg_alpha = channels[C.channel_name(alpha_pass("Foreground"), ALPHA_CHANNELS[0])]

@@ -17,7 +17,7 @@ from engine import cli
 from engine import contract as C
 from engine.errors import InputError
 from engine.farm.plan import TASK_KINDS, chunk_ranges, load_plan, next_version
-from engine.terms.cli import EXPORT_PASS_PRECISION_ARG
+from engine.terms.cli import EXPORT_PASS_PRECISION_ARG, EXPORT_STMAP_FLAG
 from engine.terms.export_names import PASS_PRECISION_FULL
 from engine.terms.farm import FARM_PLAN
 from engine.terms.run_folder import FIT_AUTO_PARTS_FLAG
@@ -78,13 +78,14 @@ def test_every_option_of_a_shot_reaches_its_command(tmp_path):
     path = write_shots(tmp_path, [{
         "name": "x", "plate": "c/frames", "colorspace": "sRGB Encoded Rec.709 (sRGB)", "fps": 25, "device": "cpu",
         "atlas_size": 64, "render": "out", "render_format": "png", "render_chunk": 2, "frames": "1-3",
-        "set": ["seed=2"], "follow_flow": False, "pass_precision": "full",
+        "set": ["seed=2"], "follow_flow": False, "pass_precision": "full", "stmap": True,
     }])  # fmt: skip
     plan = load_plan(path)
     assert C.EXPORT_NO_FOLLOW_FLOW_FLAG in plan.task("x.atlases").args  # the passes and publish follow its record
     atlases = plan.task("x.atlases").args
     assert atlases[atlases.index(EXPORT_PASS_PRECISION_ARG) + 1] == PASS_PRECISION_FULL
     assert EXPORT_PASS_PRECISION_ARG not in plan.task("x.passes.1-3").args
+    assert EXPORT_STMAP_FLAG in atlases and EXPORT_STMAP_FLAG not in plan.task("x.passes.1-3").args
     assert C.EXPORT_NO_FOLLOW_FLOW_FLAG not in plan.task("x.passes.1-3").args
     fit = plan.task("x.fit").args
     assert fit[fit.index("--colorspace") + 1] == "sRGB Encoded Rec.709 (sRGB)"
@@ -104,7 +105,7 @@ def test_every_command_of_a_plan_is_one_the_engines_parser_reads(tmp_path):
         {"name": "x", "plate": "c/frames", "colorspace": "sRGB Encoded Rec.709 (sRGB)", "fps": 25, "device": "cpu",
          "atlas_size": 64, "render": "out", "render_format": "png", "render_chunk": 2, "frames": "1-3",
          "set": ["seed=2"], "follow_flow": False, "masks": ["c/masks"], "auto_parts": False,
-         "pass_precision": "full"},
+         "pass_precision": "full", "stmap": True},
         {"name": "y", "plate": "c/frames", "auto_masks": True, "preview": True},
     ]  # fmt: skip
     plan = load_plan(write_shots(tmp_path, shots))

@@ -51,8 +51,9 @@ proc node {cls body} {
     emit NODE $cls
     foreach {k v} $body { emit KNOB $cls [hex $k] [hex $v] }
 }
-foreach cls {Root Read Shuffle Premult STMap Merge2} { proc $cls {body} "node $cls \$body" }
+foreach cls {Root Read Copy Premult STMap Merge2} { proc $cls {body} "node $cls \$body" }
 proc version {args} { emit VERSION [hex [join $args " "]] }
+proc add_layer {spec} { emit LAYER [hex $spec] }
 proc stack {n} { return top }
 proc push {args} { emit PUSH [hex [join $args " "]] }
 proc unknown {args} { emit UNKNOWN [hex [join $args " "]] }
@@ -86,7 +87,7 @@ def _load_in_tcl(script: Path, cwd: Path) -> tuple[list[tuple[str, dict[str, byt
             cls, key, value = rest
             assert nodes and nodes[-1][0] == cls
             nodes[-1][1][bytes.fromhex(key).decode()] = bytes.fromhex(value)
-        elif kind in ("VERSION", "PUSH"):
+        elif kind in ("VERSION", "PUSH", "LAYER"):  # a layer declared: its names are the UV pass's, never a path
             continue
         else:
             events.append(f"{kind} {bytes.fromhex(rest[-1]).decode('utf-8', 'replace')}")

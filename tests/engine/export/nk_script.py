@@ -38,6 +38,7 @@ class NkScript:
     root: dict[str, str]
     nodes: list[NkNode]
     leftover: list[NkNode]  # the stack at the end: the last node on top
+    layers: dict[str, list[str]] = field(default_factory=dict)  # the add_layer lines: layer -> its channels
 
     def node(self, name: str) -> NkNode:
         (found,) = [n for n in self.nodes if n.name == name]
@@ -63,7 +64,7 @@ def unquote(value: str) -> str:
 
 
 def parse(text: str) -> NkScript:
-    version, root, nodes, stack, names = "", {}, [], [], {}
+    version, root, nodes, stack, names, layers = "", {}, [], [], {}, {}
     lines = iter(text.splitlines())
     for line in lines:
         if not line.strip() or line.startswith("#"):
@@ -72,6 +73,10 @@ def parse(text: str) -> NkScript:
             version = line.split(" ", 1)[1]
         elif m := re.fullmatch(r"set (\w+) \[stack 0\]", line):
             names[m.group(1)] = stack[-1]
+        elif line.startswith("add_layer {"):
+            layer, *channels = line[len("add_layer {") : -1].split(" ")
+            assert line.endswith("}") and all(c.split(".")[0] == layer for c in channels), line
+            layers[layer] = channels
         elif m := re.fullmatch(r"push \$(\w+)", line):
             stack.append(names[m.group(1)])
         elif m := re.fullmatch(r"(\w+) \{", line):
@@ -91,7 +96,7 @@ def parse(text: str) -> NkScript:
             nodes.append(node)
         else:
             raise AssertionError(f"not a line of a Nuke script: {line!r}")
-    return NkScript(version, root, nodes, stack)
+    return NkScript(version, root, nodes, stack, layers)
 
 
 # --- the nodes' arithmetic, as Nuke's documentation gives it (images: nuke channel name -> [H, W], row 0 at top) ---
@@ -140,6 +145,13 @@ def evaluate(node: NkNode, script_dir: Path, frame: int, root: dict[str, str] | 
     if cls == "Shuffle":
         layer = k["in"]
         return {out: ins[0].get(f"{layer}.{out.split('.')[1]}", zero) for out in RGBA}
+    if cls == "Copy":  # input 0 is B (passed through), input 1 is A: channel from<k> of A into to<k>
+        b, a = ins[0], ins[1]
+        out = dict(b)
+        for key in k:
+            if key.startswith("from"):
+                out[k["to" + key[4:]]] = a[k[key]]
+        return out
     if cls == "Premult":
         img = dict(ins[0])
         for c in RGBA[:3]:

@@ -89,8 +89,8 @@ def test_pass_files_follow_the_contract(exported):
         "Atlas.UVBackground.U", "Atlas.UVBackground.V", "Atlas.UVBackground.A", "Atlas.AlphaBackground.V",
         "Atlas.UVForeground.U", "Atlas.UVForeground.V", "Atlas.UVForeground.A", "Atlas.AlphaForeground.V",
     }  # fmt: skip
-    # and the same UV passes as RGBA layers for Nuke, Flame and Natron (tests/engine/export/test_nuke.py)
-    expected |= {f"STMap{layer['name']}.{c}" for layer in m.layers for c in "RGBA"}
+    # no STMap copy unless asked (export --stmap: tests/engine/export/test_nuke.py)
+    assert not any("stmap_pass" in layer for layer in m.layers)
     for f in m.frames:
         path = m.pass_path(f)
         assert path.name == f"atlas.{f:05d}.exr"

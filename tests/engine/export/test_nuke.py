@@ -38,7 +38,8 @@ from tests.engine.export.tiny_run import export, make_run
 from tests.engine.fake_export import make_fake_export
 from tests.engine_cli import run_cli
 
-#: What OpenImageIO lists for an export of two layers (Background, Foreground): sorted by layer, R G B A in order.
+#: What OpenImageIO lists for an export of two layers (Background, Foreground) with ``--stmap``: sorted by layer, R G
+#: B A in order (without it: the first eight).
 OIIO_CHANNELS = (
     "Atlas.AlphaBackground.V",
     "Atlas.AlphaForeground.V",
@@ -88,10 +89,17 @@ def test_nuke_names_channels_by_its_readers_rule():
 
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory) -> Path:
-    """A tiny real fit (48x32, 4 frames, 2 layers) and its export: the manifest's path."""
+    """A tiny real fit (48x32, 4 frames, 2 layers) and its export with the STMap copy (``--stmap``): the manifest's
+    path."""
     root = tmp_path_factory.mktemp("nuke_run")
     _frames, _masks, run = make_run(root)
-    return export(run)
+    return export(run, stmap=True)
+
+
+@pytest.fixture(scope="module")
+def exported_plain(exported) -> Path:
+    """The same fit exported again as by default (no STMap copy): the manifest's path."""
+    return export(exported.parent.parent.parent)
 
 
 def _oiio_spec(path: Path) -> oiio.ImageSpec:
@@ -120,6 +128,19 @@ def test_pass_files_hold_the_stmap_layers_as_copies_of_the_uv_passes(exported):
         st = [chans[f"STMap{name}.{c}"] for c in "RGBA"]
         assert np.array_equal(st[0], uv[0]) and np.array_equal(st[1], uv[1]) and np.array_equal(st[3], uv[2])
         assert not st[2].any()
+
+
+def test_by_default_the_pass_files_hold_no_stmap_copy(exported, exported_plain):
+    """The UV and alpha passes alone, bit for bit those of the export with the copy; the manifest names no STMap."""
+    m, full = Manifest(exported_plain), Manifest(exported)
+    frame = m.data["passes"]["frames"][0]
+    spec = _oiio_spec(m.pass_path(frame))
+    assert tuple(spec.channelnames) == OIIO_CHANNELS[:8]
+    assert all("stmap_pass" not in layer and "stmap_channels" not in layer for layer in m.layers)
+    plain, with_copy = read_exr(m.pass_path(frame)), read_exr(full.pass_path(frame))
+    assert all(np.array_equal(values, with_copy[name]) for name, values in plain.items())
+    nk = NK.parse((m.folder / NUKE_SCRIPT_NAME).read_text(encoding="utf-8"))
+    _check_wiring(nk, m, m.folder)
 
 
 @pytest.mark.slow
@@ -156,7 +177,7 @@ def test_export_writes_the_nuke_script_beside_the_manifest(exported):
     assert nk.root["format"] == f"{w} {h} 0 0 {w} {h} 1 NA_{w}x{h}"
     assert nk.root.get("fps") == (f"{m.clip['fps']:.6g}" if m.clip["fps"] else None)
     classes = [n.cls for n in nk.nodes]
-    assert classes == ["Read", *(["Shuffle", "Read", "Premult", "STMap", "Merge2"] * 2), "Merge2", "Read", "Merge2"]
+    assert classes == ["Read", *(["Copy", "Read", "Premult", "STMap", "Merge2"] * 2), "Merge2", "Read", "Merge2"]
     _check_wiring(nk, m, script.parent)
 
 
@@ -188,9 +209,11 @@ def _check_wiring(nk: NK.NkScript, m: Manifest, script_dir: Path) -> None:
         warped, coverage = mask.inputs
         assert warped.cls == "STMap" and warped.knobs["uv"] == "rgb" and warped.knobs["channels"] == "rgba"
         src, stmap = warped.inputs  # STMap: input 0 is src, input 1 is the stmap
-        assert stmap is coverage and stmap.cls == "Shuffle" and stmap.inputs == [pass_read]
-        assert stmap.knobs["in"] == f"STMap{name}" and stmap.knobs["out"] == "rgba"
-        assert {f"STMap{name}.{c}" for c in ("red", "green", "blue", "alpha")} <= nuke_names
+        assert stmap is coverage and stmap.cls == "Copy" and stmap.inputs == [pass_read, pass_read]
+        uv = [f"Atlas_UV{name}.{c}" for c in ("U", "V", "alpha")]  # the UV pass: u, v, coverage
+        assert [stmap.knobs[f"from{k}"] for k in range(3)] == uv and set(uv) <= nuke_names
+        assert [stmap.knobs[f"to{k}"] for k in range(3)] == ["rgba.red", "rgba.green", "rgba.alpha"]
+        assert nk.layers[f"Atlas_UV{name}"] == uv  # declared before use, as Nuke writes custom layers
         edit = src.inputs[0] if src.cls == "Premult" else src
         assert edit.cls == "Read" and edit.name == f"NA_Edit_{name}"
         edit_file = Path(C.edit_layer_file(str(m.resolve(layer["edit_layer"]))))
@@ -259,7 +282,7 @@ def test_the_script_computes_what_engine_render_does(painted, tmp_path):
     print(f"Nuke script model vs engine render (nearest): max abs difference {worst:.1e}")
 
 
-def test_nuke_verb_refuses_an_existing_file_and_an_old_export(painted, tmp_path):
+def test_nuke_verb_refuses_an_existing_file_and_reads_any_export(painted, tmp_path):
     out = tmp_path / "shot.nk"
     out.write_text("the artist's comp")
     code, err = run_cli(VERB_NUKE, painted, "--out", out)
@@ -273,10 +296,8 @@ def test_nuke_verb_refuses_an_existing_file_and_an_old_export(painted, tmp_path)
     old = tmp_path / "old" / "manifest.json"
     shutil.copytree(painted.parent, old.parent)
     old.write_text(json.dumps(data))
-    code, err = run_cli(VERB_NUKE, old, "--out", tmp_path / "old.nk")
-    assert code == C.EXIT_BAD_INPUT and len(err) == 1
-    assert "no STMap layers for Background, Foreground" in err[0] and "export the run again" in err[0]
-    assert not (tmp_path / "old.nk").exists()
+    assert run_cli(VERB_NUKE, old, "--out", tmp_path / "old.nk") == (0, [])  # without STMap layers: the UV pass
+    assert NK.parse((tmp_path / "old.nk").read_text(encoding="utf-8")).node("NA_UV_Background").cls == "Copy"
 
 
 def test_a_movie_plate_is_read_from_its_frame_one():
@@ -290,7 +311,12 @@ def test_a_movie_plate_is_read_from_its_frame_one():
 
 
 def _movie_manifest() -> dict:
-    layer = {"name": "Background", "stmap_pass": "STMapBackground", "edit_layer": "../../edits/Background.png"}
+    layer = {
+        "name": "Background",
+        "uv_pass": "UVBackground",
+        "uv_channels": ["U", "V", "A"],
+        "edit_layer": "../../edits/Background.png",
+    }
     return {
         "clip": {
             "kind": "movie",
@@ -301,7 +327,12 @@ def _movie_manifest() -> dict:
             "resolution": [64, 48],
             "colorspace": "sRGB",
         },
-        "passes": {"dir": "passes", "pattern": "atlas.{frame:05d}.exr", "frames": list(range(10, 20))},
+        "passes": {
+            "dir": "passes",
+            "pattern": "atlas.{frame:05d}.exr",
+            "frames": list(range(10, 20)),
+            "exr_layer": "Atlas",
+        },
         "layers": [layer],
     }
 
@@ -336,13 +367,15 @@ def test_export_warns_and_writes_no_script_for_a_plate_nuke_cannot_read_as_one_s
 def test_stack_variables_are_named_by_the_layer_index_and_comments_stay_comments():
     """A layer's name never becomes part of Tcl code: the stack variables are numbered, the header is comments."""
     manifest = _movie_manifest()
-    manifest["layers"].append(dict(manifest["layers"][0], name="Foreground", stmap_pass="STMapForeground"))
+    manifest["layers"].append(dict(manifest["layers"][0], name="Foreground", uv_pass="UVForeground"))
     lines = nuke_script(manifest, "/shots/a/run/exports/v001/manifest.json").splitlines()
     stack = [line for line in lines if line.startswith(("set ", "push "))]
     assert stack == [
         "set NA_passes [stack 0]",
+        "push $NA_passes",
         "set NA_st_0 [stack 0]",
         "push $NA_st_0",
+        "push $NA_passes",
         "push $NA_passes",
         "set NA_st_1 [stack 0]",
         "push $NA_st_1",

@@ -1,6 +1,7 @@
 """The bits the pass files keep (``export --pass-precision``): compact (the default) rounds alpha and coverage to half
 float's precision and u, v to multiples of 2^-17, in float32 channels; full keeps every bit. The manifest and a
-staged export's record say which; the values of the two differ by no more than the rounding."""
+staged export's record say which; the values of the two differ by no more than the rounding. The STMap copy
+(``export --stmap``) is chosen, recorded and staged the same way."""
 
 from __future__ import annotations
 
@@ -16,7 +17,13 @@ from engine.errors import InputError
 from engine.export import exporter
 from engine.export.pass_files import kept_precision
 from engine.io.images import read_exr, write_png
-from engine.terms.cli import EXPORT_INTO_ARG, EXPORT_PASS_PRECISION_ARG, EXPORT_STAGE_ARG, EXPORT_STAGES
+from engine.terms.cli import (
+    EXPORT_INTO_ARG,
+    EXPORT_PASS_PRECISION_ARG,
+    EXPORT_STAGE_ARG,
+    EXPORT_STAGES,
+    EXPORT_STMAP_FLAG,
+)
 from engine.terms.export_names import EXR_LAYER, PASS_PRECISION_COMPACT, PASS_PRECISION_FULL, PASS_UV_STEP, PASSES_DIR
 from engine.terms.manifest import validate_manifest
 from tests.engine.export.tiny_run import ATLAS_SIZE, copy_root, make_run
@@ -69,8 +76,8 @@ def _passes(export: Path) -> dict[str, dict[str, np.ndarray]]:
 
 def test_an_export_is_compact_by_default_and_full_on_request(base, tmp_path):
     run = copy_root(base, tmp_path / "root") / "run"
-    assert _export(run) == (0, [])
-    assert _export(run, EXPORT_PASS_PRECISION_ARG, PASS_PRECISION_FULL) == (0, [])
+    assert _export(run, EXPORT_STMAP_FLAG) == (0, [])
+    assert _export(run, EXPORT_PASS_PRECISION_ARG, PASS_PRECISION_FULL, EXPORT_STMAP_FLAG) == (0, [])
     compact, full = run / C.EXPORTS_DIR / "v001", run / C.EXPORTS_DIR / "v002"
     said = [json.loads((e / C.MANIFEST_NAME).read_text())["passes"]["precision"] for e in (compact, full)]
     assert said == [PASS_PRECISION_COMPACT, PASS_PRECISION_FULL]
@@ -138,8 +145,9 @@ def test_a_record_or_manifest_from_before_the_choice_reads_as_full(base, tmp_pat
     assert _export(run, EXPORT_INTO_ARG, "v002", EXPORT_STAGE_ARG, EXPORT_STAGES[0]) == (0, [])
     path = run / C.EXPORTS_DIR / ".v002.chunks" / exporter.STAGE_RECORD
     record = json.loads(path.read_text())
-    assert record.pop("precision") == PASS_PRECISION_COMPACT
-    assert Plan.from_record(record, RunFolder(run).read_clip()).precision == PASS_PRECISION_FULL
+    assert record.pop("precision") == PASS_PRECISION_COMPACT and record.pop("stmap") is False
+    before = Plan.from_record(record, RunFolder(run).read_clip())
+    assert before.precision == PASS_PRECISION_FULL and before.stmap  # what exports wrote before the choices
     path.write_text(json.dumps({**record, "precision": "half"}))
     code, err = _export(run, EXPORT_INTO_ARG, "v002", EXPORT_STAGE_ARG, EXPORT_STAGES[1])
     assert code == C.EXIT_BAD_INPUT and len(err) == 1 and "pass precision 'half'" in err[0]
@@ -150,3 +158,24 @@ def test_a_record_or_manifest_from_before_the_choice_reads_as_full(base, tmp_pat
     manifest["passes"]["precision"] = "half"
     with pytest.raises(C.ManifestError, match="unknown precision 'half'"):
         validate_manifest(manifest)
+
+
+def test_a_staged_export_keeps_the_stmap_choice_of_its_atlases_stage(base, tmp_path):
+    """``--stmap`` asked in the atlases stage: every chunk writes the copy and the manifest names it; a chunk that
+    asks for it on a stage made without it is refused in one line."""
+    run = copy_root(base, tmp_path / "root") / "run"
+    stage = EXPORT_STAGE_ARG
+    assert _export(run, EXPORT_INTO_ARG, "v001", stage, EXPORT_STAGES[0]) == (0, [])
+    code, err = _export(run, EXPORT_INTO_ARG, "v001", stage, EXPORT_STAGES[1], EXPORT_STMAP_FLAG)
+    assert code == C.EXIT_BAD_INPUT and len(err) == 1
+    assert "staged without the STMap copy" in err[0] and exporter.STAGE_RECORD in err[0]
+    assert _export(run, EXPORT_INTO_ARG, "v002", stage, EXPORT_STAGES[0], EXPORT_STMAP_FLAG) == (0, [])
+    assert _export(run, EXPORT_INTO_ARG, "v002", stage, EXPORT_STAGES[1]) == (0, [])  # asked nothing: the record's
+    assert _export(run, EXPORT_INTO_ARG, "v002", stage, EXPORT_STAGES[2]) == (0, [])
+    export = run / C.EXPORTS_DIR / "v002"
+    layers = json.loads((export / C.MANIFEST_NAME).read_text())["layers"]
+    for chans in _passes(export).values():
+        for layer in layers:
+            u, v, coverage = (chans[C.channel_name(layer["uv_pass"], c)] for c in C.UV_CHANNELS)
+            r, g, b, a = (chans[name] for name in layer["stmap_channels"])
+            assert np.array_equal(r, u) and np.array_equal(g, v) and np.array_equal(a, coverage) and not b.any()
