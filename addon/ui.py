@@ -7,14 +7,14 @@ import json
 
 import bpy
 
-from . import edit_layers, preferences, preview_plane, scribbles
+from . import compositor, edit_layers, preferences, preview_plane, scribbles
 from .core import estimate, needs, running
 from .core import farm as FM
 from .core import preview_plan as V
 from .core import scribble_math as S
 from .core.errors import UserError
 from .ops import refine
-from .ops.render import active_render, imported_manifest, passes_file, plate_file
+from .ops.render import active_render, passes_file, plate_file
 
 #: Theme colour-set icons that show the scribble colours in the panel (default theme: red, green, blue, yellow).
 COLOUR_ICONS = {
@@ -92,7 +92,7 @@ def _draw_farm(col, props, context) -> None:
 
 def _moved_line(context) -> str | None:
     """The line saying the imported manifest, passes or plate are not on disk (``needs.moved_need``): Relink."""
-    return needs.moved_need(imported_manifest(context), passes_file(), plate_file=plate_file())
+    return needs.moved_need(compositor.imported_manifest(context.scene), passes_file(), plate_file=plate_file())
 
 
 class _SidebarPanel:

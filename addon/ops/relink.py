@@ -15,7 +15,6 @@ from .. import compositor, preferences
 from ..core import needs, relink
 from ..core import tree_plan as P
 from .preview import rebuild_shown
-from .render import imported_manifest
 from .scene_inputs import abspath
 
 #: What the file browser lists: manifests, and the plate's frames or movie.
@@ -142,7 +141,7 @@ class NEURALATLAS_OT_relink(bpy.types.Operator):
         return needs.poll(cls, needs.relink_need(props.manifest if props is not None else ""))
 
     def execute(self, context):
-        old = imported_manifest(context)
+        old = compositor.imported_manifest(context.scene)
         if not old:  # poll says so; this holds for a call that skips poll
             self.report({"ERROR"}, needs.NO_IMPORT)
             return {"CANCELLED"}

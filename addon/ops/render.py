@@ -58,15 +58,10 @@ def plate_file() -> str | None:
     return abspath(clip.filepath) if clip is not None else None
 
 
-def imported_manifest(context) -> str:
-    """The scene's imported manifest, absolute ('' when none): ``compositor.imported_manifest``."""
-    return compositor.imported_manifest(context.scene)
-
-
 def _need(context) -> str | None:
     """What Render lacks (``needs.render_need``), read from the scene: the poll's line, and execute's."""
     return needs.render_need(
-        imported_manifest(context),
+        compositor.imported_manifest(context.scene),
         passes_file(),
         edit_files=edit_files(),
         plate_file=plate_file(),
@@ -155,7 +150,7 @@ class NEURALATLAS_OT_render(bpy.types.Operator):
         try:
             # the paint is saved first, so the render is of what the artist sees; a run folder in use or a full
             # disk stops the render with the one line that says so (the paint stays unsaved in Blender)
-            manifest = C.load_manifest(imported_manifest(context))
+            manifest = C.load_manifest(compositor.imported_manifest(context.scene))
             exported = P.contiguous_frames(list(manifest["passes"]["frames"]))
             clip = manifest["clip"]  # the EXR's colour space and the frames' names (padded as engine render's)
             session = compositor.RenderSession(
