@@ -30,10 +30,8 @@ from engine.model.atlas_model import FastModel
 from engine.model.objective import compute_losses
 from engine.terms.export_names import (
     PASSES_DIR,
-    STMAP_CHANNELS,
     alpha_pass,
     pass_file_name,
-    stmap_channel_name,
     uv_pass,
 )
 from engine.terms.manifest import validate_scene
@@ -213,7 +211,7 @@ def test_fit_records_scene_and_export_has_one_layer(tmp_path):
     chans = read_exr(manifest_path.parent / PASSES_DIR / pass_file_name(0))
     assert set(chans) == {C.channel_name(uv_pass("Background"), c) for c in C.UV_CHANNELS} | {
         C.channel_name(alpha_pass("Background"), "V")
-    } | {stmap_channel_name("Background", c) for c in STMAP_CHANNELS}
+    }  # the STMap copy is written only when asked for
     assert np.array_equal(chans[C.channel_name(alpha_pass("Background"), "V")], np.ones((40, 64), np.float32))
 
 
