@@ -45,9 +45,10 @@ from .errors import InputError
 from .terms.cli import CLI_MODULE, DEFAULT_PRESET, PRESET_STEPS
 from .terms.versions import SCHEMA_VERSION
 
-#: OpenCV DIS optical-flow presets (``flow_preset``), fastest first; engine/data/flow.py maps each to OpenCV's.
-#: Named here so the config (and the add-on's tests on a Blender without OpenCV) need no cv2.
-FlowPreset = Literal["ultrafast", "fast", "medium"]
+#: OpenCV DIS optical-flow presets (``flow_preset``), fastest first; engine/data/flow.py maps each to OpenCV's
+#: (``fine``: ``medium`` refined down to full resolution). Named here so the config (and the add-on's tests on a
+#: Blender without OpenCV) need no cv2.
+FlowPreset = Literal["ultrafast", "fast", "medium", "fine"]
 FLOW_PRESETS: tuple[str, ...] = get_args(FlowPreset)
 
 #: The fix for a config.json that is damaged or was edited into something the engine cannot fit with.
@@ -109,7 +110,8 @@ class FitConfig:
 
     # --- preprocessing
     flow_preset: FlowPreset = "medium"
-    """OpenCV DIS preset for optical flow: ultrafast | fast | medium."""
+    """OpenCV DIS preset for the fit's optical flow: ultrafast | fast | medium | fine (the export follows its own
+    ``fine`` flow: ``engine.export.follow_flow.FOLLOW_FLOW_PRESET``)."""
     flow_threshold_px: Positive = 1.0
     """Forward-backward consistency threshold: flow with a larger round-trip error is not used."""
 

@@ -124,8 +124,8 @@ def carry_argv(python: str, manifest: str, source: str) -> list[str]:
 
 
 def export_argv(python: str, run_dir: str, follow_flow: bool = True) -> list[str]:
-    """``export RUN``: with the engine's default (the UV follows the flow where the fit's flow is there), or the
-    UV as fitted (``follow_flow`` False: ``--no-follow-flow``)."""
+    """``export RUN``: with the engine's default (the UV follows the flow where the plate or the fit's flow is
+    there), or the UV as fitted (``follow_flow`` False: ``--no-follow-flow``)."""
     return engine_argv(python, C.VERB_EXPORT, run_dir, *([] if follow_flow else [C.EXPORT_NO_FOLLOW_FLOW_FLAG]))
 
 

@@ -28,7 +28,7 @@ import numpy as np
 from tqdm import tqdm
 
 from .. import contract as C
-from ..data.flow import DISFlow, FlowField, cached_flow, content_key
+from ..data.flow import DISFlow, FlowField, cached_flow, compute_flow
 from ..errors import InputError
 from ..fit.fitted_run import FittedRun, load_fitted
 from ..fit.prepare import fingerprint_of, fitted_plate
@@ -56,22 +56,28 @@ from ..terms.export_names import (
     EDIT_LAYER_EXT,
     EDITS_LAYOUT,
     EXPORT_VERSION_FORMAT,
-    PASS_PRECISION_COMPACT,
-    PASS_PRECISION_FULL,
     PASS_PRECISIONS,
     PASSES_DIR,
 )
 from ..terms.manifest import validate_manifest
 from .atlas_frame import _Coverage
 from .flow_reach import choose_reach, layer_scale
-from .follow_flow import MEMORY_SHARE, MIN_SLIP_PX, available_memory, extended, layer_slip_px, memory_needed
+from .follow_flow import (
+    FOLLOW_FLOW_PRESET,
+    MEMORY_SHARE,
+    MIN_SLIP_PX,
+    available_memory,
+    extended,
+    layer_slip_px,
+    memory_needed,
+)
 from .manifest_writer import _write_nuke_script, build_manifest
 from .pass_files import pass_file
 from .pass_writer import write_passes
 from .plan import Plan, plan_export, read_layout, selected_frames
 from .plate_splat import Splat, plate_texture, splat
 from .sampling import atlas_colours, colours_at
-from .stage_record import DAMAGED_FIX, STAGE_RECORD, fit_source
+from .stage_record import DAMAGED_FIX, STAGE_RECORD, StageFile, fit_source
 from .stage_record import read_stage as _read_stage
 from .staging import (
     FOLLOW_FLOW_DIR,
@@ -278,10 +284,16 @@ def _working_plate(fitted: FittedRun) -> np.ndarray | None:
 
 
 def _follow_source(job: _Job, fitted: FittedRun) -> _FollowSource | None:
-    """The fit's flow (``RUN_DIR/flow_cache``, by the key its clip record names), an empty ``_WorkingUV`` and the
-    plate at working size when this export follows the flow; None when it does not: asked not to, nothing to follow
-    (one frame), or (unless it was insisted on: refused in one line) the run holds no flow of this fit or following
-    it would not fit in the memory available (``follow_flow.memory_needed``: a long clip)."""
+    """The flow the paint follows, an empty ``_WorkingUV`` and the plate at working size when this export follows
+    the flow; None when it does not: asked not to, nothing to follow (one frame), or (unless it was insisted on:
+    refused in one line) no flow of this plate can be had or following it would not fit in the memory available
+    (``follow_flow.memory_needed``: a long clip).
+
+    The flow is the export's own (``FOLLOW_FLOW_PRESET`` on the plate as the fit read it, cached in
+    ``RUN_DIR/flow_cache`` beside the fit's; the fit's own when it is that preset), not the one the fit learnt from:
+    paint follows the flow point by point, where a sub-pixel error chained over a clip's frames is the paint's error
+    (docs/bench/experiments.md). Where the plate cannot be read or has changed since the fit, the fit's flow (by the
+    key its clip record names) stands in, over a few frames."""
     model, clip, cfg = fitted.model, fitted.clip, fitted.cfg
     if job.follow_flow is False or clip.num_frames < 2:
         return None
@@ -289,17 +301,20 @@ def _follow_source(job: _Job, fitted: FittedRun) -> _FollowSource | None:
     if have is not None and need > MEMORY_SHARE * have:
         said = f"following the flow needs about {need / 2**30:.1f} GiB of memory, {have / 2**30:.1f} GiB is available"
         return _not_followed(job, job.run_dir, said, "free memory first")
-    (ww, wh), cache, backend = clip.working_size, fitted.folder.flow_cache, DISFlow(cfg.flow_preset)
-    frames, key, threshold = None, clip.flow_key, cfg.flow_threshold_px
-    if key is None:  # a record written before the fit kept its flow's key: the key of the plate it fitted
-        frames = _working_plate(fitted)
-        key = None if frames is None else content_key(frames.clip(0.0, 1.0), backend, threshold)
-    flow = None if key is None else cached_flow(cache, key, clip.num_frames, wh, ww, backend.name, threshold)
+    (ww, wh), cache, threshold = clip.working_size, fitted.folder.flow_cache, cfg.flow_threshold_px
+    frames = _working_plate(fitted)
+    if frames is not None:
+        backend = DISFlow(FOLLOW_FLOW_PRESET)
+        said = f"the flow the paint follows ({backend.name}, {clip.num_frames - 1} frame pairs)"
+        job.reporter.emit(C.EVENT_STAGE, stage="follow-flow", message=said)
+        flow = compute_flow(frames.clip(0.0, 1.0), backend, cache_dir=cache, threshold_px=threshold)
+        return _FollowSource(flow, _WorkingUV(clip.num_frames, clip.working_size, model.num_layers), frames)
+    key = clip.flow_key
+    name = DISFlow(cfg.flow_preset).name
+    flow = None if key is None else cached_flow(cache, key, clip.num_frames, wh, ww, name, threshold)
     if flow is None:
         return _not_followed(job, cache, "holds no flow of this fit", "fit the run again (it writes its flow there)")
-    if frames is None:
-        frames = _working_plate(fitted)
-    return _FollowSource(flow, _WorkingUV(clip.num_frames, clip.working_size, model.num_layers), frames)
+    return _FollowSource(flow, _WorkingUV(clip.num_frames, clip.working_size, model.num_layers), None)
 
 
 def _not_followed(job: _Job, where: Path, problem: str, remedy: str) -> None:
@@ -371,7 +386,7 @@ def _plan(job: _Job, fitted: FittedRun, atlas_size: int, frames: tuple[int, int]
     source = _follow_source(job, fitted)
     on_frame = None if source is None else source.working.add  # keep each frame's UV for the flow to follow
     plan, cov = plan_export(job.reporter, fitted, atlas_size, frames, bar, on_frame)
-    plan.precision = job.precision or PASS_PRECISION_COMPACT
+    plan.precision = job.precision or plan.precision
     plan.stmap = bool(job.stmap)
     if source is None:
         return _Planned(plan, cov, {}, {})
@@ -465,11 +480,11 @@ def _export_atlases(job: _Job, version: str, atlas_size: int, frames: tuple[int,
         clip = RunFolder(job.run_dir).read_clip()
         numbers = [clip.frame_numbers[t] for t in selected_frames(clip, frames)]
         _require_same_choices(job, chunks, version, record)
-        if [numbers[0], numbers[-1]] != list(record["frames"]) or atlas_size != record["atlas_size"]:
-            first, last = record["frames"]
+        if [numbers[0], numbers[-1]] != list(record.frames) or atlas_size != record.atlas_size:
+            first, last = record.frames
             raise InputError(
                 chunks / STAGE_RECORD,
-                f"{version} is staged with frames {first}-{last} and atlas size {record['atlas_size']}, not "
+                f"{version} is staged with frames {first}-{last} and atlas size {record.atlas_size}, not "
                 f"{numbers[0]}-{numbers[-1]} and {atlas_size}",
                 f"stage another {EXPORT_INTO_ARG} version, or delete that folder",
             )
@@ -495,23 +510,23 @@ def _export_atlases(job: _Job, version: str, atlas_size: int, frames: tuple[int,
     return chunks
 
 
-def _require_same_choices(job: _Job, chunks: Path, version: str, record: dict[str, Any]) -> None:
+def _require_same_choices(job: _Job, chunks: Path, version: str, record: StageFile) -> None:
     """A stage asked explicitly to follow the flow, or not to, or for a pass precision or the STMap copy, continues
     only a staged export that decided the same in its atlases stage (asked nothing: it follows the record)."""
-    precision = str(record.get("precision", PASS_PRECISION_FULL))
+    precision = record.precision
     if job.precision is not None and job.precision != precision:
         raise InputError(
             chunks / STAGE_RECORD,
             f"{version} is staged with {EXPORT_PASS_PRECISION_ARG} {precision}, not {job.precision}",
             f"run this stage without {EXPORT_PASS_PRECISION_ARG}, or stage another {EXPORT_INTO_ARG} version",
         )
-    if job.stmap is not None and job.stmap != bool(record.get("stmap", True)):
+    if job.stmap is not None and job.stmap != record.stmap:
         raise InputError(
             chunks / STAGE_RECORD,
             f"{version} is staged without the STMap copy, not as {EXPORT_STMAP_FLAG} asks",
             f"run this stage without {EXPORT_STMAP_FLAG}, or stage another {EXPORT_INTO_ARG} version",
         )
-    staged = bool(record.get("follow_flow", False))
+    staged = record.follow_flow
     if job.follow_flow is not None and job.follow_flow != staged:
         flag = EXPORT_FOLLOW_FLOW_FLAG if job.follow_flow else C.EXPORT_NO_FOLLOW_FLOW_FLAG
         said = "following" if staged else "not following"

@@ -44,6 +44,11 @@ from scipy import ndimage
 
 from ..data.flow import FlowField
 
+#: The flow the export follows (``engine.data.flow.DISFlow``'s preset), computed on the plate at working size by
+#: the export itself whatever flow the fit learnt from: the finest DIS preset. Chained over a clip it tracks points
+#: best (measured against ``medium``, the fit's default: docs/bench/experiments.md), and the paint follows it point
+#: by point, where the fit's losses only need it on average.
+FOLLOW_FLOW_PRESET = "fine"
 #: Weight of the neighbour frame in each step (0: the fitted UV, unchanged), over a few frames: the filter reaches
 #: about 1 / (1 - w) frames along the flow, and where the flow cannot carry a pixel it starts again from its fitted UV.
 SHORT_WEIGHT = 0.7
@@ -267,6 +272,7 @@ __all__ = [
     "FILL_MIN_SHARE",
     "FILL_SIGMA_PX",
     "FLOW_BYTES",
+    "FOLLOW_FLOW_PRESET",
     "LONG_WEIGHT",
     "MEMORY_SHARE",
     "MIN_SHARE",

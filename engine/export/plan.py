@@ -22,11 +22,11 @@ from ..fit.fitted_run import FittedRun
 from ..fit.progress import Reporter
 from ..fit.run_files import Kind, RunFile, record_problem
 from ..fit.run_folder import ClipRecord
-from ..terms.export_names import EDIT_LAYER_EXT, EDITS_LAYOUT, PASS_PRECISION_FULL, layer_name
+from ..terms.export_names import EDIT_LAYER_EXT, EDITS_LAYOUT, PASS_PRECISION_COMPACT, layer_name
 from ..terms.versions import SCHEMA_VERSION
 from .atlas_frame import LayerFrame, _Coverage, layer_frame_for
 from .sampling import eval_pixels, pixel_grid
-from .stage_record import STAGE_SCHEMA, LayerFrameRecord
+from .stage_record import STAGE_SCHEMA, LayerFrameRecord, StageFile
 
 
 class EditLayout(RunFile):
@@ -86,12 +86,11 @@ class Plan:
     #: slip against the flow (``engine.export.follow_flow``).
     follow_flow: bool = False
     follows: frozenset[int] = frozenset()
-    #: The bits the pass files keep (``terms.export_names.PASS_PRECISIONS``; ``pass_files.kept_precision``); a record
-    #: written before it was chosen: full.
-    precision: str = PASS_PRECISION_FULL
-    #: Whether each pass file also holds an STMap copy of each layer's UV (``export --stmap``); a record written before
-    #: it was a choice: held.
-    stmap: bool = True
+    #: The bits the pass files keep (``terms.export_names.PASS_PRECISIONS``; ``pass_files.kept_precision``) and
+    #: whether each pass file also holds an STMap copy of each layer's UV (``export --stmap``): the export's choices
+    #: (a staged record's: ``from_record``).
+    precision: str = PASS_PRECISION_COMPACT
+    stmap: bool = False
 
     def numbers(self, clip: ClipRecord) -> list[int]:
         return [clip.frame_numbers[t] for t in self.selected]
@@ -110,18 +109,19 @@ class Plan:
                 "follows": sorted(self.follows), "precision": self.precision, "stmap": self.stmap}  # fmt: skip
 
     @classmethod
-    def from_record(cls, data: dict[str, Any], clip: ClipRecord) -> Plan:
-        frames = (int(data["frames"][0]), int(data["frames"][1]))
-        layers = data["layers"]
+    def from_record(cls, record: StageFile, clip: ClipRecord) -> Plan:
+        """The plan a staged export's record (``stage_record.read_stage``) says; the choices an older record does
+        not name take ``StageFile``'s defaults (what the engine that wrote it did)."""
+        first, last = record.frames
         return cls(
-            [str(layer["name"]) for layer in layers],
-            [LayerFrame(tuple(layer["atlas_box"]), tuple(layer["atlas_size"])) for layer in layers],  # type: ignore[arg-type]
-            selected_frames(clip, frames),
-            int(data["atlas_size"]),
-            bool(data.get("follow_flow", False)),  # a record written before the flow was followed: not followed
-            frozenset(int(i) for i in data.get("follows", [])),
-            str(data.get("precision", PASS_PRECISION_FULL)),
-            bool(data.get("stmap", True)),
+            [layer.name for layer in record.layers],
+            [LayerFrame(tuple(layer.atlas_box), tuple(layer.atlas_size)) for layer in record.layers],  # type: ignore[arg-type]
+            selected_frames(clip, (first, last)),
+            record.atlas_size,
+            record.follow_flow,
+            frozenset(record.follows),
+            record.precision,
+            record.stmap,
         )
 
 

@@ -102,9 +102,10 @@ class StageFile(RunFile):
         return checked(data, handler, _stage_problem)
 
 
-def read_stage(chunks: Path) -> dict[str, Any] | None:
-    """A staged export's record (None: no atlases stage finished there), checked against ``StageFile``; a damaged
-    one, or one that does not say what it was made from, is one line."""
+def read_stage(chunks: Path) -> StageFile | None:
+    """A staged export's record (None: no atlases stage finished there), read as ``StageFile`` (the defaults of the
+    fields an older record lacks are its own); a damaged one, or one that does not say what it was made from, is
+    one line."""
     path = chunks / STAGE_RECORD
     if not path.is_file():
         return None
@@ -123,12 +124,12 @@ def read_stage(chunks: Path) -> dict[str, Any] | None:
     problem = record_problem("staged export record", StageFile, data)
     if problem is not None:
         raise InputError(path, f"staged export record is damaged: {problem}", DAMAGED_FIX)
-    return dict(data)
+    return StageFile.model_validate({k: v for k, v in data.items() if k != "schema"})
 
 
-def changed_since(record: dict[str, Any], source: dict[str, str]) -> list[str]:
+def changed_since(record: StageFile, source: dict[str, str]) -> list[str]:
     """The run files (``SOURCE_FILES``) whose digest in ``source`` is not the one ``record`` was made from."""
-    return [SOURCE_FILES[key] for key in SOURCE_FILES if record["source"][key] != source[key]]
+    return [SOURCE_FILES[key] for key in SOURCE_FILES if record.source[key] != source[key]]
 
 
 def other_fit_error(chunks: Path, version: str, changed: list[str], free: str) -> InputError:

@@ -15,7 +15,6 @@ import json
 import os
 import shutil
 from pathlib import Path
-from typing import Any
 
 from .. import contract as C
 from ..errors import InputError
@@ -25,7 +24,7 @@ from ..terms.cli import EXPORT_INTO_ARG, EXPORT_STAGE_ARG, EXPORT_STAGES
 from ..terms.export_names import ATLASES_DIR, EXPORT_CHUNKS_SUFFIX, EXPORT_VERSION_FORMAT, NUKE_SCRIPT_NAME, PASSES_DIR
 from .pass_files import PASS_BYTES_PER_CHANNEL, PASS_CHANNELS_PER_LAYER
 from .plan import selected_frames
-from .stage_record import STAGE_RECORD, changed_since, fit_source, other_fit_error
+from .stage_record import STAGE_RECORD, StageFile, changed_since, fit_source, other_fit_error
 
 #: An export is staged in ``exports/.vNNN.partial`` until it is renamed into place; the new files of ``edits/`` (a
 #: new edit layer, the layout) wait in its ``.edits`` folder.
@@ -238,7 +237,7 @@ def own_chunks_folder(run_dir: Path, version: str) -> Path:
 
 
 def require_same_fit(
-    run_dir: Path, chunks: Path, version: str, record: dict[str, Any], source: dict[str, str] | None = None
+    run_dir: Path, chunks: Path, version: str, record: StageFile, source: dict[str, str] | None = None
 ) -> None:
     """One line unless the fit in ``run_dir`` now (``source``, default: read now) is the one the staged ``record``
     was made from: a version never mixes passes, atlases and a manifest of two fits."""

@@ -3,6 +3,7 @@ arrays whose answer is known, then through real exports of a tiny fit, whole and
 
 from __future__ import annotations
 
+import io
 import json
 import shutil
 from pathlib import Path
@@ -12,7 +13,7 @@ import numpy as np
 import pytest
 
 from engine import contract as C
-from engine.data.flow import FlowField, _save_cache
+from engine.data.flow import DISFlow, FlowField, _save_cache
 from engine.errors import InputError
 from engine.export import exporter
 from engine.export import follow_flow as FF
@@ -20,7 +21,7 @@ from engine.export.manifest import Manifest
 from engine.export.staging import FOLLOW_FLOW_DIR
 from engine.terms.cli import EXPORT_FOLLOW_FLOW_FLAG, EXPORT_STAGES
 from engine.terms.run_folder import FLOW_CACHE_DIR, RUN_CLIP
-from tests.engine.export.tiny_run import export, make_run
+from tests.engine.export.tiny_run import SPEC, export, make_run
 from tests.folders import tree_digest
 
 T, H, W = 8, 40, 56
@@ -299,13 +300,47 @@ def test_a_stage_asked_otherwise_than_its_atlases_stage_is_refused_in_one_line(t
     assert not any(layer["follows_flow"] for layer in manifest.data["layers"])
 
 
+def _plate_gone(monkeypatch) -> None:
+    """The plate the fit read cannot be read any more (moved, a drive not mounted): what the export warns of."""
+
+    def gone(clip):  # type: ignore[no-untyped-def]
+        raise InputError(Path(clip.source), "is not there", "put the plate back")
+
+    monkeypatch.setattr(exporter, "fitted_plate", gone)
+
+
+def _cached_backends(run: Path) -> dict[str, str]:
+    """The flow files in a run's ``flow_cache``: key -> backend."""
+    out = {}
+    for path in (run / FLOW_CACHE_DIR).glob("*.npz"):
+        with np.load(path) as z:
+            out[path.stem] = str(z["backend"])
+    return out
+
+
 @pytest.mark.slow
-def test_without_the_fits_flow_it_is_exported_as_fitted_or_refused_when_insisted_on(tiny, tmp_path, capsys):
+def test_the_export_follows_its_own_flow_and_the_fits_only_where_the_plate_is_gone(tiny, tmp_path, monkeypatch, capsys):
+    """The export computes the flow it follows (``FOLLOW_FLOW_PRESET``) on the plate and caches it beside the fit's,
+    so a run without the fit's flow still follows; where the plate cannot be read, the fit's flow stands in; with
+    neither, the UV is exported as fitted (a warning), or refused in one line when it was insisted on."""
+    _gate_open(monkeypatch)
     bare = shutil.copytree(tiny, tmp_path / "run", ignore=shutil.ignore_patterns(FLOW_CACHE_DIR, C.EXPORTS_DIR))
+    stream = io.StringIO()
+    assert all(layer["follows_flow"] for layer in Manifest(export(bare, stream=stream)).layers)
+    assert list(_cached_backends(bare).values()) == [DISFlow(FF.FOLLOW_FLOW_PRESET).name] == ["dis-fine"]
+    assert f"the flow the paint follows (dis-fine, {SPEC.frames - 1} frame pairs)" in stream.getvalue()
+
+    _plate_gone(monkeypatch)
+    run = shutil.copytree(tiny, tmp_path / "with_fit_flow", ignore=shutil.ignore_patterns(C.EXPORTS_DIR))
+    fits = {k for k, b in _cached_backends(run).items() if b == "dis-medium"}
+    assert fits == {json.loads((run / RUN_CLIP).read_text())["flow_key"]}
+    assert all(layer["follows_flow"] for layer in Manifest(export(run)).layers)  # the fit's flow, a few frames
+    assert "the plate cannot be read" in capsys.readouterr().err
+
     with pytest.raises(InputError, match="holds no flow of this fit") as err:
-        export(bare, follow_flow=True)
+        export(bare, follow_flow=True)  # no plate and, in its cache, only the export's own flow
     assert FLOW_CACHE_DIR in str(err.value) and C.EXPORT_NO_FOLLOW_FLOW_FLAG in str(err.value)
-    assert not (bare / C.EXPORTS_DIR / "v001").exists()
+    assert not (bare / C.EXPORTS_DIR / "v002").exists()
     manifest = Manifest(export(bare))  # the default: a warning, the UV as fitted
     assert "holds no flow of this fit: the layers' UV is exported as fitted" in capsys.readouterr().err
     assert not any(layer["follows_flow"] for layer in manifest.data["layers"])
@@ -314,23 +349,27 @@ def test_without_the_fits_flow_it_is_exported_as_fitted_or_refused_when_insisted
 @pytest.mark.slow
 def test_another_plates_flow_in_the_cache_is_never_followed(tiny, tmp_path, monkeypatch):
     """A run folder whose ``flow_cache`` also holds another plate's flow of the same shape, written later (fit A,
-    ``--refit`` on B, ``--refit`` on A again; or a cache shared between shots): the export follows the flow its clip
-    record names, as if the other were not there; a record from before the key was kept finds it by the key of the
-    plate it fitted."""
+    ``--refit`` on B, ``--refit`` on A again; or a cache shared between shots): the export follows the flow of its
+    own plate (found by the plate's content), and, where the plate is gone, the flow its clip record names, as if
+    the other were not there."""
     _gate_open(monkeypatch)
     run = shutil.copytree(tiny, tmp_path / "run", ignore=shutil.ignore_patterns(C.EXPORTS_DIR))
     own = Manifest(export(run))
     assert all(layer["follows_flow"] for layer in own.layers)
     cache, record = run / FLOW_CACHE_DIR, json.loads((run / RUN_CLIP).read_text())
-    assert [p.stem for p in cache.glob("*.npz")] == [record["flow_key"]]
     with np.load(cache / f"{record['flow_key']}.npz") as z:
-        shape, backend, threshold = z["forward"].shape, str(z["backend"]), float(z["threshold_px"])
+        shape, threshold = z["forward"].shape, float(z["threshold_px"])
     shift, trusted = np.full(shape, 3.0, np.float32), np.ones(shape[:3], bool)
-    _save_cache(cache / f"{'f' * 64}.npz", FlowField(shift, -shift, trusted, trusted.copy(), backend, threshold))
+    for backend in ("dis-medium", "dis-fine"):
+        other = FlowField(shift, -shift, trusted, trusted.copy(), backend, threshold)
+        _save_cache(cache / f"{backend[-1] * 64}.npz", other)
     assert max(_moved(own, Manifest(export(run)))) == 0.0
-    del record["flow_key"]
-    (run / RUN_CLIP).write_text(json.dumps(record))
-    assert max(_moved(own, Manifest(export(run)))) == 0.0
+    _plate_gone(monkeypatch)
+    fitted = Manifest(export(run))
+    for path in cache.glob("*.npz"):
+        if path.stem[0] in "me":
+            path.unlink()
+    assert max(_moved(fitted, Manifest(export(run)))) == 0.0
 
 
 def test_the_memory_it_needs_and_the_memory_the_system_says_is_available(tmp_path):

@@ -139,6 +139,7 @@ def test_a_staged_export_keeps_the_precision_its_atlases_stage_chose(base, tmp_p
 
 def test_a_record_or_manifest_from_before_the_choice_reads_as_full(base, tmp_path):
     from engine.export.plan import Plan
+    from engine.export.stage_record import read_stage
     from engine.fit.run_folder import RunFolder
 
     run = copy_root(base, tmp_path / "root") / "run"
@@ -146,7 +147,8 @@ def test_a_record_or_manifest_from_before_the_choice_reads_as_full(base, tmp_pat
     path = run / C.EXPORTS_DIR / ".v002.chunks" / exporter.STAGE_RECORD
     record = json.loads(path.read_text())
     assert record.pop("precision") == PASS_PRECISION_COMPACT and record.pop("stmap") is False
-    before = Plan.from_record(record, RunFolder(run).read_clip())
+    path.write_text(json.dumps(record))
+    before = Plan.from_record(read_stage(path.parent), RunFolder(run).read_clip())
     assert before.precision == PASS_PRECISION_FULL and before.stmap  # what exports wrote before the choices
     path.write_text(json.dumps({**record, "precision": "half"}))
     code, err = _export(run, EXPORT_INTO_ARG, "v002", EXPORT_STAGE_ARG, EXPORT_STAGES[1])
