@@ -95,7 +95,7 @@ class NEURALATLAS_PG_scene(bpy.types.PropertyGroup):
     follow_flow: BoolProperty(
         name="Follow Motion",
         default=True,
-        description="Export: average each layer's UV along the fit's optical flow where it slips "
+        description="Export: average each layer's UV along optical flow where it slips "
         "against it, so paint follows legs and bending, turning bodies: over a few frames or along whole "
         "trajectories, whichever reads the plate back sharper (off: the atlas's UV as fitted)",
     )

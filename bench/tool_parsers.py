@@ -390,7 +390,7 @@ def _add_paint_table_parser(sub: argparse._SubParsersAction) -> None:
     add_follow_flow(
         pt,
         None,
-        "export with the engine's --follow-flow, which insists: every layer's UV averaged along the fit's flow "
+        "export with the engine's --follow-flow, which insists: every layer's UV averaged along optical flow "
         "where it slips against it, the parts of one split object too (default: export's own, which leaves those "
         "parts as fitted)",
         "export with --no-follow-flow (each layer's UV as fitted)",

@@ -136,7 +136,7 @@ def add_no_bar(parser: argparse.ArgumentParser, help: str = "no progress bar on 
 
 def add_follow_flow(parser: argparse.ArgumentParser, default: bool | None, follow_help: str, no_help: str) -> None:
     """``--follow-flow`` | ``--no-follow-flow`` into ``follow_flow`` (True | False; neither: ``default``): whether
-    an export averages each layer's UV along the fit's flow (``engine.export.follow_flow``)."""
+    an export averages each layer's UV along optical flow (``engine.export.follow_flow``)."""
     group = parser.add_mutually_exclusive_group()
     group.add_argument(EXPORT_FOLLOW_FLOW_FLAG, dest="follow_flow", action="store_const", const=True,
                        default=default, help=follow_help)  # fmt: skip

@@ -322,10 +322,11 @@ def _add_export_parser(sub: argparse._SubParsersAction) -> None:
     add_follow_flow(
         x,
         None,
-        "average each layer's UV along the fit's optical flow where it slips against it (a body that bends: "
+        "average each layer's UV along optical flow where it slips against it (a body that bends: "
         "legs, a rider; cars moving in the background), so paint follows it from frame to frame; layers that "
         "already follow the flow "
-        f"are left as fitted. On by default when RUN_DIR/{FLOW_CACHE_DIR} holds the fit's flow; this flag "
+        f"are left as fitted. The flow: the export's own on the plate, or where the plate cannot be read, the fit's "
+        f"in RUN_DIR/{FLOW_CACHE_DIR}. On by default where there is flow to follow; this flag "
         f"insists (refused without it). A staged export decides it in its {EXPORT_STAGES[0]} stage",
         "export each layer's UV as fitted (the atlas alone, as exports before the flow was followed)",
     )

@@ -113,8 +113,9 @@ def export_run(
     precision: str | None = None,
     stmap: bool | None = None,
 ) -> Path:
-    """Export ``run_dir``; returns the path of the manifest.json written. Reads the run folder only (its
-    ``clip.json`` says what export needs of the clip): the plate is not decoded. Holds the run folder's lock for
+    """Export ``run_dir``; returns the path of the manifest.json written. Rebuilds the model from the run folder alone
+    (its ``clip.json`` says what export needs of the clip); the plate is read at the working size only to follow the
+    flow (never the masks). Holds the run folder's lock for
     the whole write; the export and any new edit layers appear together, or (a failure, a full disk, a cancel)
     nothing does and the edit layers and earlier exports are as they were.
 
@@ -126,9 +127,10 @@ def export_run(
     (every pass present: edit layers, manifest and Nuke script as a whole export writes them, then the folder
     becomes ``vNNN``). The staged export's files are those of a whole export of the same run, byte for byte.
     ``atlas_size`` None: the default (publish: the staged one). ``follow_flow``: each layer's UV averaged
-    along the fit's optical flow where it slips against it (``engine.export.follow_flow``): None (the default) when
-    the run holds the fit's flow, True insists (refused without it), False exports the UV as fitted. A staged
-    export decides it in its atlases stage; its passes and publish follow the record (asked otherwise: refused). A
+    along optical flow where it slips against it (``engine.export.follow_flow``; the flow: ``_follow_source``): None
+    (the default) where there is flow to follow, True insists (refused without it), False exports the UV as fitted. A
+    staged export decides it in its atlases stage; its passes and publish follow the record (asked otherwise:
+    refused). A
     version ``into`` already holds is returned as it is, whatever is asked. ``precision``
     (``terms.export_names.PASS_PRECISIONS``; None: compact, or a staged export's record): the bits the pass files keep
     (``pass_files.kept_precision``), decided with the flow in the atlases stage. ``stmap``: each pass file also
@@ -253,8 +255,9 @@ class _WorkingUV:
 
 @dataclass
 class _FollowSource:
-    """What following the flow reads: the fit's flow, the layers' UV at working size (filled by the atlas plan) and
-    the plate at working size (None: unreadable or changed since the fit; the layers then keep to a few frames)."""
+    """What following the flow reads: the flow (``_follow_source``), the layers' UV at working size (filled by the
+    atlas plan) and the plate at working size (None: unreadable or changed since the fit; the layers then keep to a
+    few frames)."""
 
     flow: FlowField
     working: _WorkingUV
@@ -342,7 +345,7 @@ def _flow_corrections(
     model: AtlasModel | None = None,
 ) -> dict[int, np.ndarray]:
     """The UV correction [T, h, w, 2] at working resolution of each layer whose UV slips against the
-    fit's flow by more than ``MIN_SLIP_PX``, by layer index (``names``: the layers' names, for the messages), over the
+    flow by more than ``MIN_SLIP_PX``, by layer index (``names``: the layers' names, for the messages), over the
     reach ``flow_reach.choose_reach`` tests with ``frames`` (the plate at working size; None: a few frames) and the
     ``model``'s atlas colours (its texture guard; None: no guard). ``parts``: layers that are parts of one object
     split by scribbles, left as fitted: where the parts cross, the flow follows neither (measured:

@@ -1,5 +1,5 @@
-"""Paint that follows the flow (``export --follow-flow``, the default): each layer's UV averaged along the fit's own
-optical flow before the passes are written.
+"""Paint that follows the flow (``export --follow-flow``, the default): each layer's UV averaged along optical flow
+(the export's own, ``FOLLOW_FLOW_PRESET``) before the passes are written.
 
 Why: in an ideal atlas a point of the object keeps its UV in every frame. A fitted mapping is smooth in time and
 cannot follow a dog's legs, a camel turning or a dancer's arms from one frame to the next (nor, in the background's
@@ -18,7 +18,7 @@ first and last frame weigh no more than the others (a plain recursive filter ``F
 leaves the rest of the weight, w^t, on the first frame, so along a long reach the result leans on the trajectory's
 two ends and changes along it by several times as much).
 
-A step is taken only where the pixel belongs to the layer, the flow passed the fit's forward-backward check and
+A step is taken only where the pixel belongs to the layer, the flow passed its forward-backward check and
 the point it lands on belongs to the layer in the neighbour frame. Where it cannot be taken (an occlusion, a
 disocclusion, the outline), the pass starts again from ``u`` over a few frames (``SHORT_WEIGHT``); along whole
 trajectories (``LONG_WEIGHT``, ``fill``) the pixel instead takes the correction (``F - u``) and the gathered weight
@@ -74,7 +74,7 @@ MIN_UV_PER_PX = 1e-9
 #: What following the flow holds in memory per working pixel and frame: each layer's UV (8 B), whether the layer
 #: owns the pixel and whether it is solid there (2 x 1 B), its correction over each reach (2 x 8 B) and the weight
 #: the forward pass gathered (4 B, while one reach is computed); once, the
-#: fit's flow both ways (16 B), their checks (2 B) and the plate at working size (12 B: the reach test and the
+#: flow both ways (16 B), their checks (2 B) and the plate at working size (12 B: the reach test and the
 #: atlas texture).
 BYTES_PER_LAYER, FLOW_BYTES = 30, 30
 #: Follow the flow only while that fits in this share of the memory the system says is available, so an export that
@@ -160,7 +160,7 @@ def _step(
     """One recursion step of either pass: (the correction [H, W, 2] that moves ``u`` to the trajectory's mean so
     far, the weight [H, W] the trajectory has gathered here). ``neighbour``: the neighbour frame's filtered UV, its
     gathered weight and where the layer owns it; ``carry``: the flow to the neighbour [H, W, 2] and where it passed
-    the fit's forward-backward check [H, W]. Where the flow cannot carry a pixel it starts a trajectory (weight 1,
+    its forward-backward check [H, W]. Where the flow cannot carry a pixel it starts a trajectory (weight 1,
     no correction) or, with ``fill``, takes what the carried pixels around it were given, one step further (times
     ``weight``)."""
     flow, flow_ok = carry
@@ -183,7 +183,7 @@ def follow_flow(
     uv: np.ndarray, owned: np.ndarray, flow: FlowField, weight: float = SHORT_WEIGHT, fill: bool = False
 ) -> np.ndarray:
     """The correction [T, H, W, 2] (filtered minus ``uv``; zero where the layer does not own the pixel) of one
-    layer's UV ``uv`` [T, H, W, 2] (any linear unit), ``owned`` [T, H, W] bool, along ``flow`` (the fit's, at the
+    layer's UV ``uv`` [T, H, W, 2] (any linear unit), ``owned`` [T, H, W] bool, along ``flow`` (the export's, at the
     same H x W); ``fill``: a pixel the flow cannot carry takes its carried neighbours' correction (the long reach).
     Memory: ``uv``, one more array of its size and the forward pass's weights ([T, H, W] float32)."""
     if not 0.0 <= weight < 1.0:

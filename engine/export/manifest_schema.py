@@ -169,7 +169,7 @@ class Layer(BaseModel):
     stmap_pass: str = _absent()
     """STMap<Layer>; exports made before the STMap layers have neither it nor stmap_channels."""
     follows_flow: bool = _absent()
-    """True: the layer's UV was averaged along the fit's optical flow (export --follow-flow); absent: false."""
+    """True: the layer's UV was averaged along optical flow (export --follow-flow); absent: false."""
 
 
 class Fit(BaseModel):

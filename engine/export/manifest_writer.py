@@ -55,7 +55,7 @@ def layer_record(
     stmap: bool = True,
 ) -> dict[str, Any]:
     """One layer's manifest entry (terms.manifest.MANIFEST_LAYER_KEYS); paths relative to the export folder.
-    ``follows_flow``: its UV was averaged along the fit's flow (``engine.export.follow_flow``); ``stmap``: the pass
+    ``follows_flow``: its UV was averaged along optical flow (``engine.export.follow_flow``); ``stmap``: the pass
     files hold its STMap copy (``stmap_pass``, ``stmap_channels``; absent otherwise)."""
     stmap_channels = [stmap_channel_name(name, c) for c in STMAP_CHANNELS]
     stmap_keys = {"stmap_pass": stmap_pass(name), "stmap_channels": stmap_channels}

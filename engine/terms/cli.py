@@ -42,8 +42,8 @@ VERB_REALIGN = "realign"
 EXPORT_INTO_ARG = "--into"
 EXPORT_STAGE_ARG = "--stage"
 EXPORT_STAGES: tuple[str, ...] = ("atlases", "passes", "publish")
-#: Each layer's UV averaged along the fit's optical flow where it slips against it, so paint follows a
-#: deforming body from frame to frame: on by default. ``--follow-flow`` insists (a run without the fit's flow is
+#: Each layer's UV averaged along optical flow where it slips against it, so paint follows a
+#: deforming body from frame to frame: on by default. ``--follow-flow`` insists (a run with no flow to follow is
 #: refused), ``--no-follow-flow`` exports the UV as fitted. A staged export decides it in its ``atlases`` stage.
 EXPORT_FOLLOW_FLOW_FLAG = "--follow-flow"
 EXPORT_NO_FOLLOW_FLOW_FLAG = "--no-follow-flow"

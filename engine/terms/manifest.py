@@ -50,7 +50,7 @@ MANIFEST_TAG = "neural_atlas_manifest"  # {"neural_atlas_manifest": MANIFEST_VER
 #:              "channels": [full EXR channel names, e.g. "Atlas.UVForeground.U"] (optional: derivable),
 #:              "stmap_pass": "STMap<Layer>", "stmap_channels": [4 full EXR channel names] (optional: an export
 #:              made without ``export --stmap`` has neither, nor STMap layers in its pass files),
-#:              "follows_flow": bool (optional, absent: false: its UV was averaged along the fit's flow,
+#:              "follows_flow": bool (optional, absent: false: its UV was averaged along optical flow,
 #:              ``export --follow-flow``)}],
 #:  "fit": {"preset": str, "model": str, "steps": int, "train_seconds": float, "psnr": float|None,
 #:          "alpha_iou": [float]|None (optional)},
