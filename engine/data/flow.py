@@ -41,7 +41,7 @@ FLOW_CACHE_VERSION = 1
 #: The config's preset names (``FLOW_PRESETS``, fastest first) to OpenCV's preset and the finest scale DIS refines
 #: to (None: the preset's own; 0: full resolution). OpenCV's ``medium`` stops at half resolution (finest scale 1);
 #: ``fine`` goes on to full resolution, about five times the time: chained over a clip's frames it follows points
-#: better on every clip measured (object points, 32 frames: camel 0.82 -> 0.91, cows 0.81 -> 0.85, blackswan
+#: better on every clip measured (object points, 32 frames: camel 0.81 -> 0.91, cows 0.82 -> 0.85, blackswan
 #: 0.71 -> 0.85 at 768 px; docs/bench/experiments.md).
 _DIS_PRESETS: dict[str, tuple[int, int | None]] = dict(
     zip(
