@@ -19,7 +19,7 @@ from pydantic import Field, ValidatorFunctionWrapHandler, model_validator
 
 from .. import contract as C
 from ..errors import InputError
-from ..fit.run_files import Bool, Int, IntList, IntPair, Kind, NumberList, RunFile, Str, checked, record_problem
+from ..fit.run_files import Bool, Int, IntList, IntPair, Kind, NumberList, RunFile, Str, checked, read_record
 from ..terms.cli import EXPORT_INTO_ARG, EXPORT_STAGE_ARG, EXPORT_STAGES
 from ..terms.export_names import PASS_PRECISION_FULL, PASS_PRECISIONS
 from ..terms.run_folder import RUN_CONFIG
@@ -121,10 +121,10 @@ def read_stage(chunks: Path) -> StageFile | None:
         )  # fmt: skip
     if schema != STAGE_SCHEMA:
         raise InputError(path, f"staged export record of schema {str(schema)[:40]!r}, not {STAGE_SCHEMA}", DAMAGED_FIX)
-    problem = record_problem("staged export record", StageFile, data)
-    if problem is not None:
+    record, problem = read_record("staged export record", StageFile, data)
+    if record is None:
         raise InputError(path, f"staged export record is damaged: {problem}", DAMAGED_FIX)
-    return StageFile.model_validate({k: v for k, v in data.items() if k != "schema"})
+    return record
 
 
 def changed_since(record: StageFile, source: dict[str, str]) -> list[str]:

@@ -22,7 +22,7 @@ from __future__ import annotations
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Annotated, Any
+from typing import Annotated, Any, TypeVar
 
 from pydantic import (
     BaseModel,
@@ -116,6 +116,10 @@ class RunFile(BaseModel):
     """A run file's keys besides "schema" (checked first, on its own: another version is another fix)."""
 
     model_config = ConfigDict(extra="forbid", strict=True)
+
+
+#: A run file's model (``read_record``'s answer has its type).
+_Record = TypeVar("_Record", bound=RunFile)
 
 
 class ConfigFile(RunFile):
@@ -313,14 +317,19 @@ def validate_run_file(name: str, data: Any) -> dict[str, Any]:
     return data
 
 
-def record_problem(what: str, model: type[RunFile], data: dict[str, Any]) -> str | None:
-    """A decoded record (``data``, its "schema" left out) against its ``model``: None, or the first thing wrong as one
-    line naming the record as ``what`` (the one adapter from a validation error to the engine's words)."""
+def read_record(what: str, model: type[_Record], data: dict[str, Any]) -> tuple[_Record | None, str | None]:
+    """A decoded record (``data``, its "schema" left out) read as its ``model``: (the record, None), or (None, the
+    first thing wrong as one line naming the record as ``what``: the one adapter from a validation error to the
+    engine's words)."""
     try:
-        model.model_validate({k: v for k, v in data.items() if k != "schema"})
+        return model.model_validate({k: v for k, v in data.items() if k != "schema"}), None
     except ValidationError as exc:
-        return _one_line(what, model, data, exc)
-    return None
+        return None, _one_line(what, model, data, exc)
+
+
+def record_problem(what: str, model: type[RunFile], data: dict[str, Any]) -> str | None:
+    """``read_record``'s line of what is wrong (None: nothing)."""
+    return read_record(what, model, data)[1]
 
 
 def _one_line(what: str, model: type[RunFile], data: dict[str, Any], exc: ValidationError) -> str:
@@ -339,4 +348,12 @@ def _one_line(what: str, model: type[RunFile], data: dict[str, Any], exc: Valida
     return f"{what} {key!r} is not {'an' if kind[:1] in 'aeiou' else 'a'} {kind}: {data[key]!r}"
 
 
-__all__ = ["RUN_FILE_MODELS", "RunFile", "RunFileError", "checked", "record_problem", "validate_run_file"]
+__all__ = [
+    "RUN_FILE_MODELS",
+    "RunFile",
+    "RunFileError",
+    "checked",
+    "read_record",
+    "record_problem",
+    "validate_run_file",
+]
