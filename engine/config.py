@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import json
+import math
 from collections.abc import Collection, Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal, get_args
@@ -42,7 +43,7 @@ from .config_fields import (
     whole_number,
 )
 from .errors import InputError
-from .terms.cli import CLI_MODULE, DEFAULT_PRESET, PRESET_STEPS
+from .terms.cli import CLI_MODULE, DEFAULT_PRESET, PRESET_CLIP_FRAMES, PRESET_STEPS
 from .terms.versions import SCHEMA_VERSION
 
 #: OpenCV DIS optical-flow presets (``flow_preset``), fastest first; engine/data/flow.py maps each to OpenCV's
@@ -100,6 +101,11 @@ class FitConfig:
     batch: Samples = 4000
     """Random pixels per step, spread over all frames (the paper uses 10k; the fast model gains more from
     more steps than from bigger batches)."""
+    batch_frames: Annotated[NonNegativeInt, Field(le=MAX_SAMPLES)] = 0
+    """The clip length ``batch`` is for: a longer clip draws ``batch * frames / batch_frames`` pixels a step, so
+    each frame keeps the samples a step gives it (0: ``batch`` whatever the length). Every fast preset: 70, the
+    length its steps were measured on; a 300-frame shot with the 70-frame batch gave each frame a quarter of the
+    samples and lost 6.3 dB (docs/accuracy-vs-time.md, *A long shot at 1080p*)."""
     object_sample_share: Share = 0.0
     """Share of each step's pixels drawn from the masked objects and the ``mask_prior_margin_px`` band around
     them (the rest uniform over the clip): a small object gets enough samples for its mapping to track it."""
@@ -212,6 +218,10 @@ class FitConfig:
     # --- fast model
     mapping_hidden: Width = 64
     """Fast model: width of the residual mapping MLP (no positional encoding: mappings stay smooth)."""
+    mapping_time_frames: Annotated[NonNegativeInt, Field(le=MAX_SAMPLES)] = 0
+    """Fast model: the clip length over which a mapping's time input spans [-1, 1]; a longer clip's frames keep the
+    step in time they have in a clip this long, so a body that turns through a long shot asks the residual MLP for
+    no faster change per unit of its input than a short clip does (0: [-1, 1] whatever the length)."""
     mapping_layers: Depth = 3
     """Fast model: hidden layers of the residual mapping MLP."""
     mapping_hidden_fg: Annotated[NonNegativeInt, Field(le=MAX_WIDTH)] = 0
@@ -274,6 +284,13 @@ class FitConfig:
     """Size of the fixed pixel sample for the live PSNR."""
     checkpoint_seconds: NonNegative = 120.0
     """Wall-clock seconds between checkpoints (and one at the end and on SIGINT/SIGTERM)."""
+
+    def step_batch(self, frames: int) -> int:
+        """Pixels a step draws from a clip of ``frames`` frames (``batch``, grown with a clip longer than
+        ``batch_frames``)."""
+        if self.batch_frames <= 0 or frames <= self.batch_frames:
+            return self.batch
+        return math.ceil(self.batch * frames / self.batch_frames)
 
     def to_json(self) -> str:
         return json.dumps({"schema": SCHEMA_VERSION, "config": dataclasses.asdict(self)}, indent=2)
@@ -355,6 +372,8 @@ LATER_FIELDS: dict[str, Any] = {
     "scribble_carry": False,
     "mapping_hidden_fg": 0,
     "lr_mapping_steps": 0,
+    "batch_frames": 0,
+    "mapping_time_frames": 0,
 }
 #: The learning rates (``fit`` names them when a fit diverges).
 LR_FIELDS: tuple[str, ...] = ("lr", "lr_grid", "lr_warp")
@@ -489,6 +508,8 @@ PRESETS: dict[str, FitConfig] = {
     "draft": _fast(
         preset="draft",
         steps=PRESET_STEPS["draft"],
+        batch_frames=PRESET_CLIP_FRAMES["draft"],
+        mapping_time_frames=PRESET_CLIP_FRAMES["draft"],
         bootstrap_steps=PRESET_STEPS["draft"],
         global_rigidity_steps=150,
     ),
@@ -502,6 +523,8 @@ PRESETS: dict[str, FitConfig] = {
     "balanced": _fast(
         preset="balanced",
         steps=PRESET_STEPS["balanced"],
+        batch_frames=PRESET_CLIP_FRAMES["balanced"],
+        mapping_time_frames=PRESET_CLIP_FRAMES["balanced"],
         bootstrap_steps=PRESET_STEPS["balanced"],
         global_rigidity_steps=1000,
         lr_mapping_steps=1600,
@@ -513,6 +536,8 @@ PRESETS: dict[str, FitConfig] = {
     "final": _fast(
         preset="final",
         steps=PRESET_STEPS["final"],
+        batch_frames=PRESET_CLIP_FRAMES["final"],
+        mapping_time_frames=PRESET_CLIP_FRAMES["final"],
         bootstrap_steps=10000,
         global_rigidity_steps=2500,
         w_mask_prior=200.0,

@@ -3,8 +3,9 @@
 
 The documented estimate: each preset's step budget (``contract.PRESET_STEPS``) times its seconds per step, plus
 flow and evaluation, which scale with the frames and the working pixels (steps cost about the same at any
-resolution: a fixed pixel batch). The per-step and overhead figures are the 2-core CPU bench of
-docs/accuracy-vs-time.md (its data: docs/bench/blackswan-60min.json).
+resolution: a fixed pixel batch, grown with a clip longer than the preset's ``contract.PRESET_CLIP_FRAMES``). The
+per-step and overhead figures are the 2-core CPU bench of docs/accuracy-vs-time.md (its data:
+docs/bench/blackswan-60min.json).
 """
 
 from __future__ import annotations
@@ -49,8 +50,15 @@ def estimate_seconds(
     ``steps=`` override; None: the preset's budget)."""
     name = preset if preset in C.PRESET_STEPS else FALLBACK_PRESET
     w, h = C.working_size(width, height, long_edge)
-    training = (C.PRESET_STEPS[name] if steps is None else steps) * SECONDS_PER_STEP[name]
+    training = (C.PRESET_STEPS[name] if steps is None else steps) * SECONDS_PER_STEP[name] * batch_scale(name, frames)
     return training + OVERHEAD_SECONDS_PER_FRAME_MPX * frames * (w * h / PIXELS_PER_MEGAPIXEL)
+
+
+def batch_scale(preset: str, frames: int) -> float:
+    """How much more a step of a ``frames``-frame clip costs than the documented one: a preset's batch grows with a
+    clip longer than the length it is for (``contract.PRESET_CLIP_FRAMES``), and a step's time with its batch."""
+    per = C.PRESET_CLIP_FRAMES.get(preset, 0)
+    return max(1.0, frames / per) if per > 0 else 1.0
 
 
 def overridden_int(items: Sequence[str], key: str) -> int | None:

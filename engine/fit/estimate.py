@@ -192,7 +192,7 @@ def _estimate(
                 preset=cfg.preset,
                 model=cfg.model,
                 steps=cfg.steps,
-                batch=cfg.batch,
+                batch=cfg.step_batch(t_count),
                 seconds_per_step_early=round(early, 4),
                 seconds_per_step_late=round(late, 4),
                 train_seconds=round(train, 1),

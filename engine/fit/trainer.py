@@ -78,7 +78,7 @@ def regime_cost_ratio(
     gen = torch.Generator().manual_seed(cfg.seed + PROBE_SEED_OFFSET)
 
     def timed(step: int) -> float:
-        ix, iy, tt = sample_batch(video, cfg.batch, cfg.object_sample_share, gen, device)
+        ix, iy, tt = sample_batch(video, cfg.step_batch(video.shape[0]), cfg.object_sample_share, gen, device)
         t0 = time.perf_counter()
         loss, terms = compute_losses(model, video, cfg, step, ix, iy, tt)
         require_finite(torch.isfinite(loss), step + 1, "loss", lambda: nonfinite_terms(terms))
@@ -220,7 +220,7 @@ class Trainer:
         untouched."""
         cfg, video = self.cfg, self.video
         step = at + 1  # as the progress lines count
-        ix, iy, tt = sample_batch(video, cfg.batch, cfg.object_sample_share, self.gen, self.device)
+        ix, iy, tt = sample_batch(video, cfg.step_batch(video.shape[0]), cfg.object_sample_share, self.gen, self.device)
         loss, terms = compute_losses(self.model, video, cfg, at, ix, iy, tt)
         require_finite(torch.isfinite(loss), step, "loss", lambda: nonfinite_terms(terms))
         self.optim.zero_grad(set_to_none=True)

@@ -142,6 +142,10 @@ class FastLayerMapping(nn.Module):
         self.half = max(w, h) / 2.0
         self.size = (w, h)
         self.frames = frames
+        # t's step per frame: a clip longer than cfg.mapping_time_frames keeps the step a clip that long has
+        span = frames if cfg.mapping_time_frames <= 0 else min(frames, cfg.mapping_time_frames)
+        self.t_scale = max(span / 2.0, 0.5)
+        self.t_offset = frames / 2.0 / self.t_scale
         # a coarse per-frame displacement field (pixels) for non-rigid motion the MLP is too smooth for;
         # cells of several pixels keep it low-frequency, and the rigidity terms keep it regular
         self.warp: Grid3D | None = None
@@ -162,7 +166,7 @@ class FastLayerMapping(nn.Module):
         # delta is in atlas units per normalised pixel, so Adam's step size means the same at any resolution
         uv = self.initial(xy, t)
         xn = xy / self.half - 1.0
-        tn = t.to(xy.dtype) / max(self.frames / 2.0, 0.5) - 1.0
+        tn = t.to(xy.dtype) / self.t_scale - self.t_offset
         d = self.delta[t]
         uv = uv + torch.einsum("nij,nj->ni", d[:, :, :2], xn) + d[:, :, 2]
         if self.residual is not None:

@@ -76,6 +76,10 @@ HEADLESS_SCRIPT = "addon/headless.py"
 #: Each fast budget is sized to its preset's wall-time target on a CPU (docs/accuracy-vs-time.md has the
 #: measurements); paper is the reference implementation's step count.
 PRESET_STEPS: dict[str, int] = {"draft": 800, "balanced": 6000, "final": 28000, "paper": 400000}
+#: The clip length each preset is tuned for (``FitConfig.batch_frames`` and ``mapping_time_frames``; 0: none): a
+#: longer clip draws more pixels a step in proportion, so its steps cost more so (the add-on's documented estimate
+#: scales them), and its mappings see a frame's step in time as such a clip's do.
+PRESET_CLIP_FRAMES: dict[str, int] = {"draft": 70, "balanced": 70, "final": 70, "paper": 0}
 #: The preset of a new fit that names none: `fit` without --preset, a farm shot without ``preset``.
 DEFAULT_PRESET = "balanced"
 
@@ -108,6 +112,7 @@ __all__ = [
     "FIT_RESUME_IF_STARTED_FLAG",
     "HEADLESS_SCRIPT",
     "INSTALLED_MODULE",
+    "PRESET_CLIP_FRAMES",
     "PRESET_STEPS",
     "RELINK_PLATE_ARG",
     "VERB_DEMO",

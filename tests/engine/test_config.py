@@ -311,3 +311,15 @@ def test_balanced_settles_its_mappings_rate_by_step_1600_and_draft_decays_it_ove
     ratio = balanced.lr_final_ratio
     assert mappings(1600) == pytest.approx(ratio) and mappings(4000) == pytest.approx(ratio)
     assert grids(1600) == pytest.approx(ratio ** (1600 / 6000)) and grids(6000) == pytest.approx(ratio)
+
+
+def test_a_clip_longer_than_the_batch_is_for_draws_more_pixels_a_step_and_a_shorter_one_the_batch():
+    """``batch_frames``: each frame keeps the samples a step gives it in a clip that long; the fast presets take it,
+    and ``mapping_time_frames``, from the contract (the add-on's estimate scales their steps by it), the paper preset
+    keeps its fixed batch."""
+    cfg = dataclasses.replace(FitConfig(), batch=4000, batch_frames=70)
+    assert [cfg.step_batch(n) for n in (1, 50, 70, 71, 140, 300)] == [4000, 4000, 4000, 4058, 8000, 17143]
+    assert dataclasses.replace(cfg, batch_frames=0).step_batch(300) == 4000
+    assert {n: PRESETS[n].batch_frames for n in PRESETS} == C.PRESET_CLIP_FRAMES
+    assert {n: PRESETS[n].mapping_time_frames for n in PRESETS} == C.PRESET_CLIP_FRAMES
+    assert C.PRESET_CLIP_FRAMES["paper"] == 0 and min(C.PRESET_CLIP_FRAMES[n] for n in ("draft", "final")) > 0

@@ -35,6 +35,16 @@ def test_the_documented_estimate_follows_the_overrides_steps_and_working_size():
     assert estimate.estimate_seconds("draft", 50, 854, 480, 384) < base  # a quarter of the working pixels
 
 
+def test_a_long_clips_steps_cost_more_as_its_batch_grows_and_the_paper_presets_do_not():
+    """A preset's batch grows with a clip longer than ``contract.PRESET_CLIP_FRAMES`` says (the engine's
+    ``FitConfig.step_batch``), and a step's time with its batch: the training part of the estimate scales so."""
+    assert estimate.batch_scale("draft", 70) == 1.0 and estimate.batch_scale("draft", 35) == 1.0
+    assert estimate.batch_scale("draft", 280) == pytest.approx(4.0) and estimate.batch_scale("paper", 280) == 1.0
+    short, long = (estimate.estimate_seconds("draft", n, 854, 480) for n in (70, 280))
+    overhead = estimate.OVERHEAD_SECONDS_PER_FRAME_MPX * 0.768 * 0.432
+    assert long - 280 * overhead == pytest.approx(4 * (short - 70 * overhead))
+
+
 def test_working_size_rounds_half_up_like_the_engine():
     """One definition (``contract.working_size``): a half rounds up, where Python's ``round`` rounds to even."""
     assert C.working_size(10, 5, 5) == (5, 3) and round(5 * 0.5) == 2

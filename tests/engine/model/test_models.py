@@ -265,3 +265,21 @@ def test_objective_gives_the_atlas_opacity_the_mappings_uvs():
     for k, v in terms.items():
         assert float(v.detach()) == pytest.approx(float(terms_self[k].detach()), rel=1e-5, abs=1e-7), k
     assert float(total.detach()) == pytest.approx(float(total_self.detach()), rel=1e-5)
+
+
+def test_a_clip_no_longer_than_mapping_time_frames_maps_as_before_and_a_longer_one_keeps_a_frames_step_in_t():
+    """``mapping_time_frames``: a clip that long or shorter gives its residual MLP the same time input, bit for bit,
+    as without it; a longer clip's frames are 2 / mapping_time_frames apart in t (centred on the clip), not
+    2 / frames, so a long shot asks the MLP for no faster change per unit of t than a short clip does."""
+    from engine.model.atlas_model import FastLayerMapping
+
+    plain, timed = preset_config("draft"), dataclasses.replace(preset_config("draft"), mapping_time_frames=70)
+    for frames in (1, 5, 70):
+        a, b = FastLayerMapping(_motion(), SIZE, frames, plain), FastLayerMapping(_motion(), SIZE, frames, timed)
+        t = torch.arange(frames, dtype=torch.float32)
+        assert torch.equal(t / max(frames / 2.0, 0.5) - 1.0, t / b.t_scale - b.t_offset)
+        assert (a.t_scale, a.t_offset) == (b.t_scale, b.t_offset)
+    long = FastLayerMapping(_motion(), SIZE, 300, timed)
+    tn = torch.arange(300, dtype=torch.float32) / long.t_scale - long.t_offset
+    assert torch.allclose(tn[1:] - tn[:-1], torch.full((299,), 2.0 / 70), atol=1e-6)
+    assert tn[0].item() == pytest.approx(-300 / 70) and tn[150].item() == pytest.approx(0.0, abs=1e-6)
