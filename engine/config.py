@@ -104,8 +104,8 @@ class FitConfig:
     batch_frames: Annotated[NonNegativeInt, Field(le=MAX_SAMPLES)] = 0
     """The clip length ``batch`` is for: a longer clip draws ``batch * frames / batch_frames`` pixels a step, so
     each frame keeps the samples a step gives it (0: ``batch`` whatever the length). Every fast preset: 70, the
-    length its steps were measured on; a 300-frame shot with the 70-frame batch gave each frame a quarter of the
-    samples and lost 6.3 dB (docs/accuracy-vs-time.md, *A long shot at 1080p*)."""
+    length its steps were measured on; with the 70-frame batch each frame of a 300-frame shot got a quarter of the
+    samples, and its background 3.8 dB less (docs/accuracy-vs-time.md, *A long shot at 1080p*)."""
     object_sample_share: Share = 0.0
     """Share of each step's pixels drawn from the masked objects and the ``mask_prior_margin_px`` band around
     them (the rest uniform over the clip): a small object gets enough samples for its mapping to track it."""
