@@ -257,3 +257,22 @@ def test_plate_values_within_the_limit_are_unchanged_bit_for_bit():
     hdr[1, 2, 2, 1] = -1e31
     _, faults = to_fitting_values(hdr, "linear")
     assert faults.absurd == [1]
+
+
+def test_a_clip_longer_than_its_batch_is_for_draws_a_larger_batch_every_step(clip, tmp_path, monkeypatch):
+    """A long tiny clip: with ``batch_frames`` shorter than the clip, the trainer's step (and the ETA's cost probe)
+    samples ``step_batch(frames)`` pixels, grown in proportion; at the clip's own length, the batch as given."""
+    drawn: list[int] = []
+    real = trainer.sample_batch
+
+    def counting(video, n, *args):  # type: ignore[no-untyped-def]
+        drawn.append(n)
+        return real(video, n, *args)
+
+    monkeypatch.setattr(trainer, "sample_batch", counting)
+    frames = SPEC.frames
+    for batch_frames, expected in ((frames // 4, 256 * 4), (frames, 256)):
+        drawn.clear()
+        tr = _trainer(clip, tmp_path / str(batch_frames), batch_frames=str(batch_frames))
+        tr.optimise(0)
+        assert drawn == [expected] and tr.cfg.step_batch(frames) == expected
