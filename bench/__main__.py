@@ -19,6 +19,7 @@ from bench.tool_parsers import (
     EXPORT_SIZE,
     FARM,
     FLOW_TRACKS,
+    LONG_PLATE,
     MASKS,
     MOTION_SCENES,
     PAINT_GAPS,
@@ -266,6 +267,16 @@ def _motion_scenes(args: argparse.Namespace) -> int:
     return C.EXIT_OK
 
 
+def _long_plate(args: argparse.Namespace) -> int:
+    from bench.long_plate import write_long_plate
+
+    if args.width < 16 or args.height < 16 or args.frames < 1:
+        problem, fix = "a long plate needs 16x16 pixels and a frame", "give --width/--height >= 16, --frames >= 1"
+        raise InputError(None, problem, fix)
+    print(str(write_long_plate(args.clip, args.out, args.width, args.height, args.frames).resolve()))
+    return C.EXIT_OK
+
+
 def _paint_gaps(args: argparse.Namespace) -> int:
     from bench.paint_gaps import plot_paint_gaps, read_table
 
@@ -319,6 +330,7 @@ def main(argv: list[str] | None = None) -> int:
         EXPECTED_PSNR: _expected_psnr,
         FARM: _farm,
         MOTION_SCENES: _motion_scenes,
+        LONG_PLATE: _long_plate,
         MASKS: _masks,
         PAINT_TRACKS: _paint_tracks,
         FLOW_TRACKS: _flow_tracks,

@@ -9,6 +9,8 @@ part of the product (its CLI is ``python -m engine``) and not in the extension z
     farm         shots one after another against the same shots through `farm dask` with local workers
     motion-scenes  synthetic clip folders with ground-truth tracks (turning, deforming, small_fast, thin,
                    turning_depth, limbs_jump)
+    long-plate   a real clip upscaled and played forward and back to a production size and length, with its
+                 masks and tracks
     masks        the mask snap alone on every clip of a folder: degraded masks' IoU before and after
     paint-tracks where paint on the exported atlases shows in each frame, scored against TAP-Vid tracks
     flow-tracks  the baseline: chained DIS optical flow on the native plate, scored the same way
@@ -38,6 +40,7 @@ SCENE_SPEED = "scene-speed"
 EXPECTED_PSNR = "expected-psnr"
 FARM = "farm"
 MOTION_SCENES = "motion-scenes"
+LONG_PLATE = "long-plate"
 MASKS = "masks"
 PAINT_TRACKS = "paint-tracks"
 FLOW_TRACKS = "flow-tracks"
@@ -76,6 +79,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_export_cost_parser(sub)
     _add_export_size_parser(sub)
     _add_motion_scenes_parser(sub)
+    _add_long_plate_parser(sub)
     return p
 
 
@@ -252,6 +256,23 @@ def _add_motion_scenes_parser(sub: argparse._SubParsersAction) -> None:
     ms.add_argument("--frames", type=int, default=36, help="frames per clip (default: 36)")
     ms.add_argument("--seed", type=int, default=0, help="texture seed (default: 0)")
     ms.add_argument("--kinds", default=None, metavar="K,K,...", help="scenes to write (default: all six)")
+
+
+def _add_long_plate_parser(sub: argparse._SubParsersAction) -> None:
+    lp = sub.add_parser(
+        LONG_PLATE,
+        help="a real clip upscaled and played forward and back to a production size and length, with its masks "
+        "and tracks",
+        description="Write OUT/frames, OUT/masks and OUT/tracks_tapvid.npz: CLIP's frames resized to WIDTHxHEIGHT "
+        "(bicubic; masks nearest) and played forward and back to FRAMES frames, the tracks scaled to the new size. "
+        "Its first frames are the clip's own, so a fit of them alone is the long fit's reference; see "
+        "docs/accuracy-vs-time.md, *A long shot at 1080p*.",
+    )
+    lp.add_argument("clip", metavar="CLIP", help="clip folder holding frames/ and masks/ (and tracks_tapvid.npz)")
+    lp.add_argument("out", metavar="OUT", help="folder to write")
+    lp.add_argument("--width", type=int, default=1920, help="frame width (default: 1920)")
+    lp.add_argument("--height", type=int, default=1080, help="frame height (default: 1080)")
+    lp.add_argument("--frames", type=int, default=300, help="frames to write (default: 300)")
 
 
 def _add_clips_parser(sub: argparse._SubParsersAction) -> None:
