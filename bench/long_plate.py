@@ -10,6 +10,7 @@ Frames are upscaled bicubic, masks nearest (they stay binary); written as 8-bit 
 
 from __future__ import annotations
 
+import shutil
 from dataclasses import replace
 from pathlib import Path
 
@@ -17,11 +18,12 @@ import cv2
 import numpy as np
 
 from bench.bench_clip import TRACKS_FILE
+from bench.report_file import to_plate_scale
 from bench.tracking import load_tracks, save_tracks
 from engine.errors import InputError
+from engine.io.clip_messages import FRAME, MASK, Role
 from engine.io.images import cv2_read, cv2_write
-
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+from engine.io.sequences import list_images
 
 
 def ping_pong(count: int, length: int) -> list[int]:
@@ -31,34 +33,41 @@ def ping_pong(count: int, length: int) -> list[int]:
     return [cycle[i % len(cycle)] for i in range(length)]
 
 
-def _images(folder: Path) -> list[Path]:
-    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES) if folder.is_dir() else []
+def _images(folder: Path, role: Role) -> list[Path]:
+    """The folder's images in frame-number order (the engine's own listing and its refusals)."""
+    files = list_images(str(folder), role) if folder.is_dir() else []
     if not files:
-        raise InputError(folder, "no PNG or JPEG frames here", "give a clip folder holding frames/ and masks/")
-    return files
+        raise InputError(folder, "no images here", "give a clip folder holding frames/ and masks/")
+    return [Path(f.path) for f in files]
 
 
 def write_long_plate(clip: str | Path, out: str | Path, width: int, height: int, length: int) -> Path:
     """Write ``out``/frames, ``out``/masks (and ``out``/tracks_tapvid.npz when the clip has tracks): the clip's
     frames at ``width`` x ``height``, ping-ponged to ``length`` frames. Returns ``out``."""
     clip, out = Path(clip), Path(out)
-    frames, masks = _images(clip / "frames"), _images(clip / "masks")
+    frames, masks = _images(clip / "frames", FRAME), _images(clip / "masks", MASK)
     if len(masks) != len(frames):
         raise InputError(clip / "masks", f"{len(masks)} masks for {len(frames)} frames", "give one mask a frame")
     for name in ("frames", "masks"):
         (out / name).mkdir(parents=True, exist_ok=True)
+    written: dict[int, int] = {}  # clip frame -> the long plate's first frame showing it: later ones are copies
     for i, k in enumerate(ping_pong(len(frames), length)):
         for name, files, interpolation in (
             ("frames", frames, cv2.INTER_CUBIC),
             ("masks", masks, cv2.INTER_NEAREST),
         ):
+            dest = out / name / f"{i:05d}.png"
+            if k in written:
+                shutil.copyfile(out / name / f"{written[k]:05d}.png", dest)
+                continue
             image = cv2_read(files[k])
             if image is None:
                 raise InputError(files[k], "cannot be decoded", "replace the file")
-            cv2_write(out / name / f"{i:05d}.png", cv2.resize(image, (width, height), interpolation=interpolation))
+            cv2_write(dest, cv2.resize(image, (width, height), interpolation=interpolation))
+        written.setdefault(k, i)
     if (clip / TRACKS_FILE).is_file():
         tracks = load_tracks(clip / TRACKS_FILE).cut(length)
-        scale = np.array([width / tracks.image_size[0], height / tracks.image_size[1]], dtype=np.float32)
+        scale = to_plate_scale(tracks, (width, height)).astype(np.float32)  # the tracks file is float32
         query = tracks.query_txy.copy()
         query[:, 1:] *= scale
         scaled = replace(tracks, xy=tracks.xy * scale, query_txy=query, image_size=(width, height))

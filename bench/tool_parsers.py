@@ -242,6 +242,12 @@ def _add_expected_psnr_parser(sub: argparse._SubParsersAction) -> None:
     ep.add_argument("--note", required=True, help="one line: where the measurement is documented")
 
 
+def _add_frame_size(parser: argparse.ArgumentParser, width: int, height: int) -> None:
+    """--width and --height of the frames a tool writes, with their defaults."""
+    parser.add_argument("--width", type=int, default=width, help=f"frame width (default: {width})")
+    parser.add_argument("--height", type=int, default=height, help=f"frame height (default: {height})")
+
+
 def _add_motion_scenes_parser(sub: argparse._SubParsersAction) -> None:
     ms = sub.add_parser(
         MOTION_SCENES,
@@ -251,8 +257,7 @@ def _add_motion_scenes_parser(sub: argparse._SubParsersAction) -> None:
         "coordinate of every pixel), ready for `clips OUT`; see docs/accuracy-vs-time.md.",
     )
     ms.add_argument("out", metavar="OUT", help="folder for the clip folders")
-    ms.add_argument("--width", type=int, default=480, help="frame width (default: 480)")
-    ms.add_argument("--height", type=int, default=272, help="frame height (default: 272)")
+    _add_frame_size(ms, 480, 272)
     ms.add_argument("--frames", type=int, default=36, help="frames per clip (default: 36)")
     ms.add_argument("--seed", type=int, default=0, help="texture seed (default: 0)")
     ms.add_argument("--kinds", default=None, metavar="K,K,...", help="scenes to write (default: all six)")
@@ -270,8 +275,7 @@ def _add_long_plate_parser(sub: argparse._SubParsersAction) -> None:
     )
     lp.add_argument("clip", metavar="CLIP", help="clip folder holding frames/ and masks/ (and tracks_tapvid.npz)")
     lp.add_argument("out", metavar="OUT", help="folder to write")
-    lp.add_argument("--width", type=int, default=1920, help="frame width (default: 1920)")
-    lp.add_argument("--height", type=int, default=1080, help="frame height (default: 1080)")
+    _add_frame_size(lp, 1920, 1080)
     lp.add_argument("--frames", type=int, default=300, help="frames to write (default: 300)")
 
 
